@@ -1,0 +1,1 @@
+"""User-facing programs built on the public API: demo, monitor, gateway, operator panel."""

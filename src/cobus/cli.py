@@ -1,0 +1,59 @@
+"""The ``cobus`` command line.
+
+Each area of the package contributes its sub-commands through a ``register(subparsers)``
+function in a private ``_cli`` module; this file only assembles them, so adding a command never
+means editing the others.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from cobus import __version__
+
+# Modules with a ``register(subparsers)`` function, in the order their commands are listed.
+_COMMAND_MODULES = (
+    "cobus.od._cli",
+    "cobus.apps.demo",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="cobus",
+        description="CANopen master, device, simulators and tools.",
+    )
+    parser.add_argument("--version", action="version", version=f"cobus {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in _COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:
+                raise
+            continue
+        module.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    handler = getattr(args, "handler", None)
+    if handler is None:
+        parser.print_help()
+        return 2
+    try:
+        result = handler(args)
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:
+        return 0
+    return int(result or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
