@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from cobus.proto.frame import Frame
-from conftest import VECTORS_DIR
+from tests.conftest import VECTORS_DIR
 
 
 @dataclass

@@ -31,7 +31,7 @@ class Out(NamedTuple):
     frames: tuple[Frame, ...] = ()
     events: tuple[Event, ...] = ()
 
-    def __add__(self, other: object) -> Out:  # type: ignore[override]
+    def __add__(self, other: object) -> Out:
         if not isinstance(other, Out):
             return NotImplemented
         if not other.frames and not other.events:
