@@ -1,0 +1,551 @@
+"""The asyncio network: one bus, one loop, one clock, and the dispatch COB-ID -> handlers.
+
+Everything that touches protocol state runs on the network's event loop, so nothing needs a
+lock. Frames sent by anything attached to the network are also delivered to the network's own
+handlers (local echo, as a CAN controller's loopback does), so a master and simulated devices
+attached to one network see each other exactly as they would on a wire.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+from collections import deque
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import can
+
+from cobus.errors import CobusError
+from cobus.proto import Event, Frame, Machine, Out
+from cobus.runtime import bus as _bus
+from cobus.runtime.events import (
+    BusState,
+    BusStateChanged,
+    HandlerFailed,
+    ReceiveFailed,
+    TxQueueFull,
+    TxResumed,
+)
+from cobus.runtime.loop import SimulatedEventLoop
+
+__all__ = [
+    "AsyncNetwork",
+    "FrameHandler",
+    "MachineHost",
+    "NetworkClosedError",
+    "Subscription",
+    "TxOverflowError",
+]
+
+log = logging.getLogger(__name__)
+
+FrameHandler = Callable[[Frame, float], None]
+EventListener = Callable[[Event], Any]
+
+_EXT = 1 << 31  # dispatch key flag for 29-bit identifiers
+_BATCH = 256  # frames taken from the interface per wake-up
+_RETRY = 0.001  # seconds between attempts to flush the transmit backlog
+
+
+class NetworkClosedError(CobusError, RuntimeError):
+    """The network is not connected (never connected, or already disconnected)."""
+
+
+class TxOverflowError(CobusError):
+    """The transmit backlog is full: the interface has refused frames for too long.
+
+    Raised by :meth:`AsyncNetwork.send` instead of dropping the frame silently. The bus is
+    probably off or disconnected; see the :class:`~cobus.runtime.events.TxQueueFull` event.
+    """
+
+
+def _key(cob_id: int, extended: bool) -> int:
+    return cob_id | _EXT if extended else cob_id
+
+
+class Subscription:
+    """A registered frame handler; :meth:`cancel` removes it."""
+
+    __slots__ = ("_handler", "_key", "_network")
+
+    def __init__(self, network: AsyncNetwork, key: int | None, handler: FrameHandler) -> None:
+        self._network = network
+        self._key = key
+        self._handler = handler
+
+    def cancel(self) -> None:
+        self._network._unsubscribe(self._key, self._handler)
+
+
+class MachineHost:
+    """Drives one sans-I/O machine: feeds it frames, sends its frames, arms its timer.
+
+    Its events go to ``on_event``. :meth:`run` applies any other call of the machine
+    (``host.run(lambda now: client.start_upload(0x1000, 0, now))``).
+    """
+
+    __slots__ = ("_armed", "_handle", "_network", "_subscriptions", "machine", "on_event")
+
+    def __init__(
+        self,
+        network: AsyncNetwork,
+        machine: Machine,
+        on_event: Callable[[Event], None] | None,
+    ) -> None:
+        self._network = network
+        self.machine = machine
+        self.on_event = on_event
+        self._armed: float | None = None
+        self._handle: asyncio.TimerHandle | None = None
+        self._subscriptions: list[Subscription] = []
+
+    def listen(self, cob_id: int, *, extended: bool = False) -> None:
+        self._subscriptions.append(self._network.subscribe(cob_id, self.feed, extended=extended))
+
+    def feed(self, frame: Frame, now: float) -> None:
+        self.apply(self.machine.on_frame(frame, now))
+
+    def run(self, call: Callable[[float], Out]) -> None:
+        self.apply(call(self._network.time()))
+
+    def apply(self, out: Out) -> None:
+        if out.frames:
+            send = self._network.send
+            for frame in out.frames:
+                send(frame)
+        if out.events and self.on_event is not None:
+            for event in out.events:
+                self.on_event(event)
+        deadline = self.machine.deadline
+        if deadline != self._armed:
+            self._rearm(deadline)
+
+    def _rearm(self, deadline: float | None) -> None:
+        if self._handle is not None:
+            self._handle.cancel()
+            self._handle = None
+        self._armed = deadline
+        if deadline is not None:
+            self._handle = self._network.loop.call_at(deadline, self._fire, deadline)
+
+    def _fire(self, deadline: float) -> None:
+        self._handle = None
+        self._armed = None
+        now = max(self._network.time(), deadline)
+        try:
+            out = self.machine.on_timer(now)
+        except Exception as exc:  # a machine bug must not stop the network
+            self._network._report_failure(f"timer of {type(self.machine).__name__}", exc)
+            return
+        self.apply(out)
+
+    def close(self) -> None:
+        for sub in self._subscriptions:
+            sub.cancel()
+        self._subscriptions.clear()
+        self._rearm(None)
+
+
+class AsyncNetwork:
+    """A CAN network on one python-can bus, driven by an asyncio loop.
+
+    Give it an open python-can ``bus``, or the arguments to open one (``interface``,
+    ``channel``, ``bitrate`` and any python-can option); left out, python-can's configuration and
+    the ``CAN_*`` environment variables apply. On a :class:`SimulatedEventLoop` with no bus
+    given, the network opens a private python-can ``virtual`` bus.
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC | None = None,
+        *,
+        interface: str | None = None,
+        channel: Any = None,
+        bitrate: int | None = None,
+        tx_backlog: int = 4096,
+        **bus_kwargs: Any,
+    ) -> None:
+        self._bus = bus
+        self._owns_bus = bus is None
+        self._bus_args: dict[str, Any] = dict(bus_kwargs)
+        self._bus_args.update(interface=interface, channel=channel, bitrate=bitrate)
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._handlers: dict[int, list[FrameHandler]] = {}
+        self._monitors: list[FrameHandler] = []
+        self._listeners: list[EventListener] = []
+        self._inbound: deque[Frame] = deque()
+        self._drain_pending = False
+        self._backlog: deque[Frame] = deque()
+        self._backlog_limit = tx_backlog
+        self._retry_handle: asyncio.TimerHandle | None = None
+        self._tx_blocked = False
+        self._state = BusState.ACTIVE
+        self._reader: threading.Thread | None = None
+        self._reader_stop = threading.Event()
+        self._fd: int | None = None
+        self._poll_hook: Callable[[], bool] | None = None
+        self._state_poll: asyncio.TimerHandle | None = None
+        self.frames_received = 0
+        self.frames_sent = 0
+
+    # ------------------------------------------------------------------ life cycle
+    async def connect(self) -> AsyncNetwork:
+        """Open the bus (if needed) and start receiving. Returns the network."""
+        if self._loop is not None:
+            return self
+        loop = asyncio.get_running_loop()
+        self._loop = loop
+        if self._bus is None:
+            args = {k: v for k, v in self._bus_args.items() if v is not None}
+            if isinstance(loop, SimulatedEventLoop) and "interface" not in args:
+                args.update(interface="virtual", channel=f"cobus-sim-{id(self):x}")
+            self._bus = _bus.open_bus(**args)
+        self._start_receiving(loop, self._bus)
+        return self
+
+    async def disconnect(self) -> None:
+        """Stop receiving; shut the bus down if this network opened it."""
+        loop = self._loop
+        if loop is None:
+            return
+        self._stop_receiving(loop)
+        for handle in (self._retry_handle, self._state_poll):
+            if handle is not None:
+                handle.cancel()
+        self._loop = None
+        if self._owns_bus and self._bus is not None:
+            self._bus.shutdown()
+            self._bus = None
+
+    async def __aenter__(self) -> AsyncNetwork:
+        return await self.connect()
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.disconnect()
+
+    @property
+    def loop(self) -> asyncio.AbstractEventLoop:
+        if self._loop is None:
+            raise NetworkClosedError("the network is not connected: await network.connect()")
+        return self._loop
+
+    @property
+    def bus(self) -> can.BusABC:
+        if self._bus is None:
+            raise NetworkClosedError("the network is not connected: await network.connect()")
+        return self._bus
+
+    @property
+    def connected(self) -> bool:
+        return self._loop is not None
+
+    @property
+    def simulated(self) -> bool:
+        return isinstance(self._loop, SimulatedEventLoop)
+
+    def time(self) -> float:
+        """The network's clock in seconds (virtual on a simulated loop)."""
+        return self.loop.time()
+
+    async def sleep(self, seconds: float) -> None:
+        """Let the network run for ``seconds`` (virtual seconds on a simulated loop)."""
+        await asyncio.sleep(seconds)
+
+    @property
+    def bus_state(self) -> BusState:
+        return self._state
+
+    @property
+    def tx_backlog(self) -> int:
+        return len(self._backlog)
+
+    # ------------------------------------------------------------------ frames
+    def subscribe(
+        self, cob_id: int, handler: FrameHandler, *, extended: bool = False
+    ) -> Subscription:
+        """Call ``handler(frame, now)`` for every frame with this identifier."""
+        key = _key(cob_id, extended)
+        self._handlers.setdefault(key, []).append(handler)
+        return Subscription(self, key, handler)
+
+    def subscribe_all(self, handler: FrameHandler) -> Subscription:
+        """Call ``handler(frame, now)`` for every frame (a monitor or trace writer)."""
+        self._monitors.append(handler)
+        return Subscription(self, None, handler)
+
+    def _unsubscribe(self, key: int | None, handler: FrameHandler) -> None:
+        handlers = self._monitors if key is None else self._handlers.get(key)
+        if handlers and handler in handlers:
+            handlers.remove(handler)
+            if key is not None and not handlers:
+                del self._handlers[key]
+
+    def send(self, frame: Frame) -> None:
+        """Transmit ``frame``; must be called on the network's loop.
+
+        If the interface refuses it (buffer full, bus-off) the frame waits in a backlog and goes
+        out when the interface takes frames again; :class:`TxOverflowError` if that backlog is
+        full. Handlers of this network receive the frame once it is on the bus.
+        """
+        if self._bus is None:
+            raise NetworkClosedError("cannot send: the network is not connected")
+        if self._backlog:
+            self._enqueue(frame)
+            return
+        try:
+            self._bus.send(_bus.frame_to_message(frame), timeout=0)
+        except (can.CanError, OSError) as exc:
+            self._enqueue(frame)
+            self._blocked(str(exc))
+            return
+        self.frames_sent += 1
+        self._deliver(frame)
+
+    def attach(
+        self,
+        machine: Machine,
+        cob_ids: Iterable[int] = (),
+        on_event: Callable[[Event], None] | None = None,
+    ) -> MachineHost:
+        """Drive ``machine`` on this network: frames on ``cob_ids`` in, its output out."""
+        host = MachineHost(self, machine, on_event)
+        for cob_id in cob_ids:
+            host.listen(cob_id)
+        return host
+
+    # ------------------------------------------------------------------ events
+    def add_listener(self, listener: EventListener) -> None:
+        """Call ``listener(event)`` for every event of the network (bus state, nodes...).
+
+        Listeners run on the loop and must return quickly; a coroutine function is run as a
+        task.
+        """
+        self._listeners.append(listener)
+
+    def remove_listener(self, listener: EventListener) -> None:
+        if listener in self._listeners:
+            self._listeners.remove(listener)
+
+    def emit(self, event: Event) -> None:
+        for listener in list(self._listeners):
+            try:
+                result = listener(event)
+                if asyncio.iscoroutine(result):
+                    self.loop.create_task(result)
+            except Exception as exc:
+                log.exception("event listener %r failed", listener)
+                if not isinstance(event, HandlerFailed):
+                    self.emit(HandlerFailed(f"listener {listener!r}", repr(exc)))
+
+    def _report_failure(self, where: str, exc: BaseException) -> None:
+        log.error("%s failed: %r", where, exc, exc_info=exc)
+        self.emit(HandlerFailed(where, repr(exc)))
+
+    # ------------------------------------------------------------------ transmit backlog
+    def _enqueue(self, frame: Frame) -> None:
+        if len(self._backlog) >= self._backlog_limit:
+            raise TxOverflowError(
+                f"transmit backlog full ({self._backlog_limit} frames): the interface has not "
+                f"accepted frames for a while (bus state {self._state.value}); frame {frame!r} "
+                "was not sent"
+            )
+        self._backlog.append(frame)
+
+    def _blocked(self, reason: str) -> None:
+        if not self._tx_blocked:
+            self._tx_blocked = True
+            self.emit(TxQueueFull(len(self._backlog), reason))
+        if self._retry_handle is None and self._loop is not None:
+            self._retry_handle = self._loop.call_later(_RETRY, self._flush)
+
+    def _flush(self) -> None:
+        self._retry_handle = None
+        bus = self._bus
+        if bus is None:
+            return
+        while self._backlog:
+            frame = self._backlog[0]
+            try:
+                bus.send(_bus.frame_to_message(frame), timeout=0)
+            except (can.CanError, OSError) as exc:
+                self._blocked(str(exc))
+                return
+            self._backlog.popleft()
+            self.frames_sent += 1
+            self._deliver(frame)
+        if self._tx_blocked:
+            self._tx_blocked = False
+            self.emit(TxResumed())
+
+    # ------------------------------------------------------------------ receive path
+    def _deliver(self, frame: Frame) -> None:
+        self._inbound.append(frame)
+        if not self._drain_pending and self._loop is not None:
+            self._drain_pending = True
+            self._loop.call_soon(self._drain)
+
+    def _drain(self) -> None:
+        self._drain_pending = False
+        inbound = self._inbound
+        if not inbound or self._loop is None:
+            return
+        now = self._loop.time()
+        handlers = self._handlers
+        monitors = self._monitors
+        while inbound:
+            frame = inbound.popleft()
+            if monitors:
+                self._call_all(monitors, frame, now)
+            targets = handlers.get(frame.cob_id | _EXT if frame.extended else frame.cob_id)
+            if targets:
+                if len(targets) == 1:
+                    try:
+                        targets[0](frame, now)
+                    except Exception as exc:
+                        self._report_failure(f"handler of {frame!r}", exc)
+                else:
+                    self._call_all(targets, frame, now)
+
+    def _call_all(self, targets: list[FrameHandler], frame: Frame, now: float) -> None:
+        for handler in list(targets):
+            try:
+                handler(frame, now)
+            except Exception as exc:
+                self._report_failure(f"handler of {frame!r}", exc)
+
+    def _on_messages(self, messages: Iterable[can.Message]) -> None:
+        for msg in messages:
+            if msg.is_error_frame:
+                self._on_error_frame(msg)
+                continue
+            frame = _bus.message_to_frame(msg)
+            if frame is None:
+                continue
+            self.frames_received += 1
+            self._inbound.append(frame)
+        if self._inbound and not self._drain_pending:
+            self._drain()
+
+    def _on_error_frame(self, msg: can.Message) -> None:
+        events, state, tx, rx = _bus.decode_error_frame(msg)
+        for event in events:
+            self.emit(event)
+        if state is not None:
+            self._set_state(state, tx, rx)
+
+    def _set_state(self, state: BusState, tx: int | None = None, rx: int | None = None) -> None:
+        if state is self._state:
+            return
+        old, self._state = self._state, state
+        self.emit(BusStateChanged(old, state, tx, rx))
+        if state is not BusState.BUS_OFF and self._backlog and self._retry_handle is None:
+            self._flush()
+
+    # -- receivers: a file descriptor on the loop, a thread, or a poll hook (simulated clock)
+    def _start_receiving(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
+        if isinstance(loop, SimulatedEventLoop):
+            self._poll_hook = self._poll
+            loop.add_poll_hook(self._poll)
+            return
+        fd = -1
+        try:
+            fd = bus.fileno()
+        except (NotImplementedError, OSError, ValueError):
+            fd = -1
+        if isinstance(fd, int) and fd >= 0:
+            try:
+                loop.add_reader(fd, self._read_ready)
+                self._fd = fd
+            except (NotImplementedError, RuntimeError):
+                self._fd = None
+        if self._fd is None:
+            self._reader_stop.clear()
+            self._reader = threading.Thread(
+                target=self._reader_thread, args=(loop, bus), name="cobus-rx", daemon=True
+            )
+            self._reader.start()
+        if _bus.interface_reports_state(bus):
+            self._state_poll = loop.call_later(0.5, self._poll_state)
+
+    def _stop_receiving(self, loop: asyncio.AbstractEventLoop) -> None:
+        if self._poll_hook is not None and isinstance(loop, SimulatedEventLoop):
+            loop.remove_poll_hook(self._poll_hook)
+            self._poll_hook = None
+        if self._fd is not None:
+            loop.remove_reader(self._fd)
+            self._fd = None
+        if self._reader is not None:
+            self._reader_stop.set()
+            self._reader.join(timeout=2.0)
+            self._reader = None
+
+    def _take(self, bus: can.BusABC) -> list[can.Message]:
+        batch: list[can.Message] = []
+        while len(batch) < _BATCH:
+            msg = bus.recv(0)
+            if msg is None:
+                break
+            batch.append(msg)
+        return batch
+
+    def _poll(self) -> bool:
+        bus = self._bus
+        if bus is None:
+            return False
+        try:
+            batch = self._take(bus)
+        except (can.CanError, OSError) as exc:
+            self.emit(ReceiveFailed(str(exc)))
+            return False
+        if batch:
+            self.loop.call_soon(self._on_messages, batch)
+            return True
+        return False
+
+    def _read_ready(self) -> None:
+        bus = self._bus
+        if bus is None:
+            return
+        try:
+            batch = self._take(bus)
+        except (can.CanError, OSError) as exc:
+            self.emit(ReceiveFailed(str(exc)))
+            return
+        if batch:
+            self._on_messages(batch)
+
+    def _reader_thread(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
+        backoff = 0.05
+        while not self._reader_stop.is_set():
+            try:
+                msg = bus.recv(0.05)
+                if msg is None:
+                    continue
+                batch = [msg, *self._take(bus)]
+                backoff = 0.05
+            except (can.CanError, OSError, ValueError) as exc:
+                if self._reader_stop.is_set():
+                    return
+                try:
+                    loop.call_soon_threadsafe(self.emit, ReceiveFailed(str(exc)))
+                except RuntimeError:
+                    return
+                self._reader_stop.wait(backoff)
+                backoff = min(backoff * 2, 1.0)
+                continue
+            try:
+                loop.call_soon_threadsafe(self._on_messages, batch)
+            except RuntimeError:  # the loop is closed
+                return
+
+    def _poll_state(self) -> None:
+        self._state_poll = None
+        bus = self._bus
+        if bus is None or self._loop is None:
+            return
+        state = _bus.read_state(bus)
+        if state is not None:
+            self._set_state(state)
+        self._state_poll = self._loop.call_later(0.5, self._poll_state)

@@ -1,0 +1,296 @@
+import asyncio
+from dataclasses import dataclass
+
+import can
+import pytest
+
+from cobus.proto import NOTHING, Event, Frame, Out
+from cobus.runtime.bus import BusOpenError, decode_error_frame, open_bus
+from cobus.runtime.events import (
+    BusErrorFrame,
+    BusState,
+    BusStateChanged,
+    HandlerFailed,
+    RxOverflow,
+    TxQueueFull,
+    TxResumed,
+)
+from cobus.runtime.loop import SimulatedEventLoop
+from cobus.runtime.network import AsyncNetwork, NetworkClosedError, TxOverflowError
+
+
+def simulate(coro):
+    loop = SimulatedEventLoop()
+    try:
+        return loop.run_until_complete(coro)
+    finally:
+        loop.close()
+
+
+def test_local_echo_delivers_own_frames_to_own_handlers():
+    async def main():
+        async with AsyncNetwork() as net:
+            got = []
+            net.subscribe(0x181, lambda f, now: got.append((f, now)))
+            net.send(Frame(0x181, b"\x01\x02"))
+            net.send(Frame(0x182, b"\x03"))
+            await net.sleep(0.01)
+            return got, net.frames_sent
+
+    got, sent = simulate(main())
+    assert got == [(Frame(0x181, b"\x01\x02"), 0.0)]
+    assert sent == 2
+
+
+def test_two_networks_on_one_virtual_channel_in_simulated_time():
+    async def main():
+        a = await AsyncNetwork(interface="virtual", channel="t-two").connect()
+        b = await AsyncNetwork(interface="virtual", channel="t-two").connect()
+        got_a, got_b = [], []
+        a.subscribe(0x585, lambda f, now: got_a.append(f))
+        b.subscribe(0x605, lambda f, now: (got_b.append(f), b.send(Frame(0x585, b"\x60"))))
+        await asyncio.sleep(1.0)
+        a.send(Frame(0x605, b"\x40"))
+        await asyncio.sleep(0.001)
+        await a.disconnect()
+        await b.disconnect()
+        return got_a, got_b, a.frames_received, b.frames_received
+
+    got_a, got_b, rx_a, rx_b = simulate(main())
+    assert got_b == [Frame(0x605, b"\x40")]
+    assert got_a == [Frame(0x585, b"\x60")]
+    assert (rx_a, rx_b) == (1, 1)
+
+
+def test_real_time_network_with_reader_thread():
+    async def main():
+        a = await AsyncNetwork(interface="virtual", channel="t-real").connect()
+        b = await AsyncNetwork(interface="virtual", channel="t-real").connect()
+        got = asyncio.get_running_loop().create_future()
+        b.subscribe(0x77, lambda f, now: got.done() or got.set_result(f))
+        a.send(Frame(0x77, b"\xaa", extended=False))
+        frame = await asyncio.wait_for(got, 2.0)
+        await a.disconnect()
+        await b.disconnect()
+        return frame
+
+    assert asyncio.run(main()) == Frame(0x77, b"\xaa")
+
+
+def test_extended_and_standard_identifiers_are_dispatched_apart():
+    async def main():
+        async with AsyncNetwork() as net:
+            std, ext = [], []
+            net.subscribe(0x100, lambda f, now: std.append(f))
+            net.subscribe(0x100, lambda f, now: ext.append(f), extended=True)
+            net.send(Frame(0x100, b"\x01", extended=True))
+            net.send(Frame(0x100, b"\x02"))
+            await net.sleep(0)
+            await net.sleep(0)
+            return std, ext
+
+    std, ext = simulate(main())
+    assert [f.data for f in std] == [b"\x02"]
+    assert [f.data for f in ext] == [b"\x01"]
+
+
+def test_a_failing_handler_is_reported_and_the_network_goes_on():
+    async def main():
+        async with AsyncNetwork() as net:
+            events, got = [], []
+            net.add_listener(events.append)
+
+            def bad(frame, now):
+                raise ZeroDivisionError("boom")
+
+            net.subscribe(0x10, bad)
+            net.subscribe(0x10, lambda f, now: got.append(f))
+            net.send(Frame(0x10))
+            await net.sleep(0.01)
+            return events, got
+
+    events, got = simulate(main())
+    assert got == [Frame(0x10)]
+    assert any(isinstance(e, HandlerFailed) and "boom" in e.error for e in events)
+
+
+def test_subscription_cancel_and_monitor():
+    async def main():
+        async with AsyncNetwork() as net:
+            seen, all_frames = [], []
+            sub = net.subscribe(0x20, lambda f, now: seen.append(f))
+            mon = net.subscribe_all(lambda f, now: all_frames.append(f))
+            net.send(Frame(0x20))
+            await net.sleep(0.01)
+            sub.cancel()
+            net.send(Frame(0x20))
+            await net.sleep(0.01)
+            mon.cancel()
+            net.send(Frame(0x21))
+            await net.sleep(0.01)
+            return seen, all_frames
+
+    seen, all_frames = simulate(main())
+    assert len(seen) == 1
+    assert len(all_frames) == 2
+
+
+class RefusingBus(can.BusABC):
+    """A python-can bus whose controller can be switched to refuse frames (bus-off)."""
+
+    def __init__(self, channel="refusing", **kwargs):
+        self.refuse = False
+        self.sent: list[can.Message] = []
+        self.rx: list[can.Message] = []
+        super().__init__(channel=channel, **kwargs)
+
+    def send(self, msg, timeout=None):
+        if self.refuse:
+            raise can.CanOperationError("Transmit buffer full")
+        self.sent.append(msg)
+
+    def _recv_internal(self, timeout):
+        if self.rx:
+            return self.rx.pop(0), False
+        return None, False
+
+
+def test_refused_frames_wait_in_the_backlog_and_nothing_is_lost():
+    bus = RefusingBus()
+
+    async def main():
+        async with AsyncNetwork(bus) as net:
+            events = []
+            net.add_listener(events.append)
+            bus.refuse = True
+            for i in range(5):
+                net.send(Frame(0x200, bytes([i])))
+            await net.sleep(0.05)
+            assert net.tx_backlog == 5
+            bus.refuse = False
+            await net.sleep(0.01)
+            return events, net.tx_backlog
+
+    events, backlog = simulate(main())
+    assert [m.data[0] for m in bus.sent] == [0, 1, 2, 3, 4]
+    assert backlog == 0
+    kinds = [type(e) for e in events]
+    assert kinds.count(TxQueueFull) == 1 and kinds.count(TxResumed) == 1
+    assert kinds.index(TxQueueFull) < kinds.index(TxResumed)
+
+
+def test_backlog_overflow_raises_instead_of_dropping():
+    bus = RefusingBus()
+
+    async def main():
+        async with AsyncNetwork(bus, tx_backlog=3) as net:
+            bus.refuse = True
+            for i in range(3):
+                net.send(Frame(0x200, bytes([i])))
+            with pytest.raises(TxOverflowError, match="backlog full"):
+                net.send(Frame(0x200, b"\x09"))
+
+    simulate(main())
+
+
+def error_frame(ident, data=b"\x00" * 8):
+    return can.Message(arbitration_id=ident, data=data, is_error_frame=True, is_extended_id=True)
+
+
+def test_error_frames_become_bus_state_events():
+    bus = RefusingBus()
+
+    async def main():
+        async with AsyncNetwork(bus) as net:
+            events = []
+            net.add_listener(events.append)
+            bus.rx.append(error_frame(0x004, bytes([0, 0x20, 0, 0, 0, 0, 0, 0])))
+            await net.sleep(0.01)
+            bus.rx.append(error_frame(0x040))
+            await net.sleep(0.01)
+            bus.rx.append(error_frame(0x100))
+            await net.sleep(0.01)
+            return events, net.bus_state
+
+    events, state = simulate(main())
+    changes = [(e.old, e.new) for e in events if isinstance(e, BusStateChanged)]
+    assert changes == [
+        (BusState.ACTIVE, BusState.PASSIVE),
+        (BusState.PASSIVE, BusState.BUS_OFF),
+        (BusState.BUS_OFF, BusState.ACTIVE),
+    ]
+    assert state is BusState.ACTIVE
+    assert sum(isinstance(e, BusErrorFrame) for e in events) == 3
+
+
+def test_decode_error_frame_overflow_and_counters():
+    events, state, tx, rx = decode_error_frame(
+        error_frame(0x204, bytes([0, 0x01 | 0x08, 0, 0, 0, 0, 97, 12]))
+    )
+    assert state is BusState.WARNING
+    assert (tx, rx) == (97, 12)
+    assert any(isinstance(e, RxOverflow) for e in events)
+    assert events[0].classes == ("controller",)
+
+
+@dataclass(frozen=True, slots=True)
+class Tick(Event):
+    at: float
+
+
+class Ticker:
+    """A minimal machine: sends a frame every period, counts frames it receives."""
+
+    def __init__(self, period: float) -> None:
+        self.period = period
+        self.next: float | None = period
+        self.received = 0
+
+    @property
+    def deadline(self) -> float | None:
+        return self.next
+
+    def on_frame(self, frame: Frame, now: float) -> Out:
+        self.received += 1
+        if frame.data == b"stop":
+            self.next = None
+        return NOTHING
+
+    def on_timer(self, now: float) -> Out:
+        assert self.next is not None and now >= self.next
+        self.next = now + self.period
+        return Out((Frame(0x80),), (Tick(now),))
+
+
+def test_machine_host_arms_timers_on_the_virtual_clock():
+    async def main():
+        async with AsyncNetwork() as net:
+            ticks = []
+            machine = Ticker(0.5)
+            host = net.attach(machine, [0x99], on_event=ticks.append)
+            host.apply(NOTHING)  # arm the first timer
+            await net.sleep(2.2)
+            net.send(Frame(0x99, b"stop"))
+            await net.sleep(5)
+            host.close()
+            return ticks, machine.received
+
+    ticks, received = simulate(main())
+    assert [t.at for t in ticks] == pytest.approx([0.5, 1.0, 1.5, 2.0])
+    assert received == 1
+
+
+def test_using_a_closed_network_is_a_clear_error():
+    net = AsyncNetwork()
+    with pytest.raises(NetworkClosedError, match="not connected"):
+        net.send(Frame(1))
+    with pytest.raises(NetworkClosedError):
+        net.time()
+
+
+def test_open_bus_without_interface_says_what_to_do(monkeypatch):
+    monkeypatch.delenv("CAN_INTERFACE", raising=False)
+    monkeypatch.setenv("HOME", "/nonexistent")
+    monkeypatch.chdir("/")
+    with pytest.raises(BusOpenError, match="interface"):
+        open_bus(channel="x")
