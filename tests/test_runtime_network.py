@@ -230,7 +230,8 @@ def test_decode_error_frame_overflow_and_counters():
     assert state is BusState.WARNING
     assert (tx, rx) == (97, 12)
     assert any(isinstance(e, RxOverflow) for e in events)
-    assert events[0].classes == ("controller",)
+    first = events[0]
+    assert isinstance(first, BusErrorFrame) and first.classes == ("controller",)
 
 
 @dataclass(frozen=True, slots=True)

@@ -41,7 +41,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-FrameHandler = Callable[[Frame, float], None]
+FrameHandler = Callable[[Frame, float], object]
 EventListener = Callable[[Event], Any]
 
 _EXT = 1 << 31  # dispatch key flag for 29-bit identifiers
