@@ -1,0 +1,50 @@
+"""The runtime: binds protocol machines to a python-can bus and a clock.
+
+- :class:`AsyncNetwork` — the asyncio API.
+- :class:`Network` — the same operations for blocking code (loop in a background thread, or
+  inline on the simulated clock).
+- :class:`SimulatedEventLoop` — the virtual clock.
+"""
+
+from cobus.runtime.blocking import Network
+from cobus.runtime.bus import BusOpenError, open_bus
+from cobus.runtime.events import (
+    BusErrorFrame,
+    BusState,
+    BusStateChanged,
+    HandlerFailed,
+    ReceiveFailed,
+    RxOverflow,
+    TxQueueFull,
+    TxResumed,
+)
+from cobus.runtime.loop import SimulatedEventLoop, SimulationStalledError, new_event_loop
+from cobus.runtime.network import (
+    AsyncNetwork,
+    MachineHost,
+    NetworkClosedError,
+    Subscription,
+    TxOverflowError,
+)
+
+__all__ = [
+    "AsyncNetwork",
+    "BusErrorFrame",
+    "BusOpenError",
+    "BusState",
+    "BusStateChanged",
+    "HandlerFailed",
+    "MachineHost",
+    "Network",
+    "NetworkClosedError",
+    "ReceiveFailed",
+    "RxOverflow",
+    "SimulatedEventLoop",
+    "SimulationStalledError",
+    "Subscription",
+    "TxOverflowError",
+    "TxQueueFull",
+    "TxResumed",
+    "new_event_loop",
+    "open_bus",
+]

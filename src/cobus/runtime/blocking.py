@@ -1,0 +1,191 @@
+"""The blocking facade: the same network for scripts and the REPL, without ``await``.
+
+In real time the event loop runs in a background thread and each call waits for its result.
+On the simulated clock there is no thread: each call runs the loop in the caller's thread until
+the call is done, so virtual time only moves while the caller waits (``net.sleep(10)`` jumps
+ten virtual seconds) and a script's behaviour is the same on every run.
+
+User callbacks (frame handlers, event listeners) registered here never run on the event loop in
+real time: they run in one callback thread, in order, so a slow callback cannot stall the
+protocol. On the simulated clock they run inline, for determinism.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import queue
+import threading
+from collections.abc import Callable, Coroutine
+from typing import Any, TypeVar
+
+import can
+
+from cobus.proto import Event, Frame
+from cobus.runtime.loop import new_event_loop
+from cobus.runtime.network import AsyncNetwork, FrameHandler, Subscription
+
+__all__ = ["Network", "Runner"]
+
+T = TypeVar("T")
+
+
+class Runner:
+    """Runs coroutines and plain calls on a network's loop from a blocking caller."""
+
+    def __init__(self, *, simulated: bool) -> None:
+        self.simulated = simulated
+        self.loop = new_event_loop(simulated=simulated)
+        self._thread: threading.Thread | None = None
+        self._callbacks: queue.SimpleQueue[Callable[[], object] | None] | None = None
+        self._callback_thread: threading.Thread | None = None
+        if not simulated:
+            self._thread = threading.Thread(
+                target=self.loop.run_forever, name="cobus-loop", daemon=True
+            )
+            self._thread.start()
+
+    def run(self, coro: Coroutine[Any, Any, T], timeout: float | None = None) -> T:
+        if self.simulated:
+            return self.loop.run_until_complete(coro)
+        if threading.current_thread() is self._thread:
+            coro.close()
+            raise RuntimeError("a blocking call was made from the event loop thread")
+        future = asyncio.run_coroutine_threadsafe(coro, self.loop)
+        try:
+            return future.result(timeout)
+        except concurrent.futures.TimeoutError:
+            future.cancel()
+            raise
+
+    def call(self, fn: Callable[..., T], *args: Any) -> T:
+        """Run a plain function on the loop thread and return its result."""
+        if self.simulated or threading.current_thread() is self._thread:
+            return fn(*args)
+
+        async def wrapper() -> T:
+            return fn(*args)
+
+        return self.run(wrapper())
+
+    def callback(self, fn: Callable[..., object]) -> Callable[..., None]:
+        """Wrap a user callback so that, in real time, it runs in the callback thread."""
+        if self.simulated:
+
+            def inline(*args: Any) -> None:
+                fn(*args)
+
+            return inline
+        if self._callbacks is None:
+            self._callbacks = queue.SimpleQueue()
+            self._callback_thread = threading.Thread(
+                target=self._callback_worker, name="cobus-callbacks", daemon=True
+            )
+            self._callback_thread.start()
+        callbacks = self._callbacks
+
+        def deferred(*args: Any) -> None:
+            callbacks.put(lambda: fn(*args))
+
+        return deferred
+
+    def _callback_worker(self) -> None:
+        assert self._callbacks is not None
+        while True:
+            job = self._callbacks.get()
+            if job is None:
+                return
+            try:
+                job()
+            except Exception:  # a user callback's failure is theirs; keep serving the others
+                import logging
+
+                logging.getLogger(__name__).exception("callback failed")
+
+    def close(self) -> None:
+        if self._callbacks is not None:
+            self._callbacks.put(None)
+            if self._callback_thread is not None:
+                self._callback_thread.join(timeout=2.0)
+        if self._thread is not None:
+            self.loop.call_soon_threadsafe(self.loop.stop)
+            self._thread.join(timeout=5.0)
+        self.loop.close()
+
+
+class Network:
+    """A CAN network for blocking code. See :class:`AsyncNetwork` for the arguments.
+
+    ``simulated=True`` runs on the virtual clock (with a private virtual bus unless one is
+    given). Use as a context manager or call :meth:`close`.
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC | None = None,
+        *,
+        simulated: bool = False,
+        interface: str | None = None,
+        channel: Any = None,
+        bitrate: int | None = None,
+        **bus_kwargs: Any,
+    ) -> None:
+        self._runner = Runner(simulated=simulated)
+        self.aio = AsyncNetwork(
+            bus, interface=interface, channel=channel, bitrate=bitrate, **bus_kwargs
+        )
+        try:
+            self._runner.run(self.aio.connect())
+        except BaseException:
+            self._runner.close()
+            raise
+
+    def __enter__(self) -> Network:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self.aio.connected:
+            self._runner.run(self.aio.disconnect())
+        self._runner.close()
+
+    @property
+    def simulated(self) -> bool:
+        return self._runner.simulated
+
+    def time(self) -> float:
+        return self._runner.loop.time()
+
+    def sleep(self, seconds: float) -> None:
+        """Let the network run for ``seconds`` (virtual seconds on the simulated clock)."""
+        self._runner.run(asyncio.sleep(seconds))
+
+    def run(self, coro: Coroutine[Any, Any, T], timeout: float | None = None) -> T:
+        """Run a coroutine of the async API on the network's loop and wait for it."""
+        return self._runner.run(coro, timeout)
+
+    def send(self, frame: Frame) -> None:
+        self._runner.call(self.aio.send, frame)
+
+    def subscribe(
+        self, cob_id: int, handler: FrameHandler, *, extended: bool = False
+    ) -> Subscription:
+        wrapped = self._runner.callback(handler)
+        return self._runner.call(lambda: self.aio.subscribe(cob_id, wrapped, extended=extended))
+
+    def subscribe_all(self, handler: FrameHandler) -> Subscription:
+        wrapped = self._runner.callback(handler)
+        return self._runner.call(self.aio.subscribe_all, wrapped)
+
+    def add_listener(self, listener: Callable[[Event], object]) -> None:
+        self._runner.call(self.aio.add_listener, self._runner.callback(listener))
+
+    @property
+    def frames_sent(self) -> int:
+        return self.aio.frames_sent
+
+    @property
+    def frames_received(self) -> int:
+        return self.aio.frames_received
