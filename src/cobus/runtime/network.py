@@ -416,6 +416,39 @@ class AsyncNetwork:
                 self._report_failure(f"handler of {frame!r}", exc)
 
     def _on_messages(self, messages: Iterable[can.Message]) -> None:
+        if self._drain_pending or self._inbound or self._loop is None:
+            self._queue_messages(messages)
+            return
+        # Hot path: nothing is queued before these frames, so dispatch them in place.
+        now = self._loop.time()
+        handlers = self._handlers
+        convert = _bus.message_to_frame
+        received = 0
+        for msg in messages:
+            if msg.is_error_frame:
+                self._on_error_frame(msg)
+                continue
+            frame = convert(msg)
+            if frame is None:
+                continue
+            received += 1
+            if self._monitors:
+                self._call_all(self._monitors, frame, now)
+            targets = handlers.get(frame.cob_id | _EXT if frame.extended else frame.cob_id)
+            if targets:
+                if len(targets) == 1:
+                    try:
+                        targets[0](frame, now)
+                    except Exception as exc:
+                        self._report_failure(f"handler of {frame!r}", exc)
+                else:
+                    self._call_all(targets, frame, now)
+        self.frames_received += received
+        if self._inbound and not self._drain_pending:
+            # A handler sent frames: their echo is delivered after this batch, in order.
+            self._drain()
+
+    def _queue_messages(self, messages: Iterable[can.Message]) -> None:
         for msg in messages:
             if msg.is_error_frame:
                 self._on_error_frame(msg)

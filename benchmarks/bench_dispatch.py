@@ -1,0 +1,150 @@
+"""Frames per second through the receive path: python-can message in, handler called.
+
+Two figures, each side by side with python-canopen in the same run:
+- dispatch only: messages already read from the interface, through each stack's receive path
+  to a subscribed handler (cobus: message -> Frame -> dispatch table; python-canopen: its
+  python-can listener -> Network.notify);
+- end to end on python-can's virtual bus: frames waiting in the interface's queue, read by each
+  stack's own reader and dispatched, until the handler has seen them all.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+
+import can
+import canopen
+
+from benchmarks.common import best_of, header, row
+from cobus.runtime import AsyncNetwork, SimulatedEventLoop
+
+N = 20_000
+
+
+def _messages() -> list[can.Message]:
+    return [
+        can.Message(
+            arbitration_id=0x181 + (i % 4), data=bytes([i & 0xFF] * 8), is_extended_id=False
+        )
+        for i in range(N)
+    ]
+
+
+def dispatch_cobus(msgs: list[can.Message]) -> float:
+    loop = SimulatedEventLoop()
+    count = [0]
+
+    def handler(frame: object, now: float) -> None:
+        count[0] += 1
+
+    async def setup() -> AsyncNetwork:
+        net = await AsyncNetwork().connect()
+        for cob_id in range(0x181, 0x185):
+            net.subscribe(cob_id, handler)
+        return net
+
+    net = loop.run_until_complete(setup())
+    batches = [msgs[i : i + 64] for i in range(0, len(msgs), 64)]
+
+    def run() -> None:
+        for batch in batches:
+            net._on_messages(batch)
+
+    elapsed = best_of(run)
+    loop.run_until_complete(net.disconnect())
+    loop.close()
+    return N / elapsed
+
+
+def dispatch_canopen(msgs: list[can.Message]) -> float:
+    network = canopen.Network()
+    count = [0]
+
+    def handler(can_id: int, data: bytearray, timestamp: float) -> None:
+        count[0] += 1
+
+    for cob_id in range(0x181, 0x185):
+        network.subscribe(cob_id, handler)
+    listener = network.listeners[0]
+
+    def run() -> None:
+        for msg in msgs:
+            listener.on_message_received(msg)
+
+    return N / best_of(run)
+
+
+def _fill(channel: str, msgs: list[can.Message]) -> None:
+    sender = can.Bus(interface="virtual", channel=channel)
+    for msg in msgs:
+        sender.send(msg)
+    sender.shutdown()
+
+
+def end_to_end_cobus(msgs: list[can.Message]) -> float:
+    async def main() -> float:
+        bus = can.Bus(interface="virtual", channel="bench-e2e-cobus", rx_queue_size=0)
+        _fill("bench-e2e-cobus", msgs)
+        done = asyncio.get_running_loop().create_future()
+        count = [0]
+
+        def handler(frame: object, now: float) -> None:
+            count[0] += 1
+            if count[0] == N and not done.done():
+                done.set_result(None)
+
+        net = AsyncNetwork(bus)
+        for cob_id in range(0x181, 0x185):
+            net.subscribe(cob_id, handler)
+        t0 = time.perf_counter()
+        await net.connect()
+        await done
+        elapsed = time.perf_counter() - t0
+        await net.disconnect()
+        bus.shutdown()
+        return elapsed
+
+    return N / asyncio.run(main())
+
+
+def end_to_end_canopen(msgs: list[can.Message]) -> float:
+    bus = can.Bus(interface="virtual", channel="bench-e2e-canopen")
+    _fill("bench-e2e-canopen", msgs)
+    done = threading.Event()
+    count = [0]
+
+    def handler(can_id: int, data: bytearray, timestamp: float) -> None:
+        count[0] += 1
+        if count[0] == N:
+            done.set()
+
+    network = canopen.Network(bus)
+    for cob_id in range(0x181, 0x185):
+        network.subscribe(cob_id, handler)
+    t0 = time.perf_counter()
+    network.connect()
+    done.wait(60)
+    elapsed = time.perf_counter() - t0
+    network.disconnect()
+    return N / elapsed
+
+
+def main() -> None:
+    msgs = _messages()
+    print(header(f"Dispatch ({N:,} frames, 4 COB-IDs)"))
+    print(row("dispatch only", dispatch_cobus(msgs), dispatch_canopen(msgs), "frames/s", True))
+    print(
+        row(
+            "end to end, virtual bus reader",
+            max(end_to_end_cobus(msgs) for _ in range(3)),
+            max(end_to_end_canopen(msgs) for _ in range(3)),
+            "frames/s",
+            True,
+        )
+    )
+
+
+if __name__ == "__main__":
+    main()
