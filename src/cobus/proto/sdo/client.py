@@ -1,0 +1,658 @@
+"""The SDO client machine (CiA 301): expedited, segmented and block transfers, sans-I/O.
+
+One :class:`SdoClient` drives one SDO channel: it sends on the server's receive COB-ID
+(600h + node-ID by default) and listens on the server's transmit COB-ID (580h + node-ID). It
+runs one transfer at a time; the transfer ends with exactly one event: :class:`UploadDone`,
+:class:`DownloadDone` or :class:`TransferFailed`.
+
+Choices where CiA 301 leaves room:
+
+- Replies shorter than 8 bytes are accepted when everything the reply means is present (for
+  example a download response ``60 idx idx sub`` of 4 bytes, or an expedited upload response
+  that carries its data bytes). A reply missing bytes its command needs is a protocol error
+  (abort 05040001). Empty frames on the response COB-ID are ignored.
+- An initiate response for another object than the one requested is answered with abort
+  06040043 (general parameter incompatibility).
+- An abort from the server ends the transfer whatever index it names (some servers send 0:0).
+- Data beyond an indicated size is refused with abort 06070012, missing data with 06070013.
+- During the data phase of a block upload every frame except an abort (80h) is a block segment:
+  the protocol gives no way to tell them apart. A segment out of sequence is ignored; at the
+  end of the sub-block (its last sequence number or the segment flagged last) the client
+  acknowledges the last segment received in sequence, and the server resends from there.
+  A sequence number of 0 or above the block size is refused with abort 05040003.
+- Frames outside a transfer, on other COB-IDs and remote frames are ignored.
+"""
+
+from __future__ import annotations
+
+from binascii import crc_hqx
+from dataclasses import dataclass
+
+from cobus.proto._base import NOTHING, Event, Out
+from cobus.proto.frame import Frame
+from cobus.proto.sdo import _wire as w
+from cobus.proto.sdo.abort import SdoAbortCode
+from cobus.proto.sdo.errors import (
+    SdoAbortedError,
+    SdoBusyError,
+    SdoError,
+    SdoParameterError,
+    SdoProtocolError,
+    SdoTimeoutError,
+)
+
+__all__ = ["DownloadDone", "SdoClient", "TransferFailed", "UploadDone"]
+
+
+@dataclass(frozen=True, slots=True)
+class UploadDone(Event):
+    """An upload (read) ended well with ``data`` (padding of expedited frames removed)."""
+
+    index: int
+    subindex: int
+    data: bytes
+
+
+@dataclass(frozen=True, slots=True)
+class DownloadDone(Event):
+    """A download (write) was confirmed by the server."""
+
+    index: int
+    subindex: int
+
+
+@dataclass(frozen=True, slots=True)
+class TransferFailed(Event):
+    """A transfer ended without success; ``error`` says why.
+
+    :class:`SdoAbortedError`: the server aborted (``by_peer``) or :meth:`SdoClient.abort` was
+    called; :class:`SdoProtocolError`: the server broke the protocol and the client aborted;
+    :class:`SdoTimeoutError`: no answer in time and the client sent abort 05040000.
+    """
+
+    index: int
+    subindex: int
+    error: SdoError
+
+
+# States of the client.
+_IDLE = 0
+_DL_INIT = 1  # initiate download sent, waiting for 60h
+_DL_SEG = 2  # download segment sent, waiting for 20h/30h
+_UL_INIT = 3  # initiate upload sent, waiting for 4xh
+_UL_SEG = 4  # upload segment request sent, waiting for a segment
+_BUL_INIT = 5  # initiate block upload sent, waiting for C0h.. (or 4xh: protocol switch)
+_BUL_DATA = 6  # receiving block segments
+_BUL_END = 7  # last segment acknowledged, waiting for the end (C1h..)
+_BDL_INIT = 8  # initiate block download sent, waiting for A0h..
+_BDL_ACK = 9  # sub-block sent, waiting for its acknowledge (A2h)
+_BDL_END = 10  # end sent, waiting for A1h
+
+_UPLOADS = (_UL_INIT, _UL_SEG, _BUL_INIT, _BUL_DATA, _BUL_END)
+
+_BLOCK_HINT = (
+    "the server may not support block transfers: retry without block, or check the "
+    "server's sub-index of 1200h and the device's EDS"
+)
+
+
+class SdoClient:
+    """Client side of one SDO channel.
+
+    ``rx_cob_id`` is the COB-ID the server receives on (the client sends there), ``tx_cob_id``
+    the one it transmits on. ``timeout`` (seconds) applies to every wait for the server.
+    ``block_size`` (1..127) is the sub-block size proposed for block uploads, ``pst`` the
+    protocol switch threshold sent with them (0: the server must not switch; else it may answer
+    objects of up to ``pst`` bytes with a normal upload), ``crc`` whether the client offers the
+    block CRC. ``node`` names the node in error messages (derived from default COB-IDs).
+    """
+
+    __slots__ = (
+        "_blksize",
+        "_buf",
+        "_channel",
+        "_crc",
+        "_crc_used",
+        "_data",
+        "_deadline",
+        "_expected",
+        "_ext",
+        "_index",
+        "_node",
+        "_pos",
+        "_pst",
+        "_rx",
+        "_sent",
+        "_sent_last",
+        "_size",
+        "_state",
+        "_subindex",
+        "_timeout",
+        "_toggle",
+        "_tx",
+        "block_size",
+    )
+
+    def __init__(
+        self,
+        rx_cob_id: int,
+        tx_cob_id: int,
+        *,
+        timeout: float = 1.0,
+        block_size: int = w.MAX_BLOCK_SIZE,
+        pst: int = 0,
+        crc: bool = True,
+        node: int | None = None,
+    ) -> None:
+        self._ext = w.check_cob_id("SDO client COB-ID rx_cob_id", rx_cob_id)
+        w.check_cob_id("SDO client COB-ID tx_cob_id", tx_cob_id)
+        self._rx = rx_cob_id
+        self._tx = tx_cob_id
+        self._timeout = w.check_timeout(timeout)
+        self.block_size = w.check_block_size(block_size)
+        if not 0 <= pst <= 0xFF:
+            raise SdoParameterError(f"protocol switch threshold {pst} does not fit a byte (0..255)")
+        self._pst = pst
+        self._crc = crc
+        self._node = node if node is not None else w.node_of(rx_cob_id, tx_cob_id)
+        self._channel = f"0x{rx_cob_id:X}/0x{tx_cob_id:X}"
+        self._state = _IDLE
+        self._deadline: float | None = None
+        self._index = 0
+        self._subindex = 0
+        self._data = b""
+        self._buf = bytearray()
+        self._pos = 0
+        self._size: int | None = None
+        self._toggle = 0
+        self._blksize = 0
+        self._expected = 1
+        self._sent = 0
+        self._sent_last = False
+        self._crc_used = False
+
+    # -- properties --------------------------------------------------------------------------
+
+    @property
+    def rx_cob_id(self) -> int:
+        """The COB-ID the client sends on (the server's receive COB-ID)."""
+        return self._rx
+
+    @property
+    def tx_cob_id(self) -> int:
+        """The COB-ID the client listens on (the server's transmit COB-ID)."""
+        return self._tx
+
+    @property
+    def timeout(self) -> float:
+        return self._timeout
+
+    @timeout.setter
+    def timeout(self, value: float) -> None:
+        """Change the timeout; it applies from the next frame sent."""
+        self._timeout = w.check_timeout(value)
+
+    @property
+    def busy(self) -> bool:
+        """True while a transfer runs (a new one cannot start)."""
+        return self._state != _IDLE
+
+    @property
+    def deadline(self) -> float | None:
+        return self._deadline
+
+    # -- starting and aborting ---------------------------------------------------------------
+
+    def start_upload(self, index: int, subindex: int, now: float, *, block: bool = False) -> Out:
+        """Read ``index:subindex`` from the server; ends with :class:`UploadDone` or a failure.
+
+        ``block=True`` asks for a block upload (the server may switch to a normal upload when
+        the object has at most ``pst`` bytes).
+        """
+        self._begin(index, subindex)
+        self._buf = bytearray()
+        self._size = None
+        if block:
+            self._state = _BUL_INIT
+            self._blksize = self.block_size
+            cmd = w.CCS_BLOCK_UPLOAD | (w.BLOCK_CRC if self._crc else 0)
+            payload = w.BLOCK_UPLOAD_INIT.pack(cmd, index, subindex, self._blksize, self._pst)
+        else:
+            self._state = _UL_INIT
+            payload = w.WITH_U32.pack(w.CCS_INITIATE_UPLOAD, index, subindex, 0)
+        return self._send(payload, now)
+
+    def start_download(
+        self,
+        index: int,
+        subindex: int,
+        data: bytes | bytearray | memoryview,
+        now: float,
+        *,
+        block: bool = False,
+        size_indicated: bool = True,
+        expedited: bool = True,
+    ) -> Out:
+        """Write ``data`` to ``index:subindex``; ends with :class:`DownloadDone` or a failure.
+
+        Up to 4 bytes go expedited unless ``expedited=False`` or ``block=True``; more go
+        segmented, or as a block download with ``block=True``. ``size_indicated=False`` leaves
+        the size out of the initiate frame (an expedited download is then sent as ``22h`` with
+        the data padded to 4 bytes with zeros), for servers that want it so.
+        """
+        payload_data = bytes(data)
+        size = len(payload_data)
+        if size > 0xFFFFFFFF:
+            raise SdoParameterError(f"{size} bytes do not fit an SDO transfer (at most 4 GiB - 1)")
+        self._begin(index, subindex)
+        self._data = payload_data
+        self._pos = 0
+        if block:
+            self._state = _BDL_INIT
+            self._sent_last = False
+            cmd = w.CCS_BLOCK_DOWNLOAD | (w.BLOCK_CRC if self._crc else 0)
+            if size_indicated:
+                cmd |= w.BLOCK_SIZE_FLAG
+            payload = w.WITH_U32.pack(cmd, index, subindex, size if size_indicated else 0)
+        elif expedited and 1 <= size <= 4:
+            self._state = _DL_INIT
+            if size_indicated:
+                cmd = w.CCS_INITIATE_DOWNLOAD | ((4 - size) << 2) | w.EXPEDITED | w.SIZE
+            else:
+                cmd = w.CCS_INITIATE_DOWNLOAD | w.EXPEDITED
+            payload = w.WITH_4S.pack(cmd, index, subindex, payload_data)
+            self._sent_last = True  # nothing follows the initiate
+        else:
+            self._state = _DL_INIT
+            self._sent_last = False
+            self._toggle = 0
+            cmd = w.CCS_INITIATE_DOWNLOAD | (w.SIZE if size_indicated else 0)
+            payload = w.WITH_U32.pack(cmd, index, subindex, size if size_indicated else 0)
+        return self._send(payload, now)
+
+    def abort(self, code: int, now: float) -> Out:
+        """Abort the running transfer with ``code``: sends the abort and ends the transfer with
+        :class:`TransferFailed` (an :class:`SdoAbortedError` with ``by_peer=False``).
+        Does nothing when no transfer runs."""
+        if not 0 <= code <= 0xFFFFFFFF:
+            raise SdoParameterError(f"SDO abort code {code} does not fit 32 bits")
+        if self._state == _IDLE:
+            return NOTHING
+        error = SdoAbortedError(
+            code,
+            index=self._index,
+            subindex=self._subindex,
+            node=self._node,
+            channel=self._channel,
+            by_peer=False,
+        )
+        return self._fail(error, code)
+
+    # -- inputs -------------------------------------------------------------------------------
+
+    def on_timer(self, now: float) -> Out:
+        deadline = self._deadline
+        if deadline is None or now < deadline:
+            return NOTHING
+        error = SdoTimeoutError(
+            index=self._index,
+            subindex=self._subindex,
+            timeout=self._timeout,
+            node=self._node,
+            channel=self._channel,
+        )
+        return self._fail(error, SdoAbortCode.TIMEOUT)
+
+    def on_frame(self, frame: Frame, now: float) -> Out:
+        state = self._state
+        data = frame.data
+        if state == _IDLE or frame.cob_id != self._tx or frame.rtr or not data:
+            return NOTHING
+        cmd = data[0]
+        if state == _BUL_DATA and cmd != w.ABORT:
+            # The hot path of block uploads: one segment.
+            seq = cmd & 0x7F
+            if seq == self._expected:
+                if len(data) < 8:
+                    data = w.padded(data)
+                self._buf += data[1:]
+                if cmd & w.LAST_SEGMENT:
+                    self._state = _BUL_END
+                    return self._send(w.ACK.pack(w.BLOCK_ACK, seq, self._blksize), now)
+                if seq == self._blksize:
+                    self._expected = 1
+                    return self._send(w.ACK.pack(w.BLOCK_ACK, seq, self._blksize), now)
+                self._expected = seq + 1
+                self._deadline = now + self._timeout
+                return NOTHING
+            return self._out_of_sequence(cmd, now)
+        if cmd == w.ABORT:
+            return self._peer_abort(data)
+        if state == _UL_SEG:
+            return self._upload_segment(data, now)
+        if state == _DL_SEG:
+            return self._download_segment_response(cmd, now)
+        if state == _BDL_ACK:
+            return self._block_ack(data, now)
+        if state == _UL_INIT:
+            return self._upload_response(data, now)
+        if state == _DL_INIT:
+            return self._download_response(data, now)
+        if state == _BUL_INIT:
+            return self._block_upload_response(data, now)
+        if state == _BUL_END:
+            return self._block_upload_end(data, now)
+        if state == _BDL_INIT:
+            return self._block_download_response(data, now)
+        # _BDL_END
+        if cmd & w.BLOCK5_MASK != w.BLOCK5_END:
+            return self._unexpected(cmd, "a block download end response (A1h)")
+        return self._succeed(DownloadDone(self._index, self._subindex))
+
+    # -- expedited and segmented ---------------------------------------------------------------
+
+    def _upload_response(self, data: bytes, now: float) -> Out:
+        cmd = data[0]
+        if cmd & w.SERVICE_MASK != w.SCS_INITIATE_UPLOAD:
+            return self._unexpected(cmd, "an upload response (4xh)")
+        if not self._mux_ok(data):
+            return self._mux_error(data)
+        if cmd & w.EXPEDITED:
+            if cmd & w.SIZE:
+                size = 4 - ((cmd >> 2) & 3)
+                if len(data) < 4 + size:
+                    return self._short(data, f"an expedited upload response of {size} bytes")
+                value = data[4 : 4 + size]
+            else:
+                value = data[4:8]
+            return self._succeed(UploadDone(self._index, self._subindex, value))
+        if cmd & w.SIZE:
+            if len(data) < 8:
+                return self._short(data, "an upload response with its size")
+            self._size = w.U32.unpack_from(data, 4)[0]
+        else:
+            self._size = None
+        self._state = _UL_SEG
+        self._toggle = 0
+        return self._send(w.CODE_ONLY.pack(w.CCS_UPLOAD_SEGMENT), now)
+
+    def _upload_segment(self, data: bytes, now: float) -> Out:
+        cmd = data[0]
+        if cmd & w.SERVICE_MASK != w.SCS_UPLOAD_SEGMENT:
+            return self._unexpected(cmd, "an upload segment (0xh/1xh)")
+        toggle = cmd & w.TOGGLE
+        if toggle != self._toggle:
+            return self._error(
+                SdoAbortCode.TOGGLE_BIT,
+                f"upload segment with toggle bit {toggle >> 4}, expected {self._toggle >> 4}",
+            )
+        end = 8 - ((cmd >> 1) & 7)
+        if len(data) < end:
+            return self._short(data, f"an upload segment of {end - 1} bytes")
+        buf = self._buf
+        buf += data[1:end]
+        size = self._size
+        if size is not None and len(buf) > size:
+            return self._error(
+                SdoAbortCode.LENGTH_TOO_HIGH,
+                f"the server sent more than the {size} bytes it announced",
+            )
+        if cmd & w.LAST:
+            if size is not None and len(buf) < size:
+                return self._error(
+                    SdoAbortCode.LENGTH_TOO_LOW,
+                    f"the server ended after {len(buf)} of the {size} bytes it announced",
+                )
+            return self._succeed(UploadDone(self._index, self._subindex, bytes(buf)))
+        self._toggle = toggle ^ w.TOGGLE
+        return self._send(w.CODE_ONLY.pack(w.CCS_UPLOAD_SEGMENT | self._toggle), now)
+
+    def _download_response(self, data: bytes, now: float) -> Out:
+        cmd = data[0]
+        if cmd & w.SERVICE_MASK != w.SCS_INITIATE_DOWNLOAD:
+            return self._unexpected(cmd, "a download response (60h)")
+        if not self._mux_ok(data):
+            return self._mux_error(data)
+        if self._sent_last:  # expedited: done
+            return self._succeed(DownloadDone(self._index, self._subindex))
+        self._state = _DL_SEG
+        return self._next_download_segment(now)
+
+    def _next_download_segment(self, now: float) -> Out:
+        pos = self._pos
+        chunk = self._data[pos : pos + 7]
+        self._pos = pos + 7
+        last = self._pos >= len(self._data)
+        self._sent_last = last
+        cmd = self._toggle | ((7 - len(chunk)) << 1) | (w.LAST if last else 0)
+        return self._send(w.SEGMENT.pack(cmd, chunk), now)
+
+    def _download_segment_response(self, cmd: int, now: float) -> Out:
+        if cmd & w.SERVICE_MASK != w.SCS_DOWNLOAD_SEGMENT:
+            return self._unexpected(cmd, "a download segment response (20h/30h)")
+        toggle = cmd & w.TOGGLE
+        if toggle != self._toggle:
+            return self._error(
+                SdoAbortCode.TOGGLE_BIT,
+                f"download segment response with toggle bit {toggle >> 4}, "
+                f"expected {self._toggle >> 4}",
+            )
+        if self._sent_last:
+            return self._succeed(DownloadDone(self._index, self._subindex))
+        self._toggle = toggle ^ w.TOGGLE
+        return self._next_download_segment(now)
+
+    # -- block upload ------------------------------------------------------------------------
+
+    def _block_upload_response(self, data: bytes, now: float) -> Out:
+        cmd = data[0]
+        if cmd & w.SERVICE_MASK == w.SCS_INITIATE_UPLOAD:
+            # Protocol switch: the server answers with a normal upload (CiA 301 allows it when
+            # the size is at most pst; accepted whatever pst was, the data is the same).
+            return self._upload_response(data, now)
+        if cmd & w.BLOCK6_MASK != w.SCS_BLOCK_UPLOAD:
+            return self._unexpected(cmd, "a block upload response (C0h..C6h) or upload response")
+        if not self._mux_ok(data):
+            return self._mux_error(data)
+        if cmd & w.BLOCK_SIZE_FLAG:
+            if len(data) < 8:
+                return self._short(data, "a block upload response with its size")
+            self._size = w.U32.unpack_from(data, 4)[0]
+        self._crc_used = self._crc and bool(cmd & w.BLOCK_CRC)
+        self._state = _BUL_DATA
+        self._expected = 1
+        return self._send(w.CODE_ONLY.pack(w.BLOCK_UPLOAD_START), now)
+
+    def _out_of_sequence(self, cmd: int, now: float) -> Out:
+        seq = cmd & 0x7F
+        blksize = self._blksize
+        if seq == 0 or seq > blksize:
+            return self._error(
+                SdoAbortCode.SEQUENCE_NUMBER,
+                f"block segment with sequence number {seq} (valid: 1..{blksize})",
+            )
+        if cmd & w.LAST_SEGMENT or seq == blksize:
+            # End of a sub-block with a gap: acknowledge what arrived in sequence.
+            ackseq = self._expected - 1
+            self._expected = 1
+            return self._send(w.ACK.pack(w.BLOCK_ACK, ackseq, blksize), now)
+        self._deadline = now + self._timeout
+        return NOTHING  # a segment after a lost one: dropped, it will be sent again
+
+    def _block_upload_end(self, data: bytes, now: float) -> Out:
+        cmd = data[0]
+        if cmd & w.BLOCK6_MASK != w.BLOCK6_END:
+            return self._unexpected(cmd, "a block upload end (C1h..DDh)")
+        if self._crc_used and len(data) < 3:
+            return self._short(data, "a block upload end with its CRC")
+        buf = self._buf
+        unused = (cmd >> 2) & 7
+        del buf[len(buf) - unused :]
+        size = self._size
+        if size is not None and len(buf) != size:
+            code = SdoAbortCode.LENGTH_TOO_HIGH if len(buf) > size else SdoAbortCode.LENGTH_TOO_LOW
+            return self._error(
+                code, f"the server sent {len(buf)} bytes in a block upload announced as {size}"
+            )
+        if self._crc_used:
+            crc = w.U16.unpack_from(data, 1)[0]
+            mine = crc_hqx(buf, 0)
+            if crc != mine:
+                return self._error(
+                    SdoAbortCode.CRC,
+                    f"block upload CRC {crc:04X}h from the server, {mine:04X}h computed",
+                )
+        frame = Frame(self._rx, w.CODE_ONLY.pack(w.BLOCK5_END), extended=self._ext)
+        event = UploadDone(self._index, self._subindex, bytes(buf))
+        self._reset()
+        return Out((frame,), (event,))
+
+    # -- block download -------------------------------------------------------------------------
+
+    def _block_download_response(self, data: bytes, now: float) -> Out:
+        cmd = data[0]
+        if cmd & w.BLOCK5_MASK != w.SCS_BLOCK_DOWNLOAD:
+            return self._unexpected(cmd, "a block download response (A0h/A4h)")
+        if not self._mux_ok(data):
+            return self._mux_error(data)
+        if len(data) < 5:
+            return self._short(data, "a block download response with its block size")
+        blksize = data[4]
+        if not 1 <= blksize <= w.MAX_BLOCK_SIZE:
+            return self._error(
+                SdoAbortCode.BLOCK_SIZE, f"the server asked for sub-blocks of {blksize} segments"
+            )
+        self._blksize = blksize
+        self._crc_used = self._crc and bool(cmd & w.BLOCK_CRC)
+        self._state = _BDL_ACK
+        return self._send_subblock(now)
+
+    def _send_subblock(self, now: float) -> Out:
+        frames, self._sent, self._sent_last = w.subblock(
+            self._rx, self._ext, self._data, self._pos, self._blksize
+        )
+        self._deadline = now + self._timeout
+        return Out(frames)
+
+    def _block_ack(self, data: bytes, now: float) -> Out:
+        cmd = data[0]
+        if cmd & w.BLOCK5_MASK != w.BLOCK_ACK:
+            return self._unexpected(cmd, "a block acknowledge (A2h)")
+        if len(data) < 3:
+            return self._short(data, "a block acknowledge")
+        ackseq = data[1]
+        blksize = data[2]
+        if ackseq > self._sent:
+            return self._error(
+                SdoAbortCode.SEQUENCE_NUMBER,
+                f"the server acknowledged segment {ackseq} of a sub-block of {self._sent}",
+            )
+        if not 1 <= blksize <= w.MAX_BLOCK_SIZE:
+            return self._error(
+                SdoAbortCode.BLOCK_SIZE, f"the server asked for sub-blocks of {blksize} segments"
+            )
+        self._pos += 7 * ackseq
+        if self._sent_last and ackseq == self._sent:
+            total = len(self._data)
+            crc = crc_hqx(self._data, 0) if self._crc_used else 0
+            cmd = w.BLOCK6_END | (w.unused_in_last(total) << 2)
+            self._state = _BDL_END
+            return self._send(w.END_CRC.pack(cmd, crc), now)
+        self._sent_last = False
+        self._blksize = blksize
+        return self._send_subblock(now)
+
+    # -- helpers -------------------------------------------------------------------------------
+
+    def _begin(self, index: int, subindex: int) -> None:
+        if self._state != _IDLE:
+            kind = "upload" if self._state in _UPLOADS else "download"
+            raise SdoBusyError(
+                f"SDO channel {self._channel} is busy with the {kind} of "
+                f"0x{self._index:04X}:{self._subindex:02X}; wait for its completion event or "
+                "abort it first (one transfer at a time per channel)",
+                index=index,
+                subindex=subindex,
+                node=self._node,
+            )
+        w.check_object(index, subindex)
+        self._index = index
+        self._subindex = subindex
+
+    def _send(self, payload: bytes, now: float) -> Out:
+        self._deadline = now + self._timeout
+        return Out((Frame(self._rx, payload, extended=self._ext),))
+
+    def _reset(self) -> None:
+        self._state = _IDLE
+        self._deadline = None
+        self._data = b""
+        self._buf = bytearray()
+
+    def _succeed(self, event: Event) -> Out:
+        self._reset()
+        return Out((), (event,))
+
+    def _fail(self, error: SdoError, code: int) -> Out:
+        frame = Frame(
+            self._rx,
+            w.WITH_U32.pack(w.ABORT, self._index, self._subindex, code),
+            extended=self._ext,
+        )
+        event = TransferFailed(self._index, self._subindex, error)
+        self._reset()
+        return Out((frame,), (event,))
+
+    def _error(self, code: int, reason: str) -> Out:
+        error = SdoProtocolError(
+            code,
+            reason,
+            index=self._index,
+            subindex=self._subindex,
+            node=self._node,
+            channel=self._channel,
+        )
+        return self._fail(error, code)
+
+    def _unexpected(self, cmd: int, wanted: str) -> Out:
+        return self._error(
+            SdoAbortCode.INVALID_COMMAND, f"the server sent command {cmd:02X}h, not {wanted}"
+        )
+
+    def _short(self, data: bytes, what: str) -> Out:
+        return self._error(
+            SdoAbortCode.INVALID_COMMAND,
+            f"the server's frame {data.hex(' ').upper()} is too short for {what}",
+        )
+
+    def _mux_ok(self, data: bytes) -> bool:
+        return (
+            len(data) >= 4
+            and (data[1] | (data[2] << 8)) == self._index
+            and data[3] == self._subindex
+        )
+
+    def _mux_error(self, data: bytes) -> Out:
+        if len(data) < 4:
+            return self._short(data, "an initiate response (command, index, sub-index)")
+        _, index, subindex = w.MUX.unpack_from(data)
+        return self._error(
+            SdoAbortCode.PARAMETER_INCOMPATIBLE,
+            f"the server answered for 0x{index:04X}:{subindex:02X}",
+        )
+
+    def _peer_abort(self, data: bytes) -> Out:
+        code = w.U32.unpack_from(w.padded(data), 4)[0]
+        initiating_block = self._state in (_BUL_INIT, _BDL_INIT)
+        hint = _BLOCK_HINT if initiating_block and code == SdoAbortCode.INVALID_COMMAND else None
+        error = SdoAbortedError(
+            code,
+            index=self._index,
+            subindex=self._subindex,
+            node=self._node,
+            channel=self._channel,
+            hint=hint,
+        )
+        event = TransferFailed(self._index, self._subindex, error)
+        self._reset()
+        return Out((), (event,))

@@ -1,0 +1,603 @@
+"""The SDO server machine (CiA 301): expedited, segmented and block transfers, sans-I/O.
+
+An :class:`SdoServer` answers one SDO channel: it receives on ``rx_cob_id`` (600h + node-ID by
+default) and answers on ``tx_cob_id`` (580h + node-ID). What the objects hold is the business
+of its back end (:class:`SdoServerBackend`), which reads and writes whole values and refuses a
+request by raising :class:`~cobus.proto.sdo.errors.SdoAbort`. :class:`DictBackend` is a small
+one for tests and simple devices.
+
+Choices where CiA 301 leaves room:
+
+- Short frames (CiA 301 wants 8 bytes): a request is served when every byte its command needs
+  is present (``40 idx idx sub`` of 4 bytes is a complete upload request; an expedited download
+  without size indication takes the data bytes present, up to 4). A request missing bytes its
+  command needs is answered with abort 05040001 (missing index bytes read as 0). Empty frames
+  and remote frames are ignored.
+- A new initiate request while a transfer runs ends the running transfer and starts the new one
+  (the client evidently gave up on the old one). No abort frame is sent for the old transfer,
+  because the client would take it as the answer to its new request; the device layer is told
+  with :class:`ServerAborted` (code 08000000, ``by_peer=True``). During the data phase of a
+  block download every frame except an abort is a block segment (the protocol cannot tell
+  them apart), so an initiate there is refused as a sequence error like any bad segment.
+- An abort from the client ends the transfer silently (:class:`ServerAborted` with
+  ``by_peer=True``). Outside a transfer it is ignored.
+- A segment or block sub-command outside a transfer is answered with abort 05040001 naming
+  object 0000h:00.
+- Block download: a segment out of sequence is ignored; at the end of the sub-block (its last
+  sequence number or the segment flagged last) the server acknowledges the last segment
+  received in sequence and the client resends from there. Sequence number 0 or above the block
+  size: abort 05040003.
+- Size checks: more data than indicated is refused with 06070012 as soon as it arrives, less
+  with 06070013 at the end. Without a size indication the back end sees what arrived.
+- A stalled segmented or block transfer is aborted with 05040000 after ``timeout`` seconds.
+"""
+
+from __future__ import annotations
+
+from binascii import crc_hqx
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from typing import Protocol, cast
+
+from cobus.proto._base import NOTHING, Event, Out
+from cobus.proto.frame import Frame
+from cobus.proto.sdo import _wire as w
+from cobus.proto.sdo.abort import SdoAbortCode, as_code
+from cobus.proto.sdo.errors import SdoAbort
+
+__all__ = [
+    "DictBackend",
+    "SdoServer",
+    "SdoServerBackend",
+    "ServerAborted",
+    "ServerDownloaded",
+    "ServerUploaded",
+]
+
+
+class SdoServerBackend(Protocol):
+    """What an :class:`SdoServer` serves: whole values by index and sub-index.
+
+    Both methods raise :class:`~cobus.proto.sdo.errors.SdoAbort` to refuse (for example
+    ``SdoAbort(SdoAbortCode.NO_OBJECT)``); any other exception escapes to the caller of the
+    server.
+
+    A back end may also define ``size_hint(index, subindex) -> int | None``. The server calls it
+    when a segmented or block download starts, before any data arrives: it may raise
+    :class:`SdoAbort` to refuse early (no such object, read only), and an int it returns is the
+    size the value must have, so an indicated size that differs is refused with 06070012 or
+    06070013 at once; ``None`` accepts any size.
+    """
+
+    def upload(self, index: int, subindex: int) -> bytes:
+        """The current value of ``index:subindex`` (read by the client)."""
+        ...
+
+    def download(self, index: int, subindex: int, data: bytes) -> None:
+        """Store ``data`` (written by the client) into ``index:subindex``."""
+        ...
+
+
+_SizeHint = Callable[[int, int], "int | None"]
+
+
+class DictBackend:
+    """A back end over a dict ``{(index, subindex): bytes}``, with read-only and write-only
+    entries. Unknown entries are refused with 06020000 (no such index) or 06090011 (the index
+    exists, the sub-index does not); downloads store the bytes as they arrive."""
+
+    def __init__(
+        self,
+        entries: Mapping[tuple[int, int], bytes] | None = None,
+        *,
+        read_only: Iterable[tuple[int, int]] = (),
+        write_only: Iterable[tuple[int, int]] = (),
+    ) -> None:
+        self.entries: dict[tuple[int, int], bytes] = dict(entries or {})
+        self.read_only: set[tuple[int, int]] = set(read_only)
+        self.write_only: set[tuple[int, int]] = set(write_only)
+
+    def _check(self, key: tuple[int, int]) -> None:
+        if key not in self.entries:
+            if any(k[0] == key[0] for k in self.entries):
+                raise SdoAbort(SdoAbortCode.NO_SUBINDEX)
+            raise SdoAbort(SdoAbortCode.NO_OBJECT)
+
+    def upload(self, index: int, subindex: int) -> bytes:
+        key = (index, subindex)
+        self._check(key)
+        if key in self.write_only:
+            raise SdoAbort(SdoAbortCode.READ_WRITE_ONLY)
+        return self.entries[key]
+
+    def download(self, index: int, subindex: int, data: bytes) -> None:
+        key = (index, subindex)
+        self.size_hint(index, subindex)
+        self.entries[key] = bytes(data)
+
+    def size_hint(self, index: int, subindex: int) -> int | None:
+        key = (index, subindex)
+        self._check(key)
+        if key in self.read_only:
+            raise SdoAbort(SdoAbortCode.WRITE_READ_ONLY)
+        return None
+
+
+@dataclass(frozen=True, slots=True)
+class ServerDownloaded(Event):
+    """The client wrote ``size`` bytes into ``index:subindex`` and the back end accepted them."""
+
+    index: int
+    subindex: int
+    size: int
+
+
+@dataclass(frozen=True, slots=True)
+class ServerUploaded(Event):
+    """The client read ``size`` bytes of ``index:subindex`` to the end of the transfer."""
+
+    index: int
+    subindex: int
+    size: int
+
+
+@dataclass(frozen=True, slots=True)
+class ServerAborted(Event):
+    """A transfer of ``index:subindex`` ended with ``code``: sent by the client (``by_peer``,
+    or superseded by a new request, code 08000000) or by this server (refusal, protocol error
+    of the client, timeout)."""
+
+    index: int
+    subindex: int
+    code: SdoAbortCode | int
+    by_peer: bool
+
+
+# States of the server.
+_IDLE = 0
+_DL_SEG = 1  # segmented download: waiting for a segment
+_UL_SEG = 2  # segmented upload: waiting for a segment request
+_BDL_DATA = 3  # block download: receiving segments
+_BDL_END = 4  # block download: all segments acknowledged, waiting for the end request
+_BUL_START = 5  # block upload: initiate answered, waiting for the start (A3h)
+_BUL_ACK = 6  # block upload: sub-block sent, waiting for its acknowledge
+_BUL_END = 7  # block upload: end sent, waiting for the end response (A1h)
+
+_SUPERSEDED = SdoAbortCode.GENERAL_ERROR
+
+
+class SdoServer:
+    """Server side of one SDO channel (see the module text for the choices it makes).
+
+    ``block_size`` (1..127) is the sub-block size the server asks for in block downloads;
+    ``crc`` whether it offers the block CRC; ``timeout`` (seconds) how long it waits for the
+    next frame of a segmented or block transfer before aborting with 05040000.
+    """
+
+    __slots__ = (
+        "_backend",
+        "_blksize",
+        "_buf",
+        "_crc",
+        "_crc_used",
+        "_data",
+        "_deadline",
+        "_expected",
+        "_ext",
+        "_index",
+        "_max_buf",
+        "_pos",
+        "_rx",
+        "_sent",
+        "_sent_last",
+        "_size",
+        "_size_hint",
+        "_state",
+        "_subindex",
+        "_timeout",
+        "_toggle",
+        "_tx",
+        "block_size",
+        "node",
+    )
+
+    def __init__(
+        self,
+        rx_cob_id: int,
+        tx_cob_id: int,
+        backend: SdoServerBackend,
+        *,
+        timeout: float = 1.0,
+        block_size: int = w.MAX_BLOCK_SIZE,
+        crc: bool = True,
+    ) -> None:
+        w.check_cob_id("SDO server COB-ID rx_cob_id", rx_cob_id)
+        self._ext = w.check_cob_id("SDO server COB-ID tx_cob_id", tx_cob_id)
+        self._rx = rx_cob_id
+        self._tx = tx_cob_id
+        self._backend = backend
+        hint = getattr(backend, "size_hint", None)
+        self._size_hint = cast("_SizeHint | None", hint if callable(hint) else None)
+        self._timeout = w.check_timeout(timeout)
+        self.block_size = w.check_block_size(block_size)
+        self._crc = crc
+        self.node = w.node_of(rx_cob_id, tx_cob_id)
+        self._state = _IDLE
+        self._deadline: float | None = None
+        self._index = -1  # -1: no object named yet
+        self._subindex = -1
+        self._data = b""
+        self._buf = bytearray()
+        self._pos = 0
+        self._size: int | None = None
+        self._max_buf = 0
+        self._toggle = 0
+        self._blksize = 0
+        self._expected = 1
+        self._sent = 0
+        self._sent_last = False
+        self._crc_used = False
+
+    @property
+    def rx_cob_id(self) -> int:
+        """The COB-ID the server receives requests on."""
+        return self._rx
+
+    @property
+    def tx_cob_id(self) -> int:
+        """The COB-ID the server answers on."""
+        return self._tx
+
+    @property
+    def timeout(self) -> float:
+        return self._timeout
+
+    @timeout.setter
+    def timeout(self, value: float) -> None:
+        """Change the timeout; it applies from the next frame."""
+        self._timeout = w.check_timeout(value)
+
+    @property
+    def busy(self) -> bool:
+        """True while a segmented or block transfer runs."""
+        return self._state != _IDLE
+
+    @property
+    def deadline(self) -> float | None:
+        return self._deadline
+
+    # -- inputs -------------------------------------------------------------------------------
+
+    def on_timer(self, now: float) -> Out:
+        deadline = self._deadline
+        if deadline is None or now < deadline:
+            return NOTHING
+        return self._abort(SdoAbortCode.TIMEOUT)
+
+    def on_frame(self, frame: Frame, now: float) -> Out:
+        data = frame.data
+        if frame.cob_id != self._rx or frame.rtr or not data:
+            return NOTHING
+        cmd = data[0]
+        state = self._state
+        if state == _BDL_DATA and cmd != w.ABORT:
+            # The hot path of block downloads: one segment.
+            seq = cmd & 0x7F
+            if seq == self._expected:
+                if len(data) < 8:
+                    data = w.padded(data)
+                buf = self._buf
+                buf += data[1:]
+                if len(buf) > self._max_buf:
+                    return self._abort(SdoAbortCode.LENGTH_TOO_HIGH)
+                if cmd & w.LAST_SEGMENT:
+                    self._state = _BDL_END
+                    return self._send(w.ACK.pack(w.BLOCK_ACK, seq, self._blksize), now)
+                if seq == self._blksize:
+                    self._expected = 1
+                    return self._send(w.ACK.pack(w.BLOCK_ACK, seq, self._blksize), now)
+                self._expected = seq + 1
+                self._deadline = now + self._timeout
+                return NOTHING
+            return self._out_of_sequence(cmd, now)
+        if cmd == w.ABORT:
+            if state == _IDLE:
+                return NOTHING
+            event = ServerAborted(
+                self._index, self._subindex, as_code(self._peer_code(data)), by_peer=True
+            )
+            self._reset()
+            return Out((), (event,))
+        service = cmd & w.SERVICE_MASK
+        if service == w.CCS_INITIATE_UPLOAD:
+            return self._superseding(state) + self._initiate_upload(data, now)
+        if service == w.CCS_INITIATE_DOWNLOAD:
+            return self._superseding(state) + self._initiate_download(data, now)
+        if service == w.CCS_BLOCK_UPLOAD and cmd & 0x03 == 0:
+            return self._superseding(state) + self._initiate_block_upload(data, now)
+        if service == w.CCS_BLOCK_DOWNLOAD and cmd & 0x01 == 0:
+            return self._superseding(state) + self._initiate_block_download(data, now)
+        if state == _UL_SEG and service == w.CCS_UPLOAD_SEGMENT:
+            return self._upload_segment(cmd, now)
+        if state == _DL_SEG and service == w.CCS_DOWNLOAD_SEGMENT:
+            return self._download_segment(data, now)
+        if state == _BUL_ACK and cmd & w.BLOCK5_MASK == w.BLOCK_ACK:
+            return self._block_ack(data, now)
+        if state == _BUL_START and cmd & w.BLOCK5_MASK == w.BLOCK_UPLOAD_START:
+            self._state = _BUL_ACK
+            return self._send_subblock(now)
+        if state == _BUL_END and cmd & w.BLOCK5_MASK == w.BLOCK5_END:
+            done = ServerUploaded(self._index, self._subindex, len(self._data))
+            self._reset()
+            return Out((), (done,))
+        if state == _BDL_END and cmd & w.BLOCK6_MASK == w.BLOCK6_END:
+            return self._block_download_end(data)
+        # Anything else: not a valid request here.
+        return self._abort(SdoAbortCode.INVALID_COMMAND)
+
+    # -- initiate requests ---------------------------------------------------------------------
+
+    def _superseding(self, state: int) -> Out:
+        if state == _IDLE:
+            return NOTHING
+        event = ServerAborted(self._index, self._subindex, _SUPERSEDED, by_peer=True)
+        self._reset()
+        return Out((), (event,))
+
+    def _take_mux(self, data: bytes) -> bool:
+        """Remember the object a request names; ``False`` when the frame is too short for it."""
+        if len(data) < 4:
+            self._index, self._subindex = w.MUX.unpack_from(w.padded(data))[1:]
+            return False
+        self._index, self._subindex = w.MUX.unpack_from(data)[1:]
+        return True
+
+    def _initiate_upload(self, data: bytes, now: float) -> Out:
+        if not self._take_mux(data):
+            return self._abort(SdoAbortCode.INVALID_COMMAND)
+        try:
+            value = bytes(self._backend.upload(self._index, self._subindex))
+        except SdoAbort as refusal:
+            return self._abort(refusal.code)
+        return self._upload_response(value, now)
+
+    def _upload_response(self, value: bytes, now: float) -> Out:
+        size = len(value)
+        if 1 <= size <= 4:
+            cmd = w.SCS_INITIATE_UPLOAD | ((4 - size) << 2) | w.EXPEDITED | w.SIZE
+            frame = self._frame(w.WITH_4S.pack(cmd, self._index, self._subindex, value))
+            event = ServerUploaded(self._index, self._subindex, size)
+            self._reset()
+            return Out((frame,), (event,))
+        self._data = value
+        self._pos = 0
+        self._toggle = 0
+        self._state = _UL_SEG
+        cmd = w.SCS_INITIATE_UPLOAD | w.SIZE
+        return self._send(w.WITH_U32.pack(cmd, self._index, self._subindex, size), now)
+
+    def _initiate_download(self, data: bytes, now: float) -> Out:
+        if not self._take_mux(data):
+            return self._abort(SdoAbortCode.INVALID_COMMAND)
+        cmd = data[0]
+        if cmd & w.EXPEDITED:
+            if cmd & w.SIZE:
+                count = 4 - ((cmd >> 2) & 3)
+                if len(data) < 4 + count:
+                    return self._abort(SdoAbortCode.INVALID_COMMAND)
+                value = data[4 : 4 + count]
+            else:
+                value = data[4:8]
+            return self._store(value, self._frame(self._mux_frame(w.SCS_INITIATE_DOWNLOAD)))
+        size: int | None = None
+        if cmd & w.SIZE:
+            if len(data) < 8:
+                return self._abort(SdoAbortCode.INVALID_COMMAND)
+            size = w.U32.unpack_from(data, 4)[0]
+        refused = self._check_size(size)
+        if refused is not None:
+            return self._abort(refused)
+        self._size = size
+        self._buf = bytearray()
+        self._toggle = 0
+        self._state = _DL_SEG
+        return self._send(self._mux_frame(w.SCS_INITIATE_DOWNLOAD), now)
+
+    def _initiate_block_upload(self, data: bytes, now: float) -> Out:
+        if not self._take_mux(data) or len(data) < 6:
+            return self._abort(SdoAbortCode.INVALID_COMMAND)
+        blksize = data[4]
+        if not 1 <= blksize <= w.MAX_BLOCK_SIZE:
+            return self._abort(SdoAbortCode.BLOCK_SIZE)
+        pst = data[5]
+        try:
+            value = bytes(self._backend.upload(self._index, self._subindex))
+        except SdoAbort as refusal:
+            return self._abort(refusal.code)
+        if pst and len(value) <= pst:  # pst 0: the client does not allow a switch
+            return self._upload_response(value, now)  # protocol switch to a normal upload
+        self._data = value
+        self._pos = 0
+        self._blksize = blksize
+        self._sent_last = False
+        self._crc_used = self._crc and bool(data[0] & w.BLOCK_CRC)
+        self._state = _BUL_START
+        cmd = w.SCS_BLOCK_UPLOAD | (w.BLOCK_CRC if self._crc else 0) | w.BLOCK_SIZE_FLAG
+        return self._send(w.WITH_U32.pack(cmd, self._index, self._subindex, len(value)), now)
+
+    def _initiate_block_download(self, data: bytes, now: float) -> Out:
+        if not self._take_mux(data):
+            return self._abort(SdoAbortCode.INVALID_COMMAND)
+        cmd = data[0]
+        size: int | None = None
+        if cmd & w.BLOCK_SIZE_FLAG:
+            if len(data) < 8:
+                return self._abort(SdoAbortCode.INVALID_COMMAND)
+            size = w.U32.unpack_from(data, 4)[0]
+        refused = self._check_size(size)
+        if refused is not None:
+            return self._abort(refused)
+        self._size = size
+        # The segments an indicated size needs, whole: more is data longer than indicated.
+        self._max_buf = 7 * max(1, -(-size // 7)) if size is not None else 0x7FFFFFFFFFFFFFFF
+        self._buf = bytearray()
+        self._expected = 1
+        self._blksize = self.block_size
+        self._crc_used = self._crc and bool(cmd & w.BLOCK_CRC)
+        self._state = _BDL_DATA
+        response = w.SCS_BLOCK_DOWNLOAD | (w.BLOCK_CRC if self._crc else 0)
+        return self._send(
+            w.BLOCK_INIT_RESPONSE.pack(response, self._index, self._subindex, self._blksize), now
+        )
+
+    def _check_size(self, size: int | None) -> int | None:
+        """Ask the back end about a download before its data arrives; the abort code or None."""
+        if self._size_hint is None:
+            return None
+        try:
+            expected = self._size_hint(self._index, self._subindex)
+        except SdoAbort as refusal:
+            return refusal.code
+        if expected is None or size is None or size == expected:
+            return None
+        return SdoAbortCode.LENGTH_TOO_HIGH if size > expected else SdoAbortCode.LENGTH_TOO_LOW
+
+    # -- segmented -----------------------------------------------------------------------------
+
+    def _upload_segment(self, cmd: int, now: float) -> Out:
+        toggle = cmd & w.TOGGLE
+        if toggle != self._toggle:
+            return self._abort(SdoAbortCode.TOGGLE_BIT)
+        pos = self._pos
+        value = self._data
+        chunk = value[pos : pos + 7]
+        pos += 7
+        if pos >= len(value):
+            frame = self._frame(w.SEGMENT.pack(toggle | ((7 - len(chunk)) << 1) | w.LAST, chunk))
+            event = ServerUploaded(self._index, self._subindex, len(value))
+            self._reset()
+            return Out((frame,), (event,))
+        self._pos = pos
+        self._toggle = toggle ^ w.TOGGLE
+        return self._send(w.SEGMENT.pack(toggle, chunk), now)
+
+    def _download_segment(self, data: bytes, now: float) -> Out:
+        cmd = data[0]
+        toggle = cmd & w.TOGGLE
+        if toggle != self._toggle:
+            return self._abort(SdoAbortCode.TOGGLE_BIT)
+        end = 8 - ((cmd >> 1) & 7)
+        if len(data) < end:
+            return self._abort(SdoAbortCode.INVALID_COMMAND)
+        buf = self._buf
+        buf += data[1:end]
+        size = self._size
+        if size is not None and len(buf) > size:
+            return self._abort(SdoAbortCode.LENGTH_TOO_HIGH)
+        response = w.CODE_ONLY.pack(w.SCS_DOWNLOAD_SEGMENT | toggle)
+        if cmd & w.LAST:
+            if size is not None and len(buf) < size:
+                return self._abort(SdoAbortCode.LENGTH_TOO_LOW)
+            return self._store(bytes(buf), self._frame(response))
+        self._toggle = toggle ^ w.TOGGLE
+        return self._send(response, now)
+
+    # -- block ---------------------------------------------------------------------------------
+
+    def _out_of_sequence(self, cmd: int, now: float) -> Out:
+        seq = cmd & 0x7F
+        blksize = self._blksize
+        if seq == 0 or seq > blksize:
+            return self._abort(SdoAbortCode.SEQUENCE_NUMBER)
+        if cmd & w.LAST_SEGMENT or seq == blksize:
+            # End of a sub-block with a gap: acknowledge what arrived in sequence.
+            ackseq = self._expected - 1
+            self._expected = 1
+            return self._send(w.ACK.pack(w.BLOCK_ACK, ackseq, blksize), now)
+        self._deadline = now + self._timeout
+        return NOTHING  # a segment after a lost one: dropped, the client sends it again
+
+    def _block_download_end(self, data: bytes) -> Out:
+        if self._crc_used and len(data) < 3:
+            return self._abort(SdoAbortCode.INVALID_COMMAND)
+        buf = self._buf
+        del buf[len(buf) - ((data[0] >> 2) & 7) :]
+        size = self._size
+        if size is not None and len(buf) != size:
+            too_long = len(buf) > size
+            return self._abort(
+                SdoAbortCode.LENGTH_TOO_HIGH if too_long else SdoAbortCode.LENGTH_TOO_LOW
+            )
+        if self._crc_used and w.U16.unpack_from(data, 1)[0] != crc_hqx(buf, 0):
+            return self._abort(SdoAbortCode.CRC)
+        return self._store(bytes(buf), self._frame(w.CODE_ONLY.pack(w.BLOCK5_END)))
+
+    def _send_subblock(self, now: float) -> Out:
+        frames, self._sent, self._sent_last = w.subblock(
+            self._tx, self._ext, self._data, self._pos, self._blksize
+        )
+        self._deadline = now + self._timeout
+        return Out(frames)
+
+    def _block_ack(self, data: bytes, now: float) -> Out:
+        if len(data) < 3:
+            return self._abort(SdoAbortCode.INVALID_COMMAND)
+        ackseq = data[1]
+        blksize = data[2]
+        if ackseq > self._sent:
+            return self._abort(SdoAbortCode.SEQUENCE_NUMBER)
+        if not 1 <= blksize <= w.MAX_BLOCK_SIZE:
+            return self._abort(SdoAbortCode.BLOCK_SIZE)
+        self._pos += 7 * ackseq
+        if self._sent_last and ackseq == self._sent:
+            total = len(self._data)
+            crc = crc_hqx(self._data, 0) if self._crc_used else 0
+            self._state = _BUL_END
+            cmd = w.BLOCK6_END | (w.unused_in_last(total) << 2)
+            return self._send(w.END_CRC.pack(cmd, crc), now)
+        self._sent_last = False
+        self._blksize = blksize
+        return self._send_subblock(now)
+
+    # -- helpers -------------------------------------------------------------------------------
+
+    def _frame(self, payload: bytes) -> Frame:
+        return Frame(self._tx, payload, extended=self._ext)
+
+    def _mux_frame(self, cmd: int) -> bytes:
+        return w.WITH_U32.pack(cmd, self._index, self._subindex, 0)
+
+    def _send(self, payload: bytes, now: float) -> Out:
+        self._deadline = now + self._timeout
+        return Out((Frame(self._tx, payload, extended=self._ext),))
+
+    def _store(self, value: bytes, response: Frame) -> Out:
+        """Hand a complete download to the back end; answer ``response`` when it accepts."""
+        try:
+            self._backend.download(self._index, self._subindex, value)
+        except SdoAbort as refusal:
+            return self._abort(refusal.code)
+        event = ServerDownloaded(self._index, self._subindex, len(value))
+        self._reset()
+        return Out((response,), (event,))
+
+    def _abort(self, code: int) -> Out:
+        """Send abort ``code`` for the current object and end the transfer, if any."""
+        if self._index < 0:  # outside a transfer: name no object
+            self._index = self._subindex = 0
+        frame = self._frame(w.WITH_U32.pack(w.ABORT, self._index, self._subindex, code))
+        event = ServerAborted(self._index, self._subindex, as_code(code), by_peer=False)
+        self._reset()
+        return Out((frame,), (event,))
+
+    def _reset(self) -> None:
+        self._state = _IDLE
+        self._deadline = None
+        self._data = b""
+        self._buf = bytearray()
+        self._index = -1
+        self._subindex = -1
+
+    @staticmethod
+    def _peer_code(data: bytes) -> int:
+        return int(w.U32.unpack_from(w.padded(data), 4)[0])
