@@ -25,13 +25,13 @@ Choices where CiA 301 leaves room:
 
 from __future__ import annotations
 
-from binascii import crc_hqx
 from dataclasses import dataclass
 
 from cobus.proto._base import NOTHING, Event, Out
 from cobus.proto.frame import Frame
 from cobus.proto.sdo import _wire as w
 from cobus.proto.sdo.abort import SdoAbortCode
+from cobus.proto.sdo.crc import crc16
 from cobus.proto.sdo.errors import (
     SdoAbortedError,
     SdoBusyError,
@@ -496,7 +496,7 @@ class SdoClient:
             )
         if self._crc_used:
             crc = w.U16.unpack_from(data, 1)[0]
-            mine = crc_hqx(buf, 0)
+            mine = crc16(buf)
             if crc != mine:
                 return self._error(
                     SdoAbortCode.CRC,
@@ -554,7 +554,7 @@ class SdoClient:
         self._pos += 7 * ackseq
         if self._sent_last and ackseq == self._sent:
             total = len(self._data)
-            crc = crc_hqx(self._data, 0) if self._crc_used else 0
+            crc = crc16(self._data) if self._crc_used else 0
             cmd = w.BLOCK6_END | (w.unused_in_last(total) << 2)
             self._state = _BDL_END
             return self._send(w.END_CRC.pack(cmd, crc), now)

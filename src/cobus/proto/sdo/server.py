@@ -34,7 +34,6 @@ Choices where CiA 301 leaves room:
 
 from __future__ import annotations
 
-from binascii import crc_hqx
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Protocol, cast
@@ -43,6 +42,7 @@ from cobus.proto._base import NOTHING, Event, Out
 from cobus.proto.frame import Frame
 from cobus.proto.sdo import _wire as w
 from cobus.proto.sdo.abort import SdoAbortCode, as_code
+from cobus.proto.sdo.crc import crc16
 from cobus.proto.sdo.errors import SdoAbort
 
 __all__ = [
@@ -528,7 +528,7 @@ class SdoServer:
             return self._abort(
                 SdoAbortCode.LENGTH_TOO_HIGH if too_long else SdoAbortCode.LENGTH_TOO_LOW
             )
-        if self._crc_used and w.U16.unpack_from(data, 1)[0] != crc_hqx(buf, 0):
+        if self._crc_used and w.U16.unpack_from(data, 1)[0] != crc16(buf):
             return self._abort(SdoAbortCode.CRC)
         return self._store(bytes(buf), self._frame(w.CODE_ONLY.pack(w.BLOCK5_END)))
 
@@ -551,7 +551,7 @@ class SdoServer:
         self._pos += 7 * ackseq
         if self._sent_last and ackseq == self._sent:
             total = len(self._data)
-            crc = crc_hqx(self._data, 0) if self._crc_used else 0
+            crc = crc16(self._data) if self._crc_used else 0
             self._state = _BUL_END
             cmd = w.BLOCK6_END | (w.unused_in_last(total) << 2)
             return self._send(w.END_CRC.pack(cmd, crc), now)
