@@ -204,6 +204,15 @@ def test_heartbeat_of_a_tracked_node_arms_a_later_added_timeout():
     assert m.on_timer(0.7).events == (HeartbeatTimeout(9),)
 
 
+def test_shorter_time_for_a_supervised_node_moves_the_deadline_earlier():
+    m = HeartbeatMonitor()
+    m.watch(3, 10.0, 0.0)
+    m.on_frame(hb(3, 5), 0.0)
+    m.watch(3, 0.5, 1.0)
+    assert deadline(m) == 1.5
+    assert m.on_timer(1.5).events == (HeartbeatTimeout(3),)
+
+
 def test_unconfigured_nodes_and_other_frames_are_ignored():
     c = consumer(encode_consumer_entry(5, 100))
     assert c.on_frame(hb(6, 5), 0.0) is NOTHING
