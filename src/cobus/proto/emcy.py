@@ -187,6 +187,9 @@ class ErrorRegister(IntFlag):
     MANUFACTURER = 0x80
 
 
+_REGISTERS: tuple[ErrorRegister, ...] = tuple(ErrorRegister(i) for i in range(256))
+
+
 class EmcyCobId(NamedTuple):
     """The 1014h value: identifier, validity (bit 31 clear) and identifier format (bit 29)."""
 
@@ -268,7 +271,7 @@ def parse_emcy(frame: Frame, node_id: int) -> EmcyReceived | MalformedEmcy:
         reason = f"emergency with {len(data)} data bytes; CiA 301 emergencies carry 8"
         return MalformedEmcy(node_id, data, reason)
     code, register, manufacturer = _FRAME.unpack(data)
-    return EmcyReceived(node_id, code, ErrorRegister(register), manufacturer, describe(code))
+    return EmcyReceived(node_id, code, _REGISTERS[register], manufacturer, describe(code))
 
 
 class EmcyConsumer:
