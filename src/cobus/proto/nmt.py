@@ -17,6 +17,7 @@ from cobus.proto._base import NOTHING, Event, Out
 from cobus.proto.frame import Frame
 
 __all__ = [
+    "ERROR_CONTROL_BASE",
     "NMT_COB_ID",
     "MalformedNmt",
     "MalformedNmtError",
