@@ -2,19 +2,64 @@
 
 - :class:`DataType`, :func:`encode`, :func:`decode` — exact little-endian codecs of every
   basic data type (hot paths: one dict lookup and a precompiled ``struct``).
+- :class:`ObjectDictionary` of :class:`Variable`, :class:`Record` and :class:`Array` objects,
+  addressed by number (``od[0x1018][1]``) or by name (``od["Identity object"]["Vendor-ID"]``).
+- :func:`load` / :func:`loads` read EDS and DCF files, tolerant by default: what deviates from
+  CiA 306 is listed in ``od.findings``; ``strict=True`` raises :class:`EdsError` instead.
+- ``od.to_eds()`` / ``od.to_dcf(node_id)`` / ``od.save(path)`` write them back.
 """
 
-from cobus.od._errors import DataLengthError, DataTypeError, ValueRangeError
+from cobus.od._checks import mapping_entries, validate
+from cobus.od._eds import load, loads
+from cobus.od._errors import (
+    DataLengthError,
+    DataTypeError,
+    EdsError,
+    Finding,
+    Severity,
+    ValueRangeError,
+)
+from cobus.od._model import (
+    Access,
+    Array,
+    Commissioning,
+    DeviceInfo,
+    FileInfo,
+    Object,
+    ObjectDictionary,
+    ObjectDictionaryError,
+    ObjectType,
+    Record,
+    Variable,
+)
 from cobus.od._types import DataType, TimeDifference, TimeOfDay, Value, decode, encode
 
 __all__ = [
+    "Access",
+    "Array",
+    "Commissioning",
     "DataLengthError",
     "DataType",
     "DataTypeError",
+    "DeviceInfo",
+    "EdsError",
+    "FileInfo",
+    "Finding",
+    "Object",
+    "ObjectDictionary",
+    "ObjectDictionaryError",
+    "ObjectType",
+    "Record",
+    "Severity",
     "TimeDifference",
     "TimeOfDay",
     "Value",
     "ValueRangeError",
+    "Variable",
     "decode",
     "encode",
+    "load",
+    "loads",
+    "mapping_entries",
+    "validate",
 ]
