@@ -1,0 +1,111 @@
+"""``cobus eds check|show|doc`` on corpus files and broken ones."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from cobus.cli import main
+from tests.conftest import EDS_DIR
+
+BROKEN = Path(__file__).parent / "data" / "broken_eds"
+FINDING = re.compile(r"^(?P<file>.+?):(?P<line>\d+): (\[(?P<sect>[^\]]+)\] )?(warning|error): .+$")
+
+
+def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    code = main(["eds", *argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_check_clean_file_exits_0(capsys):
+    code, out, err = run(capsys, "check", str(BROKEN / "valid.eds"))
+    assert code == 0 and out == ""
+    assert "7 objects, 0 error(s), 0 warning(s)" in err
+
+
+def test_check_warnings_exit_1(capsys):
+    path = str(EDS_DIR / "kacanopen_406.eds")
+    code, out, _ = run(capsys, "check", path)
+    assert code == 1
+    assert out == (
+        f"{path}:57: [OptionalObjects] warning: SupportedObjects=64 but 67 objects are listed\n"
+    )
+
+
+def test_check_errors_exit_2_one_line_per_finding(capsys):
+    path = str(EDS_DIR / "canopen-python_sample.eds")
+    code, out, err = run(capsys, "check", path)
+    assert code == 2
+    lines = out.splitlines()
+    assert len(lines) == 22 and "18 error(s), 4 warning(s)" in err
+    for line in lines:
+        m = FINDING.match(line) or re.match(rf"^{re.escape(path)}: warning: ", line)
+        assert m, line
+    assert f"{path}:77: [1018] error: missing sub-object: SubNumber=5" in out
+
+
+def test_check_broken_file(capsys):
+    path = str(BROKEN / "pdo_over_64_bits.eds")
+    code, out, _ = run(capsys, "check", path)
+    assert (code, out) == (
+        2,
+        f"{path}:94: [1A00sub0] error: TPDO mapping 0x1A00 maps 72 bits; a PDO carries "
+        "at most 64\n",
+    )
+
+
+def test_check_unreadable_file(capsys, tmp_path):
+    code, out, err = run(capsys, "check", str(tmp_path / "nope.eds"))
+    assert code == 2 and out == "" and "cannot read the file" in err
+
+
+def test_eds_without_action_prints_usage(capsys):
+    code, out, _ = run(capsys)
+    assert code == 2 and "check" in out and "show" in out and "doc" in out
+
+
+def test_show_lists_objects(capsys):
+    code, out, _ = run(capsys, "show", str(EDS_DIR / "lely_co-sdev.dcf"))
+    assert code == 0
+    lines = out.splitlines()
+    assert lines[0].endswith("28 objects")
+    assert re.match(r"Index\s+Sub\s+Name\s+Type\s+Access\s+PDO\s+Default\s+Value$", lines[2])
+    assert re.search(r"^0x1018\s+Identity object\s+RECORD$", out, re.M)
+    assert re.search(r"^0x1018\s+1\s+Vendor-ID\s+UNSIGNED32\s+ro\s+0x360$", out, re.M)
+    assert re.search(r"^0x2009\s+VISIBLE_STRING\s+VISIBLE_STRING\s+rw\s+Hello, World!$", out, re.M)
+    assert re.search(r"^0x200C\s+TIME_OF_DAY\s+TIME_OF_DAY\s+rw\s+365 43200000$", out, re.M)
+
+
+def test_show_resolves_node_id(capsys):
+    path = str(EDS_DIR / "canopennode_ds301_profile.eds")
+    _, plain, _ = run(capsys, "show", path)
+    assert re.search(r"^0x1014\s+COB-ID EMCY\s+UNSIGNED32\s+rw\s+\$NODEID\+0x80$", plain, re.M)
+    _, resolved, _ = run(capsys, "show", "--node-id", "5", path)
+    assert re.search(r"^0x1014\s+COB-ID EMCY\s+UNSIGNED32\s+rw\s+0x85$", resolved, re.M)
+
+
+def test_doc_is_a_datasheet(capsys):
+    code, out, _ = run(capsys, "doc", "--node-id", "1", str(EDS_DIR / "elmo_elmo.eds"))
+    assert code == 0
+    assert out.startswith("# ")
+    for heading in ("## Identity", "## PDOs", "### RPDO 1", "### TPDO 1", "## Objects"):
+        assert f"\n{heading}\n" in out
+    assert "| Device type (0x1000) | 0x00000192 CiA 402 drives and motion control |" in out
+    assert "| Vendor | Elmo Motion Control (0x0000009A) |" in out
+    assert "| Bit rates (kbit/s) | 50, 125, 250, 500, 1000 |" in out
+    assert "> 1. Added 100K baud to Device Information" in out  # [Comments]
+    # TPDO 1 of the Elmo drive maps the statusword by default.
+    tpdo1 = out.split("### TPDO 1")[1].split("###")[0]
+    assert "Communication 0x1800: COB-ID 0x181 ($NODEID+0x180)" in tpdo1
+    assert "| 1 | 0x6041sub0 | statusword | 16 |" in tpdo1
+    assert "| 0x6040 |  | controlword | UNSIGNED16 | rww | yes | 0x0 | 0x0 … 0xFFFF |  |" in out
+    assert "## Notes" in out  # the file has a finding; the doc says so
+
+
+def test_doc_of_every_corpus_file_renders(capsys):
+    for path in sorted(EDS_DIR.glob("*.[ed][dc][sf]")):
+        code, out, _ = run(capsys, "doc", str(path))
+        assert code == 0 and "## Objects" in out, path.name
