@@ -177,6 +177,15 @@ def _client_at_block_upload_end(size: int, announced: int | None = None) -> SdoC
     return c
 
 
+def test_client_refuses_more_segments_than_the_size_needs_at_once() -> None:
+    c = SdoClient(RX, TX)
+    c.start_upload(IDX, 0, 0.0, block=True)
+    c.on_frame(s2c(0xC6, LO, HI, 0, 8), 0.0)  # two segments
+    c.on_frame(s2c(0x01, *range(7)), 0.1)
+    c.on_frame(s2c(0x02, *range(7)), 0.1)
+    protocol_abort(c.on_frame(s2c(0x03, *range(7)), 0.1), RX, SdoAbortCode.LENGTH_TOO_HIGH)
+
+
 def test_client_block_upload_crc_error_aborts_05040004() -> None:
     c = _client_at_block_upload_end(10)
     lo, hi = crc_bytes(data_of(10))

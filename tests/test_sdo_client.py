@@ -517,11 +517,12 @@ def test_extended_cob_ids_and_unknown_node() -> None:
     out = c.start_upload(IDX, 0, 0.0)
     assert out.frames[0].extended and out.frames[0].cob_id == 0x1234567
     error = failed(c.on_timer(1.0)).error
-    assert error.node is None
+    assert error.node is None and c.node is None
     assert "(SDO 0x1234567/0x1234568)" in str(error)
 
 
 def test_node_can_be_named() -> None:
     c = SdoClient(0x640, 0x5C0, node=64)
+    assert c.node == 64 and client().node == 5
     c.start_upload(IDX, 0, 0.0)
     assert "node 64" in str(failed(c.on_timer(2.0)).error)

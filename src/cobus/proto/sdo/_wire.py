@@ -105,6 +105,15 @@ def node_of(rx_cob_id: int, tx_cob_id: int) -> int | None:
     return None
 
 
+UNLIMITED = 1 << 62
+
+
+def block_room(size: int | None) -> int:
+    """The bytes the block segments of an indicated ``size`` carry (whole segments, at least
+    one); more is data beyond the size. No size indicated: no limit."""
+    return 7 * max(1, -(-size // 7)) if size is not None else UNLIMITED
+
+
 def unused_in_last(size: int) -> int:
     """Bytes of the last 7-byte segment that carry no data (7 for an empty transfer)."""
     return (7 - size % 7) % 7 if size else 7

@@ -118,6 +118,7 @@ class SdoClient:
         "_expected",
         "_ext",
         "_index",
+        "_max_buf",
         "_node",
         "_pos",
         "_pst",
@@ -164,6 +165,7 @@ class SdoClient:
         self._buf = bytearray()
         self._pos = 0
         self._size: int | None = None
+        self._max_buf = 0
         self._toggle = 0
         self._blksize = 0
         self._expected = 1
@@ -182,6 +184,11 @@ class SdoClient:
     def tx_cob_id(self) -> int:
         """The COB-ID the client listens on (the server's transmit COB-ID)."""
         return self._tx
+
+    @property
+    def node(self) -> int | None:
+        """The node-ID named in error messages (``None``: the channel's COB-IDs are named)."""
+        return self._node
 
     @property
     def timeout(self) -> float:
@@ -315,7 +322,13 @@ class SdoClient:
             if seq == self._expected:
                 if len(data) < 8:
                     data = w.padded(data)
-                self._buf += data[1:]
+                buf = self._buf
+                buf += data[1:]
+                if len(buf) > self._max_buf:
+                    return self._error(
+                        SdoAbortCode.LENGTH_TOO_HIGH,
+                        f"the server sent more segments than the {self._size} bytes it announced",
+                    )
                 if cmd & w.LAST_SEGMENT:
                     self._state = _BUL_END
                     return self._send(w.ACK.pack(w.BLOCK_ACK, seq, self._blksize), now)
@@ -458,6 +471,7 @@ class SdoClient:
             if len(data) < 8:
                 return self._short(data, "a block upload response with its size")
             self._size = w.U32.unpack_from(data, 4)[0]
+        self._max_buf = w.block_room(self._size)
         self._crc_used = self._crc and bool(cmd & w.BLOCK_CRC)
         self._state = _BUL_DATA
         self._expected = 1

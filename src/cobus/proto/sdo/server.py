@@ -438,8 +438,7 @@ class SdoServer:
         if refused is not None:
             return self._abort(refused)
         self._size = size
-        # The segments an indicated size needs, whole: more is data longer than indicated.
-        self._max_buf = 7 * max(1, -(-size // 7)) if size is not None else 0x7FFFFFFFFFFFFFFF
+        self._max_buf = w.block_room(size)
         self._buf = bytearray()
         self._expected = 1
         self._blksize = self.block_size
