@@ -6,7 +6,7 @@
 - :class:`SimulatedEventLoop` — the virtual clock.
 """
 
-from cobus.runtime.blocking import Network
+from cobus.runtime.blocking import Network, RemoteNode
 from cobus.runtime.bus import BusOpenError, open_bus
 from cobus.runtime.events import (
     BusErrorFrame,
@@ -26,9 +26,12 @@ from cobus.runtime.network import (
     Subscription,
     TxOverflowError,
 )
+from cobus.runtime.remote import NmtMaster, ObjectNotFoundError, SdoChannel, SyncService
+from cobus.runtime.remote import RemoteNode as AsyncRemoteNode
 
 __all__ = [
     "AsyncNetwork",
+    "AsyncRemoteNode",
     "BusErrorFrame",
     "BusOpenError",
     "BusState",
@@ -37,11 +40,16 @@ __all__ = [
     "MachineHost",
     "Network",
     "NetworkClosedError",
+    "NmtMaster",
+    "ObjectNotFoundError",
     "ReceiveFailed",
+    "RemoteNode",
     "RxOverflow",
+    "SdoChannel",
     "SimulatedEventLoop",
     "SimulationStalledError",
     "Subscription",
+    "SyncService",
     "TxOverflowError",
     "TxQueueFull",
     "TxResumed",

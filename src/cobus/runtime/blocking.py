@@ -17,15 +17,23 @@ import concurrent.futures
 import queue
 import threading
 from collections.abc import Callable, Coroutine
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import can
 
 from cobus.proto import Event, Frame
+from cobus.proto.nmt import NmtCommand
 from cobus.runtime.loop import new_event_loop
 from cobus.runtime.network import AsyncNetwork, FrameHandler, Subscription
+from cobus.runtime.remote import RemoteNode as AsyncRemoteNode
+from cobus.runtime.remote import SdoChannel
 
-__all__ = ["Network", "Runner"]
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from cobus.od import ObjectDictionary, Variable
+
+__all__ = ["BlockingNmt", "BlockingSdo", "BlockingSync", "Network", "RemoteNode", "Runner"]
 
 T = TypeVar("T")
 
@@ -189,3 +197,116 @@ class Network:
     @property
     def frames_received(self) -> int:
         return self.aio.frames_received
+
+    # ------------------------------------------------------------------ nodes and services
+    def add_remote(
+        self,
+        node_id: int,
+        od: ObjectDictionary | str | Path | None = None,
+        *,
+        sdo_timeout: float = 1.0,
+    ) -> RemoteNode:
+        """A node this network talks to as a client; ``od`` may be an EDS/DCF path."""
+        node = self._runner.call(lambda: self.aio.add_remote(node_id, od, sdo_timeout=sdo_timeout))
+        return RemoteNode(node, self._runner)
+
+    @property
+    def nmt(self) -> BlockingNmt:
+        return BlockingNmt(self)
+
+    @property
+    def sync(self) -> BlockingSync:
+        return BlockingSync(self)
+
+
+class BlockingSdo:
+    """The blocking face of an :class:`~cobus.runtime.remote.SdoChannel`."""
+
+    def __init__(self, channel: SdoChannel, runner: Runner) -> None:
+        self.channel = channel
+        self._runner = runner
+
+    def upload(self, index: int, subindex: int = 0, *, block: bool = False) -> bytes:
+        return self._runner.run(self.channel.upload(index, subindex, block=block))
+
+    def download(
+        self,
+        index: int,
+        subindex: int,
+        data: bytes,
+        *,
+        block: bool = False,
+        size_indicated: bool = True,
+    ) -> None:
+        self._runner.run(
+            self.channel.download(index, subindex, data, block=block, size_indicated=size_indicated)
+        )
+
+    def read(self, index: int | str, subindex: int | str = 0) -> Any:
+        return self._runner.run(self.channel.read(index, subindex))
+
+    def write(self, index: int | str, subindex: int | str, value: Any) -> None:
+        self._runner.run(self.channel.write(index, subindex, value))
+
+    def variable(self, index: int | str, subindex: int | str = 0) -> Variable:
+        return self.channel.variable(index, subindex)
+
+
+class RemoteNode:
+    """The blocking face of a :class:`~cobus.runtime.remote.RemoteNode`."""
+
+    def __init__(self, node: AsyncRemoteNode, runner: Runner) -> None:
+        self.aio = node
+        self.node_id = node.node_id
+        self.od = node.od
+        self.sdo = BlockingSdo(node.sdo, runner)
+
+    def __repr__(self) -> str:
+        return f"RemoteNode({self.node_id})"
+
+
+class BlockingNmt:
+    """NMT commands from blocking code; each call returns once the frame is handed over."""
+
+    def __init__(self, network: Network) -> None:
+        self._network = network
+
+    def send(self, command: NmtCommand | int | str, node_id: int = 0) -> None:
+        aio = self._network.aio
+        self._network._runner.call(lambda: aio.nmt.send(command, node_id))
+
+    def start(self, node_id: int = 0) -> None:
+        self.send(NmtCommand.START, node_id)
+
+    def stop(self, node_id: int = 0) -> None:
+        self.send(NmtCommand.STOP, node_id)
+
+    def enter_preoperational(self, node_id: int = 0) -> None:
+        self.send(NmtCommand.ENTER_PREOPERATIONAL, node_id)
+
+    def reset_node(self, node_id: int = 0) -> None:
+        self.send(NmtCommand.RESET_NODE, node_id)
+
+    def reset_communication(self, node_id: int = 0) -> None:
+        self.send(NmtCommand.RESET_COMMUNICATION, node_id)
+
+
+class BlockingSync:
+    """The SYNC producer from blocking code."""
+
+    def __init__(self, network: Network) -> None:
+        self._network = network
+
+    def start(self, period: float, *, overflow: int = 0, cob_id: int = 0x80) -> None:
+        aio = self._network.aio
+        self._network._runner.call(lambda: aio.sync.start(period, overflow=overflow, cob_id=cob_id))
+
+    def stop(self) -> None:
+        self._network._runner.call(self._network.aio.sync.stop)
+
+    def send(self) -> None:
+        self._network._runner.call(self._network.aio.sync.send)
+
+    @property
+    def running(self) -> bool:
+        return self._network.aio.sync.running

@@ -13,7 +13,8 @@ import logging
 import threading
 from collections import deque
 from collections.abc import Callable, Iterable
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import can
 
@@ -29,6 +30,10 @@ from cobus.runtime.events import (
     TxResumed,
 )
 from cobus.runtime.loop import SimulatedEventLoop
+
+if TYPE_CHECKING:
+    from cobus.od import ObjectDictionary
+    from cobus.runtime.remote import NmtMaster, RemoteNode, SyncService
 
 __all__ = [
     "AsyncNetwork",
@@ -189,6 +194,9 @@ class AsyncNetwork:
         self._state_poll: asyncio.TimerHandle | None = None
         self.frames_received = 0
         self.frames_sent = 0
+        self.remotes: dict[int, RemoteNode] = {}
+        self._nmt: NmtMaster | None = None
+        self._sync: SyncService | None = None
 
     # ------------------------------------------------------------------ life cycle
     async def connect(self) -> AsyncNetwork:
@@ -314,6 +322,41 @@ class AsyncNetwork:
         for cob_id in cob_ids:
             host.listen(cob_id)
         return host
+
+    # ------------------------------------------------------------------ nodes and services
+    def add_remote(
+        self,
+        node_id: int,
+        od: ObjectDictionary | str | Path | None = None,
+        *,
+        sdo_timeout: float = 1.0,
+    ) -> RemoteNode:
+        """A node this network talks to as a client; ``od`` may be an EDS/DCF path."""
+        from cobus.runtime.remote import RemoteNode, load_od
+
+        if node_id in self.remotes:
+            raise ValueError(f"node {node_id} is already on this network")
+        node = RemoteNode(self, node_id, load_od(od, node_id), sdo_timeout=sdo_timeout)
+        self.remotes[node_id] = node
+        return node
+
+    @property
+    def nmt(self) -> NmtMaster:
+        """The NMT master service: ``net.nmt.send(command, node_id)``."""
+        if self._nmt is None:
+            from cobus.runtime.remote import NmtMaster
+
+            self._nmt = NmtMaster(self)
+        return self._nmt
+
+    @property
+    def sync(self) -> SyncService:
+        """The SYNC producer: ``net.sync.start(period)``, ``net.sync.stop()``."""
+        if self._sync is None:
+            from cobus.runtime.remote import SyncService
+
+            self._sync = SyncService(self)
+        return self._sync
 
     # ------------------------------------------------------------------ events
     def add_listener(self, listener: EventListener) -> None:

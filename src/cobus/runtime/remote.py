@@ -1,0 +1,290 @@
+"""Remote nodes seen from this network: SDO client channels and the NMT master service.
+
+``node.sdo.upload/download`` move raw bytes; ``node.sdo.read/write`` convert through the node's
+object dictionary (type, access and limits checked before anything is sent).
+"""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from cobus.errors import CobusError
+from cobus.proto import NOTHING, Event
+from cobus.proto.nmt import NmtCommand, check_node_id, nmt_command_frame
+from cobus.proto.sdo import (
+    DownloadDone,
+    SdoAbortCode,
+    SdoAbortedError,
+    SdoClient,
+    TransferFailed,
+    UploadDone,
+)
+from cobus.proto.sync import SyncProducer
+
+if TYPE_CHECKING:
+    from cobus.od import ObjectDictionary, Variable
+    from cobus.runtime.network import AsyncNetwork, MachineHost
+
+__all__ = ["NmtMaster", "ObjectNotFoundError", "RemoteNode", "SdoChannel", "SyncService"]
+
+Key = int | str
+
+
+class ObjectNotFoundError(CobusError, KeyError):
+    """An object named by index or name is not in the node's object dictionary."""
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
+def load_od(od: ObjectDictionary | str | Path | None, node_id: int) -> ObjectDictionary | None:
+    """An object dictionary from an object, or from an EDS/DCF path (``$NODEID`` = node_id)."""
+    if od is None or not isinstance(od, str | Path):
+        return od
+    from cobus.od import load
+
+    return load(od, node_id=node_id)
+
+
+class SdoChannel:
+    """One SDO client channel to a server (default: 600h+id / 580h+id).
+
+    Transfers on one channel run one after the other, in the order they were asked for.
+    """
+
+    def __init__(
+        self,
+        network: AsyncNetwork,
+        node_id: int,
+        od: ObjectDictionary | None,
+        *,
+        rx_cob_id: int | None = None,
+        tx_cob_id: int | None = None,
+        timeout: float = 1.0,
+    ) -> None:
+        self.node_id = node_id
+        self.od = od
+        self._network = network
+        self.client = SdoClient(
+            0x600 + node_id if rx_cob_id is None else rx_cob_id,
+            0x580 + node_id if tx_cob_id is None else tx_cob_id,
+            timeout=timeout,
+        )
+        self._host: MachineHost = network.attach(
+            self.client, [self.client.tx_cob_id], on_event=self._on_event
+        )
+        self._lock = asyncio.Lock()
+        self._pending: asyncio.Future[Event] | None = None
+
+    def _on_event(self, event: Event) -> None:
+        if isinstance(event, UploadDone | DownloadDone | TransferFailed):
+            pending = self._pending
+            if pending is not None and not pending.done():
+                pending.set_result(event)
+        self._network.emit(event)
+
+    async def _transfer(self, start: Any) -> Event:
+        async with self._lock:
+            self._pending = self._network.loop.create_future()
+            try:
+                self._host.run(start)
+                return await self._pending
+            finally:
+                self._pending = None
+
+    async def upload(self, index: int, subindex: int = 0, *, block: bool = False) -> bytes:
+        """Read the raw bytes of ``index:subindex`` from the server.
+
+        ``block=True`` uses block upload and falls back to segmented if the server refuses it.
+        """
+        event = await self._transfer(
+            lambda now: self.client.start_upload(index, subindex, now, block=block)
+        )
+        if block and _refused_block(event):
+            return await self.upload(index, subindex)
+        if isinstance(event, TransferFailed):
+            raise event.error
+        assert isinstance(event, UploadDone)
+        return event.data
+
+    async def download(
+        self,
+        index: int,
+        subindex: int,
+        data: bytes,
+        *,
+        block: bool = False,
+        size_indicated: bool = True,
+    ) -> None:
+        """Write raw bytes to ``index:subindex`` on the server."""
+        event = await self._transfer(
+            lambda now: self.client.start_download(
+                index, subindex, bytes(data), now, block=block, size_indicated=size_indicated
+            )
+        )
+        if block and _refused_block(event):
+            await self.download(index, subindex, data, size_indicated=size_indicated)
+            return
+        if isinstance(event, TransferFailed):
+            raise event.error
+
+    # -- typed access through the object dictionary
+    def variable(self, index: Key, subindex: Key = 0) -> Variable:
+        """The object dictionary entry named by index or name, and subindex or name."""
+        if self.od is None:
+            raise ObjectNotFoundError(
+                f"node {self.node_id} has no object dictionary: give one to add_remote() "
+                "or use sdo.upload()/sdo.download() for raw bytes"
+            )
+        from cobus.od import Variable
+
+        try:
+            obj = self.od[index]
+        except KeyError:
+            raise ObjectNotFoundError(
+                f"node {self.node_id}: no object {_fmt(index)} in its object dictionary"
+            ) from None
+        if isinstance(obj, Variable):
+            if subindex not in (0, obj.name):
+                raise ObjectNotFoundError(
+                    f"node {self.node_id}: object {_fmt(index)} is a single variable; "
+                    f"it has no subindex {_fmt(subindex)}"
+                )
+            return obj
+        try:
+            var = obj[subindex]
+        except KeyError:
+            raise ObjectNotFoundError(
+                f"node {self.node_id}: object {_fmt(index)} has no subindex {_fmt(subindex)}"
+            ) from None
+        assert isinstance(var, Variable)
+        return var
+
+    async def read(self, index: Key, subindex: Key = 0) -> Any:
+        """Read an entry and decode it with its data type."""
+        var = self.variable(index, subindex)
+        data = await self.upload(var.index, var.subindex)
+        return var.decode(data)
+
+    async def write(self, index: Key, subindex: Key, value: Any) -> None:
+        """Encode ``value`` with the entry's data type (limits checked) and write it."""
+        var = self.variable(index, subindex)
+        await self.download(var.index, var.subindex, var.encode(value))
+
+
+def _refused_block(event: Event) -> bool:
+    if not isinstance(event, TransferFailed):
+        return False
+    error = event.error
+    return isinstance(error, SdoAbortedError) and error.code in (
+        SdoAbortCode.INVALID_COMMAND,
+        SdoAbortCode.UNSUPPORTED_ACCESS,
+    )
+
+
+def _fmt(key: Key) -> str:
+    return f"0x{key:04X}" if isinstance(key, int) else repr(key)
+
+
+class NmtMaster:
+    """Sends NMT commands (``net.nmt.send(NmtCommand.START, 0)`` starts every node)."""
+
+    def __init__(self, network: AsyncNetwork) -> None:
+        self._network = network
+
+    def send(self, command: NmtCommand | int | str, node_id: int = 0) -> None:
+        if isinstance(command, str):
+            try:
+                command = NmtCommand[command.upper().replace("-", "_").replace(" ", "_")]
+            except KeyError:
+                names = ", ".join(c.name.lower() for c in NmtCommand)
+                raise ValueError(f"unknown NMT command {command!r}; use one of {names}") from None
+        check_node_id(node_id, broadcast=True)
+        self._network.send(nmt_command_frame(command, node_id))
+
+    def start(self, node_id: int = 0) -> None:
+        self.send(NmtCommand.START, node_id)
+
+    def stop(self, node_id: int = 0) -> None:
+        self.send(NmtCommand.STOP, node_id)
+
+    def enter_preoperational(self, node_id: int = 0) -> None:
+        self.send(NmtCommand.ENTER_PREOPERATIONAL, node_id)
+
+    def reset_node(self, node_id: int = 0) -> None:
+        self.send(NmtCommand.RESET_NODE, node_id)
+
+    def reset_communication(self, node_id: int = 0) -> None:
+        self.send(NmtCommand.RESET_COMMUNICATION, node_id)
+
+
+class RemoteNode:
+    """A node on the bus that this network talks to as a client (master side)."""
+
+    def __init__(
+        self,
+        network: AsyncNetwork,
+        node_id: int,
+        od: ObjectDictionary | None = None,
+        *,
+        sdo_timeout: float = 1.0,
+    ) -> None:
+        check_node_id(node_id)
+        self.node_id = node_id
+        self.od = od
+        self.network = network
+        self.sdo = SdoChannel(network, node_id, od, timeout=sdo_timeout)
+
+    def __repr__(self) -> str:
+        return f"RemoteNode({self.node_id})"
+
+
+class SyncService:
+    """The SYNC producer of this network: ``net.sync.start(0.01)`` sends SYNC every 10 ms."""
+
+    def __init__(self, network: AsyncNetwork) -> None:
+        self._network = network
+        self._producer: SyncProducer | None = None
+        self._host: MachineHost | None = None
+
+    @property
+    def running(self) -> bool:
+        return self._host is not None
+
+    @property
+    def period(self) -> float | None:
+        """The SYNC period in seconds, or None while stopped."""
+        if self._producer is None or self._host is None:
+            return None
+        return self._producer.period_us / 1e6
+
+    def start(self, period: float, *, overflow: int = 0, cob_id: int = 0x80) -> None:
+        """Send SYNC every ``period`` seconds (the first one period from now).
+
+        ``overflow`` 2..240 adds the CiA 301 counter (1..overflow) to each SYNC; 0 = no counter.
+        """
+        us = round(period * 1e6)
+        if not 1 <= us <= 0xFFFFFFFF:
+            raise ValueError(
+                f"SYNC period {period!r} s is out of range: 1006h holds 1 us to 4294.967295 s"
+            )
+        self.stop()
+        producer = SyncProducer(cob_id, overflow=overflow)
+        producer.set_period(us, self._network.time())
+        self._producer = producer
+        self._host = self._network.attach(producer)
+        self._host.apply(NOTHING)
+
+    def send(self) -> None:
+        """Send one SYNC now, outside the period (e.g. once per application cycle)."""
+        producer = self._producer or SyncProducer()
+        self._producer = producer
+        for frame in producer.send(self._network.time()).frames:
+            self._network.send(frame)
+
+    def stop(self) -> None:
+        if self._host is not None:
+            self._host.close()
+            self._host = None
