@@ -18,7 +18,8 @@ Choices where CiA 301 leaves room:
   because the client would take it as the answer to its new request; the device layer is told
   with :class:`ServerAborted` (code 08000000, ``by_peer=True``). During the data phase of a
   block download every frame except an abort is a block segment (the protocol cannot tell
-  them apart), so an initiate there is refused as a sequence error like any bad segment.
+  them apart): an initiate there is taken as a segment out of sequence (ignored), or refused
+  with 05040003 when its first byte names a sequence number beyond the block size.
 - An abort from the client ends the transfer silently (:class:`ServerAborted` with
   ``by_peer=True``). Outside a transfer it is ignored.
 - A segment or block sub-command outside a transfer is answered with abort 05040001 naming
