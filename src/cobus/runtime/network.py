@@ -32,6 +32,7 @@ from cobus.runtime.events import (
 from cobus.runtime.loop import SimulatedEventLoop
 
 if TYPE_CHECKING:
+    from cobus.device import Device
     from cobus.od import ObjectDictionary
     from cobus.runtime.remote import NmtMaster, RemoteNode, SyncService
 
@@ -189,12 +190,15 @@ class AsyncNetwork:
         self._state = BusState.ACTIVE
         self._reader: threading.Thread | None = None
         self._reader_stop = threading.Event()
+        self._rx_pending: deque[can.Message] = deque()
+        self._rx_posted = False
         self._fd: int | None = None
         self._poll_hook: Callable[[], bool] | None = None
         self._state_poll: asyncio.TimerHandle | None = None
         self.frames_received = 0
         self.frames_sent = 0
         self.remotes: dict[int, RemoteNode] = {}
+        self.devices: dict[int, Device] = {}
         self._nmt: NmtMaster | None = None
         self._sync: SyncService | None = None
 
@@ -339,6 +343,21 @@ class AsyncNetwork:
         node = RemoteNode(self, node_id, load_od(od, node_id), sdo_timeout=sdo_timeout)
         self.remotes[node_id] = node
         return node
+
+    def add_device(self, node_id: int, od: ObjectDictionary | str | Path, **options: Any) -> Device:
+        """A CANopen device (slave) that this network runs, from an object dictionary or an
+        EDS/DCF path; see :class:`cobus.device.Device` for the options. It boots at once."""
+        from cobus.device import Device
+        from cobus.runtime.remote import load_od
+
+        if node_id in self.devices:
+            raise ValueError(f"a device with node-ID {node_id} already runs on this network")
+        dictionary = load_od(od, node_id)
+        assert dictionary is not None
+        device = Device(self, node_id, dictionary, **options)
+        self.devices[node_id] = device
+        device.start()
+        return device
 
     @property
     def nmt(self) -> NmtMaster:
@@ -594,13 +613,10 @@ class AsyncNetwork:
 
     def _reader_thread(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
         backoff = 0.05
+        pending = self._rx_pending
         while not self._reader_stop.is_set():
             try:
                 msg = bus.recv(0.05)
-                if msg is None:
-                    continue
-                batch = [msg, *self._take(bus)]
-                backoff = 0.05
             except (can.CanError, OSError, ValueError) as exc:
                 if self._reader_stop.is_set():
                     return
@@ -611,10 +627,25 @@ class AsyncNetwork:
                 self._reader_stop.wait(backoff)
                 backoff = min(backoff * 2, 1.0)
                 continue
-            try:
-                loop.call_soon_threadsafe(self._on_messages, batch)
-            except RuntimeError:  # the loop is closed
-                return
+            if msg is None:
+                continue
+            backoff = 0.05
+            # One wake-up of the loop per batch: while a wake-up is pending, frames that
+            # arrive only join the queue (deque appends are atomic).
+            pending.append(msg)
+            if not self._rx_posted:
+                self._rx_posted = True
+                try:
+                    loop.call_soon_threadsafe(self._drain_rx)
+                except RuntimeError:  # the loop is closed
+                    return
+
+    def _drain_rx(self) -> None:
+        self._rx_posted = False
+        pending = self._rx_pending
+        batch = [pending.popleft() for _ in range(len(pending))]
+        if batch:
+            self._on_messages(batch)
 
     def _poll_state(self) -> None:
         self._state_poll = None
