@@ -32,7 +32,7 @@ EXPECTED: dict[str, tuple[int, str | None, str]] = {
     "duplicate_key.eds": (
         124,
         "2000",
-        "key DefaultValue appears twice in the section (first at line 115); keep one — "
+        "key DefaultValue appears twice in the section (first at line 123); keep one — "
         "the first value is used",
     ),
     "missing_sub_object.eds": (

@@ -197,6 +197,19 @@ def test_comments_bom_crlf_and_missing_optional_keys():
     assert not reg.pdo_mappable and reg.default is None and reg.low_limit is None
 
 
+def test_layout_variants():
+    text = (
+        "[1000]\nParameterName=a\nDataType=7\nAccessType=ro\n"
+        "  [1001]  ; indented header with a comment\n ParameterName = b \nDataType=0x0005\n"
+        "AccessType=ro\nDefaultValue=0x100\n\n"
+        "[2000]\nParameterName=c\nDataType=5\nAccessType=rw\nDefaultValue=300"  # no final EOL
+    )
+    od = loads(text)
+    assert var(od, 0x1001).name == "b" and len(od) == 3
+    assert [(f.line, f.section) for f in od.findings] == [(9, "1001"), (15, "2000")]
+    assert loads(text.replace("\n", "\r")).diff(od) == []  # old Mac line ends
+
+
 def test_unknown_keys_and_sections_are_kept_and_written_back():
     text = (
         "[FileInfo]\nFileName=x.eds\nMyTool=3\n"
@@ -369,3 +382,11 @@ def test_corpus_facts():
     elmo = load(EDS_DIR / "elmo_elmo.eds")
     name, keys = elmo.extra_sections[0]
     assert name == "PreDefines" and dict(keys)["pp"] == "1" and dict(keys)["csp"] == ""
+
+
+def test_benchmark_input_is_a_clean_5000_object_eds():
+    from benchmarks.bench_od import generated_eds
+
+    od = loads(generated_eds(5000))
+    assert len(od) == 5000 and od.findings == []
+    assert len(composite(od, 0x2004)) == 4 and var(od, 0x2003).default == 3

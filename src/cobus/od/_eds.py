@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import re
 from pathlib import Path
+from typing import Any
 
 from cobus.od._checks import check_dictionary
 from cobus.od._errors import EdsError, Finding, Severity
@@ -127,11 +128,11 @@ _COMMISSIONING_KEYS = {
 class _Section:
     __slots__ = ("end", "keys", "line", "name", "start")
 
-    def __init__(self, name: str, start: int) -> None:
+    def __init__(self, name: str, line: int, start: int) -> None:
         self.name = name
-        self.start = start  # index of the header in the line list
-        self.end = start + 1
-        self.line = start + 1
+        self.line = line  # of the header, 1-based
+        self.start = start  # text offset of the line after the header
+        self.end = start  # text offset where the section ends
         self.keys: dict[str, str] = {}
 
 
@@ -140,7 +141,7 @@ class _Loader:
         self.path = path
         self.strict = strict
         self.findings: list[Finding] = []
-        self.lines: list[str] = []
+        self.text = ""
         self.by_line: dict[int, _Section] = {}
 
     # --- findings ---------------------------------------------------------------------------
@@ -155,14 +156,17 @@ class _Loader:
         self.findings.append(Finding(self.path, line, section, Severity.WARNING, reason))
 
     def key_line(self, sec: _Section, key: str) -> int:
-        """The line of ``key`` in ``sec`` (the header line if it is not there)."""
+        """The line of ``key`` in ``sec`` (the header line if it is not there).
+
+        Lines are only looked up for findings, so the tokenizer keeps none: it scans the
+        section's stretch of the text again.
+        """
         low = key.lower()
         n = len(low)
-        lines = self.lines
-        for i in range(sec.start + 1, sec.end):
-            text = lines[i].lstrip()
+        for i, raw in enumerate(self.text[sec.start : sec.end].split("\n"), sec.line + 1):
+            text = raw.lstrip()
             if text[:n].lower() == low and text[n:].lstrip().startswith("="):
-                return i + 1
+                return i
         return sec.line
 
     # --- pass 1: sections -------------------------------------------------------------------
@@ -170,70 +174,100 @@ class _Loader:
     def tokenize(self, text: str) -> list[_Section]:
         if text.startswith("\ufeff"):
             text = text[1:]
-        lines = self.lines = text.splitlines()
+        if "\r" in text and "\n" not in text:
+            text = text.replace("\r", "\n")  # old Mac line ends
+        self.text = text
         sections: list[_Section] = []
         seen: dict[str, _Section] = {}
         cur: _Section | None = None
-        for no, raw in enumerate(lines):
-            line = raw.strip()
-            if not line:
-                continue
-            first = line[0]
-            if first == ";" or first == "#":
-                continue
-            if first == "[":
-                if cur is not None:
-                    cur.end = no
-                close = line.find("]")
-                rest = line[close + 1 :].lstrip() if close > 0 else ""
-                name = line[1:close].strip() if close > 0 else ""
-                if not name or (rest and rest[0] not in ";#"):
-                    self.error(
-                        no + 1,
-                        None,
-                        f"malformed section header {line!r}: write it as [name] on its own line",
-                    )
-                    cur = _Section("", no)  # swallows the keys that follow
+        no = 0
+        size = len(text)
+        find = text.find
+        strings: dict[str, str] = {}
+        intern = strings.setdefault
+        # The text is split into lines one stretch at a time, cut before each "[" that starts
+        # a line, so that only one section's lines are alive at once and a section header is
+        # (nearly always) the first line of its stretch.
+        start = 0
+        while start < size:
+            cut = find("\n[", start)
+            end = size if cut < 0 else cut + 1
+            lines = text[start:end].split("\n")
+            if not lines[-1]:
+                lines.pop()  # what follows the stretch's last newline
+            for i, raw in enumerate(lines, no + 1):
+                line = raw.strip()
+                if not line:
                     continue
-                cur = _Section(name, no)
-                upper = name.upper()
-                first_sec = seen.get(upper)
-                if first_sec is not None:
+                first = line[0]
+                if first == ";" or first == "#":
+                    continue
+                if first == "[":
+                    # Text offsets of this line and of the next one.
+                    here = (
+                        start
+                        if i == no + 1
+                        else start + sum(len(x) + 1 for x in lines[: i - no - 1])
+                    )
+                    after = here + len(raw) + 1
+                    if cur is not None:
+                        cur.end = here
+                    close = line.find("]")
+                    rest = line[close + 1 :].lstrip() if close > 0 else ""
+                    name = line[1:close].strip() if close > 0 else ""
+                    if not name or (rest and rest[0] not in ";#"):
+                        self.error(
+                            i,
+                            None,
+                            f"malformed section header {line!r}: write it as [name] on its "
+                            "own line",
+                        )
+                        cur = _Section("", i, after)  # swallows the keys that follow
+                        continue
+                    cur = _Section(name, i, after)
+                    upper = name.upper()
+                    first_sec = seen.get(upper)
+                    if first_sec is not None:
+                        self.error(
+                            i,
+                            name,
+                            f"section [{name}] appears again (first at line {first_sec.line}); "
+                            "remove or merge the duplicate — this copy is ignored",
+                        )
+                        continue
+                    seen[upper] = cur
+                    sections.append(cur)
+                    self.by_line[i] = cur
+                    continue
+                key, sep, value = line.partition("=")
+                if not sep:
                     self.error(
-                        no + 1,
-                        name,
-                        f"section [{name}] appears again (first at line {first_sec.line}); "
-                        "remove or merge the duplicate — this copy is ignored",
+                        i,
+                        cur.name if cur else None,
+                        f"line {line!r} is not key=value, a [section] or a ;comment",
                     )
                     continue
-                seen[upper] = cur
-                sections.append(cur)
-                self.by_line[cur.line] = cur
-                continue
-            key, sep, value = line.partition("=")
-            if not sep:
-                self.error(
-                    no + 1,
-                    cur.name if cur else None,
-                    f"line {line!r} is not key=value, a [section] or a ;comment",
-                )
-                continue
-            key = key.rstrip()
-            if cur is None:
-                self.error(no + 1, None, f"key {key!r} comes before the first [section]")
-                continue
-            keys = cur.keys
-            if key in keys:
-                self.error(
-                    no + 1,
-                    cur.name,
-                    f"key {key} appears twice in the section (first at line "
-                    f"{self.key_line(cur, key)}); keep one — the first value is used",
-                )
-                continue
-            keys[key] = value.lstrip()
-        if cur is not None:
-            cur.end = len(lines)
+                key = key.rstrip()
+                if cur is None:
+                    self.error(i, None, f"key {key!r} comes before the first [section]")
+                    continue
+                keys = cur.keys
+                if key in keys:
+                    cur.end = end
+                    self.error(
+                        i,
+                        cur.name,
+                        f"key {key} appears twice in the section (first at line "
+                        f"{self.key_line(cur, key)}); keep one — the first value is used",
+                    )
+                    continue
+                value = value.lstrip()
+                # One string object per distinct key and value: files repeat them a lot.
+                keys[intern(key, key)] = intern(value, value)
+            no += len(lines)
+            start = end
+            if cur is not None:
+                cur.end = end
         return sections
 
     # --- pass 2: building -------------------------------------------------------------------
@@ -796,7 +830,15 @@ class _Loader:
                 f"LowLimit {low!r} is above HighLimit {high!r}",
             )
             return
-        for key, value in (("DefaultValue", var._default), ("ParameterValue", var._param)):
+        default, param = var._default, var._param
+        try:  # the common case, inline: values of one type within the limits
+            if (default is None or _inside(default, low, high)) and (
+                param is None or _inside(param, low, high)
+            ):
+                return
+        except TypeError:
+            pass
+        for key, value in (("DefaultValue", default), ("ParameterValue", param)):
             if value is not None:
                 self._within_limits(var, value, key, sec, None)
 
@@ -978,6 +1020,10 @@ def _indices(indices: list[int]) -> str:
     return shown + (f" and {len(indices) - 12} more" if len(indices) > 12 else "")
 
 
+def _inside(value: Any, low: Any, high: Any) -> bool:
+    return (low is None or value >= low) and (high is None or value <= high)
+
+
 def _lt(a: object, b: object) -> bool:
     try:
         return bool(a < b)  # type: ignore[operator]
@@ -1034,6 +1080,7 @@ def load(
     except UnicodeDecodeError:
         text = data.decode("latin-1")
         fallback = True
+    del data  # not needed while reading: halves the peak memory of large files
     od = loads(text, node_id, strict=strict, path=name)
     if fallback:
         od.findings.insert(
