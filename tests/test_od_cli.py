@@ -40,10 +40,13 @@ def test_check_errors_exit_2_one_line_per_finding(capsys):
     code, out, err = run(capsys, "check", path)
     assert code == 2
     lines = out.splitlines()
-    assert len(lines) == 22 and "18 error(s), 4 warning(s)" in err
+    assert len(lines) == 23 and "18 error(s), 5 warning(s)" in err
+    numbers = []
     for line in lines:
-        m = FINDING.match(line) or re.match(rf"^{re.escape(path)}: warning: ", line)
-        assert m, line
+        m = FINDING.match(line)
+        assert m and m["file"] == path, line
+        numbers.append(int(m["line"]))
+    assert numbers == sorted(numbers)  # like a compiler: in file order
     assert f"{path}:77: [1018] error: missing sub-object: SubNumber=5" in out
 
 

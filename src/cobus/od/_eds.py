@@ -1004,15 +1004,27 @@ class _Loader:
                     "listed but not defined: " + _indices(missing),
                 )
             listed.update(entries)
-        if lists:
-            unlisted = [i for i in od._objects if i not in listed and i not in od._dummies]
-            if unlisted:
-                self.warning(
-                    None,
-                    None,
-                    "defined but in no object list ([MandatoryObjects], [OptionalObjects], "
-                    "[ManufacturerObjects]): " + _indices(sorted(unlisted)),
-                )
+        if not lists:
+            return
+        by_list: dict[str, list[int]] = {}
+        for index in sorted(od._objects):
+            if index not in listed and index not in od._dummies:
+                by_list.setdefault(_list_name(index), []).append(index)
+        for name, unlisted in by_list.items():
+            first = od._objects[unlisted[0]]
+            line, section = self._locate(first, None)
+            self.warning(
+                line, section, f"defined but not listed in [{name}]: " + _indices(unlisted)
+            )
+
+
+def _list_name(index: int) -> str:
+    """The CiA 306 object list an object belongs in."""
+    if index in (0x1000, 0x1001, 0x1018):
+        return "MandatoryObjects"
+    if 0x2000 <= index <= 0x5FFF:
+        return "ManufacturerObjects"
+    return "OptionalObjects"
 
 
 def _indices(indices: list[int]) -> str:
