@@ -6,6 +6,8 @@ import math
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from cobus.od import (
     Access,
@@ -308,6 +310,47 @@ def test_validate_a_dictionary_built_in_code():
     (finding,) = validate(od)
     assert "not PDO-mappable" in finding.reason
     assert (finding.line, finding.section) == (10, "1A00sub1")
+
+
+_TEXT_VALUES = {
+    **{
+        d: st.integers(*d.range)  # type: ignore[misc]
+        for d in DataType
+        if d.is_integer
+    },
+    DataType.BOOLEAN: st.booleans(),
+    DataType.REAL32: st.floats(width=32, allow_nan=False),
+    DataType.REAL64: st.floats(allow_nan=False),
+    DataType.VISIBLE_STRING: st.text(st.characters(min_codepoint=0x20, max_codepoint=0x7E)),
+    DataType.UNICODE_STRING: st.text(
+        st.characters(blacklist_categories=("Cs", "Cc", "Zl", "Zp"), blacklist_characters="\x85")
+    ),
+    DataType.OCTET_STRING: st.binary(max_size=16),
+    DataType.DOMAIN: st.binary(max_size=16),
+    DataType.TIME_OF_DAY: st.builds(TimeOfDay, st.integers(0, 0xFFFF), st.integers(0, 86_399_999)),
+    DataType.TIME_DIFFERENCE: st.builds(
+        TimeDifference, st.integers(0, 0xFFFF), st.integers(0, 0x0FFFFFFF)
+    ),
+}
+
+
+def test_every_type_has_a_text_value_strategy():
+    assert set(_TEXT_VALUES) == set(DataType)
+
+
+@pytest.mark.parametrize("dt", list(DataType), ids=lambda d: d.name)
+@settings(max_examples=25, deadline=None)
+@given(data=st.data())
+def test_values_survive_the_file_text(dt: DataType, data: st.DataObject):
+    """A value set in code is written as CiA 306 text and read back identical."""
+    value = data.draw(_TEXT_VALUES[dt])
+    od = ObjectDictionary()
+    od.add(Variable(0x2000, 0, "v", dt, default=value, parameter_value=value))
+    again = loads(od.to_dcf())
+    assert again.findings == []
+    got = var(again, 0x2000)
+    assert got.default == value and type(got.default) is type(value)
+    assert got.parameter_value == value
 
 
 # --- the corpus ----------------------------------------------------------------------------------

@@ -11,6 +11,7 @@ from cobus.od import (
     ObjectDictionaryError,
     ObjectType,
     Record,
+    TimeOfDay,
     ValueRangeError,
     Variable,
     loads,
@@ -185,3 +186,16 @@ def test_diff_and_equality():
     for od in (nan_a, nan_b):
         od.add(Variable(0x2100, 0, "x", DataType.REAL32, default=float("nan")))
     assert nan_a == nan_b  # NaN defaults compare equal
+
+
+def test_a_dictionary_built_in_code_writes_and_reads_back():
+    od = _od()
+    od.add(Variable(0x2001, 0, "t", DataType.TIME_OF_DAY, default=TimeOfDay(1, 2)))
+    od.add(Variable(0x2002, 0, "s", DataType.VISIBLE_STRING, default=" padded"))
+    od.add(Variable(0x2003, 0, "f", DataType.REAL32, default=float("inf"), low_limit=0.0))
+    od.add(Variable(0x2004, 0, "o", DataType.OCTET_STRING, default=b"\x01\x02"))
+    od.add(Variable(0x2005, 0, "b", DataType.BOOLEAN, default=True))
+    od.add(Variable(0x2006, 0, "u", DataType.UNICODE_STRING, default="ü"))
+    again = loads(od.to_eds())
+    assert again.findings == [] and again.diff(od) == []
+    assert 'DefaultValue=" padded"' in od.to_eds()  # quoted: the spaces are the value

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import enum
+import os
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, TypeAlias
 
 from cobus.errors import CobusError
@@ -793,10 +795,8 @@ class ObjectDictionary:
 
         return write(self, dcf=True, node_id=node_id, bitrate=bitrate)
 
-    def save(self, path: str | Any, node_id: int | None = None) -> None:
+    def save(self, path: str | os.PathLike[str], node_id: int | None = None) -> None:
         """Write to ``path``: DCF if it ends in ``.dcf``, else EDS (CRLF line ends, CiA 306)."""
-        from pathlib import Path
-
         target = Path(path)
         text = self.to_dcf(node_id) if target.suffix.lower() == ".dcf" else self.to_eds()
         with target.open("w", encoding="utf-8", newline="\r\n") as fh:
