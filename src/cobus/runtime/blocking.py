@@ -31,6 +31,7 @@ from cobus.runtime.remote import SdoChannel
 if TYPE_CHECKING:
     from pathlib import Path
 
+    from cobus.device import BlockingDevice
     from cobus.od import ObjectDictionary, Variable
 
 __all__ = ["BlockingNmt", "BlockingSdo", "BlockingSync", "Network", "RemoteNode", "Runner"]
@@ -209,6 +210,15 @@ class Network:
         """A node this network talks to as a client; ``od`` may be an EDS/DCF path."""
         node = self._runner.call(lambda: self.aio.add_remote(node_id, od, sdo_timeout=sdo_timeout))
         return RemoteNode(node, self._runner)
+
+    def add_device(
+        self, node_id: int, od: ObjectDictionary | str | Path, **options: Any
+    ) -> BlockingDevice:
+        """A CANopen device (slave) run by this network; see :class:`cobus.device.Device`."""
+        from cobus.device import BlockingDevice
+
+        device = self._runner.call(lambda: self.aio.add_device(node_id, od, **options))
+        return BlockingDevice(device, self._runner)
 
     @property
     def nmt(self) -> BlockingNmt:

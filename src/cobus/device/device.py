@@ -1,0 +1,1667 @@
+"""A CANopen device (slave) run by a network: the protocol machines of ``cobus.proto``
+composed around the device's object dictionary.
+
+The device serves its dictionary on every configured SDO channel, follows NMT, produces
+heartbeat and answers node guarding, sends emergencies, consumes SYNC and TIME, and sends and
+receives PDOs of every transmission type by itself. Communication objects written by a master
+take effect at once; each refusal is the CiA 301 abort code of its cause. Everything runs on
+the network's event loop: call the device's methods from there (or through
+:class:`~cobus.device.BlockingDevice`).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from cobus.device._entries import Entry, check_value, decode_download, zero_value
+from cobus.device.eds_export import export_eds
+from cobus.device.errors import (
+    DeviceConfigError,
+    EntryNotFoundError,
+    EntryRefusedError,
+    NodeIdInUseError,
+    StorageError,
+)
+from cobus.device.events import (
+    Booted,
+    DeviceEvent,
+    EmergencySent,
+    EntryWritten,
+    HeartbeatLost,
+    HeartbeatRestored,
+    LifeGuardingLost,
+    LifeGuardingRestored,
+    NmtCommandReceived,
+    NodeIdChanged,
+    ParametersRestored,
+    ParametersStored,
+    PdoLengthError,
+    RpdoLost,
+    RpdoReceived,
+    RpdoRestored,
+    StateChanged,
+    StorageProblem,
+    SyncLost,
+    SyncRestored,
+    TimeReceived,
+)
+from cobus.device.pdo import Rpdo, Tpdo, check_mapping_entry, compile_mapping
+from cobus.device.storage import (
+    APPLICATION,
+    COMMUNICATION,
+    FileStorage,
+    MemoryStorage,
+    ParameterStorage,
+    StoredValue,
+)
+from cobus.errors import CobusError
+from cobus.od import Array, ObjectDictionary, Record, Variable, encode
+from cobus.proto import NOTHING, Event, Frame
+from cobus.proto import emcy as _emcy
+from cobus.proto import guarding as _guarding
+from cobus.proto import heartbeat as _hb
+from cobus.proto import nmt as _nmt
+from cobus.proto import sync as _sync
+from cobus.proto import timestamp as _time
+from cobus.proto.emcy import EmcyCode, EmcyProducer, ErrorRegister
+from cobus.proto.nmt import NmtCommand, NmtSlave, NmtState
+from cobus.proto.pdo import (
+    PdoCobId,
+    PdoError,
+    RpdoResumed,
+    RpdoTimeout,
+    RpdoTooLong,
+    RpdoTooShort,
+    TransmissionType,
+    is_restricted_can_id,
+    rpdo_default_can_id,
+    tpdo_default_can_id,
+)
+from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer
+
+if TYPE_CHECKING:
+    from cobus.runtime.network import AsyncNetwork, MachineHost, Subscription
+
+__all__ = ["LOAD_SIGNATURE", "SAVE_SIGNATURE", "Device", "Listener"]
+
+log = logging.getLogger(__name__)
+
+#: 1010h: "save" as a little-endian UNSIGNED32.
+SAVE_SIGNATURE = 0x65766173
+#: 1011h: "load" as a little-endian UNSIGNED32.
+LOAD_SIGNATURE = 0x64616F6C
+
+Listener = Callable[[DeviceEvent], object]
+Key = int | str
+
+_ABORT = SdoAbortCode
+_NOT_STORED = frozenset((0x1003, 0x1010, 0x1011))
+_INVALID = 1 << 31
+_EXTENDED = 1 << 29
+_MANDATORY = (0x1000, 0x1001, 0x1018)
+_COMMANDS = {int(c): c for c in NmtCommand}
+_GENERIC = int(ErrorRegister.GENERIC)
+_COMM_BIT = int(ErrorRegister.COMMUNICATION)
+
+
+def _class_bits(code: int) -> int:
+    """The error register bits an emergency code stands for (CiA 301 error register)."""
+    high = code >> 12
+    if high == 0x2:
+        return int(ErrorRegister.CURRENT)
+    if high == 0x3:
+        return int(ErrorRegister.VOLTAGE)
+    if high == 0x4:
+        return int(ErrorRegister.TEMPERATURE)
+    if code >> 8 in (0x81, 0x82):
+        return _COMM_BIT
+    if code >> 8 == 0xFF:
+        return int(ErrorRegister.MANUFACTURER)
+    return 0
+
+
+def _abort(code: int, reason: str) -> SdoAbort:
+    return SdoAbort(code, reason)
+
+
+class _SdoBackend:
+    """What the SDO servers of a device serve: its entries, with every check."""
+
+    __slots__ = ("_device",)
+
+    def __init__(self, device: Device) -> None:
+        self._device = device
+
+    def upload(self, index: int, subindex: int) -> bytes:
+        return self._device._sdo_upload(index, subindex)
+
+    def download(self, index: int, subindex: int, data: bytes) -> None:
+        self._device._sdo_download(index, subindex, data)
+
+    def size_hint(self, index: int, subindex: int) -> int | None:
+        entry = self._device._entry(index, subindex)
+        if not entry.var.access.writable:
+            raise _abort(_ABORT.WRITE_READ_ONLY, f"{entry.var.name!r} is {entry.var.access}")
+        return entry.size
+
+
+class _SdoChannel:
+    __slots__ = ("host", "number", "server", "subscription")
+
+    def __init__(
+        self, number: int, server: SdoServer, host: MachineHost, sub: Subscription
+    ) -> None:
+        self.number = number
+        self.server = server
+        self.host = host
+        self.subscription = sub
+
+    def close(self) -> None:
+        self.subscription.cancel()
+        self.host.close()
+
+
+class _ObjectView:
+    """``device[index]``: the sub-entries of one object, by sub-index or name."""
+
+    __slots__ = ("_device", "_index")
+
+    def __init__(self, device: Device, index: int) -> None:
+        self._device = device
+        self._index = index
+
+    def __getitem__(self, subindex: Key) -> Any:
+        return self._device.get(self._index, subindex)
+
+    def __setitem__(self, subindex: Key, value: Any) -> None:
+        self._device.set(self._index, subindex, value)
+
+    @property
+    def value(self) -> Any:
+        """The value of a VAR object (sub-index 0)."""
+        return self._device.get(self._index, 0)
+
+    @value.setter
+    def value(self, value: Any) -> None:
+        self._device.set(self._index, 0, value)
+
+
+class Device:
+    """A CANopen device on ``network`` with node-ID ``node_id`` serving ``od``.
+
+    Options: ``storage`` — a path (parameters of 1010h in that file, written atomically) or a
+    :class:`~cobus.device.ParameterStorage`; default: kept in memory, across resets only.
+    ``sdo_timeout`` — seconds the SDO servers wait within a segmented or block transfer.
+    ``emcy_queue_size`` — emergencies held back by the inhibit time 1015h.
+
+    ``network.add_device(node_id, od, **options)`` creates and starts one; :meth:`start` boots
+    it (boot-up message, pre-operational). Each device needs a dictionary of its own.
+    """
+
+    def __init__(
+        self,
+        network: AsyncNetwork,
+        node_id: int,
+        od: ObjectDictionary,
+        *,
+        storage: str | Path | ParameterStorage | None = None,
+        sdo_timeout: float = 1.0,
+        emcy_queue_size: int = 16,
+    ) -> None:
+        _nmt.check_node_id(node_id)
+        missing = [f"{i:04X}h" for i in _MANDATORY if i not in od]
+        if missing:
+            raise DeviceConfigError(
+                f"the dictionary lacks the mandatory objects {', '.join(missing)} (CiA 301); "
+                "build it on cobus.device.minimal_od()"
+            )
+        if not sdo_timeout > 0:
+            raise DeviceConfigError(f"SDO timeout {sdo_timeout!r} must be a positive number")
+        self.network = network
+        self.od = od
+        self._node_id = node_id
+        self._sdo_timeout = float(sdo_timeout)
+        if storage is None:
+            self._storage: ParameterStorage = MemoryStorage()
+        elif isinstance(storage, str | Path):
+            self._storage = FileStorage(storage)
+        else:
+            self._storage = storage
+        self._entries: dict[int, Entry] = {}
+        self._indices: set[int] = set()
+        for var in od.variables():
+            if var.index < 0x1000:  # data type definitions and dummies
+                continue
+            entry = Entry(var)
+            self._entries[entry.key] = entry
+        self._listeners: list[Listener] = []
+        self._backend = _SdoBackend(self)
+        self._started = False
+        self._closed = False
+        self._operational = False
+        # communication state, rebuilt by every reset communication
+        self.nmt = NmtSlave(node_id)
+        self._nmt_host: MachineHost | None = None
+        self._nmt_sub: Subscription | None = None
+        self._emcy = EmcyProducer(node_id, depth=self._history_depth(), queue_size=emcy_queue_size)
+        self._errors: dict[object, int] = {}
+        self._hosts: list[MachineHost] = []
+        self._subs: list[Subscription] = []
+        self._sdo: dict[int, _SdoChannel] = {}
+        self._emcy_host: MachineHost | None = None
+        self._hb: _hb.HeartbeatProducer | None = None
+        self._hb_host: MachineHost | None = None
+        self._consumer: _hb.HeartbeatConsumer | None = None
+        self._consumer_host: MachineHost | None = None
+        self._consumer_subs: dict[int, Subscription] = {}
+        self._guard: _guarding.GuardingResponder | None = None
+        self._guard_host: MachineHost | None = None
+        self._sync: _sync.SyncConsumer | None = None
+        self._sync_host: MachineHost | None = None
+        self._sync_sub: Subscription | None = None
+        self._sync_producer: _sync.SyncProducer | None = None
+        self._sync_producer_host: MachineHost | None = None
+        self._time: _time.TimeConsumer | None = None
+        self._time_host: MachineHost | None = None
+        self._time_sub: Subscription | None = None
+        self._tpdos: dict[int, Tpdo] = {}
+        self._rpdos: dict[int, Rpdo] = {}
+        self._sync_tpdos: list[Tpdo] = []
+        self._sync_rpdos: list[Rpdo] = []
+        self._handlers: dict[int, Callable[[Entry, Any], None]] = {}
+        self._install_handlers()
+
+    # ================================================================== public API
+
+    @property
+    def node_id(self) -> int:
+        return self._node_id
+
+    @node_id.setter
+    def node_id(self, node_id: int) -> None:
+        self.set_node_id(node_id)
+
+    @property
+    def state(self) -> NmtState:
+        """The NMT state."""
+        return self.nmt.state
+
+    @property
+    def error_register(self) -> ErrorRegister:
+        """1001h: the error register (generic bit set while any error is active)."""
+        return ErrorRegister(self._register())
+
+    @property
+    def error_history(self) -> tuple[int, ...]:
+        """1003h sub 1..: the errors recorded, newest first (code | info << 16)."""
+        return self._emcy.history
+
+    def __repr__(self) -> str:
+        return f"Device({self._node_id}, {self.nmt.state.name})"
+
+    def __getitem__(self, index: Key) -> _ObjectView:
+        obj = self.od.get(index)
+        if obj is None or obj.index < 0x1000:
+            shown = f"0x{index:04X}" if isinstance(index, int) else repr(index)
+            raise EntryNotFoundError(
+                index if isinstance(index, int) else 0, 0, _ABORT.NO_OBJECT, f"no object {shown}"
+            )
+        return _ObjectView(self, obj.index)
+
+    def add_listener(self, listener: Listener) -> None:
+        """Call ``listener(event)`` for every event of this device (on the event loop)."""
+        self._listeners.append(listener)
+
+    def remove_listener(self, listener: Listener) -> None:
+        if listener in self._listeners:
+            self._listeners.remove(listener)
+
+    def get(self, index: Key, subindex: Key = 0) -> Any:
+        """The current value of an entry (through its read callback when one is bound)."""
+        entry = self._resolve(index, subindex)
+        try:
+            return entry.current()
+        except SdoAbort as refusal:
+            raise EntryRefusedError(
+                entry.index, entry.subindex, refusal.code, refusal.reason
+            ) from None
+
+    def set(self, index: Key, subindex: Key, value: Any) -> None:
+        """Write an entry as the application: type and limits are checked, communication
+        objects take effect as if written by SDO, mapped values trigger their TPDOs."""
+        entry = self._resolve(index, subindex)
+        try:
+            value = check_value(entry, value)
+            self._write(entry, value, remote=False)
+        except SdoAbort as refusal:
+            raise EntryRefusedError(
+                entry.index, entry.subindex, refusal.code, refusal.reason
+            ) from None
+
+    def on_read(self, index: Key, subindex: Key, fn: Callable[[], Any] | None) -> None:
+        """Bind reads of an application entry (SDO upload, TPDO, :meth:`get`) to ``fn()``;
+        ``fn`` may raise :class:`~cobus.proto.sdo.SdoAbort` to refuse. None unbinds."""
+        entry = self._app_entry(index, subindex)
+        entry.reader = fn
+
+    def on_write(self, index: Key, subindex: Key, fn: Callable[[Any], object] | None) -> None:
+        """Call ``fn(value)`` when a master writes an application entry (SDO or RPDO), before
+        the value is stored; ``fn`` may raise :class:`~cobus.proto.sdo.SdoAbort` to refuse
+        (an SDO write is then aborted with its code, an RPDO value dropped). None unbinds."""
+        entry = self._app_entry(index, subindex)
+        entry.writer = fn
+
+    def send_emergency(
+        self,
+        code: int,
+        register: int | None = None,
+        manufacturer: bytes = b"",
+        *,
+        info: int = 0,
+    ) -> None:
+        """Report an application error: EMCY frame, 1003h history, error register.
+
+        ``register`` None derives the register bits from the code's class (2xxxh current,
+        3xxxh voltage, 4xxxh temperature, 81xxh/82xxh communication, FFxxh manufacturer);
+        the generic bit is set while any error is active. The error stays active (and in
+        1001h) until :meth:`clear_emergency`. Code 0000h clears every application error.
+        """
+        _emcy.emcy_frame_data(code, 0 if register is None else register, manufacturer)
+        if not isinstance(info, int) or not 0 <= info <= 0xFFFF:
+            raise _emcy.EmcyError(f"1003h additional information {info!r} is not a UNSIGNED16")
+        if code >> 8 == 0:
+            self.clear_emergency()
+            return
+        bits = _class_bits(code) if register is None else register
+        self._raise_error(("app", code), code, bits, bytes(manufacturer), info)
+
+    def clear_emergency(self, code: int | None = None) -> None:
+        """End application error ``code`` (None: all of them): the error register is updated
+        and the 'error reset' emergency (0000h) is sent."""
+        keys = [k for k in self._errors if isinstance(k, tuple) and k[0] == "app"]
+        if code is not None:
+            keys = [k for k in keys if k == ("app", code)]
+        self._clear_errors(keys)
+
+    def send_tpdo(self, number: int) -> None:
+        """An application event for TPDO ``number``: event-driven types send now (or at the
+        end of the inhibit time), acyclic synchronous ones at the next SYNC."""
+        tpdo = self._tpdos.get(number)
+        if tpdo is None:
+            raise DeviceConfigError(f"TPDO {number} is not configured (or not valid)")
+        self._apply(tpdo, tpdo.on_change(self.network.time()))
+
+    def apply_nmt(self, command: NmtCommand | int) -> None:
+        """Apply an NMT command locally, as if the master had sent it (e.g. a device that
+        starts on its own: ``device.apply_nmt(NmtCommand.START)``)."""
+        cmd = _COMMANDS.get(int(command))
+        if cmd is None:
+            raise _nmt.NmtError(f"unknown NMT command {command!r}: use an NmtCommand member")
+        self._nmt_run(cmd)
+
+    def to_eds(self) -> str:
+        """The device's EDS (CiA 306): its dictionary, with complete DeviceInfo."""
+        return export_eds(self.od)
+
+    def save_eds(self, path: str | Path) -> None:
+        """Write :meth:`to_eds` to ``path`` (CRLF line ends, as CiA 306 wants)."""
+        with Path(path).open("w", encoding="utf-8", newline="\r\n") as fh:
+            fh.write(self.to_eds())
+
+    def store_parameters(self, subindex: int = 1) -> None:
+        """Store parameters as a master does with 1010h: 1 all, 2 communication,
+        3 application."""
+        try:
+            self._store_parameters(subindex)
+        except SdoAbort as refusal:
+            raise EntryRefusedError(0x1010, subindex, refusal.code, refusal.reason) from None
+
+    def restore_defaults(self, subindex: int = 1) -> None:
+        """Drop stored parameters as a master does with 1011h (effective at the next reset)."""
+        try:
+            self._restore_defaults(subindex)
+        except SdoAbort as refusal:
+            raise EntryRefusedError(0x1011, subindex, refusal.code, refusal.reason) from None
+
+    def set_node_id(self, node_id: int) -> None:
+        """Change the node-ID at run time.
+
+        The values that follow ``$NODEID`` (SDO COB-IDs, EMCY, the pre-defined PDO COB-IDs
+        1-4, and every entry whose default is a ``$NODEID`` expression) move with it when they
+        still hold their default; the rest of the configuration is kept. The communication
+        is rebuilt and the device boots again under the new node-ID (boot-up message,
+        pre-operational).
+        """
+        _nmt.check_node_id(node_id)
+        old = self._node_id
+        if node_id == old:
+            return
+        devices = self.network.devices
+        other = devices.get(node_id)
+        if other is not None and other is not self:
+            raise NodeIdInUseError(
+                f"node-ID {node_id} is used by another device of this network; pick a free one"
+            )
+        follow = {}
+        for key, entry in self._entries.items():
+            if entry.index < 0x2000 or entry.var.relative:
+                offset = self._node_offset(entry, entry.value)
+                if offset is not None:
+                    follow[key] = offset
+        self._node_id = node_id
+        self.od.node_id = node_id
+        for key, offset in follow.items():
+            self._entries[key].value = node_id + offset
+        if devices.get(old) is self:
+            del devices[old]
+        devices[node_id] = self
+        if not self._started:
+            self.nmt = NmtSlave(node_id)
+            self._emcy.node_id = node_id
+            return
+        self._teardown_comm()
+        self._close_nmt()
+        self.nmt = NmtSlave(node_id)
+        self._emcy.node_id = node_id
+        self._open_nmt()
+        self._boot()
+        self._emit(NodeIdChanged(node_id, old))
+
+    def start(self) -> None:
+        """Power on: power-on values, stored parameters, boot-up message, pre-operational.
+
+        Raises :class:`StorageError` when the parameter file cannot be read."""
+        if self._started:
+            raise DeviceConfigError(f"device {self._node_id} is already started")
+        if self._closed:
+            raise DeviceConfigError(f"device {self._node_id} was closed; create a new one")
+        self._power_on(communication=True, application=True, strict=True)
+        self._started = True
+        self._open_nmt()
+        self._boot()
+
+    def close(self) -> None:
+        """Take the device off the network (it falls silent, as if unplugged)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._teardown_comm()
+        self._close_nmt()
+        if self.network.devices.get(self._node_id) is self:
+            del self.network.devices[self._node_id]
+
+    # ================================================================== lookups
+
+    def _entry(self, index: int, subindex: int) -> Entry:
+        entry = self._entries.get(index << 8 | subindex)
+        if entry is None:
+            if index in self._indices:
+                raise _abort(_ABORT.NO_SUBINDEX, f"0x{index:04X} has no sub-index {subindex}")
+            raise _abort(_ABORT.NO_OBJECT, f"no object 0x{index:04X}")
+        return entry
+
+    def _resolve(self, index: Key, subindex: Key) -> Entry:
+        obj = self.od.get(index)
+        if obj is None or obj.index < 0x1000:
+            shown = f"0x{index:04X}" if isinstance(index, int) else repr(index)
+            raise EntryNotFoundError(
+                obj.index if obj is not None else (index if isinstance(index, int) else 0),
+                0,
+                _ABORT.NO_OBJECT,
+                f"no object {shown} in the dictionary of device {self._node_id}",
+            )
+        if isinstance(obj, Variable):
+            if subindex not in (0, obj.name):
+                raise EntryNotFoundError(
+                    obj.index, 0, _ABORT.NO_SUBINDEX, f"0x{obj.index:04X} is a VAR; use sub-index 0"
+                )
+            var = obj
+        else:
+            found = obj.subindices.get(subindex) if isinstance(subindex, int) else None
+            if found is None and isinstance(subindex, str) and subindex in obj:
+                found = obj[subindex]
+            if found is None:
+                raise EntryNotFoundError(
+                    obj.index,
+                    subindex if isinstance(subindex, int) else 0,
+                    _ABORT.NO_SUBINDEX,
+                    f"0x{obj.index:04X} ({obj.name!r}) has no sub-index {subindex!r}",
+                )
+            var = found
+        return self._entries[var.index << 8 | var.subindex]
+
+    def _app_entry(self, index: Key, subindex: Key) -> Entry:
+        entry = self._resolve(index, subindex)
+        if entry.index < 0x2000:
+            raise DeviceConfigError(
+                f"0x{entry.index:04X} is a communication object: the device serves it itself; "
+                "bind application objects (2000h and above) only"
+            )
+        return entry
+
+    def _value(self, index: int, subindex: int, default: int = 0) -> Any:
+        entry = self._entries.get(index << 8 | subindex)
+        return default if entry is None else entry.value
+
+    def _history_depth(self) -> int:
+        obj = self.od.get(0x1003)
+        if isinstance(obj, Record | Array):
+            return min(max((s for s in obj.subindices if s), default=0), 254)
+        return 0
+
+    # ================================================================== SDO access
+
+    def _sdo_upload(self, index: int, subindex: int) -> bytes:
+        entry = self._entry(index, subindex)
+        var = entry.var
+        if not var.access.readable:
+            raise _abort(_ABORT.READ_WRITE_ONLY, f"{var.name!r} is write-only")
+        reader = entry.reader
+        if reader is None:
+            value = entry.value
+        else:
+            try:
+                value = reader()
+            except SdoAbort:
+                raise
+            except Exception as exc:
+                self.network._report_failure(f"read callback of 0x{index:04X}:{subindex:02X}", exc)
+                raise _abort(_ABORT.CANNOT_STORE, f"the application failed: {exc!r}") from None
+        try:
+            return encode(entry.data_type, value)
+        except CobusError as exc:
+            raise _abort(
+                _ABORT.GENERAL_ERROR,
+                f"the application's value {value!r} does not fit {var.data_type.name}: {exc}",
+            ) from None
+
+    def _sdo_download(self, index: int, subindex: int, data: bytes) -> None:
+        entry = self._entry(index, subindex)
+        var = entry.var
+        if not var.access.writable:
+            raise _abort(_ABORT.WRITE_READ_ONLY, f"{var.name!r} is {var.access}")
+        value = decode_download(entry, data)
+        self._write(entry, value, remote=True)
+        self._emit(EntryWritten(self._node_id, index, subindex, value))
+
+    def _write(self, entry: Entry, value: Any, *, remote: bool) -> None:
+        handler = self._handlers.get(entry.index)
+        if handler is not None:
+            handler(entry, value)
+            return
+        if remote and entry.writer is not None:
+            self._call_writer(entry, value)
+        self._store(entry, value)
+
+    def _call_writer(self, entry: Entry, value: Any) -> None:
+        writer = entry.writer
+        assert writer is not None
+        try:
+            writer(value)
+        except SdoAbort:
+            raise
+        except Exception as exc:
+            self.network._report_failure(
+                f"write callback of 0x{entry.index:04X}:{entry.subindex:02X}", exc
+            )
+            raise _abort(_ABORT.CANNOT_STORE, f"the application refused: {exc!r}") from None
+
+    def _store(self, entry: Entry, value: Any) -> None:
+        old = entry.value
+        entry.value = value
+        if entry.tpdos and value != old:
+            now = self.network.time()
+            for tpdo in entry.tpdos:
+                self._apply(tpdo, tpdo.on_change(now))
+
+    # ================================================================== events
+
+    def _emit(self, event: DeviceEvent) -> None:
+        for listener in list(self._listeners):
+            try:
+                listener(event)
+            except Exception as exc:
+                self.network._report_failure(f"device {self._node_id} listener {listener!r}", exc)
+        self.network.emit(event)
+
+    # ================================================================== power-on and resets
+
+    def _default(self, entry: Entry) -> Any:
+        value = entry.var.value
+        return zero_value(entry.data_type) if value is None else value
+
+    def _power_on(self, *, communication: bool, application: bool, strict: bool) -> None:
+        self.od.node_id = self._node_id
+        for entry in self._entries.values():
+            index = entry.index
+            if index < 0x2000:
+                reset = communication
+            elif index < 0xA000:
+                reset = application
+            else:  # A000h and above: network variables and reserved, set at power-on only
+                reset = not self._started
+            if reset:
+                entry.value = self._default(entry)
+        try:
+            stored = self._storage.load()
+        except StorageError as exc:
+            if strict:
+                raise
+            self._emit(StorageProblem(self._node_id, str(exc)))
+            stored = {}
+        groups = []
+        if communication:
+            groups.append(COMMUNICATION)
+        if application:
+            groups.append(APPLICATION)
+        for group in groups:
+            for key, item in stored.get(group, {}).items():
+                self._apply_stored(group, key, item)
+        if communication:
+            self._errors = {
+                k: v for k, v in self._errors.items() if isinstance(k, tuple) and k[0] == "app"
+            }
+        if application:
+            self._errors.clear()
+            self._emcy = EmcyProducer(
+                self._node_id, depth=self._history_depth(), queue_size=self._emcy.queue_size
+            )
+        self._sync_error_objects()
+
+    def _apply_stored(self, group: str, key: str, item: StoredValue) -> None:
+        try:
+            index_text, _, sub_text = key.partition(":")
+            index, subindex = int(index_text, 16), int(sub_text, 16)
+            entry = self._entries[index << 8 | subindex]
+            in_group = index < 0x2000 if group == COMMUNICATION else 0x2000 <= index < 0xA000
+            if not in_group or not entry.var.access.writable or index in _NOT_STORED:
+                raise ValueError(f"0x{index:04X}:{subindex:02X} is no {group} parameter")
+            if "node_id_offset" in item:
+                value = check_value(entry, self._node_id + int(item["node_id_offset"]))
+            else:
+                value = decode_download(entry, bytes.fromhex(str(item["data"])))
+        except (KeyError, ValueError, TypeError, SdoAbort) as exc:
+            self._emit(StorageProblem(self._node_id, f"stored {group} entry {key}: {exc}"))
+            return
+        entry.value = value
+
+    def _reset(self, *, application: bool) -> None:
+        self._teardown_comm()
+        self._power_on(communication=True, application=application, strict=False)
+        self._boot()
+
+    def _boot(self) -> None:
+        self._build_comm()
+        self._nmt_run_out(lambda now: self.nmt.boot(now))
+        now = self.network.time()
+        if self._hb is not None and self._hb_host is not None:
+            self._hb.set_period(int(self._value(0x1017, 0)), now)
+            self._hb_host.apply(NOTHING)
+        self._emit(Booted(self._node_id))
+
+    def _open_nmt(self) -> None:
+        self._nmt_host = self.network.attach(self.nmt, (), self._on_nmt_event)
+        self._nmt_sub = self.network.subscribe(_nmt.NMT_COB_ID, self._on_nmt_frame)
+
+    def _close_nmt(self) -> None:
+        if self._nmt_sub is not None:
+            self._nmt_sub.cancel()
+            self._nmt_sub = None
+        if self._nmt_host is not None:
+            self._nmt_host.close()
+            self._nmt_host = None
+
+    def _nmt_run_out(self, call: Callable[[float], Any]) -> None:
+        if self._nmt_host is not None:
+            self._nmt_host.run(call)
+
+    def _nmt_run(self, command: NmtCommand) -> None:
+        self._nmt_run_out(lambda now: self.nmt.apply(command, now))
+
+    def _on_nmt_frame(self, frame: Frame, now: float) -> None:
+        data = frame.data
+        if (
+            not frame.rtr
+            and not frame.extended
+            and len(data) == 2
+            and data[1] in (0, self._node_id)
+            and self.nmt.state is not NmtState.INITIALISING
+        ):
+            command = _COMMANDS.get(data[0])
+            if command is not None:
+                self._emit(NmtCommandReceived(self._node_id, command))
+        if self._nmt_host is not None:
+            self._nmt_host.feed(frame, now)
+
+    def _on_nmt_event(self, event: Event) -> None:
+        if isinstance(event, _nmt.StateChanged):
+            self._state_changed(event.old, event.new)
+        elif isinstance(event, _nmt.ResetNode):
+            self._reset(application=True)
+        elif isinstance(event, _nmt.ResetCommunication):
+            self._reset(application=False)
+
+    def _state_changed(self, old: NmtState, new: NmtState) -> None:
+        now = self.network.time()
+        if new is NmtState.OPERATIONAL:
+            self._operational = True
+            for tpdo in self._tpdos.values():
+                tpdo.start(now)
+                self._apply(tpdo, NOTHING)
+        elif old is NmtState.OPERATIONAL:
+            self._operational = False
+            for tpdo in self._tpdos.values():
+                tpdo.stop()
+                self._apply(tpdo, NOTHING)
+            for rpdo in self._rpdos.values():
+                rpdo.disarm()
+                self._apply(rpdo, NOTHING)
+            self._clear_errors([k for k in self._errors if isinstance(k, tuple) and k[0] == "rpdo"])
+        if new is NmtState.STOPPED:
+            self._build_sdo()  # transfers in progress end silently: SDO is not available
+        self._emit(StateChanged(self._node_id, old, new))
+
+    def _communication_error(self) -> None:
+        """CiA 301 1029h sub 1: 0 pre-operational (if operational), 1 no change, 2 stopped."""
+        mode = self._value(0x1029, 1, 0)
+        state = self.nmt.state
+        if mode == 0 and state is NmtState.OPERATIONAL:
+            self._nmt_run(NmtCommand.ENTER_PREOPERATIONAL)
+        elif mode == 2 and state is not NmtState.STOPPED:
+            self._nmt_run(NmtCommand.STOP)
+
+    # ================================================================== building
+
+    def _attach(self, machine: Any, on_event: Callable[[Event], None] | None = None) -> MachineHost:
+        host = self.network.attach(machine, (), on_event)
+        self._hosts.append(host)
+        return host
+
+    def _apply(self, pdo: Tpdo | Rpdo, out: Any) -> None:
+        host = pdo.host
+        if host is not None:
+            host.apply(out)
+
+    def _teardown_comm(self) -> None:
+        for channel in self._sdo.values():
+            channel.close()
+        self._sdo.clear()
+        for number in list(self._tpdos):
+            self._drop_tpdo(number)
+        for number in list(self._rpdos):
+            self._drop_rpdo(number)
+        for sub in self._subs:
+            sub.cancel()
+        self._subs.clear()
+        for sub in self._consumer_subs.values():
+            sub.cancel()
+        self._consumer_subs.clear()
+        for host in self._hosts:
+            host.close()
+        self._hosts.clear()
+        self._sync_sub = self._time_sub = None
+        self._hb = self._consumer = self._guard = None
+        self._hb_host = self._consumer_host = self._guard_host = self._emcy_host = None
+        self._sync = self._time = None
+        self._sync_producer = None
+        self._sync_host = self._time_host = self._sync_producer_host = None
+        self._operational = False
+
+    def _report(self, what: str, exc: Exception) -> None:
+        self._emit(StorageProblem(self._node_id, f"{what}: {exc}"))
+
+    def _build_comm(self) -> None:
+        now = self.network.time()
+        node = self._node_id
+        # EMCY
+        emcy = self._emcy
+        try:
+            emcy.set_cob_id(int(self._value(0x1014, 0, _emcy.EMCY_BASE + node)))
+        except CobusError as exc:
+            self._report("1014h", exc)
+            emcy.set_cob_id(_emcy.EMCY_BASE + node)
+        emcy.set_inhibit_time(int(self._value(0x1015, 0)), now)
+        self._emcy_host = self._attach(emcy)
+        # SDO servers
+        self._build_sdo()
+        # heartbeat producer and consumer
+        self._hb = _hb.HeartbeatProducer(node, state_getter=lambda: self.nmt.state)
+        self._hb_host = self._attach(self._hb)
+        consumer_size = self._value(0x1016, 0, 0)
+        if consumer_size:
+            self._consumer = _hb.HeartbeatConsumer(min(int(consumer_size), 127))
+            self._consumer_host = self._attach(self._consumer, self._on_consumer_event)
+            for sub in range(1, self._consumer.size + 1):
+                value = self._value(0x1016, sub, 0)
+                if value:
+                    try:
+                        self._consumer.set_entry(sub, int(value), now)
+                    except CobusError as exc:
+                        self._report(f"1016h sub {sub}", exc)
+            self._sync_consumer_subs()
+        # node guarding and life guarding
+        self._guard = _guarding.GuardingResponder(node, lambda: self.nmt.state)
+        self._guard.set_guard_time(int(self._value(0x100C, 0)), now)
+        self._guard.set_life_time_factor(int(self._value(0x100D, 0)), now)
+        self._guard_host = self._attach(self._guard, self._on_guarding_event)
+        self._subs.append(
+            self.network.subscribe(_nmt.ERROR_CONTROL_BASE + node, self._guard_host.feed)
+        )
+        # SYNC and TIME
+        self._build_sync()
+        self._build_time()
+        # PDOs
+        for n in range(1, 513):
+            if 0x1400 + n - 1 in self._indices:
+                self._build_rpdo(n)
+            if 0x1800 + n - 1 in self._indices:
+                self._build_tpdo(n)
+
+    def _build_sdo(self) -> None:
+        for channel in self._sdo.values():
+            channel.close()
+        self._sdo.clear()
+        for n in range(128):
+            index = 0x1200 + n
+            if n and index not in self._indices:
+                continue
+            if n == 0:
+                rx = int(self._value(index, 1, 0x600 + self._node_id)) & 0x7FF
+                tx = int(self._value(index, 2, 0x580 + self._node_id)) & 0x7FF
+            else:
+                rx_value = int(self._value(index, 1, _INVALID))
+                tx_value = int(self._value(index, 2, _INVALID))
+                if rx_value & _INVALID or tx_value & _INVALID:
+                    continue
+                rx, tx = rx_value & 0x7FF, tx_value & 0x7FF
+            server = SdoServer(rx, tx, self._backend, timeout=self._sdo_timeout)
+            host = self.network.attach(server)
+            sub = self.network.subscribe(rx, partial(self._on_sdo_frame, host))
+            self._sdo[n] = _SdoChannel(n, server, host, sub)
+
+    def _on_sdo_frame(self, host: MachineHost, frame: Frame, now: float) -> None:
+        if self.nmt.sdo_allowed:
+            host.feed(frame, now)
+
+    def _build_sync(self) -> None:
+        for host in (self._sync_host, self._sync_producer_host):
+            if host is not None:
+                host.close()
+                self._hosts.remove(host)
+        if self._sync_sub is not None:
+            self._sync_sub.cancel()
+            self._subs.remove(self._sync_sub)
+        self._sync = self._sync_producer = None
+        self._sync_host = self._sync_producer_host = self._sync_sub = None
+        now = self.network.time()
+        try:
+            cob = _sync.SyncCobId.from_u32(int(self._value(0x1005, 0, _sync.SYNC_COB_ID)))
+            overflow = int(self._value(0x1019, 0))
+            consumer = _sync.SyncConsumer(cob.can_id, extended=cob.extended, overflow=overflow)
+            consumer.set_period(int(self._value(0x1006, 0)), now)
+            consumer.set_window(int(self._value(0x1007, 0)))
+        except CobusError as exc:
+            self._report("SYNC parameters", exc)
+            return
+        self._sync = consumer
+        self._sync_host = self._attach(consumer, self._on_sync_event)
+        self._sync_sub = self.network.subscribe(
+            cob.can_id, partial(self._on_gated_frame, self._sync_host), extended=cob.extended
+        )
+        self._subs.append(self._sync_sub)
+        if cob.generate:
+            producer = _sync.SyncProducer(cob.can_id, extended=cob.extended, overflow=overflow)
+            producer.set_period(int(self._value(0x1006, 0)), now)
+            self._sync_producer = producer
+            self._sync_producer_host = self._attach(producer)
+            self._sync_producer_host.apply(NOTHING)
+
+    def _on_gated_frame(self, host: MachineHost, frame: Frame, now: float) -> None:
+        """SYNC and TIME are received in pre-operational and operational only."""
+        if self.nmt.allowed(_nmt.Service.SYNC):
+            host.feed(frame, now)
+
+    def _build_time(self) -> None:
+        if self._time_host is not None:
+            self._time_host.close()
+            self._hosts.remove(self._time_host)
+        if self._time_sub is not None:
+            self._time_sub.cancel()
+            self._subs.remove(self._time_sub)
+        self._time = self._time_host = self._time_sub = None
+        if 0x1012 not in self._indices:
+            return
+        try:
+            cob = _time.TimeCobId.from_u32(int(self._value(0x1012, 0)))
+        except CobusError as exc:
+            self._report("1012h", exc)
+            return
+        if not cob.consume:
+            return
+        self._time = _time.TimeConsumer(cob.can_id, extended=cob.extended)
+        self._time_host = self._attach(self._time, self._on_time_event)
+        self._time_sub = self.network.subscribe(
+            cob.can_id, partial(self._on_gated_frame, self._time_host), extended=cob.extended
+        )
+        self._subs.append(self._time_sub)
+
+    # --- PDOs
+
+    def _pdo_values(self, index: int) -> list[int]:
+        count = int(self._value(index, 0, 0))
+        return [int(self._value(index, sub, 0)) for sub in range(1, count + 1)]
+
+    def _drop_tpdo(self, number: int) -> None:
+        tpdo = self._tpdos.pop(number, None)
+        if tpdo is None:
+            return
+        for entry in tpdo.sources:
+            if tpdo in entry.tpdos:
+                entry.tpdos.remove(tpdo)
+        if tpdo.subscription is not None:
+            tpdo.subscription.cancel()
+        if tpdo.host is not None:
+            tpdo.host.close()
+        tpdo.host = None
+        self._sync_tpdos = [t for t in self._sync_tpdos if t is not tpdo]
+
+    def _drop_rpdo(self, number: int) -> None:
+        rpdo = self._rpdos.pop(number, None)
+        if rpdo is None:
+            return
+        if rpdo.subscription is not None:
+            rpdo.subscription.cancel()
+        if rpdo.host is not None:
+            rpdo.host.close()
+        rpdo.host = None
+        self._sync_rpdos = [r for r in self._sync_rpdos if r is not rpdo]
+        self._clear_errors([("rpdo", number)])
+
+    def _build_tpdo(self, number: int) -> None:
+        self._drop_tpdo(number)
+        comm = 0x1800 + number - 1
+        try:
+            cob = PdoCobId.from_u32(int(self._value(comm, 1, _INVALID)))
+            if not cob.valid:
+                return
+            tt = TransmissionType(int(self._value(comm, 2, 255)))
+            pdo_map, sources = compile_mapping(
+                self._entries, self._pdo_values(0x1A00 + number - 1), receive=False
+            )
+            tpdo = Tpdo(
+                number,
+                cob,
+                tt,
+                pdo_map,
+                sources,
+                inhibit_time_100us=int(self._value(comm, 3, 0)),
+                event_timer_ms=int(self._value(comm, 5, 0)),
+                sync_start_value=int(self._value(comm, 6, 0)),
+            )
+        except (CobusError, SdoAbort) as exc:
+            self._report(f"TPDO {number}", exc)
+            return
+        tpdo.host = self.network.attach(tpdo)
+        if cob.rtr_allowed:
+            tpdo.subscription = self.network.subscribe(
+                cob.can_id, partial(self._on_tpdo_rtr, tpdo), extended=cob.extended
+            )
+        for entry in sources:
+            if tpdo not in entry.tpdos:
+                entry.tpdos.append(tpdo)
+        self._tpdos[number] = tpdo
+        if tt.synchronous:
+            self._sync_tpdos.append(tpdo)
+            self._sync_tpdos.sort(key=lambda t: t.number)
+        if self._operational:
+            tpdo.start(self.network.time())
+            tpdo.host.apply(NOTHING)
+
+    def _on_tpdo_rtr(self, tpdo: Tpdo, frame: Frame, now: float) -> None:
+        if frame.rtr and self._operational and tpdo.host is not None:
+            tpdo.host.feed(frame, now)
+
+    def _build_rpdo(self, number: int) -> None:
+        self._drop_rpdo(number)
+        comm = 0x1400 + number - 1
+        try:
+            cob = PdoCobId.from_u32(int(self._value(comm, 1, _INVALID)))
+            if not cob.valid:
+                return
+            tt = TransmissionType(int(self._value(comm, 2, 255)))
+            pdo_map, targets = compile_mapping(
+                self._entries, self._pdo_values(0x1600 + number - 1), receive=True
+            )
+            rpdo = Rpdo(
+                number, cob, tt, pdo_map, targets, event_timer_ms=int(self._value(comm, 5, 0))
+            )
+        except (CobusError, SdoAbort) as exc:
+            self._report(f"RPDO {number}", exc)
+            return
+        rpdo.host = self.network.attach(rpdo, (), partial(self._on_rpdo_event, rpdo))
+        rpdo.subscription = self.network.subscribe(
+            cob.can_id, partial(self._on_rpdo_frame, rpdo), extended=cob.extended
+        )
+        self._rpdos[number] = rpdo
+        if rpdo.synchronous:
+            self._sync_rpdos.append(rpdo)
+            self._sync_rpdos.sort(key=lambda r: r.number)
+
+    def _on_rpdo_frame(self, rpdo: Rpdo, frame: Frame, now: float) -> None:
+        if not self._operational or frame.rtr:
+            return
+        host = rpdo.host
+        if host is None:
+            return
+        host.apply(rpdo.watchdog.on_frame(frame, now))
+        data = frame.data
+        if len(data) < rpdo.map.length:
+            return
+        values = rpdo.map.unpack(data)
+        if rpdo.synchronous:
+            rpdo.pending = values
+        else:
+            self._apply_rpdo(rpdo, values)
+
+    def _apply_rpdo(self, rpdo: Rpdo, values: tuple[Any, ...]) -> None:
+        written: list[tuple[int, int]] = []
+        applied: list[Any] = []
+        for entry, value in zip(rpdo.targets, values, strict=True):
+            try:
+                if entry.limited:
+                    value = check_value(entry, value)
+                if entry.writer is not None:
+                    self._call_writer(entry, value)
+            except SdoAbort:
+                continue
+            self._store(entry, value)
+            written.append((entry.index, entry.subindex))
+            applied.append(value)
+        self._emit(RpdoReceived(self._node_id, rpdo.number, tuple(written), tuple(applied)))
+
+    def _on_rpdo_event(self, rpdo: Rpdo, event: Event) -> None:
+        node = self._node_id
+        if isinstance(event, RpdoTooShort):
+            self._one_shot(EmcyCode.PDO_LENGTH_ERROR, _COMM_BIT)
+            self._emit(PdoLengthError(node, rpdo.number, event.expected, event.received))
+        elif isinstance(event, RpdoTooLong):
+            self._one_shot(EmcyCode.PDO_LENGTH_EXCEEDED, _COMM_BIT)
+            self._emit(PdoLengthError(node, rpdo.number, event.expected, event.received))
+        elif isinstance(event, RpdoTimeout):
+            self._raise_error(("rpdo", rpdo.number), EmcyCode.RPDO_TIMEOUT, _COMM_BIT)
+            self._emit(RpdoLost(node, rpdo.number, event.cob_id))
+        elif isinstance(event, RpdoResumed):
+            self._clear_errors([("rpdo", rpdo.number)])
+            self._emit(RpdoRestored(node, rpdo.number, event.cob_id))
+
+    # --- SYNC, TIME, heartbeat, guarding events
+
+    def _on_sync_event(self, event: Event) -> None:
+        if isinstance(event, _sync.SyncReceived):
+            if not self._operational:
+                return
+            for rpdo in self._sync_rpdos:
+                pending = rpdo.pending
+                if pending is not None:
+                    rpdo.pending = None
+                    self._apply_rpdo(rpdo, pending)
+            if self._sync_tpdos:
+                now = self.network.time()
+                counter = event.counter
+                for tpdo in self._sync_tpdos:
+                    self._apply(tpdo, tpdo.on_sync(counter, now))
+        elif isinstance(event, _sync.SyncLost):
+            self._raise_error(("sync",), EmcyCode.COMMUNICATION, _COMM_BIT)
+            self._emit(SyncLost(self._node_id))
+        elif isinstance(event, _sync.SyncResumed):
+            self._clear_errors([("sync",)])
+            self._emit(SyncRestored(self._node_id))
+        elif isinstance(event, _sync.UnexpectedSyncLength):
+            self._one_shot(EmcyCode.UNEXPECTED_SYNC_LENGTH, _COMM_BIT)
+
+    def _on_time_event(self, event: Event) -> None:
+        if isinstance(event, _time.TimeReceived):
+            self._emit(TimeReceived(self._node_id, event.time))
+
+    def _on_consumer_event(self, event: Event) -> None:
+        node = self._node_id
+        if isinstance(event, _hb.HeartbeatTimeout):
+            self._raise_error(("hb", event.node_id), EmcyCode.LIFE_GUARD_OR_HEARTBEAT, _COMM_BIT)
+            self._emit(HeartbeatLost(node, event.node_id))
+            self._communication_error()
+        elif isinstance(event, _hb.HeartbeatResumed):
+            self._clear_errors([("hb", event.node_id)])
+            self._emit(HeartbeatRestored(node, event.node_id, event.state))
+        elif isinstance(event, _hb.BootupReceived):
+            self._clear_errors([("hb", event.node_id)])
+
+    def _on_guarding_event(self, event: Event) -> None:
+        if isinstance(event, _guarding.LifeGuardingExpired):
+            self._raise_error(("guard",), EmcyCode.LIFE_GUARD_OR_HEARTBEAT, _COMM_BIT)
+            self._emit(LifeGuardingLost(self._node_id))
+            self._communication_error()
+        elif isinstance(event, _guarding.LifeGuardingResumed):
+            self._clear_errors([("guard",)])
+            self._emit(LifeGuardingRestored(self._node_id))
+
+    def _sync_consumer_subs(self) -> None:
+        consumer = self._consumer
+        host = self._consumer_host
+        wanted: set[int] = set()
+        if consumer is not None:
+            for sub in range(1, consumer.size + 1):
+                node, ms = _hb.decode_consumer_entry(consumer.entry(sub))
+                if node and ms:
+                    wanted.add(node)
+        for node in list(self._consumer_subs):
+            if node not in wanted:
+                self._consumer_subs.pop(node).cancel()
+        if host is not None:
+            for node in wanted - set(self._consumer_subs):
+                self._consumer_subs[node] = self.network.subscribe(
+                    _nmt.ERROR_CONTROL_BASE + node, host.feed
+                )
+
+    # ================================================================== emergencies
+
+    def _register(self) -> int:
+        bits = 0
+        for value in self._errors.values():
+            bits |= value
+        return bits | _GENERIC if self._errors else bits
+
+    def _sync_error_objects(self) -> None:
+        entry = self._entries.get(0x1001 << 8)
+        if entry is not None:
+            self._store(entry, self._register())
+        self._emcy.error_register = ErrorRegister(self._register())
+
+    def _emergency(self, code: int, register: int, manufacturer: bytes, info: int) -> None:
+        emcy = self._emcy
+        host = self._emcy_host
+        if host is not None and self.nmt.emcy_allowed:
+            host.apply(emcy.send(code, register, manufacturer, self.network.time(), info=info))
+        else:
+            emcy.record(code, info)
+        self._sync_error_objects()
+        self._emit(EmergencySent(self._node_id, code, register, manufacturer))
+
+    def _raise_error(
+        self, key: object, code: int, bits: int, manufacturer: bytes = b"", info: int = 0
+    ) -> None:
+        self._errors[key] = bits
+        self._emergency(code, self._register(), manufacturer, info)
+
+    def _one_shot(self, code: int, bits: int) -> None:
+        self._emergency(code, self._register() | bits | _GENERIC, b"", 0)
+
+    def _clear_errors(self, keys: list[Any]) -> None:
+        removed = False
+        for key in keys:
+            if self._errors.pop(key, None) is not None:
+                removed = True
+        if not removed:
+            return
+        register = self._register()
+        host = self._emcy_host
+        if host is not None and self.nmt.emcy_allowed:
+            host.apply(self._emcy.reset(self.network.time(), register))
+        self._sync_error_objects()
+        self._emit(EmergencySent(self._node_id, 0, register, b""))
+
+    # ================================================================== stored parameters
+
+    def _node_offset(self, entry: Entry, value: Any) -> int | None:
+        """``value - node_id`` when ``value`` follows ``$NODEID``, else None."""
+        if not isinstance(value, int) or isinstance(value, bool):
+            return None
+        node = self._node_id
+        var = entry.var
+        if var.relative:
+            return value - node if value == var.value else None
+        index, sub = entry.index, entry.subindex
+        base: int | None = None
+        if index == 0x1014 and sub == 0:
+            base = _emcy.EMCY_BASE
+        elif index == 0x1200 and sub in (1, 2):
+            base = 0x600 if sub == 1 else 0x580
+        elif sub == 1 and 0x1400 <= index <= 0x1403:
+            base = rpdo_default_can_id(index - 0x1400 + 1, node) - node
+        elif sub == 1 and 0x1800 <= index <= 0x1803:
+            base = tpdo_default_can_id(index - 0x1800 + 1, node) - node
+        if base is None or value & _EXTENDED or value & 0x1FFFFFFF != base + node:
+            return None
+        return value - node
+
+    def _collect(self, group: str) -> dict[str, StoredValue]:
+        out: dict[str, StoredValue] = {}
+        for entry in self._entries.values():
+            index = entry.index
+            in_group = index < 0x2000 if group == COMMUNICATION else 0x2000 <= index < 0xA000
+            if not in_group or index in _NOT_STORED or not entry.var.access.writable:
+                continue
+            key = f"{index:04X}:{entry.subindex:02X}"
+            value = entry.value
+            if entry.reader is not None:
+                try:
+                    value = check_value(entry, entry.reader())
+                except Exception as exc:  # the application's value cannot be read: keep ours
+                    self.network._report_failure(f"read callback of {key}", exc)
+            offset = self._node_offset(entry, value)
+            if offset is not None:
+                out[key] = {"node_id_offset": offset}
+            else:
+                out[key] = {"data": encode(entry.data_type, value).hex()}
+        return out
+
+    def _groups(self, subindex: int, what: str) -> tuple[str, ...]:
+        groups = {1: (COMMUNICATION, APPLICATION), 2: (COMMUNICATION,), 3: (APPLICATION,)}
+        chosen = groups.get(subindex)
+        if chosen is None:
+            raise _abort(
+                _ABORT.CANNOT_STORE,
+                f"{what} sub-index {subindex} names no parameter group (1 all, "
+                "2 communication, 3 application)",
+            )
+        return chosen
+
+    def _store_parameters(self, subindex: int) -> None:
+        groups = self._groups(subindex, "1010h")
+        try:
+            stored = self._storage.load()
+        except StorageError as exc:
+            if subindex != 1:
+                raise _abort(_ABORT.CANNOT_STORE, str(exc)) from None
+            stored = {}
+        for group in groups:
+            stored[group] = self._collect(group)
+        try:
+            self._storage.save(stored)
+        except StorageError as exc:
+            raise _abort(_ABORT.CANNOT_STORE, str(exc)) from None
+        self._emit(ParametersStored(self._node_id, subindex))
+
+    def _restore_defaults(self, subindex: int) -> None:
+        groups = self._groups(subindex, "1011h")
+        try:
+            stored = self._storage.load()
+        except StorageError:
+            stored = {}
+        for group in groups:
+            stored[group] = {}
+        try:
+            self._storage.save(stored)
+        except StorageError as exc:
+            raise _abort(_ABORT.CANNOT_STORE, str(exc)) from None
+        self._emit(ParametersRestored(self._node_id, subindex))
+
+    # ================================================================== write handlers
+
+    def _install_handlers(self) -> None:
+        h = self._handlers
+        self._indices.update(obj.index for obj in self.od if obj.index >= 0x1000)
+        fixed: dict[int, Callable[[Entry, Any], None]] = {
+            0x1001: self._w_error_register,
+            0x1003: self._w_error_field,
+            0x1005: self._w_sync_cob_id,
+            0x1006: self._w_sync_period,
+            0x1007: self._w_sync_window,
+            0x100C: self._w_guarding,
+            0x100D: self._w_guarding,
+            0x1010: self._w_store,
+            0x1011: self._w_restore,
+            0x1012: self._w_time_cob_id,
+            0x1014: self._w_emcy_cob_id,
+            0x1015: self._w_emcy_inhibit,
+            0x1016: self._w_consumer,
+            0x1017: self._w_producer,
+            0x1019: self._w_sync_overflow,
+            0x1029: self._w_error_behaviour,
+        }
+        for index, handler in fixed.items():
+            if index in self._indices:
+                h[index] = handler
+        for index in self._indices:
+            if 0x1200 <= index <= 0x127F:
+                h[index] = self._w_sdo_server
+            elif 0x1400 <= index <= 0x15FF or 0x1800 <= index <= 0x19FF:
+                h[index] = self._w_pdo_comm
+            elif 0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF:
+                h[index] = self._w_pdo_mapping
+        e1003 = self._entries
+        for sub in range(0, 255):
+            entry = e1003.get(0x1003 << 8 | sub)
+            if entry is not None:
+                entry.reader = partial(self._read_error_field, sub)
+        eds = self._entries.get(0x1021 << 8)
+        if eds is not None:
+            eds.reader = self._read_eds
+
+    # --- readers
+
+    def _read_error_field(self, sub: int) -> int:
+        history = self._emcy.history
+        if sub == 0:
+            return len(history)
+        if sub > len(history):
+            raise _abort(
+                _ABORT.NO_DATA, f"1003h sub {sub} holds no error ({len(history)} recorded)"
+            )
+        return history[sub - 1]
+
+    def _read_eds(self) -> bytes:
+        return self.to_eds().replace("\n", "\r\n").encode("utf-8")
+
+    # --- simple objects
+
+    def _now(self) -> float:
+        return self.network.time()
+
+    def _w_error_register(self, entry: Entry, value: Any) -> None:
+        raise _abort(
+            _ABORT.UNSUPPORTED_ACCESS,
+            "the error register follows the active errors: use send_emergency() and "
+            "clear_emergency()",
+        )
+
+    def _w_error_field(self, entry: Entry, value: Any) -> None:
+        if entry.subindex != 0:
+            raise _abort(_ABORT.UNSUPPORTED_ACCESS, "1003h entries are recorded by the device")
+        if value != 0:
+            raise _abort(_ABORT.INVALID_VALUE, "1003h sub 0 accepts only 0 (clear the history)")
+        self._emcy.write_error_count(0)
+        entry.value = 0
+
+    def _w_sync_cob_id(self, entry: Entry, value: Any) -> None:
+        try:
+            new = _sync.SyncCobId.from_u32(value)
+        except CobusError as exc:
+            raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
+        producer = self._sync_producer
+        if (
+            producer is not None
+            and new.generate
+            and (new.can_id, new.extended) != (producer.can_id, producer.extended)
+        ):
+            raise _abort(
+                _ABORT.INVALID_VALUE,
+                "1005h: the SYNC identifier cannot change while this device generates SYNC; "
+                "clear bit 30 first",
+            )
+        self._store(entry, value)
+        if self._started:
+            self._build_sync()
+
+    def _w_sync_period(self, entry: Entry, value: Any) -> None:
+        self._store(entry, value)
+        now = self._now()
+        if self._sync is not None and self._sync_host is not None:
+            self._sync.set_period(value, now)
+            self._sync_host.apply(NOTHING)
+        if self._sync_producer is not None and self._sync_producer_host is not None:
+            self._sync_producer.set_period(value, now)
+            self._sync_producer_host.apply(NOTHING)
+
+    def _w_sync_window(self, entry: Entry, value: Any) -> None:
+        self._store(entry, value)
+        if self._sync is not None:
+            self._sync.set_window(value)
+
+    def _w_sync_overflow(self, entry: Entry, value: Any) -> None:
+        if self._value(0x1006, 0):
+            raise _abort(
+                _ABORT.DEVICE_STATE,
+                "1019h can only change while the communication cycle period 1006h is 0",
+            )
+        try:
+            _sync.check_overflow(value)
+        except CobusError as exc:
+            raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
+        self._store(entry, value)
+        if self._sync is not None:
+            self._sync.set_overflow(value)
+        if self._sync_producer is not None:
+            self._sync_producer.set_overflow(value)
+
+    def _w_guarding(self, entry: Entry, value: Any) -> None:
+        self._store(entry, value)
+        guard, host = self._guard, self._guard_host
+        if guard is not None and host is not None:
+            if entry.index == 0x100C:
+                guard.set_guard_time(value, self._now())
+            else:
+                guard.set_life_time_factor(value, self._now())
+            host.apply(NOTHING)
+
+    def _w_store(self, entry: Entry, value: Any) -> None:
+        if entry.subindex == 0:
+            raise _abort(_ABORT.WRITE_READ_ONLY, "1010h sub 0 is read-only")
+        if value != SAVE_SIGNATURE:
+            raise _abort(
+                _ABORT.CANNOT_STORE,
+                f"1010h expects the signature 'save' (0x{SAVE_SIGNATURE:08X}), got 0x{value:08X}",
+            )
+        self._store_parameters(entry.subindex)
+
+    def _w_restore(self, entry: Entry, value: Any) -> None:
+        if entry.subindex == 0:
+            raise _abort(_ABORT.WRITE_READ_ONLY, "1011h sub 0 is read-only")
+        if value != LOAD_SIGNATURE:
+            raise _abort(
+                _ABORT.CANNOT_STORE,
+                f"1011h expects the signature 'load' (0x{LOAD_SIGNATURE:08X}), got 0x{value:08X}",
+            )
+        self._restore_defaults(entry.subindex)
+
+    def _w_time_cob_id(self, entry: Entry, value: Any) -> None:
+        try:
+            new = _time.TimeCobId.from_u32(value)
+        except CobusError as exc:
+            raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
+        if new.produce:
+            raise _abort(
+                _ABORT.INVALID_VALUE,
+                "1012h bit 30: this device does not produce TIME (it consumes it, bit 31)",
+            )
+        self._store(entry, value)
+        if self._started:
+            self._build_time()
+
+    def _w_emcy_cob_id(self, entry: Entry, value: Any) -> None:
+        try:
+            new = _emcy.EmcyCobId.from_u32(value)
+            old = _emcy.EmcyCobId.from_u32(int(entry.value))
+        except CobusError as exc:
+            raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
+        if old.valid and new.valid and (old.can_id, old.extended) != (new.can_id, new.extended):
+            raise _abort(
+                _ABORT.INVALID_VALUE,
+                "1014h: the EMCY identifier cannot change while it is valid; write it with "
+                "bit 31 set first",
+            )
+        self._store(entry, value)
+        self._emcy.set_cob_id(value)
+
+    def _w_emcy_inhibit(self, entry: Entry, value: Any) -> None:
+        self._store(entry, value)
+        self._emcy.set_inhibit_time(value, self._now())
+
+    def _w_consumer(self, entry: Entry, value: Any) -> None:
+        sub = entry.subindex
+        if sub == 0:
+            raise _abort(_ABORT.WRITE_READ_ONLY, "1016h sub 0 is read-only")
+        try:
+            node, ms = _hb.decode_consumer_entry(value)
+        except CobusError as exc:
+            raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
+        if node > 127:
+            raise _abort(_ABORT.INVALID_VALUE, f"1016h sub {sub}: node-ID {node} is not 1..127")
+        if node and ms:
+            for other in range(1, 128):
+                if other == sub:
+                    continue
+                existing = self._entries.get(0x1016 << 8 | other)
+                if existing is None:
+                    continue
+                o_node, o_ms = (existing.value >> 16) & 0xFF, existing.value & 0xFFFF
+                if o_node == node and o_ms:
+                    raise _abort(
+                        _ABORT.PARAMETER_INCOMPATIBLE,
+                        f"1016h sub {sub} would watch node {node} a second time (sub {other} "
+                        "does already); clear that entry first",
+                    )
+        self._store(entry, value)
+        consumer, host = self._consumer, self._consumer_host
+        if consumer is not None and host is not None and sub <= consumer.size:
+            consumer.set_entry(sub, value, self._now())
+            host.apply(NOTHING)
+            self._sync_consumer_subs()
+            if not (node and ms):
+                self._clear_errors(
+                    [
+                        k
+                        for k in self._errors
+                        if isinstance(k, tuple) and k[0] == "hb" and not self._watched(k[1])
+                    ]
+                )
+
+    def _watched(self, node: int) -> bool:
+        consumer = self._consumer
+        if consumer is None:
+            return False
+        return any(
+            (consumer.entry(s) >> 16) & 0xFF == node and consumer.entry(s) & 0xFFFF
+            for s in range(1, consumer.size + 1)
+        )
+
+    def _w_producer(self, entry: Entry, value: Any) -> None:
+        self._store(entry, value)
+        if self._hb is not None and self._hb_host is not None:
+            self._hb.set_period(value, self._now())
+            self._hb_host.apply(NOTHING)
+
+    def _w_error_behaviour(self, entry: Entry, value: Any) -> None:
+        if entry.subindex == 0:
+            raise _abort(_ABORT.WRITE_READ_ONLY, "1029h sub 0 is read-only")
+        if 2 < value < 0x80:
+            raise _abort(
+                _ABORT.INVALID_VALUE,
+                f"1029h sub {entry.subindex}: {value} is reserved (0 pre-operational, "
+                "1 no change, 2 stopped, 80h-FFh manufacturer-specific)",
+            )
+        self._store(entry, value)
+
+    def _w_sdo_server(self, entry: Entry, value: Any) -> None:
+        sub = entry.subindex
+        if sub in (1, 2):
+            if value & _EXTENDED:
+                raise _abort(_ABORT.INVALID_VALUE, "29-bit SDO identifiers are not supported")
+            can_id = value & 0x1FFFFFFF
+            if can_id > 0x7FF:
+                raise _abort(_ABORT.INVALID_VALUE, f"SDO identifier 0x{can_id:X} is not 11-bit")
+            old = int(entry.value)
+            if not old & _INVALID and not value & _INVALID and old & 0x7FF != can_id:
+                raise _abort(
+                    _ABORT.INVALID_VALUE,
+                    f"0x{entry.index:04X} sub {sub}: the identifier cannot change while the "
+                    "channel is valid; write it with bit 31 set first",
+                )
+        self._store(entry, value)
+        if self._started and sub in (1, 2):
+            self._build_sdo()
+
+    def _pdo_valid(self, comm_index: int) -> bool:
+        return not int(self._value(comm_index, 1, _INVALID)) & _INVALID
+
+    def _w_pdo_comm(self, entry: Entry, value: Any) -> None:
+        index, sub = entry.index, entry.subindex
+        tx = index >= 0x1800
+        number = index - (0x1800 if tx else 0x1400) + 1
+        kind = "TPDO" if tx else "RPDO"
+        valid = self._pdo_valid(index)
+        if sub == 0:
+            raise _abort(_ABORT.WRITE_READ_ONLY, f"0x{index:04X} sub 0 is read-only")
+        if sub == 1:
+            try:
+                new = PdoCobId.from_u32(value)
+                old = PdoCobId.from_u32(int(entry.value))
+            except PdoError as exc:
+                raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
+            if valid and new.valid and (new.can_id, new.extended) != (old.can_id, old.extended):
+                raise _abort(
+                    _ABORT.INVALID_VALUE,
+                    f"{kind} {number}: the identifier cannot change while the PDO is valid; "
+                    "write the COB-ID with bit 31 set first",
+                )
+            if new.valid:
+                if not new.extended and is_restricted_can_id(new.can_id):
+                    raise _abort(
+                        _ABORT.INVALID_VALUE,
+                        f"{kind} {number}: identifier 0x{new.can_id:X} is restricted (CiA 301: "
+                        "NMT, SYNC/EMCY, SDO, error control)",
+                    )
+                map_index = (0x1A00 if tx else 0x1600) + number - 1
+                compile_mapping(self._entries, self._pdo_values(map_index), receive=not tx)
+        elif sub == 2:
+            try:
+                tt = TransmissionType(value)
+            except PdoError as exc:
+                raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
+            if not tx and not tt.valid_for_rpdo:
+                raise _abort(
+                    _ABORT.INVALID_VALUE,
+                    f"RPDO {number}: transmission type {value} is for TPDOs only (RPDOs use "
+                    "0-240, 254, 255)",
+                )
+        elif sub in (3, 6) and valid:
+            what = "inhibit time" if sub == 3 else "SYNC start value"
+            raise _abort(
+                _ABORT.INVALID_VALUE,
+                f"{kind} {number}: the {what} cannot change while the PDO is valid; set bit 31 "
+                "of its COB-ID first",
+            )
+        elif sub == 6 and value > 240:
+            raise _abort(_ABORT.VALUE_TOO_HIGH, f"SYNC start value {value} is above 240")
+        self._store(entry, value)
+        if self._started and sub in (1, 2, 3, 5, 6):
+            if tx:
+                self._build_tpdo(number)
+            else:
+                self._build_rpdo(number)
+
+    def _w_pdo_mapping(self, entry: Entry, value: Any) -> None:
+        index, sub = entry.index, entry.subindex
+        tx = index >= 0x1A00
+        number = index - (0x1A00 if tx else 0x1600) + 1
+        comm = (0x1800 if tx else 0x1400) + number - 1
+        kind = "TPDO" if tx else "RPDO"
+        if self._pdo_valid(comm):
+            raise _abort(
+                _ABORT.PARAMETER_INCOMPATIBLE,
+                f"{kind} {number} is valid: set bit 31 of its COB-ID (0x{comm:04X} sub 1) "
+                "before changing its mapping",
+            )
+        if sub == 0:
+            slots = sum(1 for s in range(1, 65) if (index << 8 | s) in self._entries)
+            if value > slots:
+                raise _abort(
+                    _ABORT.VALUE_TOO_HIGH,
+                    f"{kind} {number} has {slots} mapping entries; it cannot count {value}",
+                )
+            values = [int(self._value(index, s, 0)) for s in range(1, value + 1)]
+            compile_mapping(self._entries, values, receive=not tx)
+        else:
+            if self._value(index, 0, 0):
+                raise _abort(
+                    _ABORT.PARAMETER_INCOMPATIBLE,
+                    f"{kind} {number}: write sub-index 0 = 0 before changing mapping entries",
+                )
+            try:
+                check_mapping_entry(self._entries, value, receive=not tx)
+            except PdoError as exc:
+                raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
+        self._store(entry, value)
