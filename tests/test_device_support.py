@@ -10,6 +10,7 @@ from typing import Any, TypeVar
 from cobus.device import Device, DeviceEvent, DictionaryBuilder, export_eds
 from cobus.od import DataType, ObjectDictionary, loads
 from cobus.proto import Event, Frame
+from cobus.proto.nmt import NmtState
 from cobus.runtime import AsyncNetwork, SimulatedEventLoop
 from cobus.runtime.remote import RemoteNode
 
@@ -77,6 +78,9 @@ class Bench:
 
     def times(self, cob_id: int, *, since: float = -1.0) -> list[float]:
         return [round(t, 6) for t, f in self.on(cob_id, since=since) if not f.rtr]
+
+    def state(self) -> NmtState:
+        return self.device.state
 
     def of(self, kind: type[DeviceEvent]) -> list[Any]:
         return [e for e in self.events if isinstance(e, kind)]
