@@ -1,9 +1,10 @@
 """The EDS of a device (CiA 306), written by the dictionary's own writer.
 
-What a device built in code may leave open is filled in for the export only (the dictionary
-itself is not changed): file information, the DeviceInfo capabilities (all standard bit
-rates, simple boot-up slave, granularity 8, the PDO counts of the dictionary) and the dummy
-mappings the device supports.
+The export describes the running device, not only its dictionary; the dictionary itself is
+not changed. What a dictionary built in code leaves open is filled in (file information,
+product and vendor from 1008h/1018h, all standard bit rates), and the capabilities are those
+this device implements: simple boot-up slave, no LSS, no dynamic SDO channels, the PDO counts
+of the dictionary and dummy mapping of every basic type 0001h..0007h.
 """
 
 from __future__ import annotations
@@ -65,24 +66,20 @@ def export_eds(od: ObjectDictionary, *, description: str | None = None) -> str:
         info.vendor_name = "cobus"
     if not info.baud_rates:
         info.baud_rates = set(_BIT_RATES)
-    if info.simple_boot_up_master is None:
-        info.simple_boot_up_master = False
-    if info.simple_boot_up_slave is None:
-        info.simple_boot_up_slave = True
-    if info.granularity is None:
+    # what this device implements, whatever the dictionary's file said
+    info.simple_boot_up_master = False
+    info.simple_boot_up_slave = True
+    if not info.granularity:
         info.granularity = 8
-    if info.dynamic_channels_supported is None:
-        info.dynamic_channels_supported = 0
-    if info.group_messaging is None:
-        info.group_messaging = False
+    info.dynamic_channels_supported = 0
+    info.group_messaging = False
     info.nr_of_rx_pdo = _count(od, 0x1400)
     info.nr_of_tx_pdo = _count(od, 0x1800)
-    if info.lss_supported is None:
-        info.lss_supported = False
+    info.lss_supported = False
     saved = od.file_info, od.device_info, dict(od.dummy_usage)
     od.file_info, od.device_info = file_info, info
-    for code in range(1, 8):
-        od.dummy_usage.setdefault(code, True)
+    for code in range(1, 8):  # the device maps a dummy of every basic type 0001h..0007h
+        od.dummy_usage[code] = True
     try:
         return od.to_eds()
     finally:
