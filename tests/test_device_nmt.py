@@ -348,3 +348,26 @@ def test_time_stamps_are_consumed_per_1012h():
         assert len(b.of(TimeReceived)) == 2  # not received in stopped
 
     run_bench(scenario)
+
+
+def test_heartbeat_consumer_watches_several_producers():
+    async def scenario(b: Bench):
+        await b.sdo.write(0x1016, 1, 0x10 << 16 | 100)
+        await b.sdo.write(0x1016, 2, 0x11 << 16 | 100)
+        await b.sdo.write(0x1016, 3, 0x12 << 16 | 100)
+        for step in range(10):
+            b.send(0x710, b"\x05")
+            if step < 2:
+                b.send(0x711, b"\x7f")
+            b.send(0x712, b"\x05")
+            await b.net.sleep(0.05)
+        assert [e.producer for e in b.of(HeartbeatLost)] == [0x11]
+        # clearing the entry of the lost producer ends its error
+        assert b.device.error_register == 0x11
+        await b.sdo.write(0x1016, 2, 0)
+        assert b.device.error_register == 0
+        await b.sdo.write(0x1016, 3, 0)
+        await b.net.sleep(0.5)
+        assert [e.producer for e in b.of(HeartbeatLost)] == [0x11, 0x10]
+
+    run_bench(scenario)

@@ -84,6 +84,19 @@ def test_node_id_in_use_is_refused():
     simulate(main())
 
 
+def test_a_dictionary_serves_one_device_at_a_time():
+    async def main():
+        async with AsyncNetwork() as net:
+            od = test_od()
+            first = net.add_device(5, od)
+            with pytest.raises(DeviceConfigError, match="already served by device 5"):
+                net.add_device(6, od)
+            first.close()
+            assert net.add_device(6, od).node_id == 6
+
+    simulate(main())
+
+
 def test_two_devices_on_one_network_do_not_interfere():
     async def main():
         async with AsyncNetwork() as net:

@@ -9,6 +9,7 @@ import struct
 import pytest
 
 from cobus.device import (
+    ConfigurationProblem,
     DictionaryBuilder,
     PdoLengthError,
     RpdoLost,
@@ -16,7 +17,7 @@ from cobus.device import (
     RpdoRestored,
     minimal_od,
 )
-from cobus.od import DataType
+from cobus.od import DataType, Variable
 from cobus.proto.pdo import PdoMap
 from cobus.proto.sdo import SdoAbortCode, SdoAbortedError
 from tests.test_device_support import NODE, Bench, run_bench
@@ -445,3 +446,33 @@ def test_pdo_defaults_of_minimal_od_follow_the_node_id():
     assert rpdo4.value == 0x509
     assert tpdo5.value == 0x80000000  # PDO 5 and above: not valid until configured
     assert tpdo1.relative and not tpdo5.relative
+
+
+def test_a_default_mapping_the_device_cannot_use_is_reported():
+    od = minimal_od()
+    od.add(Variable(0x2000, 0, "Plain", DataType.UNSIGNED8, pdo_mappable=False))
+    mapping = od.get_variable(0x1A00, 1)
+    count = od.get_variable(0x1A00, 0)
+    assert mapping is not None and count is not None
+    mapping.default = 0x20000008
+    count.default = 1
+
+    async def scenario(b: Bench):
+        problems = b.of(ConfigurationProblem)
+        assert len(problems) == 1 and "TPDO 1" in problems[0].reason
+        assert "not PDO-mappable" in problems[0].reason
+        await b.start()
+        b.device.set(0x2000, 0, 1)
+        await b.net.sleep(0.01)
+        assert b.data(TPDO1) == []
+        # corrected by SDO, the PDO works
+        await b.sdo.write(0x1800, 1, 0x80000000 | TPDO1)
+        await b.sdo.write(0x1A00, 0, 0)
+        await b.sdo.write(0x1A00, 1, 0x10010008)  # the error register
+        await b.sdo.write(0x1A00, 0, 1)
+        await b.sdo.write(0x1800, 1, TPDO1)
+        b.device.send_emergency(0x4000)
+        await b.settle()
+        assert b.data(TPDO1) == [b"\x09"]
+
+    run_bench(scenario, od)

@@ -25,6 +25,7 @@ from cobus.device.errors import (
 )
 from cobus.device.events import (
     Booted,
+    ConfigurationProblem,
     DeviceEvent,
     EmergencySent,
     EntryWritten,
@@ -54,6 +55,7 @@ __all__ = [
     "SAVE_SIGNATURE",
     "BlockingDevice",
     "Booted",
+    "ConfigurationProblem",
     "Device",
     "DeviceConfigError",
     "DeviceError",

@@ -12,6 +12,7 @@ the network's event loop: call the device's methods from there (or through
 from __future__ import annotations
 
 import logging
+import weakref
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
@@ -28,6 +29,7 @@ from cobus.device.errors import (
 )
 from cobus.device.events import (
     Booted,
+    ConfigurationProblem,
     DeviceEvent,
     EmergencySent,
     EntryWritten,
@@ -82,6 +84,7 @@ from cobus.proto.pdo import (
     tpdo_default_can_id,
 )
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer
+from cobus.runtime.events import HandlerFailed
 
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, MachineHost, Subscription
@@ -106,6 +109,8 @@ _MANDATORY = (0x1000, 0x1001, 0x1018)
 _COMMANDS = {int(c): c for c in NmtCommand}
 _GENERIC = int(ErrorRegister.GENERIC)
 _COMM_BIT = int(ErrorRegister.COMMUNICATION)
+#: Dictionaries served by a running device (by id): a dictionary holds one node's defaults.
+_SERVED: dict[int, weakref.ref[Device]] = {}
 
 
 def _class_bits(code: int) -> int:
@@ -221,6 +226,13 @@ class Device:
             )
         if not sdo_timeout > 0:
             raise DeviceConfigError(f"SDO timeout {sdo_timeout!r} must be a positive number")
+        holder = _SERVED.get(id(od))
+        other = holder() if holder is not None else None
+        if other is not None and other.serves(od):
+            raise DeviceConfigError(
+                f"this dictionary is already served by device {other.node_id}: give each device "
+                "a dictionary of its own (load the EDS again, or build another one)"
+            )
         self.network = network
         self.od = od
         self._node_id = node_id
@@ -274,6 +286,7 @@ class Device:
         self._sync_rpdos: list[Rpdo] = []
         self._handlers: dict[int, Callable[[Entry, Any], None]] = {}
         self._install_handlers()
+        _SERVED[id(od)] = weakref.ref(self)
 
     # ================================================================== public API
 
@@ -311,6 +324,12 @@ class Device:
                 index if isinstance(index, int) else 0, 0, _ABORT.NO_OBJECT, f"no object {shown}"
             )
         return _ObjectView(self, obj.index)
+
+    def serves(self, od: ObjectDictionary) -> bool:
+        """Whether this device runs (not closed) on the dictionary ``od``."""
+        closed: bool = self._closed
+        mine: ObjectDictionary = self.od
+        return not closed and mine is od
 
     def add_listener(self, listener: Listener) -> None:
         """Call ``listener(event)`` for every event of this device (on the event loop)."""
@@ -491,6 +510,9 @@ class Device:
         self._closed = True
         self._teardown_comm()
         self._close_nmt()
+        holder = _SERVED.get(id(self.od))
+        if holder is not None and holder() is self:
+            del _SERVED[id(self.od)]
         if self.network.devices.get(self._node_id) is self:
             del self.network.devices[self._node_id]
 
@@ -569,7 +591,7 @@ class Device:
             except SdoAbort:
                 raise
             except Exception as exc:
-                self.network._report_failure(f"read callback of 0x{index:04X}:{subindex:02X}", exc)
+                self._failure(f"read callback of 0x{index:04X}:{subindex:02X}", exc)
                 raise _abort(_ABORT.CANNOT_STORE, f"the application failed: {exc!r}") from None
         try:
             return encode(entry.data_type, value)
@@ -605,9 +627,7 @@ class Device:
         except SdoAbort:
             raise
         except Exception as exc:
-            self.network._report_failure(
-                f"write callback of 0x{entry.index:04X}:{entry.subindex:02X}", exc
-            )
+            self._failure(f"write callback of 0x{entry.index:04X}:{entry.subindex:02X}", exc)
             raise _abort(_ABORT.CANNOT_STORE, f"the application refused: {exc!r}") from None
 
     def _store(self, entry: Entry, value: Any) -> None:
@@ -625,7 +645,7 @@ class Device:
             try:
                 listener(event)
             except Exception as exc:
-                self.network._report_failure(f"device {self._node_id} listener {listener!r}", exc)
+                self._failure(f"device {self._node_id} listener {listener!r}", exc)
         self.network.emit(event)
 
     # ================================================================== power-on and resets
@@ -812,7 +832,13 @@ class Device:
         self._operational = False
 
     def _report(self, what: str, exc: Exception) -> None:
-        self._emit(StorageProblem(self._node_id, f"{what}: {exc}"))
+        """A configuration value the device cannot use: reported, that part stays off."""
+        self._emit(ConfigurationProblem(self._node_id, f"{what}: {exc}"))
+
+    def _failure(self, where: str, exc: BaseException) -> None:
+        """An application callback raised: logged and reported, the device goes on."""
+        log.error("device %d: %s failed: %r", self._node_id, where, exc, exc_info=exc)
+        self.network.emit(HandlerFailed(f"device {self._node_id}: {where}", repr(exc)))
 
     def _build_comm(self) -> None:
         now = self.network.time()
@@ -1250,7 +1276,7 @@ class Device:
                 try:
                     value = check_value(entry, entry.reader())
                 except Exception as exc:  # the application's value cannot be read: keep ours
-                    self.network._report_failure(f"read callback of {key}", exc)
+                    self._failure(f"read callback of {key}", exc)
             offset = self._node_offset(entry, value)
             if offset is not None:
                 out[key] = {"node_id_offset": offset}

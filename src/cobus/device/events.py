@@ -16,6 +16,7 @@ from cobus.proto.nmt import NmtCommand, NmtState
 
 __all__ = [
     "Booted",
+    "ConfigurationProblem",
     "DeviceEvent",
     "EmergencySent",
     "EntryWritten",
@@ -186,6 +187,15 @@ class ParametersRestored(DeviceEvent):
 class StorageProblem(DeviceEvent):
     """A stored parameter could not be applied (``reason`` says which and why); the device
     uses the power-on value of that entry instead."""
+
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class ConfigurationProblem(DeviceEvent):
+    """A communication parameter of the dictionary cannot be used (e.g. a default PDO
+    mapping of an object that is not mappable): ``reason`` says which; that service (the
+    PDO, the SYNC consumer...) stays off until the parameter is corrected by SDO."""
 
     reason: str
 
