@@ -154,6 +154,22 @@ _PYCAN_STATE = {
 }
 
 
+def readable_fd(bus: can.BusABC) -> int | None:
+    """A file descriptor that is readable exactly when ``bus.recv(0)`` has a frame, or None.
+
+    Only SocketCAN guarantees that: its kernel socket hands over one frame per read. Other
+    interfaces with a descriptor (python-can-remote's websocket, serial ports) buffer frames
+    behind it, so they are read by a thread instead.
+    """
+    if type(bus).__name__ != "SocketcanBus":
+        return None
+    try:
+        fd = bus.fileno()
+    except (NotImplementedError, OSError, ValueError):
+        return None
+    return fd if isinstance(fd, int) and fd >= 0 else None
+
+
 def interface_reports_state(bus: can.BusABC) -> bool:
     """Whether the interface implements python-can's ``state`` property for real."""
     return type(bus).state is not can.BusABC.state

@@ -544,12 +544,8 @@ class AsyncNetwork:
             self._poll_hook = self._poll
             loop.add_poll_hook(self._poll)
             return
-        fd = -1
-        try:
-            fd = bus.fileno()
-        except (NotImplementedError, OSError, ValueError):
-            fd = -1
-        if isinstance(fd, int) and fd >= 0:
+        fd = _bus.readable_fd(bus)
+        if fd is not None:
             try:
                 loop.add_reader(fd, self._read_ready)
                 self._fd = fd
@@ -610,6 +606,8 @@ class AsyncNetwork:
             return
         if batch:
             self._on_messages(batch)
+            if len(batch) == _BATCH:  # more may be waiting in the socket: read on
+                self.loop.call_soon(self._read_ready)
 
     def _reader_thread(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
         backoff = 0.05

@@ -1,0 +1,167 @@
+"""The runtime across processes and on descriptor-driven interfaces.
+
+- Two processes share one bus through python-can-remote on 127.0.0.1: a cobus SDO server in a
+  child process, the cobus client here.
+- The SocketCAN read path (the loop watches the socket's descriptor) with a stand-in bus
+  whose class has SocketCAN's name: this machine's kernel has no SocketCAN.
+"""
+
+import asyncio
+import contextlib
+import socket
+import subprocess
+import sys
+import textwrap
+import time
+from collections import deque
+
+import can
+import pytest
+
+from cobus.proto import Frame
+from cobus.runtime import AsyncNetwork, Network
+
+pytestmark = pytest.mark.interop
+
+DATA = bytes(range(256)) * 4
+
+SERVER = textwrap.dedent(
+    """
+    import sys, time
+    from cobus.proto.sdo import DictBackend, SdoServer
+    from cobus.runtime import Network
+
+    async def serve(net):
+        store = DictBackend({(0x1000, 0): b"\\x91\\x01\\x00\\x00", (0x2000, 0): DATA})
+        net.aio.attach(SdoServer(0x605, 0x585, store), [0x605])
+
+    DATA = bytes(range(256)) * 4
+    with Network(interface="remote", channel=sys.argv[1]) as net:
+        net.run(serve(net))
+        print("ready", flush=True)
+        sys.stdin.read()  # until the test closes our stdin
+    """
+)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_for_port(port: int, deadline: float) -> None:
+    while time.monotonic() < deadline:
+        with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), 0.2):
+            return
+        time.sleep(0.05)
+    raise TimeoutError(f"python-can-remote did not listen on 127.0.0.1:{port}")
+
+
+@pytest.fixture
+def remote_bus_url():
+    port = _free_port()
+    server = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "can_remote",
+            "-i",
+            "virtual",
+            "-c",
+            f"mp{port}",
+            "-H",
+            "127.0.0.1",
+            "-p",
+            str(port),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        _wait_for_port(port, time.monotonic() + 15)
+        yield f"ws://127.0.0.1:{port}/"
+    finally:
+        server.terminate()
+        server.wait(10)
+
+
+def test_sdo_between_two_processes_over_python_can_remote(remote_bus_url):
+    child = subprocess.Popen(
+        [sys.executable, "-c", SERVER, remote_bus_url],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert child.stdout is not None and child.stdout.readline().strip() == "ready"
+        with Network(interface="remote", channel=remote_bus_url) as net:
+            node = net.add_remote(5, sdo_timeout=2.0)
+            assert node.sdo.upload(0x1000) == b"\x91\x01\x00\x00"
+            assert node.sdo.upload(0x2000) == DATA
+            assert node.sdo.upload(0x2000, block=True) == DATA
+            node.sdo.download(0x2000, 0, DATA[::-1], block=True)
+            assert node.sdo.upload(0x2000) == DATA[::-1]
+    finally:
+        if child.stdin is not None:
+            child.stdin.close()
+        child.wait(15)
+    assert child.returncode == 0
+
+
+class SocketcanBus(can.BusABC):
+    """Stand-in with SocketCAN's class name: a socketpair makes its descriptor readable
+    exactly when a frame is waiting, as a CAN_RAW socket is."""
+
+    def __init__(self):
+        self._r, self._w = socket.socketpair()
+        self._r.setblocking(False)
+        self._frames: deque[can.Message] = deque()
+        self.sent: list[can.Message] = []
+        super().__init__(channel="stand-in")
+
+    def inject(self, msg: can.Message) -> None:
+        if not self._frames:
+            self._w.send(b"x")  # readable while frames wait, like a CAN_RAW socket
+        self._frames.append(msg)
+
+    def fileno(self):
+        return self._r.fileno()
+
+    def _recv_internal(self, timeout):
+        if not self._frames:
+            return None, False
+        msg = self._frames.popleft()
+        if not self._frames:
+            self._r.recv(1)
+        return msg, False
+
+    def send(self, msg, timeout=None):
+        self.sent.append(msg)
+
+    def shutdown(self):
+        self._r.close()
+        self._w.close()
+        super().shutdown()
+
+
+def test_socketcan_descriptor_is_watched_by_the_loop_without_a_thread():
+    bus = SocketcanBus()
+
+    async def main():
+        async with AsyncNetwork(bus) as net:
+            assert net._reader is None and net._fd == bus.fileno()
+            got = []
+            net.subscribe(0x181, lambda f, now: got.append(f))
+            for i in range(600):  # more than one read batch
+                bus.inject(can.Message(arbitration_id=0x181, data=[i & 0xFF], is_extended_id=False))
+            for _ in range(100):
+                if len(got) == 600:
+                    break
+                await asyncio.sleep(0.01)
+            return got
+
+    got = asyncio.run(main())
+    bus.shutdown()
+    assert [f.data[0] for f in got] == [i & 0xFF for i in range(600)]
+    assert got[0] == Frame(0x181, b"\x00")
