@@ -47,7 +47,7 @@ SERVER = textwrap.dedent(
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+        return int(s.getsockname()[1])
 
 
 def _wait_for_port(port: int, deadline: float) -> None:
