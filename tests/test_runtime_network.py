@@ -295,3 +295,22 @@ def test_open_bus_without_interface_says_what_to_do(monkeypatch):
     monkeypatch.chdir("/")
     with pytest.raises(BusOpenError, match="interface"):
         open_bus(channel="x")
+
+
+def test_interface_and_channel_come_from_the_environment(monkeypatch):
+    monkeypatch.setenv("CAN_INTERFACE", "virtual")
+    monkeypatch.setenv("CAN_CHANNEL", "from-env")
+    monkeypatch.setenv("CAN_BITRATE", "250000")
+
+    async def main():
+        peer = can.Bus(interface="virtual", channel="from-env")
+        async with AsyncNetwork() as net:
+            assert net.bus.channel_info.startswith("Virtual bus channel from-env")
+            got = asyncio.get_running_loop().create_future()
+            net.subscribe(0x123, lambda f, now: got.done() or got.set_result(f))
+            peer.send(can.Message(arbitration_id=0x123, data=b"\x01", is_extended_id=False))
+            frame = await asyncio.wait_for(got, 2.0)
+        peer.shutdown()
+        return frame
+
+    assert asyncio.run(main()) == Frame(0x123, b"\x01")
