@@ -17,6 +17,8 @@ from cobus import __version__
 # Modules with a ``register(subparsers)`` function, in the order their commands are listed.
 _COMMAND_MODULES = (
     "cobus.od._cli",
+    "cobus.master._cli",
+    "cobus.sim._cli",
     "cobus.apps.demo",
 )
 
@@ -32,7 +34,8 @@ def build_parser() -> argparse.ArgumentParser:
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:
-            if exc.name != name:
+            # An area not built yet is skipped; a missing dependency inside one is an error.
+            if exc.name is None or not name.startswith(exc.name):
                 raise
             continue
         module.register(sub)
