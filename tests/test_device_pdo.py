@@ -476,3 +476,21 @@ def test_a_default_mapping_the_device_cannot_use_is_reported():
         assert b.data(TPDO1) == [b"\x09"]
 
     run_bench(scenario, od)
+
+
+def test_synchronous_rpdo_after_the_window_is_discarded():
+    async def scenario(b: Bench):
+        await configure_rpdo(b, 1, [SETPOINT], 0)
+        await b.sdo.write(0x1007, 0, 5_000)  # 5 ms window
+        await b.start()
+        await b.sync()
+        b.send(RPDO1, b"\x01\x00")  # inside the window
+        await b.net.sleep(0.01)
+        b.send(RPDO1, b"\x02\x00")  # after it: dropped
+        await b.net.sleep(0.001)
+        await b.sync()
+        assert b.device.get(0x2001) == 1
+        await b.sync()
+        assert b.device.get(0x2001) == 1
+
+    run_bench(scenario)

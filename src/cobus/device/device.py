@@ -554,7 +554,16 @@ class Device:
                     f"0x{obj.index:04X} ({obj.name!r}) has no sub-index {subindex!r}",
                 )
             var = found
-        return self._entries[var.index << 8 | var.subindex]
+        entry = self._entries.get(var.index << 8 | var.subindex)
+        if entry is None:
+            raise EntryNotFoundError(
+                var.index,
+                var.subindex,
+                _ABORT.NO_OBJECT,
+                f"{var.qualname} was added to the dictionary after device {self._node_id} was "
+                "created; complete the dictionary first",
+            )
+        return entry
 
     def _app_entry(self, index: Key, subindex: Key) -> Entry:
         entry = self._resolve(index, subindex)
@@ -1089,6 +1098,9 @@ class Device:
             return
         values = rpdo.map.unpack(data)
         if rpdo.synchronous:
+            sync = self._sync
+            if sync is not None and sync.window_us and not sync.in_window(now):
+                return  # after the synchronous window (1007h): discarded until the next SYNC
             rpdo.pending = values
         else:
             self._apply_rpdo(rpdo, values)
