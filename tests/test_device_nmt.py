@@ -177,6 +177,11 @@ def test_error_behaviour_no_change_keeps_the_state():
         await b.net.sleep(0.2)
         assert b.of(HeartbeatLost)
         assert b.state() is NmtState.OPERATIONAL
+        await b.sdo.write(0x1029, 1, 2)  # 2: stopped
+        b.send(0x720, b"\x05")
+        await b.net.sleep(0.2)
+        assert len(b.of(HeartbeatLost)) == 2
+        assert b.state() is NmtState.STOPPED
 
     run_bench(scenario)
 

@@ -196,12 +196,14 @@ def test_eds_export_of_a_device_built_in_code():
     assert od.device_info.nr_of_rx_pdo == 4 and export_eds(od) == text
 
 
-def test_device_from_an_eds_file_and_its_export():
+def test_device_from_an_eds_file_and_its_export(tmp_path):
     path = EDS_DIR / "canopennode_ds301_profile.eds"
 
     async def main():
         async with AsyncNetwork() as net:
             device = net.add_device(NODE, path)
+            device.save_eds(tmp_path / "exported.eds")
+            assert (tmp_path / "exported.eds").read_bytes().startswith(b"[FileInfo]\r\n")
             assert isinstance(device.od, ObjectDictionary)
             remote = net.add_remote(NODE, path)
             assert await remote.sdo.read(0x1018, 0) == device.get(0x1018, 0)

@@ -10,6 +10,7 @@ import pytest
 
 from cobus.device import (
     ConfigurationProblem,
+    DeviceConfigError,
     DictionaryBuilder,
     PdoLengthError,
     RpdoLost,
@@ -19,7 +20,7 @@ from cobus.device import (
 )
 from cobus.od import DataType, Variable
 from cobus.proto.pdo import PdoMap
-from cobus.proto.sdo import SdoAbortCode, SdoAbortedError
+from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoAbortedError
 from tests.test_device_support import NODE, Bench, run_bench
 
 TPDO1 = 0x180 + NODE
@@ -492,5 +493,33 @@ def test_synchronous_rpdo_after_the_window_is_discarded():
         assert b.device.get(0x2001) == 1
         await b.sync()
         assert b.device.get(0x2001) == 1
+
+    run_bench(scenario)
+
+
+def test_application_events_and_bound_values_in_tpdos():
+    async def scenario(b: Bench):
+        await configure_tpdo(b, 1, [COUNTER], 254)
+        await configure_rpdo(b, 1, [SETPOINT, OUTPUT2], 255)
+        live = [0x0102]
+        b.device.on_read(0x2000, 0, lambda: live[0])
+
+        def refuse_odd(value: int) -> None:
+            if value % 2:
+                raise SdoAbort(SdoAbortCode.LOCAL_CONTROL)
+
+        b.device.on_write(0x6200, 2, refuse_odd)
+        await b.start()
+        b.device.send_tpdo(1)  # an application event: the bound value is sampled
+        live[0] = 0x0304
+        b.device.send_tpdo(1)
+        await b.settle()
+        assert b.data(TPDO1) == [b"\x02\x01", b"\x04\x03"]
+        with pytest.raises(DeviceConfigError):
+            b.device.send_tpdo(9)  # no such TPDO
+        b.send(RPDO1, b"\x07\x00\x03")  # the odd output is refused, the setpoint taken
+        await b.settle()
+        assert b.device.get(0x2001) == 7 and b.device.get(0x6200, 2) == 0
+        assert b.of(RpdoReceived)[-1].entries == ((0x2001, 0),)
 
     run_bench(scenario)
