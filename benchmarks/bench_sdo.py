@@ -98,7 +98,7 @@ def _canopen_od() -> canopen.ObjectDictionary:
         var = canopen.objectdictionary.ODVariable(f"v{index:X}", index, 0)
         var.data_type = data_type
         var.access_type = "rw"
-        var.default = default
+        var.default = default  # type: ignore[assignment]
         od.add_object(var)
     return od
 
