@@ -16,6 +16,7 @@ from typing import NamedTuple
 
 from cobus.errors import CobusError
 from cobus.proto._base import NOTHING, Event, Out
+from cobus.proto._cobid import split_cob_id
 from cobus.proto.frame import Frame
 
 __all__ = [
@@ -199,17 +200,9 @@ class EmcyCobId(NamedTuple):
 
     @classmethod
     def from_u32(cls, value: int) -> EmcyCobId:
-        if not isinstance(value, int) or not 0 <= value <= 0xFFFFFFFF:
-            raise EmcyError(f"1014h value {value!r} is not an UNSIGNED32")
+        can_id, extended = split_cob_id(value, "1014h value", EmcyError)
         if value & (1 << 30):
             raise EmcyError(f"1014h value 0x{value:08X} sets reserved bit 30; it must be 0")
-        extended = bool(value & _EXTENDED)
-        can_id = value & 0x1FFFFFFF
-        if not extended and can_id > 0x7FF:
-            raise EmcyError(
-                f"1014h value 0x{value:08X}: identifier 0x{can_id:X} needs bit 29 "
-                "(29-bit frame) or must fit 11 bits"
-            )
         return cls(can_id, not value & _INVALID, extended)
 
     def to_u32(self) -> int:

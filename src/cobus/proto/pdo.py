@@ -17,6 +17,7 @@ from typing import Any, NamedTuple, Protocol
 
 from cobus.errors import CobusError
 from cobus.proto._base import NOTHING, Event, Out
+from cobus.proto._cobid import split_cob_id
 from cobus.proto.frame import Frame
 
 __all__ = [
@@ -359,15 +360,7 @@ class PdoCobId(NamedTuple):
 
     @classmethod
     def from_u32(cls, value: int) -> PdoCobId:
-        if not isinstance(value, int) or not 0 <= value <= 0xFFFFFFFF:
-            raise PdoError(f"PDO COB-ID {value!r} is not an UNSIGNED32")
-        extended = bool(value & _EXTENDED)
-        can_id = value & 0x1FFFFFFF
-        if not extended and can_id > 0x7FF:
-            raise PdoError(
-                f"PDO COB-ID 0x{value:08X}: identifier 0x{can_id:X} needs bit 29 "
-                "(29-bit frame) or must fit 11 bits"
-            )
+        can_id, extended = split_cob_id(value, "PDO COB-ID", PdoError)
         return cls(can_id, not value & _INVALID, not value & _NO_RTR, extended)
 
     def to_u32(self) -> int:

@@ -12,6 +12,7 @@ from typing import NamedTuple
 
 from cobus.errors import CobusError
 from cobus.proto._base import NOTHING, Event, Out
+from cobus.proto._cobid import split_cob_id
 from cobus.proto.frame import Frame
 
 __all__ = [
@@ -46,15 +47,7 @@ class SyncCobId(NamedTuple):
 
     @classmethod
     def from_u32(cls, value: int) -> SyncCobId:
-        if not isinstance(value, int) or not 0 <= value <= 0xFFFFFFFF:
-            raise SyncConfigError(f"1005h value {value!r} is not an UNSIGNED32")
-        extended = bool(value & _EXTENDED)
-        can_id = value & 0x1FFFFFFF
-        if not extended and can_id > 0x7FF:
-            raise SyncConfigError(
-                f"1005h value 0x{value:08X}: identifier 0x{can_id:X} needs bit 29 "
-                "(29-bit frame) or must fit 11 bits"
-            )
+        can_id, extended = split_cob_id(value, "1005h value", SyncConfigError)
         return cls(can_id, bool(value & _GENERATE), extended)
 
     def to_u32(self) -> int:

@@ -18,6 +18,7 @@ from typing import NamedTuple
 
 from cobus.errors import CobusError
 from cobus.proto._base import NOTHING, Event, Out
+from cobus.proto._cobid import split_cob_id
 from cobus.proto.frame import Frame
 
 __all__ = [
@@ -58,15 +59,7 @@ class TimeCobId(NamedTuple):
 
     @classmethod
     def from_u32(cls, value: int) -> TimeCobId:
-        if not isinstance(value, int) or not 0 <= value <= 0xFFFFFFFF:
-            raise TimeError(f"1012h value {value!r} is not an UNSIGNED32")
-        extended = bool(value & _EXTENDED)
-        can_id = value & 0x1FFFFFFF
-        if not extended and can_id > 0x7FF:
-            raise TimeError(
-                f"1012h value 0x{value:08X}: identifier 0x{can_id:X} needs bit 29 "
-                "(29-bit frame) or must fit 11 bits"
-            )
+        can_id, extended = split_cob_id(value, "1012h value", TimeError)
         return cls(can_id, bool(value & _CONSUME), bool(value & _PRODUCE), extended)
 
     def to_u32(self) -> int:
