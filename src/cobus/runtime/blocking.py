@@ -25,8 +25,8 @@ from cobus.proto import Event, Frame
 from cobus.proto.nmt import NmtCommand
 from cobus.runtime.loop import new_event_loop
 from cobus.runtime.network import AsyncNetwork, FrameHandler, Subscription
+from cobus.runtime.remote import NmtCommands, SdoChannel
 from cobus.runtime.remote import RemoteNode as AsyncRemoteNode
-from cobus.runtime.remote import SdoChannel
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -275,7 +275,7 @@ class RemoteNode:
         return f"RemoteNode({self.node_id})"
 
 
-class BlockingNmt:
+class BlockingNmt(NmtCommands):
     """NMT commands from blocking code; each call returns once the frame is handed over."""
 
     def __init__(self, network: Network) -> None:
@@ -284,21 +284,6 @@ class BlockingNmt:
     def send(self, command: NmtCommand | int | str, node_id: int = 0) -> None:
         aio = self._network.aio
         self._network._runner.call(lambda: aio.nmt.send(command, node_id))
-
-    def start(self, node_id: int = 0) -> None:
-        self.send(NmtCommand.START, node_id)
-
-    def stop(self, node_id: int = 0) -> None:
-        self.send(NmtCommand.STOP, node_id)
-
-    def enter_preoperational(self, node_id: int = 0) -> None:
-        self.send(NmtCommand.ENTER_PREOPERATIONAL, node_id)
-
-    def reset_node(self, node_id: int = 0) -> None:
-        self.send(NmtCommand.RESET_NODE, node_id)
-
-    def reset_communication(self, node_id: int = 0) -> None:
-        self.send(NmtCommand.RESET_COMMUNICATION, node_id)
 
 
 class BlockingSync:

@@ -454,21 +454,24 @@ class AsyncNetwork:
         if not inbound or self._loop is None:
             return
         now = self._loop.time()
-        handlers = self._handlers
-        monitors = self._monitors
+        dispatch = self._dispatch
         while inbound:
-            frame = inbound.popleft()
-            if monitors:
-                self._call_all(monitors, frame, now)
-            targets = handlers.get(frame.cob_id | _EXT if frame.extended else frame.cob_id)
-            if targets:
-                if len(targets) == 1:
-                    try:
-                        targets[0](frame, now)
-                    except Exception as exc:
-                        self._report_failure(f"handler of {frame!r}", exc)
-                else:
-                    self._call_all(targets, frame, now)
+            dispatch(inbound.popleft(), now)
+
+    def _dispatch(self, frame: Frame, now: float) -> None:
+        """Hand ``frame`` to the monitors and to the handlers of its identifier."""
+        if self._monitors:
+            self._call_all(self._monitors, frame, now)
+        targets = self._handlers.get(frame.cob_id | _EXT if frame.extended else frame.cob_id)
+        if not targets:
+            return
+        if len(targets) == 1:
+            try:
+                targets[0](frame, now)
+            except Exception as exc:
+                self._report_failure(f"handler of {frame!r}", exc)
+        else:
+            self._call_all(targets, frame, now)
 
     def _call_all(self, targets: list[FrameHandler], frame: Frame, now: float) -> None:
         for handler in list(targets):
@@ -483,8 +486,8 @@ class AsyncNetwork:
             return
         # Hot path: nothing is queued before these frames, so dispatch them in place.
         now = self._loop.time()
-        handlers = self._handlers
         convert = _bus.message_to_frame
+        dispatch = self._dispatch
         received = 0
         for msg in messages:
             if msg.is_error_frame:
@@ -494,17 +497,7 @@ class AsyncNetwork:
             if frame is None:
                 continue
             received += 1
-            if self._monitors:
-                self._call_all(self._monitors, frame, now)
-            targets = handlers.get(frame.cob_id | _EXT if frame.extended else frame.cob_id)
-            if targets:
-                if len(targets) == 1:
-                    try:
-                        targets[0](frame, now)
-                    except Exception as exc:
-                        self._report_failure(f"handler of {frame!r}", exc)
-                else:
-                    self._call_all(targets, frame, now)
+            dispatch(frame, now)
         self.frames_received += received
         if self._inbound and not self._drain_pending:
             # A handler sent frames: their echo is delivered after this batch, in order.

@@ -27,7 +27,14 @@ if TYPE_CHECKING:
     from cobus.od import ObjectDictionary, Variable
     from cobus.runtime.network import AsyncNetwork, MachineHost
 
-__all__ = ["NmtMaster", "ObjectNotFoundError", "RemoteNode", "SdoChannel", "SyncService"]
+__all__ = [
+    "NmtCommands",
+    "NmtMaster",
+    "ObjectNotFoundError",
+    "RemoteNode",
+    "SdoChannel",
+    "SyncService",
+]
 
 Key = int | str
 
@@ -188,21 +195,12 @@ def _fmt(key: Key) -> str:
     return f"0x{key:04X}" if isinstance(key, int) else repr(key)
 
 
-class NmtMaster:
-    """Sends NMT commands (``net.nmt.send(NmtCommand.START, 0)`` starts every node)."""
-
-    def __init__(self, network: AsyncNetwork) -> None:
-        self._network = network
+class NmtCommands:
+    """The NMT commands by name, on top of :meth:`send` (shared by the async and blocking
+    faces of the NMT master)."""
 
     def send(self, command: NmtCommand | int | str, node_id: int = 0) -> None:
-        if isinstance(command, str):
-            try:
-                command = NmtCommand[command.upper().replace("-", "_").replace(" ", "_")]
-            except KeyError:
-                names = ", ".join(c.name.lower() for c in NmtCommand)
-                raise ValueError(f"unknown NMT command {command!r}; use one of {names}") from None
-        check_node_id(node_id, broadcast=True)
-        self._network.send(nmt_command_frame(command, node_id))
+        raise NotImplementedError
 
     def start(self, node_id: int = 0) -> None:
         self.send(NmtCommand.START, node_id)
@@ -218,6 +216,29 @@ class NmtMaster:
 
     def reset_communication(self, node_id: int = 0) -> None:
         self.send(NmtCommand.RESET_COMMUNICATION, node_id)
+
+
+def parse_nmt_command(command: NmtCommand | int | str) -> NmtCommand | int:
+    """An NMT command from its enum, number or name (``"start"``, ``"reset-node"``...)."""
+    if not isinstance(command, str):
+        return command
+    try:
+        return NmtCommand[command.upper().replace("-", "_").replace(" ", "_")]
+    except KeyError:
+        names = ", ".join(c.name.lower() for c in NmtCommand)
+        raise ValueError(f"unknown NMT command {command!r}; use one of {names}") from None
+
+
+class NmtMaster(NmtCommands):
+    """Sends NMT commands (``net.nmt.send(NmtCommand.START, 0)`` starts every node)."""
+
+    def __init__(self, network: AsyncNetwork) -> None:
+        self._network = network
+
+    def send(self, command: NmtCommand | int | str, node_id: int = 0) -> None:
+        command = parse_nmt_command(command)
+        check_node_id(node_id, broadcast=True)
+        self._network.send(nmt_command_frame(command, node_id))
 
 
 class RemoteNode:
