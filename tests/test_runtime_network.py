@@ -15,16 +15,8 @@ from cobus.runtime.events import (
     TxQueueFull,
     TxResumed,
 )
-from cobus.runtime.loop import SimulatedEventLoop
 from cobus.runtime.network import AsyncNetwork, NetworkClosedError, TxOverflowError
-
-
-def simulate(coro):
-    loop = SimulatedEventLoop()
-    try:
-        return loop.run_until_complete(coro)
-    finally:
-        loop.close()
+from tests.util import simulate
 
 
 def test_local_echo_delivers_own_frames_to_own_handlers():

@@ -8,19 +8,12 @@ import pytest
 from cobus.od import ValueRangeError
 from cobus.proto import Frame
 from cobus.proto.sdo import DictBackend, SdoAbortedError, SdoServer, SdoTimeoutError
-from cobus.runtime import AsyncNetwork, Network, ObjectNotFoundError, SimulatedEventLoop
+from cobus.runtime import AsyncNetwork, Network, ObjectNotFoundError
 from tests.conftest import EDS_DIR
+from tests.util import simulate
 
 PROFILE = EDS_DIR / "canfestival_ds401_slave_gui.eds"
 DATA = bytes(range(200)) * 5
-
-
-def simulate(coro):
-    loop = SimulatedEventLoop()
-    try:
-        return loop.run_until_complete(coro)
-    finally:
-        loop.close()
 
 
 def backend() -> DictBackend:

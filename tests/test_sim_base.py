@@ -3,8 +3,9 @@ from typing import ClassVar
 
 import pytest
 
-from cobus.runtime import AsyncNetwork, HandlerFailed, SimulatedEventLoop
+from cobus.runtime import AsyncNetwork, HandlerFailed
 from cobus.sim import SimulatedDevice, UnknownFaultError, UnknownQuirkError
+from tests.util import simulate
 
 
 class Lamp(SimulatedDevice):
@@ -24,14 +25,6 @@ class Lamp(SimulatedDevice):
         if fault == "burn_out":
             raise ZeroDivisionError("filament")
         super().inject(fault, **params)
-
-
-def simulate(coro):
-    loop = SimulatedEventLoop()
-    try:
-        return loop.run_until_complete(coro)
-    finally:
-        loop.close()
 
 
 def test_quirks_default_on_and_switch_off_by_name():
