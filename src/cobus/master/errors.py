@@ -1,0 +1,91 @@
+"""Errors of the master and of the network description, each saying what to fix."""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from cobus.errors import CobusError
+
+__all__ = [
+    "BootTimeoutError",
+    "ConfigProblem",
+    "MasterError",
+    "NetworkConfigError",
+    "Severity",
+    "SignalError",
+    "SignalValueError",
+]
+
+
+class Severity(enum.Enum):
+    """How bad a problem of the network description is: errors stop loading, warnings never."""
+
+    ERROR = "error"
+    WARNING = "warning"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+@dataclass(frozen=True, slots=True)
+class ConfigProblem:
+    """One problem of a network description: where it is (file, line, node, key) and why."""
+
+    path: str
+    line: int | None
+    node: str | None
+    key: str | None
+    severity: Severity
+    reason: str
+
+    def __str__(self) -> str:
+        where = self.path if self.line is None else f"{self.path}:{self.line}"
+        parts = [f"{where}:"]
+        if self.node is not None:
+            parts.append(f"node {self.node!r}:")
+        if self.key is not None:
+            parts.append(f"{self.key}:")
+        parts.append(f"{self.severity}: {self.reason}")
+        return " ".join(parts)
+
+
+class NetworkConfigError(CobusError):
+    """A network description that cannot be used; ``problems`` lists every error found."""
+
+    def __init__(self, problems: Sequence[ConfigProblem]) -> None:
+        self.problems = list(problems)
+        errors = [p for p in self.problems if p.severity is Severity.ERROR]
+        shown = errors or self.problems
+        head = f"the network description has {len(errors)} error(s):"
+        super().__init__("\n".join([head, *(f"  {p}" for p in shown)]))
+
+
+class MasterError(CobusError):
+    """An operation of the master that cannot be done in its present state."""
+
+
+class BootTimeoutError(MasterError, TimeoutError):
+    """The network did not reach "running" in time; the message names the nodes holding it
+    back and why. The boot goes on in the background."""
+
+    def __init__(self, timeout: float, blockers: Sequence[str]) -> None:
+        self.timeout = timeout
+        self.blockers = list(blockers)
+        lines = "\n".join(f"  {b}" for b in self.blockers)
+        super().__init__(
+            f"the network is not running after {timeout:g} s; held back by:\n{lines}\n"
+            "(the master keeps trying: fix or connect the node, or make it optional)"
+        )
+
+
+class SignalError(CobusError, KeyError):
+    """A process-image signal name that does not exist (the message lists close names)."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+
+class SignalValueError(CobusError, ValueError):
+    """A value an output signal cannot carry (type or range of its mapped object)."""
