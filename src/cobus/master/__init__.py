@@ -1,9 +1,16 @@
-"""The CANopen master: the network description (YAML) it boots a network from.
+"""The CANopen master: NMT manager with CiA 302-2 boot-up, supervision and a process image.
 
 - :func:`load_network` reads a network description (YAML, in the spirit of ROS 2 canopen's
   ``bus.yml``) into a :class:`NetworkConfig`; ``cobus config check FILE`` lists its problems.
+- :class:`Master` boots the network on an :class:`~cobus.runtime.AsyncNetwork` (every node in
+  parallel: reset, boot-up, device type and identity check, start-up SDOs, heartbeat or node
+  guarding, start), supervises it (error control with toggle check, TPDO presence and length,
+  emergencies, unexpected states, re-booted nodes) and reacts per node and per network.
+- ``master.inputs`` / ``master.outputs``: named, scaled signals carried by the PDOs.
+- :class:`BlockingMaster`: the same for scripts, on :class:`cobus.runtime.Network`.
 """
 
+from cobus.master.blocking import BlockingMaster
 from cobus.master.config import (
     MasterConfig,
     NetworkConfig,
@@ -16,23 +23,98 @@ from cobus.master.config import (
     loads_network,
     parse_network,
 )
+from cobus.master.diagnostics import BusLoadMeter, MasterDiagnostics, frame_bits
 from cobus.master.errors import (
+    BootTimeoutError,
     ConfigProblem,
+    MasterError,
     NetworkConfigError,
     Severity,
+    SignalError,
+    SignalValueError,
+)
+from cobus.master.events import (
+    ConfigurationFailed,
+    DeviceTypeMismatch,
+    ErrorControlLost,
+    ErrorControlRestored,
+    GuardingToggleFault,
+    IdentityMismatch,
+    MasterEvent,
+    MasterStateChanged,
+    NetworkStopped,
+    NodeBooted,
+    NodeEmergency,
+    NodeEvent,
+    NodeMissing,
+    NodeStateChanged,
+    TpdoLengthError,
+    TpdoMissing,
+    TpdoRestored,
+    UnexpectedState,
+)
+from cobus.master.image import Inputs, Outputs
+from cobus.master.master import Master, MasterListener
+from cobus.master.node import ManagedNode
+from cobus.master.states import (
+    Diagnostic,
+    EmcyRecord,
+    LedPattern,
+    Leds,
+    MasterState,
+    MasterStatus,
+    NodeState,
 )
 
 __all__ = [
+    "BlockingMaster",
+    "BootTimeoutError",
+    "BusLoadMeter",
     "ConfigProblem",
+    "ConfigurationFailed",
+    "DeviceTypeMismatch",
+    "Diagnostic",
+    "EmcyRecord",
+    "ErrorControlLost",
+    "ErrorControlRestored",
+    "GuardingToggleFault",
+    "IdentityMismatch",
+    "Inputs",
+    "LedPattern",
+    "Leds",
+    "ManagedNode",
+    "Master",
     "MasterConfig",
+    "MasterDiagnostics",
+    "MasterError",
+    "MasterEvent",
+    "MasterListener",
+    "MasterState",
+    "MasterStateChanged",
+    "MasterStatus",
     "NetworkConfig",
     "NetworkConfigError",
+    "NetworkStopped",
+    "NodeBooted",
     "NodeConfig",
+    "NodeEmergency",
+    "NodeEvent",
+    "NodeMissing",
+    "NodeState",
+    "NodeStateChanged",
+    "Outputs",
     "PdoLayout",
     "SdoEntry",
     "Severity",
     "Signal",
+    "SignalError",
+    "SignalValueError",
+    "TpdoLengthError",
+    "TpdoMissing",
+    "TpdoRestored",
+    "UnexpectedState",
     "check_network",
+    "frame_bits",
     "load_network",
     "loads_network",
     "parse_network",

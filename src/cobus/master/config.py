@@ -44,7 +44,7 @@ import os
 import re
 import struct
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -389,6 +389,9 @@ class Signal:
     scale: float | None = None
     offset: float = 0.0
     unit: str | None = None
+    #: LowLimit / HighLimit of the object in the EDS (raw values), if any.
+    low: float | None = None
+    high: float | None = None
 
     def to_engineering(self, raw: Any) -> Any:
         """Value of the signal from the raw mapped value (``raw * scale + offset``)."""
@@ -1306,6 +1309,8 @@ class _NodeReader:
                         data_type=var.data_type,
                         bits=bits,
                         kind=kind_,
+                        low=_limit(var.low_limit),
+                        high=_limit(var.high_limit),
                     )
                 )
             layouts.append(
@@ -1375,34 +1380,11 @@ class _NodeReader:
                     seen[local] = layout.number
                     scale, offset, unit = (None, 0.0, None) if alias is None else alias[1:]
                     new.append(
-                        Signal(
-                            name=f"{cfg.name}.{local}",
-                            node_id=sig.node_id,
-                            direction=sig.direction,
-                            pdo=sig.pdo,
-                            position=sig.position,
-                            index=sig.index,
-                            subindex=sig.subindex,
-                            data_type=sig.data_type,
-                            bits=sig.bits,
-                            kind=sig.kind,
-                            scale=scale,
-                            offset=offset,
-                            unit=unit,
+                        replace(
+                            sig, name=f"{cfg.name}.{local}", scale=scale, offset=offset, unit=unit
                         )
                     )
-                layouts[li] = PdoLayout(
-                    direction=layout.direction,
-                    number=layout.number,
-                    cob_id=layout.cob_id,
-                    extended=layout.extended,
-                    transmission_type=layout.transmission_type,
-                    event_timer=layout.event_timer,
-                    inhibit_time=layout.inhibit_time,
-                    timeout=layout.timeout,
-                    codec=layout.codec,
-                    positions=tuple(new),
-                )
+                layouts[li] = replace(layout, positions=tuple(new))
         cfg.aliases = {alias: canonical for canonical, (alias, *_rest) in specs.items()}
 
     def _aliases(self, cfg: NodeConfig) -> dict[str, tuple[str, float | None, float, str | None]]:
@@ -1480,6 +1462,12 @@ class _NodeReader:
                 continue
             out[sig.name] = (alias, scale, offset, unit)
         return out
+
+
+def _limit(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    return value
 
 
 def _sub_value(obj: Record | Array, sub: int, default: int) -> int:
@@ -1699,18 +1687,8 @@ def _cross_checks(network: NetworkConfig, report: _Report) -> None:
                     "does not send it",
                     None,
                 )
-                node.rpdos[i] = PdoLayout(
-                    direction=layout.direction,
-                    number=layout.number,
-                    cob_id=layout.cob_id,
-                    extended=layout.extended,
-                    transmission_type=layout.transmission_type,
-                    event_timer=layout.event_timer,
-                    inhibit_time=layout.inhibit_time,
-                    timeout=layout.timeout,
-                    codec=layout.codec,
-                    positions=tuple(None for _ in layout.positions),
-                    linked=True,
+                node.rpdos[i] = replace(
+                    layout, positions=tuple(None for _ in layout.positions), linked=True
                 )
     master = network.master
     if master.time_period:

@@ -1,0 +1,101 @@
+"""The master's SDO client channel to one node.
+
+Like :class:`cobus.runtime.SdoChannel`, transfers run one after the other; unlike it, a
+transfer whose waiting task is cancelled (the node re-booted, the master stops) is aborted on
+the bus at once, so the channel is free for the next configuration run.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from typing import TYPE_CHECKING, Any
+
+from cobus.od import ObjectDictionary, Variable
+from cobus.proto import Event
+from cobus.proto.sdo import DownloadDone, SdoAbortCode, SdoClient, TransferFailed, UploadDone
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from cobus.proto import Out
+    from cobus.runtime import AsyncNetwork
+
+__all__ = ["SdoLink"]
+
+
+class SdoLink:
+    """SDO client of the master to node ``node_id`` (600h+id / 580h+id)."""
+
+    def __init__(
+        self, network: AsyncNetwork, node_id: int, od: ObjectDictionary, timeout: float
+    ) -> None:
+        self.node_id = node_id
+        self.od = od
+        self._network = network
+        self.client = SdoClient(0x600 + node_id, 0x580 + node_id, timeout=timeout, node=node_id)
+        self._host = network.attach(self.client, [0x580 + node_id], self._on_event)
+        self._lock = asyncio.Lock()
+        self._pending: asyncio.Future[Event] | None = None
+        #: Transfers done and failed, for the diagnostics.
+        self.transfers = 0
+        self.failures = 0
+
+    def _on_event(self, event: Event) -> None:
+        if isinstance(event, UploadDone | DownloadDone | TransferFailed):
+            pending = self._pending
+            if pending is not None and not pending.done():
+                pending.set_result(event)
+
+    async def _transfer(self, start: Callable[[float], Out]) -> Event:
+        async with self._lock:
+            future: asyncio.Future[Event] = self._network.loop.create_future()
+            self._pending = future
+            try:
+                self._host.run(start)
+                event = await future
+            except asyncio.CancelledError:
+                if self.client.busy:
+                    client = self.client
+                    self._host.run(lambda now: client.abort(SdoAbortCode.GENERAL_ERROR, now))
+                raise
+            finally:
+                self._pending = None
+            self.transfers += 1
+            if isinstance(event, TransferFailed):
+                self.failures += 1
+                raise event.error
+            return event
+
+    async def upload(self, index: int, subindex: int = 0) -> bytes:
+        """The raw bytes of ``index:subindex``."""
+        client = self.client
+        event = await self._transfer(lambda now: client.start_upload(index, subindex, now))
+        assert isinstance(event, UploadDone)
+        return event.data
+
+    async def download(self, index: int, subindex: int, data: bytes) -> None:
+        """Write raw bytes to ``index:subindex``."""
+        client = self.client
+        await self._transfer(lambda now: client.start_download(index, subindex, data, now))
+
+    def variable(self, index: int | str, subindex: int | str = 0) -> Variable:
+        obj = self.od[index]
+        if isinstance(obj, Variable):
+            return obj
+        return obj[subindex]
+
+    async def read(self, index: int | str, subindex: int | str = 0) -> Any:
+        """Read an object and decode it with its type from the node's EDS."""
+        var = self.variable(index, subindex)
+        return var.decode(await self.upload(var.index, var.subindex))
+
+    async def write(self, index: int | str, subindex: int | str, value: Any) -> None:
+        """Encode ``value`` with the object's type from the node's EDS and write it."""
+        var = self.variable(index, subindex)
+        await self.download(var.index, var.subindex, var.encode(value))
+
+    def close(self) -> None:
+        if self.client.busy:
+            client = self.client
+            self._host.run(lambda now: client.abort(SdoAbortCode.GENERAL_ERROR, now))
+        self._host.close()

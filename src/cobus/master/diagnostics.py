@@ -1,0 +1,94 @@
+"""Global diagnostics of the master: bus state and error counters, queue overflows, the SYNC
+toggle bit and the bus load over a sliding window.
+
+The bus load is what the frames seen take of the bit rate: each frame counts its bits on the
+wire (start of frame to the end of the interframe space) with the worst-case number of stuff
+bits CiA/ISO 11898 allow, averaged over the window (100-500 ms is usual).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+from cobus.proto import Frame
+from cobus.runtime.events import BusState
+
+__all__ = ["BusLoadMeter", "MasterDiagnostics", "frame_bits"]
+
+# Bits of a classic frame without data and stuffing: SOF 1, identifier 11 (29 + SRR + IDE for
+# extended), RTR 1, IDE/r1 + r0 2, DLC 4, CRC 15, CRC delimiter 1, ACK 2, EOF 7, IFS 3.
+_STD_OVERHEAD = 47
+_EXT_OVERHEAD = 67
+# The part where stuffing applies: SOF through CRC.
+_STD_STUFFED = 34
+_EXT_STUFFED = 54
+
+
+def frame_bits(frame: Frame) -> int:
+    """Bits ``frame`` takes on the bus, with the worst-case stuff bits."""
+    data_bits = 0 if frame.rtr else 8 * len(frame.data)
+    if frame.extended:
+        stuffed = _EXT_STUFFED + data_bits
+        return _EXT_OVERHEAD + data_bits + (stuffed - 1) // 4
+    stuffed = _STD_STUFFED + data_bits
+    return _STD_OVERHEAD + data_bits + (stuffed - 1) // 4
+
+
+class BusLoadMeter:
+    """Bus load in % of ``bitrate`` over the last ``window`` seconds."""
+
+    __slots__ = ("_bits", "_frames", "bitrate", "window")
+
+    def __init__(self, bitrate: int, window: float = 0.25) -> None:
+        if bitrate <= 0 or window <= 0:
+            raise ValueError(f"bit rate {bitrate} and window {window} must be positive")
+        self.bitrate = bitrate
+        self.window = window
+        self._frames: deque[tuple[float, int]] = deque()
+        self._bits = 0
+
+    def add(self, frame: Frame, now: float) -> None:
+        bits = frame_bits(frame)
+        self._frames.append((now, bits))
+        self._bits += bits
+        self._expire(now)
+
+    def _expire(self, now: float) -> None:
+        frames = self._frames
+        limit = now - self.window
+        while frames and frames[0][0] <= limit:
+            self._bits -= frames.popleft()[1]
+
+    def load(self, now: float) -> float:
+        """The bus load in % at ``now``."""
+        self._expire(now)
+        return 100.0 * self._bits / (self.bitrate * self.window)
+
+
+@dataclass
+class MasterDiagnostics:
+    """What the master knows about the bus (the Beckhoff master's global diagnostics)."""
+
+    bus_state: BusState = BusState.ACTIVE
+    tx_errors: int | None = None
+    rx_errors: int | None = None
+    bus_off_count: int = 0
+    rx_overflows: int = 0
+    tx_queue_overflows: int = 0
+    send_errors: int = 0
+    sync_count: int = 0
+    #: Toggles with every SYNC seen on the bus.
+    sync_toggle: bool = False
+    frames: int = 0
+    #: Frames sent (RPDOs) and received (TPDOs) per PDO: ``(node_id, "tpdo"|"rpdo", n)``.
+    pdo_counters: dict[tuple[int, str, int], int] = field(default_factory=dict)
+
+    @property
+    def bus_off(self) -> bool:
+        return self.bus_state is BusState.BUS_OFF
+
+    @property
+    def warning(self) -> bool:
+        """The controller reached the warning limit (or worse)."""
+        return self.bus_state is not BusState.ACTIVE

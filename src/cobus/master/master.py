@@ -1,0 +1,487 @@
+"""The NMT master: boots a network as CiA 302-2 describes it and keeps it running.
+
+>>> master = Master(network, load_network("line.yml"))
+>>> await master.boot(timeout=10)          # every mandatory node operational
+>>> master.inputs["drive1.position"]
+>>> master.outputs["drive1.controlword"] = 0x0F
+
+Everything runs on the network's event loop: the boot-up of each node is a task of its own,
+supervision is driven by the protocol machines of :mod:`cobus.proto` hosted on the network.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+from collections.abc import Callable
+from datetime import UTC, datetime
+from typing import Any
+
+from cobus.master.config import NetworkConfig, PdoLayout, load_network
+from cobus.master.diagnostics import BusLoadMeter, MasterDiagnostics
+from cobus.master.errors import BootTimeoutError, MasterError
+from cobus.master.events import MasterEvent, MasterStateChanged, NetworkStopped
+from cobus.master.image import Inputs, Outputs, ProcessImage
+from cobus.master.node import ManagedNode
+from cobus.master.states import MasterState, MasterStatus, NodeState
+from cobus.proto import NOTHING, Event, Frame
+from cobus.proto.emcy import EmcyConsumer, EmcyReceived
+from cobus.proto.heartbeat import (
+    BootupReceived,
+    HeartbeatMonitor,
+    HeartbeatProducer,
+    HeartbeatTimeout,
+    RemoteStateChanged,
+)
+from cobus.proto.nmt import NmtState
+from cobus.proto.timestamp import TimeProducer
+from cobus.runtime import (
+    AsyncNetwork,
+    BusState,
+    BusStateChanged,
+    HandlerFailed,
+    MachineHost,
+    NetworkClosedError,
+    RxOverflow,
+    Subscription,
+    TxOverflowError,
+    TxQueueFull,
+)
+
+__all__ = ["Master", "MasterListener"]
+
+log = logging.getLogger(__name__)
+
+MasterListener = Callable[[MasterEvent], object]
+_INVALID = 1 << 31
+_EXTENDED = 1 << 29
+
+
+class Master:
+    """The NMT master of ``network`` for the network described by ``config`` (a
+    :class:`NetworkConfig` or the path of a network file).
+
+    :meth:`start` boots the network in the background, :meth:`boot` waits until it runs,
+    :meth:`stop` ends supervision. ``nodes`` maps node-IDs to :class:`ManagedNode`;
+    ``inputs`` / ``outputs`` are the process image; ``diagnostics`` the global diagnostics.
+    """
+
+    def __init__(
+        self, network: AsyncNetwork, config: NetworkConfig | str | os.PathLike[str]
+    ) -> None:
+        if not isinstance(config, NetworkConfig):
+            config = load_network(config)
+        self.network = network
+        self.config = config
+        self.diagnostics = MasterDiagnostics()
+        self.image = ProcessImage(config)
+        self.inputs = Inputs(self.image)
+        self.outputs = Outputs(self.image, self.set_output)
+        self._listeners: list[MasterListener] = []
+        self._state = MasterState.INITIALISING
+        self._status = MasterStatus.OFFLINE
+        self._started = False
+        self._running = asyncio.Event()
+        self._monitor = HeartbeatMonitor(track_all=True)
+        self._monitor_host: MachineHost = network.attach(self._monitor, (), self._on_monitor)
+        self._subs: list[Subscription] = []
+        self._hosts: list[MachineHost] = []
+        self._timers: dict[tuple[int, int], asyncio.TimerHandle] = {}
+        self._dirty: set[tuple[int, int]] = set()
+        self._own_sync = False
+        self._meter = BusLoadMeter(config.master.bitrate, config.master.bus_load_window)
+        self._rpdos: dict[tuple[int, int], PdoLayout] = {}
+        self.nodes: dict[int, ManagedNode] = {}
+        for node_id, node_config in config.nodes.items():
+            self.nodes[node_id] = ManagedNode(self, node_config)
+            for layout in node_config.rpdos:
+                self._rpdos[(node_id, layout.number)] = layout
+
+    # ================================================================== state
+
+    @property
+    def state(self) -> MasterState:
+        """The Lenze master state code (0-2 start, 3 configuring, 5 running)."""
+        return self._state
+
+    @property
+    def status(self) -> MasterStatus:
+        """The Beckhoff master state (RUN, RESET, OFFLINE, STOP)."""
+        return self._status
+
+    @property
+    def started(self) -> bool:
+        return self._started
+
+    @property
+    def running(self) -> bool:
+        """Whether the network runs (process data flows)."""
+        return self._status is MasterStatus.RUN
+
+    @property
+    def bus_load(self) -> float:
+        """Bus load in % over the configured window (``master.bus_load_window``)."""
+        return self._meter.load(self.network.time())
+
+    def node(self, key: int | str) -> ManagedNode:
+        """A node by node-ID or by its name in the network file."""
+        if isinstance(key, int) and key in self.nodes:
+            return self.nodes[key]
+        for node in self.nodes.values():
+            if node.name == key:
+                return node
+        names = ", ".join(f"{n.name} ({n.node_id})" for n in self.nodes.values())
+        raise KeyError(f"no node {key!r} in this network; the nodes are: {names}")
+
+    def _set_state(self, new: MasterState) -> None:
+        old = self._state
+        if new is not old:
+            self._state = new
+            self._emit(MasterStateChanged(old, new))
+
+    def _set_status(self, new: MasterStatus) -> None:
+        self._status = new
+        if new is MasterStatus.RUN:
+            self._running.set()
+        else:
+            self._running.clear()
+
+    # ================================================================== events
+
+    def add_listener(self, listener: MasterListener) -> None:
+        """Call ``listener(event)`` for every :class:`MasterEvent` (on the event loop)."""
+        self._listeners.append(listener)
+
+    def remove_listener(self, listener: MasterListener) -> None:
+        if listener in self._listeners:
+            self._listeners.remove(listener)
+
+    def _emit(self, event: MasterEvent) -> None:
+        for listener in list(self._listeners):
+            try:
+                listener(event)
+            except Exception as exc:  # an application's failure must not stop the master
+                log.exception("master listener %r failed", listener)
+                self.network.emit(HandlerFailed(f"master listener {listener!r}", repr(exc)))
+        if self.network.connected:
+            self.network.emit(event)
+
+    def _on_network_event(self, event: Event) -> None:
+        diag = self.diagnostics
+        if isinstance(event, BusStateChanged):
+            diag.bus_state = event.new
+            if event.tx_errors is not None:
+                diag.tx_errors = event.tx_errors
+            if event.rx_errors is not None:
+                diag.rx_errors = event.rx_errors
+            if event.new is BusState.BUS_OFF:
+                diag.bus_off_count += 1
+        elif isinstance(event, TxQueueFull):
+            diag.tx_queue_overflows += 1
+        elif isinstance(event, RxOverflow):
+            diag.rx_overflows += 1
+
+    # ================================================================== life cycle
+
+    def start(self) -> None:
+        """Start the boot-up of the network in the background (call on the event loop).
+
+        Producers first (the master's heartbeat, SYNC, TIME: some devices want SYNC before
+        they are started), then the resets and one boot-up task per node."""
+        if self._started:
+            raise MasterError("the master is already started; stop() it first")
+        net = self.network
+        loop = net.loop
+        cfg = self.config.master
+        self._started = True
+        self._set_status(MasterStatus.RESET)
+        self._state = MasterState.INITIALISING
+        now = net.time()
+        net.add_listener(self._on_network_event)
+        self._subs.append(net.subscribe_all(self._on_frame))
+        self._subs.append(net.subscribe(cfg.sync_cob_id, self._on_sync))
+        emcy = EmcyConsumer()
+        emcy_ids: list[int] = []
+        for node in self.nodes.values():
+            if not node.config.enabled:
+                continue
+            var = node.config.od.get_variable(0x1014, 0)
+            cob = var.value if var is not None and isinstance(var.value, int) else None
+            can_id = 0x80 + node.node_id
+            if cob is not None and not cob & (_INVALID | _EXTENDED):
+                can_id = cob & 0x7FF
+                emcy.set_cob_id(node.node_id, can_id)
+            emcy_ids.append(can_id)
+            node._install()
+        self._hosts.append(net.attach(emcy, emcy_ids, self._on_emcy))
+        if cfg.heartbeat_time and cfg.node_id is not None:
+            producer = HeartbeatProducer(cfg.node_id, state=NmtState.OPERATIONAL)
+            producer.set_period(cfg.heartbeat_time, now)
+            host = net.attach(producer)
+            host.apply(NOTHING)
+            self._hosts.append(host)
+        if cfg.sync_period:
+            net.sync.start(cfg.sync_period, overflow=cfg.sync_overflow, cob_id=cfg.sync_cob_id)
+            self._own_sync = True
+        if cfg.time_period:
+            stamp = TimeProducer(cfg.time_cob_id)
+            host = net.attach(stamp)
+            host.apply(stamp.set_interval(cfg.time_period, now, datetime.now(UTC)))
+            self._hosts.append(host)
+        for (node_id, _number), layout in self._rpdos.items():
+            if layout.transmission_type >= 254 and layout.event_timer and not layout.linked:
+                self._refresh(self.nodes[node_id], layout)
+        # resets and the boot-up tasks
+        self._set_state(MasterState.RESETTING)
+        enabled = [n for n in self.nodes.values() if n.config.enabled]
+        broadcast = cfg.reset == "broadcast" and not any(
+            n.config.do_not_initialise for n in enabled
+        )
+        if broadcast and enabled:
+            for node in enabled:
+                node._prepare_bootup()
+            net.nmt.reset_node(0)
+        self._set_state(MasterState.AWAITING_BOOTUP)
+        for node in enabled:
+            node._spawn("await" if broadcast else "reset")
+        if not enabled:
+            loop.call_soon(self._check_boot_complete)
+
+    async def boot(self, timeout: float | None = None) -> None:
+        """Start the network (unless started) and wait until it runs: every mandatory node
+        configured and started, every optional one started or found absent.
+
+        :class:`BootTimeoutError` after ``timeout`` seconds names the nodes that hold the
+        network back; the master keeps trying in the background."""
+        if not self._started:
+            self.start()
+        if self.running:
+            return
+        try:
+            await asyncio.wait_for(self._running.wait(), timeout)
+        except TimeoutError:
+            blockers = [n._describe() for n in self.nodes.values() if not n.settled]
+            if not blockers and self._status is MasterStatus.STOP:
+                blockers = ["the network reaction stopped every node"]
+            raise BootTimeoutError(timeout or 0.0, blockers) from None
+
+    async def stop(self, *, stop_nodes: bool = False) -> None:
+        """End the boot-up tasks and the supervision; with ``stop_nodes`` send NMT stop to
+        every node first. The master can be started again."""
+        if not self._started:
+            return
+        net = self.network
+        if stop_nodes and net.connected:
+            net.nmt.stop(0)
+        tasks = [n._task for n in self.nodes.values() if n._task is not None]
+        for node in self.nodes.values():
+            node._cancel()
+        for task in tasks:
+            if not task.done():
+                with contextlib.suppress(asyncio.CancelledError, Exception):  # ended on purpose
+                    await task
+        for node in self.nodes.values():
+            node._task = None
+            node._stop_supervision()
+        for sub in self._subs:
+            sub.cancel()
+        self._subs.clear()
+        for host in self._hosts:
+            host.close()
+        self._hosts.clear()
+        for handle in self._timers.values():
+            handle.cancel()
+        self._timers.clear()
+        if self._own_sync:
+            net.sync.stop()
+            self._own_sync = False
+        net.remove_listener(self._on_network_event)
+        self._started = False
+        self._set_status(MasterStatus.OFFLINE)
+        self._set_state(MasterState.INITIALISING)
+        for node in self.nodes.values():
+            node._set_state(NodeState.UNDEFINED)
+
+    async def restart_node(self, key: int | str) -> None:
+        """Boot a node again (a manual restart after a fault); see :meth:`ManagedNode.restart`."""
+        await self.node(key).restart()
+
+    # ================================================================== boot-up progress
+
+    def _note_configuring(self) -> None:
+        if self._state < MasterState.CONFIGURING:
+            self._set_state(MasterState.CONFIGURING)
+
+    def _node_configured(self, node: ManagedNode) -> None:
+        if self._status is MasterStatus.RUN:
+            self._start_nodes([node])
+        elif self._status is MasterStatus.STOP:
+            self._try_resume()
+
+    def _node_finished(self, node: ManagedNode) -> None:
+        if self._status is MasterStatus.RESET:
+            self._check_boot_complete()
+        elif self._status is MasterStatus.STOP:
+            self._try_resume()
+
+    def _check_boot_complete(self) -> None:
+        if self._status is not MasterStatus.RESET or not self._started:
+            return
+        if all(n.settled for n in self.nodes.values()):
+            self._start_network()
+
+    def _startable(self) -> list[ManagedNode]:
+        return [
+            n
+            for n in self.nodes.values()
+            if n.config.enabled and n.config.auto_start and n.state is NodeState.CONFIGURED
+        ]
+
+    def _start_network(self) -> None:
+        startable = self._startable()
+        left_out = [
+            n
+            for n in self.nodes.values()
+            if n.config.enabled and n.state is not NodeState.ABSENT and n not in startable
+        ]
+        self._set_state(MasterState.RUNNING)
+        self._set_status(MasterStatus.RUN)
+        now = self.network.time()
+        if self.config.master.start == "broadcast" and not left_out and startable:
+            self.network.nmt.start(0)
+            for node in startable:
+                node._started(now)
+            self._send_all_rpdos(startable)
+        else:
+            self._start_nodes(startable)
+
+    def _start_nodes(self, nodes: list[ManagedNode]) -> None:
+        now = self.network.time()
+        started = []
+        for node in nodes:
+            if not node.config.auto_start or node.state is not NodeState.CONFIGURED:
+                continue
+            self.network.nmt.start(node.node_id)
+            node._started(now)
+            started.append(node)
+        self._send_all_rpdos(started)
+
+    def _send_all_rpdos(self, nodes: list[ManagedNode]) -> None:
+        for node in nodes:
+            for layout in node.config.rpdos:
+                node._send_rpdo(layout)
+
+    def _stop_all(self, cause: ManagedNode, reason: str) -> None:
+        """The network reaction: NMT stop to every node."""
+        if self._status is MasterStatus.STOP:
+            return
+        self.network.nmt.stop(0)
+        for node in self.nodes.values():
+            if node.config.enabled:
+                node._stopped()
+        self._set_status(MasterStatus.STOP)
+        self._emit(NetworkStopped(cause.node_id, reason))
+
+    def _try_resume(self) -> None:
+        """After a network stop: start every node again once no node is faulty."""
+        if self._status is not MasterStatus.STOP:
+            return
+        if any(n.state is NodeState.ERROR_CONTROL for n in self.nodes.values()):
+            return
+        self._set_status(MasterStatus.RUN)
+        now = self.network.time()
+        resumed = []
+        for node in self.nodes.values():
+            if not node.config.enabled or not node.config.auto_start:
+                continue
+            if node.state in (NodeState.OPERATIONAL, NodeState.CONFIGURED):
+                self.network.nmt.start(node.node_id)
+                node._started(now)
+                resumed.append(node)
+        self._send_all_rpdos(resumed)
+
+    # ================================================================== frames and events
+
+    def _send(self, frame: Frame) -> bool:
+        try:
+            self.network.send(frame)
+        except (TxOverflowError, NetworkClosedError):
+            self.diagnostics.send_errors += 1
+            return False
+        return True
+
+    def _on_frame(self, frame: Frame, now: float) -> None:
+        self.diagnostics.frames += 1
+        self._meter.add(frame, now)
+
+    def _on_monitor(self, event: Event) -> None:
+        node_id = getattr(event, "node_id", None)
+        node = self.nodes.get(node_id) if isinstance(node_id, int) else None
+        if node is None or not self._started:
+            return
+        if isinstance(event, BootupReceived):
+            node._on_bootup()
+        elif isinstance(event, HeartbeatTimeout):
+            if node.error_control == "heartbeat":
+                node._lost("heartbeat")
+        elif isinstance(event, RemoteStateChanged) and event.new is not NmtState.INITIALISING:
+            node._on_heartbeat_state(event.new)
+
+    def _on_emcy(self, event: Event) -> None:
+        if isinstance(event, EmcyReceived):
+            node = self.nodes.get(event.node_id)
+            if node is not None:
+                node._on_emcy(event, self.network.time())
+
+    def _on_sync(self, frame: Frame, now: float) -> None:
+        diag = self.diagnostics
+        diag.sync_count += 1
+        diag.sync_toggle = not diag.sync_toggle
+        if not self.running:
+            return
+        dirty = self._dirty
+        for (node_id, number), layout in self._rpdos.items():
+            if layout.transmission_type > 240 or layout.linked:
+                continue
+            node = self.nodes[node_id]
+            if not node.operational:
+                continue
+            if layout.transmission_type == 0:
+                if (node_id, number) not in dirty:
+                    continue
+                dirty.discard((node_id, number))
+            node._send_rpdo(layout)
+
+    def _refresh(self, node: ManagedNode, layout: PdoLayout) -> None:
+        """Event-driven RPDOs with an event timer: send at least every half of it (the
+        node's deadline monitoring expects them)."""
+        period = layout.event_timer / 2000.0
+        key = (node.node_id, layout.number)
+
+        def tick() -> None:
+            self._timers[key] = self.network.loop.call_later(period, tick)
+            node._send_rpdo(layout)
+
+        self._timers[key] = self.network.loop.call_later(period, tick)
+
+    # ================================================================== process image
+
+    def set_output(self, name: str, value: Any) -> None:
+        """Set an output signal (``master.outputs[name] = value`` does the same).
+
+        Event-driven RPDOs (254/255) go out at once when the value changes, synchronous ones
+        with the next SYNC; nothing goes to a node that is not operational."""
+        node_id, number, changed = self.image.set_output(name, value)
+        layout = self._rpdos[(node_id, number)]
+        if not changed:
+            return
+        if layout.transmission_type >= 254:
+            self.nodes[node_id]._send_rpdo(layout)
+        elif layout.transmission_type == 0:
+            self._dirty.add((node_id, number))
+
+    def summary(self) -> list[dict[str, Any]]:
+        """One line of figures per node (state, diagnostic, EMCY count...)."""
+        return [n._summary() for n in self.nodes.values()]

@@ -1,0 +1,802 @@
+"""One node under the master: its CiA 302-2 boot-up sequence and its supervision.
+
+The boot-up of a node runs as an asyncio task of its own (all nodes in parallel): reset,
+boot-up, device type and identity check, optional restore of defaults, start-up SDO list,
+heartbeat (or node guarding when the node refuses heartbeat); the master then starts it.
+While it runs, its heartbeat or guarding replies, emergencies and TPDOs are watched; a node
+that boots again by itself is configured again.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections import deque
+from functools import partial
+from typing import TYPE_CHECKING, Any
+
+from cobus.master._sdo import SdoLink
+from cobus.master.config import NodeConfig, PdoLayout, SdoEntry
+from cobus.master.events import (
+    ConfigurationFailed,
+    DeviceTypeMismatch,
+    ErrorControlLost,
+    ErrorControlRestored,
+    GuardingToggleFault,
+    IdentityMismatch,
+    NodeBooted,
+    NodeEmergency,
+    NodeMissing,
+    NodeStateChanged,
+    TpdoLengthError,
+    TpdoMissing,
+    TpdoRestored,
+    UnexpectedState,
+)
+from cobus.master.states import Diagnostic, EmcyRecord, LedPattern, Leds, NodeState
+from cobus.proto import Event, Frame
+from cobus.proto import guarding as _guarding
+from cobus.proto.emcy import EmcyReceived
+from cobus.proto.nmt import NmtState
+from cobus.proto.pdo import RpdoResumed, RpdoTimeout, RpdoWatchdog
+from cobus.proto.sdo import SdoAbortedError, SdoError, SdoTimeoutError
+from cobus.runtime.events import BusState, HandlerFailed
+
+if TYPE_CHECKING:
+    from cobus.master.master import Master
+    from cobus.runtime import MachineHost
+
+__all__ = ["ManagedNode"]
+
+log = logging.getLogger(__name__)
+
+#: 1011h: "load" as a little-endian UNSIGNED32.
+LOAD_SIGNATURE = 0x64616F6C
+_PRESENCE_RETRY = 0.5  # s between 1000h reads of a mandatory node
+_RPDO_TIMEOUT_EMCY = 0x8250
+_IDENTITY = ("vendor_id", "product_code", "revision_number", "serial_number")
+_BOOTING = (
+    NodeState.RESETTING,
+    NodeState.AWAITING_BOOTUP,
+    NodeState.WAITING,
+    NodeState.CONFIGURING,
+    NodeState.CONFIGURED,
+)
+_VALID_STATES = {int(s) for s in NmtState if s is not NmtState.INITIALISING}
+
+
+class _NodeSilent(Exception):
+    """The node stopped answering SDO during its configuration."""
+
+
+class _Held(Exception):
+    """The boot-up of the node stops here (wrong device, aborted configuration)."""
+
+
+class ManagedNode:
+    """A node of the network as the master manages it: ``master.nodes[node_id]``.
+
+    ``state`` is the Lenze node state code, ``diagnostic`` the Beckhoff diagnostic code,
+    ``nmt_state`` the NMT state last reported (or commanded), ``emcy_history`` the last 8
+    emergencies (newest first), ``led`` the CiA 303-3 indicators, ``sdo`` an SDO channel to
+    the node (``await node.sdo.read(0x1008)``).
+    """
+
+    def __init__(self, master: Master, config: NodeConfig) -> None:
+        self.master = master
+        self.config = config
+        self.node_id = config.node_id
+        self.name = config.name
+        self.sdo = SdoLink(master.network, self.node_id, config.od, config.sdo_timeout)
+        self._state = NodeState.UNDEFINED
+        #: The NMT state last reported by heartbeat, guarding or boot-up (or commanded).
+        self.nmt_state: NmtState | None = None
+        #: The NMT state the master put the node in (None while it configures).
+        self.expected_nmt: NmtState | None = None
+        #: Which error control runs: "heartbeat", "guarding" or None.
+        self.error_control: str | None = None
+        #: 1000h as read at the last boot-up, and 1018h sub 1..4 where they were checked.
+        self.device_type: int | None = None
+        self.identity: dict[str, int | None] = {}
+        self.emcy_count = 0
+        self._emcy: deque[EmcyRecord] = deque(maxlen=8)
+        self.error_register = 0
+        #: Every failed write of the start-up lists, oldest first.
+        self.config_errors: list[ConfigurationFailed] = []
+        #: Why the node holds the network back or failed, in words (None: it does not).
+        self.problem: str | None = None
+        self.boot_count = 0
+        self._task: asyncio.Task[None] | None = None
+        self._bootup: asyncio.Future[None] | None = None
+        self._restored = False
+        self._rebooted = False
+        self._not_found = False
+        self._sdo_error = False
+        self._mismatch = False
+        self._ec_lost = False
+        self._toggle_fault = False
+        self._rpdo_missing = False
+        self._configured_at: float | None = None
+        self._last_ec: float | None = None
+        self._first_check: asyncio.TimerHandle | None = None
+        self._guard: _guarding.GuardingMaster | None = None
+        self._guard_host: MachineHost | None = None
+        self._guard_bad = False
+        self._watchdogs: dict[int, tuple[RpdoWatchdog, MachineHost, PdoLayout]] = {}
+        self._tpdos_seen: set[int] = set()
+        self._tpdos_missing: set[int] = set()
+        self._tpdos_short: set[int] = set()
+        #: Frames counted per PDO: received TPDOs and sent RPDOs by number.
+        self.tpdo_received: dict[int, int] = {}
+        self.rpdo_sent: dict[int, int] = {}
+
+    # ================================================================== public
+
+    def __repr__(self) -> str:
+        return f"<ManagedNode {self.node_id} {self.name!r} {self._state.name}>"
+
+    @property
+    def state(self) -> NodeState:
+        return self._state
+
+    @property
+    def mandatory(self) -> bool:
+        return self.config.mandatory
+
+    @property
+    def operational(self) -> bool:
+        """Whether process data flows: started by the master and not reported otherwise."""
+        return self._state is NodeState.OPERATIONAL and self.nmt_state in (
+            None,
+            NmtState.OPERATIONAL,
+        )
+
+    @property
+    def emcy_history(self) -> tuple[EmcyRecord, ...]:
+        """The last 8 emergencies, newest first."""
+        return tuple(self._emcy)
+
+    @property
+    def diagnostic(self) -> Diagnostic:
+        """The Beckhoff diagnostic code of the node."""
+        diag = self.master.diagnostics
+        state = self._state
+        if not self.config.enabled:
+            return Diagnostic.DEACTIVATED
+        if diag.bus_off:
+            return Diagnostic.BUS_OFF
+        if diag.bus_state is BusState.PASSIVE:
+            return Diagnostic.SEVERE_BUS_FAULT
+        if self._toggle_fault:
+            return Diagnostic.GUARDING_TOGGLE
+        if self._not_found or self._ec_lost or state is NodeState.ABSENT:
+            return Diagnostic.NOT_FOUND
+        if self._sdo_error:
+            return Diagnostic.SDO_SYNTAX_ERROR
+        if self._mismatch:
+            return Diagnostic.SDO_DATA_MISMATCH
+        if state in _BOOTING or (state is NodeState.UNDEFINED and self.master.started):
+            return Diagnostic.PRE_OPERATIONAL if self._rebooted else Diagnostic.STARTING
+        if state is NodeState.OPERATIONAL:
+            if self.nmt_state is NmtState.PRE_OPERATIONAL:
+                return Diagnostic.REPORTS_PRE_OPERATIONAL
+            if self.nmt_state is NmtState.STOPPED:
+                return Diagnostic.REPORTS_STOPPED
+            if self._tpdos_short:
+                return Diagnostic.TPDO_TOO_SHORT
+            if self._tpdos_missing:
+                return Diagnostic.TPDO_MISSING
+            if self._rpdo_missing:
+                return Diagnostic.RPDO_MISSING
+            if any(n not in self._tpdos_seen for n in self._watchdogs):
+                return Diagnostic.TPDOS_PENDING
+        return Diagnostic.OK
+
+    @property
+    def led(self) -> Leds:
+        """The CiA 303-3 run and error LEDs the node shows (as the master sees it)."""
+        nmt = self.nmt_state
+        if nmt is NmtState.OPERATIONAL:
+            run = LedPattern.ON
+        elif nmt is NmtState.PRE_OPERATIONAL:
+            run = LedPattern.BLINKING
+        elif nmt is NmtState.STOPPED:
+            run = LedPattern.SINGLE_FLASH
+        else:
+            run = LedPattern.OFF
+        diag = self.master.diagnostics
+        if diag.bus_off:
+            error = LedPattern.ON
+        elif self._ec_lost or self._toggle_fault:
+            error = LedPattern.DOUBLE_FLASH
+        elif diag.warning:
+            error = LedPattern.SINGLE_FLASH
+        else:
+            error = LedPattern.OFF
+        return Leds(run, error)
+
+    @property
+    def settled(self) -> bool:
+        """Whether the first boot of the network may go on without waiting for this node."""
+        if not self.config.enabled:
+            return True
+        if self._task is not None and not self._task.done():
+            return False
+        if self.config.mandatory:
+            return self._state is NodeState.CONFIGURED or self._state is NodeState.OPERATIONAL
+        return True
+
+    async def restart(self) -> None:
+        """Boot the node again (reset, check, configure) and start it when the network runs;
+        returns when its boot-up sequence is over (see :attr:`state`)."""
+        if not self.master.started:
+            from cobus.master.errors import MasterError
+
+            raise MasterError("the master is not started: call master.start() first")
+        task = self._spawn("reset")
+        try:
+            await asyncio.shield(task)
+        except asyncio.CancelledError:
+            if not task.cancelled():  # the caller itself was cancelled
+                raise
+
+    # ================================================================== state
+
+    def _set_state(self, new: NodeState) -> None:
+        old = self._state
+        if new is old:
+            return
+        self._state = new
+        self.master._emit(NodeStateChanged(self.node_id, old, new))
+
+    def _clear_flags(self) -> None:
+        self._not_found = self._sdo_error = self._mismatch = False
+        self._ec_lost = self._toggle_fault = False
+        self._tpdos_missing.clear()
+        self._tpdos_short.clear()
+        self._tpdos_seen.clear()
+        self.problem = None
+
+    # ================================================================== the boot-up task
+
+    def _spawn(self, mode: str) -> asyncio.Task[None]:
+        """Start the boot-up sequence (``mode``: reset, await, booted, none), replacing a
+        running one."""
+        old = self._task
+        if old is not None and not old.done():
+            old.cancel()
+        else:
+            old = None
+        loop = self.master.network.loop
+        task = loop.create_task(self._run(old, mode), name=f"cobus-master-node-{self.node_id}")
+        task.add_done_callback(self._finished)
+        self._task = task
+        return task
+
+    def _finished(self, task: asyncio.Task[None]) -> None:
+        if task is self._task and not task.cancelled():
+            self.master._node_finished(self)
+
+    def _prepare_bootup(self) -> None:
+        """The master is about to reset every node with one broadcast."""
+        self._bootup = self.master.network.loop.create_future()
+        self._set_state(NodeState.RESETTING)
+
+    def _cancel(self) -> None:
+        if self._task is not None and not self._task.done():
+            self._task.cancel()
+        self._stop_supervision()
+
+    async def _run(self, previous: asyncio.Task[None] | None, mode: str) -> None:
+        if previous is not None:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await previous
+        try:
+            await self._sequence(mode)
+        except asyncio.CancelledError:
+            raise
+        except _Held:
+            pass
+        except Exception as exc:  # a failure here must not end silently
+            log.exception("master: boot-up of node %d failed", self.node_id)
+            self.problem = f"boot-up failed: {exc!r}"
+            self.master.network.emit(HandlerFailed(f"master: node {self.node_id}", repr(exc)))
+
+    async def _sequence(self, mode: str) -> None:
+        cfg = self.config
+        self._stop_supervision()
+        self._clear_flags()
+        self.expected_nmt = None
+        self.boot_count += 1
+        if cfg.do_not_initialise:
+            mode = "none"
+        while True:
+            try:
+                await self._boot_once(mode)
+                return
+            except _NodeSilent:
+                self._not_found = True
+                self.problem = "stopped answering SDO while being configured"
+                if not cfg.mandatory:
+                    self._set_state(NodeState.ABSENT)
+                    self.master._emit(NodeMissing(self.node_id, False, self.problem))
+                    return
+                mode = "poll"
+
+    async def _boot_once(self, mode: str) -> None:
+        cfg = self.config
+        loop = self.master.network.loop
+        if mode == "reset":
+            await self._reset_and_wait()
+        elif mode == "await":
+            await self._wait_bootup()
+        if mode != "none":
+            self._set_state(NodeState.WAITING)
+            if mode != "poll":
+                await asyncio.sleep(self.master.config.master.bootup_delay)
+        else:
+            self._set_state(NodeState.WAITING)
+        if not await self._presence():
+            return
+        await self._check_identity()
+        if cfg.restore_defaults and not self._restored and mode != "none":
+            self._restored = True
+            await self._write(
+                SdoEntry(0x1011, 1, LOAD_SIGNATURE.to_bytes(4, "little"), LOAD_SIGNATURE, "load")
+            )
+            await self._reset_and_wait()
+            self._set_state(NodeState.WAITING)
+            await asyncio.sleep(self.master.config.master.bootup_delay)
+        self._set_state(NodeState.CONFIGURING)
+        self.master._note_configuring()
+        kind = cfg.error_control
+        if mode != "none":
+            for entry in cfg.startup:
+                await self._write(entry)
+            kind = await self._set_up_error_control(kind)
+        self.error_control = kind
+        self._configured_at = loop.time()
+        self._start_supervision()
+        self._set_state(NodeState.CONFIGURED)
+        self.master._node_configured(self)
+
+    async def _reset_and_wait(self) -> None:
+        self._bootup = self.master.network.loop.create_future()
+        self._set_state(NodeState.RESETTING)
+        self.master.network.nmt.reset_node(self.node_id)
+        await self._wait_bootup()
+
+    async def _wait_bootup(self) -> None:
+        self._set_state(NodeState.AWAITING_BOOTUP)
+        future = self._bootup
+        if future is None:
+            return
+        try:
+            await asyncio.wait_for(asyncio.shield(future), self.config.boot_timeout)
+        except TimeoutError:
+            # no boot-up (some devices send none): the 1000h read tells if the node is there
+            pass
+        finally:
+            self._bootup = None
+
+    async def _presence(self) -> bool:
+        """Read 1000h (a mandatory node every 0.5 s until it answers, an optional one once)."""
+        cfg = self.config
+        loop = self.master.network.loop
+        reported = False
+        while True:
+            began = loop.time()
+            try:
+                data = await self.sdo.upload(0x1000, 0)
+            except SdoTimeoutError:
+                self._not_found = True
+                self.problem = "no boot-up and no answer to the 1000h read"
+                if not cfg.mandatory:
+                    self._set_state(NodeState.ABSENT)
+                    self.master._emit(NodeMissing(self.node_id, False, self.problem))
+                    return False
+                if not reported:
+                    reported = True
+                    self.master._note_configuring()
+                    self.master._emit(NodeMissing(self.node_id, True, self.problem))
+                await asyncio.sleep(max(0.0, _PRESENCE_RETRY - (loop.time() - began)))
+                continue
+            except SdoError as exc:
+                # the node is there but refuses 1000h (a mandatory object: it is broken)
+                self._not_found = False
+                self.device_type = None
+                if cfg.device_type:
+                    self._mismatched(f"refuses the 1000h read: {exc}")
+                    self.master._emit(DeviceTypeMismatch(self.node_id, cfg.device_type, -1))
+                    raise _Held() from None
+                return True
+            self._not_found = False
+            self.problem = None
+            actual = int.from_bytes(data[:4].ljust(4, b"\0"), "little")
+            self.device_type = actual
+            expected = cfg.device_type
+            if expected:
+                if cfg.device_type_low16:
+                    ok = actual & 0xFFFF == expected & 0xFFFF
+                else:
+                    ok = actual == expected
+                if not ok:
+                    self._mismatched(
+                        f"device type 0x{actual:08X}, expected 0x{expected:08X}"
+                        + (" (low 16 bits compared)" if cfg.device_type_low16 else "")
+                    )
+                    self.master._emit(DeviceTypeMismatch(self.node_id, expected, actual))
+                    raise _Held()
+            return True
+
+    def _mismatched(self, reason: str) -> None:
+        self._mismatch = True
+        self.problem = reason
+        self._set_state(NodeState.WRONG_DEVICE)
+
+    async def _check_identity(self) -> None:
+        for sub, (field, expected) in enumerate(
+            zip(_IDENTITY, self.config.identity, strict=True), 1
+        ):
+            if not expected:
+                continue
+            try:
+                data = await self.sdo.upload(0x1018, sub)
+                actual: int | None = int.from_bytes(data[:4].ljust(4, b"\0"), "little")
+            except SdoTimeoutError:
+                raise _NodeSilent() from None
+            except SdoError:
+                actual = None
+            self.identity[field] = actual
+            if actual != expected:
+                shown = "refused" if actual is None else f"0x{actual:08X}"
+                self._mismatched(f"1018h sub {sub} ({field}) is {shown}, expected 0x{expected:08X}")
+                self.master._emit(IdentityMismatch(self.node_id, field, sub, expected, actual))
+                raise _Held()
+
+    async def _write(self, entry: SdoEntry) -> bool:
+        """Write one entry: timeouts are retried; an abort is reported (and ends the boot-up
+        with ``stop_on_abort``)."""
+        cfg = self.config
+        for _attempt in range(cfg.sdo_retries + 1):
+            try:
+                await self.sdo.download(entry.index, entry.subindex, entry.data)
+                return True
+            except SdoTimeoutError:
+                continue
+            except SdoError as exc:
+                code = int(exc.code) if isinstance(exc, SdoAbortedError) else None
+                failure = ConfigurationFailed(
+                    self.node_id, entry.index, entry.subindex, code, str(exc)
+                )
+                self.config_errors.append(failure)
+                self.master._emit(failure)
+                if cfg.stop_on_abort:
+                    self._sdo_error = True
+                    self.problem = f"start-up write {entry} failed: {exc}"
+                    raise _Held() from None
+                return False
+        raise _NodeSilent()
+
+    async def _set_up_error_control(self, kind: str | None) -> str | None:
+        cfg = self.config
+        if kind == "heartbeat":
+            entry = cfg.error_control_entries("heartbeat")[0]
+            try:
+                await self.sdo.download(entry.index, entry.subindex, entry.data)
+                return "heartbeat"
+            except SdoTimeoutError:
+                raise _NodeSilent() from None
+            except SdoError:
+                kind = "guarding"  # the node refuses 1017h: node guarding instead
+        if kind == "guarding":
+            for entry in cfg.error_control_entries("guarding"):
+                if not await self._write(entry):
+                    return None
+            return "guarding"
+        return None
+
+    # ================================================================== start / stop
+
+    def _started(self, now: float) -> None:
+        """The master sent the NMT start (to this node or to all)."""
+        self.expected_nmt = NmtState.OPERATIONAL
+        self.nmt_state = NmtState.OPERATIONAL
+        self._rebooted = False
+        self._tpdos_seen.clear()
+        self._tpdos_missing.clear()
+        self._tpdos_short.clear()
+        for watchdog, host, layout in self._watchdogs.values():
+            assert layout.timeout is not None
+            ms = max(1, min(0xFFFF, round(layout.timeout * 1000)))
+            watchdog.set_event_timer(0, now)
+            watchdog.set_event_timer(ms, now)
+            host.apply(watchdog.on_timer(now))
+        self._set_state(NodeState.OPERATIONAL)
+
+    def _stopped(self) -> None:
+        """The master sent an NMT stop to this node (or to all)."""
+        self.expected_nmt = NmtState.STOPPED
+        self.nmt_state = NmtState.STOPPED
+        self._disarm_watchdogs()
+        self.master.image.zero_inputs(self.node_id)
+
+    # ================================================================== supervision
+
+    def _install(self) -> None:
+        """Subscribe what the node's supervision needs (called once by the master)."""
+        master = self.master
+        net = master.network
+        master._subs.append(net.subscribe(0x700 + self.node_id, self._on_ec_frame))
+        for layout in self.config.tpdos:
+            master._subs.append(
+                net.subscribe(
+                    layout.cob_id, partial(self._on_tpdo, layout), extended=layout.extended
+                )
+            )
+            if layout.timeout is not None:
+                watchdog = RpdoWatchdog(layout.cob_id, 0, extended=layout.extended)
+                host = net.attach(watchdog, (), partial(self._on_watchdog, layout.number))
+                master._hosts.append(host)
+                self._watchdogs[layout.number] = (watchdog, host, layout)
+
+    def _start_supervision(self) -> None:
+        now = self.master.network.time()
+        kind = self.error_control
+        cfg = self.config
+        monitor = self.master._monitor
+        if kind == "heartbeat":
+            monitor.watch(self.node_id, cfg.heartbeat_consumer_time, now)
+            self.master._monitor_host.apply(monitor.on_timer(now))
+            self._first_check = self.master.network.loop.call_later(
+                cfg.heartbeat_consumer_time, self._check_first_heartbeat, now
+            )
+        elif kind == "guarding":
+            guard_ms, factor = (
+                (cfg.guard_time, cfg.life_time_factor or 3)
+                if cfg.guard_time
+                else cfg.fallback_guarding
+            )
+            self._guard = _guarding.GuardingMaster(self.node_id, guard_ms, factor)
+            self._guard_host = self.master.network.attach(self._guard, (), self._on_guard_event)
+            guard = self._guard
+            self._guard_host.run(lambda t: guard.start(t))
+
+    def _stop_supervision(self) -> None:
+        if self._first_check is not None:
+            self._first_check.cancel()
+            self._first_check = None
+        monitor = self.master._monitor
+        now = self.master.network.time() if self.master.network.connected else 0.0
+        monitor.watch(self.node_id, 0.0, now)
+        if self._guard_host is not None:
+            self._guard_host.close()
+        self._guard = None
+        self._guard_host = None
+        self._disarm_watchdogs()
+
+    def _disarm_watchdogs(self) -> None:
+        if not self.master.network.connected:
+            return
+        now = self.master.network.time()
+        for watchdog, host, _layout in self._watchdogs.values():
+            watchdog.set_event_timer(0, now)
+            host.apply(watchdog.on_timer(now))
+
+    def _check_first_heartbeat(self, since: float) -> None:
+        self._first_check = None
+        if self._last_ec is None or self._last_ec < since:
+            self._lost("heartbeat")
+
+    def _on_ec_frame(self, frame: Frame, now: float) -> None:
+        if frame.rtr:
+            return
+        self._last_ec = now
+        self.master._monitor_host.feed(frame, now)
+        data = frame.data
+        if self.error_control == "guarding" and self._guard_host is not None:
+            self._guard_bad = False
+            self._guard_host.feed(frame, now)
+            if len(data) == 1 and data[0] & 0x7F in _VALID_STATES and not self._guard_bad:
+                self._alive("guarding", NmtState(data[0] & 0x7F))
+        elif (
+            self.error_control == "heartbeat"
+            and len(data) == 1
+            and data[0] in _VALID_STATES
+            and (self._ec_lost or self._state is NodeState.ERROR_CONTROL)
+        ):
+            self._alive("heartbeat", NmtState(data[0]))
+
+    def _on_guard_event(self, event: Event) -> None:
+        if isinstance(event, _guarding.GuardingToggleError):
+            self._guard_bad = True
+            self._toggle_fault = True
+            self.problem = f"guarding toggle {event.received}, expected {event.expected}"
+            self.master._emit(GuardingToggleFault(self.node_id, event.expected, event.received))
+            self._fault()
+        elif isinstance(event, _guarding.MalformedGuardingReply):
+            self._guard_bad = True
+        elif isinstance(event, _guarding.GuardingNodeLost):
+            self._lost("guarding")
+        elif (
+            isinstance(event, _guarding.GuardingStateChanged)
+            and event.new is not NmtState.INITIALISING
+        ):
+            self._reported(event.new)
+
+    def _lost(self, kind: str) -> None:
+        if self._ec_lost:
+            return
+        self._ec_lost = True
+        self.problem = f"no {kind} within its time"
+        self.master._emit(ErrorControlLost(self.node_id, kind))
+        self._fault()
+
+    def _fault(self) -> None:
+        """An error control fault: state 99, inputs 0, the configured reaction."""
+        was_running = self._state is NodeState.OPERATIONAL
+        self._set_state(NodeState.ERROR_CONTROL)
+        self._disarm_watchdogs()
+        if self.config.zero_inputs:
+            self.master.image.zero_inputs(self.node_id)
+        reaction = self.config.error_reaction
+        if reaction == "stop_node":
+            self.master.network.nmt.stop(self.node_id)
+            self.expected_nmt = NmtState.STOPPED
+        elif reaction == "stop_all" and (was_running or self.master.running):
+            self.master._stop_all(self, self.problem or "error control fault")
+
+    def _alive(self, kind: str, state: NmtState) -> None:
+        """A valid heartbeat or guarding reply: ends a loss or a toggle fault."""
+        if not (self._ec_lost or self._toggle_fault):
+            return
+        self._ec_lost = False
+        self._toggle_fault = False
+        self.master._emit(ErrorControlRestored(self.node_id, kind, state))
+        if self._state is NodeState.ERROR_CONTROL and self.config.restart == "auto":
+            self._spawn("reset")
+
+    def _reported(self, state: NmtState) -> None:
+        """The node reports ``state`` by heartbeat or guarding."""
+        old = self.nmt_state
+        self.nmt_state = state
+        expected = self.expected_nmt
+        if (
+            expected is not None
+            and state is not expected
+            and state is not old
+            and self._state is NodeState.OPERATIONAL
+        ):
+            self.master._emit(UnexpectedState(self.node_id, expected, state))
+            self._disarm_watchdogs()
+            if self.config.zero_inputs:
+                self.master.image.zero_inputs(self.node_id)
+        elif (
+            state is NmtState.OPERATIONAL
+            and expected is NmtState.OPERATIONAL
+            and old is not state
+            and self._state is NodeState.OPERATIONAL
+        ):
+            # back in operational: supervise the TPDOs again
+            self._started(self.master.network.time())
+
+    def _on_bootup(self) -> None:
+        """The node sent its boot-up message."""
+        self.nmt_state = NmtState.PRE_OPERATIONAL
+        future = self._bootup
+        if future is not None and not future.done():
+            future.set_result(None)
+            self.master._emit(NodeBooted(self.node_id, True))
+            return
+        self.master._emit(NodeBooted(self.node_id, False))
+        if not self.master.started or not self.config.enabled:
+            return
+        running = self._task is not None and not self._task.done()
+        if running and self._state is NodeState.UNDEFINED:
+            return  # a boot-up from before the master's reset, which is on its way
+        if self._state is NodeState.ERROR_CONTROL and self.config.restart == "manual":
+            self.problem = "booted again; waiting for a manual restart"
+            return
+        if self._state is NodeState.OPERATIONAL and self.config.zero_inputs:
+            self.master.image.zero_inputs(self.node_id)
+        self._rebooted = True
+        self._spawn("booted")
+
+    def _on_heartbeat_state(self, state: NmtState) -> None:
+        if self.error_control == "heartbeat" or self.error_control is None:
+            self._reported(state)
+
+    def _on_emcy(self, event: EmcyReceived, now: float) -> None:
+        self.emcy_count += 1
+        self.error_register = int(event.register)
+        record = EmcyRecord(
+            now, event.code, int(event.register), event.manufacturer_data, event.text
+        )
+        self._emcy.appendleft(record)
+        if event.code == _RPDO_TIMEOUT_EMCY:
+            self._rpdo_missing = True
+        elif event.is_reset:
+            self._rpdo_missing = False
+        self.master._emit(
+            NodeEmergency(
+                self.node_id, event.code, int(event.register), event.manufacturer_data, event.text
+            )
+        )
+
+    # ================================================================== process data
+
+    def _on_tpdo(self, layout: PdoLayout, frame: Frame, now: float) -> None:
+        if frame.rtr or not self.operational:
+            return  # process data is blocked unless the node is operational
+        number = layout.number
+        self.tpdo_received[number] = self.tpdo_received.get(number, 0) + 1
+        counters = self.master.diagnostics.pdo_counters
+        key = (self.node_id, "tpdo", number)
+        counters[key] = counters.get(key, 0) + 1
+        watch = self._watchdogs.get(number)
+        if watch is not None:
+            watch[1].feed(frame, now)
+        data = frame.data
+        if len(data) < layout.length:
+            if number not in self._tpdos_short:
+                self._tpdos_short.add(number)
+                self.master._emit(TpdoLengthError(self.node_id, number, layout.length, len(data)))
+            return
+        self._tpdos_short.discard(number)
+        self._tpdos_seen.add(number)
+        self.master.image.update_tpdo(self.node_id, number, layout.codec.unpack(data))
+
+    def _on_watchdog(self, number: int, event: Event) -> None:
+        watch = self._watchdogs.get(number)
+        if watch is None:
+            return
+        layout = watch[2]
+        if isinstance(event, RpdoTimeout):
+            self._tpdos_missing.add(number)
+            if self.config.zero_inputs:
+                self.master.image.zero_inputs(self.node_id, number)
+            self.master._emit(TpdoMissing(self.node_id, number, layout.cob_id))
+        elif isinstance(event, RpdoResumed):
+            self._tpdos_missing.discard(number)
+            self.master._emit(TpdoRestored(self.node_id, number, layout.cob_id))
+
+    def _send_rpdo(self, layout: PdoLayout) -> None:
+        """Send RPDO ``layout`` with the current outputs (only while operational)."""
+        if layout.linked or not self.operational or not self.master.running:
+            return
+        image = self.master.image
+        if not image.has_rpdo(self.node_id, layout.number):
+            return
+        frame = Frame(
+            layout.cob_id, image.rpdo_data(self.node_id, layout.number), extended=layout.extended
+        )
+        if self.master._send(frame):
+            number = layout.number
+            self.rpdo_sent[number] = self.rpdo_sent.get(number, 0) + 1
+            counters = self.master.diagnostics.pdo_counters
+            key = (self.node_id, "rpdo", number)
+            counters[key] = counters.get(key, 0) + 1
+
+    def _describe(self) -> str:
+        role = "mandatory" if self.config.mandatory else "optional"
+        text = (
+            f"node {self.node_id} {self.name!r} ({role}): {self._state.text} "
+            f"[state {int(self._state)}, diagnostic {int(self.diagnostic)} "
+            f"{self.diagnostic.text}]"
+        )
+        if self.problem:
+            text += f": {self.problem}"
+        return text
+
+    def _summary(self) -> dict[str, Any]:
+        return {
+            "node_id": self.node_id,
+            "name": self.name,
+            "state": int(self._state),
+            "diagnostic": int(self.diagnostic),
+            "nmt_state": None if self.nmt_state is None else self.nmt_state.name,
+            "emcy_count": self.emcy_count,
+            "error_control": self.error_control,
+            "problem": self.problem,
+        }
