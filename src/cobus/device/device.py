@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import logging
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Collection
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -61,8 +62,8 @@ from cobus.device.storage import (
     StoredValue,
 )
 from cobus.errors import CobusError
-from cobus.od import Array, ObjectDictionary, Record, Variable, encode
-from cobus.proto import NOTHING, Event, Frame
+from cobus.od import Array, DataType, ObjectDictionary, Record, Variable, encode
+from cobus.proto import NOTHING, Event, Frame, Out
 from cobus.proto import emcy as _emcy
 from cobus.proto import guarding as _guarding
 from cobus.proto import heartbeat as _hb
@@ -72,6 +73,7 @@ from cobus.proto import timestamp as _time
 from cobus.proto.emcy import EmcyCode, EmcyProducer, ErrorRegister
 from cobus.proto.nmt import NmtCommand, NmtSlave, NmtState
 from cobus.proto.pdo import (
+    MappingEntry,
     PdoCobId,
     PdoError,
     RpdoResumed,
@@ -83,13 +85,13 @@ from cobus.proto.pdo import (
     rpdo_default_can_id,
     tpdo_default_can_id,
 )
-from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer
+from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer, SdoServerBackend
 from cobus.runtime.events import HandlerFailed
 
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, MachineHost, Subscription
 
-__all__ = ["LOAD_SIGNATURE", "SAVE_SIGNATURE", "Device", "Listener"]
+__all__ = ["LOAD_SIGNATURE", "SAVE_SIGNATURE", "CobIdRule", "Deviations", "Device", "Listener"]
 
 log = logging.getLogger(__name__)
 
@@ -111,6 +113,84 @@ _GENERIC = int(ErrorRegister.GENERIC)
 _COMM_BIT = int(ErrorRegister.COMMUNICATION)
 #: Dictionaries served by a running device (by id): a dictionary holds one node's defaults.
 _SERVED: dict[int, weakref.ref[Device]] = {}
+
+
+#: ``rule(kind, number, value) -> value``: the CiA 301 form of a COB-ID parameter as the device
+#: uses it (see :attr:`Deviations.cob_id_rule`).
+CobIdRule = Callable[[str, int, int], int]
+
+
+@dataclass(frozen=True)
+class Deviations:
+    """How a device departs from CiA 301, for models of real devices that do (all off by
+    default; a plain :class:`Device` follows CiA 301).
+
+    - ``send_bootup`` False: no boot-up message (the device still enters pre-operational).
+    - ``error_control`` False: no heartbeat (1017h is kept but not produced) and no answer
+      to node guarding (so no life guarding either).
+    - ``tpdos_outside_operational``: numbers of TPDOs that transmit in pre-operational too
+      (event timer, change, SYNC and RTR as in operational); stopped silences them.
+    - ``store_on_subindex_0``: a write of "save" to 1010h sub 0 stores all parameters as
+      sub 1 does (reading sub 0 still gives the highest sub-index).
+    - ``padded_writes``: a download of up to 4 bytes to a shorter entry is accepted when the
+      extra bytes are zero (expedited writes of 4 bytes to 8/16-bit objects).
+    - ``generic_error_bit`` False: the error register (1001h and in emergencies) holds only
+      the bits of the active errors, without the generic bit 0 CiA 301 sets with any error.
+    - ``comm_error_emcy`` False: the device's own communication errors (RPDO length and
+      timeout, SYNC, heartbeat, life guarding) are reported as events only, with no
+      emergency, error register bit or 1003h entry: the application reports them its way.
+      1029h still applies.
+    - ``serve_sdo`` False: no SDO server channel; the owner serves :attr:`Device.sdo_backend`
+      on channels of its own (for COB-ID rules or per-channel contexts of its own).
+    - ``cob_id_rule``: ``rule(kind, number, value)`` turns the stored value of a COB-ID
+      parameter into the CiA 301 form the device uses; ``kind`` is ``"emcy"`` (number 1),
+      ``"tpdo"``, ``"rpdo"`` (PDO number) or ``"sdo_rx"``/``"sdo_tx"`` (SDO server channel
+      number, 2 and up; channel 1 is fixed). The stored value is what a master reads back.
+      E.g. a bare function code that means "plus the node-ID", or bit 31 read the other way.
+    - ``pdo_params_while_valid``: the COB-ID, inhibit time and SYNC start value of a PDO
+      may be written while the PDO is valid; the PDO is rebuilt with them.
+    - ``direct_pdo_mapping``: mapping entries may be written at any time (the PDO is
+      rebuilt at once; a zero entry is unused; a bit length 0 is filled in from the object);
+      the mapping's sub 0 is then a constant count of entries, not written by a master.
+    - ``partial_rpdos``: an RPDO shorter than its mapping writes the objects it covers
+      completely and leaves the others; neither a shorter nor a longer RPDO is an error.
+    - ``transmission_types``: the PDO transmission types the device accepts (others are
+      refused with 06090030); None accepts all that CiA 301 allows.
+    """
+
+    send_bootup: bool = True
+    error_control: bool = True
+    tpdos_outside_operational: Collection[int] = field(default_factory=frozenset)
+    store_on_subindex_0: bool = False
+    padded_writes: bool = False
+    generic_error_bit: bool = True
+    comm_error_emcy: bool = True
+    serve_sdo: bool = True
+    cob_id_rule: CobIdRule | None = None
+    pdo_params_while_valid: bool = False
+    direct_pdo_mapping: bool = False
+    partial_rpdos: bool = False
+    transmission_types: Collection[int] | None = None
+
+    def __post_init__(self) -> None:
+        early = frozenset(self.tpdos_outside_operational)
+        bad = [n for n in early if not isinstance(n, int) or not 1 <= n <= 512]
+        if bad:
+            raise DeviceConfigError(
+                f"tpdos_outside_operational names {bad!r}: TPDO numbers are 1..512"
+            )
+        object.__setattr__(self, "tpdos_outside_operational", early)
+        if self.transmission_types is not None:
+            types = frozenset(self.transmission_types)
+            wrong = [t for t in types if not isinstance(t, int) or not 0 <= t <= 255]
+            if wrong:
+                raise DeviceConfigError(
+                    f"transmission_types names {wrong!r}: transmission types are 0..255"
+                )
+            object.__setattr__(self, "transmission_types", types)
+
+
+_CIA = Deviations()
 
 
 def _class_bits(code: int) -> int:
@@ -202,6 +282,8 @@ class Device:
     :class:`~cobus.device.ParameterStorage`; default: kept in memory, across resets only.
     ``sdo_timeout`` — seconds the SDO servers wait within a segmented or block transfer.
     ``emcy_queue_size`` — emergencies held back by the inhibit time 1015h.
+    ``deviations`` — a :class:`Deviations` for a model of a device that departs from
+    CiA 301.
 
     ``network.add_device(node_id, od, **options)`` creates and starts one; :meth:`start` boots
     it (boot-up message, pre-operational). Each device needs a dictionary of its own.
@@ -216,8 +298,12 @@ class Device:
         storage: str | Path | ParameterStorage | None = None,
         sdo_timeout: float = 1.0,
         emcy_queue_size: int = 16,
+        deviations: Deviations | None = None,
     ) -> None:
         _nmt.check_node_id(node_id)
+        if deviations is not None and not isinstance(deviations, Deviations):
+            raise DeviceConfigError(f"deviations {deviations!r} is not a cobus.device.Deviations")
+        self.deviations = deviations or _CIA
         missing = [f"{i:04X}h" for i in _MANDATORY if i not in od]
         if missing:
             raise DeviceConfigError(
@@ -325,6 +411,12 @@ class Device:
             )
         return _ObjectView(self, obj.index)
 
+    @property
+    def sdo_backend(self) -> SdoServerBackend:
+        """What the device's SDO server channels serve (its entries, with every check), for
+        an owner that serves SDO on channels of its own (``Deviations(serve_sdo=False)``)."""
+        return self._backend
+
     def serves(self, od: ObjectDictionary) -> bool:
         """Whether this device runs (not closed) on the dictionary ``od``."""
         closed: bool = self._closed
@@ -398,13 +490,15 @@ class Device:
         bits = _class_bits(code) if register is None else register
         self._raise_error(("app", code), code, bits, bytes(manufacturer), info)
 
-    def clear_emergency(self, code: int | None = None) -> None:
+    def clear_emergency(self, code: int | None = None, *, manufacturer: bytes = b"") -> None:
         """End application error ``code`` (None: all of them): the error register is updated
-        and the 'error reset' emergency (0000h) is sent."""
+        and the 'error reset' emergency (0000h) is sent, with ``manufacturer`` (up to 5
+        bytes) as its manufacturer-specific field."""
+        _emcy.emcy_frame_data(0, 0, manufacturer)
         keys = [k for k in self._errors if isinstance(k, tuple) and k[0] == "app"]
         if code is not None:
             keys = [k for k in keys if k == ("app", code)]
-        self._clear_errors(keys)
+        self._clear_errors(keys, bytes(manufacturer))
 
     def send_tpdo(self, number: int) -> None:
         """An application event for TPDO ``number``: event-driven types send now (or at the
@@ -574,6 +668,17 @@ class Device:
             )
         return entry
 
+    def _cob_id(self, kind: str, number: int, value: int) -> int:
+        """The CiA 301 form of a stored COB-ID parameter (see :attr:`Deviations.cob_id_rule`)."""
+        rule = self.deviations.cob_id_rule
+        if rule is None:
+            return value
+        try:
+            return int(rule(kind, number, value))
+        except Exception as exc:
+            self._failure(f"COB-ID rule for {kind} {number}", exc)
+            raise _abort(_ABORT.INVALID_VALUE, f"the COB-ID rule refused 0x{value:08X}") from None
+
     def _value(self, index: int, subindex: int, default: int = 0) -> Any:
         entry = self._entries.get(index << 8 | subindex)
         return default if entry is None else entry.value
@@ -613,8 +718,26 @@ class Device:
     def _sdo_download(self, index: int, subindex: int, data: bytes) -> None:
         entry = self._entry(index, subindex)
         var = entry.var
+        deviations = self.deviations
+        if deviations.store_on_subindex_0 and index == 0x1010 and subindex == 0:
+            # sub 0 is the UNSIGNED8 count; the signature written there is an UNSIGNED32
+            if len(data) != 4:
+                raise _abort(
+                    _ABORT.LENGTH_MISMATCH,
+                    f"1010h sub 0 takes the 4-byte signature 'save', got {len(data)} bytes",
+                )
+            self._w_store(entry, int.from_bytes(data, "little"))
+            return
         if not var.access.writable:
             raise _abort(_ABORT.WRITE_READ_ONLY, f"{var.name!r} is {var.access}")
+        size = entry.size
+        if (
+            deviations.padded_writes
+            and size is not None
+            and size < len(data) <= 4
+            and not any(data[size:])
+        ):
+            data = data[:size]
         value = decode_download(entry, data)
         self._write(entry, value, remote=True)
         self._emit(EntryWritten(self._node_id, index, subindex, value))
@@ -725,12 +848,16 @@ class Device:
 
     def _boot(self) -> None:
         self._build_comm()
-        self._nmt_run_out(lambda now: self.nmt.boot(now))
+        self._nmt_run_out(self._boot_out)
         now = self.network.time()
         if self._hb is not None and self._hb_host is not None:
             self._hb.set_period(int(self._value(0x1017, 0)), now)
             self._hb_host.apply(NOTHING)
         self._emit(Booted(self._node_id))
+
+    def _boot_out(self, now: float) -> Out:
+        out = self.nmt.boot(now)
+        return out if self.deviations.send_bootup else Out((), out.events)
 
     def _open_nmt(self) -> None:
         self._nmt_host = self.network.attach(self.nmt, (), self._on_nmt_event)
@@ -776,11 +903,13 @@ class Device:
 
     def _state_changed(self, old: NmtState, new: NmtState) -> None:
         now = self.network.time()
+        early = self.deviations.tpdos_outside_operational
         if new is NmtState.OPERATIONAL:
             self._operational = True
             for tpdo in self._tpdos.values():
-                tpdo.start(now)
-                self._apply(tpdo, NOTHING)
+                if not tpdo.trigger.active:
+                    tpdo.start(now)
+                    self._apply(tpdo, NOTHING)
         elif old is NmtState.OPERATIONAL:
             self._operational = False
             for tpdo in self._tpdos.values():
@@ -790,6 +919,16 @@ class Device:
                 rpdo.disarm()
                 self._apply(rpdo, NOTHING)
             self._clear_errors([k for k in self._errors if isinstance(k, tuple) and k[0] == "rpdo"])
+        if early:
+            for number, tpdo in self._tpdos.items():
+                if number not in early:
+                    continue
+                if new is NmtState.PRE_OPERATIONAL and not tpdo.trigger.active:
+                    tpdo.start(now)
+                    self._apply(tpdo, NOTHING)
+                elif new is not NmtState.OPERATIONAL and new is not NmtState.PRE_OPERATIONAL:
+                    tpdo.stop()
+                    self._apply(tpdo, NOTHING)
         if new is NmtState.STOPPED:
             self._build_sdo()  # transfers in progress end silently: SDO is not available
         self._emit(StateChanged(self._node_id, old, new))
@@ -855,8 +994,10 @@ class Device:
         # EMCY
         emcy = self._emcy
         try:
-            emcy.set_cob_id(int(self._value(0x1014, 0, _emcy.EMCY_BASE + node)))
-        except CobusError as exc:
+            emcy.set_cob_id(
+                self._cob_id("emcy", 1, int(self._value(0x1014, 0, _emcy.EMCY_BASE + node)))
+            )
+        except (CobusError, SdoAbort) as exc:
             self._report("1014h", exc)
             emcy.set_cob_id(_emcy.EMCY_BASE + node)
         emcy.set_inhibit_time(int(self._value(0x1015, 0)), now)
@@ -864,8 +1005,9 @@ class Device:
         # SDO servers
         self._build_sdo()
         # heartbeat producer and consumer
-        self._hb = _hb.HeartbeatProducer(node, state_getter=lambda: self.nmt.state)
-        self._hb_host = self._attach(self._hb)
+        if self.deviations.error_control:
+            self._hb = _hb.HeartbeatProducer(node, state_getter=lambda: self.nmt.state)
+            self._hb_host = self._attach(self._hb)
         consumer_size = self._value(0x1016, 0, 0)
         if consumer_size:
             self._consumer = _hb.HeartbeatConsumer(min(int(consumer_size), 127))
@@ -879,13 +1021,14 @@ class Device:
                         self._report(f"1016h sub {sub}", exc)
             self._sync_consumer_subs()
         # node guarding and life guarding
-        self._guard = _guarding.GuardingResponder(node, lambda: self.nmt.state)
-        self._guard.set_guard_time(int(self._value(0x100C, 0)), now)
-        self._guard.set_life_time_factor(int(self._value(0x100D, 0)), now)
-        self._guard_host = self._attach(self._guard, self._on_guarding_event)
-        self._subs.append(
-            self.network.subscribe(_nmt.ERROR_CONTROL_BASE + node, self._guard_host.feed)
-        )
+        if self.deviations.error_control:
+            self._guard = _guarding.GuardingResponder(node, lambda: self.nmt.state)
+            self._guard.set_guard_time(int(self._value(0x100C, 0)), now)
+            self._guard.set_life_time_factor(int(self._value(0x100D, 0)), now)
+            self._guard_host = self._attach(self._guard, self._on_guarding_event)
+            self._subs.append(
+                self.network.subscribe(_nmt.ERROR_CONTROL_BASE + node, self._guard_host.feed)
+            )
         # SYNC and TIME
         self._build_sync()
         self._build_time()
@@ -900,6 +1043,8 @@ class Device:
         for channel in self._sdo.values():
             channel.close()
         self._sdo.clear()
+        if not self.deviations.serve_sdo:
+            return
         for n in range(128):
             index = 0x1200 + n
             if n and index not in self._indices:
@@ -908,8 +1053,12 @@ class Device:
                 rx = int(self._value(index, 1, 0x600 + self._node_id)) & 0x7FF
                 tx = int(self._value(index, 2, 0x580 + self._node_id)) & 0x7FF
             else:
-                rx_value = int(self._value(index, 1, _INVALID))
-                tx_value = int(self._value(index, 2, _INVALID))
+                try:
+                    rx_value = self._cob_id("sdo_rx", n + 1, int(self._value(index, 1, _INVALID)))
+                    tx_value = self._cob_id("sdo_tx", n + 1, int(self._value(index, 2, _INVALID)))
+                except SdoAbort as exc:
+                    self._report(f"SDO server channel {n + 1}", exc)
+                    continue
                 if rx_value & _INVALID or tx_value & _INVALID:
                     continue
                 rx, tx = rx_value & 0x7FF, tx_value & 0x7FF
@@ -986,7 +1135,22 @@ class Device:
 
     # --- PDOs
 
+    def _tpdo_active(self, number: int) -> bool:
+        """Whether TPDO ``number`` transmits in the current NMT state."""
+        if self._operational:
+            return True
+        return (
+            number in self.deviations.tpdos_outside_operational
+            and self.nmt.state is NmtState.PRE_OPERATIONAL
+        )
+
     def _pdo_values(self, index: int) -> list[int]:
+        if self.deviations.direct_pdo_mapping:  # every entry counts; zero ones are unused
+            return [
+                int(self._value(index, sub, 0))
+                for sub in range(1, 65)
+                if (index << 8 | sub) in self._entries
+            ]
         count = int(self._value(index, 0, 0))
         return [int(self._value(index, sub, 0)) for sub in range(1, count + 1)]
 
@@ -1020,7 +1184,7 @@ class Device:
         self._drop_tpdo(number)
         comm = 0x1800 + number - 1
         try:
-            cob = PdoCobId.from_u32(int(self._value(comm, 1, _INVALID)))
+            cob = PdoCobId.from_u32(self._pdo_cob_id(comm))
             if not cob.valid:
                 return
             tt = TransmissionType(int(self._value(comm, 2, 255)))
@@ -1052,19 +1216,19 @@ class Device:
         if tt.synchronous:
             self._sync_tpdos.append(tpdo)
             self._sync_tpdos.sort(key=lambda t: t.number)
-        if self._operational:
+        if self._tpdo_active(number):
             tpdo.start(self.network.time())
             tpdo.host.apply(NOTHING)
 
     def _on_tpdo_rtr(self, tpdo: Tpdo, frame: Frame, now: float) -> None:
-        if frame.rtr and self._operational and tpdo.host is not None:
+        if frame.rtr and self._tpdo_active(tpdo.number) and tpdo.host is not None:
             tpdo.host.feed(frame, now)
 
     def _build_rpdo(self, number: int) -> None:
         self._drop_rpdo(number)
         comm = 0x1400 + number - 1
         try:
-            cob = PdoCobId.from_u32(int(self._value(comm, 1, _INVALID)))
+            cob = PdoCobId.from_u32(self._pdo_cob_id(comm))
             if not cob.valid:
                 return
             tt = TransmissionType(int(self._value(comm, 2, 255)))
@@ -1077,6 +1241,8 @@ class Device:
         except (CobusError, SdoAbort) as exc:
             self._report(f"RPDO {number}", exc)
             return
+        if self.deviations.partial_rpdos:
+            rpdo.watchdog.length = None  # no RPDO length is an error
         rpdo.host = self.network.attach(rpdo, (), partial(self._on_rpdo_event, rpdo))
         rpdo.subscription = self.network.subscribe(
             cob.can_id, partial(self._on_rpdo_frame, rpdo), extended=cob.extended
@@ -1095,8 +1261,11 @@ class Device:
         host.apply(rpdo.watchdog.on_frame(frame, now))
         data = frame.data
         if len(data) < rpdo.map.length:
-            return
-        values = rpdo.map.unpack(data)
+            if not self.deviations.partial_rpdos:
+                return
+            values = self._covered_values(rpdo, data)
+        else:
+            values = rpdo.map.unpack(data)
         if rpdo.synchronous:
             sync = self._sync
             if sync is not None and sync.window_us and not sync.in_window(now):
@@ -1105,10 +1274,26 @@ class Device:
         else:
             self._apply_rpdo(rpdo, values)
 
+    @staticmethod
+    def _covered_values(rpdo: Rpdo, data: bytes) -> tuple[Any, ...]:
+        """The values of the objects a short RPDO covers completely, in mapping order."""
+        available = len(data) * 8
+        covered = 0
+        end = 0
+        for mapped in rpdo.map.entries:
+            end += mapped.bit_length
+            if end > available:
+                break
+            if not mapped.is_dummy:
+                covered += 1
+        padded = data + bytes(rpdo.map.length - len(data))
+        return rpdo.map.unpack(padded)[:covered]
+
     def _apply_rpdo(self, rpdo: Rpdo, values: tuple[Any, ...]) -> None:
+        """Write ``values`` to the RPDO's targets (the first ``len(values)`` of them)."""
         written: list[tuple[int, int]] = []
         applied: list[Any] = []
-        for entry, value in zip(rpdo.targets, values, strict=True):
+        for entry, value in zip(rpdo.targets[: len(values)], values, strict=True):
             try:
                 if entry.limited:
                     value = check_value(entry, value)
@@ -1140,17 +1325,19 @@ class Device:
 
     def _on_sync_event(self, event: Event) -> None:
         if isinstance(event, _sync.SyncReceived):
-            if not self._operational:
-                return
-            for rpdo in self._sync_rpdos:
-                pending = rpdo.pending
-                if pending is not None:
-                    rpdo.pending = None
-                    self._apply_rpdo(rpdo, pending)
-            if self._sync_tpdos:
+            if self._operational:
+                for rpdo in self._sync_rpdos:
+                    pending = rpdo.pending
+                    if pending is not None:
+                        rpdo.pending = None
+                        self._apply_rpdo(rpdo, pending)
+                tpdos = self._sync_tpdos
+            else:
+                tpdos = [t for t in self._sync_tpdos if self._tpdo_active(t.number)]
+            if tpdos:
                 now = self.network.time()
                 counter = event.counter
-                for tpdo in self._sync_tpdos:
+                for tpdo in tpdos:
                     self._apply(tpdo, tpdo.on_sync(counter, now))
         elif isinstance(event, _sync.SyncLost):
             self._raise_error(("sync",), EmcyCode.COMMUNICATION, _COMM_BIT)
@@ -1210,7 +1397,9 @@ class Device:
         bits = 0
         for value in self._errors.values():
             bits |= value
-        return bits | _GENERIC if self._errors else bits
+        if self._errors and self.deviations.generic_error_bit:
+            bits |= _GENERIC
+        return bits
 
     def _sync_error_objects(self) -> None:
         entry = self._entries.get(0x1001 << 8)
@@ -1231,13 +1420,21 @@ class Device:
     def _raise_error(
         self, key: object, code: int, bits: int, manufacturer: bytes = b"", info: int = 0
     ) -> None:
+        """Raise an error; keys other than ("app", code) are the device's own communication
+        errors, left to the application when the deviations say so."""
+        if not self.deviations.comm_error_emcy and not (isinstance(key, tuple) and key[0] == "app"):
+            return
         self._errors[key] = bits
         self._emergency(code, self._register(), manufacturer, info)
 
     def _one_shot(self, code: int, bits: int) -> None:
-        self._emergency(code, self._register() | bits | _GENERIC, b"", 0)
+        """A communication error that is over as it happens (PDO and SYNC lengths)."""
+        if not self.deviations.comm_error_emcy:
+            return
+        generic = _GENERIC if self.deviations.generic_error_bit else 0
+        self._emergency(code, self._register() | bits | generic, b"", 0)
 
-    def _clear_errors(self, keys: list[Any]) -> None:
+    def _clear_errors(self, keys: list[Any], manufacturer: bytes = b"") -> None:
         removed = False
         for key in keys:
             if self._errors.pop(key, None) is not None:
@@ -1247,9 +1444,9 @@ class Device:
         register = self._register()
         host = self._emcy_host
         if host is not None and self.nmt.emcy_allowed:
-            host.apply(self._emcy.reset(self.network.time(), register))
+            host.apply(self._emcy.reset(self.network.time(), register, manufacturer))
         self._sync_error_objects()
-        self._emit(EmergencySent(self._node_id, 0, register, b""))
+        self._emit(EmergencySent(self._node_id, 0, register, manufacturer))
 
     # ================================================================== stored parameters
 
@@ -1476,14 +1673,14 @@ class Device:
             host.apply(NOTHING)
 
     def _w_store(self, entry: Entry, value: Any) -> None:
-        if entry.subindex == 0:
+        if entry.subindex == 0 and not self.deviations.store_on_subindex_0:
             raise _abort(_ABORT.WRITE_READ_ONLY, "1010h sub 0 is read-only")
         if value != SAVE_SIGNATURE:
             raise _abort(
                 _ABORT.CANNOT_STORE,
                 f"1010h expects the signature 'save' (0x{SAVE_SIGNATURE:08X}), got 0x{value:08X}",
             )
-        self._store_parameters(entry.subindex)
+        self._store_parameters(entry.subindex or 1)
 
     def _w_restore(self, entry: Entry, value: Any) -> None:
         if entry.subindex == 0:
@@ -1511,8 +1708,8 @@ class Device:
 
     def _w_emcy_cob_id(self, entry: Entry, value: Any) -> None:
         try:
-            new = _emcy.EmcyCobId.from_u32(value)
-            old = _emcy.EmcyCobId.from_u32(int(entry.value))
+            new = _emcy.EmcyCobId.from_u32(self._cob_id("emcy", 1, value))
+            old = _emcy.EmcyCobId.from_u32(self._cob_id("emcy", 1, int(entry.value)))
         except CobusError as exc:
             raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
         if old.valid and new.valid and (old.can_id, old.extended) != (new.can_id, new.extended):
@@ -1522,7 +1719,7 @@ class Device:
                 "bit 31 set first",
             )
         self._store(entry, value)
-        self._emcy.set_cob_id(value)
+        self._emcy.set_cob_id(new.to_u32())
 
     def _w_emcy_inhibit(self, entry: Entry, value: Any) -> None:
         self._store(entry, value)
@@ -1596,13 +1793,15 @@ class Device:
     def _w_sdo_server(self, entry: Entry, value: Any) -> None:
         sub = entry.subindex
         if sub in (1, 2):
-            if value & _EXTENDED:
+            kind, number = ("sdo_rx" if sub == 1 else "sdo_tx"), entry.index - 0x1200 + 1
+            new = self._cob_id(kind, number, value)
+            if new & _EXTENDED:
                 raise _abort(_ABORT.INVALID_VALUE, "29-bit SDO identifiers are not supported")
-            can_id = value & 0x1FFFFFFF
+            can_id = new & 0x1FFFFFFF
             if can_id > 0x7FF:
                 raise _abort(_ABORT.INVALID_VALUE, f"SDO identifier 0x{can_id:X} is not 11-bit")
-            old = int(entry.value)
-            if not old & _INVALID and not value & _INVALID and old & 0x7FF != can_id:
+            old = self._cob_id(kind, number, int(entry.value))
+            if not old & _INVALID and not new & _INVALID and old & 0x7FF != can_id:
                 raise _abort(
                     _ABORT.INVALID_VALUE,
                     f"0x{entry.index:04X} sub {sub}: the identifier cannot change while the "
@@ -1612,21 +1811,30 @@ class Device:
         if self._started and sub in (1, 2):
             self._build_sdo()
 
+    def _pdo_cob_id(self, comm_index: int, value: int | None = None) -> int:
+        """The CiA 301 form of the COB-ID of the PDO with this communication index."""
+        tx = comm_index >= 0x1800
+        number = comm_index - (0x1800 if tx else 0x1400) + 1
+        if value is None:
+            value = int(self._value(comm_index, 1, _INVALID))
+        return self._cob_id("tpdo" if tx else "rpdo", number, value)
+
     def _pdo_valid(self, comm_index: int) -> bool:
-        return not int(self._value(comm_index, 1, _INVALID)) & _INVALID
+        return not self._pdo_cob_id(comm_index) & _INVALID
 
     def _w_pdo_comm(self, entry: Entry, value: Any) -> None:
         index, sub = entry.index, entry.subindex
         tx = index >= 0x1800
         number = index - (0x1800 if tx else 0x1400) + 1
         kind = "TPDO" if tx else "RPDO"
-        valid = self._pdo_valid(index)
+        deviations = self.deviations
+        valid = self._pdo_valid(index) and not deviations.pdo_params_while_valid
         if sub == 0:
             raise _abort(_ABORT.WRITE_READ_ONLY, f"0x{index:04X} sub 0 is read-only")
         if sub == 1:
             try:
-                new = PdoCobId.from_u32(value)
-                old = PdoCobId.from_u32(int(entry.value))
+                new = PdoCobId.from_u32(self._pdo_cob_id(index, value))
+                old = PdoCobId.from_u32(self._pdo_cob_id(index, int(entry.value)))
             except PdoError as exc:
                 raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
             if valid and new.valid and (new.can_id, new.extended) != (old.can_id, old.extended):
@@ -1655,6 +1863,14 @@ class Device:
                     f"RPDO {number}: transmission type {value} is for TPDOs only (RPDOs use "
                     "0-240, 254, 255)",
                 )
+            allowed = deviations.transmission_types
+            if allowed is not None and value not in allowed:
+                listing = ", ".join(str(t) for t in sorted(allowed))
+                raise _abort(
+                    _ABORT.INVALID_VALUE,
+                    f"{kind} {number}: this device does not support transmission type {value} "
+                    f"(it accepts {listing})",
+                )
         elif sub in (3, 6) and valid:
             what = "inhibit time" if sub == 3 else "SYNC start value"
             raise _abort(
@@ -1662,7 +1878,7 @@ class Device:
                 f"{kind} {number}: the {what} cannot change while the PDO is valid; set bit 31 "
                 "of its COB-ID first",
             )
-        elif sub == 6 and value > 240:
+        if sub == 6 and value > 240:
             raise _abort(_ABORT.VALUE_TOO_HIGH, f"SYNC start value {value} is above 240")
         self._store(entry, value)
         if self._started and sub in (1, 2, 3, 5, 6):
@@ -1677,6 +1893,9 @@ class Device:
         number = index - (0x1A00 if tx else 0x1600) + 1
         comm = (0x1800 if tx else 0x1400) + number - 1
         kind = "TPDO" if tx else "RPDO"
+        if self.deviations.direct_pdo_mapping:
+            self._w_direct_mapping(entry, value, tx, number)
+            return
         if self._pdo_valid(comm):
             raise _abort(
                 _ABORT.PARAMETER_INCOMPATIBLE,
@@ -1703,3 +1922,39 @@ class Device:
             except PdoError as exc:
                 raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
         self._store(entry, value)
+
+    def _w_direct_mapping(self, entry: Entry, value: Any, tx: bool, number: int) -> None:
+        """A mapping entry written the direct way (:attr:`Deviations.direct_pdo_mapping`)."""
+        index, sub = entry.index, entry.subindex
+        kind = "TPDO" if tx else "RPDO"
+        if sub == 0:
+            raise _abort(
+                _ABORT.WRITE_READ_ONLY,
+                f"{kind} {number}: sub-index 0 counts the mapping entries; write the entries "
+                "themselves (0 = unused)",
+            )
+        if value and not value & 0xFF:  # no bit length given: the device fills it in
+            target = MappingEntry.from_u32(value)
+            if target.is_dummy:
+                bits = DataType(target.index).bit_length
+            else:
+                mapped = self._entries.get(target.index << 8 | target.subindex)
+                bits = mapped.var.bit_length if mapped is not None else None
+            if bits:
+                value |= bits
+        try:
+            check_mapping_entry(self._entries, value, receive=not tx)
+        except PdoError as exc:
+            raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
+        values = [
+            value if s == sub else int(self._value(index, s, 0))
+            for s in range(1, 65)
+            if (index << 8 | s) in self._entries
+        ]
+        compile_mapping(self._entries, values, receive=not tx)
+        self._store(entry, value)
+        if self._started:
+            if tx:
+                self._build_tpdo(number)
+            else:
+                self._build_rpdo(number)
