@@ -441,3 +441,27 @@ def test_emergencies_on_a_configured_cob_id(tmp_path):
         assert rig.master.nodes[5].emcy_count == 1
 
     rig_test(cfg, scenario)
+
+
+def test_a_node_silent_during_configuration_is_retried_then_absent(tmp_path):
+    cfg = network(tmp_path, "nodes:\n" + node_block("a", 5, "    sdo_retries: 2\n"))
+
+    async def scenario(rig: Rig) -> None:
+        device = rig.add(5)
+
+        def unplug(event: object) -> None:
+            if isinstance(event, NodeStateChanged) and event.new is NodeState.CONFIGURING:
+                device.close()
+
+        rig.master.add_listener(unplug)
+        await rig.master.boot(timeout=10)
+        node = rig.master.nodes[5]
+        assert state(node) is NodeState.ABSENT
+        assert "stopped answering SDO" in (node.problem or "")
+        first = node.config.startup[0]
+        key = bytes((first.index & 0xFF, first.index >> 8, first.subindex))
+        tries = [t for t, f in rig.on(0x605) if f.data[0] >> 5 == 1 and f.data[1:4] == key]
+        assert len(tries) == 3  # the first write and 2 retries, one SDO timeout apart
+        assert tries[2] - tries[0] == pytest.approx(2.0)
+
+    rig_test(cfg, scenario)

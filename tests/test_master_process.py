@@ -5,6 +5,7 @@ master for scripts."""
 from __future__ import annotations
 
 import itertools
+import time
 
 import pytest
 
@@ -223,3 +224,23 @@ def test_blocking_master_for_scripts(tmp_path):
         assert master_state(master) is MasterState.RUNNING
         master.restart_node(5)
         assert state(master.nodes[5]) is NodeState.OPERATIONAL
+
+
+def test_blocking_master_in_real_time_on_a_virtual_bus(tmp_path):
+    text = TEXT.format(rpdo1="255").replace("sync_period: 10}", "sync_period: 10, bootup_delay: 0}")
+    cfg = network(tmp_path, text)
+    with Network(interface="virtual", channel=f"master-rt-{id(cfg)}") as net:
+        device = net.add_device(5, io_od())
+        master = BlockingMaster(net, cfg)
+        master.boot(timeout=10)
+        assert master_state(master) is MasterState.RUNNING
+        device.set(0x2000, 0, 8)
+        deadline = time.monotonic() + 5
+        while master.inputs["a.count"] != 5.0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert master.inputs["a.count"] == 5.0
+        master.outputs["a.flags"] = 3
+        while device.get(0x2002) != 3 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert device.get(0x2002) == 3
+        master.stop()

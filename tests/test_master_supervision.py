@@ -99,7 +99,9 @@ def test_manual_restart_waits_for_the_application(tmp_path):
         device.set(0x1017, 0, 100)
         await rig.run(1.0)
         assert state(node) is NodeState.ERROR_CONTROL  # heard again, but not restarted
-        assert rig.of(ErrorControlRestored)
+        assert diagnostic(node) is Diagnostic.NOT_FOUND  # shown until the restart
+        assert len(rig.of(ErrorControlRestored)) == 1  # reported once, not per heartbeat
+        assert "manual restart" in (node.problem or "")
         await rig.master.restart_node("a")
         assert state(node) is NodeState.OPERATIONAL
         assert nmt(device) is NmtState.OPERATIONAL
@@ -415,3 +417,18 @@ def test_led_patterns_follow_cia_303_3_timing():
     double = [LedPattern.DOUBLE_FLASH.lit(t / 10) for t in range(16)]
     assert double == [True, True, False, False, True, True] + [False] * 10
     assert LedPattern.ON.lit(0.3) and not LedPattern.OFF.lit(0.3)
+
+
+def test_inputs_can_keep_their_last_value_on_a_fault(tmp_path):
+    cfg = network(tmp_path, net_text(("a", 5, "    zero_inputs: false\n")))
+
+    async def scenario(rig: Rig) -> None:
+        await booted(rig, 5)
+        rig.devices[5].set(0x2000, 0, 42)
+        await rig.run(0.1)
+        rig.devices[5].set(0x1017, 0, 0)
+        await rig.run(0.3)
+        assert state(rig.master.nodes[5]) is NodeState.ERROR_CONTROL
+        assert rig.master.inputs["a.counter"] == 42
+
+    rig_test(cfg, scenario)

@@ -116,6 +116,7 @@ class ManagedNode:
         self._mismatch = False
         self._ec_lost = False
         self._toggle_fault = False
+        self._heard_again = False
         self._rpdo_missing = False
         self._configured_at: float | None = None
         self._last_ec: float | None = None
@@ -170,7 +171,7 @@ class ManagedNode:
             return Diagnostic.SEVERE_BUS_FAULT
         if self._toggle_fault:
             return Diagnostic.GUARDING_TOGGLE
-        if self._not_found or self._ec_lost or state is NodeState.ABSENT:
+        if self._not_found or self._ec_lost or state in (NodeState.ABSENT, NodeState.ERROR_CONTROL):
             return Diagnostic.NOT_FOUND
         if self._sdo_error:
             return Diagnostic.SDO_SYNTAX_ERROR
@@ -252,7 +253,7 @@ class ManagedNode:
 
     def _clear_flags(self) -> None:
         self._not_found = self._sdo_error = self._mismatch = False
-        self._ec_lost = self._toggle_fault = False
+        self._ec_lost = self._toggle_fault = self._heard_again = False
         self._tpdos_missing.clear()
         self._tpdos_short.clear()
         self._tpdos_seen.clear()
@@ -648,13 +649,21 @@ class ManagedNode:
             self.master._stop_all(self, self.problem or "error control fault")
 
     def _alive(self, kind: str, state: NmtState) -> None:
-        """A valid heartbeat or guarding reply: ends a loss or a toggle fault."""
+        """A valid heartbeat or guarding reply: ends a loss or a toggle fault. With a manual
+        restart the fault stays shown until the application restarts the node."""
         if not (self._ec_lost or self._toggle_fault):
+            return
+        manual = self.config.restart == "manual"
+        if self._state is NodeState.ERROR_CONTROL and manual:
+            if not self._heard_again:
+                self._heard_again = True
+                self.problem = "heard again; waiting for a manual restart"
+                self.master._emit(ErrorControlRestored(self.node_id, kind, state))
             return
         self._ec_lost = False
         self._toggle_fault = False
         self.master._emit(ErrorControlRestored(self.node_id, kind, state))
-        if self._state is NodeState.ERROR_CONTROL and self.config.restart == "auto":
+        if self._state is NodeState.ERROR_CONTROL:
             self._spawn("reset")
 
     def _reported(self, state: NmtState) -> None:
