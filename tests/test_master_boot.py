@@ -18,6 +18,7 @@ from cobus.master import (
     MasterStatus,
     NodeBooted,
     NodeMissing,
+    NodeNotFoundError,
     NodeState,
     NodeStateChanged,
 )
@@ -394,6 +395,8 @@ def test_master_producers_and_what_the_nodes_get_written(tmp_path):
         beats = [t for t, f in rig.on(0x77F) if t > since]
         assert all(b - a == pytest.approx(0.1) for a, b in itertools.pairwise(beats))
         assert rig.master.summary()[0]["state"] == 5
+        with pytest.raises(NodeNotFoundError, match="the nodes are: a \\(5\\)"):
+            rig.master.node("b")
 
     rig_test(cfg, scenario)
 

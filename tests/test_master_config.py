@@ -12,7 +12,9 @@ import pytest
 from cobus.cli import main as cli
 from cobus.master import (
     NetworkConfigError,
+    NodeNotFoundError,
     Severity,
+    SignalValueError,
     check_network,
     load_network,
     loads_network,
@@ -95,7 +97,7 @@ def test_a_network_file_becomes_nodes_with_their_start_up_lists(tmp_path):
     ]
     (tpdo,) = node.tpdos
     assert (tpdo.number, tpdo.cob_id, tpdo.transmission_type, tpdo.length) == (1, 0x185, 255, 6)
-    assert tpdo.timeout == pytest.approx(0.1)  # event timer x pdo_timeout_factor 2
+    assert tpdo.timeout == pytest.approx(0.15)  # event timer x pdo_timeout_factor 3
     count, temp = tpdo.signals
     assert (count.name, count.kind, count.scale, count.offset, count.unit) == (
         "io1.count",
@@ -105,6 +107,10 @@ def test_a_network_file_becomes_nodes_with_their_start_up_lists(tmp_path):
         "pieces",
     )
     assert count.to_engineering(10) == 6.0 and count.to_raw(6.0) == 10
+    with pytest.raises(SignalValueError, match=r"io1\.count: 'x' is not a number"):
+        count.to_raw("x")
+    with pytest.raises(NodeNotFoundError, match=r"no node 'io2'.*io1 \(5\)"):
+        cfg.node("io2")
     assert (temp.name, temp.kind) == ("io1.temp", Kind.REAL32)
     (rpdo,) = node.rpdos
     assert [s.name for s in rpdo.signals] == ["io1.setpoint", "io1.flags"]

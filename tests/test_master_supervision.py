@@ -14,6 +14,7 @@ from cobus.master import (
     GuardingToggleFault,
     LedPattern,
     MasterStatus,
+    MasterValueError,
     NetworkStopped,
     NodeBooted,
     NodeEmergency,
@@ -406,7 +407,7 @@ def test_frame_bits_and_the_bus_load_window():
         meter.add(Frame(0x181, bytes(8)), i * 0.01)
     assert meter.load(0.095) == pytest.approx(100 * 1350 / 12_500)
     assert meter.load(0.2) == 0.0
-    with pytest.raises(ValueError):
+    with pytest.raises(MasterValueError, match="must both be positive"):
         BusLoadMeter(0)
 
 

@@ -50,7 +50,13 @@ from typing import Any
 
 import yaml
 
-from cobus.master.errors import ConfigProblem, NetworkConfigError, Severity
+from cobus.master.errors import (
+    ConfigProblem,
+    NetworkConfigError,
+    NodeNotFoundError,
+    Severity,
+    SignalValueError,
+)
 from cobus.od import (
     Array,
     DataType,
@@ -404,7 +410,7 @@ class Signal:
         if self.scale is None and not self.offset:
             return value
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise TypeError(f"{value!r} is not a number")
+            raise SignalValueError(f"{self.name}: {value!r} is not a number")
         raw = (value - self.offset) / (self.scale if self.scale is not None else 1.0)
         if self.kind in (Kind.SIGNED, Kind.UNSIGNED):
             return round(raw)
@@ -468,7 +474,7 @@ class MasterConfig:
     reset: str = "node"
     start: str = "node"
     bootup_delay: float = 0.3  # s
-    pdo_timeout_factor: float = 2.0
+    pdo_timeout_factor: float = 3.0
     bus_load_window: float = 0.25  # s
 
     @property
@@ -605,7 +611,7 @@ class NetworkConfig:
             found = next((n for n in self.nodes.values() if n.name == key), None)
         if found is None:
             names = ", ".join(f"{n.name} ({n.node_id})" for n in self.nodes.values())
-            raise KeyError(f"no node {key!r} in {self.path}; the nodes are: {names}")
+            raise NodeNotFoundError(f"no node {key!r} in {self.path}; the nodes are: {names}")
         return found
 
     @property
@@ -1632,7 +1638,7 @@ def _read_master(raw: Any, report: _Report) -> MasterConfig:
     cfg.reset = get("reset", lambda v: _choice(v, ("node", "broadcast")), "node")
     cfg.start = get("start", lambda v: _choice(v, ("node", "broadcast")), "node")
     cfg.bootup_delay = get("bootup_delay", lambda v: _ms(v, 60_000), 300.0) / 1000.0
-    cfg.pdo_timeout_factor = get("pdo_timeout_factor", lambda v: _number(v, 1.0, 100.0), 2.0)
+    cfg.pdo_timeout_factor = get("pdo_timeout_factor", lambda v: _number(v, 1.0, 100.0), 3.0)
     cfg.bus_load_window = get("bus_load_window", lambda v: _ms(v, 10_000), 250.0) / 1000.0
     if cfg.bus_load_window < 0.01:
         report.error(

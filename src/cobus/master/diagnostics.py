@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 
+from cobus.master.errors import MasterValueError
 from cobus.proto import Frame
 from cobus.runtime.events import BusState
 
@@ -42,7 +43,9 @@ class BusLoadMeter:
 
     def __init__(self, bitrate: int, window: float = 0.25) -> None:
         if bitrate <= 0 or window <= 0:
-            raise ValueError(f"bit rate {bitrate} and window {window} must be positive")
+            raise MasterValueError(
+                f"bit rate {bitrate} bit/s and window {window} s must both be positive"
+            )
         self.bitrate = bitrate
         self.window = window
         self._frames: deque[tuple[float, int]] = deque()

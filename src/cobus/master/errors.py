@@ -12,7 +12,9 @@ __all__ = [
     "BootTimeoutError",
     "ConfigProblem",
     "MasterError",
+    "MasterValueError",
     "NetworkConfigError",
+    "NodeNotFoundError",
     "Severity",
     "SignalError",
     "SignalValueError",
@@ -64,6 +66,17 @@ class NetworkConfigError(CobusError):
 
 class MasterError(CobusError):
     """An operation of the master that cannot be done in its present state."""
+
+
+class MasterValueError(MasterError, ValueError):
+    """An argument the master or its diagnostics cannot work with."""
+
+
+class NodeNotFoundError(MasterError, KeyError):
+    """A node named by node-ID or name that the network description does not have."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
 
 
 class BootTimeoutError(MasterError, TimeoutError):

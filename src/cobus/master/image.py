@@ -140,7 +140,7 @@ class ProcessImage:
             candidate = list(raw_values)
             candidate[sig.position] = raw
             layout.codec.pack(candidate)
-        except (PdoError, TypeError, ValueError, OverflowError) as exc:
+        except (PdoError, SignalValueError, TypeError, ValueError, OverflowError) as exc:
             unit = f" {sig.unit}" if sig.unit else ""
             raise SignalValueError(
                 f"{name} cannot carry {value!r}{unit}: {exc} (0x{sig.index:04X}:"

@@ -21,7 +21,7 @@ from typing import Any
 
 from cobus.master.config import NetworkConfig, PdoLayout, load_network
 from cobus.master.diagnostics import BusLoadMeter, MasterDiagnostics
-from cobus.master.errors import BootTimeoutError, MasterError
+from cobus.master.errors import BootTimeoutError, MasterError, NodeNotFoundError
 from cobus.master.events import MasterEvent, MasterStateChanged, NetworkStopped
 from cobus.master.image import Inputs, Outputs, ProcessImage
 from cobus.master.node import ManagedNode
@@ -133,7 +133,7 @@ class Master:
             if node.name == key:
                 return node
         names = ", ".join(f"{n.name} ({n.node_id})" for n in self.nodes.values())
-        raise KeyError(f"no node {key!r} in this network; the nodes are: {names}")
+        raise NodeNotFoundError(f"no node {key!r} in this network; the nodes are: {names}")
 
     def _set_state(self, new: MasterState) -> None:
         old = self._state
