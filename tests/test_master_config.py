@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from cobus.cli import main as cli
+from cobus.device import DictionaryBuilder
 from cobus.master import (
     NetworkConfigError,
     NodeNotFoundError,
@@ -19,7 +20,7 @@ from cobus.master import (
     load_network,
     loads_network,
 )
-from cobus.od import ObjectDictionary, Variable, load
+from cobus.od import DataType, ObjectDictionary, Variable, load
 from cobus.proto.pdo import Kind
 from tests.test_master_support import io_od, network, write_eds
 
@@ -284,15 +285,37 @@ def test_errors_name_file_line_node_key_and_reason(tmp_path, snippet, key, reaso
             "also sent by a TPDO 1",
         ),
         (
-            "nodes: {a: {node_id: 5, eds: io.eds, rpdo1: {mapping: [setpoint]},"
-            " rpdo2: {mapping: [setpoint]}}}\n",
-            "the master could not tell which value to send",
+            "nodes: {a: {node_id: 5, eds: io.eds, sdo: [{object: setpoint, value: 1}],"
+            " sdo_timeout: 0}}\n",
+            "sdo_timeout: error: must be above 0 ms",
         ),
     ],
 )
 def test_network_level_errors(tmp_path, text, expected):
     errors = problems_of(tmp_path, text)
     assert any(expected in e for e in errors), errors
+
+
+def test_signal_names_stay_unique_when_the_eds_repeats_names(tmp_path):
+    b = DictionaryBuilder()
+    inputs = b.array(0x6000, "Inputs", DataType.UNSIGNED8, 2, access="ro", mappable=True)
+    for var in inputs:
+        var.name = "Input" if var.subindex else var.name  # sub-objects of one name
+    b.variable(0x2000, "Speed", DataType.INTEGER16, access="ro", mappable=True)
+    b.variable(0x2001, "Speed", DataType.INTEGER16, access="ro", mappable=True)
+    od = b.build()
+    write_eds(tmp_path, "same.eds", od)
+    text = (
+        "nodes: {n: {node_id: 9, eds: same.eds, heartbeat_time: 100,"
+        ' tpdo1: {mapping: ["inputs[1]", "inputs[2]", "0x2000", "0x2001"]}}}'
+    )
+    (tpdo,) = loads_network(text, base_dir=tmp_path).node("n").tpdos
+    assert [s.name for s in tpdo.signals] == [
+        "n.inputs[1]",
+        "n.inputs[2]",
+        "n.speed_2000",
+        "n.speed_2001",
+    ]
 
 
 def test_warnings_do_not_stop_loading(tmp_path):

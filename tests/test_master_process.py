@@ -244,3 +244,30 @@ def test_blocking_master_in_real_time_on_a_virtual_bus(tmp_path):
             time.sleep(0.01)
         assert device.get(0x2002) == 3
         master.stop()
+
+
+def test_an_object_in_several_pdos_is_one_signal(tmp_path):
+    text = TEXT.format(rpdo1="255").replace(
+        "    signals:",
+        "    rpdo2: {mapping: [flags], transmission_type: 255}\n"
+        "    tpdo3: {mapping: [counter], transmission_type: 255}\n"
+        "    signals:",
+    )
+
+    async def scenario(rig: Rig) -> None:
+        await booted(rig)
+        device = rig.devices[5]
+        rig.master.outputs["a.flags"] = 9  # carried by RPDO 1 and RPDO 2
+        await rig.settle()
+        assert rig.data(0x205)[-1] == b"\x00\x00\x09"
+        assert rig.data(0x305)[-1] == b"\x09"
+        assert device.get(0x2002) == 9
+        device.set(0x2000, 0, 12)  # sent by TPDO 1 and TPDO 3
+        await rig.settle()
+        assert rig.master.inputs["a.count"] == 7.0
+        rig.send(0x385, b"\x14\x00")  # TPDO 3 alone
+        await rig.settle()
+        assert rig.master.inputs["a.count"] == 11.0
+        assert sorted(rig.master.outputs) == ["a.flags", "a.target"]
+
+    rig_test(network(tmp_path, text), scenario)

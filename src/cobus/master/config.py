@@ -43,13 +43,14 @@ import math
 import os
 import re
 import struct
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from cobus.errors import CobusError
 from cobus.master.errors import (
     ConfigProblem,
     NetworkConfigError,
@@ -63,6 +64,7 @@ from cobus.od import (
     EdsError,
     ObjectDictionary,
     Record,
+    ValueRangeError,
     Variable,
     encode,
     loads,
@@ -288,10 +290,17 @@ class ObjectIndex:
                 self._names.setdefault(f"{parent}[{var.subindex}]", []).append(var)
 
     def canonical(self, var: Variable) -> str:
-        """The signal name of ``var``: its normalised name (``record.sub`` for sub-objects)."""
+        """The signal name of ``var``: its normalised name (``record.sub`` for sub-objects);
+        ``record[n]`` when sub-objects share a name, ``name_iiii`` when objects do."""
         if var.parent is None:
-            return normalise(var.name)
-        return f"{normalise(var.parent.name)}.{normalise(var.name)}"
+            key = normalise(var.name)
+            return key if len(self._names.get(key, ())) < 2 else f"{key}_{var.index:04x}"
+        parent = normalise(var.parent.name)
+        key = f"{parent}.{normalise(var.name)}"
+        if len(self._names.get(key, ())) < 2:
+            return key
+        key = f"{parent}[{var.subindex}]"
+        return key if len(self._names.get(key, ())) < 2 else f"{key}_{var.index:04x}"
 
     def resolve(self, text: Any) -> Variable:
         """The variable ``text`` names; :class:`_Bad` says why none (with close names)."""
@@ -796,7 +805,7 @@ class _NodeReader:
         self._explicit_sdo(cfg)
         self._error_control(cfg)
         self._sync(cfg)
-        cfg.startup = _startup(cfg, self.yaml_set, self.explicit)
+        cfg.startup = _startup(cfg, self.yaml_set, self.explicit, self._unwritable)
         cfg.tpdos = self._layouts(cfg, transmit=True)
         cfg.rpdos = self._layouts(cfg, transmit=False)
         self._signals(cfg)
@@ -809,6 +818,24 @@ class _NodeReader:
                 "node_id",
             )
         return cfg
+
+    def _unwritable(self, var: Variable, value: Any, exc: Exception, fatal: bool) -> None:
+        key = "eds" if "eds" in self.raw else "dcf"
+        where = f"line {var.line} of " if var.line is not None else ""
+        file = Path(self.raw_path()).name
+        ident = f"0x{var.index:04X}:{var.subindex:02X} ({var.name})"
+        if fatal:
+            self.error(
+                key,
+                f"{ident} would be written {value!r}, which it cannot hold: {exc}; correct "
+                f"the value ({where}{file})",
+            )
+        else:
+            self.warning(
+                key,
+                f"{ident} is configured as {value!r}, outside its limits in the EDS ({exc}); "
+                f"it is written as configured ({where}{file})",
+            )
 
     def _dictionary(self, node_id: int) -> tuple[ObjectDictionary | None, Path | None]:
         keys = [k for k in ("eds", "dcf") if k in self.raw]
@@ -1353,12 +1380,12 @@ class _NodeReader:
         return None
 
     def _signals(self, cfg: NodeConfig) -> None:
-        """Name the signals (aliases, scaling) and drop duplicates within a direction."""
+        """Name the signals (aliases, scaling). An object mapped in several PDOs of a
+        direction is one signal: its value comes from (or goes to) each of them."""
         specs: dict[str, tuple[str, float | None, float, str | None]] = {}
         if "signals" in self.raw:
             specs = self._aliases(cfg)
         for layouts in (cfg.tpdos, cfg.rpdos):
-            seen: dict[str, int] = {}
             for li, layout in enumerate(layouts):
                 new: list[Signal | None] = []
                 for sig in layout.positions:
@@ -1367,23 +1394,6 @@ class _NodeReader:
                         continue
                     alias = specs.get(sig.name)
                     local = alias[0] if alias is not None else sig.name
-                    if local in seen:
-                        where = f"{layout.direction.upper()} {seen[local]} and {layout.number}"
-                        if layout.direction == "rpdo":
-                            self.error(
-                                f"rpdo{layout.number}",
-                                f"{sig.name} is mapped in {where}: the master could not tell "
-                                "which value to send; map it once",
-                            )
-                        else:
-                            self.warning(
-                                None,
-                                f"{sig.name} is mapped in {where}: the process image shows "
-                                "the first",
-                            )
-                        new.append(None)
-                        continue
-                    seen[local] = layout.number
                     scale, offset, unit = (None, 0.0, None) if alias is None else alias[1:]
                     new.append(
                         replace(
@@ -1486,8 +1496,39 @@ def _differs(var: Variable) -> bool:
     return var.parameter_value is not None and var.parameter_value != var.default
 
 
+#: ``bad(variable, value, error, fatal)``: a value the object cannot hold (fatal) or that
+#: lies outside its EDS limits (written anyway).
+_Bad_value = Callable[[Variable, Any, Exception, bool], None]
+
+
+class _Writes:
+    """Collects start-up writes; a value the object cannot hold is reported, not written."""
+
+    def __init__(self, bad: _Bad_value) -> None:
+        self.entries: list[SdoEntry] = []
+        self._bad = bad
+
+    def add(self, var: Variable, value: Any, name: str) -> None:
+        try:
+            data = var.encode(value)
+        except ValueRangeError as exc:
+            try:  # within the type but outside the EDS limits: the device decides
+                data = encode(var.data_type, value)
+            except CobusError:
+                self._bad(var, value, exc, True)
+                return
+            self._bad(var, value, exc, False)
+        except CobusError as exc:
+            self._bad(var, value, exc, True)
+            return
+        self.entries.append(SdoEntry(var.index, var.subindex, data, value, name))
+
+
 def _startup(
-    cfg: NodeConfig, yaml_set: set[tuple[int, int]], explicit: list[SdoEntry]
+    cfg: NodeConfig,
+    yaml_set: set[tuple[int, int]],
+    explicit: list[SdoEntry],
+    bad: _Bad_value,
 ) -> list[SdoEntry]:
     """The start-up SDO list of a node (see the module text)."""
     od = cfg.od
@@ -1511,26 +1552,29 @@ def _startup(
             plain.append(var)
     # 1019h may only change while 1006h is 0: write it first
     plain.sort(key=lambda v: (0x1005 if v.index == 0x1019 else v.index, v.index, v.subindex))
-    out = [SdoEntry(v.index, v.subindex, v.encode(v.value), v.value, v.name) for v in plain]
+    writes = _Writes(bad)
+    for var in plain:
+        writes.add(var, var.value, var.name)
     for comm_base, map_base, kind in ((0x1400, 0x1600, "RPDO"), (0x1800, 0x1A00, "TPDO")):
         for number in range(1, 513):
             comm = od.get(comm_base + number - 1)
             mapping = od.get(map_base + number - 1)
             if not isinstance(comm, Record | Array):
                 continue
-            out.extend(_pdo_steps(cfg, comm, mapping, kind, number, wanted))
-    out.extend(explicit)
-    return out
+            _pdo_steps(cfg, comm, mapping, f"{kind} {number}", wanted, writes)
+    return [*writes.entries, *explicit]
 
 
 def _pdo_steps(
     cfg: NodeConfig,
     comm: Record | Array,
     mapping: Any,
-    kind: str,
-    number: int,
-    wanted: Any,
-) -> list[SdoEntry]:
+    label: str,
+    wanted: Callable[[Variable], bool],
+    writes: _Writes,
+) -> None:
+    """The writes that (re)configure one PDO in the order CiA 301 wants: disable, clear the
+    mapping, map, count, communication parameters, enable."""
     all_pdo = cfg.sdo_all_pdo
     comm_subs = [comm.get(s) for s in (2, 3, 5, 6)]
     map_vars = list(mapping) if isinstance(mapping, Record | Array) else []
@@ -1539,50 +1583,29 @@ def _pdo_steps(
     comm_changed = all_pdo or any(v is not None and wanted(v) for v in comm_subs)
     cob_changed = cob is not None and (all_pdo or wanted(cob))
     if not (map_changed or comm_changed or cob_changed) or cob is None:
-        return []
+        return
     final = cob.value
     if not isinstance(final, int):
-        return []
-    steps: list[SdoEntry] = []
-    label = f"{kind} {number}"
+        return
     if cob.writable:
-        disabled = final | _INVALID
-        steps.append(SdoEntry(cob.index, 1, cob.encode(disabled), disabled, f"{label}: disable"))
+        writes.add(cob, final | _INVALID, f"{label}: disable")
     if map_changed and isinstance(mapping, Record | Array):
         count_var = mapping.get(0)
         count = count_var.value if count_var is not None else None
         if count_var is not None and count_var.writable and isinstance(count, int):
-            steps.append(
-                SdoEntry(mapping.index, 0, count_var.encode(0), 0, f"{label}: clear mapping")
-            )
+            writes.add(count_var, 0, f"{label}: clear mapping")
             for sub in range(1, count + 1):
                 var = mapping.get(sub)
-                if var is None or not isinstance(var.value, int):
-                    continue
-                steps.append(
-                    SdoEntry(mapping.index, sub, var.encode(var.value), var.value, f"{label}: map")
-                )
-            steps.append(
-                SdoEntry(
-                    mapping.index, 0, count_var.encode(count), count, f"{label}: mapped objects"
-                )
-            )
+                if var is not None and isinstance(var.value, int):
+                    writes.add(var, var.value, f"{label}: map")
+            writes.add(count_var, count, f"{label}: mapped objects")
     for var in comm_subs:
         if var is None or not var.writable or not isinstance(var.value, int):
             continue
         if all_pdo or wanted(var):
-            steps.append(
-                SdoEntry(
-                    var.index,
-                    var.subindex,
-                    var.encode(var.value),
-                    var.value,
-                    f"{label}: {var.name}",
-                )
-            )
+            writes.add(var, var.value, f"{label}: {var.name}")
     if cob.writable and not final & _INVALID:
-        steps.append(SdoEntry(cob.index, 1, cob.encode(final), final, f"{label}: enable"))
-    return steps
+        writes.add(cob, final, f"{label}: enable")
 
 
 def _read_master(raw: Any, report: _Report) -> MasterConfig:

@@ -43,6 +43,8 @@ class ProcessImage:
         #: Raw values of each RPDO (node_id, number), in mapping order (dummies left out).
         self._rpdo_raw: dict[tuple[int, int], list[Any]] = {}
         self._rpdo_layouts: dict[tuple[int, int], PdoLayout] = {}
+        #: Each output's places: one per RPDO that maps its object.
+        self._out_places: dict[str, list[Signal]] = {}
         self._tpdo_signals: dict[tuple[int, int], tuple[Signal | None, ...]] = {}
         for node in config.nodes.values():
             canon = {alias: canonical for alias, canonical in node.aliases.items()}
@@ -59,13 +61,16 @@ class ProcessImage:
                 self._rpdo_layouts[key] = layout
                 raw: list[Any] = []
                 for position in layout.positions:
-                    # the configuration refuses an object mapped in two RPDOs of a node
+                    # only a linked RPDO (left out above) has positions without a signal
                     assert position is not None
                     out: Signal = position
                     raw.append(_raw_zero(out))
-                    self.outputs_by_name[out.name] = out
-                    self._out_values[out.name] = out.zero
-                    self._register(self._out_lookup, node.name, out, canon)
+                    places = self._out_places.setdefault(out.name, [])
+                    if not places:
+                        self.outputs_by_name[out.name] = out
+                        self._out_values[out.name] = out.zero
+                        self._register(self._out_lookup, node.name, out, canon)
+                    places.append(out)
                 self._rpdo_raw[key] = raw
 
     @staticmethod
@@ -119,14 +124,11 @@ class ProcessImage:
     def read_output(self, key: str) -> Any:
         return self._out_values[self._find(self._out_lookup, key, "output")]
 
-    def set_output(self, key: str, value: Any) -> tuple[int, int, bool]:
-        """Set an output; returns (node_id, RPDO number, changed). The value is checked
-        against the mapped object's type before it is kept."""
+    def set_output(self, key: str, value: Any) -> list[tuple[int, int, bool]]:
+        """Set an output; returns (node_id, RPDO number, changed) of each RPDO that carries
+        it. The value is checked against the mapped object's type and limits first."""
         name = self._find(self._out_lookup, key, "output")
         sig = self.outputs_by_name[name]
-        pdo_key = (sig.node_id, sig.pdo)
-        layout = self._rpdo_layouts[pdo_key]
-        raw_values = self._rpdo_raw[pdo_key]
         try:
             raw = sig.to_raw(value)
             if sig.kind is Kind.BOOL:
@@ -137,9 +139,10 @@ class ProcessImage:
                 raise ValueError(
                     f"the raw value {raw} is outside the object's limits {sig.low}..{sig.high}"
                 )
-            candidate = list(raw_values)
-            candidate[sig.position] = raw
-            layout.codec.pack(candidate)
+            for place in self._out_places[name]:
+                candidate = list(self._rpdo_raw[(place.node_id, place.pdo)])
+                candidate[place.position] = raw
+                self._rpdo_layouts[(place.node_id, place.pdo)].codec.pack(candidate)
         except (PdoError, SignalValueError, TypeError, ValueError, OverflowError) as exc:
             unit = f" {sig.unit}" if sig.unit else ""
             raise SignalValueError(
@@ -148,10 +151,14 @@ class ProcessImage:
                 + (f", scale {sig.scale:g}" if sig.scale is not None else "")
                 + ")"
             ) from None
-        changed = raw_values[sig.position] != raw
-        raw_values[sig.position] = raw
+        changes = []
+        for place in self._out_places[name]:
+            raw_values = self._rpdo_raw[(place.node_id, place.pdo)]
+            changed = raw_values[place.position] != raw
+            raw_values[place.position] = raw
+            changes.append((place.node_id, place.pdo, changed))
         self._out_values[name] = value
-        return sig.node_id, sig.pdo, changed
+        return changes
 
     def rpdo_data(self, node_id: int, number: int) -> bytes:
         """The data of RPDO ``number`` of a node from the current outputs."""

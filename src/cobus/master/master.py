@@ -473,14 +473,14 @@ class Master:
 
         Event-driven RPDOs (254/255) go out at once when the value changes, synchronous ones
         with the next SYNC; nothing goes to a node that is not operational."""
-        node_id, number, changed = self.image.set_output(name, value)
-        layout = self._rpdos[(node_id, number)]
-        if not changed:
-            return
-        if layout.transmission_type >= 254:
-            self.nodes[node_id]._send_rpdo(layout)
-        elif layout.transmission_type == 0:
-            self._dirty.add((node_id, number))
+        for node_id, number, changed in self.image.set_output(name, value):
+            layout = self._rpdos[(node_id, number)]
+            if not changed:
+                continue
+            if layout.transmission_type >= 254:
+                self.nodes[node_id]._send_rpdo(layout)
+            elif layout.transmission_type == 0:
+                self._dirty.add((node_id, number))
 
     def summary(self) -> list[dict[str, Any]]:
         """One line of figures per node (state, diagnostic, EMCY count...)."""
