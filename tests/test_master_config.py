@@ -381,3 +381,29 @@ def test_example_networks_are_clean():
     for path in files:
         cfg, problems = check_network(path)
         assert cfg is not None and problems == [], [str(p) for p in problems]
+
+
+def test_dcf_values_beyond_the_eds_limits_are_written_with_a_warning(tmp_path):
+    od = io_od()
+    var(od, 0x2001).parameter_value = 500  # Setpoint, limits -1000..1000
+    var(od, 0x200A).parameter_value = 8
+    text = od.to_dcf(9).replace("ParameterValue=500", "ParameterValue=1500")
+    (tmp_path / "dev.dcf").write_text(text, encoding="utf-8")
+    net = "nodes: {n: {node_id: 9, dcf: dev.dcf, heartbeat_time: 100}}"
+    node = loads_network(net, base_dir=tmp_path, path="net.yml").node("n")
+    assert [(e.index, e.value, e.data) for e in node.startup] == [
+        (0x2001, 1500, (1500).to_bytes(2, "little")),
+        (0x200A, 8, (8).to_bytes(4, "little")),
+    ]
+    (tmp_path / "net.yml").write_text(net, encoding="utf-8")
+    _cfg, problems = check_network(tmp_path / "net.yml")
+    (warning,) = [str(p) for p in problems if "limits" in str(p)]
+    assert "dcf: warning: 0x2001:00 (Setpoint) is configured as 1500" in warning
+    assert "it is written as configured (line" in warning
+    # a value the type itself cannot hold is an error, at its line in the DCF
+    (tmp_path / "dev.dcf").write_text(text.replace("ParameterValue=1500", "ParameterValue=70000"))
+    errors = problems_of(tmp_path, net)
+    assert len(errors) == 1, errors
+    assert "dcf: error:" in errors[0] and "dev.dcf:" in errors[0]
+    assert "'70000' = 70000 is out of range for INTEGER16" in errors[0]
+    assert "the master cannot write it" in errors[0]

@@ -62,6 +62,7 @@ from cobus.od import (
     Array,
     DataType,
     EdsError,
+    Finding,
     ObjectDictionary,
     Record,
     ValueRangeError,
@@ -350,6 +351,20 @@ def _lookup_forms(text: str) -> list[str]:
         head, _, tail = text.partition(".")
         forms.append(f"{normalise(head)}.{normalise(tail)}")
     return forms
+
+
+_SECTION = re.compile(r"([0-9A-Fa-f]{4})(?:sub([0-9A-Fa-f]+))?\Z")
+
+
+def _dropped_value(od: ObjectDictionary, finding: Finding) -> bool:
+    """Whether ``finding`` is a ParameterValue the reader could not keep."""
+    if not finding.reason.startswith("ParameterValue") or finding.section is None:
+        return False
+    match = _SECTION.match(finding.section)
+    if match is None:
+        return False
+    var = od.get_variable(int(match.group(1), 16), int(match.group(2) or "0", 16))
+    return var is not None and var.parameter_value is None
 
 
 def _kind(var: Variable, bits: int) -> Kind:
@@ -871,11 +886,16 @@ class _NodeReader:
             self.error(key, f"the file cannot be read: {exc}")
             return None, None
         od.path = str(path)
-        if od.errors:
+        lost = [f for f in od.errors if _dropped_value(od, f)]
+        for finding in lost:
+            # a configured value the reader had to drop: the node would not get it
+            self.error(key, f"{finding}; the master cannot write it: correct the value")
+        others = [f for f in od.errors if f not in lost]
+        if others:
             self.warning(
                 key,
-                f"{path.name} has {len(od.errors)} error(s) (`cobus eds check {path}` lists "
-                f"them); first: {od.errors[0].reason}",
+                f"{path.name} has {len(others)} error(s) (`cobus eds check {path}` lists "
+                f"them); first: {others[0].reason}",
             )
         return od, path
 
