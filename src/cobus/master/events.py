@@ -85,6 +85,8 @@ class NodeMissing(NodeEvent):
 
 @dataclass(frozen=True, slots=True)
 class DeviceTypeMismatch(NodeEvent):
+    """1000h reads ``actual`` (-1: the node refused the read) where ``expected`` was due."""
+
     expected: int
     actual: int
 
