@@ -151,7 +151,7 @@ def test_outputs_follow_the_rpdos_and_take_their_error_values_when_stopped():
         assert (io.analog_output(1), io.analog_output(2)) == (1500, -200)
         b.net.nmt.stop(NODE)
         await b.settle()
-        assert io.in_error_state
+        assert b.sim.in_error_state
         levels = [io.digital_output(c) for c in range(1, 9)]
         assert levels == [False, False, False, True, False, False, False, True]
         assert (io.analog_output(1), io.analog_output(2)) == (0, -1000)
@@ -160,7 +160,7 @@ def test_outputs_follow_the_rpdos_and_take_their_error_values_when_stopped():
         await start(b)
         b.send(RPDO1, bytes((0x02,)))
         await b.settle()
-        assert not io.in_error_state
+        assert not b.sim.in_error_state
         assert [io.digital_output(c) for c in (1, 2, 4)] == [False, True, False]
         io.inject("power_loss")
         assert not io.digital_output(2) and io.analog_output(1) == 0
