@@ -143,25 +143,28 @@ class _SimDevice(Device):
         self.sdo_delay = 0.0
         #: The heartbeat producer is silenced (1017h keeps its value).
         self.heartbeat_muted = False
-        self._delayed: deque[tuple[MachineHost, Frame]] = deque()
+        self._delayed: deque[tuple[float, MachineHost, Frame]] = deque()
 
-    # --- late SDO answers: the request reaches the server ``sdo_delay`` later, in order
+    # --- late SDO answers: each request reaches the server ``sdo_delay`` after it arrived, and
+    # never before the requests that arrived earlier (a shorter delay does not overtake)
     def _on_sdo_frame(self, host: MachineHost, frame: Frame, now: float) -> None:
         if self.sdo_delay <= 0 and not self._delayed:
             super()._on_sdo_frame(host, frame, now)
             return
-        self._delayed.append((host, frame))
-        self.network.loop.call_later(max(self.sdo_delay, 0.0), self._release_sdo)
+        due = now + max(self.sdo_delay, 0.0)
+        self._delayed.append((due, host, frame))
+        self.network.loop.call_at(due, self._release_sdo)
 
     def _release_sdo(self) -> None:
-        if not self._delayed:
-            return
-        host, frame = self._delayed.popleft()
-        if not self.serves(self.od):
-            self._delayed.clear()
-            return
-        if any(channel.host is host for channel in self._sdo.values()):
-            super()._on_sdo_frame(host, frame, self.network.time())
+        now = self.network.time()
+        delayed = self._delayed
+        while delayed and delayed[0][0] <= now + 1e-3:  # a real loop may fire a bit early
+            _, host, frame = delayed.popleft()
+            if not self.serves(self.od):
+                delayed.clear()
+                return
+            if any(channel.host is host for channel in self._sdo.values()):
+                super()._on_sdo_frame(host, frame, now)
 
     # --- silent heartbeat: kept silent through resets and writes of 1017h
     def set_heartbeat_muted(self, muted: bool) -> None:
