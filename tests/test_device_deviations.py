@@ -345,3 +345,17 @@ def test_transmission_types_limited_to_the_device_s():
     allowed = Deviations(transmission_types={*range(241), 254})
     assert run_bench(scenario, deviations=allowed) == SdoAbortCode.INVALID_VALUE
     assert run_bench(scenario) == 0
+
+
+def test_emergencies_in_stopped():
+    async def scenario(b: Bench) -> list[bytes]:
+        b.net.nmt.stop(NODE)
+        await b.settle()
+        b.device.send_emergency(0x5000)
+        b.device.clear_emergency()
+        await b.settle()
+        return b.data(EMCY)
+
+    frames = run_bench(scenario, deviations=Deviations(emcy_in_stopped=True))
+    assert frames == [bytes.fromhex("0050010000000000"), bytes(8)]
+    assert run_bench(scenario) == []

@@ -156,6 +156,7 @@ class Deviations:
       completely and leaves the others; neither a shorter nor a longer RPDO is an error.
     - ``transmission_types``: the PDO transmission types the device accepts (others are
       refused with 06090030); None accepts all that CiA 301 allows.
+    - ``emcy_in_stopped``: emergencies are sent in stopped too (CiA 301: only recorded).
     """
 
     send_bootup: bool = True
@@ -171,6 +172,7 @@ class Deviations:
     direct_pdo_mapping: bool = False
     partial_rpdos: bool = False
     transmission_types: Collection[int] | None = None
+    emcy_in_stopped: bool = False
 
     def __post_init__(self) -> None:
         early = frozenset(self.tpdos_outside_operational)
@@ -1401,6 +1403,11 @@ class Device:
             bits |= _GENERIC
         return bits
 
+    def _emcy_allowed(self) -> bool:
+        if self.nmt.emcy_allowed:
+            return True
+        return self.deviations.emcy_in_stopped and self.nmt.state is NmtState.STOPPED
+
     def _sync_error_objects(self) -> None:
         entry = self._entries.get(0x1001 << 8)
         if entry is not None:
@@ -1410,7 +1417,7 @@ class Device:
     def _emergency(self, code: int, register: int, manufacturer: bytes, info: int) -> None:
         emcy = self._emcy
         host = self._emcy_host
-        if host is not None and self.nmt.emcy_allowed:
+        if host is not None and self._emcy_allowed():
             host.apply(emcy.send(code, register, manufacturer, self.network.time(), info=info))
         else:
             emcy.record(code, info)
@@ -1443,7 +1450,7 @@ class Device:
             return
         register = self._register()
         host = self._emcy_host
-        if host is not None and self.nmt.emcy_allowed:
+        if host is not None and self._emcy_allowed():
             host.apply(self._emcy.reset(self.network.time(), register, manufacturer))
         self._sync_error_objects()
         self._emit(EmergencySent(self._node_id, 0, register, manufacturer))
