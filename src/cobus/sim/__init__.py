@@ -1,8 +1,49 @@
 """Simulated devices for the bench: faithful models of the documents' devices, with faults.
 
-See :mod:`cobus.sim.base` for what all of them share.
+See :mod:`cobus.sim.base` for what all of them share, :mod:`cobus.sim.generic` for what the
+simulated CANopen devices share, :mod:`cobus.sim.faults` for the bus faults and
+:mod:`cobus.sim.rig` for rig files (``cobus sim RIG``).
+
+- :class:`Drive402` (kind ``cia402_drive``): a CiA 402 servo drive with a motor model.
+- :class:`Io401` (kind ``cia401_io``): a CiA 401 I/O module with a speed potentiometer.
+- :class:`EdsDevice` (kind ``eds``): the device of any EDS/DCF file.
 """
 
 from cobus.sim.base import SimulatedDevice, SimulationError, UnknownFaultError, UnknownQuirkError
+from cobus.sim.drive402 import Drive402, DriveState
+from cobus.sim.faults import Babbler, FaultConfigError, FaultyBus, fault_catalogue
+from cobus.sim.generic import (
+    CanopenSimDevice,
+    DeviceOffError,
+    EdsDevice,
+    EdsDeviceError,
+    FaultParameterError,
+)
+from cobus.sim.io401 import ChannelError, Io401
+from cobus.sim.rig import KINDS, KindUnavailableError, Rig, RigError, ready_rig, resolve_kind
 
-__all__ = ["SimulatedDevice", "SimulationError", "UnknownFaultError", "UnknownQuirkError"]
+__all__ = [
+    "KINDS",
+    "Babbler",
+    "CanopenSimDevice",
+    "ChannelError",
+    "DeviceOffError",
+    "Drive402",
+    "DriveState",
+    "EdsDevice",
+    "EdsDeviceError",
+    "FaultConfigError",
+    "FaultParameterError",
+    "FaultyBus",
+    "Io401",
+    "KindUnavailableError",
+    "Rig",
+    "RigError",
+    "SimulatedDevice",
+    "SimulationError",
+    "UnknownFaultError",
+    "UnknownQuirkError",
+    "fault_catalogue",
+    "ready_rig",
+    "resolve_kind",
+]

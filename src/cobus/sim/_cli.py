@@ -1,0 +1,149 @@
+"""``cobus sim RIG``: run a rig's simulated devices on a bus until Ctrl-C.
+
+A master in another process (cobus, python-canopen, a PLC) talks to them over the bus: a real
+interface, or python-can-remote on the loopback (``--interface remote --channel
+ws://127.0.0.1:54701/``). RIG is a rig file or the name of a rig cobus ships (``thesis``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import signal
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, TextIO
+
+from cobus.errors import CobusError
+from cobus.sim.faults import fault_catalogue
+from cobus.sim.rig import Rig, ready_rig, ready_rigs, resolve_kind
+
+__all__ = ["format_table", "register"]
+
+_FIRST = ("node_id", "name", "kind", "powered", "nmt", "state", "faults")
+
+
+def register(sub: Any) -> None:
+    """Add ``cobus sim ...`` to the top-level sub-command parser."""
+    sim: argparse.ArgumentParser = sub.add_parser(
+        "sim",
+        help="run simulated devices (a rig file) on a CAN bus until Ctrl-C",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sim.add_argument(
+        "rig", help=f"rig YAML file, or a ready rig: {', '.join(ready_rigs()) or 'none'}"
+    )
+    sim.add_argument("--interface", "-i", help="python-can interface (overrides the rig file)")
+    sim.add_argument("--channel", "-c", help="python-can channel (overrides the rig file)")
+    sim.add_argument("--bitrate", "-b", type=int, help="bit rate in bit/s")
+    sim.add_argument(
+        "--status-every",
+        type=float,
+        default=2.0,
+        metavar="SECONDS",
+        help="print the status table this often (0: never; default 2)",
+    )
+    sim.add_argument(
+        "--duration", type=float, metavar="SECONDS", help="stop after this many seconds"
+    )
+    sim.add_argument(
+        "--list-faults",
+        action="store_true",
+        help="list the faults each device and the bus can be given, and exit",
+    )
+    sim.set_defaults(handler=_run)
+
+
+def _rig_path(name: str) -> Path:
+    path = Path(name)
+    if path.exists() or path.suffix or "/" in name or "\\" in name:
+        return path
+    return ready_rig(name)
+
+
+def _run(args: argparse.Namespace) -> int:
+    try:
+        rig = Rig.load(_rig_path(args.rig))
+        if args.list_faults:
+            _list_faults(rig, sys.stdout)
+            return 0
+        return asyncio.run(_serve(rig, args))
+    except CobusError as exc:
+        print(f"cobus sim: {exc}", file=sys.stderr)
+        return 2
+
+
+def _list_faults(rig: Rig, out: TextIO) -> None:
+    for spec in rig.specs:
+        cls = resolve_kind(spec.kind)
+        print(f"node {spec.node} {spec.name or ''} ({spec.kind}):".replace("  ", " "), file=out)
+        for name, text in fault_catalogue(cls).items():
+            print(f"  {name:18} {text}", file=out)
+    print("bus:", file=out)
+    for name, text in fault_catalogue().items():
+        print(f"  {name:18} {text}", file=out)
+
+
+async def _serve(rig: Rig, args: argparse.Namespace) -> int:
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, stop.set)
+    where = " ".join(str(v) for v in (args.interface or rig.bus_spec.interface, args.channel) if v)
+    async with rig.running(
+        interface=args.interface, channel=args.channel, bitrate=args.bitrate
+    ) as net:
+        bus = where or f"the configured bus ({net.bus.channel_info})"
+        print(
+            f"cobus sim: running {len(rig.devices)} device(s) on {bus}; Ctrl-C stops",
+            flush=True,
+        )
+        started = loop.time()
+        period = args.status_every if args.status_every and args.status_every > 0 else None
+        end = None if args.duration is None else started + args.duration
+        next_status = None if period is None else started + period
+        while not stop.is_set():
+            now = loop.time()
+            if end is not None and now >= end:
+                break
+            if next_status is not None and now >= next_status:
+                next_status += period or 0.0
+                print(format_table(rig.status()), flush=True)
+                bus_line = ", ".join(f"{k} {v}" for k, v in rig.bus_status().items())
+                print(f"bus: {bus_line}", flush=True)
+                continue
+            wake = [t for t in (end, next_status) if t is not None]
+            timeout = min(wake) - now if wake else None
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), timeout)
+    print("cobus sim: stopped", flush=True)
+    return 0
+
+
+def _cell(value: Any) -> str:
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, list | tuple):
+        return ",".join(str(v) for v in value) or "-"
+    if value is None or value == "":
+        return "-"
+    return str(value)
+
+
+def format_table(rows: Sequence[dict[str, Any]]) -> str:
+    """A plain text table of status rows: the common columns, then the rest as key=value."""
+    header = ["node", "name", "kind", "power", "nmt", "state", "faults", "values"]
+    lines = [header]
+    for row in rows:
+        rest = " ".join(f"{k}={_cell(v)}" for k, v in row.items() if k not in _FIRST)
+        lines.append([_cell(row.get(k)) for k in _FIRST] + [rest])
+    widths = [max(len(line[i]) for line in lines) for i in range(len(header) - 1)]
+    out = []
+    for line in lines:
+        cells = [c.ljust(w) for c, w in zip(line, widths, strict=False)]
+        out.append("  ".join([*cells, line[-1]]).rstrip())
+    return "\n".join(out)
