@@ -359,3 +359,25 @@ def test_emergencies_in_stopped():
     frames = run_bench(scenario, deviations=Deviations(emcy_in_stopped=True))
     assert frames == [bytes.fromhex("0050010000000000"), bytes(8)]
     assert run_bench(scenario) == []
+
+
+def test_reset_communication_keeps_the_communication_values():
+    async def scenario(b: Bench) -> tuple[int, int, list[bytes]]:
+        await b.sdo.write(0x1017, 0, 100)
+        await b.sdo.write(0x200A, 0, 11)
+        b.net.nmt.reset_communication(NODE)
+        await b.settle()
+        kept = await b.sdo.read(0x1017, 0)
+        t = b.net.time()
+        await b.net.sleep(0.25)
+        beats = b.data(BOOTUP, since=t + 0.001)
+        b.net.nmt.reset_node(NODE)
+        await b.settle()
+        return kept, await b.sdo.read(0x1017, 0), beats
+
+    kept, after_node, beats = run_bench(
+        scenario, deviations=Deviations(reset_communication_keeps_values=True)
+    )
+    assert kept == 100 and after_node == 0 and beats == [b"\x7f"] * 2
+    kept, _, beats = run_bench(scenario)
+    assert kept == 0 and beats == []

@@ -157,6 +157,9 @@ class Deviations:
     - ``transmission_types``: the PDO transmission types the device accepts (others are
       refused with 06090030); None accepts all that CiA 301 allows.
     - ``emcy_in_stopped``: emergencies are sent in stopped too (CiA 301: only recorded).
+    - ``reset_communication_keeps_values``: reset communication applies the communication
+      parameters as they are (a master's changes take effect) instead of reloading the
+      stored ones; reset node still reloads everything.
     """
 
     send_bootup: bool = True
@@ -173,6 +176,7 @@ class Deviations:
     partial_rpdos: bool = False
     transmission_types: Collection[int] | None = None
     emcy_in_stopped: bool = False
+    reset_communication_keeps_values: bool = False
 
     def __post_init__(self) -> None:
         early = frozenset(self.tpdos_outside_operational)
@@ -845,7 +849,8 @@ class Device:
 
     def _reset(self, *, application: bool) -> None:
         self._teardown_comm()
-        self._power_on(communication=True, application=application, strict=False)
+        communication = application or not self.deviations.reset_communication_keeps_values
+        self._power_on(communication=communication, application=application, strict=False)
         self._boot()
 
     def _boot(self) -> None:
