@@ -434,3 +434,66 @@ def test_unsupported_mode_is_refused_and_status_tells_the_model():
         assert status["temperature"] == 25.0
 
     drive_run(scenario)
+
+
+@pytest.mark.parametrize(
+    ("option", "code", "final"),
+    [(1, 0x8100, FAULT), (2, None, SOD), (3, None, SOD)],
+)
+def test_abort_connection_option_on_a_lost_heartbeat(option, code, final):
+    async def scenario(b: SimBench):
+        await b.sdo.write(0x6007, 0, option)
+        await b.sdo.write(0x1016, 1, 127 << 16 | 100)  # watch the master (node 127)
+        b.send(0x77F, b"\x05")
+        await enable(b)
+        await b.sdo.write(0x6060, 0, 3)
+        await b.sdo.write(0x60FF, 0, 20_000)
+        await b.net.sleep(0.2)  # the heartbeat times out after 100 ms
+        # (the node went pre-operational too, 1029h: the statusword is read by SDO)
+        states = [w & STATE_MASK for w in statuswords(b)]
+        assert await state(b) == final
+        if option == 3:
+            assert QSA in states  # ramped down first (605Ah = 2), then switch on disabled
+        codes = [struct.unpack("<H", d[:2])[0] for d in b.data(EMCY)]
+        assert 0x8130 in codes  # the device's own heartbeat error
+        assert (code in codes) if code else 0x8100 not in codes
+
+    drive_run(scenario)
+
+
+@pytest.mark.parametrize(
+    ("index", "option", "ramp"),
+    [
+        (0x605A, 1, 0.1),  # quick stop with the profile deceleration (500000)
+        (0x605A, 2, 0.025),  # quick stop with the quick stop deceleration (2000000)
+        (0x605A, 0, 0.0),  # disable the drive function: no ramp
+        (0x605E, 2, 0.025),  # fault reaction with the quick stop deceleration
+        (0x605E, 0, 0.0),  # fault reaction: coast
+    ],
+)
+def test_quick_stop_and_fault_reaction_ramps_follow_their_option_codes(index, option, ramp):
+    async def scenario(b: SimBench):
+        await b.sdo.write(index, 0, option)
+        await enable(b)
+        await b.sdo.write(0x6060, 0, 3)
+        await b.sdo.write(0x60FF, 0, 50_000)
+        await b.until(lambda: statuswords(b)[-1] & 0x0400, 0.5)
+        t0 = b.net.time()
+        if index == 0x605A:
+            await b.sdo.write(0x6040, 0, 0x0B)
+            done = SOD
+        else:
+            b.sim.inject("drive_fault", code=0x5530)
+            done = FAULT
+        took = await b.until(lambda: statuswords(b)[-1] & STATE_MASK == done, 0.5)
+        stopped_speed = abs(b.sim.motor.speed)
+        if ramp:
+            # the demand ramps down in `ramp`; the state changes once the motor is still
+            assert ramp <= took <= ramp + 0.04
+            assert stopped_speed <= 20  # 606Fh
+        else:
+            assert took < 0.0015  # within the first tick
+            assert stopped_speed > 40_000  # power off at once: the motor coasts
+        assert b.net.time() >= t0
+
+    drive_run(scenario)

@@ -187,3 +187,25 @@ def test_heartbeat_option_and_channel_errors():
         assert await b.sdo.read(0x1000) == 0x00050191  # digital + analogue inputs
 
     io_run(scenario, digital_inputs=8, digital_outputs=0, analog_outputs=0, heartbeat_ms=50)
+
+
+def test_a_lost_heartbeat_puts_the_outputs_in_their_error_state():
+    async def scenario(b: SimBench):
+        io: Io401 = b.sim
+        await b.sdo.write(0x1016, 1, 127 << 16 | 100)
+        await b.sdo.write(0x1029, 1, 1)  # communication error: no NMT change
+        b.send(0x77F, b"\x05")
+        await start(b)
+        b.send(RPDO1, bytes((0x03,)))
+        await b.settle()
+        assert [io.digital_output(c) for c in (1, 2)] == [True, True]
+        await b.net.sleep(0.15)  # the master's heartbeat is gone
+        assert b.sim.in_error_state
+        assert [io.digital_output(c) for c in (1, 2)] == [False, False]  # 6207h: 0
+        b.send(0x77F, b"\x05")
+        b.send(RPDO1, bytes((0x01,)))
+        await b.settle()
+        assert not b.sim.in_error_state
+        assert [io.digital_output(c) for c in (1, 2)] == [True, False]
+
+    io_run(scenario)

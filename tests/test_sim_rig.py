@@ -161,6 +161,18 @@ def test_bus_faults_on_the_rigs_own_bus_seen_from_a_master_on_another_network(tm
             assert 10 <= heard <= 30  # 40 sent, 20 expected; 3 sigma is 9.5
             assert rig.bus_status()["loss"] == 0.5
             rig.inject(None, "frame_loss", rate=0)
+            rig.inject(None, "frame_corruption", rate=0.25, seed=2)
+            assert rig.bus is not None and rig.bus.corruption == 0.25
+            rig.inject(None, "frame_corruption", rate=0)
+            with pytest.raises(ValueError, match="probability"):
+                rig.inject(None, "frame_loss", rate=2)
+            # bus-off until restarted by hand
+            rig.inject(None, "bus_off")
+            await net.sleep(0.3)
+            assert net.bus_state == BusState.BUS_OFF
+            rig.inject(None, "bus_restart")
+            await net.sleep(0.01)
+            assert rig.bus_status()["state"] == "error-active"
             # a babbling node floods the bus
             rig.bus_status()
             rig.inject(20, "babbling", period_us=500)
@@ -254,14 +266,13 @@ def test_the_ready_thesis_rig(tmp_path):
     mine_only = Rig([s for s in rig.specs if s.kind in ("cia401_io", "cia402_drive")])
 
     async def main_():
-        async with AsyncNetwork() as net:
-            await mine_only.start(net)
+        async with AsyncNetwork() as net, mine_only.running(net):
             io = mine_only.device("remote I/O")
             assert isinstance(io, Io401) and io.pot_channel == 1
             io.set_potentiometer(0.75)
             remote = net.add_remote(9)
             assert await remote.sdo.upload(0x6401, 1) == struct.pack("<h", 24575)
-            await mine_only.stop()
+        assert mine_only.devices == {}
 
     simulate(main_())
     with pytest.raises(RigError, match="no ready rig 'nope'; cobus ships: thesis"):

@@ -989,7 +989,7 @@ class Drive402(CanopenSimDevice):
             self._p_d += self._v_d * h
             if self._v_d == 0.0:
                 self._stop_hold += h
-            stopped = abs(m.speed) < max(50.0, self._stop_decel * h)
+            stopped = abs(m.speed) <= max(float(self._od(0x606F, 0, 20)), 1.0)
             if self._v_d == 0.0 and (stopped or self._stop_hold >= 0.5):
                 then, self._stop_then = self._stop_then, None
                 self._stop_hold = 0.0
