@@ -513,12 +513,13 @@ def test_faults_and_options_are_checked():
 
 
 def test_power_cycle_silences_and_restarts():
-    async def scenario(m: Master) -> tuple[Frame | None, int | None, str]:
+    async def scenario(m: Master) -> tuple[Frame | None, str, int | None, str]:
         await m.write(0x2024, 0, 55)
         m.motor.inject("power_loss")
         silent = await m.request(bytes.fromhex("40242000"))
+        off = m.motor.status()["state"]
         m.motor.inject("power_return")
         await m.settle()
-        return silent, await m.read(0x2024), m.motor.status()["state"]
+        return silent, off, await m.read(0x2024), m.motor.status()["state"]
 
-    assert run(scenario) == (None, 0, "off")
+    assert run(scenario) == (None, "off", 0, "mode 1 OFF")

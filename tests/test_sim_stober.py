@@ -223,6 +223,17 @@ def test_sdo_channel_quirks_switched_off_follow_cia():
     assert run(scenario, quirks=quirks) == [[1], (0x641, 0x5C1)]
 
 
+def test_new_sdo_ids_at_once_without_the_reset_quirk():
+    async def scenario(rig: Rig) -> Any:
+        await rig.write(0x1201, 1, 0x80000641)
+        await rig.write(0x1201, 2, 0x800005C1)
+        await rig.settle()
+        return rig.drive.sdo_channels.get(2)
+
+    assert run(scenario) is None  # waits for reset communication
+    assert run(scenario, quirks={"sdo_ids_at_reset": False}) == (0x641, 0x5C1)
+
+
 def test_stop_then_pre_operational_activates_and_the_bare_function_code_adds_the_node():
     async def scenario(rig: Rig) -> tuple[int, Any, Any]:
         default = await rig.read(0x1202, 1)

@@ -412,6 +412,8 @@ def test_unknown_quirk_and_bad_options_are_refused():
                 ZapiAce2(net, NODE, ramp_bytes=3)
             with pytest.raises(SimulationError, match="sync_timeout"):
                 ZapiAce2(net, NODE, sync_timeout=0)
+            with pytest.raises(SimulationError, match=r"327\.67"):
+                ZapiAce2(net, NODE, max_speed=400)
             with pytest.raises(SimulationError, match="2000h-5FFFh"):
                 ZapiAce2(net, NODE, parameters={0x20A8: ("twice", 5, 0)})  # type: ignore[dict-item]
             ZapiAce2(net, NODE).start()

@@ -769,7 +769,7 @@ class EcMotor(SimulatedDevice):
     def status(self) -> dict[str, Any]:
         return {
             **super().status(),
-            "state": MODES.get(self.mode, str(self.mode)).lower() if self.powered else "off",
+            "state": f"mode {self.mode} {MODES.get(self.mode, '?')}" if self.powered else "off",
             "mode": self.mode,
             "speed_rpm": round(self.physical("V", self.velocity), 3),
             "position_deg": round(self.physical("P", self.position), 3),

@@ -163,6 +163,11 @@ class ZapiAce2(SimulatedDevice):
         ):
             if not isinstance(value, int | float) or not value > 0:
                 raise SimulationError(f"{what}={value!r} must be a positive number")
+        if max_speed > 327.67:
+            raise SimulationError(
+                f"max_speed={max_speed!r} Hz does not fit TPDO1's actual speed (INTEGER16 of "
+                "Hz x 100): use at most 327.67"
+            )
         if not isinstance(handshake_misses, int) or handshake_misses < 0:
             raise SimulationError(f"handshake_misses={handshake_misses!r} must be 0 or more")
         self.ramp_bytes = ramp_bytes
