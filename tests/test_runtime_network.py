@@ -306,3 +306,21 @@ def test_interface_and_channel_come_from_the_environment(monkeypatch):
         return frame
 
     assert asyncio.run(main()) == Frame(0x123, b"\x01")
+
+
+def test_machine_timers_stop_with_the_network():
+    errors = []
+
+    async def main():
+        asyncio.get_running_loop().set_exception_handler(lambda loop, ctx: errors.append(ctx))
+        net = await AsyncNetwork().connect()
+        machine = Ticker(0.5)
+        host = net.attach(machine)
+        host.apply(NOTHING)
+        await net.sleep(0.6)
+        await net.disconnect()
+        await asyncio.sleep(5)  # no timer may fire on the closed network
+        return machine.next
+
+    assert simulate(main()) == pytest.approx(1.0)
+    assert errors == []

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import threading
+import weakref
 from collections import deque
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -92,7 +93,15 @@ class MachineHost:
     (``host.run(lambda now: client.start_upload(0x1000, 0, now))``).
     """
 
-    __slots__ = ("_armed", "_handle", "_network", "_subscriptions", "machine", "on_event")
+    __slots__ = (
+        "__weakref__",
+        "_armed",
+        "_handle",
+        "_network",
+        "_subscriptions",
+        "machine",
+        "on_event",
+    )
 
     def __init__(
         self,
@@ -139,6 +148,8 @@ class MachineHost:
     def _fire(self, deadline: float) -> None:
         self._handle = None
         self._armed = None
+        if not self._network.connected:
+            return
         now = max(self._network.time(), deadline)
         try:
             out = self.machine.on_timer(now)
@@ -190,6 +201,7 @@ class AsyncNetwork:
         self._state = BusState.ACTIVE
         self._reader: threading.Thread | None = None
         self._reader_stop = threading.Event()
+        self._hosts: weakref.WeakSet[MachineHost] = weakref.WeakSet()
         self._rx_pending: deque[can.Message] = deque()
         self._rx_posted = False
         self._fd: int | None = None
@@ -223,6 +235,8 @@ class AsyncNetwork:
         if loop is None:
             return
         self._stop_receiving(loop)
+        for host in list(self._hosts):  # machines stop with their network
+            host._rearm(None)
         for handle in (self._retry_handle, self._state_poll):
             if handle is not None:
                 handle.cancel()
@@ -323,6 +337,7 @@ class AsyncNetwork:
     ) -> MachineHost:
         """Drive ``machine`` on this network: frames on ``cob_ids`` in, its output out."""
         host = MachineHost(self, machine, on_event)
+        self._hosts.add(host)
         for cob_id in cob_ids:
             host.listen(cob_id)
         return host
