@@ -11,7 +11,14 @@
 """
 
 from cobus.device.blocking import BlockingDevice
-from cobus.device.device import LOAD_SIGNATURE, SAVE_SIGNATURE, Device, Listener
+from cobus.device.device import (
+    LOAD_SIGNATURE,
+    SAVE_SIGNATURE,
+    CobIdRule,
+    Deviations,
+    Device,
+    Listener,
+)
 from cobus.device.dictionary import DEFAULT_DEVICE_TYPE, DictionaryBuilder, minimal_od
 from cobus.device.eds_export import export_eds
 from cobus.device.errors import (
@@ -55,7 +62,9 @@ __all__ = [
     "SAVE_SIGNATURE",
     "BlockingDevice",
     "Booted",
+    "CobIdRule",
     "ConfigurationProblem",
+    "Deviations",
     "Device",
     "DeviceConfigError",
     "DeviceError",

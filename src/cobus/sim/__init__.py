@@ -11,6 +11,7 @@ simulated CANopen devices share, :mod:`cobus.sim.faults` for the bus faults and
 
 from cobus.sim.base import SimulatedDevice, SimulationError, UnknownFaultError, UnknownQuirkError
 from cobus.sim.drive402 import Drive402, DriveState
+from cobus.sim.ecmotor import EcMotor
 from cobus.sim.faults import Babbler, FaultConfigError, FaultyBus, fault_catalogue
 from cobus.sim.generic import (
     CanopenSimDevice,
@@ -21,6 +22,8 @@ from cobus.sim.generic import (
 )
 from cobus.sim.io401 import ChannelError, Io401
 from cobus.sim.rig import KINDS, KindUnavailableError, Rig, RigError, ready_rig, resolve_kind
+from cobus.sim.stober import StoberMds5000
+from cobus.sim.zapi import ZapiAce2
 
 __all__ = [
     "KINDS",
@@ -30,6 +33,7 @@ __all__ = [
     "DeviceOffError",
     "Drive402",
     "DriveState",
+    "EcMotor",
     "EdsDevice",
     "EdsDeviceError",
     "FaultConfigError",
@@ -41,8 +45,10 @@ __all__ = [
     "RigError",
     "SimulatedDevice",
     "SimulationError",
+    "StoberMds5000",
     "UnknownFaultError",
     "UnknownQuirkError",
+    "ZapiAce2",
     "fault_catalogue",
     "ready_rig",
     "resolve_kind",
