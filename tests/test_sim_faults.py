@@ -137,11 +137,14 @@ def test_heartbeat_stop_is_seen_by_the_consumer_while_the_node_runs_on():
         assert "heartbeat_stop" in b.sim.status()["faults"]
         # silent through a reset communication too (boot-up is sent)
         b.net.nmt.reset_communication(NODE)
-        await b.net.sleep(0.2)
+        await b.net.sleep(0.22)  # resumed between two beats that fall due
         assert b.data(0x700 + NODE, since=t0 + 0.001) == [b"\x00"]
         b.sim.inject("heartbeat_resume")
         await b.net.sleep(0.11)
-        assert len(b.data(0x700 + NODE, since=t0 + 0.001)) == 3
+        (boot, *beats) = b.on(0x700 + NODE, since=t0 + 0.001)
+        assert boot[1].data == b"\x00" and len(beats) == 2
+        # the producer kept its period while silent: the beats resume on the boot's grid
+        assert [round((t - boot[0]) / 0.05, 6) for t, _ in beats] == [5.0, 6.0]
         restored = [e for e in b.of(HeartbeatRestored) if e.producer == NODE]
         assert restored == [] or restored[0].node_id == WATCHER
 

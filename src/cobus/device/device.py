@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from cobus.device._entries import Entry, check_value, decode_download, zero_value
+from cobus.device._gates import Knobs, LateSdoServer, MutableHeartbeat
 from cobus.device.eds_export import export_eds
 from cobus.device.errors import (
     DeviceConfigError,
@@ -344,6 +345,7 @@ class Device:
             self._entries[entry.key] = entry
         self._listeners: list[Listener] = []
         self._backend = _SdoBackend(self)
+        self._knobs = Knobs()
         self._started = False
         self._closed = False
         self._operational = False
@@ -416,6 +418,51 @@ class Device:
                 index if isinstance(index, int) else 0, 0, _ABORT.NO_OBJECT, f"no object {shown}"
             )
         return _ObjectView(self, obj.index)
+
+    @property
+    def sdo_response_delay(self) -> float:
+        """Seconds each SDO request waits before the device takes it up (0, the default: at
+        once), on the network's clock: every answer comes that much late, as from a slow
+        device, and a client whose timeout is shorter gives up.
+
+        The server channels take the requests up in the order they arrived (a shorter delay
+        set later does not overtake those still waiting); their transfer timeout counts from
+        when they take a request up. A change applies to the requests that arrive after it
+        and holds through resets and node-ID changes; requests still waiting when the channels
+        are rebuilt (reset, NMT stopped, new COB-IDs) are dropped with them. It acts on the
+        channels the device serves itself, not on those of an owner that serves
+        :attr:`sdo_backend` (``Deviations(serve_sdo=False)``).
+        """
+        return self._knobs.sdo_delay
+
+    @sdo_response_delay.setter
+    def sdo_response_delay(self, seconds: float) -> None:
+        if (
+            not isinstance(seconds, int | float)
+            or isinstance(seconds, bool)
+            or not 0 <= seconds < float("inf")
+        ):
+            raise DeviceConfigError(
+                f"SDO response delay {seconds!r} must be a number of seconds >= 0 (0: none)"
+            )
+        self._knobs.sdo_delay = float(seconds)
+
+    @property
+    def heartbeat_muted(self) -> bool:
+        """Whether the heartbeat producer is silenced (False by default).
+
+        While muted the producer keeps its period (1017h, which keeps its value and can be
+        written) and sends nothing; un-muted, it sends again on that period, without a new
+        start. The node runs on otherwise: boot-up messages, node guarding answers, SDO and
+        PDOs are not affected. It holds through resets and node-ID changes.
+        """
+        return self._knobs.heartbeat_muted
+
+    @heartbeat_muted.setter
+    def heartbeat_muted(self, muted: bool) -> None:
+        if not isinstance(muted, bool):
+            raise DeviceConfigError(f"heartbeat_muted takes True or False, not {muted!r}")
+        self._knobs.heartbeat_muted = muted
 
     @property
     def sdo_backend(self) -> SdoServerBackend:
@@ -1014,7 +1061,7 @@ class Device:
         # heartbeat producer and consumer
         if self.deviations.error_control:
             self._hb = _hb.HeartbeatProducer(node, state_getter=lambda: self.nmt.state)
-            self._hb_host = self._attach(self._hb)
+            self._hb_host = self._attach(MutableHeartbeat(self._hb, self._knobs))
         consumer_size = self._value(0x1016, 0, 0)
         if consumer_size:
             self._consumer = _hb.HeartbeatConsumer(min(int(consumer_size), 127))
@@ -1070,7 +1117,7 @@ class Device:
                     continue
                 rx, tx = rx_value & 0x7FF, tx_value & 0x7FF
             server = SdoServer(rx, tx, self._backend, timeout=self._sdo_timeout)
-            host = self.network.attach(server)
+            host = self.network.attach(LateSdoServer(server, self._knobs))
             sub = self.network.subscribe(rx, partial(self._on_sdo_frame, host))
             self._sdo[n] = _SdoChannel(n, server, host, sub)
 

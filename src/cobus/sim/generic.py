@@ -21,7 +21,6 @@ optional object means for the node (no heartbeat without 1017h, ...) in
 from __future__ import annotations
 
 import re
-from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
@@ -38,10 +37,9 @@ from cobus.device import (
 )
 from cobus.errors import CobusError
 from cobus.od import ObjectDictionary, Variable, load
-from cobus.proto import NOTHING, Frame
 from cobus.proto.emcy import EmcyCode
 from cobus.proto.nmt import check_node_id
-from cobus.runtime.network import AsyncNetwork, MachineHost
+from cobus.runtime.network import AsyncNetwork
 from cobus.sim.base import SimulatedDevice, SimulationError
 
 __all__ = [
@@ -129,67 +127,6 @@ def _variable(od: ObjectDictionary, key: int | str, where: str) -> Variable:
     return var
 
 
-class _SimDevice(Device):
-    """A :class:`Device` whose SDO answers can come late and whose heartbeat can be silenced.
-
-    Both faults need the device's own machinery (its SDO servers and heartbeat producer);
-    the device layer has no public hook for them yet, so this subclass extends two of its
-    private steps and keeps the rest untouched.
-    """
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        #: Seconds every SDO request waits before the server sees it (0 = none).
-        self.sdo_delay = 0.0
-        #: The heartbeat producer is silenced (1017h keeps its value).
-        self.heartbeat_muted = False
-        self._delayed: deque[tuple[float, MachineHost, Frame]] = deque()
-
-    # --- late SDO answers: each request reaches the server ``sdo_delay`` after it arrived, and
-    # never before the requests that arrived earlier (a shorter delay does not overtake)
-    def _on_sdo_frame(self, host: MachineHost, frame: Frame, now: float) -> None:
-        if self.sdo_delay <= 0 and not self._delayed:
-            super()._on_sdo_frame(host, frame, now)
-            return
-        due = now + max(self.sdo_delay, 0.0)
-        self._delayed.append((due, host, frame))
-        self.network.loop.call_at(due, self._release_sdo)
-
-    def _release_sdo(self) -> None:
-        now = self.network.time()
-        delayed = self._delayed
-        while delayed and delayed[0][0] <= now + 1e-3:  # a real loop may fire a bit early
-            _, host, frame = delayed.popleft()
-            if not self.serves(self.od):
-                delayed.clear()
-                return
-            if any(channel.host is host for channel in self._sdo.values()):
-                super()._on_sdo_frame(host, frame, now)
-
-    # --- silent heartbeat: kept silent through resets and writes of 1017h
-    def set_heartbeat_muted(self, muted: bool) -> None:
-        self.heartbeat_muted = muted
-        self._apply_heartbeat()
-
-    def _apply_heartbeat(self) -> None:
-        producer, host = self._hb, self._hb_host
-        if producer is None or host is None:
-            return
-        period = 0 if self.heartbeat_muted else int(self._value(0x1017, 0))
-        producer.set_period(period, self.network.time())
-        host.apply(NOTHING)
-
-    def _boot(self) -> None:
-        super()._boot()
-        if self.heartbeat_muted:
-            self._apply_heartbeat()
-
-    def _w_producer(self, entry: Any, value: Any) -> None:
-        super()._w_producer(entry, value)
-        if self.heartbeat_muted:
-            self._apply_heartbeat()
-
-
 class CanopenSimDevice(SimulatedDevice):
     """A simulated device that is a CANopen device (see the module docstring).
 
@@ -257,7 +194,8 @@ class CanopenSimDevice(SimulatedDevice):
                 raise SimulationError(
                     f"{self.name}: parameter {key!r} = {value!r}: {exc}"
                 ) from None
-        self._device: _SimDevice | None = None
+        self._device: Device | None = None
+        #: Seconds every SDO answer comes late (the sdo_delay fault; kept across power cycles).
         self.sdo_delay = 0.0
         #: Why parts of the configuration could not be used (from the device at each boot).
         self.problems: list[str] = []
@@ -293,7 +231,7 @@ class CanopenSimDevice(SimulatedDevice):
         """The running CANopen device; :class:`DeviceOffError` while the power is off."""
         return self._running()
 
-    def _running(self) -> _SimDevice:
+    def _running(self) -> Device:
         device = self._device
         if device is None:
             raise DeviceOffError(
@@ -316,14 +254,14 @@ class CanopenSimDevice(SimulatedDevice):
                 "network; give each simulated device its own node-ID"
             )
         super().start()
-        device = _SimDevice(
+        device = Device(
             self.network,
             self.node_id,
             self.od,
             storage=self._storage,
             sdo_timeout=self._sdo_timeout,
         )
-        device.sdo_delay = self.sdo_delay
+        device.sdo_response_delay = self.sdo_delay
         self.problems = []
         self._device = device
         self.network.devices[self.node_id] = device
@@ -395,7 +333,7 @@ class CanopenSimDevice(SimulatedDevice):
                 self._device.set_node_id(new)
         elif fault in ("heartbeat_stop", "heartbeat_resume"):
             check_fault_params(self.kind, fault, params, {})
-            self._running().set_heartbeat_muted(fault == "heartbeat_stop")
+            self._running().heartbeat_muted = fault == "heartbeat_stop"
         elif fault == "sdo_delay":
             p = check_fault_params(self.kind, fault, params, {"delay": ...})
             delay = p["delay"]
@@ -403,7 +341,7 @@ class CanopenSimDevice(SimulatedDevice):
                 raise FaultParameterError(f"sdo_delay: delay {delay!r} must be seconds >= 0")
             self.sdo_delay = float(delay)
             if self._device is not None:
-                self._device.sdo_delay = self.sdo_delay
+                self._device.sdo_response_delay = self.sdo_delay
         else:
             super().inject(fault, **params)
 
