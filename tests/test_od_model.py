@@ -7,6 +7,8 @@ from cobus.od import (
     Access,
     Array,
     DataType,
+    DataTypeError,
+    NodeRelative,
     ObjectDictionary,
     ObjectDictionaryError,
     ObjectType,
@@ -199,3 +201,93 @@ def test_a_dictionary_built_in_code_writes_and_reads_back():
     again = loads(od.to_eds())
     assert again.findings == [] and again.diff(od) == []
     assert 'DefaultValue=" padded"' in od.to_eds()  # quoted: the spaces are the value
+
+
+def _relative(var: Variable) -> tuple[bool, str | None]:
+    return var.relative, var.default_raw
+
+
+def _cob_id(default=None, **kw) -> Variable:
+    return Variable(0x1014, 0, "COB-ID EMCY", DataType.UNSIGNED32, default=default, **kw)
+
+
+def test_a_node_relative_default_built_in_code_follows_the_node_id():
+    emcy = _cob_id(NodeRelative(0x80))
+    assert emcy.relative and [emcy.default] == [None]  # in no dictionary yet
+    assert emcy.default_raw == "$NODEID+0x80" == str(NodeRelative(0x80))
+    od = _od()
+    od.node_id = 5
+    od.add(emcy)
+    assert emcy.default == 0x85 and emcy.value == 0x85  # resolved when added
+    od.node_id = 0x7F
+    assert emcy.default == 0xFF
+    eds = od.to_eds()
+    assert "DefaultValue=$NODEID+0x80" in eds
+    again = loads(eds, node_id=0x7F)
+    assert again.findings == [] and again.diff(od) == []
+    again_var = _var(again, 0x1014)
+    assert again_var.relative and again_var.default == 0xFF
+    assert _var(loads(eds), 0x1014).default is None  # no node-ID in the file
+    emcy.default = 0x90  # a plain value again
+    assert _relative(emcy) == (False, None)
+    od.node_id = 3
+    assert emcy.default == 0x90
+
+
+def test_node_relative_values_set_on_objects_already_in_a_dictionary():
+    od = _od()
+    od.node_id = 10
+    pdo = Record(0x1800, "TPDO 1")
+    od.add(pdo)
+    cob_id = Variable(0x1800, 1, "COB-ID", DataType.UNSIGNED32, default=NodeRelative(0x180))
+    pdo.add(cob_id)
+    assert cob_id.default == 0x18A  # resolved when added to a record in the dictionary
+    speed = _var(od, 0x2000)
+    speed.parameter_value = NodeRelative(1)
+    assert speed.value == 11 and speed.parameter_value_raw == "$NODEID+0x1" and speed.default == 5
+    vendor = _var(od, 0x1018, 1)
+    vendor.low_limit = NodeRelative(0)
+    vendor.high_limit = NodeRelative(0x100)
+    assert (vendor.low_limit, vendor.high_limit) == (10, 0x10A)
+    od.node_id = 1
+    assert (speed.value, vendor.low_limit, vendor.high_limit, cob_id.default) == (
+        2,
+        1,
+        0x101,
+        0x181,
+    )
+    again = loads(od.to_eds(), node_id=1)
+    assert again.diff(od) == []
+    removed = od.remove(0x2000)
+    assert isinstance(removed, Variable)
+    removed.default = NodeRelative(2)
+    assert removed.default is None  # in no dictionary: no node-ID to follow
+
+
+def test_node_relative_values_that_cannot_follow_the_node_id_are_refused():
+    for bad in (-1, True, 128.0):
+        with pytest.raises(ValueRangeError, match="must be an int >= 0"):
+            NodeRelative(bad)  # type: ignore[arg-type]
+    real = Variable(0x2100, 0, "r", DataType.REAL32)
+    with pytest.raises(ValueRangeError, match="REAL32: only integer values"):
+        real.default = NodeRelative(1)
+    small = Variable(0x2101, 0, "u8", DataType.UNSIGNED8, default=3)
+    with pytest.raises(ValueRangeError, match=r"does not fit UNSIGNED8 \(0\.\.255\)"):
+        small.default = NodeRelative(200)
+    assert small.default == 3 and not small.relative
+
+
+def test_dummy_usage_set_in_code():
+    od = _od()
+    od.set_dummy_usage(5)
+    od.set_dummy_usage(6, False)
+    dummy = _var(od, 5)
+    assert dummy.object_type is ObjectType.DEFTYPE and dummy.data_type is DataType.UNSIGNED8
+    assert od.dummy_usage == {5: True, 6: False} and 6 not in od
+    eds = od.to_eds()
+    assert "Dummy0005=1" in eds and "Dummy0006=0" in eds and "[0005]" not in eds
+    assert loads(eds).diff(od) == []
+    od.set_dummy_usage(5, False)
+    assert 5 not in od and od.dummy_usage == {5: False, 6: False}
+    with pytest.raises(DataTypeError, match="0x0020: only the basic data types"):
+        od.set_dummy_usage(0x20)

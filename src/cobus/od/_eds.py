@@ -32,6 +32,7 @@ from cobus.od._model import (
     ObjectType,
     Record,
     Variable,
+    dummy_variable,
 )
 from cobus.od._types import INT_INFO, DataType
 from cobus.od._values import TextError, parse_int, parse_value
@@ -449,7 +450,7 @@ class _Loader:
             var = self._variable(sec, keys, index, 0, name, ot, node_id)
             if extra:
                 var.extra = extra
-            od.add(var)
+            od._add(var)
             return
         if ot is ObjectType.NULL:
             self.error(sec.line, sec.name, "ObjectType 0 (NULL) objects cannot be described")
@@ -497,7 +498,7 @@ class _Loader:
                 obj.subindices.pop(sub, None)
                 obj._names = {v.name: v for v in obj.subindices.values()}
                 obj.add(var)
-            od.add(obj)
+            od._add(obj)
             return
         leftovers = {k: keys[k] for k in _VAR_ONLY if k in keys}
         if leftovers or extra:
@@ -526,7 +527,7 @@ class _Loader:
                 var.extra = sextra
             obj.add(var)
         self._check_sub_number(obj, sec, sub_number, subsecs, sub_number_text is not None)
-        od.add(obj)
+        od._add(obj)
 
     def _check_sub_number(
         self,
@@ -970,10 +971,9 @@ class _Loader:
                     f"{key}: 0x{code:04X} is not a basic data type",
                 )
                 continue
-            var = Variable(code, 0, f"Dummy{code:04X}", dt, Access.CONST, True)
-            var.object_type = ObjectType.DEFTYPE
+            var = dummy_variable(code, dt)
             var.line = sec.line
-            od.add(var)
+            od._add(var)
             od._dummies.add(code)
 
     def _object_lists(self, od: ObjectDictionary, lists: list[_Section]) -> None:

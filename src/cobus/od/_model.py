@@ -10,9 +10,9 @@ from pathlib import Path
 from typing import Any, TypeAlias
 
 from cobus.errors import CobusError
-from cobus.od._errors import Finding, Severity, ValueRangeError
-from cobus.od._types import DECODERS, ENCODERS, DataType, same_value
-from cobus.od._values import TextError, parse_value
+from cobus.od._errors import DataTypeError, Finding, Severity, ValueRangeError
+from cobus.od._types import DECODERS, ENCODERS, INT_INFO, DataType, same_value
+from cobus.od._values import TextError, format_value, parse_value
 
 __all__ = [
     "Access",
@@ -20,6 +20,7 @@ __all__ = [
     "Commissioning",
     "DeviceInfo",
     "FileInfo",
+    "NodeRelative",
     "Object",
     "ObjectDictionary",
     "ObjectDictionaryError",
@@ -77,6 +78,31 @@ REL_LOW = 4
 REL_HIGH = 8
 
 
+@dataclass(frozen=True)
+class NodeRelative:
+    """``$NODEID+offset``: an integer value that follows the node-ID, as EDS files write the
+    COB-IDs of a device (CiA 306). Give it to a variable built in code as its default (or
+    parameter value or limit): ``Variable(..., default=NodeRelative(0x180))``.
+
+    The variable's value is then ``node_id + offset`` for the node-ID of the dictionary it is
+    in: resolved when it is added to one, and again at every change of ``od.node_id``; None
+    while it is in no dictionary or the dictionary has no node-ID. ``relative`` is True, and
+    ``to_eds()`` writes ``$NODEID+0x180``, which loading reads back as the same variable.
+    """
+
+    offset: int
+
+    def __post_init__(self) -> None:
+        offset = self.offset
+        if not isinstance(offset, int) or isinstance(offset, bool) or offset < 0:
+            raise ValueRangeError(
+                f"NodeRelative offset {offset!r} must be an int >= 0 (the value is $NODEID+offset)"
+            )
+
+    def __str__(self) -> str:
+        return format_value(DataType.UNSIGNED32, None, self.offset)
+
+
 class Variable:
     """One value of the dictionary: a VAR object, or a sub-object of a record or array.
 
@@ -92,6 +118,7 @@ class Variable:
         "_default_raw",
         "_high",
         "_high_raw",
+        "_home",
         "_low",
         "_low_raw",
         "_param",
@@ -119,6 +146,7 @@ class Variable:
     _default_raw: str | None
     _high: Any
     _high_raw: str | None
+    _home: ObjectDictionary | None  # the dictionary a VAR object is in
     _low: Any
     _low_raw: str | None
     _param: Any
@@ -174,6 +202,7 @@ class Variable:
         self._low = self._low_raw = self._high = self._high_raw = None
         self._default = self._default_raw = self._param = self._param_raw = None
         self._rel = 0
+        self._home = None
         self.unit = unit
         self.factor = factor
         self.denotation = self.description = None
@@ -198,6 +227,10 @@ class Variable:
 
     @default.setter
     def default(self, value: Any) -> None:
+        """A value of the type within the limits, a :class:`NodeRelative`, or None."""
+        if isinstance(value, NodeRelative):
+            self._default_raw, self._default = self._relative(value, REL_DEFAULT)
+            return
         if value is not None:
             self.check(value)
         self._default = value
@@ -211,6 +244,9 @@ class Variable:
 
     @parameter_value.setter
     def parameter_value(self, value: Any) -> None:
+        if isinstance(value, NodeRelative):
+            self._param_raw, self._param = self._relative(value, REL_PARAM)
+            return
         if value is not None:
             self.check(value)
         self._param = value
@@ -232,6 +268,9 @@ class Variable:
 
     @low_limit.setter
     def low_limit(self, value: Any) -> None:
+        if isinstance(value, NodeRelative):
+            self._low_raw, self._low = self._relative(value, REL_LOW)
+            return
         if value is not None:
             ENCODERS[self.data_type](value)
         self._low = value
@@ -244,6 +283,9 @@ class Variable:
 
     @high_limit.setter
     def high_limit(self, value: Any) -> None:
+        if isinstance(value, NodeRelative):
+            self._high_raw, self._high = self._relative(value, REL_HIGH)
+            return
         if value is not None:
             ENCODERS[self.data_type](value)
         self._high = value
@@ -323,6 +365,25 @@ class Variable:
 
     # --- node id ----------------------------------------------------------------------------
 
+    def _relative(self, rel: NodeRelative, bit: int) -> tuple[str, int | None]:
+        """The text and the value now of ``rel`` as one of this variable's values."""
+        info = INT_INFO.get(self.data_type)
+        if info is None:
+            raise ValueRangeError(
+                f"{self.name!r} ({self.qualname}) is {self.data_type.name}: only integer values "
+                "can follow the node-ID ($NODEID+offset)"
+            )
+        low, high = info[0], info[1]
+        if not low <= rel.offset + 1 or rel.offset + 127 > high:
+            raise ValueRangeError(
+                f"{rel} does not fit {self.data_type.name} ({low}..{high}) for every node-ID "
+                f"1..127 of {self.name!r} ({self.qualname})"
+            )
+        self._rel |= bit
+        home = self._home if self.parent is None else self.parent._home
+        node_id = home._node_id if home is not None else None
+        return str(rel), None if node_id is None else node_id + rel.offset
+
     def _resolve(self, node_id: int | None) -> None:
         """Re-evaluate the ``$NODEID`` expressions for another node id."""
         rel = self._rel
@@ -342,6 +403,13 @@ class Variable:
 
     def __repr__(self) -> str:
         return f"<Variable {self.name!r} {self.qualname} {self.data_type.name} {self.access}>"
+
+
+def dummy_variable(code: int, data_type: DataType) -> Variable:
+    """The DEFTYPE object a PDO dummy mapping of ``data_type`` refers to ([DummyUsage])."""
+    var = Variable(code, 0, f"Dummy{code:04X}", data_type, Access.CONST, True)
+    var.object_type = ObjectType.DEFTYPE
+    return var
 
 
 def _diff_var(a: Variable, b: Variable, where: str) -> list[str]:
@@ -389,6 +457,7 @@ class _Composite:
 
     __slots__ = (
         "_dup_names",
+        "_home",
         "_names",
         "compact",
         "denotation",
@@ -422,6 +491,7 @@ class _Composite:
         self.subindices = {}
         self._names: dict[str, Variable] = {}
         self._dup_names: dict[str, list[int]] | None = None
+        self._home: ObjectDictionary | None = None  # the dictionary it is in
         self.compact = None
         self.denotation = self.description = None
         self.obj_flags = None
@@ -438,6 +508,8 @@ class _Composite:
             raise ObjectDictionaryError(f"0x{self.index:04X} already has sub-index {var.subindex}")
         self.subindices[var.subindex] = var
         var.parent = self  # type: ignore[assignment]
+        if var._rel and self._home is not None:
+            var._resolve(self._home._node_id)
         name = var.name
         if name in self._names:
             if self._dup_names is None:
@@ -690,12 +762,26 @@ class ObjectDictionary:
                 yield from obj
 
     def add(self, obj: Object) -> None:
-        """Add an object; its index must be new."""
+        """Add an object; its index must be new. Its ``$NODEID`` values (read from a file, or
+        :class:`NodeRelative` ones) resolve with this dictionary's node-ID."""
+        self._add(obj)
+        node_id = self._node_id
+        if isinstance(obj, Variable):
+            if obj._rel:
+                obj._resolve(node_id)
+            return
+        for var in obj.subindices.values():
+            if var._rel:
+                var._resolve(node_id)
+
+    def _add(self, obj: Object) -> None:
+        """Add without resolving (the loader resolves as it reads)."""
         index = obj.index
         if index in self._objects:
             raise ObjectDictionaryError(f"the dictionary already has an object 0x{index:04X}")
         self._objects[index] = obj
         self._sorted = None
+        obj._home = self
         name = obj.name
         if name in self._names:
             self._dup_names.setdefault(name, [self._names[name].index]).append(index)
@@ -704,6 +790,7 @@ class ObjectDictionary:
 
     def remove(self, index: int) -> Object:
         obj = self._objects.pop(index)
+        obj._home = None
         self._sorted = None
         self._dummies.discard(index)
         dups = self._dup_names.get(obj.name)
@@ -715,6 +802,26 @@ class ObjectDictionary:
         else:
             self._names.pop(obj.name, None)
         return obj
+
+    def set_dummy_usage(self, code: int, enabled: bool = True) -> None:
+        """[DummyUsage] ``DummyNNNN``: whether PDOs may map a dummy of the basic data type
+        ``code`` (e.g. 0x0005 for UNSIGNED8). Enabled, the dictionary gets the DEFTYPE object
+        ``code`` such mappings refer to (written as ``DummyNNNN=1``, not as an object section);
+        disabled, that object goes again."""
+        try:
+            data_type = DataType(code)
+        except ValueError:
+            raise DataTypeError(
+                f"dummy usage of 0x{code:04X}: only the basic data types 0x0001..0x001B can be "
+                "mapped as PDO dummies"
+            ) from None
+        self.dummy_usage[code] = bool(enabled)
+        if enabled:
+            if code not in self._objects:
+                self._add(dummy_variable(code, data_type))
+                self._dummies.add(code)
+        elif code in self._dummies:
+            self.remove(code)
 
     # --- node id ----------------------------------------------------------------------------
 
