@@ -184,7 +184,7 @@ def test_eds_export_of_a_device_built_in_code():
         assert f"0x{index:04X}" in optional
     assert "0x6000" in optional
     assert set(sections["ManufacturerObjects"].values()) == {"1", "0x2000"}
-    assert sections["1000"]["DefaultValue"] == f"0x{DEFAULT_DEVICE_TYPE:08X}"
+    assert sections["1000"]["DefaultValue"] == f"0x{DEFAULT_DEVICE_TYPE:X}"
     assert sections["1014"]["DefaultValue"] == "$NODEID+0x80"
     assert sections["1800sub1"]["DefaultValue"] == "$NODEID+0x180"
     assert sections["1A00sub1"]["DefaultValue"] == "0x60000008"
@@ -215,6 +215,28 @@ def test_device_from_an_eds_file_and_its_export(tmp_path):
             assert not [f for f in loads(text).findings if f.severity.value == "error"]
 
     simulate(main())
+
+
+def test_minimal_od_is_the_communication_profile_as_objects():
+    od = minimal_od(node_id=7, sdo_servers=2)
+    assert od.path is None and od.findings == [] and od.node_id == 7
+    following = [(0x1014, 0, 0x80), (0x1200, 1, 0x600), (0x1200, 2, 0x580), (0x1403, 1, 0x500)]
+    for index, sub, base in following:
+        var = od.get_variable(index, sub)
+        assert var is not None and var.relative and var.value == base + 7
+        assert var.default_raw == f"$NODEID+0x{base:X}"
+    od.node_id = 9
+    assert od.get_variable(0x1014).value == 0x89  # type: ignore[union-attr]
+    second = od.get_variable(0x1201, 1)
+    assert second is not None and second.value == 0x80000000 and not second.relative
+    assert od.dummy_usage == dict.fromkeys(range(1, 8), True) and 5 in od  # dummies to map
+    assert loads(od.to_eds(), node_id=9).diff(od) == []
+    builder = DictionaryBuilder()
+    builder.variable(0x2000, "x", DataType.UNSIGNED8, mappable=True)
+    builder.tpdo(1, [(0x0005, 0), (0x2000, 0)])  # a dummy byte, then x
+    assert builder.build().get_variable(0x1A00, 1).value == 0x00050008  # type: ignore[union-attr]
+    with pytest.raises(DeviceConfigError, match=r"node-ID 0 is out of range: use 1\.\.127"):
+        minimal_od(node_id=0)
 
 
 def test_dictionaries_the_device_cannot_run_are_refused():
