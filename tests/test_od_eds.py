@@ -13,7 +13,9 @@ from cobus.od import (
     Access,
     Array,
     DataType,
+    DeviceInfo,
     EdsError,
+    FileInfo,
     ObjectDictionary,
     ObjectType,
     Record,
@@ -293,6 +295,28 @@ def test_to_dcf_sets_commissioning_and_save(tmp_path: Path):
     eds_path = tmp_path / "out.eds"
     od.save(eds_path)
     assert load(eds_path) == od
+
+
+def test_to_eds_and_to_dcf_write_given_sections_in_place_of_the_dictionarys():
+    od = load(EDS_DIR / "canopen-python_sample.eds")
+    before = od.to_eds()
+    file_info = FileInfo(file_name="export.eds", created_by="a tool", extra={"Tag": "1"})
+    device_info = DeviceInfo(vendor_name="ACME", baud_rates={125}, nr_of_tx_pdo=2)
+    for text in (
+        od.to_eds(file_info=file_info, device_info=device_info, dummy_usage={5: True, 7: False}),
+        od.to_dcf(file_info=file_info, device_info=device_info, dummy_usage={5: True, 7: False}),
+    ):
+        again = loads(text)
+        assert again.file_info == file_info and again.device_info == device_info
+        assert again.dummy_usage == {5: True, 7: False} and var(again, 5).pdo_mappable
+        objects = [line for line in again.diff(od) if line.startswith("0x")]
+        assert objects == [  # the dummies of the [DummyUsage] written and of the file's
+            "0x0005: only in the first dictionary",
+            "0x0003: only in the second dictionary",
+        ]
+    assert loads(od.to_dcf(3, dummy_usage={})).dummy_usage == {}  # none at all
+    assert od.to_eds() == before  # the dictionary itself is not changed
+    assert od.file_info.file_name != "export.eds" and od.dummy_usage != {5: True, 7: False}
 
 
 def test_validate_a_dictionary_built_in_code():

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import enum
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeAlias
@@ -889,18 +889,52 @@ class ObjectDictionary:
 
     # --- writing (implemented in _write, bound here for a method-style API) -------------------
 
-    def to_eds(self) -> str:
-        """The dictionary as EDS text (CiA 306)."""
+    def to_eds(
+        self,
+        *,
+        file_info: FileInfo | None = None,
+        device_info: DeviceInfo | None = None,
+        dummy_usage: Mapping[int, bool] | None = None,
+    ) -> str:
+        """The dictionary as EDS text (CiA 306).
+
+        ``file_info``, ``device_info`` and ``dummy_usage`` are written in place of the
+        dictionary's own [FileInfo], [DeviceInfo] and [DummyUsage] (e.g. an export that fills
+        in what a dictionary built in code leaves open); the dictionary is not changed.
+        """
         from cobus.od._write import write
 
-        return write(self, dcf=False)
+        return write(
+            self,
+            dcf=False,
+            file_info=file_info,
+            device_info=device_info,
+            dummy_usage=dummy_usage,
+        )
 
-    def to_dcf(self, node_id: int | None = None, bitrate: int | None = None) -> str:
+    def to_dcf(
+        self,
+        node_id: int | None = None,
+        bitrate: int | None = None,
+        *,
+        file_info: FileInfo | None = None,
+        device_info: DeviceInfo | None = None,
+        dummy_usage: Mapping[int, bool] | None = None,
+    ) -> str:
         """The dictionary as DCF text: [DeviceComissioning] with ``node_id`` (default: the
-        dictionary's) and ``bitrate`` in bit/s (default: the dictionary's)."""
+        dictionary's) and ``bitrate`` in bit/s (default: the dictionary's). The other
+        arguments are those of :meth:`to_eds`."""
         from cobus.od._write import write
 
-        return write(self, dcf=True, node_id=node_id, bitrate=bitrate)
+        return write(
+            self,
+            dcf=True,
+            node_id=node_id,
+            bitrate=bitrate,
+            file_info=file_info,
+            device_info=device_info,
+            dummy_usage=dummy_usage,
+        )
 
     def save(self, path: str | os.PathLike[str], node_id: int | None = None) -> None:
         """Write to ``path``: DCF if it ends in ``.dcf``, else EDS (CRLF line ends, CiA 306)."""

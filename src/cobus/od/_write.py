@@ -7,6 +7,7 @@ written back. Reading the output gives an equal dictionary.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
@@ -15,6 +16,8 @@ from cobus.od._model import (
     STANDARD_BAUD_RATES,
     Array,
     Commissioning,
+    DeviceInfo,
+    FileInfo,
     ObjectDictionary,
     Record,
     Variable,
@@ -254,13 +257,19 @@ def write(
     dcf: bool,
     node_id: int | None = None,
     bitrate: int | None = None,
+    file_info: FileInfo | None = None,
+    device_info: DeviceInfo | None = None,
+    dummy_usage: Mapping[int, bool] | None = None,
 ) -> str:
+    """The text of ``od``; ``file_info``, ``device_info`` and ``dummy_usage`` replace the
+    dictionary's own sections when given."""
     out: list[str] = []
-    _typed_section(out, "FileInfo", od.file_info, _FILE_INFO_KEYS)
-    out.extend(f"{k}={v}" for k, v in od.file_info.extra.items())
+    file = od.file_info if file_info is None else file_info
+    _typed_section(out, "FileInfo", file, _FILE_INFO_KEYS)
+    out.extend(f"{k}={v}" for k, v in file.extra.items())
     out.append("")
 
-    info = od.device_info
+    info = od.device_info if device_info is None else device_info
     _typed_section(out, "DeviceInfo", info, _DEVICE_INFO_KEYS)
     for rate in sorted(set(STANDARD_BAUD_RATES) | info.baud_rates):
         out.append(f"BaudRate_{rate}={int(rate in info.baud_rates)}")
@@ -283,9 +292,10 @@ def write(
         out.extend(f"{k}={v}" for k, v in com.extra.items())
         out.append("")
 
-    if od.dummy_usage:
+    dummies = od.dummy_usage if dummy_usage is None else dummy_usage
+    if dummies:
         out.append("[DummyUsage]")
-        out.extend(f"Dummy{code:04X}={int(on)}" for code, on in sorted(od.dummy_usage.items()))
+        out.extend(f"Dummy{code:04X}={int(on)}" for code, on in sorted(dummies.items()))
         out.append("")
 
     if od.comments:
