@@ -196,6 +196,27 @@ def test_eds_export_of_a_device_built_in_code():
     assert od.device_info.nr_of_rx_pdo == 4 and export_eds(od) == text
 
 
+def test_eds_export_leaves_the_dictionary_alone_while_it_writes():
+    od = test_od()
+    written: list[str] = []
+
+    class Watched(ObjectDictionary):
+        def __setattr__(self, name, value):
+            written.append(name)
+            super().__setattr__(name, value)
+
+    class WatchedDict(dict):
+        def __setitem__(self, key, value):
+            written.append(f"dummy_usage[{key}]")
+            super().__setitem__(key, value)
+
+    od.dummy_usage = WatchedDict(od.dummy_usage)
+    od.__class__ = Watched
+    text = export_eds(od, description="exported")
+    assert written == []
+    assert "Description=exported" in text and od.file_info.description == "test device"
+
+
 def test_device_from_an_eds_file_and_its_export(tmp_path):
     path = EDS_DIR / "canopennode_ds301_profile.eds"
 

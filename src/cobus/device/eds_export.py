@@ -76,13 +76,6 @@ def export_eds(od: ObjectDictionary, *, description: str | None = None) -> str:
     info.nr_of_rx_pdo = _count(od, 0x1400)
     info.nr_of_tx_pdo = _count(od, 0x1800)
     info.lss_supported = False
-    saved = od.file_info, od.device_info, dict(od.dummy_usage)
-    od.file_info, od.device_info = file_info, info
-    for code in range(1, 8):  # the device maps a dummy of every basic type 0001h..0007h
-        od.dummy_usage[code] = True
-    try:
-        return od.to_eds()
-    finally:
-        od.file_info, od.device_info = saved[0], saved[1]
-        od.dummy_usage.clear()
-        od.dummy_usage.update(saved[2])
+    dummies = dict(od.dummy_usage)
+    dummies.update(dict.fromkeys(range(1, 8), True))  # the device maps a dummy of 0001h..0007h
+    return od.to_eds(file_info=file_info, device_info=info, dummy_usage=dummies)
