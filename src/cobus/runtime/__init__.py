@@ -6,7 +6,7 @@
 - :class:`SimulatedEventLoop` — the virtual clock.
 """
 
-from cobus.runtime.blocking import Network, RemoteNode
+from cobus.runtime.blocking import Network, ReentrantCallError, RemoteNode
 from cobus.runtime.bus import BusOpenError, open_bus
 from cobus.runtime.events import (
     BusErrorFrame,
@@ -15,6 +15,7 @@ from cobus.runtime.events import (
     HandlerFailed,
     ReceiveFailed,
     RxOverflow,
+    TxBufferOverflow,
     TxQueueFull,
     TxResumed,
 )
@@ -43,6 +44,7 @@ __all__ = [
     "NmtMaster",
     "ObjectNotFoundError",
     "ReceiveFailed",
+    "ReentrantCallError",
     "RemoteNode",
     "RxOverflow",
     "SdoChannel",
@@ -50,6 +52,7 @@ __all__ = [
     "SimulationStalledError",
     "Subscription",
     "SyncService",
+    "TxBufferOverflow",
     "TxOverflowError",
     "TxQueueFull",
     "TxResumed",

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import contextlib
+import logging
 import queue
 import threading
 from collections.abc import Callable, Coroutine
@@ -21,10 +23,11 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import can
 
+from cobus.errors import CobusError
 from cobus.proto import Event, Frame
 from cobus.proto.nmt import NmtCommand
 from cobus.runtime.loop import new_event_loop
-from cobus.runtime.network import AsyncNetwork, FrameHandler, Subscription
+from cobus.runtime.network import AsyncNetwork, FrameHandler, NetworkClosedError, Subscription
 from cobus.runtime.remote import NmtCommands, SdoChannel
 from cobus.runtime.remote import RemoteNode as AsyncRemoteNode
 
@@ -34,9 +37,22 @@ if TYPE_CHECKING:
     from cobus.device import BlockingDevice
     from cobus.od import ObjectDictionary, Variable
 
-__all__ = ["BlockingNmt", "BlockingSdo", "BlockingSync", "Network", "RemoteNode", "Runner"]
+__all__ = [
+    "BlockingNmt",
+    "BlockingSdo",
+    "BlockingSync",
+    "Network",
+    "ReentrantCallError",
+    "RemoteNode",
+    "Runner",
+]
 
 T = TypeVar("T")
+log = logging.getLogger(__name__)
+
+
+class ReentrantCallError(CobusError, RuntimeError):
+    """A blocking call was made where it would deadlock or re-enter the event loop."""
 
 
 class Runner:
@@ -48,6 +64,8 @@ class Runner:
         self._thread: threading.Thread | None = None
         self._callbacks: queue.SimpleQueue[Callable[[], object] | None] | None = None
         self._callback_thread: threading.Thread | None = None
+        self._callback_lock = threading.Lock()
+        self._closed = False
         if not simulated:
             self._thread = threading.Thread(
                 target=self.loop.run_forever, name="cobus-loop", daemon=True
@@ -55,11 +73,26 @@ class Runner:
             self._thread.start()
 
     def run(self, coro: Coroutine[Any, Any, T], timeout: float | None = None) -> T:
+        """Run ``coro`` on the loop and return its result; ``TimeoutError`` after ``timeout``
+        seconds (virtual seconds on the simulated clock)."""
+        if self._closed:
+            coro.close()
+            raise NetworkClosedError("the network is closed")
         if self.simulated:
+            if self.loop.is_running():
+                coro.close()
+                raise ReentrantCallError(
+                    "a blocking call from inside a callback on the simulated clock would "
+                    "re-enter the event loop: use the async API there (AsyncNetwork, await)"
+                )
+            if timeout is not None:
+                return self.loop.run_until_complete(asyncio.wait_for(coro, timeout))
             return self.loop.run_until_complete(coro)
         if threading.current_thread() is self._thread:
             coro.close()
-            raise RuntimeError("a blocking call was made from the event loop thread")
+            raise ReentrantCallError(
+                "a blocking call from the event loop thread would deadlock: use the async API"
+            )
         future = asyncio.run_coroutine_threadsafe(coro, self.loop)
         try:
             return future.result(timeout)
@@ -78,23 +111,35 @@ class Runner:
         return self.run(wrapper())
 
     def callback(self, fn: Callable[..., object]) -> Callable[..., None]:
-        """Wrap a user callback so that, in real time, it runs in the callback thread."""
+        """Wrap a user callback so that, in real time, it runs in the callback thread.
+
+        A coroutine function is run as a task on the network's loop.
+        """
+        loop = self.loop
         if self.simulated:
 
             def inline(*args: Any) -> None:
-                fn(*args)
+                result = fn(*args)
+                if asyncio.iscoroutine(result):
+                    loop.create_task(result)
 
             return inline
-        if self._callbacks is None:
-            self._callbacks = queue.SimpleQueue()
-            self._callback_thread = threading.Thread(
-                target=self._callback_worker, name="cobus-callbacks", daemon=True
-            )
-            self._callback_thread.start()
+        with self._callback_lock:
+            if self._callbacks is None:
+                self._callbacks = queue.SimpleQueue()
+                self._callback_thread = threading.Thread(
+                    target=self._callback_worker, name="cobus-callbacks", daemon=True
+                )
+                self._callback_thread.start()
         callbacks = self._callbacks
 
+        def job(*args: Any) -> None:
+            result = fn(*args)
+            if asyncio.iscoroutine(result):
+                asyncio.run_coroutine_threadsafe(result, loop)
+
         def deferred(*args: Any) -> None:
-            callbacks.put(lambda: fn(*args))
+            callbacks.put(lambda: job(*args))
 
         return deferred
 
@@ -107,19 +152,50 @@ class Runner:
             try:
                 job()
             except Exception:  # a user callback's failure is theirs; keep serving the others
-                import logging
-
-                logging.getLogger(__name__).exception("callback failed")
+                log.exception("callback failed")
 
     def close(self) -> None:
+        """Cancel what still runs on the loop, stop it and its threads. Idempotent, and safe
+        from a callback."""
+        if self._closed:
+            return
+        self._closed = True
+        current = threading.current_thread()
         if self._callbacks is not None:
             self._callbacks.put(None)
-            if self._callback_thread is not None:
+            if self._callback_thread is not None and self._callback_thread is not current:
                 self._callback_thread.join(timeout=2.0)
         if self._thread is not None:
+            if current is not self._thread:
+                with contextlib.suppress(concurrent.futures.TimeoutError, RuntimeError):
+                    asyncio.run_coroutine_threadsafe(_cancel_tasks(), self.loop).result(5.0)
             self.loop.call_soon_threadsafe(self.loop.stop)
-            self._thread.join(timeout=5.0)
-        self.loop.close()
+            if current is not self._thread:
+                self._thread.join(timeout=5.0)
+        elif not self.loop.is_running():
+            self.loop.run_until_complete(_cancel_tasks())
+        if not self.loop.is_running():
+            self.loop.close()
+
+
+async def _cancel_tasks() -> None:
+    """Cancel every task of the running loop but this one and wait for them to end."""
+    me = asyncio.current_task()
+    tasks = [t for t in asyncio.all_tasks() if t is not me]
+    for task in tasks:
+        task.cancel()
+    await asyncio.gather(*tasks, return_exceptions=True)
+
+
+class _LoopSubscription(Subscription):
+    """A subscription made from blocking code: cancelled on the loop thread."""
+
+    def __init__(self, inner: Subscription, runner: Runner) -> None:
+        self._inner = inner
+        self._runner = runner
+
+    def cancel(self) -> None:
+        self._runner.call(self._inner.cancel)
 
 
 class Network:
@@ -156,8 +232,14 @@ class Network:
         self.close()
 
     def close(self) -> None:
+        """Disconnect and stop the loop; calling it again does nothing."""
+        if self._runner._closed:
+            return
         if self.aio.connected:
-            self._runner.run(self.aio.disconnect())
+            try:
+                self._runner.run(self.aio.disconnect())
+            except ReentrantCallError:  # closed from a callback on the simulated clock
+                self.aio.loop.create_task(self.aio.disconnect())
         self._runner.close()
 
     @property
@@ -186,7 +268,8 @@ class Network:
 
     def subscribe_all(self, handler: FrameHandler) -> Subscription:
         wrapped = self._runner.callback(handler)
-        return self._runner.call(self.aio.subscribe_all, wrapped)
+        inner = self._runner.call(self.aio.subscribe_all, wrapped)
+        return _LoopSubscription(inner, self._runner)
 
     def add_listener(self, listener: Callable[[Event], object]) -> None:
         self._runner.call(self.aio.add_listener, self._runner.callback(listener))

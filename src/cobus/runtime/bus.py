@@ -13,7 +13,7 @@ import can
 
 from cobus.errors import CobusError
 from cobus.proto import Event, Frame
-from cobus.runtime.events import BusErrorFrame, BusState, RxOverflow
+from cobus.runtime.events import BusErrorFrame, BusState, RxOverflow, TxBufferOverflow
 
 __all__ = [
     "BusOpenError",
@@ -133,8 +133,10 @@ def decode_error_frame(msg: can.Message) -> ErrorFrameInfo:
         state = BusState.ACTIVE
     elif ident & 0x004:
         ctrl = data[1]
-        if ctrl & (_CRTL_RX_OVERFLOW | _CRTL_TX_OVERFLOW):
+        if ctrl & _CRTL_RX_OVERFLOW:
             events.append(RxOverflow())
+        if ctrl & _CRTL_TX_OVERFLOW:
+            events.append(TxBufferOverflow())
         if ctrl & _CRTL_PASSIVE:
             state = BusState.PASSIVE
         elif ctrl & _CRTL_WARNING:
@@ -178,5 +180,5 @@ def interface_reports_state(bus: can.BusABC) -> bool:
 def read_state(bus: can.BusABC) -> BusState | None:
     try:
         return _PYCAN_STATE.get(bus.state)
-    except (can.CanError, NotImplementedError, OSError):
+    except Exception:  # a driver that cannot tell: no state, polling goes on
         return None

@@ -14,6 +14,7 @@ __all__ = [
     "HandlerFailed",
     "ReceiveFailed",
     "RxOverflow",
+    "TxBufferOverflow",
     "TxQueueFull",
     "TxResumed",
 ]
@@ -49,6 +50,11 @@ class BusErrorFrame(Event):
 @dataclass(frozen=True, slots=True)
 class RxOverflow(Event):
     """The controller or driver lost received frames because its buffer overflowed."""
+
+
+@dataclass(frozen=True, slots=True)
+class TxBufferOverflow(Event):
+    """The controller or driver dropped frames to transmit because its buffer overflowed."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -11,7 +11,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import threading
-import weakref
 from collections import deque
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -20,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import can
 
 from cobus.errors import CobusError
-from cobus.proto import Event, Frame, Machine, Out
+from cobus.proto import NOTHING, Event, Frame, Machine, Out
 from cobus.runtime import bus as _bus
 from cobus.runtime.events import (
     BusState,
@@ -54,6 +53,7 @@ EventListener = Callable[[Event], Any]
 _EXT = 1 << 31  # dispatch key flag for 29-bit identifiers
 _BATCH = 256  # frames taken from the interface per wake-up
 _RETRY = 0.001  # seconds between attempts to flush the transmit backlog
+_DRAIN_LIMIT = 1024  # frames dispatched per loop callback before yielding
 
 
 class NetworkClosedError(CobusError, RuntimeError):
@@ -94,7 +94,6 @@ class MachineHost:
     """
 
     __slots__ = (
-        "__weakref__",
         "_armed",
         "_handle",
         "_network",
@@ -126,16 +125,35 @@ class MachineHost:
         self.apply(call(self._network.time()))
 
     def apply(self, out: Out) -> None:
-        if out.frames:
-            send = self._network.send
-            for frame in out.frames:
-                send(frame)
-        if out.events and self.on_event is not None:
-            for event in out.events:
-                self.on_event(event)
-        deadline = self.machine.deadline
-        if deadline != self._armed:
-            self._rearm(deadline)
+        """Send the frames and deliver the events of ``out``, then re-arm the timer.
+
+        A frame the network cannot take (backlog full, network closed) or a failing event
+        callback is reported as :class:`HandlerFailed`; the machine's timer is re-armed
+        whatever happens, so producers keep running once the bus recovers.
+        """
+        network = self._network
+        try:
+            if out.frames:
+                send = network.send
+                for frame in out.frames:
+                    try:
+                        send(frame)
+                    except CobusError as exc:
+                        network._report_failure(
+                            f"{type(self.machine).__name__} sending {frame!r}", exc
+                        )
+            if out.events and self.on_event is not None:
+                for event in out.events:
+                    try:
+                        self.on_event(event)
+                    except Exception as exc:
+                        network._report_failure(
+                            f"event callback of {type(self.machine).__name__}", exc
+                        )
+        finally:
+            deadline = self.machine.deadline
+            if deadline != self._armed and network.connected:
+                self._rearm(deadline)
 
     def _rearm(self, deadline: float | None) -> None:
         if self._handle is not None:
@@ -155,14 +173,19 @@ class MachineHost:
             out = self.machine.on_timer(now)
         except Exception as exc:  # a machine bug must not stop the network
             self._network._report_failure(f"timer of {type(self.machine).__name__}", exc)
+            later = self.machine.deadline
+            if later is not None and later > deadline:  # never spin on a failing deadline
+                self._rearm(later)
             return
         self.apply(out)
 
     def close(self) -> None:
+        """Detach the machine from the network: no more frames in, no more timers."""
         for sub in self._subscriptions:
             sub.cancel()
         self._subscriptions.clear()
         self._rearm(None)
+        self._network._hosts.discard(self)
 
 
 class AsyncNetwork:
@@ -196,12 +219,14 @@ class AsyncNetwork:
         self._drain_pending = False
         self._backlog: deque[Frame] = deque()
         self._backlog_limit = tx_backlog
-        self._retry_handle: asyncio.TimerHandle | None = None
+        self._retry_handle: asyncio.TimerHandle | asyncio.Handle | None = None
         self._tx_blocked = False
         self._state = BusState.ACTIVE
         self._reader: threading.Thread | None = None
         self._reader_stop = threading.Event()
-        self._hosts: weakref.WeakSet[MachineHost] = weakref.WeakSet()
+        self._hosts: set[MachineHost] = set()  # until host.close()
+        self._on_disconnect: list[Callable[[], object]] = []
+        self._listener_tasks: set[asyncio.Task[Any]] = set()
         self._rx_pending: deque[can.Message] = deque()
         self._rx_posted = False
         self._fd: int | None = None
@@ -216,21 +241,40 @@ class AsyncNetwork:
 
     # ------------------------------------------------------------------ life cycle
     async def connect(self) -> AsyncNetwork:
-        """Open the bus (if needed) and start receiving. Returns the network."""
+        """Open the bus (if needed) and start receiving. Returns the network.
+
+        After :meth:`disconnect`, ``connect`` again resumes: machines re-arm their timers and
+        frames still waiting in the transmit backlog go out.
+        """
         if self._loop is not None:
             return self
         loop = asyncio.get_running_loop()
-        self._loop = loop
+        opened = False
         if self._bus is None:
             args = {k: v for k, v in self._bus_args.items() if v is not None}
             if isinstance(loop, SimulatedEventLoop) and "interface" not in args:
                 args.update(interface="virtual", channel=f"cobus-sim-{id(self):x}")
             self._bus = _bus.open_bus(**args)
-        self._start_receiving(loop, self._bus)
+            opened = True
+        self._loop = loop
+        try:
+            self._start_receiving(loop, self._bus)
+        except BaseException:
+            self._loop = None
+            if opened:
+                self._bus.shutdown()
+                self._bus = None
+            raise
+        for host in list(self._hosts):
+            host.apply(NOTHING)
+        if self._backlog:
+            self._retry_handle = loop.call_soon(self._flush)
         return self
 
     async def disconnect(self) -> None:
-        """Stop receiving; shut the bus down if this network opened it."""
+        """Stop receiving and stop every machine's timer; shut the bus down if this network
+        opened it. Operations still waiting (an SDO transfer) fail with
+        :class:`NetworkClosedError`."""
         loop = self._loop
         if loop is None:
             return
@@ -240,10 +284,23 @@ class AsyncNetwork:
         for handle in (self._retry_handle, self._state_poll):
             if handle is not None:
                 handle.cancel()
+        self._retry_handle = self._state_poll = None
         self._loop = None
+        self._inbound.clear()
+        self._drain_pending = False
+        for callback in list(self._on_disconnect):
+            try:
+                callback()
+            except Exception as exc:
+                log.exception("disconnect callback %r failed", callback)
+                del exc
         if self._owns_bus and self._bus is not None:
             self._bus.shutdown()
             self._bus = None
+
+    def on_disconnect(self, callback: Callable[[], object]) -> None:
+        """Call ``callback()`` when the network disconnects (to fail pending operations)."""
+        self._on_disconnect.append(callback)
 
     async def __aenter__(self) -> AsyncNetwork:
         return await self.connect()
@@ -315,7 +372,7 @@ class AsyncNetwork:
         out when the interface takes frames again; :class:`TxOverflowError` if that backlog is
         full. Handlers of this network receive the frame once it is on the bus.
         """
-        if self._bus is None:
+        if self._bus is None or self._loop is None:
             raise NetworkClosedError("cannot send: the network is not connected")
         if self._backlog:
             self._enqueue(frame)
@@ -334,12 +391,17 @@ class AsyncNetwork:
         machine: Machine,
         cob_ids: Iterable[int] = (),
         on_event: Callable[[Event], None] | None = None,
+        *,
+        extended: bool = False,
     ) -> MachineHost:
-        """Drive ``machine`` on this network: frames on ``cob_ids`` in, its output out."""
+        """Drive ``machine`` on this network: frames on ``cob_ids`` in (29-bit identifiers
+        with ``extended=True``), its output out. A deadline it already has is armed."""
         host = MachineHost(self, machine, on_event)
         self._hosts.add(host)
         for cob_id in cob_ids:
-            host.listen(cob_id)
+            host.listen(cob_id, extended=extended)
+        if self._loop is not None:
+            host.apply(NOTHING)
         return host
 
     # ------------------------------------------------------------------ nodes and services
@@ -410,11 +472,18 @@ class AsyncNetwork:
             try:
                 result = listener(event)
                 if asyncio.iscoroutine(result):
-                    self.loop.create_task(result)
+                    task = self.loop.create_task(result)
+                    self._listener_tasks.add(task)
+                    task.add_done_callback(self._listener_done)
             except Exception as exc:
                 log.exception("event listener %r failed", listener)
                 if not isinstance(event, HandlerFailed):
                     self.emit(HandlerFailed(f"listener {listener!r}", repr(exc)))
+
+    def _listener_done(self, task: asyncio.Task[Any]) -> None:
+        self._listener_tasks.discard(task)
+        if not task.cancelled() and task.exception() is not None:
+            self._report_failure(f"listener task {task.get_name()}", task.exception())  # type: ignore[arg-type]
 
     def _report_failure(self, where: str, exc: BaseException) -> None:
         log.error("%s failed: %r", where, exc, exc_info=exc)
@@ -470,8 +539,14 @@ class AsyncNetwork:
             return
         now = self._loop.time()
         dispatch = self._dispatch
-        while inbound:
+        # Bounded: machines answering each other locally must not starve timers and I/O.
+        for _ in range(_DRAIN_LIMIT):
+            if not inbound:
+                return
             dispatch(inbound.popleft(), now)
+        if inbound and not self._drain_pending:
+            self._drain_pending = True
+            self._loop.call_soon(self._drain)
 
     def _dispatch(self, frame: Frame, now: float) -> None:
         """Hand ``frame`` to the monitors and to the handlers of its identifier."""
@@ -623,7 +698,7 @@ class AsyncNetwork:
         while not self._reader_stop.is_set():
             try:
                 msg = bus.recv(0.05)
-            except (can.CanError, OSError, ValueError) as exc:
+            except Exception as exc:  # any driver failure: report, back off, read on
                 if self._reader_stop.is_set():
                     return
                 try:

@@ -22,6 +22,7 @@ from cobus.proto.sdo import (
     UploadDone,
 )
 from cobus.proto.sync import SyncProducer
+from cobus.runtime.network import NetworkClosedError
 
 if TYPE_CHECKING:
     from cobus.od import ObjectDictionary, Variable
@@ -80,10 +81,14 @@ class SdoChannel:
             timeout=timeout,
         )
         self._host: MachineHost = network.attach(
-            self.client, [self.client.tx_cob_id], on_event=self._on_event
+            self.client,
+            [self.client.tx_cob_id],
+            on_event=self._on_event,
+            extended=self.client.tx_cob_id > 0x7FF,
         )
         self._lock = asyncio.Lock()
         self._pending: asyncio.Future[Event] | None = None
+        network.on_disconnect(self._on_disconnect)
 
     def _on_event(self, event: Event) -> None:
         if isinstance(event, UploadDone | DownloadDone | TransferFailed):
@@ -92,14 +97,34 @@ class SdoChannel:
                 pending.set_result(event)
         self._network.emit(event)
 
+    def _on_disconnect(self) -> None:
+        pending = self._pending
+        if pending is not None and not pending.done():
+            pending.set_exception(
+                NetworkClosedError(
+                    f"the network was disconnected during an SDO transfer with node {self.node_id}"
+                )
+            )
+
     async def _transfer(self, start: Any) -> Event:
         async with self._lock:
             self._pending = self._network.loop.create_future()
             try:
                 self._host.run(start)
                 return await self._pending
+            except BaseException:
+                # Cancelled (wait_for, Ctrl-C), disconnected or failed to start: end the
+                # transfer so the channel is free, telling the server where we still can.
+                if self.client.busy:
+                    out = self.client.abort(SdoAbortCode.GENERAL_ERROR, self._now())
+                    if self._network.connected:
+                        self._host.apply(out)
+                raise
             finally:
                 self._pending = None
+
+    def _now(self) -> float:
+        return self._network.time() if self._network.connected else 0.0
 
     async def upload(self, index: int, subindex: int = 0, *, block: bool = False) -> bytes:
         """Read the raw bytes of ``index:subindex`` from the server.
