@@ -331,6 +331,24 @@ def test_device_produces_sync_when_1005h_says_so():
     run_bench(scenario)
 
 
+def test_no_sync_is_produced_in_stopped_and_the_counter_restarts_after():
+    async def scenario(b: Bench):
+        await b.sdo.write(0x1019, 0, 3)
+        await b.sdo.write(0x1005, 0, 0x40000080)
+        await b.sdo.write(0x1006, 0, 10_000)
+        await b.net.sleep(0.025)
+        assert b.data(0x80) == [b"\x01", b"\x02"]
+        b.net.nmt.stop(NODE)
+        await b.settle()
+        await b.net.sleep(0.1)
+        assert len(b.data(0x80)) == 2  # silent while stopped
+        await b.start()
+        await b.net.sleep(0.025)
+        assert b.data(0x80)[2:] == [b"\x01", b"\x02"]
+
+    run_bench(scenario)
+
+
 def test_time_stamps_are_consumed_per_1012h():
     async def scenario(b: Bench):
         when = datetime(2024, 5, 17, 8, 30, 15, 250_000, tzinfo=UTC)

@@ -985,6 +985,12 @@ class Device:
                     self._apply(tpdo, NOTHING)
         if new is NmtState.STOPPED:
             self._build_sdo()  # transfers in progress end silently: SDO is not available
+        producer, host = self._sync_producer, self._sync_producer_host
+        if producer is not None and host is not None and NmtState.STOPPED in (old, new):
+            # CiA 301: no SYNC in Stopped; on leaving it the counter starts again at 1.
+            period = 0 if new is NmtState.STOPPED else int(self._value(0x1006, 0))
+            producer.set_period(period, now)
+            host.apply(NOTHING)
         self._emit(StateChanged(self._node_id, old, new))
 
     def _communication_error(self) -> None:
