@@ -196,6 +196,7 @@ def test_comments_bom_crlf_and_missing_optional_keys():
     od = loads(text)
     assert od.findings == []
     assert od.comments == ["first", "second"]
+    assert od.file_comments == {"": [(None, "; written by hand"), (None, "# hash comments too")]}
     reg = var(od, 0x1001)
     assert reg.object_type is ObjectType.VAR  # no ObjectType key: VAR (CiA 306)
     assert not reg.pdo_mappable and reg.default is None and reg.low_limit is None
@@ -238,6 +239,125 @@ def test_unknown_keys_and_sections_are_kept_and_written_back():
     for line in ("MyTool=3", "Special=yes", "[PreDefines]", "pp=1", "Category=Motor"):
         assert line in eds
     assert loads(eds) == od
+
+
+COMMENTED = """; made by hand
+[FileInfo]
+; about the file
+FileName=x.eds
+;after the name
+[DummyUsage]
+Dummy0005=1
+Vendor=7
+;why 7
+Dummy0007=oops
+[Comments]
+Lines=1
+Line1=first
+Author=me
+[1000]
+DefaultValue=0x191
+;SEVCONFIELD OBJECT=DEVICE_TYPE
+;SEVCONFIELD SPLIT=0
+ParameterName=Device type
+DataType=0x0007
+;StorageLocation=RAM
+AccessType=ro
+[1018]
+ParameterName=Identity
+ObjectType=0x9
+SubNumber=1
+[1018sub00]
+ParameterName=n
+;before the type
+DataType=0x0005
+AccessType=ro
+DefaultValue=0
+; [1018sub1] left out
+[1016]
+ParameterName=Consumers
+ObjectType=0x8
+DataType=0x0007
+AccessType=rw
+DefaultValue=0
+CompactSubObj=2
+[1016Name]
+NrOfEntries=1
+; named by hand
+1=Drive
+[PreDefines]
+# a tool's section
+pp=1
+"""
+
+
+def test_comment_lines_are_kept_where_they_are_and_written_back():
+    od = loads(COMMENTED)
+    assert [f.reason for f in od.findings] == [
+        "key Vendor is not DummyNNNN; it is kept as written",
+        "Dummy0007: bad number 'oops': expected a decimal, 0x-hex or 0-octal integer literal; "
+        "it is kept as written",
+        "key Author is not LineN; it is kept as written",
+    ]
+    assert od.dummy_usage == {5: True} and od.dummy_usage_extra == {
+        "Vendor": "7",
+        "Dummy0007": "oops",
+    }
+    assert od.comments == ["first"] and od.comments_extra == {"Author": "me"}
+    assert od.file_comments == {
+        "": [(None, "; made by hand")],
+        "FILEINFO": [(None, "; about the file"), ("FileName", ";after the name")],
+        "DUMMYUSAGE": [("Vendor", ";why 7")],
+        "1000": [
+            ("DefaultValue", ";SEVCONFIELD OBJECT=DEVICE_TYPE"),
+            ("DefaultValue", ";SEVCONFIELD SPLIT=0"),
+            ("DataType", ";StorageLocation=RAM"),
+        ],
+        "1018SUB0": [
+            ("ParameterName", ";before the type"),
+            ("DefaultValue", "; [1018sub1] left out"),
+        ],
+        "1016NAME": [("NrOfEntries", "; named by hand")],
+        "PREDEFINES": [(None, "# a tool's section")],
+    }
+    eds = od.to_eds()
+    # each comment follows its key, in the order the writer writes the keys
+    for block in (
+        "; made by hand\n[FileInfo]\n; about the file\nFileName=x.eds\n;after the name\n",
+        "[DummyUsage]\nDummy0005=1\nVendor=7\n;why 7\nDummy0007=oops\n",
+        "[Comments]\nLines=1\nLine1=first\nAuthor=me\n",
+        "DataType=0x0007\n;StorageLocation=RAM\nAccessType=ro\n"
+        "DefaultValue=0x191\n;SEVCONFIELD OBJECT=DEVICE_TYPE\n;SEVCONFIELD SPLIT=0\nPDOMapping=0\n",
+        "[1018sub0]\nParameterName=n\n;before the type\n",
+        "DefaultValue=0\n; [1018sub1] left out\nPDOMapping=0\n",
+        "[1016Name]\nNrOfEntries=1\n; named by hand\n1=Drive\n",
+        "[PreDefines]\n# a tool's section\npp=1\n",
+    ):
+        assert block in eds
+    again = loads(eds)
+    assert again.diff(od) == [] and again.to_eds() == eds
+
+
+def test_comments_go_with_their_object_and_stay_with_an_empty_section():
+    od = loads(COMMENTED)
+    od.remove(0x1018)
+    od.remove(0x1016)
+    assert set(od.file_comments) == {"", "FILEINFO", "DUMMYUSAGE", "1000", "PREDEFINES"}
+    only_comment = loads("[DummyUsage]\n; none are used\n" + VAR_1000)
+    assert only_comment.dummy_usage == {}
+    eds = only_comment.to_eds()
+    assert "[DummyUsage]\n; none are used\n" in eds and loads(eds).diff(only_comment) == []
+    duplicate = loads(VAR_1000 + "; first\n" + VAR_1000 + "; of the ignored copy\n")
+    assert duplicate.file_comments == {"1000": [("AccessType", "; first")]}
+    # a comment after a key that is not written back closes its section
+    unwritten = loads("[DeviceInfo]\nBaudRate_83=0\n; after 83\nVendorName=x\n" + VAR_1000)
+    eds = unwritten.to_eds()
+    assert "BaudRate_83" not in eds and "BaudRate_1000=0\n; after 83\n\n[Mandatory" in eds
+    assert loads(eds).to_eds() == eds
+    changed = loads(COMMENTED)
+    changed.file_comments["1000"].append(("ParameterName", "; new"))
+    (line,) = changed.diff(loads(COMMENTED))
+    assert line.startswith("comments of [1000]: {") and "'parametername': ['; new']" in line
 
 
 def test_lenient_and_strict():
@@ -386,11 +506,20 @@ def test_corpus_is_there():
     assert len(CORPUS) == 18
 
 
+def _comment_lines(text: str) -> list[str]:
+    return sorted(s for line in text.splitlines() if (s := line.strip())[:1] in (";", "#"))
+
+
 @pytest.mark.parametrize("path", CORPUS, ids=lambda p: p.name)
 def test_corpus_round_trip(path: Path):
     od = load(path)
     assert len(od) > 20
-    for text in (od.to_eds(), od.to_dcf()):
+    eds = od.to_eds()
+    # every whole-line comment survives, and load -> write -> load -> write is text-stable
+    original = path.read_bytes().decode("utf-8", errors="replace")
+    assert _comment_lines(eds) == _comment_lines(original)
+    assert loads(eds).to_eds() == eds
+    for text in (eds, od.to_dcf()):
         again = loads(text, path="written")
         assert again.diff(od) == []
         # What we write is clean of the syntax problems the original may have had.

@@ -7,6 +7,8 @@ deviation as a :class:`Finding` (``od.findings``) with its line. ``strict=True``
 It reads in two passes: a tokenizer that splits the text into sections of ``key=value``
 (remembering lines only for sections, so the common path allocates nothing per key), then a
 builder that turns the sections into objects. Section and key names are case-insensitive.
+Whole-line ``;`` and ``#`` comments are kept with the section they are in and the key they
+follow (``od.file_comments``), to be written back.
 """
 
 from __future__ import annotations
@@ -127,7 +129,7 @@ _COMMISSIONING_KEYS = {
 
 
 class _Section:
-    __slots__ = ("end", "keys", "line", "name", "start")
+    __slots__ = ("comments", "end", "keys", "line", "name", "start")
 
     def __init__(self, name: str, line: int, start: int) -> None:
         self.name = name
@@ -135,6 +137,8 @@ class _Section:
         self.start = start  # text offset of the line after the header
         self.end = start  # text offset where the section ends
         self.keys: dict[str, str] = {}
+        #: Whole-line comments: (the key before it, or None; the line).
+        self.comments: list[tuple[str | None, str]] | None = None
 
 
 class _Loader:
@@ -144,6 +148,10 @@ class _Loader:
         self.findings: list[Finding] = []
         self.text = ""
         self.by_line: dict[int, _Section] = {}
+        #: Comments before the first section.
+        self.head: list[tuple[str | None, str]] = []
+        #: Comments of the sections that became part of the dictionary, by section key.
+        self.comments: dict[str, list[tuple[str | None, str]]] = {}
 
     # --- findings ---------------------------------------------------------------------------
 
@@ -181,6 +189,7 @@ class _Loader:
         sections: list[_Section] = []
         seen: dict[str, _Section] = {}
         cur: _Section | None = None
+        last_key: str | None = None  # the last key of the current section
         no = 0
         size = len(text)
         find = text.find
@@ -202,6 +211,13 @@ class _Loader:
                     continue
                 first = line[0]
                 if first == ";" or first == "#":
+                    # Kept with the section it is in, after the key it follows.
+                    if cur is None:
+                        self.head.append((None, line))
+                    elif cur.comments is None:
+                        cur.comments = [(last_key, intern(line, line))]
+                    else:
+                        cur.comments.append((last_key, intern(line, line)))
                     continue
                 if first == "[":
                     # Text offsets of this line and of the next one.
@@ -213,6 +229,7 @@ class _Loader:
                     after = here + len(raw) + 1
                     if cur is not None:
                         cur.end = here
+                    last_key = None
                     close = line.find("]")
                     rest = line[close + 1 :].lstrip() if close > 0 else ""
                     name = line[1:close].strip() if close > 0 else ""
@@ -264,7 +281,8 @@ class _Loader:
                     continue
                 value = value.lstrip()
                 # One string object per distinct key and value: files repeat them a lot.
-                keys[intern(key, key)] = intern(value, value)
+                last_key = intern(key, key)
+                keys[last_key] = intern(value, value)
             no += len(lines)
             start = end
             if cur is not None:
@@ -272,6 +290,11 @@ class _Loader:
         return sections
 
     # --- pass 2: building -------------------------------------------------------------------
+
+    def keep_comments(self, sec: _Section, key: str) -> None:
+        """The comments of ``sec``, a section of the dictionary written as [``key``]."""
+        if sec.comments is not None:
+            self.comments[key] = sec.comments
 
     def build(self, sections: list[_Section], node_id: int | None) -> ObjectDictionary:
         od = ObjectDictionary()
@@ -312,6 +335,8 @@ class _Loader:
                 else:
                     objects[index] = sec
                 continue
+            if sec.comments is not None:
+                self.comments[upper] = sec.comments
             if upper == "FILEINFO":
                 od.file_info = self._file_info(sec)
             elif upper == "DEVICEINFO":
@@ -321,7 +346,7 @@ class _Loader:
             elif upper == "DUMMYUSAGE":
                 dummy = sec
             elif upper == "COMMENTS":
-                od.comments = self._comments(sec)
+                od.comments = self._comments(sec, od.comments_extra)
             elif upper in ("MANDATORYOBJECTS", "OPTIONALOBJECTS", "MANUFACTUREROBJECTS"):
                 lists.append(sec)
             else:
@@ -354,10 +379,14 @@ class _Loader:
                     "as an unknown section",
                 )
                 od.extra_sections.append((sec.name, list(sec.keys.items())))
+                self.keep_comments(sec, sec.name.upper())
         if dummy is not None:
             self._dummy_usage(od, dummy)
         self._object_lists(od, lists)
         check_dictionary(od, self._report, self._locate)
+        if self.head:
+            self.comments[""] = self.head
+        od.file_comments = self.comments
         return od
 
     def _report(self, severity: Severity, var: object, key: str | None, reason: str) -> None:
@@ -451,6 +480,7 @@ class _Loader:
             if extra:
                 var.extra = extra
             od._add(var)
+            self.keep_comments(sec, f"{index:04X}")
             return
         if ot is ObjectType.NULL:
             self.error(sec.line, sec.name, "ObjectType 0 (NULL) objects cannot be described")
@@ -498,7 +528,9 @@ class _Loader:
                 obj.subindices.pop(sub, None)
                 obj._names = {v.name: v for v in obj.subindices.values()}
                 obj.add(var)
+                self.keep_comments(subsec, f"{index:04X}SUB{sub:X}")
             od._add(obj)
+            self.keep_comments(sec, f"{index:04X}")
             return
         leftovers = {k: keys[k] for k in _VAR_ONLY if k in keys}
         if leftovers or extra:
@@ -526,8 +558,10 @@ class _Loader:
             if sextra:
                 var.extra = sextra
             obj.add(var)
+            self.keep_comments(subsec, f"{index:04X}SUB{sub:X}")
         self._check_sub_number(obj, sec, sub_number, subsecs, sub_number_text is not None)
         od._add(obj)
+        self.keep_comments(sec, f"{index:04X}")
 
     def _check_sub_number(
         self,
@@ -631,6 +665,9 @@ class _Loader:
         if denotations is not None:
             for sub, text, _key in self._numbered(denotations, count):
                 obj.subindices[sub].denotation = text
+        for suffix, used in (("NAME", names), ("VALUE", values), ("DENOTATION", denotations)):
+            if used is not None:
+                self.keep_comments(used, f"{index:04X}{suffix}")
 
     def _numbered(self, sec: _Section, count: int) -> list[tuple[int, str, str]]:
         """``N=text`` entries of a [xxxxName]/[xxxxValue]/[xxxxDenotation] section, with keys."""
@@ -921,7 +958,7 @@ class _Loader:
                 )
         return com
 
-    def _comments(self, sec: _Section) -> list[str]:
+    def _comments(self, sec: _Section, extra: dict[str, str]) -> list[str]:
         lines: dict[int, str] = {}
         declared: int | None = None
         for key, value in sec.keys.items():
@@ -932,8 +969,11 @@ class _Loader:
             m = _LINE_KEY.match(upper)
             if m is None:
                 self.warning(
-                    self.key_line(sec, key), sec.name, f"key {key} is not LineN; it is dropped"
+                    self.key_line(sec, key),
+                    sec.name,
+                    f"key {key} is not LineN; it is kept as written",
                 )
+                extra[key] = value
                 continue
             lines[int(m.group(1))] = value
         count = max(declared or 0, max(lines, default=0))
@@ -950,14 +990,20 @@ class _Loader:
             m = _DUMMY_KEY.match(key.upper())
             if m is None:
                 self.warning(
-                    self.key_line(sec, key), sec.name, f"key {key} is not DummyNNNN; it is dropped"
+                    self.key_line(sec, key),
+                    sec.name,
+                    f"key {key} is not DummyNNNN; it is kept as written",
                 )
+                od.dummy_usage_extra[key] = value
                 continue
             code = int(m.group(1), 16)
             try:
                 enabled = bool(parse_int(value)) if value.strip() else False
             except TextError as exc:
-                self.error(self.key_line(sec, key), sec.name, f"{key}: {exc.reason}")
+                self.error(
+                    self.key_line(sec, key), sec.name, f"{key}: {exc.reason}; it is kept as written"
+                )
+                od.dummy_usage_extra[key] = value
                 continue
             od.dummy_usage[code] = enabled
             if not enabled or code in od._objects:

@@ -571,6 +571,28 @@ class Array(_Composite):
 Object: TypeAlias = Variable | Record | Array
 
 
+def _layout(
+    comments: dict[str, list[tuple[str | None, str]]],
+) -> dict[str, dict[str | None, list[str]]]:
+    """Where the comments go when written: by section, by the key they follow (in lower case),
+    in order. The order of comments that follow different keys does not matter."""
+    out: dict[str, dict[str | None, list[str]]] = {}
+    for section, lines in comments.items():
+        if lines:
+            by_key = out.setdefault(section, {})
+            for after, text in lines:
+                by_key.setdefault(None if after is None else after.lower(), []).append(text)
+    return out
+
+
+def _object_section(key: str, prefix: str) -> bool:
+    """Whether the section ``key`` (upper case) describes the object ``prefix`` (4 digits)."""
+    if not key.startswith(prefix):
+        return False
+    rest = key[4:]
+    return not rest or rest.startswith("SUB") or rest in ("NAME", "VALUE", "DENOTATION")
+
+
 def _diff_obj(a: Object, b: Object) -> list[str]:
     where = f"0x{a.index:04X}"
     if type(a) is not type(b):
@@ -699,8 +721,17 @@ class ObjectDictionary:
         self.commissioning: Commissioning | None = None
         #: [Comments] lines.
         self.comments: list[str] = []
+        #: [Comments] keys other than Lines and LineN, as written (kept to be written back).
+        self.comments_extra: dict[str, str] = {}
         #: [DummyUsage]: data type number -> may be mapped as a PDO dummy entry.
         self.dummy_usage: dict[int, bool] = {}
+        #: [DummyUsage] keys that are not DummyNNNN (or have no number), as written.
+        self.dummy_usage_extra: dict[str, str] = {}
+        #: Whole-line ``;`` and ``#`` comments of the file, kept to be written back: by the
+        #: section they are in (its name in upper case as it is written: ``"1018SUB1"``,
+        #: ``"DEVICEINFO"``; ``""`` for the lines before the first section), in file order,
+        #: each as (the key it follows, None when it comes before any key; the line).
+        self.file_comments: dict[str, list[tuple[str | None, str]]] = {}
         #: Sections the model does not interpret, in file order: (name, [(key, value)]).
         self.extra_sections: list[tuple[str, list[tuple[str, str]]]] = []
         #: What loading (and :meth:`validate`) found, in line order.
@@ -793,6 +824,10 @@ class ObjectDictionary:
         obj._home = None
         self._sorted = None
         self._dummies.discard(index)
+        if self.file_comments:  # the comments of its sections go with it
+            prefix = f"{index:04X}"
+            for key in [k for k in self.file_comments if _object_section(k, prefix)]:
+                del self.file_comments[key]
         dups = self._dup_names.get(obj.name)
         if dups is not None:
             dups.remove(index)
@@ -861,12 +896,19 @@ class ObjectDictionary:
             "device_info",
             "commissioning",
             "comments",
+            "comments_extra",
             "dummy_usage",
+            "dummy_usage_extra",
             "extra_sections",
         ):
             va, vb = getattr(self, attr), getattr(other, attr)
             if va != vb:
                 out.append(f"{attr}: {va!r} != {vb!r}")
+        mine_c, theirs_c = _layout(self.file_comments), _layout(other.file_comments)
+        for section in sorted(mine_c.keys() | theirs_c.keys()):
+            a, b = mine_c.get(section, {}), theirs_c.get(section, {})
+            if a != b:
+                out.append(f"comments of [{section}]: {a!r} != {b!r}")
         mine, theirs = set(self._objects), set(other._objects)
         for index in sorted(mine - theirs):
             out.append(f"0x{index:04X}: only in the first dictionary")

@@ -2,7 +2,9 @@
 
 Values keep the text the file had (``$NODEID+0x180`` stays as written) unless they were
 changed in code. Object lists are derived from the objects. Unknown keys and sections are
-written back. Reading the output gives an equal dictionary.
+written back, and so are the file's whole-line ``;``/``#`` comments, each in its section after
+the key it followed. Reading the output gives an equal dictionary, and writing that again
+gives the same text.
 """
 
 from __future__ import annotations
@@ -293,15 +295,17 @@ def write(
         out.append("")
 
     dummies = od.dummy_usage if dummy_usage is None else dummy_usage
-    if dummies:
+    if dummies or od.dummy_usage_extra or "DUMMYUSAGE" in od.file_comments:
         out.append("[DummyUsage]")
         out.extend(f"Dummy{code:04X}={int(on)}" for code, on in sorted(dummies.items()))
+        out.extend(f"{k}={v}" for k, v in od.dummy_usage_extra.items())
         out.append("")
 
-    if od.comments:
+    if od.comments or od.comments_extra or "COMMENTS" in od.file_comments:
         out.append("[Comments]")
         out.append(f"Lines={len(od.comments)}")
         out.extend(f"Line{i}={text}" for i, text in enumerate(od.comments, 1))
+        out.extend(f"{k}={v}" for k, v in od.comments_extra.items())
         out.append("")
 
     groups: list[list[Variable | Record | Array]] = [[], [], []]
@@ -323,4 +327,42 @@ def write(
         out.append(f"[{name}]")
         out.extend(f"{k}={v}" for k, v in items)
         out.append("")
+    if od.file_comments:
+        out = _with_comments(out, od.file_comments)
     return "\n".join(out)
+
+
+def _with_comments(
+    lines: list[str], comments: dict[str, list[tuple[str | None, str]]]
+) -> list[str]:
+    """``lines`` with the file's comment lines put back: each in its section, after the key it
+    followed (keys match without regard to case), those of a key no longer written at the end
+    of their section. Read again, each comment follows the key it follows here, so writing the
+    result again gives the same text.
+    """
+    out = [text for _, text in comments.get("", ())]
+    pending: dict[str | None, list[str]] = {}  # the current section's comments not yet out
+    for line in lines:
+        if line[:1] == "[":
+            for texts in pending.values():
+                out.extend(texts)
+            pending = {}
+            out.append(line)
+            for after, text in comments.get(line[1:-1].upper(), ()):
+                pending.setdefault(None if after is None else after.lower(), []).append(text)
+            out.extend(pending.pop(None, []))
+        elif not pending:
+            out.append(line)
+        elif line:
+            out.append(line)
+            key = line.partition("=")[0].lower()
+            if key in pending:
+                out.extend(pending.pop(key))
+        else:  # the blank line that ends the section
+            for texts in pending.values():
+                out.extend(texts)
+            pending = {}
+            out.append(line)
+    for texts in pending.values():
+        out.extend(texts)
+    return out
