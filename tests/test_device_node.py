@@ -205,7 +205,7 @@ def test_eds_export_leaves_the_dictionary_alone_while_it_writes():
             written.append(name)
             super().__setattr__(name, value)
 
-    class WatchedDict(dict):
+    class WatchedDict(dict[int, bool]):
         def __setitem__(self, key, value):
             written.append(f"dummy_usage[{key}]")
             super().__setitem__(key, value)
