@@ -91,6 +91,7 @@ class Master:
         self._timers: dict[tuple[int, int], asyncio.TimerHandle] = {}
         self._dirty: set[tuple[int, int]] = set()
         self._own_sync = False
+        self._sync_seen = False
         self._meter = BusLoadMeter(config.master.bitrate, config.master.bus_load_window)
         self._rpdos: dict[tuple[int, int], PdoLayout] = {}
         self.nodes: dict[int, ManagedNode] = {}
@@ -188,14 +189,18 @@ class Master:
     def start(self) -> None:
         """Start the boot-up of the network in the background (call on the event loop).
 
-        Producers first (the master's heartbeat, SYNC, TIME: some devices want SYNC before
-        they are started), then the resets and one boot-up task per node."""
+        Producers first (the master's heartbeat, SYNC, TIME), then the resets and one boot-up
+        task per node. When the master produces SYNC, it starts the nodes only once its first
+        SYNC is out (one period after this call): some devices refuse NMT start unless SYNC
+        already runs (the ZAPI ACE2 of seed 000 raises alarm 248), and a node that needs no
+        boot-up (``do_not_initialise``) is ready sooner."""
         if self._started:
             raise MasterError("the master is already started; stop() it first")
         net = self.network
         loop = net.loop
         cfg = self.config.master
         self._started = True
+        self._sync_seen = False
         self._set_status(MasterStatus.RESET)
         self._state = MasterState.INITIALISING
         now = net.time()
@@ -330,6 +335,8 @@ class Master:
         if self._status is not MasterStatus.RESET or not self._started:
             return
         if all(n.settled for n in self.nodes.values()):
+            if self._own_sync and not self._sync_seen:
+                return  # SYNC runs before the first start: _on_sync starts the network
             self._start_network()
 
     def _startable(self) -> list[ManagedNode]:
@@ -439,6 +446,11 @@ class Master:
         diag = self.diagnostics
         diag.sync_count += 1
         diag.sync_toggle = not diag.sync_toggle
+        if not self._sync_seen:
+            self._sync_seen = True
+            if self._status is MasterStatus.RESET:
+                self._check_boot_complete()
+                return
         if not self.running:
             return
         dirty = self._dirty
