@@ -1,6 +1,6 @@
 """What the cobus master needs to drive the document devices the way their documents' masters do
 (issue 6: "a scenario test driven by the master"), each on its own: from the master SYNC before
-the first NMT start.
+the first NMT start, TPDO listeners and ``send_rpdo``.
 """
 
 from __future__ import annotations
@@ -10,9 +10,11 @@ from pathlib import Path
 import pytest
 
 from cobus.master import (
+    MasterValueError,
     NetworkConfig,
 )
 from cobus.proto.nmt import NmtState
+from cobus.runtime import HandlerFailed
 from tests.test_master_support import (
     Rig,
     network,
@@ -68,5 +70,63 @@ def test_the_master_starts_nodes_once_its_first_sync_is_out(tmp_path: Path, sync
         else:
             assert first(rig, 0x000, b"\x01\x05") == 0.0 and rig.on(0x80) == []
         assert nmt(rig.devices[5]) is NmtState.OPERATIONAL
+
+    rig_test(cfg, scenario)
+
+
+def test_tpdo_listeners_see_each_tpdo_once_it_is_in_the_process_image(tmp_path: Path) -> None:
+    cfg = io_network(tmp_path, "{}")
+
+    async def scenario(rig: Rig) -> None:
+        master = rig.master
+        seen: list[tuple[int, int, float, object]] = []
+
+        def listener(node_id: int, number: int, now: float) -> None:
+            seen.append((node_id, number, now, master.inputs["a.counter"]))
+
+        def broken(node_id: int, number: int, now: float) -> None:
+            raise RuntimeError("application bug")
+
+        failures: list[HandlerFailed] = []
+        rig.net.add_listener(lambda e: failures.append(e) if isinstance(e, HandlerFailed) else None)
+        master.add_tpdo_listener(broken)
+        master.add_tpdo_listener(listener)
+        device = rig.add(5)
+        rig.send(0x185, b"\x07\x00")  # before the start: not taken, not reported
+        await rig.settle()
+        await master.boot(timeout=5)
+        device.set(0x2000, 0, 42)
+        await rig.run(0.01)
+        # called when the TPDO arrives, with its value already in the image
+        assert seen == [(5, 1, first(rig, 0x185, b"\x2a\x00"), 42)]
+        assert len(failures) == 1 and "application bug" in failures[0].error
+        master.remove_tpdo_listener(listener)
+        master.remove_tpdo_listener(broken)
+        device.set(0x2000, 0, 43)
+        await rig.run(0.01)
+        assert len(seen) == 1 and master.inputs["a.counter"] == 43
+
+    rig_test(cfg, scenario)
+
+
+def test_send_rpdo_sends_the_outputs_changed_or_not(tmp_path: Path) -> None:
+    cfg = io_network(tmp_path, "{sync_period: 10}")
+
+    async def scenario(rig: Rig) -> None:
+        master = rig.master
+        rig.add(5)
+        master.start()
+        assert master.send_rpdo("a", 1) is False  # not started yet: nothing
+        await master.boot(timeout=5)
+        master.outputs["a.flags"] = 3
+        master.outputs["a.flags"] = 3  # unchanged: no frame
+        await rig.settle()
+        assert rig.data(0x205) == [b"\x00", b"\x03"]  # the start, the change
+        assert master.send_rpdo(5, 1) is True
+        await rig.settle()
+        assert rig.data(0x205) == [b"\x00", b"\x03", b"\x03"]
+        assert master.nodes[5].rpdo_sent[1] == 3
+        with pytest.raises(MasterValueError, match=r"no RPDO 2 .*its RPDOs: 1"):
+            master.send_rpdo("a", 2)
 
     rig_test(cfg, scenario)

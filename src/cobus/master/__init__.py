@@ -6,7 +6,8 @@
   parallel: reset, boot-up, device type and identity check, start-up SDOs, heartbeat or node
   guarding, start), supervises it (error control with toggle check, TPDO presence and length,
   emergencies, unexpected states, re-booted nodes) and reacts per node and per network.
-- ``master.inputs`` / ``master.outputs``: named, scaled signals carried by the PDOs.
+- ``master.inputs`` / ``master.outputs``: named, scaled signals carried by the PDOs;
+  :meth:`Master.add_tpdo_listener` calls the application each time a TPDO is taken in.
 - :class:`BlockingMaster`: the same for scripts, on :class:`cobus.runtime.Network`.
 """
 
@@ -56,7 +57,7 @@ from cobus.master.events import (
     UnexpectedState,
 )
 from cobus.master.image import Inputs, Outputs
-from cobus.master.master import Master, MasterListener
+from cobus.master.master import Master, MasterListener, TpdoListener
 from cobus.master.node import ManagedNode
 from cobus.master.states import (
     Diagnostic,
@@ -114,6 +115,7 @@ __all__ = [
     "SignalError",
     "SignalValueError",
     "TpdoLengthError",
+    "TpdoListener",
     "TpdoMissing",
     "TpdoRestored",
     "UnexpectedState",

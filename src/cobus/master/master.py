@@ -21,7 +21,12 @@ from typing import Any
 
 from cobus.master.config import NetworkConfig, PdoLayout, load_network
 from cobus.master.diagnostics import BusLoadMeter, MasterDiagnostics
-from cobus.master.errors import BootTimeoutError, MasterError, NodeNotFoundError
+from cobus.master.errors import (
+    BootTimeoutError,
+    MasterError,
+    MasterValueError,
+    NodeNotFoundError,
+)
 from cobus.master.events import MasterEvent, MasterStateChanged, NetworkStopped
 from cobus.master.image import Inputs, Outputs, ProcessImage
 from cobus.master.node import ManagedNode
@@ -50,11 +55,13 @@ from cobus.runtime import (
     TxQueueFull,
 )
 
-__all__ = ["Master", "MasterListener"]
+__all__ = ["Master", "MasterListener", "TpdoListener"]
 
 log = logging.getLogger(__name__)
 
 MasterListener = Callable[[MasterEvent], object]
+#: ``listener(node_id, tpdo_number, now)``: see :meth:`Master.add_tpdo_listener`.
+TpdoListener = Callable[[int, int, float], object]
 _INVALID = 1 << 31
 _EXTENDED = 1 << 29
 
@@ -80,6 +87,7 @@ class Master:
         self.inputs = Inputs(self.image)
         self.outputs = Outputs(self.image, self.set_output)
         self._listeners: list[MasterListener] = []
+        self._tpdo_listeners: list[TpdoListener] = []
         self._state = MasterState.INITIALISING
         self._status = MasterStatus.OFFLINE
         self._started = False
@@ -158,6 +166,29 @@ class Master:
     def remove_listener(self, listener: MasterListener) -> None:
         if listener in self._listeners:
             self._listeners.remove(listener)
+
+    def add_tpdo_listener(self, listener: TpdoListener) -> None:
+        """Call ``listener(node_id, tpdo_number, now)`` each time a TPDO has been taken into
+        the process image (``master.inputs`` hold its values; TPDOs of nodes that are not
+        operational, and too short ones, are not taken).
+
+        The place for application code that must answer within the cycle, e.g. a toggle
+        handshake: the ZAPI ACE2 of seed 000 expects the opposite of its TPDO1 toggle bit
+        in RPDO1 before the next SYNC; set the output here and an event-driven RPDO (type
+        254/255) goes out at once (:meth:`send_rpdo` when the value did not change)."""
+        self._tpdo_listeners.append(listener)
+
+    def remove_tpdo_listener(self, listener: TpdoListener) -> None:
+        if listener in self._tpdo_listeners:
+            self._tpdo_listeners.remove(listener)
+
+    def _tpdo_taken(self, node_id: int, number: int, now: float) -> None:
+        for listener in list(self._tpdo_listeners):
+            try:
+                listener(node_id, number, now)
+            except Exception as exc:  # an application's failure must not stop the master
+                log.exception("master TPDO listener %r failed", listener)
+                self.network.emit(HandlerFailed(f"master TPDO listener {listener!r}", repr(exc)))
 
     def _emit(self, event: MasterEvent) -> None:
         for listener in list(self._listeners):
@@ -493,6 +524,26 @@ class Master:
                 self.nodes[node_id]._send_rpdo(layout)
             elif layout.transmission_type == 0:
                 self._dirty.add((node_id, number))
+
+    def send_rpdo(self, key: int | str, number: int) -> bool:
+        """Send RPDO ``number`` of a node now with the current outputs, whether they changed
+        or not (an event-driven RPDO otherwise goes out only on a change, a synchronous one
+        with the SYNC): for devices that want an RPDO every cycle, such as the ZAPI ACE2
+        whose handshake needs an answer to each TPDO1. Returns whether it was sent (not
+        while the node is not operational or the network does not run)."""
+        node = self.node(key)
+        layout = self._rpdos.get((node.node_id, number))
+        if layout is None or layout.linked:
+            numbers = ", ".join(
+                str(n)
+                for (nid, n), lay in self._rpdos.items()
+                if nid == node.node_id and not lay.linked
+            )
+            raise MasterValueError(
+                f"node {node.node_id} {node.name!r} has no RPDO {number} the master sends "
+                f"(its RPDOs: {numbers or 'none'})"
+            )
+        return node._send_rpdo(layout)
 
     def summary(self) -> list[dict[str, Any]]:
         """One line of figures per node (state, diagnostic, EMCY count...)."""

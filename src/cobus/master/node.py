@@ -755,6 +755,7 @@ class ManagedNode:
         self._tpdos_short.discard(number)
         self._tpdos_seen.add(number)
         self.master.image.update_tpdo(self.node_id, number, layout.codec.unpack(data))
+        self.master._tpdo_taken(self.node_id, number, now)
 
     def _on_watchdog(self, number: int, event: Event) -> None:
         watch = self._watchdogs.get(number)
@@ -770,22 +771,25 @@ class ManagedNode:
             self._tpdos_missing.discard(number)
             self.master._emit(TpdoRestored(self.node_id, number, layout.cob_id))
 
-    def _send_rpdo(self, layout: PdoLayout) -> None:
-        """Send RPDO ``layout`` with the current outputs (only while operational)."""
+    def _send_rpdo(self, layout: PdoLayout) -> bool:
+        """Send RPDO ``layout`` with the current outputs (only while operational); returns
+        whether it went out."""
         if layout.linked or not self.operational or not self.master.running:
-            return
+            return False
         image = self.master.image
         if not image.has_rpdo(self.node_id, layout.number):
-            return
+            return False
         frame = Frame(
             layout.cob_id, image.rpdo_data(self.node_id, layout.number), extended=layout.extended
         )
-        if self.master._send(frame):
-            number = layout.number
-            self.rpdo_sent[number] = self.rpdo_sent.get(number, 0) + 1
-            counters = self.master.diagnostics.pdo_counters
-            key = (self.node_id, "rpdo", number)
-            counters[key] = counters.get(key, 0) + 1
+        if not self.master._send(frame):
+            return False
+        number = layout.number
+        self.rpdo_sent[number] = self.rpdo_sent.get(number, 0) + 1
+        counters = self.master.diagnostics.pdo_counters
+        key = (self.node_id, "rpdo", number)
+        counters[key] = counters.get(key, 0) + 1
+        return True
 
     def _describe(self) -> str:
         role = "mandatory" if self.config.mandatory else "optional"
