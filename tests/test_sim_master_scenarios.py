@@ -1,6 +1,7 @@
 """What the cobus master needs to drive the document devices the way their documents' masters do
 (issue 6: "a scenario test driven by the master"), each on its own: from the master SYNC before
-the first NMT start, TPDO listeners and ``send_rpdo``.
+the first NMT start, TPDO listeners and ``send_rpdo``; from the STÖBER simulator a fault that
+outlasts an NMT reset node, reported again.
 """
 
 from __future__ import annotations
@@ -14,13 +15,15 @@ from cobus.master import (
     NetworkConfig,
 )
 from cobus.proto.nmt import NmtState
-from cobus.runtime import HandlerFailed
+from cobus.runtime import AsyncNetwork, HandlerFailed
+from cobus.sim.stober import StoberMds5000
 from tests.test_master_support import (
     Rig,
     network,
     nmt,
     rig_test,
 )
+from tests.util import simulate
 
 
 def first(rig: Rig, cob_id: int, data: bytes | None = None) -> float:
@@ -35,6 +38,49 @@ def place(rig: Rig, cob_id: int, data: bytes | None = None) -> int:
         for n, (_, f) in enumerate(rig.frames)
         if f.cob_id == cob_id and (data is None or f.data == data)
     )
+
+
+# ================================================================================ STÖBER
+MDS = 1
+ENABLE_BIT, ACK_BIT = 1 << 0, 1 << 2  # A180 device control (the simulator's choice)
+OPERATION_ENABLED, FAULT, SWITCH_ON_DISABLED = 4, 7, 1
+
+
+def test_stober_fault_outlasting_a_reset_node_is_reported_again_and_acknowledged() -> None:
+    """NMT reset node clears the CANopen errors, not the inverter's fault: the drive reports
+    the event once more after its boot-up (1001h shows it), and the acknowledge sends
+    0000h as the manual says; reset communication keeps the error and sends nothing."""
+
+    async def main() -> list[tuple[int, bytes]]:
+        async with AsyncNetwork() as net:
+            frames: list[tuple[int, bytes]] = []
+            net.subscribe_all(lambda f, now: frames.append((f.cob_id, f.data)))
+            mds = StoberMds5000(net, MDS)
+            mds.start()
+            mds.inject("event", number=44, cause=7)  # external fault
+            await net.sleep(0.1)
+            net.nmt.reset_communication(MDS)
+            await net.sleep(0.1)
+            net.nmt.reset_node(MDS)
+            await net.sleep(0.1)
+            device = mds.device
+            assert device is not None and device.get(0x1001) == 0x01
+            mds.inject("event", number=44, active=False)
+            assert mds.acknowledge()
+            await net.sleep(0.01)
+            assert device.get(0x1001) == 0
+            mds.close()
+            return [(c, d) for c, d in frames if c in (0x081, 0x701)]
+
+    fault = (0x081, bytes.fromhex("0090012C07000000"))  # 9000h, register 01, event 44, cause 7
+    assert simulate(main()) == [
+        (0x701, b"\x00"),  # power-on
+        fault,
+        (0x701, b"\x00"),  # reset communication: the error is kept, nothing sent
+        (0x701, b"\x00"),  # reset node: the error is gone from 1001h ...
+        fault,  # ... and reported again
+        (0x081, bytes.fromhex("0000001E00000000")),  # acknowledged: 0000h, event 30
+    ]
 
 
 # ================================================================================ the master

@@ -21,7 +21,9 @@ drive makes (:attr:`StoberMds5000.QUIRKS`):
   length 0 is filled in); a short RPDO writes the objects it covers;
 - EMCY once on entering fault (reaction) and once with code 0000h on acknowledge: code, error
   register (no generic bit), byte 3 = E82 event, byte 4 = E39 cause (:data:`EVENTS`); also in
-  stopped;
+  stopped. NMT reset node clears the CANopen side's errors (1001h) but not the inverter's
+  fault: the event is then reported once more after the boot-up, so that 1001h shows it again
+  (the manual: "1001h error register (E82)") and its acknowledge sends 0000h;
 - life guarding (100Ch x 100Dh) lost: event 52 "communication", cause 1, NMT -> pre-operational;
   heartbeat 1017h; boot-up always; no TIME; 1005h = 7FFh ignores SYNC;
 - reset communication applies the communication parameters as written (the manual's example
@@ -723,6 +725,7 @@ class StoberMds5000(SimulatedDevice):
             return
         if isinstance(event, Booted):
             self._build_channels()
+            self._report_fault_after_reset()
         elif isinstance(event, StateChanged):
             if event.new is NmtState.STOPPED:
                 self._close_channels()  # SDO is not available; transfers end silently
@@ -772,6 +775,15 @@ class StoberMds5000(SimulatedDevice):
         device = self.device
         if device is not None:
             device.send_emergency(code, register, bytes((number, cause)))
+
+    def _report_fault_after_reset(self) -> None:
+        """A reset node cleared the device's errors while the inverter is still in fault:
+        report the event again (reset communication keeps them: 1001h is not 0 then)."""
+        device = self.device
+        if device is None or self.state not in (FAULT_REACTION, FAULT) or device.get(0x1001):
+            return
+        _, code, register = EVENTS[self.event]
+        device.send_emergency(code, register, bytes((self.event, self.cause)))
 
     def acknowledge(self) -> bool:
         """Acknowledge the fault (A180 bit 2, a terminal or the keypad): back to switch-on
