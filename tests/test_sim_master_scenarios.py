@@ -1,34 +1,63 @@
-"""What the cobus master needs to drive the document devices the way their documents' masters do
-(issue 6: "a scenario test driven by the master"), each on its own: from the master SYNC before
-the first NMT start, TPDO listeners and ``send_rpdo``; from the STÖBER simulator a fault that
-outlasts an NMT reset node, reported again.
+"""The document devices driven by the cobus master the way their documents' masters do it
+(issue 6: "a scenario test driven by the master"), on the simulated clock:
+
+- the STÖBER MDS 5000 (seed 004): booted the CiA 302 way (reset, 1000h/1018h, start-up list
+  with parameters by group and a direct PDO mapping, node guarding), run through the process
+  image, motor over-temperature seen as EMCY with its E82 event, acknowledged, and the drive's
+  life guarding when the master stops guarding.
+
+Then what these scenarios needed, each on its own: from the master SYNC before the first NMT
+start, TPDO listeners and ``send_rpdo``, direct PDO mapping; from the STÖBER simulator a fault
+that outlasts an NMT reset node, reported again.
 """
 
 from __future__ import annotations
 
+import itertools
+import struct
+import textwrap
 from pathlib import Path
 
 import pytest
 
+from cobus.device import export_eds
 from cobus.master import (
+    MasterState,
     MasterValueError,
     NetworkConfig,
+    NetworkConfigError,
+    NodeEmergency,
+    NodeState,
+    loads_network,
 )
+from cobus.proto import Frame
 from cobus.proto.nmt import NmtState
 from cobus.runtime import AsyncNetwork, HandlerFailed
-from cobus.sim.stober import StoberMds5000
+from cobus.sim.stober import EVENTS, StoberMds5000
+from cobus.sim.zapi import ZapiAce2
 from tests.test_master_support import (
     Rig,
+    master_state,
     network,
     nmt,
     rig_test,
+    state,
 )
 from tests.util import simulate
+
+
+def frames_of(rig: Rig, cob_id: int, since: float = -1.0) -> list[Frame]:
+    return [f for _, f in rig.on(cob_id, since=since)]
 
 
 def first(rig: Rig, cob_id: int, data: bytes | None = None) -> float:
     """When the first frame on ``cob_id`` (with ``data``) went over the bus."""
     return next(t for t, f in rig.on(cob_id) if data is None or f.data == data)
+
+
+def sim_state(sim: ZapiAce2 | StoberMds5000) -> NmtState | None:
+    """The device's NMT state (a function: mypy would narrow a property after one check)."""
+    return sim.state if isinstance(sim, ZapiAce2) else sim.nmt_state
 
 
 def place(rig: Rig, cob_id: int, data: bytes | None = None) -> int:
@@ -44,6 +73,174 @@ def place(rig: Rig, cob_id: int, data: bytes | None = None) -> int:
 MDS = 1
 ENABLE_BIT, ACK_BIT = 1 << 0, 1 << 2  # A180 device control (the simulator's choice)
 OPERATION_ENABLED, FAULT, SWITCH_ON_DISABLED = 4, 7, 1
+
+STOBER_NETWORK = """
+    master: {node_id: 127}
+    nodes:
+      mds:
+        node_id: 1
+        eds: mds5000.eds
+        mandatory: true
+        device_type: 0x00020192        # 1000h: profile 402
+        vendor_id: 0xB9                # STOeBER
+        product_code: 15               # rated power 1.5 kW in 0.1 kW
+        guard_time: 100                # node guarding (the manual: guarding or heartbeat)
+        life_time_factor: 3
+        sdo:
+          - {object: "0x2401:00", value: 2500}   # C01 n-Max = 2500 rpm (group C -> 2400h)
+        # the drive's COB-ID parameters hold the bare function code ("plus the node-ID"):
+        # the network file gives the identifiers in full
+        rpdo1: {cob_id: 0x201, mapping: ["0x20B4:00", "0x26E6:00"], transmission_type: 254}
+        tpdo1:
+          cob_id: 0x181
+          mapping: ["0x2808:00", "0x2830:00", "0x2852:00", "0x2827:00"]
+          transmission_type: 254       # answers each RPDO1
+          event_timer: 50
+        signals:
+          control: "0x20B4:00"                       # A180
+          setpoint: {object: "0x26E6:00", unit: rpm} # D230
+          n_motor: {object: "0x2808:00", unit: rpm}  # E08
+          device_state: "0x2830:00"                  # E48
+          event: "0x2852:00"                         # E82
+          cause: "0x2827:00"                         # E39
+"""
+
+
+def sdo_write(index: int, sub: int, command: int, value: int) -> bytes:
+    size = {0x2F: 1, 0x2B: 2, 0x23: 4}[command]
+    return struct.pack("<BHB", command, index, sub) + value.to_bytes(size, "little").ljust(4, b"\0")
+
+
+def test_stober_mds5000_booted_and_run_by_the_master(tmp_path: Path) -> None:
+    """Reset, boot-up, 1000h and 1018h checked, start-up list (C01 by its group index, the
+    PDO mapping written entry by entry, guarding), start; 1500 rpm through the process
+    image; motor over-temperature: EMCY 4310h with E82 event 41 in the node's history;
+    acknowledged (EMCY 0000h, event 30); the master stops guarding: the drive's life
+    guarding trips (event 52), which the master finds (EMCY and process image) when it boots
+    the drive again; acknowledged."""
+
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            mds = StoberMds5000(net, MDS)
+            (tmp_path / "mds5000.eds").write_text(export_eds(mds.od))
+            config = loads_network(textwrap.dedent(STOBER_NETWORK), base_dir=tmp_path)
+            rig = Rig(net, config)
+            master = rig.master
+            node = master.nodes[MDS]
+            mds.start()
+            try:
+                # -- CiA 302 boot-up
+                await master.boot(timeout=5)
+                assert master_state(master) is MasterState.RUNNING
+                assert state(node) is NodeState.OPERATIONAL and node.error_control == "guarding"
+                assert node.device_type == 0x00020192 and not node.config_errors
+                assert node.identity == {"vendor_id": 0xB9, "product_code": 15}
+                assert rig.data(0x701)[:2] == [b"\x00", b"\x00"]  # power-on, after the reset
+                assert rig.data(0x000) == [b"\x81\x01", b"\x01\x01"]
+                writes = [f.data for f in frames_of(rig, 0x601) if f.data[0] >> 5 == 1]
+                # C01 = 2500 rpm; the manual prints `23 01 24 00 C4 09 00 00`, the master sends
+                # the U16 with its size (2Bh), which the drive takes as well
+                assert sdo_write(0x2401, 0, 0x2B, 2500) in writes
+                mapping = [d for d in writes if d[1:3] == b"\x00\x1a"]  # 1A00h, entry by entry
+                assert [d[3] for d in mapping] == [1, 2, 3, 4, 5, 6]
+                assert mapping[0] == sdo_write(0x1A00, 1, 0x23, 0x28080010)  # E08, 16 bit
+                assert not any(d[1:4] == b"\x00\x1a\x00" for d in writes)  # sub 0 untouched
+                assert writes[-2:] == [
+                    sdo_write(0x100C, 0, 0x2B, 100),
+                    sdo_write(0x100D, 0, 0x2F, 3),
+                ]
+                device = mds.device
+                assert device is not None
+                assert device.get(0x2401) == 2500 and device.get(0x100C) == 100
+                assert mds.mapped_length(0x1A00) == 5 and mds.mapped_length(0x1600) == 4
+                await net.sleep(0.35)
+                assert rig.data(0x701)[2] == b"\x7f"  # first guarding reply: pre-op, toggle 0
+                started = place(rig, 0x000, b"\x01\x01")
+                replies = [
+                    f.data for _, f in rig.frames[started:] if f.cob_id == 0x701 and not f.rtr
+                ]
+                assert len(replies) >= 3 and {d[0] & 0x7F for d in replies} == {0x05}
+                toggles = [d[0] >> 7 for d in replies]
+                assert all(a != b for a, b in itertools.pairwise(toggles))
+                assert mds.status()["led_green"] == "on"
+
+                # -- run at 1500 rpm
+                master.outputs["mds.setpoint"] = 1500
+                master.outputs["mds.control"] = ENABLE_BIT
+                await net.sleep(0.8)
+                assert master.inputs["mds.n_motor"] == 1500
+                assert master.inputs["mds.device_state"] == OPERATION_ENABLED
+                assert frames_of(rig, 0x201)[-1].data == bytes.fromhex("0100 DC05")
+
+                # -- motor over-temperature
+                hot = net.time()
+                mds.inject("motor_overtemperature")
+                await net.sleep(0.5)
+                assert rig.data(0x081, since=hot) == [bytes.fromhex("1043082900000000")]
+                record = node.emcy_history[0]
+                assert (record.code, record.register) == (0x4310, 0x08)
+                assert record.data == bytes((41, 0, 0, 0, 0))  # byte 3 E82 = 41, byte 4 E39
+                assert record.text == "Temperature (4310h)"  # the CiA class: the master's text
+                assert EVENTS[record.data[0]][0] == "motor temperature"  # the manual's text
+                assert node.emcy_count == 1 and node.error_register == 0x08
+                emergencies = rig.of(NodeEmergency)
+                assert [(e.node_id, e.code) for e in emergencies] == [(MDS, 0x4310)]
+                assert master.inputs["mds.device_state"] == FAULT
+                assert master.inputs["mds.event"] == 41 and master.inputs["mds.n_motor"] == 0
+
+                # -- the motor cools down; acknowledge (A180 bit 2, rising edge)
+                mds.inject("motor_overtemperature", active=False)
+                master.outputs["mds.control"] = ACK_BIT
+                acked = net.time()
+                await net.sleep(0.1)
+                assert rig.data(0x081, since=acked) == [bytes.fromhex("0000001E00000000")]
+                assert node.emcy_history[0].code == 0 and node.emcy_history[0].data[0] == 30
+                assert master.inputs["mds.device_state"] == SWITCH_ON_DISABLED
+                assert master.inputs["mds.event"] == 30
+                master.outputs["mds.control"] = 0
+
+                # -- the master stops (and with it its node guarding): life guarding trips
+                await master.stop()
+                stopped = net.time()
+                await net.sleep(0.5)
+                last_rtr = max(t for t, f in rig.on(0x701) if f.rtr)
+                assert last_rtr <= stopped
+                (lost_at, lost), *_ = rig.on(0x081, since=stopped)
+                assert lost.data == bytes.fromhex("0081103401000000")  # 8100h, event 52, cause 1
+                assert lost_at == pytest.approx(last_rtr + 0.3)  # 100 ms x 3
+                assert sim_state(mds) is NmtState.PRE_OPERATIONAL
+                status = mds.status()
+                assert (status["event"], status["cause"], status["led_red"]) == (
+                    52,
+                    1,
+                    "double flash",
+                )
+                # -- booted again, the master finds the drive in fault with event 52: the
+                # reset does not end the fault, the drive reports it once more
+                count = node.emcy_count
+                await master.boot(timeout=5)
+                await net.sleep(0.1)
+                assert state(node) is NodeState.OPERATIONAL
+                assert node.emcy_count == count + 1
+                record = node.emcy_history[0]
+                assert (record.code, record.register, record.data[:2]) == (
+                    0x8100,
+                    0x10,
+                    b"\x34\x01",
+                )
+                assert EVENTS[record.data[0]][0] == "communication"
+                assert master.inputs["mds.device_state"] == FAULT
+                assert (master.inputs["mds.event"], master.inputs["mds.cause"]) == (52, 1)
+                count = node.emcy_count
+                master.outputs["mds.control"] = ACK_BIT
+                await net.sleep(0.1)
+                assert node.emcy_count == count + 1 and node.emcy_history[0].data[0] == 30
+                assert node.emcy_history[0].code == 0 and master.inputs["mds.event"] == 30
+            finally:
+                await master.stop()
+                mds.close()
+
+    simulate(main())
 
 
 def test_stober_fault_outlasting_a_reset_node_is_reported_again_and_acknowledged() -> None:
@@ -176,3 +373,43 @@ def test_send_rpdo_sends_the_outputs_changed_or_not(tmp_path: Path) -> None:
             master.send_rpdo("a", 2)
 
     rig_test(cfg, scenario)
+
+
+def stober_eds(folder: Path) -> None:
+    async def export() -> str:
+        async with AsyncNetwork() as net:
+            return export_eds(StoberMds5000(net, MDS).od)
+
+    (folder / "mds5000.eds").write_text(simulate(export()))
+
+
+def test_a_direct_mapping_is_written_entry_by_entry_and_read_without_its_zeros(
+    tmp_path: Path,
+) -> None:
+    stober_eds(tmp_path)
+    config = loads_network(textwrap.dedent(STOBER_NETWORK), base_dir=tmp_path)
+    node = config.nodes[MDS]
+    steps = [(e.index, e.subindex, e.value, e.name) for e in node.startup if e.index == 0x1800]
+    steps += [(e.index, e.subindex, e.value, e.name) for e in node.startup if e.index == 0x1A00]
+    assert [s[:3] for s in steps] == [
+        (0x1800, 1, 0x80000181),
+        (0x1800, 5, 50),
+        (0x1800, 1, 0x181),
+        (0x1A00, 1, 0x28080010),
+        (0x1A00, 2, 0x28300008),
+        (0x1A00, 3, 0x28520008),
+        (0x1A00, 4, 0x28270008),
+        (0x1A00, 5, 0),
+        (0x1A00, 6, 0),
+    ]
+    order = [(e.index, e.subindex) for e in node.startup]
+    assert order.index((0x1A00, 6)) < order.index((0x1800, 1), order.index((0x1800, 1)) + 1)
+    (tpdo,) = node.tpdos
+    assert tpdo.length == 5 and [s.index for s in tpdo.signals] == [0x2808, 0x2830, 0x2852, 0x2827]
+    assert node.rpdos[0].length == 4
+    # 7 entries do not fit the 6 the drive has; sub 0 is never configured
+    seven = STOBER_NETWORK.replace(
+        '"0x2827:00"]', '"0x2827:00", "0x2827:00", "0x2827:00", "0x2827:00"]'
+    )
+    with pytest.raises(NetworkConfigError, match=r"7 entries but 0x1A00 has 6"):
+        loads_network(textwrap.dedent(seven), base_dir=tmp_path)

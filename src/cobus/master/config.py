@@ -34,6 +34,9 @@ whose configured value (DCF ParameterValue, or what this file sets) differs from
 default, the PDOs as the mapping procedure of CiA 301 wants them (disable, clear, map, count,
 enable), then the explicit ``sdo`` entries. :meth:`NodeConfig.to_dcf` writes the node's DCF
 and :meth:`NodeConfig.concise_dcf` the CiA 302 concise DCF of what the master downloads.
+A device whose mapping sub-index 0 is a read-only constant while its entries are writable
+(direct mapping, e.g. the STÖBER MDS 5000 of seed 004) gets every entry written instead, 0 for
+the unused ones; the master skips those when it reads the mapping.
 """
 
 from __future__ import annotations
@@ -1146,7 +1149,10 @@ class _NodeReader:
         if count_var is None:
             self.error(label, f"0x{mapping.index:04X} has no sub-index 0", spec, "mapping")
             return
-        self.set_value(count_var, len(values), label, spec, "mapping")
+        if _direct_mapping(mapping):
+            values += [0] * (slots - len(values))  # direct mapping: 0 = an unused entry
+        else:
+            self.set_value(count_var, len(values), label, spec, "mapping")
         for sub, value in enumerate(values, 1):
             slot = mapping.get(sub)
             if slot is None:
@@ -1318,7 +1324,10 @@ class _NodeReader:
             fields: list[tuple[MappingEntry, Kind | None]] = []
             variables: list[tuple[Variable, int, Kind]] = []
             broken = False
+            direct = _direct_mapping(mapping)
             for _entry_var, index, sub, bits in mapping_entries(mapping):
+                if direct and not (index or sub or bits):
+                    continue  # an unused entry of a direct mapping
                 entry = MappingEntry(index, sub, bits)
                 if entry.is_dummy:
                     fields.append((entry, None))
@@ -1512,6 +1521,16 @@ def _sub_value(obj: Record | Array, sub: int, default: int) -> int:
     return value if isinstance(value, int) else default
 
 
+def _direct_mapping(mapping: Record | Array) -> bool:
+    """Whether a PDO mapping is written directly: sub-index 0 is a read-only constant count
+    and every entry is writable (0 = unused), as the STÖBER MDS 5000 of seed 004 does."""
+    count = mapping.get(0)
+    entries = [v for v in mapping if v.subindex]
+    if count is None or count.writable or not entries:
+        return False
+    return all(v.writable for v in entries)
+
+
 def _differs(var: Variable) -> bool:
     return var.parameter_value is not None and var.parameter_value != var.default
 
@@ -1619,6 +1638,10 @@ def _pdo_steps(
                 if var is not None and isinstance(var.value, int):
                     writes.add(var, var.value, f"{label}: map")
             writes.add(count_var, count, f"{label}: mapped objects")
+        elif _direct_mapping(mapping):
+            for var in map_vars:
+                if var.subindex and isinstance(var.value, int):
+                    writes.add(var, var.value, f"{label}: map")
     for var in comm_subs:
         if var is None or not var.writable or not isinstance(var.value, int):
             continue
