@@ -4,11 +4,15 @@
 - the STÖBER MDS 5000 (seed 004): booted the CiA 302 way (reset, 1000h/1018h, start-up list
   with parameters by group and a direct PDO mapping, node guarding), run through the process
   image, motor over-temperature seen as EMCY with its E82 event, acknowledged, and the drive's
-  life guarding when the master stops guarding.
+  life guarding when the master stops guarding;
+- the EC motor (seed 002): no CiA SDO server, so not initialised; polled by an empty RPDO1
+  every SYNC, its status in the process image, an overload trip recorded as EMCY with the
+  motor's own layout; what the master cannot do with it is pinned down at the end.
 
 Then what these scenarios needed, each on its own: from the master SYNC before the first NMT
-start, TPDO listeners and ``send_rpdo``, direct PDO mapping; from the STÖBER simulator a fault
-that outlasts an NMT reset node, reported again.
+start, TPDO listeners and ``send_rpdo``, direct PDO mapping, nodes without an SDO server and
+RPDOs with an empty mapping; from the STÖBER simulator a fault that outlasts an NMT reset node,
+reported again.
 """
 
 from __future__ import annotations
@@ -22,21 +26,26 @@ import pytest
 
 from cobus.device import export_eds
 from cobus.master import (
+    Diagnostic,
     MasterState,
     MasterValueError,
     NetworkConfig,
     NetworkConfigError,
     NodeEmergency,
     NodeState,
+    TpdoMissing,
     loads_network,
 )
 from cobus.proto import Frame
 from cobus.proto.nmt import NmtState
+from cobus.proto.sdo import SdoTimeoutError
 from cobus.runtime import AsyncNetwork, HandlerFailed
+from cobus.sim.ecmotor import EcMotor
 from cobus.sim.stober import EVENTS, StoberMds5000
 from cobus.sim.zapi import ZapiAce2
 from tests.test_master_support import (
     Rig,
+    diagnostic,
     master_state,
     network,
     nmt,
@@ -280,6 +289,318 @@ def test_stober_fault_outlasting_a_reset_node_is_reported_again_and_acknowledged
     ]
 
 
+# ================================================================================ EC motor
+MOTOR = 3
+# m_ssm (200Fh) and m_sss (200Eh) bits, mode in m_ssm bits 4-0
+BER, BRU, BPZ = 1 << 15, 1 << 10, 1 << 11
+BRS, BSW, BIH = 1 << 14, 1 << 12, 1 << 9
+OFF, VEL, ERR = 1, 5, 29
+
+#: The EC motor as the master sees it (the motor ships no EDS and has no dictionary a
+#: master could read): TPDO1 is its status reply, RPDO1 the status poll with no data.
+EC_MOTOR_EDS = """\
+[FileInfo]
+FileName=ec_motor.eds
+FileVersion=1
+FileRevision=0
+EDSVersion=4.0
+Description=EC motor (seed 002): the status poll and its reply, for the master
+
+[DeviceInfo]
+VendorName=EC motor
+ProductName=EC motor, manufacturer CAN profile
+BaudRate_250=1
+SimpleBootUpSlave=1
+Granularity=0
+NrOfRXPDO=1
+NrOfTXPDO=1
+
+[MandatoryObjects]
+SupportedObjects=0
+
+[OptionalObjects]
+SupportedObjects=4
+1=0x1400
+2=0x1600
+3=0x1800
+4=0x1A00
+
+[ManufacturerObjects]
+SupportedObjects=3
+1=0x200A
+2=0x200F
+3=0x2012
+
+[1400]
+ParameterName=Status poll (RPDO1)
+ObjectType=0x9
+SubNumber=3
+
+[1400sub0]
+ParameterName=Highest sub-index supported
+ObjectType=0x7
+DataType=0x0005
+AccessType=ro
+DefaultValue=2
+PDOMapping=0
+
+[1400sub1]
+ParameterName=COB-ID used by RPDO
+ObjectType=0x7
+DataType=0x0007
+AccessType=ro
+DefaultValue=$NODEID+0x200
+PDOMapping=0
+
+[1400sub2]
+ParameterName=Transmission type
+ObjectType=0x7
+DataType=0x0005
+AccessType=ro
+DefaultValue=1
+PDOMapping=0
+
+[1600]
+ParameterName=Status poll mapping (no data)
+ObjectType=0x9
+SubNumber=1
+
+[1600sub0]
+ParameterName=Number of mapped objects
+ObjectType=0x7
+DataType=0x0005
+AccessType=ro
+DefaultValue=0
+PDOMapping=0
+
+[1800]
+ParameterName=Status (TPDO1)
+ObjectType=0x9
+SubNumber=3
+
+[1800sub0]
+ParameterName=Highest sub-index supported
+ObjectType=0x7
+DataType=0x0005
+AccessType=ro
+DefaultValue=2
+PDOMapping=0
+
+[1800sub1]
+ParameterName=COB-ID used by TPDO
+ObjectType=0x7
+DataType=0x0007
+AccessType=ro
+DefaultValue=$NODEID+0x180
+PDOMapping=0
+
+[1800sub2]
+ParameterName=Transmission type
+ObjectType=0x7
+DataType=0x0005
+AccessType=ro
+DefaultValue=1
+PDOMapping=0
+
+[1A00]
+ParameterName=Status mapping
+ObjectType=0x9
+SubNumber=4
+
+[1A00sub0]
+ParameterName=Number of mapped objects
+ObjectType=0x7
+DataType=0x0005
+AccessType=ro
+DefaultValue=3
+PDOMapping=0
+
+[1A00sub1]
+ParameterName=Mapped object 1
+ObjectType=0x7
+DataType=0x0007
+AccessType=ro
+DefaultValue=0x20120120
+PDOMapping=0
+
+[1A00sub2]
+ParameterName=Mapped object 2
+ObjectType=0x7
+DataType=0x0007
+AccessType=ro
+DefaultValue=0x200A0010
+PDOMapping=0
+
+[1A00sub3]
+ParameterName=Mapped object 3
+ObjectType=0x7
+DataType=0x0007
+AccessType=ro
+DefaultValue=0x200F0010
+PDOMapping=0
+
+[200A]
+ParameterName=m_eci
+ObjectType=0x7
+DataType=0x0006
+AccessType=rw
+DefaultValue=0
+PDOMapping=1
+
+[200F]
+ParameterName=m_ssm
+ObjectType=0x7
+DataType=0x0006
+AccessType=ro
+DefaultValue=0
+PDOMapping=1
+
+[2012]
+ParameterName=h_poz
+ObjectType=0x9
+SubNumber=2
+
+[2012sub0]
+ParameterName=Highest sub-index supported
+ObjectType=0x7
+DataType=0x0005
+AccessType=ro
+DefaultValue=1
+PDOMapping=0
+
+[2012sub1]
+ParameterName=h_poz 32-bit
+ObjectType=0x7
+DataType=0x0004
+AccessType=ro
+DefaultValue=0
+PDOMapping=1
+"""
+
+EC_NETWORK = """
+    master: {sync_period: 20}
+    nodes:
+      motor:
+        node_id: 3
+        eds: ec_motor.eds
+        do_not_initialise: true     # no boot-up, NMT reset 82h only
+        sdo_server: false           # its SDO dialect is not CiA 301: no 1000h read
+        rpdo1: {mapping: []}        # the status poll: 203 [0] with every SYNC
+        signals:
+          position: {object: "0x2012:01", scale: 0.1171875, unit: deg}   # h_poz (P)
+          status: m_ssm
+"""
+
+
+def ec_emcy(record_register: int, data: bytes) -> tuple[int, int, int]:
+    """m_sss, c_sss, m_ssm of an EC motor emergency as the master recorded it: the master reads
+    the frame as CiA's (code U16, error register U8, 5 bytes), so m_sss is split over the
+    "register" and the first data byte."""
+    m_sss = record_register | data[0] << 8
+    c_sss, m_ssm = struct.unpack_from("<HH", data, 1)
+    return m_sss, c_sss, m_ssm
+
+
+def test_ec_motor_run_by_the_master(tmp_path: Path) -> None:
+    """Not initialised and never asked by SDO; polled by the master's empty RPDO1 with every
+    SYNC, its status in the process image; set to velocity mode by the application's SDO
+    writes (the dialect takes CiA's expedited download); an overload trips it (mode 29): the
+    master records the emergency, laid out as the motor sends it; cleared and reset."""
+
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            motor = EcMotor(net, MOTOR)
+            (tmp_path / "ec_motor.eds").write_text(EC_MOTOR_EDS)
+            config = loads_network(textwrap.dedent(EC_NETWORK), base_dir=tmp_path)
+            rig = Rig(net, config)
+            master = rig.master
+            node = master.nodes[MOTOR]
+            motor.start()
+            try:
+                # -- boot: no SDO, no reset; the start (01 03) means nothing to the motor
+                await master.boot(timeout=5)
+                assert state(node) is NodeState.OPERATIONAL
+                assert frames_of(rig, 0x603) == [] and rig.data(0x000) == [b"\x01\x03"]
+                await net.sleep(0.1)
+                polls = frames_of(rig, 0x203)
+                replies = frames_of(rig, 0x183)
+                assert polls and all(f.dlc == 0 and not f.rtr for f in polls)
+                assert len(replies) == len(polls) == len(frames_of(rig, 0x80))
+                status = master.inputs["motor.status"]
+                assert status & 0x1F == OFF and status & BER  # brs latched at power-on
+                assert diagnostic(node) is Diagnostic.OK
+
+                # -- the application initialises it as the document's controller does
+                sdo = node.sdo
+                await sdo.download(0x2045, 0, b"\0\0")  # clear errors (brs)
+                await sdo.download(0x2024, 0, (640).to_bytes(2, "little"))  # p_ven 120 rpm
+                await sdo.download(0x2042, 0, VEL.to_bytes(2, "little"))  # T_MOD 5
+                assert rig.data(0x583)[-1] == bytes.fromhex("60422000")  # DLC 4: the dialect
+                await net.sleep(0.5)
+                status = master.inputs["motor.status"]
+                assert status & 0x1F == VEL and status & (BRU | BPZ) == BRU | BPZ
+                assert not status & BER
+                position = master.inputs["motor.position"]
+                assert position == pytest.approx(motor.position * 0.1171875, abs=15)
+                assert position > 100.0  # deg: 120 rpm for about 0.4 s
+                assert node.emcy_count == 0
+
+                # -- overload: the current saturates, the SW protection trips (mode 29)
+                tripped = net.time()
+                motor.inject("overload")
+                await net.sleep(0.1)
+                (emcy,) = frames_of(rig, 0x083, since=tripped)
+                assert emcy.data[:2] == b"\x10\x00"  # as printed, not CiA's 00 10
+                assert node.emcy_count == 1
+                record = node.emcy_history[0]
+                assert record.code == 0x0010
+                m_sss, c_sss, m_ssm = ec_emcy(record.register, record.data)
+                assert (m_sss, c_sss, m_ssm) == struct.unpack_from("<HHH", emcy.data, 2)
+                assert m_sss & (BSW | BIH) == BSW | BIH and c_sss == 0
+                assert m_ssm & 0x1F == ERR and m_ssm & BER
+                # the master names it by CiA's table, where 00xxh is "no error"
+                assert record.text == "Error reset or no error"
+                status = master.inputs["motor.status"]
+                assert status & 0x1F == ERR and status & BER
+
+                # -- load removed, errors cleared, mode 1 leaves mode 29
+                motor.inject("overload", torque=0)
+                await net.sleep(0.2)
+                await sdo.download(0x2045, 0, b"\0\0")
+                await sdo.download(0x2042, 0, OFF.to_bytes(2, "little"))
+                await net.sleep(0.05)
+                status = master.inputs["motor.status"]
+                assert status & 0x1F == OFF and not status & BER
+
+                # -- NMT reset (82h, the only NMT command it knows) by the master's network
+                master.network.nmt.reset_communication(MOTOR)
+                await net.sleep(0.05)
+                assert rig.data(0x000)[-1] == b"\x82\x03" and rig.data(0x703) == []
+                assert master.inputs["motor.status"] & BER  # brs: a reset occurred
+
+                # -- what the master cannot do: read it by SDO. The reply's command byte 40h
+                # reads as a segmented upload; the segment request (60h) and the client's
+                # abort (80h) are refused by the motor with an emergency each.
+                before = node.emcy_count
+                with pytest.raises(SdoTimeoutError):
+                    await sdo.upload(0x2014, 0)
+                assert node.emcy_count == before + 2
+                asked = [f.data[0] for f in frames_of(rig, 0x603)][-2:]
+                assert asked == [0x60, 0x80]
+
+                # -- the status poll is all the supervision there is: power loss
+                motor.inject("power_loss")
+                await net.sleep(0.1)
+                assert rig.of(TpdoMissing) == [TpdoMissing(MOTOR, 1, 0x183)]
+                assert diagnostic(node) is Diagnostic.TPDO_MISSING
+                assert master.inputs["motor.status"] == 0
+            finally:
+                await master.stop()
+                motor.close()
+
+    simulate(main())
+
+
 # ================================================================================ the master
 # What the scenarios needed from the master, each on its own with the master tests' I/O node.
 IO_NODE = """
@@ -413,3 +734,52 @@ def test_a_direct_mapping_is_written_entry_by_entry_and_read_without_its_zeros(
     )
     with pytest.raises(NetworkConfigError, match=r"7 entries but 0x1A00 has 6"):
         loads_network(textwrap.dedent(seven), base_dir=tmp_path)
+
+
+def test_a_node_without_an_sdo_server_is_never_asked_by_sdo(tmp_path: Path) -> None:
+    cfg = io_network(tmp_path, "{}", "    do_not_initialise: true\n    sdo_server: false\n")
+
+    async def scenario(rig: Rig) -> None:
+        rig.add(5)
+        await rig.master.boot(timeout=5)
+        assert rig.on(0x605) == [] and rig.data(0x000) == [b"\x01\x05"]
+        assert state(rig.master.nodes[5]) is NodeState.OPERATIONAL
+
+    rig_test(cfg, scenario)
+    for extra, reason in (
+        ("    sdo_server: false\n", "needs do_not_initialise: true"),
+        (
+            "    do_not_initialise: true\n    sdo_server: false\n    device_type: 0x191\n"
+            "    vendor_id: 1\n",
+            r"device_type, vendor_id would be checked by SDO reads",
+        ),
+    ):
+        with pytest.raises(NetworkConfigError, match=reason):
+            io_network(tmp_path, "{}", extra)
+
+
+def test_an_rpdo_mapped_with_nothing_goes_out_with_dlc_0(tmp_path: Path) -> None:
+    """Only when the network file says ``mapping: []``: the EDS's own empty RPDOs (the I/O
+    node's RPDO 2-4 are valid but map nothing) stay left out."""
+    plain = io_network(tmp_path, "{sync_period: 10}", rpdo1=1)
+    assert [r.number for r in plain.nodes[5].rpdos] == [1]
+    cfg = io_network(
+        tmp_path,
+        "{sync_period: 10}",
+        "    rpdo2: {mapping: [], transmission_type: 1}\n    rpdo3: {mapping: []}\n",
+    )
+    rpdos = {r.number: r for r in cfg.nodes[5].rpdos}
+    assert sorted(rpdos) == [1, 2, 3] and rpdos[2].length == 0 and not rpdos[2].signals
+
+    async def scenario(rig: Rig) -> None:
+        rig.add(5)
+        await rig.master.boot(timeout=5)
+        await rig.run(0.05)
+        started = place(rig, 0x000, b"\x01\x05")
+        syncs = sum(1 for _, f in rig.frames[started:] if f.cob_id == 0x80)
+        polls = rig.on(0x305)
+        assert len(polls) == syncs + 1 and all(f.dlc == 0 for _, f in polls)  # start + SYNCs
+        assert [f.dlc for _, f in rig.on(0x405)] == [0]  # event-driven: at the start only
+        assert rig.master.send_rpdo("a", 3) is True
+
+    rig_test(cfg, scenario)

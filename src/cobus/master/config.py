@@ -37,6 +37,14 @@ and :meth:`NodeConfig.concise_dcf` the CiA 302 concise DCF of what the master do
 A device whose mapping sub-index 0 is a read-only constant while its entries are writable
 (direct mapping, e.g. the STÖBER MDS 5000 of seed 004) gets every entry written instead, 0 for
 the unused ones; the master skips those when it reads the mapping.
+
+Devices that are only "based on CANopen" (the EC motor of seed 002: an SDO dialect of its own,
+no boot-up, no error control) take ``do_not_initialise: true`` with ``sdo_server: false``: the
+master then sends the node no SDO at all (no 1000h/1018h check, no start-up list), counts it
+present, and started once it sent the NMT start, and runs its PDOs. An RPDO given an empty
+mapping (``rpdo1: {mapping: []}``) is sent with no data (DLC 0), a trigger such a device may
+answer, e.g. the EC motor's status poll: a synchronous one with every SYNC, an event-driven
+one at the start and with its event timer.
 """
 
 from __future__ import annotations
@@ -105,6 +113,7 @@ _INVALID = 1 << 31
 _EXTENDED = 1 << 29
 _SAVE, _RESTORE = 0x1010, 0x1011
 _ERROR_CONTROL = (0x100C, 0x100D, 0x1017)
+_IDENTITY_KEYS = ("vendor_id", "product_code", "revision_number", "serial_number")
 
 # ------------------------------------------------------------------------------- YAML reading
 
@@ -521,6 +530,8 @@ class NodeConfig:
     enabled: bool = True
     mandatory: bool = False
     do_not_initialise: bool = False
+    #: False: the node has no CiA 301 SDO server; the master sends it no SDO (see the module).
+    sdo_server: bool = True
     auto_start: bool = True
     device_type: int = 0
     device_type_low16: bool = False
@@ -691,6 +702,7 @@ _NODE_KEYS = (
     "enabled",
     "mandatory",
     "do_not_initialise",
+    "sdo_server",
     "auto_start",
     "device_type",
     "device_type_low16",
@@ -763,6 +775,8 @@ class _NodeReader:
         self.yaml_set: set[tuple[int, int]] = set()
         self.explicit: list[SdoEntry] = []
         self.yaml_pdos: set[tuple[str, int]] = set()
+        #: RPDOs the network file maps with nothing ("rpdo3"): sent with DLC 0.
+        self.empty_rpdos: set[str] = set()
 
     # --- helpers
     def error(self, key: str | None, reason: str, container: Any = None, at: Any = None) -> None:
@@ -907,10 +921,11 @@ class _NodeReader:
         cfg.enabled = g("enabled", _bool, True)
         cfg.mandatory = g("mandatory", _bool, False)
         cfg.do_not_initialise = g("do_not_initialise", _bool, False)
+        cfg.sdo_server = g("sdo_server", _bool, True)
         cfg.auto_start = g("auto_start", _bool, True)
         cfg.device_type = g("device_type", lambda v: _int(v, 0, _U32, "device type"), 0)
         cfg.device_type_low16 = g("device_type_low16", _bool, False)
-        for key in ("vendor_id", "product_code", "revision_number", "serial_number"):
+        for key in _IDENTITY_KEYS:
             setattr(cfg, key, g(key, lambda v: _int(v, 0, _U32, "1018h value"), 0))
         cfg.heartbeat_time = g("heartbeat_time", _whole_ms, 0)
         cfg.guard_time = g("guard_time", _whole_ms, 0)
@@ -937,6 +952,20 @@ class _NodeReader:
             self.error("restore_defaults", f"{cfg.eds_path.name} has no 1011h to restore from")
         if cfg.do_not_initialise and cfg.restore_defaults:
             self.error("restore_defaults", "a node that is not initialised cannot be restored")
+        if not cfg.sdo_server:
+            if not cfg.do_not_initialise:
+                self.error(
+                    "sdo_server",
+                    "the master configures a node by SDO: a node without an SDO server needs "
+                    "do_not_initialise: true",
+                )
+            checks = [k for k in ("device_type", *_IDENTITY_KEYS) if getattr(cfg, k)]
+            if checks:
+                self.error(
+                    "sdo_server",
+                    f"{', '.join(checks)} would be checked by SDO reads (1000h, 1018h), which a "
+                    "node without an SDO server cannot answer: leave them out",
+                )
 
     # --- values set in the dictionary
     def set_value(self, var: Variable, value: Any, key: str, where: Any, at: Any) -> bool:
@@ -1092,6 +1121,8 @@ class _NodeReader:
         if not isinstance(items, list):
             self.error(label, "give a list of object names or addresses", spec, "mapping")
             return
+        if not items and not tx:
+            self.empty_rpdos.add(key)
         index = ObjectIndex(cfg.od, cfg.eds_path.name)
         values: list[int] = []
         bits_total = 0
@@ -1345,7 +1376,7 @@ class _NodeReader:
                     break
                 fields.append((entry, kind_of))
                 variables.append((var, bits, kind_of))
-            if broken or not variables:
+            if broken or (not variables and (fields or key not in self.empty_rpdos)):
                 continue
             try:
                 codec = PdoMap(fields)

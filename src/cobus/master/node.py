@@ -338,9 +338,12 @@ class ManagedNode:
                 await asyncio.sleep(self.master.config.master.bootup_delay)
         else:
             self._set_state(NodeState.WAITING)
-        if not await self._presence():
-            return
-        await self._check_identity()
+        if cfg.sdo_server:
+            if not await self._presence():
+                return
+            await self._check_identity()
+        else:
+            self._not_found = False  # no SDO to ask it with: taken as present
         if cfg.restore_defaults and not self._restored and mode != "none":
             self._restored = True
             await self._write(
