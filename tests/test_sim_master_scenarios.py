@@ -1,6 +1,9 @@
 """The document devices driven by the cobus master the way their documents' masters do it
 (issue 6: "a scenario test driven by the master"), on the simulated clock:
 
+- the ZAPI ACE2 of the thesis (seed 000): no boot-up, no error control, SYNC before start,
+  the toggle handshake answered every cycle through the process image, a broken handshake
+  (alarm 248 in TPDO2), acknowledge by controlword 2.4;
 - the STÖBER MDS 5000 (seed 004): booted the CiA 302 way (reset, 1000h/1018h, start-up list
   with parameters by group and a direct PDO mapping, node guarding), run through the process
   image, motor over-temperature seen as EMCY with its E82 event, acknowledged, and the drive's
@@ -27,6 +30,7 @@ import pytest
 from cobus.device import export_eds
 from cobus.master import (
     Diagnostic,
+    Master,
     MasterState,
     MasterValueError,
     NetworkConfig,
@@ -76,6 +80,162 @@ def place(rig: Rig, cob_id: int, data: bytes | None = None) -> int:
         for n, (_, f) in enumerate(rig.frames)
         if f.cob_id == cob_id and (data is None or f.data == data)
     )
+
+
+# ================================================================================ ZAPI ACE2
+ZAPI = 8
+A16, ENABLE, ACK, CW = 1 << 1, 1 << 3, 1 << 4, 1 << 6  # controlword byte 2 bits 1, 3, 4, 6
+TOGGLE = 1 << 15  # controlword / statusword byte 3 bit 7
+SW_A16, SW_ENABLED, SW_IDLE = 1 << 1, 1 << 3, 1 << 14
+
+ZAPI_NETWORK = """
+    master: {sync_period: 20}          # the PLC's CANopen module: SYNC every 20 ms
+    nodes:
+      zapi:
+        node_id: 8
+        eds: zapi.eds                  # the hand-made EDS of the thesis (here: exported)
+        mandatory: true
+        do_not_initialise: true        # no boot-up: no reset, no configuration
+        # no heartbeat_time / guard_time: the controller answers neither
+        signals:
+          speed_setpoint: {object: speed_setpoint, scale: 0.01, unit: Hz}
+          speed: {object: actual_speed, scale: 0.01, unit: Hz}
+          alarm: alarm_code
+"""
+
+
+class Handshake:
+    """The thesis's RPDO/TPDO processing block on the master's process image: every TPDO1 of
+    the ZAPI is answered at once with the opposite toggle bit (controlword byte 3 bit 7) and
+    the command bits the application sets. RPDO1 is event-driven: it goes out at once when
+    the controlword changes, and by :meth:`Master.send_rpdo` when it does not (the first
+    answer after a start may equal the controlword held)."""
+
+    def __init__(self, master: Master) -> None:
+        self.master = master
+        self.command = 0
+        self.answering = True
+        self.answers = 0
+        master.add_tpdo_listener(self._on_tpdo)
+
+    def _on_tpdo(self, node_id: int, number: int, now: float) -> None:
+        if node_id == ZAPI and number == 1 and self.answering:
+            self.answers += 1
+            self._write()
+
+    def _write(self) -> None:
+        toggle = self.master.inputs["zapi.statusword"] & TOGGLE
+        word = self.command | (TOGGLE if not toggle else 0)
+        if self.master.outputs["zapi.controlword"] == word:
+            self.master.send_rpdo("zapi", 1)
+        else:
+            self.master.outputs["zapi.controlword"] = word
+
+    def set(self, command: int) -> None:
+        """New command bits, sent at once with the answer of this cycle."""
+        self.command = command
+        self._write()
+
+
+def handshake_kept(rig: Rig, since: float, until: float) -> bool:
+    """Whether every TPDO1 in [since, until) was answered by RPDO1 with the opposite toggle
+    before the next SYNC (the last RPDO1 of each cycle counts)."""
+    syncs = [t for t, _ in rig.on(0x80) if since <= t < until]
+    for begin, end in itertools.pairwise(syncs):
+        tpdo = [f for t, f in rig.on(0x188) if begin <= t < end]
+        rpdo = [f for t, f in rig.on(0x208) if begin <= t < end]
+        if not tpdo or not rpdo or rpdo[-1].data[3] >> 7 == tpdo[0].data[3] >> 7:
+            return False
+    return len(syncs) > 2
+
+
+def test_zapi_ace2_run_by_the_master(tmp_path: Path) -> None:
+    """SYNC 20 ms, start, the handshake answered every cycle, 50 Hz clockwise reached; the
+    handshake breaks: alarm 248 in TPDO2 and TPDO1 missing; acknowledge (controlword 2.4) and
+    restart: running again."""
+
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            zapi = ZapiAce2(net, ZAPI)
+            (tmp_path / "zapi.eds").write_text(export_eds(zapi.od))
+            config = loads_network(textwrap.dedent(ZAPI_NETWORK), base_dir=tmp_path)
+            rig = Rig(net, config)
+            master = rig.master
+            node = master.nodes[ZAPI]
+            plc = Handshake(master)
+            zapi.start()
+            try:
+                # -- boot: 1000h read, SYNC running, then the start
+                await master.boot(timeout=5)
+                assert sim_state(zapi) is NmtState.OPERATIONAL and zapi.alarm == 0
+                assert state(node) is NodeState.OPERATIONAL and node.error_control is None
+                assert rig.data(0x000) == [b"\x01\x08"]  # no reset: do_not_initialise
+                assert frames_of(rig, 0x608)[0].data[:4] == bytes.fromhex("40001000")
+                assert place(rig, 0x80) < place(rig, 0x000, b"\x01\x08")  # SYNC runs first
+                await net.sleep(0.5)
+                assert zapi.status()["handshake"] == "running" and zapi.alarm == 0
+                byte3 = [f.data[3] for f in frames_of(rig, 0x188)]
+                assert byte3[:4] == [0x44, 0xC4, 0x44, 0xC4]  # the thesis's 44h / C4h
+                assert handshake_kept(rig, first(rig, 0x188), net.time())
+                assert plc.answers >= 20
+
+                # -- run at 50 Hz clockwise (default ramp 10 Hz/s)
+                master.outputs["zapi.speed_setpoint"] = 50.0
+                plc.set(A16 | ENABLE | CW)
+                began = net.time()
+                await net.sleep(5.5)
+                assert master.inputs["zapi.speed"] == 50.0
+                status = master.inputs["zapi.statusword"]
+                assert status & (SW_A16 | SW_ENABLED) == SW_A16 | SW_ENABLED
+                assert not status & SW_IDLE
+                sent = {f.data for f in frames_of(rig, 0x208, since=began)}
+                assert bytes.fromhex("8813 4A00 000000") in sent  # the thesis's golden RPDO1
+                assert bytes.fromhex("8813 4A80 000000") in sent  # ... with the toggle set
+                assert handshake_kept(rig, began, net.time())
+                assert master.inputs["zapi.alarm"] == 0
+
+                # -- the handshake breaks (a PLC scan longer than 20 ms)
+                plc.answering = False
+                broke = net.time()
+                await net.sleep(0.2)
+                assert sim_state(zapi) is NmtState.PRE_OPERATIONAL  # a fault drops it to pre-op
+                assert master.inputs["zapi.alarm"] == 248  # "CAN BUS KO", by TPDO2
+                assert frames_of(rig, 0x288, since=broke)[0].data[0] == 248
+                assert rig.of(TpdoMissing) == [TpdoMissing(ZAPI, 1, 0x188)]
+                assert diagnostic(node) is Diagnostic.TPDO_MISSING
+                assert master.inputs["zapi.speed"] == 0.0  # inputs of the missing TPDO: 0
+                # without error control the master cannot see the NMT state: it still
+                # counts the node started; the missing TPDO1 is what tells
+                assert state(node) is NodeState.OPERATIONAL
+                # in pre-operational the thesis's PLC reads the alarm by SDO
+                assert (await node.sdo.read(0x2110)) == 248
+
+                # -- acknowledge: controlword 2.4 with the run bits released, start again
+                plc.answering = True
+                plc.set(ACK)
+                acked = net.time()
+                await master.restart_node("zapi")
+                await net.sleep(0.2)
+                assert rig.data(0x000, since=acked) == [b"\x01\x08"]
+                assert frames_of(rig, 0x208, since=acked)[0].data[2] == ACK
+                assert sim_state(zapi) is NmtState.OPERATIONAL and zapi.alarm == 0
+                assert master.inputs["zapi.alarm"] == 0  # TPDO2 at once on the change
+                # the restart cleared the fault: TPDO1 is supervised and taken again
+                assert diagnostic(node) is Diagnostic.OK and len(rig.of(TpdoMissing)) == 1
+                assert master.inputs["zapi.statusword"] & 0x0400  # CNA6 input, i.e. taken
+                assert master.inputs["zapi.speed"] == pytest.approx(zapi.speed, abs=0.2)
+                plc.set(A16 | ENABLE | CW)
+                again = net.time()
+                await net.sleep(1.0)
+                assert zapi.alarm == 0 and zapi.status()["handshake"] == "running"
+                assert handshake_kept(rig, again, net.time())
+                assert master.inputs["zapi.speed"] == pytest.approx(zapi.speed, abs=0.2)
+                assert zapi.speed > 40.0
+            finally:
+                await master.stop()
+                zapi.close()
+
+    simulate(main())
 
 
 # ================================================================================ STÖBER
