@@ -223,11 +223,12 @@ class Variable:
 
     @property
     def default(self) -> Any:
+        """The DefaultValue. Set it to a value of the type within the limits, to None, or to
+        a :class:`NodeRelative` (so are ``parameter_value`` and the limits)."""
         return self._default
 
     @default.setter
     def default(self, value: Any) -> None:
-        """A value of the type within the limits, a :class:`NodeRelative`, or None."""
         if isinstance(value, NodeRelative):
             self._default_raw, self._default = self._relative(value, REL_DEFAULT)
             return
