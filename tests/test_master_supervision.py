@@ -433,3 +433,25 @@ def test_inputs_can_keep_their_last_value_on_a_fault(tmp_path):
         assert rig.master.inputs["a.counter"] == 42
 
     rig_test(cfg, scenario)
+
+
+def test_a_guarded_node_changing_state_is_reported_once(tmp_path):
+    """Guarding replies are no heartbeats: the state a guarded node reports reaches the
+    master once, through the guarding machine (with its toggle), not again as a heartbeat."""
+    cfg = network(
+        tmp_path,
+        net_text(("a", 5, "")).replace(
+            "heartbeat_time: 100\n    tpdo1", "guard_time: 100\n    tpdo1"
+        ),
+    )
+
+    async def scenario(rig: Rig) -> None:
+        await booted(rig, 5)
+        assert rig.master.nodes[5].error_control == "guarding"
+        rig.devices[5].apply_nmt(NmtCommand.ENTER_PREOPERATIONAL)
+        await rig.run(0.5)
+        assert rig.of(UnexpectedState) == [
+            UnexpectedState(5, NmtState.OPERATIONAL, NmtState.PRE_OPERATIONAL)
+        ]
+
+    rig_test(cfg, scenario)

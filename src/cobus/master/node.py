@@ -597,8 +597,11 @@ class ManagedNode:
         if frame.rtr:
             return
         self._last_ec = now
-        self.master._monitor_host.feed(frame, now)
         data = frame.data
+        if self.error_control != "guarding" or data == b"\x00":
+            # A guarding reply is no heartbeat (its toggle bit would read as a malformed
+            # one); the monitor only needs a guarded node's boot-up, to see it re-boot.
+            self.master._monitor_host.feed(frame, now)
         if self.error_control == "guarding" and self._guard_host is not None:
             self._guard_bad = False
             self._guard_host.feed(frame, now)
