@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import enum
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 from cobus.errors import CobusError
+from cobus.od import Severity  # one scale for every finding: errors stop loading
 
 __all__ = [
     "BootTimeoutError",
@@ -19,16 +19,6 @@ __all__ = [
     "SignalError",
     "SignalValueError",
 ]
-
-
-class Severity(enum.Enum):
-    """How bad a problem of the network description is: errors stop loading, warnings never."""
-
-    ERROR = "error"
-    WARNING = "warning"
-
-    def __str__(self) -> str:
-        return self.value
 
 
 @dataclass(frozen=True, slots=True)
