@@ -29,9 +29,9 @@ from dataclasses import dataclass
 
 from cobus.proto._base import NOTHING, Event, Out
 from cobus.proto.frame import Frame
+from cobus.proto.sdo import _endpoint as ep
 from cobus.proto.sdo import _wire as w
 from cobus.proto.sdo.abort import SdoAbortCode
-from cobus.proto.sdo.crc import crc16
 from cobus.proto.sdo.errors import (
     SdoAbortedError,
     SdoBusyError,
@@ -76,17 +76,17 @@ class TransferFailed(Event):
 
 
 # States of the client.
-_IDLE = 0
-_DL_INIT = 1  # initiate download sent, waiting for 60h
-_DL_SEG = 2  # download segment sent, waiting for 20h/30h
-_UL_INIT = 3  # initiate upload sent, waiting for 4xh
-_UL_SEG = 4  # upload segment request sent, waiting for a segment
-_BUL_INIT = 5  # initiate block upload sent, waiting for C0h.. (or 4xh: protocol switch)
-_BUL_DATA = 6  # receiving block segments
-_BUL_END = 7  # last segment acknowledged, waiting for the end (C1h..)
-_BDL_INIT = 8  # initiate block download sent, waiting for A0h..
-_BDL_ACK = 9  # sub-block sent, waiting for its acknowledge (A2h)
-_BDL_END = 10  # end sent, waiting for A1h
+_IDLE = ep.IDLE
+_DL_INIT = ep.OWN_STATES  # initiate download sent, waiting for 60h
+_DL_SEG = ep.SEGMENT_OUT  # download segment sent, waiting for 20h/30h
+_UL_INIT = ep.OWN_STATES + 1  # initiate upload sent, waiting for 4xh
+_UL_SEG = ep.SEGMENT_IN  # upload segment request sent, waiting for a segment
+_BUL_INIT = ep.OWN_STATES + 2  # initiate block upload sent, waiting for C0h.. (or 4xh: switch)
+_BUL_DATA = ep.BLOCK_IN  # receiving block segments
+_BUL_END = ep.BLOCK_IN_END  # last segment acknowledged, waiting for the end (C1h..)
+_BDL_INIT = ep.OWN_STATES + 3  # initiate block download sent, waiting for A0h..
+_BDL_ACK = ep.BLOCK_OUT  # sub-block sent, waiting for its acknowledge (A2h)
+_BDL_END = ep.BLOCK_OUT_END  # end sent, waiting for A1h
 
 _UPLOADS = (_UL_INIT, _UL_SEG, _BUL_INIT, _BUL_DATA, _BUL_END)
 
@@ -96,7 +96,7 @@ _BLOCK_HINT = (
 )
 
 
-class SdoClient:
+class SdoClient(ep.Endpoint):
     """Client side of one SDO channel.
 
     ``rx_cob_id`` is the COB-ID the server receives on (the client sends there), ``tx_cob_id``
@@ -107,32 +107,18 @@ class SdoClient:
     block CRC. ``node`` names the node in error messages (derived from default COB-IDs).
     """
 
-    __slots__ = (
-        "_blksize",
-        "_buf",
-        "_channel",
-        "_crc",
-        "_crc_used",
-        "_data",
-        "_deadline",
-        "_expected",
-        "_ext",
-        "_index",
-        "_max_buf",
-        "_node",
-        "_pos",
-        "_pst",
-        "_rx",
-        "_sent",
-        "_sent_last",
-        "_size",
-        "_state",
-        "_subindex",
-        "_timeout",
-        "_toggle",
-        "_tx",
-        "block_size",
+    __slots__ = ("_channel", "_node", "_pst")
+
+    _ROLE = "client"
+    _PEER = "the server"
+    _INBOUND = "upload"
+    _SENDS_ON_RX = True
+    _SEGMENT_ANSWER = (
+        w.CODE_ONLY.pack(w.CCS_UPLOAD_SEGMENT | w.TOGGLE),
+        w.CODE_ONLY.pack(w.CCS_UPLOAD_SEGMENT),
     )
+    _ANSWERS_LAST_SEGMENT = False
+    _SEGMENT_OUT_SERVICE = w.SCS_DOWNLOAD_SEGMENT
 
     def __init__(
         self,
@@ -145,68 +131,19 @@ class SdoClient:
         crc: bool = True,
         node: int | None = None,
     ) -> None:
-        self._ext = w.check_cob_id("SDO client COB-ID rx_cob_id", rx_cob_id)
-        w.check_cob_id("SDO client COB-ID tx_cob_id", tx_cob_id)
-        self._rx = rx_cob_id
-        self._tx = tx_cob_id
-        self._timeout = w.check_timeout(timeout)
-        self.block_size = w.check_block_size(block_size)
+        super().__init__(rx_cob_id, tx_cob_id, timeout=timeout, block_size=block_size, crc=crc)
         if not 0 <= pst <= 0xFF:
             raise SdoParameterError(f"protocol switch threshold {pst} does not fit a byte (0..255)")
         self._pst = pst
-        self._crc = crc
         self._node = node if node is not None else w.node_of(rx_cob_id, tx_cob_id)
         self._channel = f"0x{rx_cob_id:X}/0x{tx_cob_id:X}"
-        self._state = _IDLE
-        self._deadline: float | None = None
-        self._index = 0
-        self._subindex = 0
-        self._data = b""
-        self._buf = bytearray()
-        self._pos = 0
-        self._size: int | None = None
-        self._max_buf = 0
-        self._toggle = 0
-        self._blksize = 0
-        self._expected = 1
-        self._sent = 0
-        self._sent_last = False
-        self._crc_used = False
 
     # -- properties --------------------------------------------------------------------------
-
-    @property
-    def rx_cob_id(self) -> int:
-        """The COB-ID the client sends on (the server's receive COB-ID)."""
-        return self._rx
-
-    @property
-    def tx_cob_id(self) -> int:
-        """The COB-ID the client listens on (the server's transmit COB-ID)."""
-        return self._tx
 
     @property
     def node(self) -> int | None:
         """The node-ID named in error messages (``None``: the channel's COB-IDs are named)."""
         return self._node
-
-    @property
-    def timeout(self) -> float:
-        return self._timeout
-
-    @timeout.setter
-    def timeout(self, value: float) -> None:
-        """Change the timeout; it applies from the next frame sent."""
-        self._timeout = w.check_timeout(value)
-
-    @property
-    def busy(self) -> bool:
-        """True while a transfer runs (a new one cannot start)."""
-        return self._state != _IDLE
-
-    @property
-    def deadline(self) -> float | None:
-        return self._deadline
 
     # -- starting and aborting ---------------------------------------------------------------
 
@@ -310,42 +247,19 @@ class SdoClient:
         )
         return self._fail(error, SdoAbortCode.TIMEOUT)
 
-    def on_frame(self, frame: Frame, now: float) -> Out:
+    def _on_command(self, cmd: int, data: bytes, now: float) -> Out:
         state = self._state
-        data = frame.data
-        if state == _IDLE or frame.cob_id != self._tx or frame.rtr or not data:
+        if state == _IDLE:
             return NOTHING
-        cmd = data[0]
-        if state == _BUL_DATA and cmd != w.ABORT:
-            # The hot path of block uploads: one segment.
-            seq = cmd & 0x7F
-            if seq == self._expected:
-                if len(data) < 8:
-                    data = w.padded(data)
-                buf = self._buf
-                buf += data[1:]
-                if len(buf) > self._max_buf:
-                    return self._error(
-                        SdoAbortCode.LENGTH_TOO_HIGH,
-                        f"the server sent more segments than the {self._size} bytes it announced",
-                    )
-                if cmd & w.LAST_SEGMENT:
-                    self._state = _BUL_END
-                    return self._send(w.ACK.pack(w.BLOCK_ACK, seq, self._blksize), now)
-                if seq == self._blksize:
-                    self._expected = 1
-                    return self._send(w.ACK.pack(w.BLOCK_ACK, seq, self._blksize), now)
-                self._expected = seq + 1
-                self._deadline = now + self._timeout
-                return NOTHING
-            return self._out_of_sequence(cmd, now)
         if cmd == w.ABORT:
             return self._peer_abort(data)
-        if state == _UL_SEG:
-            return self._upload_segment(data, now)
-        if state == _DL_SEG:
-            return self._download_segment_response(cmd, now)
+        if state == _UL_SEG:  # an upload segment goes to _segment_in
+            return self._unexpected(cmd, "an upload segment (0xh/1xh)")
+        if state == _DL_SEG:  # a download segment response goes to _segment_out
+            return self._unexpected(cmd, "a download segment response (20h/30h)")
         if state == _BDL_ACK:
+            if cmd & w.BLOCK5_MASK != w.BLOCK_ACK:
+                return self._unexpected(cmd, "a block acknowledge (A2h)")
             return self._block_ack(data, now)
         if state == _UL_INIT:
             return self._upload_response(data, now)
@@ -354,7 +268,9 @@ class SdoClient:
         if state == _BUL_INIT:
             return self._block_upload_response(data, now)
         if state == _BUL_END:
-            return self._block_upload_end(data, now)
+            if cmd & w.BLOCK6_MASK != w.BLOCK6_END:
+                return self._unexpected(cmd, "a block upload end (C1h..DDh)")
+            return self._block_end_in(data)
         if state == _BDL_INIT:
             return self._block_download_response(data, now)
         # _BDL_END
@@ -371,14 +287,7 @@ class SdoClient:
         if not self._mux_ok(data):
             return self._mux_error(data)
         if cmd & w.EXPEDITED:
-            if cmd & w.SIZE:
-                size = 4 - ((cmd >> 2) & 3)
-                if len(data) < 4 + size:
-                    return self._short(data, f"an expedited upload response of {size} bytes")
-                value = data[4 : 4 + size]
-            else:
-                value = data[4:8]
-            return self._succeed(UploadDone(self._index, self._subindex, value))
+            return self._expedited_in(data, (), "an expedited upload response")
         if cmd & w.SIZE:
             if len(data) < 8:
                 return self._short(data, "an upload response with its size")
@@ -388,37 +297,6 @@ class SdoClient:
         self._state = _UL_SEG
         self._toggle = 0
         return self._send(w.CODE_ONLY.pack(w.CCS_UPLOAD_SEGMENT), now)
-
-    def _upload_segment(self, data: bytes, now: float) -> Out:
-        cmd = data[0]
-        if cmd & w.SERVICE_MASK != w.SCS_UPLOAD_SEGMENT:
-            return self._unexpected(cmd, "an upload segment (0xh/1xh)")
-        toggle = cmd & w.TOGGLE
-        if toggle != self._toggle:
-            return self._error(
-                SdoAbortCode.TOGGLE_BIT,
-                f"upload segment with toggle bit {toggle >> 4}, expected {self._toggle >> 4}",
-            )
-        end = 8 - ((cmd >> 1) & 7)
-        if len(data) < end:
-            return self._short(data, f"an upload segment of {end - 1} bytes")
-        buf = self._buf
-        buf += data[1:end]
-        size = self._size
-        if size is not None and len(buf) > size:
-            return self._error(
-                SdoAbortCode.LENGTH_TOO_HIGH,
-                f"the server sent more than the {size} bytes it announced",
-            )
-        if cmd & w.LAST:
-            if size is not None and len(buf) < size:
-                return self._error(
-                    SdoAbortCode.LENGTH_TOO_LOW,
-                    f"the server ended after {len(buf)} of the {size} bytes it announced",
-                )
-            return self._succeed(UploadDone(self._index, self._subindex, bytes(buf)))
-        self._toggle = toggle ^ w.TOGGLE
-        return self._send(w.CODE_ONLY.pack(w.CCS_UPLOAD_SEGMENT | self._toggle), now)
 
     def _download_response(self, data: bytes, now: float) -> Out:
         cmd = data[0]
@@ -440,12 +318,11 @@ class SdoClient:
         cmd = self._toggle | ((7 - len(chunk)) << 1) | (w.LAST if last else 0)
         return self._send(w.SEGMENT.pack(cmd, chunk), now)
 
-    def _download_segment_response(self, cmd: int, now: float) -> Out:
-        if cmd & w.SERVICE_MASK != w.SCS_DOWNLOAD_SEGMENT:
-            return self._unexpected(cmd, "a download segment response (20h/30h)")
+    def _segment_out(self, cmd: int, now: float) -> Out:
+        """A download segment response."""
         toggle = cmd & w.TOGGLE
         if toggle != self._toggle:
-            return self._error(
+            return self._violation(
                 SdoAbortCode.TOGGLE_BIT,
                 f"download segment response with toggle bit {toggle >> 4}, "
                 f"expected {self._toggle >> 4}",
@@ -477,50 +354,6 @@ class SdoClient:
         self._expected = 1
         return self._send(w.CODE_ONLY.pack(w.BLOCK_UPLOAD_START), now)
 
-    def _out_of_sequence(self, cmd: int, now: float) -> Out:
-        seq = cmd & 0x7F
-        blksize = self._blksize
-        if seq == 0 or seq > blksize:
-            return self._error(
-                SdoAbortCode.SEQUENCE_NUMBER,
-                f"block segment with sequence number {seq} (valid: 1..{blksize})",
-            )
-        if cmd & w.LAST_SEGMENT or seq == blksize:
-            # End of a sub-block with a gap: acknowledge what arrived in sequence.
-            ackseq = self._expected - 1
-            self._expected = 1
-            return self._send(w.ACK.pack(w.BLOCK_ACK, ackseq, blksize), now)
-        self._deadline = now + self._timeout
-        return NOTHING  # a segment after a lost one: dropped, it will be sent again
-
-    def _block_upload_end(self, data: bytes, now: float) -> Out:
-        cmd = data[0]
-        if cmd & w.BLOCK6_MASK != w.BLOCK6_END:
-            return self._unexpected(cmd, "a block upload end (C1h..DDh)")
-        if self._crc_used and len(data) < 3:
-            return self._short(data, "a block upload end with its CRC")
-        buf = self._buf
-        unused = (cmd >> 2) & 7
-        del buf[len(buf) - unused :]
-        size = self._size
-        if size is not None and len(buf) != size:
-            code = SdoAbortCode.LENGTH_TOO_HIGH if len(buf) > size else SdoAbortCode.LENGTH_TOO_LOW
-            return self._error(
-                code, f"the server sent {len(buf)} bytes in a block upload announced as {size}"
-            )
-        if self._crc_used:
-            crc = w.U16.unpack_from(data, 1)[0]
-            mine = crc16(buf)
-            if crc != mine:
-                return self._error(
-                    SdoAbortCode.CRC,
-                    f"block upload CRC {crc:04X}h from the server, {mine:04X}h computed",
-                )
-        frame = Frame(self._rx, w.CODE_ONLY.pack(w.BLOCK5_END), extended=self._ext)
-        event = UploadDone(self._index, self._subindex, bytes(buf))
-        self._reset()
-        return Out((frame,), (event,))
-
     # -- block download -------------------------------------------------------------------------
 
     def _block_download_response(self, data: bytes, now: float) -> Out:
@@ -533,47 +366,12 @@ class SdoClient:
             return self._short(data, "a block download response with its block size")
         blksize = data[4]
         if not 1 <= blksize <= w.MAX_BLOCK_SIZE:
-            return self._error(
+            return self._violation(
                 SdoAbortCode.BLOCK_SIZE, f"the server asked for sub-blocks of {blksize} segments"
             )
         self._blksize = blksize
         self._crc_used = self._crc and bool(cmd & w.BLOCK_CRC)
         self._state = _BDL_ACK
-        return self._send_subblock(now)
-
-    def _send_subblock(self, now: float) -> Out:
-        frames, self._sent, self._sent_last = w.subblock(
-            self._rx, self._ext, self._data, self._pos, self._blksize
-        )
-        self._deadline = now + self._timeout
-        return Out(frames)
-
-    def _block_ack(self, data: bytes, now: float) -> Out:
-        cmd = data[0]
-        if cmd & w.BLOCK5_MASK != w.BLOCK_ACK:
-            return self._unexpected(cmd, "a block acknowledge (A2h)")
-        if len(data) < 3:
-            return self._short(data, "a block acknowledge")
-        ackseq = data[1]
-        blksize = data[2]
-        if ackseq > self._sent:
-            return self._error(
-                SdoAbortCode.SEQUENCE_NUMBER,
-                f"the server acknowledged segment {ackseq} of a sub-block of {self._sent}",
-            )
-        if not 1 <= blksize <= w.MAX_BLOCK_SIZE:
-            return self._error(
-                SdoAbortCode.BLOCK_SIZE, f"the server asked for sub-blocks of {blksize} segments"
-            )
-        self._pos += 7 * ackseq
-        if self._sent_last and ackseq == self._sent:
-            total = len(self._data)
-            crc = crc16(self._data) if self._crc_used else 0
-            cmd = w.BLOCK6_END | (w.unused_in_last(total) << 2)
-            self._state = _BDL_END
-            return self._send(w.END_CRC.pack(cmd, crc), now)
-        self._sent_last = False
-        self._blksize = blksize
         return self._send_subblock(now)
 
     # -- helpers -------------------------------------------------------------------------------
@@ -593,31 +391,22 @@ class SdoClient:
         self._index = index
         self._subindex = subindex
 
-    def _send(self, payload: bytes, now: float) -> Out:
-        self._deadline = now + self._timeout
-        return Out((Frame(self._rx, payload, extended=self._ext),))
-
-    def _reset(self) -> None:
-        self._state = _IDLE
-        self._deadline = None
-        self._data = b""
-        self._buf = bytearray()
-
     def _succeed(self, event: Event) -> Out:
         self._reset()
         return Out((), (event,))
 
+    def _received(self, value: bytes, reply: tuple[Frame, ...]) -> Out:
+        event = UploadDone(self._index, self._subindex, value)
+        self._reset()
+        return Out(reply, (event,))
+
     def _fail(self, error: SdoError, code: int) -> Out:
-        frame = Frame(
-            self._rx,
-            w.WITH_U32.pack(w.ABORT, self._index, self._subindex, code),
-            extended=self._ext,
-        )
+        frame = self._frame(w.WITH_U32.pack(w.ABORT, self._index, self._subindex, code))
         event = TransferFailed(self._index, self._subindex, error)
         self._reset()
         return Out((frame,), (event,))
 
-    def _error(self, code: int, reason: str) -> Out:
+    def _violation(self, code: int, reason: str) -> Out:
         error = SdoProtocolError(
             code,
             reason,
@@ -629,14 +418,8 @@ class SdoClient:
         return self._fail(error, code)
 
     def _unexpected(self, cmd: int, wanted: str) -> Out:
-        return self._error(
+        return self._violation(
             SdoAbortCode.INVALID_COMMAND, f"the server sent command {cmd:02X}h, not {wanted}"
-        )
-
-    def _short(self, data: bytes, what: str) -> Out:
-        return self._error(
-            SdoAbortCode.INVALID_COMMAND,
-            f"the server's frame {data.hex(' ').upper()} is too short for {what}",
         )
 
     def _mux_ok(self, data: bytes) -> bool:
@@ -650,7 +433,7 @@ class SdoClient:
         if len(data) < 4:
             return self._short(data, "an initiate response (command, index, sub-index)")
         _, index, subindex = w.MUX.unpack_from(data)
-        return self._error(
+        return self._violation(
             SdoAbortCode.PARAMETER_INCOMPATIBLE,
             f"the server answered for 0x{index:04X}:{subindex:02X}",
         )

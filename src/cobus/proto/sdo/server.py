@@ -41,9 +41,9 @@ from typing import Protocol, cast
 
 from cobus.proto._base import NOTHING, Event, Out
 from cobus.proto.frame import Frame
+from cobus.proto.sdo import _endpoint as ep
 from cobus.proto.sdo import _wire as w
 from cobus.proto.sdo.abort import SdoAbortCode, as_code
-from cobus.proto.sdo.crc import crc16
 from cobus.proto.sdo.errors import SdoAbort
 
 __all__ = [
@@ -155,19 +155,19 @@ class ServerAborted(Event):
 
 
 # States of the server.
-_IDLE = 0
-_DL_SEG = 1  # segmented download: waiting for a segment
-_UL_SEG = 2  # segmented upload: waiting for a segment request
-_BDL_DATA = 3  # block download: receiving segments
-_BDL_END = 4  # block download: all segments acknowledged, waiting for the end request
-_BUL_START = 5  # block upload: initiate answered, waiting for the start (A3h)
-_BUL_ACK = 6  # block upload: sub-block sent, waiting for its acknowledge
-_BUL_END = 7  # block upload: end sent, waiting for the end response (A1h)
+_IDLE = ep.IDLE
+_DL_SEG = ep.SEGMENT_IN  # segmented download: waiting for a segment
+_UL_SEG = ep.SEGMENT_OUT  # segmented upload: waiting for a segment request
+_BDL_DATA = ep.BLOCK_IN  # block download: receiving segments
+_BDL_END = ep.BLOCK_IN_END  # block download: all segments acknowledged, waiting for the end request
+_BUL_START = ep.OWN_STATES  # block upload: initiate answered, waiting for the start (A3h)
+_BUL_ACK = ep.BLOCK_OUT  # block upload: sub-block sent, waiting for its acknowledge
+_BUL_END = ep.BLOCK_OUT_END  # block upload: end sent, waiting for the end response (A1h)
 
 _SUPERSEDED = SdoAbortCode.GENERAL_ERROR
 
 
-class SdoServer:
+class SdoServer(ep.Endpoint):
     """Server side of one SDO channel (see the module text for the choices it makes).
 
     ``block_size`` (1..127) is the sub-block size the server asks for in block downloads;
@@ -175,32 +175,18 @@ class SdoServer:
     next frame of a segmented or block transfer before aborting with 05040000.
     """
 
-    __slots__ = (
-        "_backend",
-        "_blksize",
-        "_buf",
-        "_crc",
-        "_crc_used",
-        "_data",
-        "_deadline",
-        "_expected",
-        "_ext",
-        "_index",
-        "_max_buf",
-        "_pos",
-        "_rx",
-        "_sent",
-        "_sent_last",
-        "_size",
-        "_size_hint",
-        "_state",
-        "_subindex",
-        "_timeout",
-        "_toggle",
-        "_tx",
-        "block_size",
-        "node",
+    __slots__ = ("_backend", "_size_hint", "node")
+
+    _ROLE = "server"
+    _PEER = "the client"
+    _INBOUND = "download"
+    _SENDS_ON_RX = False
+    _SEGMENT_ANSWER = (
+        w.CODE_ONLY.pack(w.SCS_DOWNLOAD_SEGMENT),
+        w.CODE_ONLY.pack(w.SCS_DOWNLOAD_SEGMENT | w.TOGGLE),
     )
+    _ANSWERS_LAST_SEGMENT = True
+    _SEGMENT_OUT_SERVICE = w.CCS_UPLOAD_SEGMENT
 
     def __init__(
         self,
@@ -212,60 +198,13 @@ class SdoServer:
         block_size: int = w.MAX_BLOCK_SIZE,
         crc: bool = True,
     ) -> None:
-        w.check_cob_id("SDO server COB-ID rx_cob_id", rx_cob_id)
-        self._ext = w.check_cob_id("SDO server COB-ID tx_cob_id", tx_cob_id)
-        self._rx = rx_cob_id
-        self._tx = tx_cob_id
+        super().__init__(rx_cob_id, tx_cob_id, timeout=timeout, block_size=block_size, crc=crc)
         self._backend = backend
         hint = getattr(backend, "size_hint", None)
         self._size_hint = cast("_SizeHint | None", hint if callable(hint) else None)
-        self._timeout = w.check_timeout(timeout)
-        self.block_size = w.check_block_size(block_size)
-        self._crc = crc
         self.node = w.node_of(rx_cob_id, tx_cob_id)
-        self._state = _IDLE
-        self._deadline: float | None = None
         self._index = -1  # -1: no object named yet
         self._subindex = -1
-        self._data = b""
-        self._buf = bytearray()
-        self._pos = 0
-        self._size: int | None = None
-        self._max_buf = 0
-        self._toggle = 0
-        self._blksize = 0
-        self._expected = 1
-        self._sent = 0
-        self._sent_last = False
-        self._crc_used = False
-
-    @property
-    def rx_cob_id(self) -> int:
-        """The COB-ID the server receives requests on."""
-        return self._rx
-
-    @property
-    def tx_cob_id(self) -> int:
-        """The COB-ID the server answers on."""
-        return self._tx
-
-    @property
-    def timeout(self) -> float:
-        return self._timeout
-
-    @timeout.setter
-    def timeout(self, value: float) -> None:
-        """Change the timeout; it applies from the next frame."""
-        self._timeout = w.check_timeout(value)
-
-    @property
-    def busy(self) -> bool:
-        """True while a segmented or block transfer runs."""
-        return self._state != _IDLE
-
-    @property
-    def deadline(self) -> float | None:
-        return self._deadline
 
     # -- inputs -------------------------------------------------------------------------------
 
@@ -275,32 +214,8 @@ class SdoServer:
             return NOTHING
         return self._abort(SdoAbortCode.TIMEOUT)
 
-    def on_frame(self, frame: Frame, now: float) -> Out:
-        data = frame.data
-        if frame.cob_id != self._rx or frame.rtr or not data:
-            return NOTHING
-        cmd = data[0]
+    def _on_command(self, cmd: int, data: bytes, now: float) -> Out:
         state = self._state
-        if state == _BDL_DATA and cmd != w.ABORT:
-            # The hot path of block downloads: one segment.
-            seq = cmd & 0x7F
-            if seq == self._expected:
-                if len(data) < 8:
-                    data = w.padded(data)
-                buf = self._buf
-                buf += data[1:]
-                if len(buf) > self._max_buf:
-                    return self._abort(SdoAbortCode.LENGTH_TOO_HIGH)
-                if cmd & w.LAST_SEGMENT:
-                    self._state = _BDL_END
-                    return self._send(w.ACK.pack(w.BLOCK_ACK, seq, self._blksize), now)
-                if seq == self._blksize:
-                    self._expected = 1
-                    return self._send(w.ACK.pack(w.BLOCK_ACK, seq, self._blksize), now)
-                self._expected = seq + 1
-                self._deadline = now + self._timeout
-                return NOTHING
-            return self._out_of_sequence(cmd, now)
         if cmd == w.ABORT:
             if state == _IDLE:
                 return NOTHING
@@ -318,10 +233,6 @@ class SdoServer:
             return self._superseding(state) + self._initiate_block_upload(data, now)
         if service == w.CCS_BLOCK_DOWNLOAD and cmd & 0x01 == 0:
             return self._superseding(state) + self._initiate_block_download(data, now)
-        if state == _UL_SEG and service == w.CCS_UPLOAD_SEGMENT:
-            return self._upload_segment(cmd, now)
-        if state == _DL_SEG and service == w.CCS_DOWNLOAD_SEGMENT:
-            return self._download_segment(data, now)
         if state == _BUL_ACK and cmd & w.BLOCK5_MASK == w.BLOCK_ACK:
             return self._block_ack(data, now)
         if state == _BUL_START and cmd & w.BLOCK5_MASK == w.BLOCK_UPLOAD_START:
@@ -332,7 +243,7 @@ class SdoServer:
             self._reset()
             return Out((), (done,))
         if state == _BDL_END and cmd & w.BLOCK6_MASK == w.BLOCK6_END:
-            return self._block_download_end(data)
+            return self._block_end_in(data)
         # Anything else: not a valid request here.
         return self._abort(SdoAbortCode.INVALID_COMMAND)
 
@@ -382,23 +293,11 @@ class SdoServer:
             return self._abort(SdoAbortCode.INVALID_COMMAND)
         cmd = data[0]
         if cmd & w.EXPEDITED:
-            if cmd & w.SIZE:
-                count = 4 - ((cmd >> 2) & 3)
-                if len(data) < 4 + count:
-                    return self._abort(SdoAbortCode.INVALID_COMMAND)
-                value = data[4 : 4 + count]
-            else:
-                value = data[4:8]
-            return self._store(value, self._frame(self._mux_frame(w.SCS_INITIATE_DOWNLOAD)))
-        size: int | None = None
-        if cmd & w.SIZE:
-            if len(data) < 8:
-                return self._abort(SdoAbortCode.INVALID_COMMAND)
-            size = w.U32.unpack_from(data, 4)[0]
-        refused = self._check_size(size)
+            reply = (self._frame(self._mux_frame(w.SCS_INITIATE_DOWNLOAD)),)
+            return self._expedited_in(data, reply, "an expedited download request")
+        refused = self._take_size(data, w.SIZE)
         if refused is not None:
             return self._abort(refused)
-        self._size = size
         self._buf = bytearray()
         self._toggle = 0
         self._state = _DL_SEG
@@ -430,16 +329,10 @@ class SdoServer:
         if not self._take_mux(data):
             return self._abort(SdoAbortCode.INVALID_COMMAND)
         cmd = data[0]
-        size: int | None = None
-        if cmd & w.BLOCK_SIZE_FLAG:
-            if len(data) < 8:
-                return self._abort(SdoAbortCode.INVALID_COMMAND)
-            size = w.U32.unpack_from(data, 4)[0]
-        refused = self._check_size(size)
+        refused = self._take_size(data, w.BLOCK_SIZE_FLAG)
         if refused is not None:
             return self._abort(refused)
-        self._size = size
-        self._max_buf = w.block_room(size)
+        self._max_buf = w.block_room(self._size)
         self._buf = bytearray()
         self._expected = 1
         self._blksize = self.block_size
@@ -449,6 +342,19 @@ class SdoServer:
         return self._send(
             w.BLOCK_INIT_RESPONSE.pack(response, self._index, self._subindex, self._blksize), now
         )
+
+    def _take_size(self, data: bytes, flag: int) -> int | None:
+        """Take the size a download initiate request indicates (``flag`` set in its command)
+        once the back end accepts it; else the abort code that refuses the request."""
+        size: int | None = None
+        if data[0] & flag:
+            if len(data) < 8:
+                return SdoAbortCode.INVALID_COMMAND
+            size = w.U32.unpack_from(data, 4)[0]
+        refused = self._check_size(size)
+        if refused is None:
+            self._size = size
+        return refused
 
     def _check_size(self, size: int | None) -> int | None:
         """Ask the back end about a download before its data arrives; the abort code or None."""
@@ -464,7 +370,8 @@ class SdoServer:
 
     # -- segmented -----------------------------------------------------------------------------
 
-    def _upload_segment(self, cmd: int, now: float) -> Out:
+    def _segment_out(self, cmd: int, now: float) -> Out:
+        """An upload segment request."""
         toggle = cmd & w.TOGGLE
         if toggle != self._toggle:
             return self._abort(SdoAbortCode.TOGGLE_BIT)
@@ -481,105 +388,23 @@ class SdoServer:
         self._toggle = toggle ^ w.TOGGLE
         return self._send(w.SEGMENT.pack(toggle, chunk), now)
 
-    def _download_segment(self, data: bytes, now: float) -> Out:
-        cmd = data[0]
-        toggle = cmd & w.TOGGLE
-        if toggle != self._toggle:
-            return self._abort(SdoAbortCode.TOGGLE_BIT)
-        end = 8 - ((cmd >> 1) & 7)
-        if len(data) < end:
-            return self._abort(SdoAbortCode.INVALID_COMMAND)
-        buf = self._buf
-        buf += data[1:end]
-        size = self._size
-        if size is not None and len(buf) > size:
-            return self._abort(SdoAbortCode.LENGTH_TOO_HIGH)
-        response = w.CODE_ONLY.pack(w.SCS_DOWNLOAD_SEGMENT | toggle)
-        if cmd & w.LAST:
-            if size is not None and len(buf) < size:
-                return self._abort(SdoAbortCode.LENGTH_TOO_LOW)
-            return self._store(bytes(buf), self._frame(response))
-        self._toggle = toggle ^ w.TOGGLE
-        return self._send(response, now)
-
-    # -- block ---------------------------------------------------------------------------------
-
-    def _out_of_sequence(self, cmd: int, now: float) -> Out:
-        seq = cmd & 0x7F
-        blksize = self._blksize
-        if seq == 0 or seq > blksize:
-            return self._abort(SdoAbortCode.SEQUENCE_NUMBER)
-        if cmd & w.LAST_SEGMENT or seq == blksize:
-            # End of a sub-block with a gap: acknowledge what arrived in sequence.
-            ackseq = self._expected - 1
-            self._expected = 1
-            return self._send(w.ACK.pack(w.BLOCK_ACK, ackseq, blksize), now)
-        self._deadline = now + self._timeout
-        return NOTHING  # a segment after a lost one: dropped, the client sends it again
-
-    def _block_download_end(self, data: bytes) -> Out:
-        if self._crc_used and len(data) < 3:
-            return self._abort(SdoAbortCode.INVALID_COMMAND)
-        buf = self._buf
-        del buf[len(buf) - ((data[0] >> 2) & 7) :]
-        size = self._size
-        if size is not None and len(buf) != size:
-            too_long = len(buf) > size
-            return self._abort(
-                SdoAbortCode.LENGTH_TOO_HIGH if too_long else SdoAbortCode.LENGTH_TOO_LOW
-            )
-        if self._crc_used and w.U16.unpack_from(data, 1)[0] != crc16(buf):
-            return self._abort(SdoAbortCode.CRC)
-        return self._store(bytes(buf), self._frame(w.CODE_ONLY.pack(w.BLOCK5_END)))
-
-    def _send_subblock(self, now: float) -> Out:
-        frames, self._sent, self._sent_last = w.subblock(
-            self._tx, self._ext, self._data, self._pos, self._blksize
-        )
-        self._deadline = now + self._timeout
-        return Out(frames)
-
-    def _block_ack(self, data: bytes, now: float) -> Out:
-        if len(data) < 3:
-            return self._abort(SdoAbortCode.INVALID_COMMAND)
-        ackseq = data[1]
-        blksize = data[2]
-        if ackseq > self._sent:
-            return self._abort(SdoAbortCode.SEQUENCE_NUMBER)
-        if not 1 <= blksize <= w.MAX_BLOCK_SIZE:
-            return self._abort(SdoAbortCode.BLOCK_SIZE)
-        self._pos += 7 * ackseq
-        if self._sent_last and ackseq == self._sent:
-            total = len(self._data)
-            crc = crc16(self._data) if self._crc_used else 0
-            self._state = _BUL_END
-            cmd = w.BLOCK6_END | (w.unused_in_last(total) << 2)
-            return self._send(w.END_CRC.pack(cmd, crc), now)
-        self._sent_last = False
-        self._blksize = blksize
-        return self._send_subblock(now)
-
     # -- helpers -------------------------------------------------------------------------------
-
-    def _frame(self, payload: bytes) -> Frame:
-        return Frame(self._tx, payload, extended=self._ext)
 
     def _mux_frame(self, cmd: int) -> bytes:
         return w.WITH_U32.pack(cmd, self._index, self._subindex, 0)
 
-    def _send(self, payload: bytes, now: float) -> Out:
-        self._deadline = now + self._timeout
-        return Out((Frame(self._tx, payload, extended=self._ext),))
-
-    def _store(self, value: bytes, response: Frame) -> Out:
-        """Hand a complete download to the back end; answer ``response`` when it accepts."""
+    def _received(self, value: bytes, reply: tuple[Frame, ...]) -> Out:
+        """Hand a complete download to the back end; answer ``reply`` when it accepts."""
         try:
             self._backend.download(self._index, self._subindex, value)
         except SdoAbort as refusal:
             return self._abort(refusal.code)
         event = ServerDownloaded(self._index, self._subindex, len(value))
         self._reset()
-        return Out((response,), (event,))
+        return Out(reply, (event,))
+
+    def _violation(self, code: int, reason: str) -> Out:
+        return self._abort(code)  # the server reports the code only (ServerAborted)
 
     def _abort(self, code: int) -> Out:
         """Send abort ``code`` for the current object and end the transfer, if any."""
@@ -591,10 +416,7 @@ class SdoServer:
         return Out((frame,), (event,))
 
     def _reset(self) -> None:
-        self._state = _IDLE
-        self._deadline = None
-        self._data = b""
-        self._buf = bytearray()
+        super()._reset()
         self._index = -1
         self._subindex = -1
 
