@@ -29,6 +29,7 @@ def test_demo_boots_the_rig_and_runs_the_drives_on_the_simulated_clock(tmp_path)
     assert int(last["10"]["speed"].split()[0]) > 10_000
     assert float(last["8"]["speed"].split()[0]) > 10.0
     assert last["8"]["nmt"] == "operational"
+    assert last["8"]["master"] == "5 operational"  # started by the master, after SYNC
     assert last["8"]["note"] == ""  # the handshake holds: no alarm
     assert demo.zapi_cycles > 300  # answered every 20 ms SYNC cycle
     assert all(row["emcy"] == "0" for row in seen[-1])

@@ -9,9 +9,9 @@ a small application in the spirit of the thesis's PLC program:
   every 20 ms and supervises heartbeats and emergencies;
 - the potentiometer sweeps slowly; the servo runs in profile velocity mode at a speed that
   follows it (through the master's process image);
-- the ZAPI inverter, which has no boot-up and no heartbeat, is started with SYNC running and
-  answered every cycle with the opposite handshake toggle, running clockwise at a speed that
-  follows the potentiometer too.
+- the ZAPI inverter, which has no boot-up and no heartbeat, is started by the master once
+  SYNC runs; the application answers each of its TPDO1 through the process image with the
+  opposite handshake toggle, running it clockwise at a speed that follows the potentiometer.
 
 A live table shows each node: NMT state, the master's node state, heartbeat age, EMCY count
 and speed. The operator panel will replace the table once it exists.
@@ -34,7 +34,6 @@ from typing import Any, TextIO
 from cobus.device import export_eds
 from cobus.master import Master, loads_network
 from cobus.proto import Frame
-from cobus.proto.pdo import Kind, MappingEntry, PdoMap
 from cobus.runtime import AsyncNetwork, SimulatedEventLoop
 from cobus.sim.rig import Rig, ready_rig
 
@@ -46,25 +45,10 @@ SERVO_MAX_SPEED = 50_000  # increments/s at full potentiometer
 ZAPI_MAX_HZ = 50.0  # the thesis's example speed: 50 Hz clockwise
 POT_PERIOD = 20.0  # seconds for one sweep of the potentiometer
 
-# ZAPI RPDO1 208h / TPDO1 188h (see cobus.sim.zapi): speed Hz x 100, controlword, pedal brake,
-# torque request, ramp.
-_ZAPI_RPDO1 = PdoMap(
-    [
-        (MappingEntry(0x2200, 0, 16), Kind.SIGNED),
-        (MappingEntry(0x2201, 0, 16), Kind.UNSIGNED),
-        (MappingEntry(0x2202, 0, 8), Kind.UNSIGNED),
-        (MappingEntry(0x2203, 0, 8), Kind.UNSIGNED),
-        (MappingEntry(0x2204, 0, 8), Kind.UNSIGNED),
-    ]
-)
-_ZAPI_TPDO1 = PdoMap(
-    [
-        (MappingEntry(0x2100, 0, 16), Kind.SIGNED),
-        (MappingEntry(0x2101, 0, 16), Kind.UNSIGNED),
-    ]
-)
-_ZAPI_RUN = (1 << 1) | (1 << 3) | (1 << 6)  # main contactor A16 + enable + clockwise
-_TOGGLE = 1 << 15  # controlword / statusword byte 3 bit 7
+# ZAPI controlword (RPDO1 bytes 2-3): main contactor A16 + enable + clockwise, and the
+# handshake toggle (byte 3 bit 7) that must be the opposite of the statusword's every cycle.
+_ZAPI_RUN = (1 << 1) | (1 << 3) | (1 << 6)
+_TOGGLE = 1 << 15
 
 NETWORK_YAML = """
     master:
@@ -82,6 +66,15 @@ NETWORK_YAML = """
         tpdo2: {mapping: ["0x6401:01"], transmission_type: 1}
         signals:
           pot: {object: "0x6401:01"}
+      zapi:
+        node_id: 8
+        eds: zapi.eds
+        mandatory: true
+        do_not_initialise: true   # no boot-up: the master only starts it
+        heartbeat_time: 0         # and it produces no heartbeat, nor answers guarding
+        signals:
+          setpoint: {object: speed_setpoint, scale: 0.01, unit: Hz}
+          speed: {object: actual_speed, scale: 0.01, unit: Hz}
       servo:
         node_id: 10
         eds: servo.eds
@@ -112,7 +105,6 @@ class Demo:
         self.heartbeats: dict[int, float] = {}
         self.emcy_seen: dict[int, int] = {}
         self.zapi_cycles = 0
-        self._zapi_started = False
         self._tasks: list[asyncio.Task[None]] = []
 
     # -- life cycle
@@ -120,20 +112,19 @@ class Demo:
         await self.rig_net.connect()
         await self.master_net.connect()
         await self.rig.start(self.rig_net)
-        for node_id, name in ((IO, "io"), (SERVO, "servo")):
+        for node_id, name in ((IO, "io"), (SERVO, "servo"), (ZAPI, "zapi")):
             od = self.rig.devices[node_id].od  # type: ignore[attr-defined]
             (self.workdir / f"{name}.eds").write_text(export_eds(od))
         config = loads_network(textwrap.dedent(NETWORK_YAML), base_dir=self.workdir)
         for node_id in range(1, 128):
             self.master_net.subscribe(0x700 + node_id, self._on_heartbeat)
             self.master_net.subscribe(0x80 + node_id, self._on_emcy)
-        self.master_net.subscribe(0x188, self._on_zapi_tpdo1)
         self.master = Master(self.master_net, config)
+        self.master.add_tpdo_listener(self._on_tpdo)
         await self.master.boot(timeout=10)
         self._tasks = [
             asyncio.create_task(self._sweep_potentiometer()),
             asyncio.create_task(self._run_servo()),
-            asyncio.create_task(self._start_zapi()),
         ]
 
     async def stop(self) -> None:
@@ -175,20 +166,18 @@ class Demo:
             outputs["servo.target"] = round(self._pot() * SERVO_MAX_SPEED)
             await asyncio.sleep(0.1)
 
-    async def _start_zapi(self) -> None:
-        # SYNC runs (the master produces it); the ACE2 needs it before the NMT start.
-        await asyncio.sleep(3 * SYNC_PERIOD)
-        self.master_net.nmt.start(ZAPI)
-        self._zapi_started = True
-
-    def _on_zapi_tpdo1(self, frame: Frame, now: float) -> None:
-        if not self._zapi_started or len(frame.data) < 4:
+    def _on_tpdo(self, node_id: int, number: int, now: float) -> None:
+        """The thesis's handshake: answer every ZAPI TPDO1 in the same SYNC cycle."""
+        if node_id != ZAPI or number != 1 or self.master is None:
             return
-        _speed, status = _ZAPI_TPDO1.unpack(frame.data[:4])
-        answer = 0 if status & _TOGGLE else _TOGGLE  # the opposite toggle, every cycle
-        setpoint = round(self._pot() * ZAPI_MAX_HZ * 100)
-        data = _ZAPI_RPDO1.pack([setpoint, _ZAPI_RUN | answer, 0, 0, 0])
-        self.master_net.send(Frame(0x208, data))
+        master = self.master
+        toggle = master.inputs["zapi.statusword"] & _TOGGLE
+        master.outputs["zapi.setpoint"] = round(self._pot() * ZAPI_MAX_HZ, 2)
+        word = _ZAPI_RUN | (0 if toggle else _TOGGLE)
+        if master.outputs["zapi.controlword"] == word:
+            master.send_rpdo("zapi", 1)  # unchanged outputs still need this cycle's answer
+        else:
+            master.outputs["zapi.controlword"] = word
         self.zapi_cycles += 1
 
     def _on_heartbeat(self, frame: Frame, now: float) -> None:
