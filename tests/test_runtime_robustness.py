@@ -182,7 +182,7 @@ def test_run_timeout_holds_on_the_simulated_clock():
     with Network(simulated=True) as net:
         node = net.add_remote(9, sdo_timeout=30.0)
         with pytest.raises(TimeoutError):
-            net.run(node.sdo.channel.upload(0x1000), timeout=1.0)
+            net.run(node.sdo.aio.upload(0x1000), timeout=1.0)
         assert net.time() == pytest.approx(1.0)
 
 

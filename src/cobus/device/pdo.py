@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from cobus.device._entries import Entry
-from cobus.od import DataType, decode, encode
+from cobus.od import DataType
 from cobus.proto import NOTHING, Frame, Out
 from cobus.proto.pdo import (
     MAX_PDO_BITS,
@@ -29,43 +29,12 @@ from cobus.proto.pdo import (
     TransmissionType,
 )
 from cobus.proto.sdo import SdoAbort, SdoAbortCode
+from cobus.runtime.pdo import field_kind
 
 if TYPE_CHECKING:
     from cobus.runtime.network import MachineHost, Subscription
 
 __all__ = ["Rpdo", "Tpdo", "check_mapping_entry", "compile_mapping", "field_kind"]
-
-
-class _BytesOfType:
-    """A :class:`FieldCodec` for types without a :class:`Kind` (strings, TIME_OF_DAY...)."""
-
-    __slots__ = ("_dt",)
-
-    def __init__(self, data_type: DataType) -> None:
-        self._dt = data_type
-
-    def encode(self, value: Any, bits: int) -> int:
-        data = encode(self._dt, value)[: bits // 8]
-        return int.from_bytes(data, "little")
-
-    def decode(self, raw: int, bits: int) -> Any:
-        data = raw.to_bytes(bits // 8, "little")
-        return decode(self._dt, data)
-
-
-def field_kind(data_type: DataType) -> Kind | FieldCodec:
-    """How a mapped object of ``data_type`` is packed."""
-    if data_type.is_integer:
-        return Kind.SIGNED if data_type.is_signed else Kind.UNSIGNED
-    if data_type is DataType.BOOLEAN:
-        return Kind.BOOL
-    if data_type is DataType.REAL32:
-        return Kind.REAL32
-    if data_type is DataType.REAL64:
-        return Kind.REAL64
-    if data_type in (DataType.OCTET_STRING, DataType.DOMAIN):
-        return Kind.BYTES
-    return _BytesOfType(data_type)
 
 
 def check_mapping_entry(

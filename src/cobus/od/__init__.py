@@ -19,6 +19,7 @@ from cobus.od._errors import (
     Severity,
     ValueRangeError,
 )
+from cobus.od._lookup import did_you_mean, match_name, normalize_name
 from cobus.od._model import (
     Access,
     Array,
@@ -59,9 +60,12 @@ __all__ = [
     "ValueRangeError",
     "Variable",
     "decode",
+    "did_you_mean",
     "encode",
     "load",
     "loads",
     "mapping_entries",
+    "match_name",
+    "normalize_name",
     "validate",
 ]

@@ -26,25 +26,38 @@ import can
 from cobus.errors import CobusError
 from cobus.proto import Event, Frame
 from cobus.proto.nmt import NmtCommand
+from cobus.runtime import emcy as _emcy
+from cobus.runtime import nmt as _nmt
+from cobus.runtime import pdo as _pdo
+from cobus.runtime import remote as _remote
+from cobus.runtime._twin import BlockingTwin
 from cobus.runtime.loop import new_event_loop
 from cobus.runtime.network import AsyncNetwork, FrameHandler, NetworkClosedError, Subscription
 from cobus.runtime.remote import NmtCommands, SdoChannel
 from cobus.runtime.remote import RemoteNode as AsyncRemoteNode
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
     from pathlib import Path
 
     from cobus.device import BlockingDevice
-    from cobus.od import ObjectDictionary, Variable
+    from cobus.od import ObjectDictionary
 
 __all__ = [
     "BlockingNmt",
     "BlockingSdo",
     "BlockingSync",
+    "BlockingTwin",
     "Network",
+    "PdoSet",
     "ReentrantCallError",
+    "RemoteEmcy",
+    "RemoteNmt",
     "RemoteNode",
+    "RemotePdo",
     "Runner",
+    "SdoRecord",
+    "SdoVariable",
 ]
 
 T = TypeVar("T")
@@ -294,6 +307,10 @@ class Network:
         node = self._runner.call(lambda: self.aio.add_remote(node_id, od, sdo_timeout=sdo_timeout))
         return RemoteNode(node, self._runner)
 
+    def remove_remote(self, node_id: int) -> None:
+        """Forget a node added with :meth:`add_remote` (it can be added again)."""
+        self._runner.call(self.aio.remove_remote, node_id)
+
     def add_device(
         self, node_id: int, od: ObjectDictionary | str | Path, **options: Any
     ) -> BlockingDevice:
@@ -312,50 +329,58 @@ class Network:
         return BlockingSync(self)
 
 
-class BlockingSdo:
-    """The blocking face of an :class:`~cobus.runtime.remote.SdoChannel`."""
-
-    def __init__(self, channel: SdoChannel, runner: Runner) -> None:
-        self.channel = channel
-        self._runner = runner
-
-    def upload(self, index: int, subindex: int = 0, *, block: bool = False) -> bytes:
-        return self._runner.run(self.channel.upload(index, subindex, block=block))
-
-    def download(
-        self,
-        index: int,
-        subindex: int,
-        data: bytes,
-        *,
-        block: bool = False,
-        size_indicated: bool = True,
-    ) -> None:
-        self._runner.run(
-            self.channel.download(index, subindex, data, block=block, size_indicated=size_indicated)
-        )
-
-    def read(self, index: int | str, subindex: int | str = 0) -> Any:
-        return self._runner.run(self.channel.read(index, subindex))
-
-    def write(self, index: int | str, subindex: int | str, value: Any) -> None:
-        self._runner.run(self.channel.write(index, subindex, value))
-
-    def variable(self, index: int | str, subindex: int | str = 0) -> Variable:
-        return self.channel.variable(index, subindex)
+class BlockingSdo(BlockingTwin, twin_of=SdoChannel):
+    """The blocking face of an :class:`~cobus.runtime.remote.SdoChannel`: the same methods,
+    each waiting for its transfer."""
 
 
-class RemoteNode:
-    """The blocking face of a :class:`~cobus.runtime.remote.RemoteNode`."""
+class SdoVariable(BlockingTwin, twin_of=_remote.SdoVariable):
+    """One object of a remote node over SDO, for blocking code: ``node.sdo["Device
+    type"].read()``."""
 
-    def __init__(self, node: AsyncRemoteNode, runner: Runner) -> None:
-        self.aio = node
-        self.node_id = node.node_id
-        self.od = node.od
-        self.sdo = BlockingSdo(node.sdo, runner)
 
-    def __repr__(self) -> str:
-        return f"RemoteNode({self.node_id})"
+class SdoRecord(BlockingTwin, twin_of=_remote.SdoRecord):
+    """A record or array of a remote node over SDO, for blocking code: ``[sub]`` gives its
+    sub-objects."""
+
+
+class RemoteNmt(BlockingTwin, twin_of=_nmt.RemoteNmt):
+    """The NMT state of a remote node, commands to it and its heartbeat supervision, for
+    blocking code (see :class:`cobus.runtime.nmt.RemoteNmt`)."""
+
+
+class RemoteEmcy(BlockingTwin, twin_of=_emcy.RemoteEmcy):
+    """The emergencies of a remote node, for blocking code (see
+    :class:`cobus.runtime.emcy.RemoteEmcy`)."""
+
+
+class RemotePdo(BlockingTwin, twin_of=_pdo.RemotePdo):
+    """One PDO of a remote node, for blocking code (see :class:`cobus.runtime.pdo.RemotePdo`)."""
+
+
+class PdoSet(BlockingTwin, twin_of=_pdo.PdoSet):
+    """The TPDOs or RPDOs of a remote node, for blocking code (see
+    :class:`cobus.runtime.pdo.PdoSet`)."""
+
+    if TYPE_CHECKING:
+
+        def __getitem__(self, number: int) -> RemotePdo: ...
+        def __iter__(self) -> Iterator[RemotePdo]: ...
+
+
+class RemoteNode(BlockingTwin, twin_of=AsyncRemoteNode):
+    """A node on the bus that this network talks to as a client, for blocking code.
+
+    ``sdo`` reads and writes its objects, ``nmt`` follows its state and commands it, ``emcy``
+    keeps its emergencies, ``tpdo`` / ``rpdo`` receive and send its process data; every call
+    returns once done (see :class:`cobus.runtime.remote.RemoteNode`)."""
+
+    if TYPE_CHECKING:
+        sdo: BlockingSdo
+        nmt: RemoteNmt
+        emcy: RemoteEmcy
+        tpdo: PdoSet
+        rpdo: PdoSet
 
 
 class BlockingNmt(NmtCommands):

@@ -416,10 +416,21 @@ class AsyncNetwork:
         from cobus.runtime.remote import RemoteNode, load_od
 
         if node_id in self.remotes:
-            raise ValueError(f"node {node_id} is already on this network")
+            raise ValueError(
+                f"node {node_id} is already on this network: use network.remotes[{node_id}], "
+                f"or remove_remote({node_id}) first to add it again"
+            )
         node = RemoteNode(self, node_id, load_od(od, node_id), sdo_timeout=sdo_timeout)
         self.remotes[node_id] = node
         return node
+
+    def remove_remote(self, node_id: int) -> None:
+        """Forget a node added with :meth:`add_remote`: its subscriptions end, transfers and
+        waits still running fail; it can be added again."""
+        node = self.remotes.pop(node_id, None)
+        if node is None:
+            raise KeyError(f"node {node_id} was not added to this network")
+        node._close()
 
     def add_device(self, node_id: int, od: ObjectDictionary | str | Path, **options: Any) -> Device:
         """A CANopen device (slave) that this network runs, from an object dictionary or an

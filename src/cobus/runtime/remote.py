@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from cobus.errors import CobusError
+from cobus.od import did_you_mean, match_name
 from cobus.proto import NOTHING, Event
 from cobus.proto.nmt import NmtCommand, check_node_id, nmt_command_frame
 from cobus.proto.sdo import (
@@ -25,8 +26,13 @@ from cobus.proto.sync import SyncProducer
 from cobus.runtime.network import NetworkClosedError
 
 if TYPE_CHECKING:
-    from cobus.od import ObjectDictionary, Variable
+    from collections.abc import Iterator
+
+    from cobus.od import Array, Object, ObjectDictionary, Record, Variable
+    from cobus.runtime.emcy import RemoteEmcy
     from cobus.runtime.network import AsyncNetwork, MachineHost
+    from cobus.runtime.nmt import RemoteNmt
+    from cobus.runtime.pdo import PdoSet
 
 __all__ = [
     "NmtCommands",
@@ -34,10 +40,13 @@ __all__ = [
     "ObjectNotFoundError",
     "RemoteNode",
     "SdoChannel",
+    "SdoRecord",
+    "SdoVariable",
     "SyncService",
 ]
 
 Key = int | str
+_NO_VALUE: Any = object()
 
 
 class ObjectNotFoundError(CobusError, KeyError):
@@ -60,7 +69,14 @@ class SdoChannel:
     """One SDO client channel to a server (default: 600h+id / 580h+id).
 
     Transfers on one channel run one after the other, in the order they were asked for.
+    ``read``/``write`` and ``sdo[name]`` go through the node's object dictionary;
+    ``upload``/``download`` move raw bytes.
     """
+
+    #: The node-ID of the server.
+    node_id: int
+    #: The node's object dictionary (None: raw transfers only).
+    od: ObjectDictionary | None
 
     def __init__(
         self,
@@ -96,6 +112,14 @@ class SdoChannel:
             if pending is not None and not pending.done():
                 pending.set_result(event)
         self._network.emit(event)
+
+    def _close(self) -> None:
+        self._host.close()
+        pending = self._pending
+        if pending is not None and not pending.done():
+            pending.set_exception(
+                NetworkClosedError(f"node {self.node_id} was removed during an SDO transfer")
+            )
 
     def _on_disconnect(self) -> None:
         pending = self._pending
@@ -164,20 +188,13 @@ class SdoChannel:
 
     # -- typed access through the object dictionary
     def variable(self, index: Key, subindex: Key = 0) -> Variable:
-        """The object dictionary entry named by index or name, and subindex or name."""
-        if self.od is None:
-            raise ObjectNotFoundError(
-                f"node {self.node_id} has no object dictionary: give one to add_remote() "
-                "or use sdo.upload()/sdo.download() for raw bytes"
-            )
+        """The object dictionary entry named by index or name, and subindex or name.
+
+        Names match with case and separators ignored (``"producer heartbeat time"``); a name
+        that matches nothing gets the close names in its error."""
+        obj = self._object(index)
         from cobus.od import Variable
 
-        try:
-            obj = self.od[index]
-        except KeyError:
-            raise ObjectNotFoundError(
-                f"node {self.node_id}: no object {_fmt(index)} in its object dictionary"
-            ) from None
         if isinstance(obj, Variable):
             if subindex not in (0, obj.name):
                 raise ObjectNotFoundError(
@@ -185,6 +202,15 @@ class SdoChannel:
                     f"it has no subindex {_fmt(subindex)}"
                 )
             return obj
+        if isinstance(subindex, str):
+            names = [v.name for v in obj]
+            name = match_name(subindex, names)
+            if name is None:
+                raise ObjectNotFoundError(
+                    f"node {self.node_id}: object {_fmt(index)} ({obj.name!r}) has no "
+                    f"sub-object {subindex!r}{did_you_mean(subindex, names)}"
+                )
+            subindex = name
         try:
             var = obj[subindex]
         except KeyError:
@@ -194,16 +220,143 @@ class SdoChannel:
         assert isinstance(var, Variable)
         return var
 
+    def _object(self, index: Key) -> Object:
+        if self.od is None:
+            raise ObjectNotFoundError(
+                f"node {self.node_id} has no object dictionary: give one to add_remote() "
+                "or use sdo.upload()/sdo.download() for raw bytes"
+            )
+        key: Key = index
+        hint = ""
+        if isinstance(index, str):
+            names = [obj.name for obj in self.od]
+            found = match_name(index, names)
+            if found is None:
+                hint = did_you_mean(index, names)
+            else:
+                key = found
+        try:
+            return self.od[key]
+        except KeyError:
+            raise ObjectNotFoundError(
+                f"node {self.node_id}: no object {_fmt(index)} in its object dictionary{hint}"
+            ) from None
+
+    def __getitem__(self, key: Key) -> SdoVariable | SdoRecord:
+        """An object of the node by index or name: ``await sdo["Producer heartbeat
+        time"].read()``; a record or array gives its sub-objects by ``[sub]``."""
+        from cobus.od import Variable
+
+        obj = self._object(key)
+        if isinstance(obj, Variable):
+            return SdoVariable(self, obj)
+        return SdoRecord(self, obj)
+
     async def read(self, index: Key, subindex: Key = 0) -> Any:
         """Read an entry and decode it with its data type."""
         var = self.variable(index, subindex)
         data = await self.upload(var.index, var.subindex)
         return var.decode(data)
 
-    async def write(self, index: Key, subindex: Key, value: Any) -> None:
-        """Encode ``value`` with the entry's data type (limits checked) and write it."""
+    async def write(self, index: Key, subindex: Any, value: Any = _NO_VALUE) -> None:
+        """Encode ``value`` with the entry's data type (limits checked) and write it:
+        ``write(index, subindex, value)``, or ``write(index, value)`` for sub-index 0."""
+        if value is _NO_VALUE:
+            subindex, value = 0, subindex
         var = self.variable(index, subindex)
-        await self.download(var.index, var.subindex, var.encode(value))
+        await self.download(var.index, var.subindex, encode_for(var, value, self.node_id))
+
+
+def encode_for(var: Variable, value: Any, node_id: int) -> bytes:
+    """``value`` encoded for ``var``; a range error names the node and the object."""
+    from cobus.od import ValueRangeError
+
+    try:
+        return var.encode(value)
+    except ValueRangeError as exc:
+        where = f"0x{var.index:04X}:{var.subindex:02X}"
+        raise ValueRangeError(f"node {node_id}, {var.name!r} ({where}): {exc}") from None
+
+
+class SdoVariable:
+    """One object of a remote node reached over SDO (``node.sdo["Device type"]``)."""
+
+    #: The dictionary entry (name, type, access, limits).
+    od: Variable
+
+    def __init__(self, channel: SdoChannel, var: Variable) -> None:
+        self._channel = channel
+        self.od = var
+
+    def __repr__(self) -> str:
+        var = self.od
+        return (
+            f"<SdoVariable {var.name!r} 0x{var.index:04X}:{var.subindex:02X} of node "
+            f"{self._channel.node_id}>"
+        )
+
+    @property
+    def name(self) -> str:
+        """The object's name in the node's dictionary."""
+        return self.od.name
+
+    @property
+    def index(self) -> int:
+        """The object's index."""
+        return self.od.index
+
+    @property
+    def subindex(self) -> int:
+        """The object's sub-index."""
+        return self.od.subindex
+
+    async def read(self) -> Any:
+        """Read the value from the node and decode it."""
+        return self.od.decode(await self._channel.upload(self.od.index, self.od.subindex))
+
+    async def write(self, value: Any) -> None:
+        """Check ``value`` against the type and limits and write it to the node."""
+        data = encode_for(self.od, value, self._channel.node_id)
+        await self._channel.download(self.od.index, self.od.subindex, data)
+
+    async def upload(self, *, block: bool = False) -> bytes:
+        """The raw bytes of the object."""
+        return await self._channel.upload(self.od.index, self.od.subindex, block=block)
+
+    async def download(self, data: bytes, *, block: bool = False) -> None:
+        """Write raw bytes to the object."""
+        await self._channel.download(self.od.index, self.od.subindex, data, block=block)
+
+
+class SdoRecord:
+    """A record or array of a remote node reached over SDO: ``[sub]`` gives its sub-objects."""
+
+    #: The dictionary object.
+    od: Record | Array
+
+    def __init__(self, channel: SdoChannel, obj: Record | Array) -> None:
+        self._channel = channel
+        self.od = obj
+
+    def __repr__(self) -> str:
+        return f"<SdoRecord {self.od.name!r} 0x{self.od.index:04X} of node {self._channel.node_id}>"
+
+    @property
+    def name(self) -> str:
+        """The record's or array's name in the node's dictionary."""
+        return self.od.name
+
+    def __getitem__(self, subindex: Key) -> SdoVariable:
+        return SdoVariable(self._channel, self._channel.variable(self.od.index, subindex))
+
+    def __iter__(self) -> Iterator[SdoVariable]:
+        return iter([SdoVariable(self._channel, var) for var in self.od])
+
+    def __len__(self) -> int:
+        return len(self.od)
+
+    def __contains__(self, subindex: object) -> bool:
+        return subindex in self.od
 
 
 def _refused_block(event: Event) -> bool:
@@ -267,7 +420,27 @@ class NmtMaster(NmtCommands):
 
 
 class RemoteNode:
-    """A node on the bus that this network talks to as a client (master side)."""
+    """A node on the bus that this network talks to as a client (master side).
+
+    ``sdo`` reads and writes its objects, ``nmt`` follows its state and commands it, ``emcy``
+    keeps its emergencies, ``tpdo`` / ``rpdo`` receive and send its process data. Give it
+    the node's EDS/DCF (``net.add_remote(2, "drive.eds")``) to use names and types.
+    """
+
+    #: The node-ID, 1..127.
+    node_id: int
+    #: The node's object dictionary (from its EDS/DCF), or None.
+    od: ObjectDictionary | None
+    #: The SDO client channel to the node's default SDO server.
+    sdo: SdoChannel
+    #: The node's NMT state, commands to it, heartbeat supervision.
+    nmt: RemoteNmt
+    #: The node's emergencies.
+    emcy: RemoteEmcy
+    #: The node's transmit PDOs (received here).
+    tpdo: PdoSet
+    #: The node's receive PDOs (sent from here).
+    rpdo: PdoSet
 
     def __init__(
         self,
@@ -277,14 +450,29 @@ class RemoteNode:
         *,
         sdo_timeout: float = 1.0,
     ) -> None:
+        from cobus.runtime.emcy import RemoteEmcy
+        from cobus.runtime.nmt import RemoteNmt
+        from cobus.runtime.pdo import PdoSet
+
         check_node_id(node_id)
         self.node_id = node_id
         self.od = od
-        self.network = network
+        self._network = network
         self.sdo = SdoChannel(network, node_id, od, timeout=sdo_timeout)
+        self.nmt = RemoteNmt(network, node_id)
+        self.emcy = RemoteEmcy(network, node_id)
+        self.tpdo = PdoSet(network, self.sdo, transmit_by_node=True)
+        self.rpdo = PdoSet(network, self.sdo, transmit_by_node=False)
 
     def __repr__(self) -> str:
         return f"RemoteNode({self.node_id})"
+
+    def _close(self) -> None:
+        self.tpdo._close()
+        self.rpdo._close()
+        self.emcy._close()
+        self.nmt._close()
+        self.sdo._close()
 
 
 class SyncService:

@@ -1,0 +1,197 @@
+"""Blocking twins generated from the async classes, so the two surfaces cannot drift apart.
+
+A subclass of :class:`BlockingTwin` declared with ``twin_of=`` gets the async class's
+public names: a
+coroutine method becomes a method that runs it on the network's loop and waits for it; a
+plain method runs on the loop thread; properties and the annotated public attributes read
+through; callbacks given to ``add_callback`` run in the blocking network's callback thread
+(inline on the simulated clock). What a call returns is wrapped in its own twin when its
+class has one, so ``node.tpdo[1]`` from a blocking node is the blocking PDO.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from cobus.runtime.blocking import Runner
+
+__all__ = ["BlockingTwin", "public_names", "twin_of"]
+
+_TWINS: dict[type, type[BlockingTwin]] = {}
+#: Methods whose first argument is a user callback, and the methods that take one back.
+_ADD_CALLBACK = frozenset({"add_callback"})
+_REMOVE_CALLBACK = frozenset({"remove_callback"})
+_CONTAINER = ("__getitem__", "__setitem__", "__iter__", "__len__", "__contains__")
+
+
+class BlockingTwin:
+    """Base of the generated blocking twins: ``aio`` is the async object behind it.
+
+    ``class RemoteNmt(BlockingTwin, twin_of=AsyncRemoteNmt)`` gets every public member of the
+    async class (see the module docstring); annotations in the body type the sub-services
+    for static checkers.
+    """
+
+    __twin_of__: type
+
+    def __init_subclass__(cls, twin_of: type | None = None, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if twin_of is not None:
+            _fill(cls, twin_of)
+
+    if TYPE_CHECKING:  # generated members are invisible to static checkers: typed as Any
+
+        def __getattr__(self, name: str) -> Any: ...
+        def __getitem__(self, key: Any) -> Any: ...
+        def __setitem__(self, key: Any, value: Any) -> None: ...
+
+    def __init__(self, aio: Any, runner: Runner) -> None:
+        self.aio = aio
+        self._runner = runner
+        self._children: dict[int, tuple[Any, BlockingTwin]] = {}
+        self._wrapped_callbacks: dict[Callable[..., object], Callable[..., None]] = {}
+
+    def _wrap(self, value: Any) -> Any:
+        twin = twin_of(type(value))
+        if twin is None:
+            return value
+        known = self._children.get(id(value))
+        if known is not None and known[0] is value:
+            return known[1]
+        made = twin(value, self._runner)
+        self._children[id(value)] = (value, made)
+        return made
+
+    def __repr__(self) -> str:
+        return repr(self.aio)
+
+
+def twin_of(cls: type) -> type[BlockingTwin] | None:
+    """The blocking twin of ``cls`` (or of its nearest base that has one)."""
+    for klass in cls.__mro__:
+        twin = _TWINS.get(klass)
+        if twin is not None:
+            return twin
+    return None
+
+
+def public_names(cls: type) -> set[str]:
+    """The public surface of a class: methods, properties and annotated attributes, with the
+    container protocol it supports."""
+    names: set[str] = set()
+    for klass in cls.__mro__:
+        if klass in (object, BlockingTwin):
+            continue
+        names.update(n for n in vars(klass) if not n.startswith("_") or n in _CONTAINER)
+        names.update(n for n in vars(klass).get("__annotations__", {}) if not n.startswith("_"))
+    return names
+
+
+def _member(cls: type, name: str) -> Any:
+    for klass in cls.__mro__:
+        if name in vars(klass):
+            return vars(klass)[name]
+    return None
+
+
+def _coroutine(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+    @functools.wraps(fn)
+    def method(self: BlockingTwin, *args: Any, **kwargs: Any) -> Any:
+        return self._wrap(self._runner.run(getattr(self.aio, name)(*args, **kwargs)))
+
+    return method
+
+
+def _plain(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+    if name in _ADD_CALLBACK:
+
+        @functools.wraps(fn)
+        def add(self: BlockingTwin, callback: Callable[..., object], *args: Any) -> Any:
+            wrapped = self._runner.callback(callback)
+            self._wrapped_callbacks[callback] = wrapped
+            return self._runner.call(getattr(self.aio, name), wrapped, *args)
+
+        return add
+    if name in _REMOVE_CALLBACK:
+
+        @functools.wraps(fn)
+        def remove(self: BlockingTwin, callback: Callable[..., object]) -> Any:
+            wrapped = self._wrapped_callbacks.pop(callback, callback)
+            return self._runner.call(getattr(self.aio, name), wrapped)
+
+        return remove
+
+    @functools.wraps(fn)
+    def method(self: BlockingTwin, *args: Any, **kwargs: Any) -> Any:
+        bound = getattr(self.aio, name)
+        return self._wrap(self._runner.call(lambda: bound(*args, **kwargs)))
+
+    return method
+
+
+def _property(name: str, doc: str | None, settable: bool) -> property:
+    def get(self: BlockingTwin) -> Any:
+        return self._wrap(getattr(self.aio, name))
+
+    def put(self: BlockingTwin, value: Any) -> None:
+        self._runner.call(setattr, self.aio, name, value)
+
+    return property(get, put if settable else None, doc=doc)
+
+
+def _iterate(self: BlockingTwin) -> Iterator[Any]:
+    items: list[Any] = self._runner.call(list, self.aio)
+    return iter([self._wrap(item) for item in items])
+
+
+def _getitem(self: BlockingTwin, key: Any) -> Any:
+    return self._wrap(self._runner.call(self.aio.__getitem__, key))
+
+
+def _setitem(self: BlockingTwin, key: Any, value: Any) -> None:
+    self._runner.call(self.aio.__setitem__, key, value)
+
+
+def _len(self: BlockingTwin) -> int:
+    return len(self.aio)
+
+
+def _contains(self: BlockingTwin, key: object) -> bool:
+    return key in self.aio
+
+
+_PROTOCOL: dict[str, Callable[..., Any]] = {
+    "__getitem__": _getitem,
+    "__setitem__": _setitem,
+    "__iter__": _iterate,
+    "__len__": _len,
+    "__contains__": _contains,
+}
+
+
+def _fill(twin: type[BlockingTwin], async_cls: type) -> None:
+    twin.__twin_of__ = async_cls
+    annotated: set[str] = set()
+    for klass in async_cls.__mro__:
+        annotated.update(vars(klass).get("__annotations__", {}))
+    for attr in sorted(public_names(async_cls)):
+        member = _member(async_cls, attr)
+        if attr in _PROTOCOL:
+            made: Any = _PROTOCOL[attr]
+        elif isinstance(member, property):
+            made = _property(attr, member.__doc__, member.fset is not None)
+        elif inspect.iscoroutinefunction(member):
+            made = _coroutine(attr, member)
+        elif inspect.isfunction(member):
+            made = _plain(attr, member)
+        elif attr in annotated:
+            doc = f"``{async_cls.__name__}.{attr}`` of the async object."
+            made = _property(attr, doc, True)
+        else:  # a class constant
+            made = member
+        setattr(twin, attr, made)
+    _TWINS[async_cls] = twin

@@ -1,0 +1,160 @@
+"""Emergencies of one remote node as its client sees them: ``node.emcy``.
+
+Every emergency the node sends is kept (the last ``history`` ones) as an :class:`Emergency`
+with the time it arrived and the CiA 301 text of its code; :attr:`RemoteEmcy.active` holds
+the errors not yet cleared by an "error reset / no error" emergency (00xxh) of the node.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from cobus.errors import CobusError
+from cobus.proto import Frame
+from cobus.proto.emcy import EMCY_BASE, ErrorRegister, MalformedEmcy, parse_emcy
+
+if TYPE_CHECKING:
+    from cobus.runtime.network import AsyncNetwork, Subscription
+
+__all__ = ["EmcyTimeoutError", "Emergency", "RemoteEmcy"]
+
+
+class EmcyTimeoutError(CobusError, TimeoutError):
+    """No emergency arrived within the time waited for one."""
+
+
+@dataclass(frozen=True, slots=True)
+class Emergency:
+    """One emergency a node sent: ``str()`` gives ``"0x8130 Life guard error or heartbeat
+    error (register 0x11)"``."""
+
+    node_id: int
+    time: float
+    code: int
+    register: ErrorRegister
+    manufacturer_data: bytes
+    text: str
+
+    @property
+    def is_reset(self) -> bool:
+        """Whether this is an "error reset or no error" emergency (00xxh)."""
+        return self.code >> 8 == 0
+
+    def __str__(self) -> str:
+        return f"0x{self.code:04X} {self.text} (register 0x{int(self.register):02X})"
+
+
+class RemoteEmcy:
+    """The emergencies of one remote node (see the module docstring)."""
+
+    #: The node-ID.
+    node_id: int
+    #: The CAN identifier the node's emergencies arrive on (80h + node-ID unless changed).
+    cob_id: int
+
+    def __init__(self, network: AsyncNetwork, node_id: int, *, history: int = 64) -> None:
+        self._network = network
+        self.node_id = node_id
+        self.cob_id = EMCY_BASE + node_id
+        self._log: deque[Emergency] = deque(maxlen=history)
+        self._active: list[Emergency] = []
+        self._callbacks: list[Callable[[Emergency], object]] = []
+        self._waiters: list[asyncio.Future[Emergency]] = []
+        self._subscription: Subscription | None = network.subscribe(self.cob_id, self._on_frame)
+
+    def __repr__(self) -> str:
+        return (
+            f"<EMCY of node {self.node_id}: {len(self._log)} received, {len(self._active)} active>"
+        )
+
+    @property
+    def log(self) -> list[Emergency]:
+        """The emergencies received, oldest first (at most the last ``history``)."""
+        return list(self._log)
+
+    @property
+    def active(self) -> list[Emergency]:
+        """The errors the node reported and has not reset since, oldest first."""
+        return list(self._active)
+
+    @property
+    def last(self) -> Emergency | None:
+        """The newest emergency (None: none yet)."""
+        return self._log[-1] if self._log else None
+
+    def clear(self) -> None:
+        """Forget the emergencies received so far."""
+        self._log.clear()
+        self._active.clear()
+
+    def set_cob_id(self, cob_id: int) -> None:
+        """Receive the node's emergencies on ``cob_id`` (its 1014h) instead of 80h + id."""
+        if not isinstance(cob_id, int) or not 0x001 <= cob_id <= 0x7FF:
+            raise ValueError(f"EMCY identifier {cob_id!r} is not an 11-bit identifier 1..7FFh")
+        if self._subscription is not None:
+            self._subscription.cancel()
+        self.cob_id = cob_id
+        self._subscription = self._network.subscribe(cob_id, self._on_frame)
+
+    def add_callback(self, callback: Callable[[Emergency], object]) -> None:
+        """Call ``callback(emergency)`` with each emergency of the node."""
+        self._callbacks.append(callback)
+
+    def remove_callback(self, callback: Callable[[Emergency], object]) -> None:
+        """Stop calling ``callback`` (given to :meth:`add_callback`)."""
+        if callback in self._callbacks:
+            self._callbacks.remove(callback)
+
+    async def wait(self, timeout: float = 1.0) -> Emergency:
+        """The node's next emergency; :class:`EmcyTimeoutError` after ``timeout`` seconds."""
+        future: asyncio.Future[Emergency] = self._network.loop.create_future()
+        self._waiters.append(future)
+        try:
+            return await asyncio.wait_for(future, timeout)
+        except TimeoutError:
+            raise EmcyTimeoutError(
+                f"node {self.node_id} sent no emergency within {timeout:g} s"
+            ) from None
+        finally:
+            if future in self._waiters:
+                self._waiters.remove(future)
+
+    def _on_frame(self, frame: Frame, now: float) -> None:
+        parsed = parse_emcy(frame, self.node_id)
+        if isinstance(parsed, MalformedEmcy):
+            self._network.emit(parsed)
+            return
+        emcy = Emergency(
+            self.node_id,
+            now,
+            parsed.code,
+            parsed.register,
+            parsed.manufacturer_data,
+            parsed.text,
+        )
+        self._log.append(emcy)
+        if emcy.is_reset:
+            self._active.clear()
+        else:
+            self._active = [e for e in self._active if e.code != emcy.code]
+            self._active.append(emcy)
+        for future in self._waiters:
+            if not future.done():
+                future.set_result(emcy)
+        for callback in list(self._callbacks):
+            try:
+                callback(emcy)
+            except Exception as exc:
+                self._network._report_failure(f"EMCY callback of node {self.node_id}", exc)
+        self._network.emit(parsed)
+
+    def _close(self) -> None:
+        if self._subscription is not None:
+            self._subscription.cancel()
+            self._subscription = None
+        for future in self._waiters:
+            future.cancel()

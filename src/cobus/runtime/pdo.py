@@ -1,0 +1,746 @@
+"""The PDOs of a remote node, as the node's client sees them: ``node.tpdo`` and ``node.rpdo``.
+
+A PDO's configuration (COB-ID, transmission type, inhibit time, event timer, mapping) comes
+from the node itself over SDO (:meth:`PdoSet.read`), from its EDS (:meth:`PdoSet.load_from_od`)
+or from code (:meth:`RemotePdo.clear` / :meth:`RemotePdo.add`), and goes back to the node with
+the CiA 301 mapping procedure (:meth:`PdoSet.save`). Mapped values are named after their
+objects (``"Statusword"``; ``"Parent.Sub"`` for a sub-object of a record or array), looked up
+with case and separators ignored, or addressed as ``(index, subindex)``.
+
+A TPDO of the node (which this side receives) decodes every frame into named values:
+``node.tpdo[1]["Statusword"]``, ``add_callback``, ``await wait_for_reception()``. An RPDO of
+the node (which this side sends) holds values to send: ``node.rpdo[1]["Controlword"] = 6``,
+``transmit()``, or ``start(period)`` for a periodic transmission.
+
+Choices where CiA 301 leaves one: values of a PDO not yet received (or not yet set) are those
+of all-zero data bytes; a TPDO frame shorter than its mapping is not decoded but reported as
+:class:`PdoRejected` (longer frames are decoded, extra bytes ignored, as CiA 301 says).
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from cobus.errors import CobusError
+from cobus.od import (
+    DataType,
+    Record,
+    Variable,
+    decode,
+    did_you_mean,
+    encode,
+    match_name,
+)
+from cobus.proto import Event, Frame
+from cobus.proto.pdo import (
+    MAX_PDO_ENTRIES,
+    FieldCodec,
+    Kind,
+    MappingEntry,
+    PdoCobId,
+    PdoError,
+    PdoLengthError,
+    PdoMap,
+    TransmissionType,
+    rpdo_default_can_id,
+    tpdo_default_can_id,
+)
+from cobus.proto.sdo import SdoAbortCode, SdoAbortedError, SdoError
+
+if TYPE_CHECKING:
+    from cobus.od import ObjectDictionary
+    from cobus.runtime.network import AsyncNetwork, Subscription
+    from cobus.runtime.remote import SdoChannel
+
+__all__ = [
+    "PdoConfigurationError",
+    "PdoField",
+    "PdoReceived",
+    "PdoRejected",
+    "PdoSet",
+    "PdoTimeoutError",
+    "RemotePdo",
+    "field_kind",
+]
+
+MAX_PDOS = 512
+_COMM = {True: 0x1800, False: 0x1400}  # by "the node transmits it"
+_MAP = {True: 0x1A00, False: 0x1600}
+
+
+class PdoConfigurationError(CobusError):
+    """A PDO configuration that could not be read from, or written to, the node: which PDO,
+    which step, and the node's answer."""
+
+
+class PdoTimeoutError(CobusError, TimeoutError):
+    """A PDO expected from the node did not arrive in time."""
+
+
+@dataclass(frozen=True, slots=True)
+class PdoReceived(Event):
+    """A TPDO of ``node_id`` arrived and was decoded: ``values`` by name, at ``time``."""
+
+    node_id: int
+    number: int
+    values: dict[str, Any]
+    time: float
+
+
+@dataclass(frozen=True, slots=True)
+class PdoRejected(Event):
+    """A frame on a TPDO's identifier that does not carry its mapping (too short)."""
+
+    node_id: int
+    number: int
+    data: bytes
+    reason: str
+
+
+# --------------------------------------------------------------------------- field codecs
+
+
+class _BytesOfType:
+    """A :class:`FieldCodec` for types without a :class:`Kind` (strings, TIME_OF_DAY...)."""
+
+    __slots__ = ("_dt",)
+
+    def __init__(self, data_type: DataType) -> None:
+        self._dt = data_type
+
+    def encode(self, value: Any, bits: int) -> int:
+        data = encode(self._dt, value)[: bits // 8]
+        return int.from_bytes(data, "little")
+
+    def decode(self, raw: int, bits: int) -> Any:
+        data = raw.to_bytes(bits // 8, "little")
+        return decode(self._dt, data)
+
+
+def field_kind(data_type: DataType) -> Kind | FieldCodec:
+    """How a mapped object of ``data_type`` is packed into a PDO."""
+    if data_type.is_integer:
+        return Kind.SIGNED if data_type.is_signed else Kind.UNSIGNED
+    if data_type is DataType.BOOLEAN:
+        return Kind.BOOL
+    if data_type is DataType.REAL32:
+        return Kind.REAL32
+    if data_type is DataType.REAL64:
+        return Kind.REAL64
+    if data_type in (DataType.OCTET_STRING, DataType.DOMAIN):
+        return Kind.BYTES
+    return _BytesOfType(data_type)
+
+
+# --------------------------------------------------------------------------- one PDO
+
+
+@dataclass(frozen=True, slots=True)
+class PdoField:
+    """One mapped object of a PDO: its name, mapping entry and dictionary entry (None for a
+    dummy entry or an object the dictionary does not describe)."""
+
+    name: str
+    entry: MappingEntry
+    variable: Variable | None
+
+    @property
+    def dummy(self) -> bool:
+        return self.entry.is_dummy
+
+
+def _field_name(var: Variable | None, entry: MappingEntry) -> str:
+    if var is None:
+        return f"0x{entry.index:04X}:{entry.subindex:02X}"
+    parent = var.parent
+    return var.name if parent is None else f"{parent.name}.{var.name}"
+
+
+class RemotePdo:
+    """One PDO of a remote node (see the module docstring).
+
+    ``transmit_by_node`` is True for the node's TPDOs (this side receives them) and False for
+    its RPDOs (this side sends them).
+    """
+
+    #: The node-ID of the node the PDO belongs to.
+    node_id: int
+    #: The PDO number, 1..512.
+    number: int
+    #: True for a TPDO of the node (received here), False for an RPDO (sent from here).
+    transmit_by_node: bool
+    #: The CAN identifier (1400h/1800h sub 1, without flags).
+    cob_id: int
+    #: Whether the PDO exists on the node (bit 31 of its COB-ID clear).
+    enabled: bool
+    #: Whether the identifier is a 29-bit one.
+    extended: bool
+    #: Whether the node accepts remote requests for it (bit 30 clear).
+    rtr_allowed: bool
+    #: Sub 2: 0 acyclic sync, 1-240 every n-th SYNC, 252/253 RTR only, 254/255 event.
+    transmission_type: int
+    #: Sub 3 in 100 µs units (None: the node has none or it was not read).
+    inhibit_time: int | None
+    #: Sub 5 in ms (None: the node has none or it was not read).
+    event_timer: int | None
+    #: Sub 6, the SYNC start value (None: the node has none or it was not read).
+    sync_start: int | None
+    #: When the last frame of a TPDO arrived (None: none yet).
+    timestamp: float | None
+    #: How many frames were received (TPDO) or sent (RPDO).
+    count: int
+
+    def __init__(self, pdos: PdoSet, number: int) -> None:
+        self._pdos = pdos
+        self._network = pdos._network
+        self.node_id = pdos.node_id
+        self.number = number
+        self.transmit_by_node = pdos.transmit_by_node
+        default = _default_can_id(self.transmit_by_node, number, self.node_id)
+        self.cob_id = default
+        self.enabled = default != 0
+        self.extended = False
+        self.rtr_allowed = True
+        self.transmission_type = 255
+        self.inhibit_time = None
+        self.event_timer = None
+        self.sync_start = None
+        self.timestamp = None
+        self.count = 0
+        self._fields: list[PdoField] = []
+        self._codec = PdoMap([])
+        self._values: dict[str, Any] = {}
+        self._callbacks: list[Callable[[PdoReceived], object]] = []
+        self._waiters: list[asyncio.Future[PdoReceived]] = []
+        self._subscription: Subscription | None = None
+        self._periodic: asyncio.TimerHandle | None = None
+        self._period = 0.0
+
+    def __repr__(self) -> str:
+        kind = "TPDO" if self.transmit_by_node else "RPDO"
+        state = f"0x{self.cob_id:X}" if self.enabled else "disabled"
+        names = ", ".join(f.name for f in self._fields if not f.dummy)
+        return f"<{kind} {self.number} of node {self.node_id} {state}: {names or 'no mapping'}>"
+
+    # ------------------------------------------------------------------ the mapping
+    @property
+    def fields(self) -> tuple[PdoField, ...]:
+        """The mapped objects in mapping order, dummies included."""
+        return tuple(self._fields)
+
+    @property
+    def names(self) -> list[str]:
+        """The names of the mapped values (dummies excluded), in mapping order."""
+        return [f.name for f in self._fields if not f.dummy]
+
+    @property
+    def length(self) -> int:
+        """The number of data bytes the mapping takes."""
+        return self._codec.length
+
+    @property
+    def values(self) -> dict[str, Any]:
+        """Every mapped value by name: the last received (TPDO) or the ones to send (RPDO)."""
+        return dict(self._values)
+
+    def clear(self) -> None:
+        """Remove every mapped object (locally; :meth:`PdoSet.save` writes it to the node)."""
+        self._set_fields([])
+
+    def add(self, key: int | str, subindex: int | str = 0, bits: int | None = None) -> PdoField:
+        """Map one more object, named or numbered as in the node's dictionary (locally, until
+        :meth:`PdoSet.save`). ``bits`` defaults to the object's size; a data type index
+        0001h..0007h with ``bits`` maps a dummy."""
+        od = self._pdos.od
+        if isinstance(key, int) and 1 <= key <= 7:
+            if bits is None:
+                raise PdoError(f"a dummy entry of data type {key:04X}h needs its bit length")
+            entry = MappingEntry(key, 0, bits)
+            return self._append(PdoField(_field_name(None, entry), entry, None))
+        if od is None:
+            if not isinstance(key, int) or not isinstance(subindex, int) or bits is None:
+                raise PdoError(
+                    f"node {self.node_id} has no object dictionary: map objects by number "
+                    "with their bit length (add(0x6041, 0, 16))"
+                )
+            entry = MappingEntry(key, subindex, bits)
+            return self._append(PdoField(_field_name(None, entry), entry, None))
+        var = self._pdos._sdo.variable(key, subindex)
+        size = var.bit_length
+        if bits is None:
+            if size is None:
+                raise PdoError(
+                    f"{var.name!r} ({var.data_type.name}) has no fixed size: give its bit length"
+                )
+            bits = size
+        entry = MappingEntry(var.index, var.subindex, bits)
+        return self._append(PdoField(_field_name(var, entry), entry, var))
+
+    def _append(self, field: PdoField) -> PdoField:
+        if len(self._fields) >= MAX_PDO_ENTRIES:
+            raise PdoError(f"a PDO maps at most {MAX_PDO_ENTRIES} objects")
+        self._set_fields([*self._fields, field])
+        return field
+
+    def _set_fields(self, fields: list[PdoField]) -> None:
+        codec = PdoMap([(f.entry, _kind(f)) for f in fields])  # raises for > 64 bits
+        self._fields = fields
+        self._codec = codec
+        zeros = codec.unpack(bytes(codec.length)) if codec.value_count else ()
+        self._values = dict(zip(self.names, zeros, strict=True))
+        self._resubscribe()
+
+    def field(self, key: str | int | tuple[int, int]) -> PdoField:
+        """The mapped object named ``key`` (case and separators ignored), or addressed by
+        ``index`` / ``(index, subindex)``."""
+        fields = [f for f in self._fields if not f.dummy]
+        if isinstance(key, tuple | int):
+            index, sub = key if isinstance(key, tuple) else (key, 0)
+            for f in fields:
+                if (f.entry.index, f.entry.subindex) == (index, sub):
+                    return f
+            raise KeyError(f"{self!r} maps no object 0x{index:04X}:{sub:02X}")
+        by_name = {f.name: f for f in fields}
+        name = match_name(key, by_name)
+        if name is not None:
+            return by_name[name]
+        # a sub-object by its own name ("Vendor-ID"), when only one mapped object has it
+        short: dict[str, list[PdoField]] = {}
+        for f in fields:
+            if f.variable is not None and f.variable.parent is not None:
+                short.setdefault(f.variable.name, []).append(f)
+        name = match_name(key, short)
+        if name is not None and len(short[name]) == 1:
+            return short[name][0]
+        raise KeyError(f"{self!r} maps no value {key!r}{did_you_mean(key, by_name)}")
+
+    def __getitem__(self, key: str | int | tuple[int, int]) -> Any:
+        return self._values[self.field(key).name]
+
+    def __setitem__(self, key: str | int | tuple[int, int], value: Any) -> None:
+        field = self.field(key)
+        if field.variable is not None:
+            try:
+                field.variable.check(value)
+            except ValueError as exc:
+                raise type(exc)(f"{self!r}, {field.name!r}: {exc}") from None
+        self._values[field.name] = value
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.names)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def __contains__(self, key: object) -> bool:
+        if not isinstance(key, str | int | tuple):
+            return False
+        try:
+            self.field(key)
+        except KeyError:
+            return False
+        return True
+
+    # ------------------------------------------------------------------ receiving (TPDO)
+    def add_callback(self, callback: Callable[[PdoReceived], object]) -> None:
+        """Call ``callback(event)`` with each :class:`PdoReceived` of this TPDO."""
+        self._callbacks.append(callback)
+
+    def remove_callback(self, callback: Callable[[PdoReceived], object]) -> None:
+        """Stop calling ``callback`` (given to :meth:`add_callback`)."""
+        if callback in self._callbacks:
+            self._callbacks.remove(callback)
+
+    async def wait_for_reception(self, timeout: float = 1.0) -> dict[str, Any]:
+        """Wait for the next frame of this TPDO and return its values by name;
+        :class:`PdoTimeoutError` after ``timeout`` seconds."""
+        waiter: asyncio.Future[PdoReceived] = self._network.loop.create_future()
+        self._waiters.append(waiter)
+        try:
+            event = await asyncio.wait_for(waiter, timeout)
+        except TimeoutError:
+            raise PdoTimeoutError(
+                f"{self!r}: no frame within {timeout:g} s (is the node operational, the PDO "
+                "enabled on it and, for a synchronous PDO, SYNC running?)"
+            ) from None
+        finally:
+            if waiter in self._waiters:
+                self._waiters.remove(waiter)
+        return event.values
+
+    def request(self) -> None:
+        """Send a remote request (RTR) for this TPDO; the node answers with the PDO if its
+        transmission type allows (252/253, or any when it accepts RTR)."""
+        if not self.transmit_by_node:
+            raise PdoError(f"{self!r} is sent by this side; only a TPDO can be requested")
+        self._check_enabled()
+        self._network.send(Frame(self.cob_id, rtr=True, dlc=self.length, extended=self.extended))
+
+    def _on_frame(self, frame: Frame, now: float) -> None:
+        if frame.rtr:
+            return
+        try:
+            decoded = self._codec.unpack(frame.data)
+        except PdoLengthError as exc:
+            self._network.emit(PdoRejected(self.node_id, self.number, frame.data, str(exc)))
+            return
+        values = dict(zip(self.names, decoded, strict=True))
+        self._values = values
+        self.timestamp = now
+        self.count += 1
+        event = PdoReceived(self.node_id, self.number, values, now)
+        for waiter in self._waiters:
+            if not waiter.done():
+                waiter.set_result(event)
+        for callback in list(self._callbacks):
+            try:
+                callback(event)
+            except Exception as exc:
+                self._network._report_failure(f"callback of {self!r}", exc)
+        self._network.emit(event)
+
+    def _resubscribe(self) -> None:
+        if self._subscription is not None:
+            self._subscription.cancel()
+            self._subscription = None
+        if self.transmit_by_node and self.enabled and self._pdos._active:
+            self._subscription = self._network.subscribe(
+                self.cob_id, self._on_frame, extended=self.extended
+            )
+
+    # ------------------------------------------------------------------ sending (RPDO)
+    def transmit(self) -> None:
+        """Send this RPDO now with its current values."""
+        if self.transmit_by_node:
+            raise PdoError(f"{self!r} is sent by the node; use request() to ask for it")
+        self._check_enabled()
+        data = self._codec.pack([self._values[n] for n in self.names])
+        self._network.send(Frame(self.cob_id, data, extended=self.extended))
+        self.count += 1
+
+    def start(self, period: float) -> None:
+        """Send this RPDO every ``period`` seconds from now on (the first one at once)."""
+        if not period > 0:
+            raise ValueError(f"PDO period {period!r} s must be > 0")
+        self.stop()
+        self.transmit()
+        self._period = period
+        self._schedule(self._network.time() + period)
+
+    def stop(self) -> None:
+        """Stop the periodic transmission started with :meth:`start`."""
+        if self._periodic is not None:
+            self._periodic.cancel()
+            self._periodic = None
+
+    @property
+    def periodic(self) -> bool:
+        """Whether :meth:`start` is sending it periodically."""
+        return self._periodic is not None
+
+    def _schedule(self, when: float) -> None:
+        self._periodic = self._network.loop.call_at(when, self._tick, when)
+
+    def _tick(self, when: float) -> None:
+        self._periodic = None
+        if not self._network.connected:
+            return
+        try:
+            self.transmit()
+        except CobusError as exc:
+            self._network._report_failure(f"periodic {self!r}", exc)
+        self._schedule(when + self._period)
+
+    def _check_enabled(self) -> None:
+        if not self.enabled:
+            raise PdoError(f"{self!r} is disabled (bit 31 of its COB-ID is set)")
+
+    # ------------------------------------------------------------------ configuration
+    def _comm(self) -> int:
+        return _COMM[self.transmit_by_node] + self.number - 1
+
+    def _map(self) -> int:
+        return _MAP[self.transmit_by_node] + self.number - 1
+
+    def _cob_u32(self, *, valid: bool) -> int:
+        return PdoCobId(self.cob_id, valid, self.rtr_allowed, self.extended).to_u32()
+
+    def _set_cob(self, value: int) -> None:
+        cob = PdoCobId.from_u32(value)
+        self.cob_id, self.enabled = cob.can_id, cob.valid
+        self.rtr_allowed, self.extended = cob.rtr_allowed, cob.extended
+
+    def _entry_field(self, value: int) -> PdoField:
+        entry = MappingEntry.from_u32(value)
+        od = self._pdos.od
+        var = None if od is None or entry.is_dummy else od.get_variable(entry.index, entry.subindex)
+        return PdoField(_field_name(var, entry), entry, var)
+
+    async def read(self) -> None:
+        """Read this PDO's communication and mapping parameters from the node over SDO."""
+        sdo = self._pdos._sdo
+        comm, mapping = self._comm(), self._map()
+        step = f"reading {comm:04X}h sub 1"
+        try:
+            cob = _u(await sdo.upload(comm, 1))
+            step = f"reading {comm:04X}h sub 2"
+            tt = _u(await sdo.upload(comm, 2))
+            inhibit = await _optional(sdo, comm, 3)
+            timer = await _optional(sdo, comm, 5)
+            start = await _optional(sdo, comm, 6) if self.transmit_by_node else None
+            step = f"reading {mapping:04X}h sub 0"
+            count = _u(await sdo.upload(mapping, 0))
+            values: list[int] = []
+            for sub in range(1, min(count, MAX_PDO_ENTRIES) + 1):
+                step = f"reading {mapping:04X}h sub {sub}"
+                values.append(_u(await sdo.upload(mapping, sub)))
+        except SdoError as exc:
+            raise PdoConfigurationError(f"{self._label()}: {step} failed: {exc}") from exc
+        self._apply(cob, tt, inhibit, timer, start, values)
+
+    def _apply(
+        self,
+        cob: int,
+        tt: int,
+        inhibit: int | None,
+        timer: int | None,
+        start: int | None,
+        entries: list[int],
+    ) -> None:
+        try:
+            fields = [self._entry_field(v) for v in entries if v]
+            self._set_cob(cob)
+            self.transmission_type = tt
+            self.inhibit_time, self.event_timer, self.sync_start = inhibit, timer, start
+            self._set_fields(fields)
+        except PdoError as exc:
+            raise PdoConfigurationError(f"{self._label()}: {exc}") from exc
+
+    def _load(self, od: ObjectDictionary) -> bool:
+        comm, mapping = od.get(self._comm()), od.get(self._map())
+        if not isinstance(comm, Record) or not isinstance(mapping, Record):
+            return False
+        cob = _od_int(comm, 1)
+        if cob is None:
+            return False
+        count = _od_int(mapping, 0)
+        subs = range(1, (count or 0) + 1)
+        entries = [v for v in (_od_int(mapping, s) for s in subs) if v is not None]
+        tt = _od_int(comm, 2)
+        self._apply(
+            cob,
+            255 if tt is None else tt,
+            _od_int(comm, 3),
+            _od_int(comm, 5),
+            _od_int(comm, 6) if self.transmit_by_node else None,
+            entries,
+        )
+        return True
+
+    async def save(self) -> None:
+        """Write this PDO's configuration to the node with the CiA 301 procedure: disable it
+        (COB-ID bit 31), write the parameters, set the mapping count to 0, write the entries,
+        set the count, enable it again."""
+        sdo = self._pdos._sdo
+        comm, mapping = self._comm(), self._map()
+        try:
+            TransmissionType(self.transmission_type)
+        except PdoError as exc:
+            raise PdoConfigurationError(f"{self._label()}: {exc}") from None
+
+        def u8(v: int) -> bytes:
+            return v.to_bytes(1, "little")
+
+        def u16(v: int) -> bytes:
+            return v.to_bytes(2, "little")
+
+        def u32(v: int) -> bytes:
+            return v.to_bytes(4, "little")
+
+        steps: list[tuple[str, int, int, bytes]] = [
+            ("disabling the PDO", comm, 1, u32(self._cob_u32(valid=False))),
+            ("writing the transmission type", comm, 2, u8(self.transmission_type)),
+        ]
+        if self.inhibit_time is not None:
+            steps.append(("writing the inhibit time", comm, 3, u16(self.inhibit_time)))
+        if self.event_timer is not None:
+            steps.append(("writing the event timer", comm, 5, u16(self.event_timer)))
+        if self.sync_start is not None and self.transmit_by_node:
+            steps.append(("writing the SYNC start value", comm, 6, u8(self.sync_start)))
+        steps.append(("clearing the mapping (sub 0 = 0)", mapping, 0, u8(0)))
+        for n, f in enumerate(self._fields, 1):
+            steps.append(
+                (f"writing mapping entry {n} ({f.name})", mapping, n, u32(f.entry.to_u32()))
+            )
+        steps.append(
+            (f"setting the mapping count to {len(self._fields)}", mapping, 0, u8(len(self._fields)))
+        )
+        if self.enabled:
+            steps.append(("enabling the PDO", comm, 1, u32(self._cob_u32(valid=True))))
+        for what, index, sub, data in steps:
+            try:
+                await sdo.download(index, sub, data)
+            except SdoError as exc:
+                raise PdoConfigurationError(
+                    f"{self._label()}: {what} ({index:04X}h sub {sub}) failed: {exc}"
+                ) from exc
+        self._resubscribe()
+
+    def _label(self) -> str:
+        kind = "TPDO" if self.transmit_by_node else "RPDO"
+        return f"{kind} {self.number} of node {self.node_id}"
+
+    def _close(self) -> None:
+        self.stop()
+        if self._subscription is not None:
+            self._subscription.cancel()
+            self._subscription = None
+        for waiter in self._waiters:
+            waiter.cancel()
+
+
+def _kind(field: PdoField) -> Kind | FieldCodec | None:
+    if field.dummy:
+        return None
+    if field.variable is None:
+        return Kind.UNSIGNED
+    return field_kind(field.variable.data_type)
+
+
+def _default_can_id(transmit: bool, number: int, node_id: int) -> int:
+    if number > 4:
+        return 0
+    return (
+        tpdo_default_can_id(number, node_id) if transmit else rpdo_default_can_id(number, node_id)
+    )
+
+
+def _u(data: bytes) -> int:
+    return int.from_bytes(data, "little")
+
+
+async def _optional(sdo: SdoChannel, index: int, sub: int) -> int | None:
+    """A sub-object the node may lack (inhibit time, event timer, SYNC start)."""
+    try:
+        return _u(await sdo.upload(index, sub))
+    except SdoAbortedError as exc:
+        if exc.code in (SdoAbortCode.NO_SUBINDEX, SdoAbortCode.NO_OBJECT):
+            return None
+        raise
+
+
+def _od_int(obj: Record, sub: int) -> int | None:
+    var = obj.get(sub)
+    value = None if var is None else var.value
+    return value if isinstance(value, int) else None
+
+
+# --------------------------------------------------------------------------- the set
+
+
+class PdoSet:
+    """The TPDOs or RPDOs of a remote node by number: ``node.tpdo[1]``.
+
+    Numbers 1..512 can be used; iterating gives the PDOs read, loaded or used so far.
+    """
+
+    #: The node-ID of the node.
+    node_id: int
+    #: True for ``node.tpdo`` (the node transmits), False for ``node.rpdo``.
+    transmit_by_node: bool
+
+    def __init__(
+        self,
+        network: AsyncNetwork,
+        sdo: SdoChannel,
+        *,
+        transmit_by_node: bool,
+    ) -> None:
+        self._network = network
+        self._sdo = sdo
+        self.node_id = sdo.node_id
+        self.transmit_by_node = transmit_by_node
+        self._active = True
+        self._pdos: dict[int, RemotePdo] = {}
+
+    @property
+    def od(self) -> ObjectDictionary | None:
+        """The node's object dictionary (None: the node was added without one)."""
+        return self._sdo.od
+
+    def __repr__(self) -> str:
+        kind = "TPDOs" if self.transmit_by_node else "RPDOs"
+        return f"<{kind} of node {self.node_id}: {sorted(self._pdos)}>"
+
+    def __getitem__(self, number: int) -> RemotePdo:
+        if not isinstance(number, int) or not 1 <= number <= MAX_PDOS:
+            raise KeyError(f"PDO number {number!r} is out of range: use 1..{MAX_PDOS}")
+        pdo = self._pdos.get(number)
+        if pdo is None:
+            pdo = self._pdos[number] = RemotePdo(self, number)
+        return pdo
+
+    def __iter__(self) -> Iterator[RemotePdo]:
+        return iter([self._pdos[n] for n in sorted(self._pdos)])
+
+    def __len__(self) -> int:
+        return len(self._pdos)
+
+    def __contains__(self, number: object) -> bool:
+        return number in self._pdos
+
+    def _numbers(self) -> list[int]:
+        od = self.od
+        base = _COMM[self.transmit_by_node]
+        if od is None:
+            return [1, 2, 3, 4]
+        return [i - base + 1 for i in range(base, base + MAX_PDOS) if i in od]
+
+    def load_from_od(self) -> list[RemotePdo]:
+        """Configure every PDO the node's EDS/DCF describes as the file says; returns them."""
+        od = self.od
+        if od is None:
+            raise PdoConfigurationError(
+                f"node {self.node_id} has no object dictionary: give one to add_remote() or "
+                "read the PDOs from the node with read()"
+            )
+        return [self[n] for n in self._numbers() if self[n]._load(od)]
+
+    async def read(self) -> list[RemotePdo]:
+        """Read the configuration of the node's PDOs over SDO (those its dictionary lists;
+        1..4 without one, skipping PDOs the node does not have); returns them."""
+        found = []
+        for number in self._numbers():
+            pdo = self[number]
+            try:
+                await pdo.read()
+            except PdoConfigurationError as exc:
+                cause = exc.__cause__
+                if (
+                    isinstance(cause, SdoAbortedError)
+                    and cause.code in (SdoAbortCode.NO_OBJECT, SdoAbortCode.NO_SUBINDEX)
+                    and self.od is None
+                ):
+                    del self._pdos[number]
+                    continue
+                raise
+            found.append(pdo)
+        return found
+
+    async def save(self) -> None:
+        """Write every PDO of this set to the node (see :meth:`RemotePdo.save`)."""
+        for pdo in self:
+            await pdo.save()
+
+    def stop(self) -> None:
+        """Stop every periodic transmission of this set."""
+        for pdo in self:
+            pdo.stop()
+
+    def _close(self) -> None:
+        self._active = False
+        for pdo in self._pdos.values():
+            pdo._close()

@@ -1,0 +1,314 @@
+"""The remote node as python-canopen users use theirs: its PDO mapping read over SDO or taken from
+the EDS, TPDOs received as named values, RPDOs sent, remapping with the CiA procedure, NMT state
+followed from heartbeat and boot-up, heartbeat supervision, emergencies with their texts, and
+names looked up the way people type them, against simulated devices on the simulated clock."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+
+from cobus.device import DictionaryBuilder
+from cobus.od import DataType, ValueRangeError
+from cobus.proto import Frame
+from cobus.proto.heartbeat import (
+    BootupReceived,
+    HeartbeatResumed,
+    HeartbeatTimeout,
+    RemoteStateChanged,
+)
+from cobus.proto.nmt import NmtState
+from cobus.proto.pdo import PdoError
+from cobus.runtime import AsyncNetwork, Network, ObjectNotFoundError
+from cobus.runtime.emcy import EmcyTimeoutError
+from cobus.runtime.nmt import NmtTimeoutError
+from cobus.runtime.pdo import (
+    PdoConfigurationError,
+    PdoReceived,
+    PdoRejected,
+    PdoTimeoutError,
+)
+from cobus.sim.drive402 import Drive402
+from tests.test_sim_support import SimBench, run_sim
+from tests.util import simulate
+
+NODE = 10
+
+
+def drive_run(scenario):
+    return run_sim(lambda net: Drive402(net, NODE), scenario)
+
+
+def test_a_drive_as_python_canopen_users_use_it():
+    """Read the mapping, follow NMT, enable the drive by RPDO, receive TPDOs by name, see an
+    EMCY with its text: the everyday tasks, against the simulated CiA 402 drive."""
+
+    async def scenario(b: SimBench):
+        node = b.master
+        received: list[PdoReceived] = []
+        states: list[object] = []
+        node.nmt.add_callback(states.append)
+        await node.sdo.write("Producer heartbeat time", 50)
+        assert await node.nmt.wait_for_heartbeat() is NmtState.PRE_OPERATIONAL
+
+        tpdos = await node.tpdo.read()
+        await node.rpdo.read()
+        assert [p.number for p in tpdos] == [1, 2, 3, 4]
+        assert node.tpdo[1].names == ["Statusword"]
+        assert node.tpdo[2].names == ["Statusword", "Position actual value"]
+        assert node.tpdo[2].transmission_type == 1
+        assert node.rpdo[1].names == ["Controlword"]
+        node.tpdo[1].add_callback(received.append)
+
+        node.nmt.start()
+        assert await node.nmt.wait_for_state("operational") is NmtState.OPERATIONAL
+        for cw in (0x06, 0x07, 0x0F):
+            node.rpdo[1]["controlword"] = cw  # case does not matter
+            node.rpdo[1].transmit()
+            await b.settle()
+        assert received, "the statusword TPDO arrives when the state changes"
+        assert received[-1].values["Statusword"] & 0x6F == 0x27  # operation enabled
+        assert node.tpdo[1]["Statusword"] == received[-1].values["Statusword"]
+
+        b.net.sync.start(0.01)
+        values = await node.tpdo[2].wait_for_reception()
+        assert set(values) == {"Statusword", "Position actual value"}
+        assert node.tpdo[2].timestamp == pytest.approx(b.net.time())
+
+        b.sim.inject("drive_fault", code=0x7305)
+        emcy = await node.emcy.wait()
+        assert emcy.code == 0x7305
+        assert str(emcy).startswith("0x7305 ")
+        assert node.emcy.active == [emcy]
+        assert [(e.old, e.new) for e in states if isinstance(e, RemoteStateChanged)] == [
+            (None, NmtState.INITIALISING),  # its boot-up
+            (NmtState.INITIALISING, NmtState.PRE_OPERATIONAL),  # its first heartbeat
+            (NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL),
+        ]
+
+    drive_run(scenario)
+
+
+def test_pdos_from_the_eds_match_those_read_from_the_node():
+    async def scenario(b: SimBench):
+        from_node = [
+            (p.number, p.cob_id, p.transmission_type, p.names) for p in await b.master.tpdo.read()
+        ]
+        node = b.net.add_remote(NODE + 1, b.master.od)
+        del node
+        b.net.remove_remote(NODE + 1)
+        loaded = b.master.tpdo.load_from_od()
+        from_eds = [(p.number, p.cob_id, p.transmission_type, p.names) for p in loaded]
+        assert from_eds == from_node
+
+    drive_run(scenario)
+
+
+def test_remapping_a_tpdo_with_the_cia_procedure():
+    async def scenario(b: SimBench):
+        node = b.master
+        await node.tpdo.read()
+        tpdo = node.tpdo[4]
+        tpdo.clear()
+        tpdo.add("Position actual value")
+        tpdo.add(0x6041)
+        tpdo.transmission_type = 1
+        await tpdo.save()
+        # the node now has the new mapping: read it back
+        await node.tpdo.read()
+        assert node.tpdo[4].names == ["Position actual value", "Statusword"]
+        node.nmt.start()
+        b.net.sync.start(0.01)
+        values = await node.tpdo[4].wait_for_reception()
+        assert list(values) == ["Position actual value", "Statusword"]
+
+        # a mapping the node refuses names the step and the node's answer
+        tpdo.clear()
+        tpdo.add("Producer heartbeat time")  # not PDO-mappable
+        tpdo.add(0x6041)
+        with pytest.raises(PdoConfigurationError, match=r"TPDO 4 of node 10: .*mapping entry 1"):
+            await tpdo.save()
+
+    drive_run(scenario)
+
+
+def test_nmt_follows_bootup_and_heartbeat_loss():
+    async def scenario(b: SimBench):
+        node = b.master
+        events: list[object] = []
+        node.nmt.add_callback(events.append)
+        await node.sdo.write(0x1017, 0, 20)
+        await node.nmt.wait_for_heartbeat()
+        node.nmt.watch_heartbeat(0.05)
+        assert node.nmt.bootups == 1  # the boot-up when the simulated drive started
+        node.nmt.reset_node()
+        await node.nmt.wait_for_bootup()
+        assert node.nmt.bootups == 2
+        assert any(isinstance(e, BootupReceived) for e in events)
+        # after the reset the node's heartbeat is off again (1017h back to its default 0)
+        await node.sdo.write(0x1017, 0, 20)
+        await node.nmt.wait_for_heartbeat()
+        b.sim.power_off()
+        await b.net.sleep(0.2)
+        assert node.nmt.lost
+        assert any(isinstance(e, HeartbeatTimeout) for e in events)
+        with pytest.raises(
+            NmtTimeoutError, match="node 10 did not report state OPERATIONAL"
+        ) as err:
+            await node.nmt.wait_for_state(NmtState.OPERATIONAL, timeout=0.1)
+        assert isinstance(err.value, TimeoutError)
+        assert "last heard" in str(err.value)
+        b.sim.power_on()
+        await node.nmt.wait_for_bootup()
+        await node.sdo.write(0x1017, 0, 20)
+        await node.nmt.wait_for_heartbeat()
+        assert any(isinstance(e, HeartbeatResumed) for e in events) or not node.nmt.lost
+
+    drive_run(scenario)
+
+
+def _valve() -> DictionaryBuilder:
+    b = DictionaryBuilder(device_name="valve block")
+    b.variable(0x2000, "Setpoint", DataType.INTEGER16, access="rww", mappable=True)
+    b.variable(0x2001, "Pressure", DataType.INTEGER16, access="ro", mappable=True)
+    b.variable(0x2002, "Valve open", DataType.BOOLEAN, access="ro", mappable=True)
+    b.tpdo(1, [(0x2001, 0), (0x2002, 0)], transmission_type=255)
+    b.rpdo(1, [(0x2000, 0)])
+    return b
+
+
+def test_blocking_node_on_a_device_with_names_as_people_type_them():
+    with Network(simulated=True) as net:
+        dev = net.add_device(5, _valve().build())
+        from cobus.od import loads
+
+        node = net.add_remote(5, loads(dev.to_eds(), node_id=5))
+        # sdo["name"] access, names matched without regard to case or separators
+        node.sdo["producer_heartbeat_time"].write(100)
+        assert node.sdo["Producer heartbeat time"].read() == 100
+        assert node.sdo["identity object"]["vendor-id"].read() == node.sdo.read(0x1018, 1)
+        node.sdo.write(0x1017, 0)  # write(index, value) for sub-index 0
+        assert node.sdo.read(0x1017) == 0
+        with pytest.raises(ObjectNotFoundError, match="did you mean 'Producer heartbeat time'"):
+            node.sdo["Producr heartbeat"]
+        with pytest.raises(
+            ValueRangeError, match=r"node 5, 'Producer heartbeat time' \(0x1017:00\)"
+        ):
+            node.sdo.write("Producer heartbeat time", 70000)
+
+        node.sdo.write(0x1017, 10)  # heartbeat every 10 ms: the NMT state is followed
+        node.tpdo.read()
+        node.rpdo.read()
+        seen: list[PdoReceived] = []
+        node.tpdo[1].add_callback(seen.append)
+        node.nmt.start()
+        assert node.nmt.wait_for_state("operational") is NmtState.OPERATIONAL
+        dev.set(0x2001, 0, -321)  # the event-driven TPDO goes out
+        net.sleep(0.001)
+        assert node.tpdo[1].values == {"Pressure": -321, "Valve open": False}
+        assert seen and seen[-1].values["Pressure"] == -321
+        assert node.tpdo[1]["pressure"] == -321
+        with pytest.raises(KeyError, match="did you mean 'Pressure'"):
+            node.tpdo[1]["Presure"]
+
+        node.rpdo[1]["Setpoint"] = 42
+        node.rpdo[1].transmit()
+        net.sleep(0.001)
+        assert dev.get(0x2000, 0) == 42
+        with pytest.raises(ValueRangeError, match="'Setpoint'"):
+            node.rpdo[1]["Setpoint"] = 1 << 20
+
+        # periodic RPDO on the simulated clock
+        writes: list[int] = []
+        dev.on_write(0x2000, 0, lambda *a: writes.append(1))
+        node.rpdo[1].start(0.01)
+        net.sleep(0.095)
+        node.rpdo[1].stop()
+        net.sleep(0.05)
+        assert len(writes) == 10  # one at once, then every 10 ms
+
+        # re-adding a removed node works; adding twice says how
+        with pytest.raises(ValueError, match="remove_remote"):
+            net.add_remote(5)
+        net.remove_remote(5)
+        again = net.add_remote(5)
+        assert again.sdo.read is not None
+
+
+def test_tpdo_errors_short_frames_timeouts_and_rtr():
+    async def main():
+        async with AsyncNetwork() as net:
+            node = net.add_remote(7)
+            events: list[object] = []
+            net.add_listener(events.append)
+            tpdo = node.tpdo[1]
+            tpdo.add(0x6041, 0, 16)
+            tpdo.add(0x6064, 0, 32)
+            assert tpdo.names == ["0x6041:00", "0x6064:00"]
+            net.send(Frame(0x187, b"\x37\x02"))
+            await asyncio.sleep(0)
+            rejected = [e for e in events if isinstance(e, PdoRejected)]
+            assert rejected and "needs 6" in rejected[0].reason
+            with pytest.raises(PdoTimeoutError) as err:
+                await tpdo.wait_for_reception(timeout=0.05)
+            assert isinstance(err.value, TimeoutError)
+            frames: list[Frame] = []
+            net.subscribe(0x187, lambda f, now: frames.append(f))
+            tpdo.request()
+            await asyncio.sleep(0)
+            assert frames[0].rtr and frames[0].dlc == 6
+            with pytest.raises(PdoError, match="only a TPDO"):
+                node.rpdo[1].request()
+            with pytest.raises(PdoError, match="by number"):
+                tpdo.add("Statusword")
+            with pytest.raises(EmcyTimeoutError):
+                await node.emcy.wait(timeout=0.01)
+
+    simulate(main())
+
+
+def test_emergencies_keep_their_history_and_active_errors():
+    async def main():
+        async with AsyncNetwork() as net:
+            node = net.add_remote(3)
+            seen = []
+            node.emcy.add_callback(seen.append)
+            for data in (
+                b"\x10\x81\x11\x00\x00\x00\x00\x00",  # 8110h CAN overrun
+                b"\x10\x42\x09\x00\x00\x00\x00\x00",  # 4210h temperature
+                b"\x00\x00\x00\x00\x00\x00\x00\x00",  # reset
+            ):
+                net.send(Frame(0x83, data))
+                await asyncio.sleep(0.01)
+            assert [e.code for e in node.emcy.log] == [0x8110, 0x4210, 0x0000]
+            assert node.emcy.active == []
+            assert str(node.emcy.log[0]).startswith("0x8110 ")
+            assert node.emcy.log[0].time == 0.0 and node.emcy.log[1].time == pytest.approx(0.01)
+            assert seen == node.emcy.log
+            net.send(Frame(0x83, b"\x10\x42\x09\x00\x00\x00\x00\x00"))
+            await asyncio.sleep(0)
+            assert [e.code for e in node.emcy.active] == [0x4210]
+
+    simulate(main())
+
+
+def test_every_async_operation_has_its_blocking_twin():
+    from cobus.runtime import _twin, blocking, emcy, nmt, pdo, remote
+
+    pairs = [
+        (remote.RemoteNode, blocking.RemoteNode),
+        (remote.SdoChannel, blocking.BlockingSdo),
+        (remote.SdoVariable, blocking.SdoVariable),
+        (remote.SdoRecord, blocking.SdoRecord),
+        (nmt.RemoteNmt, blocking.RemoteNmt),
+        (emcy.RemoteEmcy, blocking.RemoteEmcy),
+        (pdo.RemotePdo, blocking.RemotePdo),
+        (pdo.PdoSet, blocking.PdoSet),
+    ]
+    for async_cls, twin in pairs:
+        assert _twin.public_names(async_cls) == _twin.public_names(twin), async_cls
+        assert twin.__doc__
+        for name in _twin.public_names(twin):
+            if not name.startswith("_"):
+                assert getattr(twin, name).__doc__, f"{twin.__name__}.{name} has no docstring"
