@@ -312,3 +312,53 @@ def test_every_async_operation_has_its_blocking_twin():
         for name in _twin.public_names(twin):
             if not name.startswith("_"):
                 assert getattr(twin, name).__doc__, f"{twin.__name__}.{name} has no docstring"
+
+
+def test_errors_fit_pythons_hierarchy_and_import_from_the_runtime():
+    import cobus.runtime as runtime
+    from cobus.proto import sdo
+
+    assert runtime.SdoTimeoutError is sdo.SdoTimeoutError
+    assert runtime.SdoAbortedError is sdo.SdoAbortedError
+    for error in (
+        runtime.SdoTimeoutError,
+        runtime.NmtTimeoutError,
+        runtime.PdoTimeoutError,
+        runtime.EmcyTimeoutError,
+    ):
+        assert issubclass(error, TimeoutError), error
+    assert issubclass(runtime.ObjectNotFoundError, KeyError)
+    assert issubclass(runtime.ValueRangeError, ValueError)
+
+
+def test_python_dash_m_cobus_and_the_demo_help_read_whole():
+    import subprocess
+    import sys
+
+    version = subprocess.run(
+        [sys.executable, "-m", "cobus", "--version"], capture_output=True, text=True, check=True
+    )
+    assert version.stdout.startswith("cobus ")
+    demo = subprocess.run(
+        [sys.executable, "-m", "cobus", "demo", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    description = demo.stdout.split("\n\n")[1]
+    assert description.rstrip().endswith("."), description
+
+
+def test_enums_print_by_name_and_codes_in_hex_with_their_text():
+    from cobus.master.states import MasterState, NodeState
+    from cobus.od import DataType
+    from cobus.proto.emcy import EmcyCode
+    from cobus.proto.sdo import SdoAbortCode
+
+    assert str(NmtState.OPERATIONAL) == f"{NmtState.OPERATIONAL}" == "OPERATIONAL"
+    assert f"{NmtState.OPERATIONAL:02X}" == "05" and NmtState.OPERATIONAL == 5
+    assert str(MasterState(5)) == MasterState(5).name
+    assert str(NodeState.OPERATIONAL) == "OPERATIONAL"
+    assert str(DataType.UNSIGNED16) == "UNSIGNED16"
+    assert str(EmcyCode(0x8100)).startswith("0x8100 ")
+    assert str(SdoAbortCode.TIMEOUT) == "0x05040000 SDO protocol timed out"

@@ -279,7 +279,13 @@ def register(sub: Any) -> None:
     parser: argparse.ArgumentParser = sub.add_parser(
         "demo",
         help="run the simulated thesis rig, booted and supervised by the cobus master",
-        description=__doc__.split("\n\n")[1] if __doc__ else None,
+        description=(
+            "The thesis bench with no hardware: an embedded python-can virtual bus runs the "
+            "simulated rig (ZAPI ACE2 inverter, remote I/O with a speed potentiometer, CiA 402 "
+            "servo, EC motor, STÖBER MDS 5000); the cobus master boots and supervises it, and a "
+            "small application runs the servo and the ZAPI inverter at a speed that follows the "
+            "potentiometer. A live table shows every node."
+        ),
     )
     parser.add_argument("--duration", type=float, help="stop after this many seconds")
     parser.add_argument("--refresh", type=float, default=0.5, help="seconds between tables")

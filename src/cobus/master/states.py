@@ -6,6 +6,8 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
+from cobus._enum import NamedIntEnum
+
 __all__ = [
     "Diagnostic",
     "EmcyRecord",
@@ -17,7 +19,7 @@ __all__ = [
 ]
 
 
-class NodeState(enum.IntEnum):
+class NodeState(NamedIntEnum):
     """State of a node as the master's boot-up sees it (the Lenze master's numeric codes)."""
 
     UNDEFINED = 0
@@ -50,7 +52,7 @@ _NODE_TEXTS = {
 }
 
 
-class Diagnostic(enum.IntEnum):
+class Diagnostic(NamedIntEnum):
     """Diagnostic state of a node (the Beckhoff master's codes)."""
 
     OK = 0
@@ -95,7 +97,7 @@ _DIAG_TEXTS = {
 }
 
 
-class MasterState(enum.IntEnum):
+class MasterState(NamedIntEnum):
     """State of the master (the Lenze master's codes: 0-2 start, 3 configuring, 5 running)."""
 
     INITIALISING = 0

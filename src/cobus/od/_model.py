@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeAlias
 
+from cobus._enum import NamedIntEnum
 from cobus.errors import CobusError
 from cobus.od._errors import DataTypeError, Finding, Severity, ValueRangeError
 from cobus.od._types import DECODERS, ENCODERS, INT_INFO, DataType, same_value
@@ -59,7 +60,7 @@ class Access(enum.Enum):
         return self.value
 
 
-class ObjectType(enum.IntEnum):
+class ObjectType(NamedIntEnum):
     """CiA 301 object codes."""
 
     NULL = 0

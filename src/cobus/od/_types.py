@@ -8,13 +8,13 @@ the dispatch is one dict lookup. Errors are only assembled on the failure path.
 from __future__ import annotations
 
 import datetime as _dt
-import enum
 import math
 import operator
 import struct
 from collections.abc import Callable
 from typing import Any, NamedTuple, TypeAlias
 
+from cobus._enum import NamedIntEnum
 from cobus.od._errors import DataLengthError, DataTypeError, ValueRangeError
 
 __all__ = [
@@ -27,7 +27,7 @@ __all__ = [
 ]
 
 
-class DataType(enum.IntEnum):
+class DataType(NamedIntEnum):
     """CiA 301 basic data types, numbered by their index in the object dictionary."""
 
     BOOLEAN = 0x01

@@ -86,7 +86,11 @@ class EmcyCode(IntEnum):
 
     @property
     def text(self) -> str:
+        """The meaning of the code as CiA 301 words it."""
         return _TEXTS[self]
+
+    def __str__(self) -> str:
+        return f"0x{self.value:04X} {_TEXTS[self]}"
 
 
 _TEXTS: dict[int, str] = {

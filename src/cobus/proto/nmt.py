@@ -9,9 +9,10 @@ answers that question for the layers above.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import Enum, IntEnum
+from enum import Enum
 from typing import NamedTuple
 
+from cobus._enum import NamedIntEnum
 from cobus.errors import CobusError
 from cobus.proto._base import NOTHING, Event, Out
 from cobus.proto.frame import Frame
@@ -48,7 +49,7 @@ class MalformedNmtError(NmtError):
     """A received frame on 000h that is not a valid NMT command."""
 
 
-class NmtCommand(IntEnum):
+class NmtCommand(NamedIntEnum):
     """NMT command specifiers (byte 0 of the 000h frame)."""
 
     START = 0x01
@@ -58,7 +59,7 @@ class NmtCommand(IntEnum):
     RESET_COMMUNICATION = 0x82
 
 
-class NmtState(IntEnum):
+class NmtState(NamedIntEnum):
     """NMT states with the codes heartbeat and node guarding report (bits 0-6)."""
 
     INITIALISING = 0x00

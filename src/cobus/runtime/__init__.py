@@ -4,10 +4,18 @@
 - :class:`Network` — the same operations for blocking code (loop in a background thread, or
   inline on the simulated clock).
 - :class:`SimulatedEventLoop` — the virtual clock.
+- ``net.add_remote(node_id, eds)`` — a node this side is the client of: ``sdo``
+  (:mod:`~cobus.runtime.remote`), ``nmt`` (:mod:`~cobus.runtime.nmt`), ``emcy``
+  (:mod:`~cobus.runtime.emcy`), ``tpdo``/``rpdo`` (:mod:`~cobus.runtime.pdo`).
+
+The errors a user of a remote node meets are importable from here as well.
 """
 
+from cobus.od import ValueRangeError
+from cobus.proto.sdo import SdoAbortCode, SdoAbortedError, SdoError, SdoTimeoutError
 from cobus.runtime.blocking import Network, ReentrantCallError, RemoteNode
 from cobus.runtime.bus import BusOpenError, open_bus
+from cobus.runtime.emcy import EmcyTimeoutError, Emergency
 from cobus.runtime.events import (
     BusErrorFrame,
     BusState,
@@ -27,6 +35,13 @@ from cobus.runtime.network import (
     Subscription,
     TxOverflowError,
 )
+from cobus.runtime.nmt import NmtTimeoutError
+from cobus.runtime.pdo import (
+    PdoConfigurationError,
+    PdoReceived,
+    PdoRejected,
+    PdoTimeoutError,
+)
 from cobus.runtime.remote import NmtMaster, ObjectNotFoundError, SdoChannel, SyncService
 from cobus.runtime.remote import RemoteNode as AsyncRemoteNode
 
@@ -37,17 +52,28 @@ __all__ = [
     "BusOpenError",
     "BusState",
     "BusStateChanged",
+    "EmcyTimeoutError",
+    "Emergency",
     "HandlerFailed",
     "MachineHost",
     "Network",
     "NetworkClosedError",
     "NmtMaster",
+    "NmtTimeoutError",
     "ObjectNotFoundError",
+    "PdoConfigurationError",
+    "PdoReceived",
+    "PdoRejected",
+    "PdoTimeoutError",
     "ReceiveFailed",
     "ReentrantCallError",
     "RemoteNode",
     "RxOverflow",
+    "SdoAbortCode",
+    "SdoAbortedError",
     "SdoChannel",
+    "SdoError",
+    "SdoTimeoutError",
     "SimulatedEventLoop",
     "SimulationStalledError",
     "Subscription",
@@ -56,6 +82,7 @@ __all__ = [
     "TxOverflowError",
     "TxQueueFull",
     "TxResumed",
+    "ValueRangeError",
     "new_event_loop",
     "open_bus",
 ]

@@ -59,6 +59,7 @@ import math
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
+from cobus._enum import NamedIntEnum
 from cobus.device import (
     Device,
     DeviceEvent,
@@ -100,7 +101,7 @@ class DriveState(enum.Enum):
     FAULT = "fault"
 
 
-class Mode(enum.IntEnum):
+class Mode(NamedIntEnum):
     """The modes of operation this drive supports (6060h values)."""
 
     PROFILE_POSITION = 1

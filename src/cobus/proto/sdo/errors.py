@@ -93,7 +93,7 @@ class SdoAbortedError(SdoError):
         super().__init__(message, index=index, subindex=subindex, node=node)
 
 
-class SdoTimeoutError(SdoError):
+class SdoTimeoutError(SdoError, TimeoutError):
     """The peer did not answer within the SDO timeout (the client then sent abort 05040000)."""
 
     def __init__(
