@@ -356,7 +356,7 @@ def test_enums_print_by_name_and_codes_in_hex_with_their_text():
     from cobus.proto.sdo import SdoAbortCode
 
     assert str(NmtState.OPERATIONAL) == f"{NmtState.OPERATIONAL}" == "OPERATIONAL"
-    assert f"{NmtState.OPERATIONAL:02X}" == "05" and NmtState.OPERATIONAL == 5
+    assert f"{NmtState.OPERATIONAL:02X}" == "05" and int(NmtState.OPERATIONAL) == 5
     assert str(MasterState(5)) == MasterState(5).name
     assert str(NodeState.OPERATIONAL) == "OPERATIONAL"
     assert str(DataType.UNSIGNED16) == "UNSIGNED16"
