@@ -33,8 +33,48 @@ def test_demo_boots_the_rig_and_runs_the_drives_on_the_simulated_clock(tmp_path)
     assert last["8"]["note"] == ""  # the handshake holds: no alarm
     assert demo.zapi_cycles > 300  # answered every 20 ms SYNC cycle
     assert all(row["emcy"] == "0" for row in seen[-1])
-    # the table was printed at each refresh
+    # nodes that send no heartbeat say so instead of showing an age that grows without end
+    assert last["1"]["heartbeat"] == "boot-up only, no heartbeat"  # STÖBER: 1017h is 0
+    assert last["3"]["heartbeat"] == "none heard"  # the EC motor has no heartbeat at all
+    assert last["8"]["heartbeat"] == "none heard"  # nor has the ZAPI inverter
+    # the table was printed at each refresh, its clock counting from the demo's start
     assert out.getvalue().count("NODE  NAME") == len(seen) == 8
+    first = float(out.getvalue().split("t =", 1)[1].split()[0])
+    assert 1.0 <= first < 1.5  # the first refresh, plus the boot-up before it
+
+
+def test_the_servo_swings_within_its_travel_and_problems_show_their_text(tmp_path):
+    """A whole potentiometer sweep: the servo runs backwards then forwards, never reaching
+    its limit switches; an emergency shows with its text, the master's word on a lost node
+    until the node is back."""
+    positions: list[int] = []
+    notes: list[dict[str, str]] = []
+
+    def on_tick(demo: Demo) -> None:
+        servo = demo.rig.devices[10]
+        positions.append(servo.status()["position"])
+        t = round(demo.elapsed())
+        if t == 22:
+            servo.inject("drive_fault", code=0x7305)
+        if t == 24:
+            demo.rig.devices[9].power_off()
+        notes.append({row["node"]: row["note"] for row in demo.rows()})
+
+    simulate(
+        run_demo(
+            duration=26.0,
+            refresh=1.0,
+            out=io.StringIO(),
+            clear=False,
+            workdir=tmp_path,
+            on_tick=on_tick,
+        )
+    )
+    assert min(positions) < -50_000 and max(positions) > 50_000, "it swings both ways"
+    assert all(-200_000 < p < 200_000 for p in positions), "inside the limit switches"
+    assert all(n["10"] == "operation enabled" for n in notes[:21])
+    assert notes[23]["10"].startswith("0x7305 ")  # the drive's EMCY, with the code's text
+    assert "heartbeat lost" in notes[-1]["9"]  # the master's event about the silent I/O
 
 
 def test_render_aligns_columns():
@@ -86,3 +126,35 @@ def test_demo_in_real_time_from_the_command_line(capsys):
 def test_demo_argument_errors(argv, message, capsys):
     assert main(argv) == 2
     assert message in capsys.readouterr().err
+
+
+def test_the_thesis_network_file_ships_in_examples_with_the_devices_eds():
+    """``examples/networks/thesis.yml`` is the demo's own network file, and the EDS files
+    beside it are those of the simulated rig's devices (exported again here: not stale)."""
+    from pathlib import Path
+
+    from cobus.apps.demo import NETWORK_FILE
+    from cobus.device import export_eds
+    from cobus.master import check_network
+    from cobus.runtime import AsyncNetwork
+    from cobus.sim.rig import Rig, ready_rig
+
+    examples = Path(__file__).parent.parent / "examples" / "networks"
+    assert (examples / "thesis.yml").read_text() == NETWORK_FILE.read_text()
+    config, problems = check_network(examples / "thesis.yml")
+    assert config is not None, problems
+
+    async def exported() -> dict[str, str]:
+        async with AsyncNetwork() as net:
+            rig = Rig.load(ready_rig("thesis"))
+            await rig.start(net)
+            try:
+                return {
+                    name: export_eds(rig.devices[node].od)  # type: ignore[attr-defined]
+                    for node, name in ((9, "io"), (10, "servo"), (8, "zapi"))
+                }
+            finally:
+                await rig.stop()
+
+    for name, text in simulate(exported()).items():
+        assert (examples / f"{name}.eds").read_text() == text, f"examples/networks/{name}.eds"

@@ -378,9 +378,13 @@ def test_cli_writes_dcfs(tmp_path, capsys):
 def test_example_networks_are_clean():
     files = sorted(EXAMPLES.glob("*.yml"))
     assert files, "examples/networks has no network files"
+    # the ZAPI inverter of the thesis bench has neither heartbeat nor guarding: a true warning
+    known = {"thesis.yml": ["node 'zapi': warning: neither heartbeat_time nor guard_time"]}
     for path in files:
         cfg, problems = check_network(path)
-        assert cfg is not None and problems == [], [str(p) for p in problems]
+        assert cfg is not None, [str(p) for p in problems]
+        left = [str(p) for p in problems if not any(k in str(p) for k in known.get(path.name, []))]
+        assert left == [], left
 
 
 def test_dcf_values_beyond_the_eds_limits_are_written_with_a_warning(tmp_path):

@@ -7,14 +7,17 @@ a small application in the spirit of the thesis's PLC program:
 
 - the master boots the CiA 301 nodes (I/O module and servo) the CiA 302 way, produces SYNC
   every 20 ms and supervises heartbeats and emergencies;
-- the potentiometer sweeps slowly; the servo runs in profile velocity mode at a speed that
-  follows it (through the master's process image);
+- the potentiometer sweeps slowly; the servo runs in profile velocity mode, backwards below
+  the potentiometer's middle and forwards above (through the master's process image), so it
+  swings back and forth inside its limit switches;
 - the ZAPI inverter, which has no boot-up and no heartbeat, is started by the master once
   SYNC runs; the application answers each of its TPDO1 through the process image with the
   opposite handshake toggle, running it clockwise at a speed that follows the potentiometer.
 
-A live table shows each node: NMT state, the master's node state, heartbeat age, EMCY count
-and speed. The operator panel will replace the table once it exists.
+A live table shows each node: NMT state, the master's node state, heartbeat age (or why
+there is none), EMCY count and speed, and in its note the drive's state, the newest error
+(alarm, EMCY with its text) or the master's last event about the node. The operator panel
+will replace the table once it exists.
 """
 
 from __future__ import annotations
@@ -26,22 +29,37 @@ import math
 import os
 import sys
 import tempfile
-import textwrap
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
 from cobus.device import export_eds
 from cobus.master import Master, loads_network
-from cobus.proto import Frame
+from cobus.master.events import (
+    ErrorControlRestored,
+    MasterEvent,
+    NodeBooted,
+    NodeEmergency,
+    NodeEvent,
+    NodeStateChanged,
+    TpdoRestored,
+)
+from cobus.master.states import NodeState
+from cobus.proto.nmt import NmtState
 from cobus.runtime import AsyncNetwork, SimulatedEventLoop
+from cobus.runtime.emcy import Emergency
+from cobus.runtime.remote import RemoteNode
 from cobus.sim.rig import Rig, ready_rig
 
 __all__ = ["Demo", "register", "run"]
 
 IO, SERVO, ZAPI = 9, 10, 8
 SYNC_PERIOD = 0.020
-SERVO_MAX_SPEED = 50_000  # increments/s at full potentiometer
+# The servo's speed follows the potentiometer around its middle: backwards below half,
+# forwards above. The potentiometer sweeps symmetrically, so the servo swings back and forth:
+# at most SERVO_MAX_SPEED * POT_PERIOD / 2 pi = 127 000 increments from its start, inside the
+# rig's limit switches at +-200 000.
+SERVO_MAX_SPEED = 40_000  # increments/s at either end of the potentiometer
 ZAPI_MAX_HZ = 50.0  # the thesis's example speed: 50 Hz clockwise
 POT_PERIOD = 20.0  # seconds for one sweep of the potentiometer
 
@@ -50,46 +68,9 @@ POT_PERIOD = 20.0  # seconds for one sweep of the potentiometer
 _ZAPI_RUN = (1 << 1) | (1 << 3) | (1 << 6)
 _TOGGLE = 1 << 15
 
-NETWORK_YAML = """
-    master:
-      node_id: 127
-      sync_period: 20
-      heartbeat_time: 100
-    defaults:
-      heartbeat_time: 100
-      restart: auto
-    nodes:
-      io:
-        node_id: 9
-        eds: io.eds
-        mandatory: true
-        tpdo2: {mapping: ["0x6401:01"], transmission_type: 1}
-        signals:
-          pot: {object: "0x6401:01"}
-      zapi:
-        node_id: 8
-        eds: zapi.eds
-        mandatory: true
-        do_not_initialise: true   # no boot-up: the master only starts it
-        heartbeat_time: 0         # and it produces no heartbeat, nor answers guarding
-        signals:
-          setpoint: {object: speed_setpoint, scale: 0.01, unit: Hz}
-          speed: {object: actual_speed, scale: 0.01, unit: Hz}
-      servo:
-        node_id: 10
-        eds: servo.eds
-        mandatory: true
-        device_type: 0x20192
-        sdo:
-          - {object: "0x6060:00", value: 3}
-        tpdo3: {mapping: [statusword, velocity_actual_value], transmission_type: 1}
-        rpdo4: {mapping: [controlword, target_velocity], transmission_type: 255}
-        signals:
-          sw: {object: statusword}
-          velocity: {object: velocity_actual_value}
-          cw: {object: controlword}
-          target: {object: target_velocity}
-"""
+#: The thesis bench's network file (also ``examples/networks/thesis.yml``); its EDS files are
+#: exported from the simulated devices into the demo's working folder.
+NETWORK_FILE = Path(__file__).with_name("thesis.yml")
 
 
 class Demo:
@@ -102,8 +83,11 @@ class Demo:
         self.rig_net = AsyncNetwork(interface="virtual", channel=self.channel)
         self.master_net = AsyncNetwork(interface="virtual", channel=self.channel)
         self.master: Master | None = None
-        self.heartbeats: dict[int, float] = {}
-        self.emcy_seen: dict[int, int] = {}
+        #: Every rig node as the master's network sees it: heartbeats and emergencies.
+        self.watch: dict[int, RemoteNode] = {}
+        #: The text of the last master event about each node.
+        self.events: dict[int, str] = {}
+        self.started_at = 0.0
         self.zapi_cycles = 0
         self._tasks: list[asyncio.Task[None]] = []
 
@@ -115,12 +99,12 @@ class Demo:
         for node_id, name in ((IO, "io"), (SERVO, "servo"), (ZAPI, "zapi")):
             od = self.rig.devices[node_id].od  # type: ignore[attr-defined]
             (self.workdir / f"{name}.eds").write_text(export_eds(od))
-        config = loads_network(textwrap.dedent(NETWORK_YAML), base_dir=self.workdir)
-        for node_id in range(1, 128):
-            self.master_net.subscribe(0x700 + node_id, self._on_heartbeat)
-            self.master_net.subscribe(0x80 + node_id, self._on_emcy)
+        config = loads_network(NETWORK_FILE.read_text(), base_dir=self.workdir)
+        self.watch = {n: self.master_net.add_remote(n) for n in self.rig.devices}
+        self.started_at = self.master_net.time()
         self.master = Master(self.master_net, config)
         self.master.add_tpdo_listener(self._on_tpdo)
+        self.master.add_listener(self._on_master_event)
         await self.master.boot(timeout=10)
         self._tasks = [
             asyncio.create_task(self._sweep_potentiometer()),
@@ -163,7 +147,7 @@ class Demo:
             outputs["servo.cw"] = controlword
             await asyncio.sleep(0.05)
         while True:
-            outputs["servo.target"] = round(self._pot() * SERVO_MAX_SPEED)
+            outputs["servo.target"] = round((self._pot() - 0.5) * 2 * SERVO_MAX_SPEED)
             await asyncio.sleep(0.1)
 
     def _on_tpdo(self, node_id: int, number: int, now: float) -> None:
@@ -180,14 +164,25 @@ class Demo:
             master.outputs["zapi.controlword"] = word
         self.zapi_cycles += 1
 
-    def _on_heartbeat(self, frame: Frame, now: float) -> None:
-        self.heartbeats[frame.cob_id - 0x700] = now
-
-    def _on_emcy(self, frame: Frame, now: float) -> None:
-        node = frame.cob_id - 0x80
-        self.emcy_seen[node] = self.emcy_seen.get(node, 0) + 1
+    def _on_master_event(self, event: MasterEvent) -> None:
+        """Keep the master's last word on a node's problem until the problem is over."""
+        if not isinstance(event, NodeEvent) or isinstance(event, NodeEmergency):
+            return  # emergencies show from the node's own EMCY log
+        over = isinstance(event, ErrorControlRestored | TpdoRestored) or (
+            isinstance(event, NodeStateChanged) and event.new is NodeState.OPERATIONAL
+        )
+        if over:
+            self.events.pop(event.node_id, None)
+        elif not isinstance(event, NodeStateChanged) and not (
+            isinstance(event, NodeBooted) and event.expected
+        ):
+            self.events[event.node_id] = str(event)
 
     # -- the table
+    def elapsed(self) -> float:
+        """Seconds since the demo started."""
+        return self.master_net.time() - self.started_at
+
     def rows(self) -> list[dict[str, str]]:
         now = self.master_net.time()
         managed = self.master.nodes if self.master is not None else {}
@@ -195,7 +190,7 @@ class Demo:
         for node_id, device in sorted(self.rig.devices.items()):
             status = device.status()
             node = managed.get(node_id)
-            seen = self.heartbeats.get(node_id)
+            seen = self.watch[node_id]
             rows.append(
                 {
                     "node": str(node_id),
@@ -203,13 +198,23 @@ class Demo:
                     "kind": str(status.get("kind", "")),
                     "nmt": str(status.get("nmt") or status.get("state") or "-").replace("_", "-"),
                     "master": f"{int(node.state)} {node.state.text}" if node else "(not managed)",
-                    "heartbeat": "-" if seen is None else f"{(now - seen) * 1000:.0f} ms ago",
-                    "emcy": str(node.emcy_count if node else self.emcy_seen.get(node_id, 0)),
+                    "heartbeat": _heartbeat(seen, now),
+                    "emcy": str(seen.emcy.count),
                     "speed": _speed(status),
-                    "note": _note(status),
+                    "note": _note(status, seen.emcy.active, self.events.get(node_id)),
                 }
             )
         return rows
+
+
+def _heartbeat(node: RemoteNode, now: float) -> str:
+    """How recent the node's heartbeat is, or why there is none to show."""
+    nmt = node.nmt
+    if nmt.last_heard is None:
+        return "none heard"
+    if nmt.state is NmtState.INITIALISING:
+        return "boot-up only, no heartbeat"
+    return f"{(now - nmt.last_heard) * 1000:.0f} ms ago"
 
 
 _COLUMNS = ("node", "name", "kind", "nmt", "master", "heartbeat", "emcy", "speed", "note")
@@ -226,13 +231,20 @@ def _speed(status: dict[str, Any]) -> str:
     return ""
 
 
-def _note(status: dict[str, Any]) -> str:
-    """What needs attention (an alarm, a fault, an event), else the drive's state."""
-    for key in ("alarm_text", "error_code"):
-        if status.get(key):
-            return str(status[key])
+def _note(status: dict[str, Any], active: list[Emergency], event: str | None) -> str:
+    """What needs attention, most telling first: the device's own alarm text, the newest
+    error it reported by EMCY (with the code's text), its fault code or event, the master's
+    word on it; else the drive's state."""
+    if status.get("alarm_text"):
+        return str(status["alarm_text"])
+    if active:
+        return str(active[-1])
+    if status.get("error_code"):
+        return f"fault {status['error_code']}"
     if status.get("event_text") not in (None, "", "no event"):
         return str(status["event_text"])
+    if event:
+        return event
     if status.get("kind") == "cia402_drive":
         return str(status.get("state", ""))
     return ""
@@ -265,7 +277,7 @@ async def run_demo(
         end = None if duration is None else demo.master_net.time() + duration - 1e-6
         while end is None or demo.master_net.time() < end:
             await asyncio.sleep(refresh)
-            text = render(demo.rows(), demo.master_net.time())
+            text = render(demo.rows(), demo.elapsed())
             out.write(("\x1b[H\x1b[2J" if clear else "\n") + text + "\n")
             out.flush()
             if on_tick is not None:

@@ -1916,7 +1916,9 @@ def check_network(
     data = _read_text(text, name, report)
     if report.errors:
         return None, report.problems
-    cfg = _parse(data, Path(name).resolve().parent, report)
+    # Relative EDS paths start beside the file as it was named: a network file reached
+    # through a symbolic link finds the EDS files beside the link.
+    cfg = _parse(data, Path(os.path.abspath(name)).parent, report)
     return cfg, report.problems
 
 

@@ -44,6 +44,9 @@ class MasterStateChanged(MasterEvent):
     old: MasterState
     new: MasterState
 
+    def __str__(self) -> str:
+        return f"master state {self.old.name} -> {self.new.name}"
+
 
 @dataclass(frozen=True, slots=True)
 class NetworkStopped(MasterEvent):
@@ -51,6 +54,9 @@ class NetworkStopped(MasterEvent):
 
     node_id: int
     reason: str
+
+    def __str__(self) -> str:
+        return f"network stopped because of node {self.node_id}: {self.reason}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,12 +73,19 @@ class NodeStateChanged(NodeEvent):
     old: NodeState
     new: NodeState
 
+    def __str__(self) -> str:
+        return f"node {self.node_id}: {self.old.text} -> {self.new.text}"
+
 
 @dataclass(frozen=True, slots=True)
 class NodeBooted(NodeEvent):
     """The node sent its boot-up message; ``expected`` is False when nobody reset it."""
 
     expected: bool
+
+    def __str__(self) -> str:
+        how = "after its reset" if self.expected else "by itself (nobody reset it)"
+        return f"node {self.node_id} booted {how}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,6 +95,10 @@ class NodeMissing(NodeEvent):
     mandatory: bool
     reason: str
 
+    def __str__(self) -> str:
+        kind = "mandatory" if self.mandatory else "optional"
+        return f"{kind} node {self.node_id} missing: {self.reason}"
+
 
 @dataclass(frozen=True, slots=True)
 class DeviceTypeMismatch(NodeEvent):
@@ -89,6 +106,10 @@ class DeviceTypeMismatch(NodeEvent):
 
     expected: int
     actual: int
+
+    def __str__(self) -> str:
+        actual = "refused" if self.actual == -1 else f"0x{self.actual:08X}"
+        return f"node {self.node_id}: device type {actual}, expected 0x{self.expected:08X}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,6 +120,13 @@ class IdentityMismatch(NodeEvent):
     subindex: int
     expected: int
     actual: int | None
+
+    def __str__(self) -> str:
+        actual = "refused" if self.actual is None else f"0x{self.actual:08X}"
+        return (
+            f"node {self.node_id}: {self.field} (1018h sub {self.subindex}) {actual}, "
+            f"expected 0x{self.expected:08X}"
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,6 +139,12 @@ class ConfigurationFailed(NodeEvent):
     abort_code: int | None
     reason: str
 
+    def __str__(self) -> str:
+        return (
+            f"node {self.node_id}: configuring 0x{self.index:04X}:{self.subindex:02X} "
+            f"failed: {self.reason}"
+        )
+
 
 @dataclass(frozen=True, slots=True)
 class ErrorControlLost(NodeEvent):
@@ -118,17 +152,26 @@ class ErrorControlLost(NodeEvent):
 
     kind: str
 
+    def __str__(self) -> str:
+        return f"node {self.node_id}: {self.kind} lost"
+
 
 @dataclass(frozen=True, slots=True)
 class ErrorControlRestored(NodeEvent):
     kind: str
     state: NmtState
 
+    def __str__(self) -> str:
+        return f"node {self.node_id}: {self.kind} back, state {self.state.name}"
+
 
 @dataclass(frozen=True, slots=True)
 class GuardingToggleFault(NodeEvent):
     expected: int
     received: int
+
+    def __str__(self) -> str:
+        return f"node {self.node_id}: guarding toggle bit {self.received}, expected {self.expected}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -137,6 +180,9 @@ class UnexpectedState(NodeEvent):
 
     expected: NmtState
     reported: NmtState
+
+    def __str__(self) -> str:
+        return f"node {self.node_id} reports {self.reported.name}, expected {self.expected.name}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,6 +194,9 @@ class NodeEmergency(NodeEvent):
     data: bytes
     text: str
 
+    def __str__(self) -> str:
+        return f"node {self.node_id}: EMCY 0x{self.code:04X} {self.text}"
+
 
 @dataclass(frozen=True, slots=True)
 class TpdoMissing(NodeEvent):
@@ -156,11 +205,17 @@ class TpdoMissing(NodeEvent):
     number: int
     cob_id: int
 
+    def __str__(self) -> str:
+        return f"node {self.node_id}: TPDO {self.number} (0x{self.cob_id:X}) missing"
+
 
 @dataclass(frozen=True, slots=True)
 class TpdoRestored(NodeEvent):
     number: int
     cob_id: int
+
+    def __str__(self) -> str:
+        return f"node {self.node_id}: TPDO {self.number} (0x{self.cob_id:X}) back"
 
 
 @dataclass(frozen=True, slots=True)
@@ -170,3 +225,9 @@ class TpdoLengthError(NodeEvent):
     number: int
     expected: int
     received: int
+
+    def __str__(self) -> str:
+        return (
+            f"node {self.node_id}: TPDO {self.number} with {self.received} bytes, "
+            f"its mapping has {self.expected}"
+        )

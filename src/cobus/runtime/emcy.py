@@ -55,11 +55,14 @@ class RemoteEmcy:
     node_id: int
     #: The CAN identifier the node's emergencies arrive on (80h + node-ID unless changed).
     cob_id: int
+    #: How many emergencies arrived in all (the log keeps only the last ``history``).
+    count: int
 
     def __init__(self, network: AsyncNetwork, node_id: int, *, history: int = 64) -> None:
         self._network = network
         self.node_id = node_id
         self.cob_id = EMCY_BASE + node_id
+        self.count = 0
         self._log: deque[Emergency] = deque(maxlen=history)
         self._active: list[Emergency] = []
         self._callbacks: list[Callable[[Emergency], object]] = []
@@ -87,7 +90,8 @@ class RemoteEmcy:
         return self._log[-1] if self._log else None
 
     def clear(self) -> None:
-        """Forget the emergencies received so far."""
+        """Forget the emergencies received so far (and set the count back to 0)."""
+        self.count = 0
         self._log.clear()
         self._active.clear()
 
@@ -137,6 +141,7 @@ class RemoteEmcy:
             parsed.text,
         )
         self._log.append(emcy)
+        self.count += 1
         if emcy.is_reset:
             self._active.clear()
         else:
