@@ -6,6 +6,7 @@ names looked up the way people type them, against simulated devices on the simul
 from __future__ import annotations
 
 import asyncio
+from pathlib import Path
 
 import pytest
 
@@ -34,6 +35,7 @@ from tests.test_sim_support import SimBench, run_sim
 from tests.util import simulate
 
 NODE = 10
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "networks"
 
 
 def drive_run(scenario):
@@ -294,24 +296,45 @@ def test_emergencies_keep_their_history_and_active_errors():
 
 
 def test_every_async_operation_has_its_blocking_twin():
+    import cobus.sim.blocking
     from cobus.runtime import _twin, blocking, emcy, nmt, pdo, remote
+    from cobus.sim import Rig, SimulatedDevice
 
-    pairs = [
-        (remote.RemoteNode, blocking.RemoteNode),
-        (remote.SdoChannel, blocking.BlockingSdo),
-        (remote.SdoVariable, blocking.SdoVariable),
-        (remote.SdoRecord, blocking.SdoRecord),
-        (nmt.RemoteNmt, blocking.RemoteNmt),
-        (emcy.RemoteEmcy, blocking.RemoteEmcy),
-        (pdo.RemotePdo, blocking.RemotePdo),
-        (pdo.PdoSet, blocking.PdoSet),
-    ]
-    for async_cls, twin in pairs:
+    expected = {
+        remote.RemoteNode: blocking.RemoteNode,
+        remote.SdoChannel: blocking.BlockingSdo,
+        remote.SdoVariable: blocking.SdoVariable,
+        remote.SdoRecord: blocking.SdoRecord,
+        nmt.RemoteNmt: blocking.RemoteNmt,
+        emcy.RemoteEmcy: blocking.RemoteEmcy,
+        pdo.RemotePdo: blocking.RemotePdo,
+        pdo.PdoSet: blocking.PdoSet,
+        Rig: cobus.sim.blocking.BlockingRig,
+        SimulatedDevice: cobus.sim.blocking.BlockingSimulatedDevice,
+    }
+    assert dict(_twin._TWINS) == expected
+    for async_cls, twin in expected.items():
         assert _twin.public_names(async_cls) == _twin.public_names(twin), async_cls
         assert twin.__doc__
         for name in _twin.public_names(twin):
             if not name.startswith("_"):
                 assert getattr(twin, name).__doc__, f"{twin.__name__}.{name} has no docstring"
+
+
+def test_a_blocking_rig_forwards_what_each_kind_of_device_adds():
+    from cobus.sim import start_rig
+
+    with Network(simulated=True) as net:
+        rig = start_rig(net, "thesis")
+        io = rig.device(9)
+        io.set_potentiometer(0.5)  # an Io401 method, forwarded
+        node = net.add_remote(9, EXAMPLES / "io.eds")
+        assert abs(node.sdo.read(0x6401, 1) - 16383) <= 1
+        rig.inject(9, "power_loss")
+        with pytest.raises(TimeoutError):
+            node.sdo.read(0x1000)
+        assert rig.device(9).status()["powered"] is False
+        rig.stop()
 
 
 def test_errors_fit_pythons_hierarchy_and_import_from_the_runtime():

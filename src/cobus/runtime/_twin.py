@@ -43,11 +43,30 @@ class BlockingTwin:
         if twin_of is not None:
             _fill(cls, twin_of)
 
+    #: Given as an argument to a twin's method, the async object behind it is passed on.
+    _twin_unwrap = True
+
     if TYPE_CHECKING:  # generated members are invisible to static checkers: typed as Any
 
         def __getattr__(self, name: str) -> Any: ...
         def __getitem__(self, key: Any) -> Any: ...
         def __setitem__(self, key: Any, value: Any) -> None: ...
+
+    else:
+
+        def __getattr__(self, name: str) -> Any:
+            """What a subclass of the async class adds (``rig.device(9)`` is an I/O module
+            with its own methods): forwarded like the generated members."""
+            if name.startswith("_"):
+                raise AttributeError(name)
+            value = getattr(self.aio, name)
+            if inspect.iscoroutinefunction(value):
+                return lambda *a, **k: self._wrap(self._runner.run(value(*_in(a), **_kin(k))))
+            if callable(value) and inspect.ismethod(value):
+                return lambda *a, **k: self._wrap(
+                    self._runner.call(lambda: value(*_in(a), **_kin(k)))
+                )
+            return self._wrap(value)
 
     def __init__(self, aio: Any, runner: Runner) -> None:
         self.aio = aio
@@ -68,6 +87,19 @@ class BlockingTwin:
 
     def __repr__(self) -> str:
         return repr(self.aio)
+
+
+def _unwrap(value: Any) -> Any:
+    """The async object behind a twin or a blocking network given as an argument."""
+    return value.aio if getattr(type(value), "_twin_unwrap", False) else value
+
+
+def _in(args: tuple[Any, ...]) -> list[Any]:
+    return [_unwrap(a) for a in args]
+
+
+def _kin(kwargs: dict[str, Any]) -> dict[str, Any]:
+    return {k: _unwrap(v) for k, v in kwargs.items()}
 
 
 def twin_of(cls: type) -> type[BlockingTwin] | None:
@@ -101,7 +133,8 @@ def _member(cls: type, name: str) -> Any:
 def _coroutine(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
     @functools.wraps(fn)
     def method(self: BlockingTwin, *args: Any, **kwargs: Any) -> Any:
-        return self._wrap(self._runner.run(getattr(self.aio, name)(*args, **kwargs)))
+        coro = getattr(self.aio, name)(*_in(args), **_kin(kwargs))
+        return self._wrap(self._runner.run(coro))
 
     return method
 
@@ -113,7 +146,7 @@ def _plain(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
         def add(self: BlockingTwin, callback: Callable[..., object], *args: Any) -> Any:
             wrapped = self._runner.callback(callback)
             self._wrapped_callbacks[callback] = wrapped
-            return self._runner.call(getattr(self.aio, name), wrapped, *args)
+            return self._runner.call(getattr(self.aio, name), wrapped, *_in(args))
 
         return add
     if name in _REMOVE_CALLBACK:
@@ -128,7 +161,7 @@ def _plain(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
     @functools.wraps(fn)
     def method(self: BlockingTwin, *args: Any, **kwargs: Any) -> Any:
         bound = getattr(self.aio, name)
-        return self._wrap(self._runner.call(lambda: bound(*args, **kwargs)))
+        return self._wrap(self._runner.call(lambda: bound(*_in(args), **_kin(kwargs))))
 
     return method
 

@@ -218,6 +218,9 @@ class Network:
     given). Use as a context manager or call :meth:`close`.
     """
 
+    #: Given to a blocking twin's method, the :class:`AsyncNetwork` behind it is passed on.
+    _twin_unwrap = True
+
     def __init__(
         self,
         bus: can.BusABC | None = None,

@@ -7,9 +7,11 @@ simulated CANopen devices share, :mod:`cobus.sim.faults` for the bus faults and
 - :class:`Drive402` (kind ``cia402_drive``): a CiA 402 servo drive with a motor model.
 - :class:`Io401` (kind ``cia401_io``): a CiA 401 I/O module with a speed potentiometer.
 - :class:`EdsDevice` (kind ``eds``): the device of any EDS/DCF file.
+- :func:`start_rig` runs a rig from blocking code (``start_rig(net, "thesis")``).
 """
 
 from cobus.sim.base import SimulatedDevice, SimulationError, UnknownFaultError, UnknownQuirkError
+from cobus.sim.blocking import BlockingRig, BlockingSimulatedDevice, start_rig
 from cobus.sim.drive402 import Drive402, DriveState
 from cobus.sim.ecmotor import EcMotor
 from cobus.sim.faults import Babbler, FaultConfigError, FaultyBus, fault_catalogue
@@ -28,6 +30,8 @@ from cobus.sim.zapi import ZapiAce2
 __all__ = [
     "KINDS",
     "Babbler",
+    "BlockingRig",
+    "BlockingSimulatedDevice",
     "CanopenSimDevice",
     "ChannelError",
     "DeviceOffError",
@@ -52,4 +56,5 @@ __all__ = [
     "fault_catalogue",
     "ready_rig",
     "resolve_kind",
+    "start_rig",
 ]
