@@ -13,9 +13,10 @@ from typing import TYPE_CHECKING, Any
 
 from cobus.master.config import NetworkConfig
 from cobus.master.diagnostics import MasterDiagnostics
-from cobus.master.master import Master, MasterListener
+from cobus.master.master import Master
 from cobus.master.node import ManagedNode
 from cobus.master.states import MasterState, MasterStatus
+from cobus.runtime._twin import BlockingTwin
 
 if TYPE_CHECKING:
     from cobus.runtime import Network
@@ -40,72 +41,43 @@ class _BlockingOutputs(Mapping[str, Any]):
         return len(self._master.aio.outputs)
 
 
-class BlockingMaster:
-    """:class:`Master` for blocking code: ``BlockingMaster(Network(...), "line.yml")``."""
+class BlockingMaster(BlockingTwin, twin_of=Master):
+    """:class:`Master` for blocking code: ``BlockingMaster(Network(...), "line.yml")``.
+
+    Every method and property of :class:`Master` is here (generated from it): ``boot()``
+    waits until the network runs, ``outputs["node.signal"] = value`` is sent by RPDO,
+    listeners run in the network's callback thread (inline on the simulated clock)."""
 
     def __init__(self, network: Network, config: NetworkConfig | str | os.PathLike[str]) -> None:
-        self.network = network
-
         async def create() -> Master:
             return Master(network.aio, config)
 
-        self.aio: Master = network.run(create())
-        self.outputs = _BlockingOutputs(self)
+        super().__init__(network.run(create()), network._runner)
+        self._network = network
+        self._outputs = _BlockingOutputs(self)
+        self.aio: Master
 
-    def _call(self, fn: Any, *args: Any) -> Any:
-        async def call() -> Any:
-            return fn(*args)
+    @property
+    def network(self) -> Network:
+        """The blocking network the master runs on."""
+        return self._network
 
-        return self.network.run(call())
-
-    def start(self) -> None:
-        """Start the boot-up in the background (see :meth:`Master.start`)."""
-        self._call(self.aio.start)
-
-    def boot(self, timeout: float | None = None) -> None:
-        """Boot and wait until the network runs (see :meth:`Master.boot`)."""
-        self.network.run(self.aio.boot(timeout))
-
-    def stop(self, *, stop_nodes: bool = False) -> None:
-        self.network.run(self.aio.stop(stop_nodes=stop_nodes))
-
-    def restart_node(self, key: int | str) -> None:
-        self.network.run(self.aio.restart_node(key))
+    @property
+    def outputs(self) -> _BlockingOutputs:
+        """The process image's outputs: setting one sends it (see :meth:`Master.set_output`)."""
+        return self._outputs
 
     def sleep(self, seconds: float) -> None:
         """Let the network run (virtual seconds on the simulated clock)."""
-        self.network.sleep(seconds)
+        self._network.sleep(seconds)
 
-    def set_output(self, name: str, value: Any) -> None:
-        self._call(self.aio.set_output, name, value)
+    if TYPE_CHECKING:
+        inputs: Mapping[str, Any]
+        nodes: dict[int, ManagedNode]
+        diagnostics: MasterDiagnostics
+        state: MasterState
+        status: MasterStatus
+        bus_load: float
 
-    def add_listener(self, listener: MasterListener) -> None:
-        self._call(self.aio.add_listener, listener)
-
-    @property
-    def inputs(self) -> Mapping[str, Any]:
-        return self.aio.inputs
-
-    @property
-    def nodes(self) -> dict[int, ManagedNode]:
-        return self.aio.nodes
-
-    def node(self, key: int | str) -> ManagedNode:
-        return self.aio.node(key)
-
-    @property
-    def state(self) -> MasterState:
-        return self.aio.state
-
-    @property
-    def status(self) -> MasterStatus:
-        return self.aio.status
-
-    @property
-    def diagnostics(self) -> MasterDiagnostics:
-        return self.aio.diagnostics
-
-    @property
-    def bus_load(self) -> float:
-        value: float = self._call(lambda: self.aio.bus_load)
-        return value
+        def node(self, key: int | str) -> ManagedNode: ...
+        def set_output(self, name: str, value: Any) -> None: ...

@@ -75,6 +75,21 @@ class Master:
     ``inputs`` / ``outputs`` are the process image; ``diagnostics`` the global diagnostics.
     """
 
+    #: The network the master runs.
+    network: AsyncNetwork
+    #: The network description it boots.
+    config: NetworkConfig
+    #: The global diagnostics (frames, bus load, errors).
+    diagnostics: MasterDiagnostics
+    #: The process image behind ``inputs`` and ``outputs``.
+    image: ProcessImage
+    #: The process image's inputs (TPDO signals) by ``"node.signal"``.
+    inputs: Inputs
+    #: The process image's outputs (RPDO signals) by ``"node.signal"``; setting one sends it.
+    outputs: Outputs
+    #: The managed nodes by node-ID.
+    nodes: dict[int, ManagedNode]
+
     def __init__(
         self, network: AsyncNetwork, config: NetworkConfig | str | os.PathLike[str]
     ) -> None:
@@ -122,6 +137,7 @@ class Master:
 
     @property
     def started(self) -> bool:
+        """Whether :meth:`start` (or :meth:`boot`) was called and :meth:`stop` not since."""
         return self._started
 
     @property
@@ -164,6 +180,7 @@ class Master:
         self._listeners.append(listener)
 
     def remove_listener(self, listener: MasterListener) -> None:
+        """Stop calling ``listener`` (given to :meth:`add_listener`)."""
         if listener in self._listeners:
             self._listeners.remove(listener)
 
@@ -179,6 +196,7 @@ class Master:
         self._tpdo_listeners.append(listener)
 
     def remove_tpdo_listener(self, listener: TpdoListener) -> None:
+        """Stop calling ``listener`` (given to :meth:`add_tpdo_listener`)."""
         if listener in self._tpdo_listeners:
             self._tpdo_listeners.remove(listener)
 

@@ -22,9 +22,18 @@ if TYPE_CHECKING:
 __all__ = ["BlockingTwin", "public_names", "twin_of"]
 
 _TWINS: dict[type, type[BlockingTwin]] = {}
-#: Methods whose first argument is a user callback, and the methods that take one back.
-_ADD_CALLBACK = frozenset({"add_callback"})
-_REMOVE_CALLBACK = frozenset({"remove_callback"})
+
+
+def _registers_callback(name: str) -> bool:
+    """``add_callback``, ``add_listener``, ``add_tpdo_listener``...: the first argument is a
+    user callback, run in the blocking network's callback thread."""
+    return name.startswith("add_") and name.endswith(("callback", "listener"))
+
+
+def _unregisters_callback(name: str) -> bool:
+    return name.startswith("remove_") and name.endswith(("callback", "listener"))
+
+
 _CONTAINER = ("__getitem__", "__setitem__", "__iter__", "__len__", "__contains__")
 
 
@@ -32,8 +41,8 @@ class BlockingTwin:
     """Base of the generated blocking twins: ``aio`` is the async object behind it.
 
     ``class RemoteNmt(BlockingTwin, twin_of=AsyncRemoteNmt)`` gets every public member of the
-    async class (see the module docstring); annotations in the body type the sub-services
-    for static checkers.
+    async class (see the module docstring) that its body does not define itself; annotations
+    in the body type the sub-services for static checkers.
     """
 
     __twin_of__: type
@@ -140,7 +149,7 @@ def _coroutine(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
 
 
 def _plain(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
-    if name in _ADD_CALLBACK:
+    if _registers_callback(name):
 
         @functools.wraps(fn)
         def add(self: BlockingTwin, callback: Callable[..., object], *args: Any) -> Any:
@@ -149,7 +158,7 @@ def _plain(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
             return self._runner.call(getattr(self.aio, name), wrapped, *_in(args))
 
         return add
-    if name in _REMOVE_CALLBACK:
+    if _unregisters_callback(name):
 
         @functools.wraps(fn)
         def remove(self: BlockingTwin, callback: Callable[..., object]) -> Any:
@@ -212,6 +221,8 @@ def _fill(twin: type[BlockingTwin], async_cls: type) -> None:
     for klass in async_cls.__mro__:
         annotated.update(vars(klass).get("__annotations__", {}))
     for attr in sorted(public_names(async_cls)):
+        if attr in vars(twin):
+            continue  # written out in the twin's body: it knows better
         member = _member(async_cls, attr)
         if attr in _PROTOCOL:
             made: Any = _PROTOCOL[attr]
