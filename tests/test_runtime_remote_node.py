@@ -297,6 +297,7 @@ def test_emergencies_keep_their_history_and_active_errors():
 
 def test_every_async_operation_has_its_blocking_twin():
     import cobus.sim.blocking
+    from cobus.device import BlockingDevice, Device
     from cobus.master import BlockingMaster, Master
     from cobus.runtime import _twin, blocking, emcy, nmt, pdo, remote
     from cobus.sim import Rig, SimulatedDevice
@@ -313,6 +314,7 @@ def test_every_async_operation_has_its_blocking_twin():
         Rig: cobus.sim.blocking.BlockingRig,
         SimulatedDevice: cobus.sim.blocking.BlockingSimulatedDevice,
         Master: BlockingMaster,
+        Device: BlockingDevice,
     }
     # what a blocking face adds: letting the network run (async code awaits the network)
     added: dict[type, set[str]] = {BlockingMaster: {"sleep"}}

@@ -386,6 +386,7 @@ class Device:
 
     @property
     def node_id(self) -> int:
+        """The node-ID the device answers to; setting it changes it at run time."""
         return self._node_id
 
     @node_id.setter
@@ -481,6 +482,7 @@ class Device:
         self._listeners.append(listener)
 
     def remove_listener(self, listener: Listener) -> None:
+        """Stop calling ``listener`` (given to :meth:`add_listener`)."""
         if listener in self._listeners:
             self._listeners.remove(listener)
 
