@@ -393,3 +393,40 @@ def test_enums_print_by_name_and_codes_in_hex_with_their_text():
     assert str(DataType.UNSIGNED16) == "UNSIGNED16"
     assert str(EmcyCode(0x8100)).startswith("0x8100 ")
     assert str(SdoAbortCode.TIMEOUT) == "0x05040000 SDO protocol timed out"
+
+
+def test_every_public_class_and_method_has_a_docstring():
+    """What ``help()`` shows a user: every class a public module exports, and its methods and
+    properties (a protocol machine's deadline/on_frame/on_timer are documented once, on
+    :class:`cobus.proto.Machine`)."""
+    import importlib
+    import inspect
+    import pkgutil
+
+    import cobus
+
+    machine = {"deadline", "on_frame", "on_timer"}
+    missing = []
+    for info in pkgutil.walk_packages(cobus.__path__, "cobus."):
+        if any(part.startswith("_") for part in info.name.split(".")[1:]):
+            continue
+        module = importlib.import_module(info.name)
+        for name in getattr(module, "__all__", []):
+            obj = getattr(module, name)
+            if getattr(obj, "__module__", None) != module.__name__:
+                continue
+            if inspect.isfunction(obj) and not obj.__doc__:
+                missing.append(f"{module.__name__}.{name}")
+            if not inspect.isclass(obj):
+                continue
+            if not obj.__doc__:
+                missing.append(f"{module.__name__}.{name}")
+            is_machine = hasattr(obj, "on_frame") and hasattr(obj, "on_timer")
+            for key, member in vars(obj).items():
+                if key.startswith("_") or (is_machine and key in machine):
+                    continue
+                if (inspect.isfunction(member) or isinstance(member, property)) and not (
+                    inspect.getdoc(member)
+                ):
+                    missing.append(f"{module.__name__}.{name}.{key}")
+    assert missing == []

@@ -93,6 +93,7 @@ class Demo:
 
     # -- life cycle
     async def start(self) -> None:
+        """Connect both networks, start the rig, boot it with the master, start the application."""
         await self.rig_net.connect()
         await self.master_net.connect()
         await self.rig.start(self.rig_net)
@@ -112,6 +113,7 @@ class Demo:
         ]
 
     async def stop(self) -> None:
+        """Stop the application, the master and the rig, and disconnect both networks."""
         for task in self._tasks:
             task.cancel()
         for task in self._tasks:
@@ -184,6 +186,7 @@ class Demo:
         return self.master_net.time() - self.started_at
 
     def rows(self) -> list[dict[str, str]]:
+        """One row of text per rig node for the table (see the module docstring)."""
         now = self.master_net.time()
         managed = self.master.nodes if self.master is not None else {}
         rows = []
@@ -288,6 +291,7 @@ async def run_demo(
 
 
 def register(sub: Any) -> None:
+    """Add ``cobus demo`` to the command line's sub-commands."""
     parser: argparse.ArgumentParser = sub.add_parser(
         "demo",
         help="run the simulated thesis rig, booted and supervised by the cobus master",
@@ -311,6 +315,7 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run ``cobus demo`` with its parsed arguments; the exit status."""
     if args.refresh <= 0:
         print("cobus demo: --refresh must be a positive number of seconds", file=sys.stderr)
         return 2

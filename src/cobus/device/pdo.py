@@ -165,10 +165,12 @@ class Tpdo:
 
     @property
     def transmission_type(self) -> TransmissionType:
+        """The TPDO's transmission type (1800h+ sub 2)."""
         return self.trigger.transmission_type
 
     @property
     def synchronous(self) -> bool:
+        """Whether the TPDO is sent on SYNC (types 0..240 and 252)."""
         return self.trigger.transmission_type.synchronous
 
     @property
@@ -180,6 +182,7 @@ class Tpdo:
         return self.map.pack([e.value if e.reader is None else e.reader() for e in self.sources])
 
     def frame(self) -> Frame:
+        """The TPDO's frame with the mapped objects' current values."""
         can_id, extended = self._frame_args
         return Frame(can_id, self.pack(), extended=extended)
 
@@ -200,10 +203,12 @@ class Tpdo:
         return Out(tuple(frames), ())
 
     def start(self, now: float) -> None:
+        """Start the triggers (the device entered OPERATIONAL)."""
         self._sample = None
         self.trigger.start(now)
 
     def stop(self) -> None:
+        """Stop the triggers (the device left OPERATIONAL)."""
         self._sample = None
         self.trigger.stop()
 
@@ -216,9 +221,11 @@ class Tpdo:
         return self._out(self.trigger.on_timer(now))
 
     def on_sync(self, counter: int | None, now: float) -> Out:
+        """A SYNC arrived (``counter``: its counter, if any): the frame if the TPDO is due."""
         return self._out(self.trigger.on_sync(counter, now))
 
     def on_change(self, now: float) -> Out:
+        """A mapped object changed: the frame if an event-driven TPDO is due."""
         return self._out(self.trigger.on_change(now))
 
 

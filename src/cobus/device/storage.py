@@ -66,9 +66,11 @@ class MemoryStorage:
         self._data: Parameters = {g: {} for g in _GROUPS}
 
     def load(self) -> Parameters:
+        """The stored parameters by area."""
         return _copy(self._data)
 
     def save(self, parameters: Parameters) -> None:
+        """Store ``values`` for the area (in memory, for tests)."""
         self._data = _copy(parameters)
 
 
@@ -79,6 +81,7 @@ class FileStorage:
         self.path = Path(path)
 
     def load(self) -> Parameters:
+        """The stored parameters by area (empty when nothing was saved yet)."""
         try:
             text = self.path.read_text(encoding="utf-8")
         except FileNotFoundError:
@@ -113,6 +116,8 @@ class FileStorage:
         return out
 
     def save(self, parameters: Parameters) -> None:
+        """Store ``values`` for the area; written to a temporary file and renamed, so a crash never
+        leaves half a file."""
         doc = {"format": _FORMAT, "version": _VERSION, **_copy(parameters)}
         data = json.dumps(doc, indent=1, sort_keys=True).encode("utf-8")
         try:

@@ -484,14 +484,17 @@ class PdoLayout:
 
     @property
     def signals(self) -> tuple[Signal, ...]:
+        """The process image signals the PDO carries, in mapping order."""
         return tuple(s for s in self.positions if s is not None)
 
     @property
     def synchronous(self) -> bool:
+        """Whether the PDO follows SYNC (transmission types 0..240)."""
         return self.transmission_type <= 240
 
     @property
     def length(self) -> int:
+        """The number of data bytes of the PDO."""
         return self.codec.length
 
 
@@ -515,6 +518,7 @@ class MasterConfig:
 
     @property
     def sync_period_us(self) -> int:
+        """The SYNC period in microseconds (1006h)."""
         return round(self.sync_period * 1e6)
 
 

@@ -52,6 +52,7 @@ class BusLoadMeter:
         self._bits = 0
 
     def add(self, frame: Frame, now: float) -> None:
+        """Count ``frame``, seen at ``now``, in the load of the window."""
         bits = frame_bits(frame)
         self._frames.append((now, bits))
         self._bits += bits
@@ -89,6 +90,7 @@ class MasterDiagnostics:
 
     @property
     def bus_off(self) -> bool:
+        """Whether the controller is bus-off."""
         return self.bus_state is BusState.BUS_OFF
 
     @property

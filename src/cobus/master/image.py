@@ -94,13 +94,16 @@ class ProcessImage:
         return name
 
     def input_signal(self, key: str) -> Signal:
+        """The input signal named ``key``; :class:`SignalError` with close names if none."""
         return self.inputs_by_name[self._find(self._in_lookup, key, "input")]
 
     def output_signal(self, key: str) -> Signal:
+        """The output signal named ``key``; :class:`SignalError` with close names if none."""
         return self.outputs_by_name[self._find(self._out_lookup, key, "output")]
 
     # --- inputs
     def read_input(self, key: str) -> Any:
+        """The scaled value of the input signal ``key``."""
         return self._in_values[self._find(self._in_lookup, key, "input")]
 
     def update_tpdo(self, node_id: int, number: int, raw: tuple[Any, ...]) -> None:
@@ -122,6 +125,7 @@ class ProcessImage:
 
     # --- outputs
     def read_output(self, key: str) -> Any:
+        """The scaled value of the output signal ``key``."""
         return self._out_values[self._find(self._out_lookup, key, "output")]
 
     def set_output(self, key: str, value: Any) -> list[tuple[int, int, bool]]:
@@ -166,6 +170,7 @@ class ProcessImage:
         return self._rpdo_layouts[key].codec.pack(self._rpdo_raw[key])
 
     def has_rpdo(self, node_id: int, number: int) -> bool:
+        """Whether RPDO ``number`` of ``node_id`` carries outputs of the image."""
         return (node_id, number) in self._rpdo_layouts
 
 
@@ -222,4 +227,5 @@ class Outputs(Mapping[str, Any]):
         return isinstance(key, str) and key in self._image._out_lookup
 
     def signal(self, key: str) -> Signal:
+        """The output signal named ``key`` (its node, PDO, scale and unit)."""
         return self._image.output_signal(key)

@@ -139,10 +139,12 @@ class ManagedNode:
 
     @property
     def state(self) -> NodeState:
+        """The master's state of the node (the Lenze node state codes)."""
         return self._state
 
     @property
     def mandatory(self) -> bool:
+        """Whether the network cannot run without this node."""
         return self.config.mandatory
 
     @property

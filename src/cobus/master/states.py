@@ -35,6 +35,7 @@ class NodeState(NamedIntEnum):
 
     @property
     def text(self) -> str:
+        """What the code means, in words."""
         return _NODE_TEXTS[self]
 
 
@@ -74,6 +75,7 @@ class Diagnostic(NamedIntEnum):
 
     @property
     def text(self) -> str:
+        """What the code means, in words."""
         return _DIAG_TEXTS[self]
 
 

@@ -210,6 +210,7 @@ class EmcyCobId(NamedTuple):
         return cls(can_id, not value & _INVALID, extended)
 
     def to_u32(self) -> int:
+        """The 1014h value: identifier and flags."""
         return self.can_id | (0 if self.valid else _INVALID) | (_EXTENDED if self.extended else 0)
 
 

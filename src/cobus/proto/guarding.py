@@ -179,10 +179,12 @@ class GuardingMaster:
 
     @property
     def lost(self) -> bool:
+        """Whether the node's guarding replies stopped (life time elapsed)."""
         return self._lost
 
     @property
     def running(self) -> bool:
+        """Whether guarding requests are being sent."""
         return self._next_rtr is not None
 
     @property

@@ -216,6 +216,7 @@ class NmtSlave:
 
     @property
     def state(self) -> NmtState:
+        """The NMT state."""
         return self._state
 
     @property
@@ -233,14 +234,17 @@ class NmtSlave:
 
     @property
     def pdo_allowed(self) -> bool:
+        """Whether PDOs may be sent and received (OPERATIONAL only)."""
         return Service.PDO in self._services
 
     @property
     def sdo_allowed(self) -> bool:
+        """Whether SDO is served (PRE-OPERATIONAL and OPERATIONAL)."""
         return Service.SDO in self._services
 
     @property
     def emcy_allowed(self) -> bool:
+        """Whether emergencies may be sent (PRE-OPERATIONAL and OPERATIONAL)."""
         return Service.EMCY in self._services
 
     def boot(self, now: float) -> Out:

@@ -93,6 +93,7 @@ class MappingEntry:
         return 0x0001 <= self.index <= 0x0007
 
     def to_u32(self) -> int:
+        """The mapping entry as the UNSIGNED32 of 1600h/1A00h: index, sub-index, bits."""
         return self.index << 16 | self.subindex << 8 | self.bit_length
 
     @classmethod
@@ -364,6 +365,7 @@ class PdoCobId(NamedTuple):
         return cls(can_id, not value & _INVALID, not value & _NO_RTR, extended)
 
     def to_u32(self) -> int:
+        """The 1400h/1800h sub 1 value: identifier and flags."""
         return (
             self.can_id
             | (0 if self.valid else _INVALID)
@@ -561,10 +563,12 @@ class TpdoTrigger:
 
     @property
     def active(self) -> bool:
+        """Whether the trigger runs (the device is OPERATIONAL)."""
         return self._active
 
     @property
     def deadline(self) -> float | None:
+        """When the event timer or the end of the inhibit time fires next (None: nothing armed)."""
         if not self._active:
             return None
         timer_at = self._timer_at
@@ -590,6 +594,7 @@ class TpdoTrigger:
         self._timer_at = None
 
     def on_sync(self, counter: int | None, now: float) -> Out:
+        """A SYNC with ``counter`` arrived: :class:`TpdoDue` when the transmission type says so."""
         if not self._active:
             return NOTHING
         tt = self.transmission_type.value
@@ -651,6 +656,7 @@ class TpdoTrigger:
         return _DUE[reason]
 
     def on_timer(self, now: float) -> Out:
+        """The event timer or the end of the inhibit time: :class:`TpdoDue` when due."""
         if not self._active:
             return NOTHING
         if now < self._next_free:
@@ -739,6 +745,7 @@ class RpdoWatchdog:
 
     @property
     def lost(self) -> bool:
+        """Whether the RPDO missed its event-timer deadline and has not arrived since."""
         return self._lost
 
     def set_event_timer(self, ms: int, now: float) -> None:

@@ -51,6 +51,7 @@ class SyncCobId(NamedTuple):
         return cls(can_id, bool(value & _GENERATE), extended)
 
     def to_u32(self) -> int:
+        """The 1005h value: identifier and flags."""
         return (
             self.can_id | (_GENERATE if self.generate else 0) | (_EXTENDED if self.extended else 0)
         )
@@ -284,6 +285,7 @@ class SyncConsumer:
 
     @property
     def lost(self) -> bool:
+        """Whether SYNC stopped arriving within its expected period."""
         return self._lost
 
     def set_overflow(self, value: int | None) -> None:

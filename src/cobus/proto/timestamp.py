@@ -63,6 +63,7 @@ class TimeCobId(NamedTuple):
         return cls(can_id, bool(value & _CONSUME), bool(value & _PRODUCE), extended)
 
     def to_u32(self) -> int:
+        """The 1012h value: identifier and flags."""
         return (
             self.can_id
             | (_CONSUME if self.consume else 0)

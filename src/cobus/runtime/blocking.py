@@ -260,9 +260,11 @@ class Network:
 
     @property
     def simulated(self) -> bool:
+        """Whether the network runs on the simulated clock."""
         return self._runner.simulated
 
     def time(self) -> float:
+        """The network's clock in seconds (virtual on the simulated clock)."""
         return self._runner.loop.time()
 
     def sleep(self, seconds: float) -> None:
@@ -274,28 +276,36 @@ class Network:
         return self._runner.run(coro, timeout)
 
     def send(self, frame: Frame) -> None:
+        """Transmit ``frame`` (see :meth:`AsyncNetwork.send`)."""
         self._runner.call(self.aio.send, frame)
 
     def subscribe(
         self, cob_id: int, handler: FrameHandler, *, extended: bool = False
     ) -> Subscription:
+        """Call ``handler(frame, now)`` for every frame with this identifier (in the callback
+        thread in real time)."""
         wrapped = self._runner.callback(handler)
         return self._runner.call(lambda: self.aio.subscribe(cob_id, wrapped, extended=extended))
 
     def subscribe_all(self, handler: FrameHandler) -> Subscription:
+        """Call ``handler(frame, now)`` for every frame (in the callback thread in real time)."""
         wrapped = self._runner.callback(handler)
         inner = self._runner.call(self.aio.subscribe_all, wrapped)
         return _LoopSubscription(inner, self._runner)
 
     def add_listener(self, listener: Callable[[Event], object]) -> None:
+        """Call ``listener(event)`` for every event of the network (in the callback thread in real
+        time)."""
         self._runner.call(self.aio.add_listener, self._runner.callback(listener))
 
     @property
     def frames_sent(self) -> int:
+        """How many frames this network has sent."""
         return self.aio.frames_sent
 
     @property
     def frames_received(self) -> int:
+        """How many frames this network has received from the bus."""
         return self.aio.frames_received
 
     # ------------------------------------------------------------------ nodes and services
@@ -325,10 +335,12 @@ class Network:
 
     @property
     def nmt(self) -> BlockingNmt:
+        """The NMT master service: ``net.nmt.start(2)``, ``net.nmt.reset_node()``..."""
         return BlockingNmt(self)
 
     @property
     def sync(self) -> BlockingSync:
+        """The SYNC producer: ``net.sync.start(0.01)``, ``net.sync.stop()``."""
         return BlockingSync(self)
 
 
@@ -393,6 +405,7 @@ class BlockingNmt(NmtCommands):
         self._network = network
 
     def send(self, command: NmtCommand | int | str, node_id: int = 0) -> None:
+        """Send an NMT command to ``node_id`` (0: every node); returns once it is handed over."""
         aio = self._network.aio
         self._network._runner.call(lambda: aio.nmt.send(command, node_id))
 
@@ -404,15 +417,19 @@ class BlockingSync:
         self._network = network
 
     def start(self, period: float, *, overflow: int = 0, cob_id: int = 0x80) -> None:
+        """Send SYNC every ``period`` seconds (see :meth:`SyncService.start`)."""
         aio = self._network.aio
         self._network._runner.call(lambda: aio.sync.start(period, overflow=overflow, cob_id=cob_id))
 
     def stop(self) -> None:
+        """Stop sending SYNC."""
         self._network._runner.call(self._network.aio.sync.stop)
 
     def send(self) -> None:
+        """Send one SYNC now."""
         self._network._runner.call(self._network.aio.sync.send)
 
     @property
     def running(self) -> bool:
+        """Whether SYNC is being sent periodically."""
         return self._network.aio.sync.running

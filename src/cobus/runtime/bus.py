@@ -59,6 +59,7 @@ def open_bus(
 
 
 def frame_to_message(frame: Frame) -> can.Message:
+    """The python-can message of ``frame``."""
     return can.Message(
         arbitration_id=frame.cob_id,
         data=frame.data,

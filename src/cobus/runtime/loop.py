@@ -86,6 +86,7 @@ class SimulatedEventLoop(asyncio.SelectorEventLoop):
         self._poll_hooks.append(hook)
 
     def remove_poll_hook(self, hook: PollHook) -> None:
+        """Stop calling ``hook`` (given to :meth:`add_poll_hook`)."""
         if hook in self._poll_hooks:
             self._poll_hooks.remove(hook)
 

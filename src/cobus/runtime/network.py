@@ -83,6 +83,7 @@ class Subscription:
         self._handler = handler
 
     def cancel(self) -> None:
+        """Stop calling the handler."""
         self._network._unsubscribe(self._key, self._handler)
 
 
@@ -116,12 +117,15 @@ class MachineHost:
         self._subscriptions: list[Subscription] = []
 
     def listen(self, cob_id: int, *, extended: bool = False) -> None:
+        """Feed the machine the frames with identifier ``cob_id``."""
         self._subscriptions.append(self._network.subscribe(cob_id, self.feed, extended=extended))
 
     def feed(self, frame: Frame, now: float) -> None:
+        """Give the machine one frame and apply what it answers."""
         self.apply(self.machine.on_frame(frame, now))
 
     def run(self, call: Callable[[float], Out]) -> None:
+        """Call ``call(now)`` (a method of the machine) and apply what it returns."""
         self.apply(call(self._network.time()))
 
     def apply(self, out: Out) -> None:
@@ -310,22 +314,26 @@ class AsyncNetwork:
 
     @property
     def loop(self) -> asyncio.AbstractEventLoop:
+        """The event loop the network runs on; :class:`NetworkClosedError` when not connected."""
         if self._loop is None:
             raise NetworkClosedError("the network is not connected: await network.connect()")
         return self._loop
 
     @property
     def bus(self) -> can.BusABC:
+        """The python-can bus; :class:`NetworkClosedError` when not connected."""
         if self._bus is None:
             raise NetworkClosedError("the network is not connected: await network.connect()")
         return self._bus
 
     @property
     def connected(self) -> bool:
+        """Whether the network is connected."""
         return self._loop is not None
 
     @property
     def simulated(self) -> bool:
+        """Whether the network runs on a :class:`SimulatedEventLoop`."""
         return isinstance(self._loop, SimulatedEventLoop)
 
     def time(self) -> float:
@@ -338,10 +346,12 @@ class AsyncNetwork:
 
     @property
     def bus_state(self) -> BusState:
+        """The controller's last reported state: error-active, warning, error-passive, bus-off."""
         return self._state
 
     @property
     def tx_backlog(self) -> int:
+        """How many frames wait for the interface to take them."""
         return len(self._backlog)
 
     # ------------------------------------------------------------------ frames
@@ -475,10 +485,12 @@ class AsyncNetwork:
         self._listeners.append(listener)
 
     def remove_listener(self, listener: EventListener) -> None:
+        """Stop calling ``listener`` (given to :meth:`add_listener`)."""
         if listener in self._listeners:
             self._listeners.remove(listener)
 
     def emit(self, event: Event) -> None:
+        """Give ``event`` to every listener of the network."""
         for listener in list(self._listeners):
             try:
                 result = listener(event)

@@ -149,6 +149,7 @@ class PdoField:
 
     @property
     def dummy(self) -> bool:
+        """Whether the entry is a dummy (a data type index 0001h..0007h that only takes room)."""
         return self.entry.is_dummy
 
 

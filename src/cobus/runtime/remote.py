@@ -378,21 +378,28 @@ class NmtCommands:
     faces of the NMT master)."""
 
     def send(self, command: NmtCommand | int | str, node_id: int = 0) -> None:
+        """Send NMT ``command`` (enum, number or name such as ``"start"``) to ``node_id`` (0: every
+        node)."""
         raise NotImplementedError
 
     def start(self, node_id: int = 0) -> None:
+        """Start ``node_id`` (0: every node): NMT state OPERATIONAL."""
         self.send(NmtCommand.START, node_id)
 
     def stop(self, node_id: int = 0) -> None:
+        """Stop ``node_id`` (0: every node): NMT state STOPPED."""
         self.send(NmtCommand.STOP, node_id)
 
     def enter_preoperational(self, node_id: int = 0) -> None:
+        """Put ``node_id`` (0: every node) into PRE-OPERATIONAL."""
         self.send(NmtCommand.ENTER_PREOPERATIONAL, node_id)
 
     def reset_node(self, node_id: int = 0) -> None:
+        """Reset the application of ``node_id`` (0: every node)."""
         self.send(NmtCommand.RESET_NODE, node_id)
 
     def reset_communication(self, node_id: int = 0) -> None:
+        """Reset the communication of ``node_id`` (0: every node)."""
         self.send(NmtCommand.RESET_COMMUNICATION, node_id)
 
 
@@ -414,6 +421,8 @@ class NmtMaster(NmtCommands):
         self._network = network
 
     def send(self, command: NmtCommand | int | str, node_id: int = 0) -> None:
+        """Send NMT ``command`` (enum, number or name such as ``"start"``) to ``node_id`` (0: every
+        node)."""
         command = parse_nmt_command(command)
         check_node_id(node_id, broadcast=True)
         self._network.send(nmt_command_frame(command, node_id))
@@ -485,6 +494,7 @@ class SyncService:
 
     @property
     def running(self) -> bool:
+        """Whether SYNC is being sent periodically."""
         return self._host is not None
 
     @property
@@ -519,6 +529,7 @@ class SyncService:
             self._network.send(frame)
 
     def stop(self) -> None:
+        """Stop sending SYNC."""
         if self._host is not None:
             self._host.close()
             self._host = None

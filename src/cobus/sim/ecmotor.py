@@ -360,6 +360,7 @@ class EcMotor(SimulatedDevice):
 
     @property
     def m_ssm(self) -> int:
+        """The status word M_SSM as the motor reports it: mode, error and warning bits, inputs."""
         word = self.mode & 0x1F | self.m_ssm_user
         if self.m_sss & _ERRORS or self.mode == ERR:
             word |= BER
@@ -628,6 +629,7 @@ class EcMotor(SimulatedDevice):
 
     @property
     def torque_limit(self) -> int:
+        """The torque limit (setting 2027h), as a magnitude."""
         return abs(self.settings[0x2027])
 
     # ------------------------------------------------------------------ physics

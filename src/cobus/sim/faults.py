@@ -134,6 +134,7 @@ class FaultyBus(can.BusABC):
     # ------------------------------------------------------------------ settings
     @property
     def loss(self) -> float:
+        """The share of frames lost, 0.0..1.0."""
         return self._loss
 
     @loss.setter
@@ -142,6 +143,7 @@ class FaultyBus(can.BusABC):
 
     @property
     def corruption(self) -> float:
+        """The share of frames corrupted, 0.0..1.0."""
         return self._corruption
 
     @corruption.setter
@@ -154,6 +156,7 @@ class FaultyBus(can.BusABC):
 
     @property
     def is_bus_off(self) -> bool:
+        """Whether the bus is off (frames are refused)."""
         return self._bus_off
 
     def bus_off(self) -> None:
@@ -263,9 +266,11 @@ class Babbler:
 
     @property
     def running(self) -> bool:
+        """Whether the babbling node is sending."""
         return self._handle is not None
 
     def start(self) -> None:
+        """Start flooding the bus with the babbling frames."""
         if self._handle is not None:
             return
         loop = self.network.loop
@@ -273,6 +278,7 @@ class Babbler:
         self._handle = loop.call_at(self._next, self._babble)
 
     def stop(self) -> None:
+        """Stop flooding the bus."""
         if self._handle is not None:
             self._handle.cancel()
             self._handle = None

@@ -241,6 +241,7 @@ class CanopenSimDevice(SimulatedDevice):
 
     @property
     def running(self) -> bool:
+        """Whether the device is powered and its CANopen device runs."""
         return self._device is not None
 
     def start(self) -> None:

@@ -258,6 +258,7 @@ class Io401(CanopenSimDevice):
             self.set_digital_input(channel, value)
 
     def analog_input(self, channel: int) -> int:
+        """The raw value of analog input ``channel`` (1-based)."""
         self._check_analog_in(channel)
         return self._ain[channel - 1]
 

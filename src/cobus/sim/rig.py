@@ -139,6 +139,7 @@ class BusSpec:
 
     @property
     def embedded(self) -> bool:
+        """Whether the rig runs on a bus given by the program that loads it."""
         return self.interface is None and self.channel is None
 
 

@@ -659,6 +659,7 @@ class StoberMds5000(SimulatedDevice):
     # ------------------------------------------------------------------ values
     @property
     def nmt_state(self) -> NmtState | None:
+        """The inverter's NMT state."""
         return self.device.state if self.device is not None else None
 
     def _get(self, index: int, sub: int = 0) -> int:

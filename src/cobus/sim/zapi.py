@@ -351,6 +351,7 @@ class ZapiAce2(SimulatedDevice):
 
     @property
     def controlword(self) -> int:
+        """The controlword the inverter last received (RPDO1 bytes 2-3)."""
         return self._get(CONTROLWORD)
 
     @property
@@ -369,10 +370,12 @@ class ZapiAce2(SimulatedDevice):
 
     @property
     def contactor_closed(self) -> bool:
+        """Whether the main contactor (A16) is closed: asked for, no failure, no alarm."""
         return _bit(self.controlword, CW_A16) and not self.contactor_failure and not self.alarms
 
     @property
     def power_stage_on(self) -> bool:
+        """Power stage on: operational, enabled, contactor closed, no emergency stop."""
         return (
             self.state is NmtState.OPERATIONAL
             and _bit(self.controlword, CW_ENABLE)
@@ -381,6 +384,7 @@ class ZapiAce2(SimulatedDevice):
         )
 
     def statusword(self) -> int:
+        """The statusword the inverter sends (TPDO1 bytes 2-3)."""
         cw = self.controlword
         operational = self.state is NmtState.OPERATIONAL
         word = 0

@@ -105,6 +105,7 @@ class DictBackend:
             raise SdoAbort(SdoAbortCode.NO_OBJECT)
 
     def upload(self, index: int, subindex: int) -> bytes:
+        """The bytes of ``index:subindex``; :class:`SdoAbort` if there is no such entry."""
         key = (index, subindex)
         self._check(key)
         if key in self.write_only:
@@ -112,11 +113,13 @@ class DictBackend:
         return self.entries[key]
 
     def download(self, index: int, subindex: int, data: bytes) -> None:
+        """Store ``data`` at ``index:subindex``; :class:`SdoAbort` if it is read-only or unknown."""
         key = (index, subindex)
         self.size_hint(index, subindex)
         self.entries[key] = bytes(data)
 
     def size_hint(self, index: int, subindex: int) -> int | None:
+        """Always None (any size is taken); aborts for a read-only or unknown entry."""
         key = (index, subindex)
         self._check(key)
         if key in self.read_only:
