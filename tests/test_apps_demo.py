@@ -39,6 +39,7 @@ def test_demo_boots_the_rig_and_runs_the_drives_on_the_simulated_clock(tmp_path)
     assert last["8"]["heartbeat"] == "none heard"  # nor has the ZAPI inverter
     # the table was printed at each refresh, its clock counting from the demo's start
     assert out.getvalue().count("NODE  NAME") == len(seen) == 8
+    assert "SYNC every 20 ms: on time (worst delay 0.0 ms)" in out.getvalue()
     first = float(out.getvalue().split("t =", 1)[1].split()[0])
     assert 1.0 <= first < 1.5  # the first refresh, plus the boot-up before it
 
@@ -158,3 +159,18 @@ def test_the_thesis_network_file_ships_in_examples_with_the_devices_eds():
 
     for name, text in simulate(exported()).items():
         assert (examples / f"{name}.eds").read_text() == text, f"examples/networks/{name}.eds"
+
+
+def test_the_demo_says_when_the_machine_was_too_busy_to_keep_sync():
+    from types import SimpleNamespace
+
+    busy = SimpleNamespace(
+        master_net=SimpleNamespace(sync=SimpleNamespace(late_max=0.075, skipped=3))
+    )
+    text = Demo.sync_status(busy)  # type: ignore[arg-type]
+    assert text == (
+        "SYNC every 20 ms: 3 period(s) without SYNC, worst delay 75.0 ms: this machine was "
+        "too busy to run the master in time"
+    )
+    lines = render([], 2.0, status=text).splitlines()
+    assert lines[1] == text and lines[2] == ""

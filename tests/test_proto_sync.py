@@ -93,8 +93,12 @@ def test_producer_on_demand_and_stall():
     assert p.send(0.0).frames == (Frame(0x80, b"\x02"),)
     assert p.send(0.0).frames == (Frame(0x80, b"\x01"),)
     p.set_period(1000, 0.0)
-    p.on_timer(3.0)  # late: skip the missed SYNCs
+    p.on_timer(0.0015)  # half a period late: the next SYNC stays on the grid
+    assert deadline(p) == pytest.approx(0.002)
+    assert p.late_max == pytest.approx(0.0005) and p.skipped == 0
+    p.on_timer(3.0)  # late: skip the missed SYNCs, and count them
     assert deadline(p) == pytest.approx(3.001)
+    assert p.skipped == 2998 and p.late_max == pytest.approx(2.998)
 
 
 def test_overflow_changes_only_while_the_period_is_zero():

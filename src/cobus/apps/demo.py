@@ -185,6 +185,18 @@ class Demo:
         """Seconds since the demo started."""
         return self.master_net.time() - self.started_at
 
+    def sync_status(self) -> str:
+        """How well the master keeps SYNC: a busy host delays it, and the drives see it."""
+        sync = self.master_net.sync
+        head = f"SYNC every {SYNC_PERIOD * 1000:.0f} ms"
+        worst = f"worst delay {sync.late_max * 1000:.1f} ms"
+        if sync.skipped:
+            return (
+                f"{head}: {sync.skipped} period(s) without SYNC, {worst}: this machine was too "
+                "busy to run the master in time"
+            )
+        return f"{head}: on time ({worst})"
+
     def rows(self) -> list[dict[str, str]]:
         """One row of text per rig node for the table (see the module docstring)."""
         now = self.master_net.time()
@@ -253,10 +265,15 @@ def _note(status: dict[str, Any], active: list[Emergency], event: str | None) ->
     return ""
 
 
-def render(rows: list[dict[str, str]], now: float, *, title: str = "cobus demo") -> str:
-    """The node table as text."""
+def render(
+    rows: list[dict[str, str]], now: float, *, title: str = "cobus demo", status: str = ""
+) -> str:
+    """The node table as text, under a title line and a ``status`` line."""
     widths = {c: max([len(c)] + [len(r[c]) for r in rows]) for c in _COLUMNS}
-    lines = [f"{title} — t = {now:7.2f} s   (Ctrl-C to stop)", ""]
+    lines = [f"{title} — t = {now:7.2f} s   (Ctrl-C to stop)"]
+    if status:
+        lines.append(status)
+    lines.append("")
     lines.append("  ".join(c.upper().ljust(widths[c]) for c in _COLUMNS).rstrip())
     lines.append("  ".join("-" * widths[c] for c in _COLUMNS))
     for row in rows:
@@ -280,7 +297,7 @@ async def run_demo(
         end = None if duration is None else demo.master_net.time() + duration - 1e-6
         while end is None or demo.master_net.time() < end:
             await asyncio.sleep(refresh)
-            text = render(demo.rows(), demo.elapsed())
+            text = render(demo.rows(), demo.elapsed(), status=demo.sync_status())
             out.write(("\x1b[H\x1b[2J" if clear else "\n") + text + "\n")
             out.flush()
             if on_tick is not None:

@@ -107,7 +107,14 @@ class UnexpectedSyncLength(Event):
 
 
 class SyncProducer:
-    """Sends SYNC every 1006h µs when 1005h bit 30 is set, with the 1019h counter."""
+    """Sends SYNC every 1006h µs when 1005h bit 30 is set, with the 1019h counter.
+
+    When its timer is served late (a busy host), the SYNC goes out at once and the next one
+    stays on the period's grid; after more than a whole period, SYNC resumes one period
+    from then, and the periods that passed without one are not made up for:
+    :attr:`skipped` counts those, :attr:`late_max` keeps the worst delay, so an application
+    can tell why its drives saw SYNC jitter.
+    """
 
     __slots__ = (
         "_counter",
@@ -117,8 +124,10 @@ class SyncProducer:
         "can_id",
         "extended",
         "generate",
+        "late_max",
         "overflow",
         "period_us",
+        "skipped",
     )
 
     def __init__(
@@ -135,6 +144,10 @@ class SyncProducer:
         self.generate = generate
         self.overflow = check_overflow(overflow)
         self.period_us = 0
+        #: The longest delay of a SYNC behind its time, in seconds.
+        self.late_max = 0.0
+        #: SYNC periods that passed without a SYNC (the timer came more than a period late).
+        self.skipped = 0
         self._period = 0.0
         self._deadline: float | None = None
         self._counter = 1
@@ -217,8 +230,15 @@ class SyncProducer:
         deadline = self._deadline
         if deadline is None or now < deadline:
             return NOTHING
-        deadline += self._period
-        self._deadline = deadline if deadline > now else now + self._period
+        late = now - deadline
+        if late > self.late_max:
+            self.late_max = late
+        period = self._period
+        deadline += period
+        if deadline <= now:  # whole periods passed: they are not made up for
+            self.skipped += int((now - deadline) / period) + 1
+            deadline = now + period
+        self._deadline = deadline
         return self.send(now)
 
 

@@ -433,3 +433,13 @@ class BlockingSync:
     def running(self) -> bool:
         """Whether SYNC is being sent periodically."""
         return self._network.aio.sync.running
+
+    @property
+    def late_max(self) -> float:
+        """The longest delay of a SYNC behind its time so far, in seconds (the host was busy)."""
+        return self._network.aio.sync.late_max
+
+    @property
+    def skipped(self) -> int:
+        """SYNC periods that passed without a SYNC because the host was busy for longer."""
+        return self._network.aio.sync.skipped

@@ -504,6 +504,16 @@ class SyncService:
             return None
         return self._producer.period_us / 1e6
 
+    @property
+    def late_max(self) -> float:
+        """The longest delay of a SYNC behind its time so far, in seconds (the host was busy)."""
+        return 0.0 if self._producer is None else self._producer.late_max
+
+    @property
+    def skipped(self) -> int:
+        """SYNC periods that passed without a SYNC because the host was busy for longer."""
+        return 0 if self._producer is None else self._producer.skipped
+
     def start(self, period: float, *, overflow: int = 0, cob_id: int = 0x80) -> None:
         """Send SYNC every ``period`` seconds (the first one period from now).
 
