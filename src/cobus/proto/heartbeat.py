@@ -52,6 +52,9 @@ class HeartbeatTimeout(Event):
 
     node_id: int
 
+    def __str__(self) -> str:
+        return f"node {self.node_id}: heartbeat lost"
+
 
 @dataclass(frozen=True, slots=True)
 class HeartbeatResumed(Event):
@@ -59,6 +62,9 @@ class HeartbeatResumed(Event):
 
     node_id: int
     state: NmtState
+
+    def __str__(self) -> str:
+        return f"node {self.node_id}: heartbeat back, state {self.state.name}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,6 +76,9 @@ class BootupReceived(Event):
 
     node_id: int
 
+    def __str__(self) -> str:
+        return f"node {self.node_id}: boot-up"
+
 
 @dataclass(frozen=True, slots=True)
 class RemoteStateChanged(Event):
@@ -79,6 +88,10 @@ class RemoteStateChanged(Event):
     old: NmtState | None
     new: NmtState
 
+    def __str__(self) -> str:
+        old = "unknown" if self.old is None else self.old.name
+        return f"node {self.node_id}: {old} -> {self.new.name}"
+
 
 @dataclass(frozen=True, slots=True)
 class MalformedHeartbeat(Event):
@@ -87,6 +100,9 @@ class MalformedHeartbeat(Event):
     node_id: int
     data: bytes
     reason: str
+
+    def __str__(self) -> str:
+        return f"node {self.node_id}: malformed heartbeat {self.data.hex(' ')}: {self.reason}"
 
 
 class ConsumerEntry(NamedTuple):
