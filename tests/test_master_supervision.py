@@ -331,7 +331,8 @@ def test_emergencies_are_counted_and_the_last_8_kept_newest_first(tmp_path):
         history = node.emcy_history
         assert [r.code for r in history] == [0x4200 + n for n in range(9, 1, -1)]
         assert history[0].text.startswith("Device temperature")
-        assert history[0].data == b"\x09\x00\x00\x00\x00"
+        assert history[0].manufacturer_data == b"\x09\x00\x00\x00\x00"
+        assert str(history[0]).startswith("0x4209 Device temperature")
         assert history[0].register & 0x09 == 0x09  # generic + temperature
         events = rig.of(NodeEmergency)
         assert len(events) == 10 and events[0].code == 0x4200

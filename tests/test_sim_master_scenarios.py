@@ -348,9 +348,13 @@ def test_stober_mds5000_booted_and_run_by_the_master(tmp_path: Path) -> None:
                 assert rig.data(0x081, since=hot) == [bytes.fromhex("1043082900000000")]
                 record = node.emcy_history[0]
                 assert (record.code, record.register) == (0x4310, 0x08)
-                assert record.data == bytes((41, 0, 0, 0, 0))  # byte 3 E82 = 41, byte 4 E39
+                assert record.manufacturer_data == bytes(
+                    (41, 0, 0, 0, 0)
+                )  # byte 3 E82 = 41, byte 4 E39
                 assert record.text == "Temperature (4310h)"  # the CiA class: the master's text
-                assert EVENTS[record.data[0]][0] == "motor temperature"  # the manual's text
+                assert (
+                    EVENTS[record.manufacturer_data[0]][0] == "motor temperature"
+                )  # the manual's text
                 assert node.emcy_count == 1 and node.error_register == 0x08
                 emergencies = rig.of(NodeEmergency)
                 assert [(e.node_id, e.code) for e in emergencies] == [(MDS, 0x4310)]
@@ -363,7 +367,10 @@ def test_stober_mds5000_booted_and_run_by_the_master(tmp_path: Path) -> None:
                 acked = net.time()
                 await net.sleep(0.1)
                 assert rig.data(0x081, since=acked) == [bytes.fromhex("0000001E00000000")]
-                assert node.emcy_history[0].code == 0 and node.emcy_history[0].data[0] == 30
+                assert (
+                    node.emcy_history[0].code == 0
+                    and node.emcy_history[0].manufacturer_data[0] == 30
+                )
                 assert master.inputs["mds.device_state"] == SWITCH_ON_DISABLED
                 assert master.inputs["mds.event"] == 30
                 master.outputs["mds.control"] = 0
@@ -392,18 +399,20 @@ def test_stober_mds5000_booted_and_run_by_the_master(tmp_path: Path) -> None:
                 assert state(node) is NodeState.OPERATIONAL
                 assert node.emcy_count == count + 1
                 record = node.emcy_history[0]
-                assert (record.code, record.register, record.data[:2]) == (
+                assert (record.code, record.register, record.manufacturer_data[:2]) == (
                     0x8100,
                     0x10,
                     b"\x34\x01",
                 )
-                assert EVENTS[record.data[0]][0] == "communication"
+                assert EVENTS[record.manufacturer_data[0]][0] == "communication"
                 assert master.inputs["mds.device_state"] == FAULT
                 assert (master.inputs["mds.event"], master.inputs["mds.cause"]) == (52, 1)
                 count = node.emcy_count
                 master.outputs["mds.control"] = ACK_BIT
                 await net.sleep(0.1)
-                assert node.emcy_count == count + 1 and node.emcy_history[0].data[0] == 30
+                assert (
+                    node.emcy_count == count + 1 and node.emcy_history[0].manufacturer_data[0] == 30
+                )
                 assert node.emcy_history[0].code == 0 and master.inputs["mds.event"] == 30
             finally:
                 await master.stop()
@@ -714,7 +723,7 @@ def test_ec_motor_run_by_the_master(tmp_path: Path) -> None:
                 assert node.emcy_count == 1
                 record = node.emcy_history[0]
                 assert record.code == 0x0010
-                m_sss, c_sss, m_ssm = ec_emcy(record.register, record.data)
+                m_sss, c_sss, m_ssm = ec_emcy(record.register, record.manufacturer_data)
                 assert (m_sss, c_sss, m_ssm) == struct.unpack_from("<HHH", emcy.data, 2)
                 assert m_sss & (BSW | BIH) == BSW | BIH and c_sss == 0
                 assert m_ssm & 0x1F == ERR and m_ssm & BER

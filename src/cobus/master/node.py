@@ -728,7 +728,7 @@ class ManagedNode:
         self.emcy_count += 1
         self.error_register = int(event.register)
         record = EmcyRecord(
-            now, event.code, int(event.register), event.manufacturer_data, event.text
+            self.node_id, now, event.code, event.register, event.manufacturer_data, event.text
         )
         self._emcy.appendleft(record)
         if event.code == _RPDO_TIMEOUT_EMCY:

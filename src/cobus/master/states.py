@@ -7,6 +7,7 @@ import enum
 from dataclasses import dataclass
 
 from cobus._enum import NamedIntEnum
+from cobus.runtime.emcy import Emergency
 
 __all__ = [
     "Diagnostic",
@@ -150,15 +151,6 @@ class Leds:
     error: LedPattern
 
 
-@dataclass(frozen=True, slots=True)
-class EmcyRecord:
-    """One emergency a node sent: when, its code with the standard's text, register, data."""
-
-    time: float
-    code: int
-    register: int
-    data: bytes
-    text: str
-
-    def __str__(self) -> str:
-        return f"{self.code:04X}h {self.text} (register {self.register:02X}h)"
+#: One emergency a node sent, as the master keeps it: the runtime's :class:`Emergency`
+#: (time, code with the standard's text, register, manufacturer data).
+EmcyRecord = Emergency
