@@ -110,7 +110,7 @@ def test_typed_read_and_write_through_the_eds():
             assert net.frames_sent == sent
             with pytest.raises(ObjectNotFoundError, match="no object 0x5555"):
                 await node.sdo.read(0x5555)
-            with pytest.raises(ObjectNotFoundError, match="no subindex 0x0009"):
+            with pytest.raises(ObjectNotFoundError, match="has no sub-index 9"):
                 await node.sdo.read(0x1018, 9)
 
     simulate(main())

@@ -21,7 +21,14 @@ from cobus.proto.heartbeat import (
 )
 from cobus.proto.nmt import NmtState
 from cobus.proto.pdo import PdoError
-from cobus.runtime import AsyncNetwork, Network, ObjectNotFoundError
+from cobus.proto.sdo import SdoAbortedError
+from cobus.runtime import (
+    AsyncNetwork,
+    Network,
+    NetworkClosedError,
+    ObjectAccessError,
+    ObjectNotFoundError,
+)
 from cobus.runtime.emcy import EmcyTimeoutError
 from cobus.runtime.nmt import NmtTimeoutError
 from cobus.runtime.pdo import (
@@ -430,3 +437,77 @@ def test_every_public_class_and_method_has_a_docstring():
                 ):
                     missing.append(f"{module.__name__}.{name}.{key}")
     assert missing == []
+
+
+def test_blocking_waits_hear_what_the_call_before_them_caused():
+    """``reset_node(); wait_for_bootup()`` and ``inject(fault); emcy.wait()`` work in blocking
+    code as with ``await``; lists of PDOs come back as blocking PDOs."""
+    from cobus.runtime.blocking import RemotePdo
+    from cobus.sim import start_rig
+
+    with Network(simulated=True) as net:
+        rig = start_rig(net, "thesis")
+        drive = net.add_remote(NODE, EXAMPLES / "servo.eds")
+        pdos = drive.tpdo.read()
+        assert all(isinstance(p, RemotePdo) for p in pdos)
+        drive.nmt.reset_node()
+        drive.nmt.wait_for_bootup(timeout=1)
+        rig.inject(NODE, "drive_fault", code=0x7305)
+        assert drive.emcy.wait(timeout=1).code == 0x7305
+        drive.nmt.start()
+        net.sync.start(0.01)
+        assert set(pdos[1].wait_for_reception()) == {"Statusword", "Position actual value"}
+        drive.sdo.write(0x1017, 50)
+        drive.nmt.watch_heartbeat(0.1)
+        drive.nmt.wait_for_heartbeat()
+        rig.inject(NODE, "power_loss")
+        net.sleep(0.3)
+        assert "heartbeat lost" in repr(drive.nmt)
+
+
+def test_blocking_handles_are_not_kept_and_callbacks_come_back():
+    import gc
+
+    with Network(simulated=True) as net:
+        dev = net.add_device(5, _valve().build())
+        from cobus.od import loads
+
+        node = net.add_remote(5, loads(dev.to_eds(), node_id=5))
+        for _ in range(200):
+            node.sdo["Setpoint"].write(1)
+        gc.collect()
+        assert len(node.sdo._children) == 0
+        node.tpdo.read()
+
+        def callback(event: PdoReceived) -> None:
+            del event
+
+        node.tpdo[1].add_callback(callback)
+        gc.collect()  # the twin that took the callback is gone; another gives it back
+        node.tpdo[1].remove_callback(callback)
+        assert node.tpdo.aio[1]._callbacks == []
+
+
+def test_sdo_objects_as_a_container_and_names_as_pdos_write_them():
+    with Network(simulated=True) as net:
+        dev = net.add_device(5, _valve().build())
+        from cobus.od import loads
+
+        node = net.add_remote(5, loads(dev.to_eds(), node_id=5))
+        sdo = node.sdo
+        assert 0x1018 in sdo and "identity object" in sdo and 0x9999 not in sdo
+        assert (0x1018, 1) in sdo and (0x1018, 9) not in sdo
+        assert len(sdo) == len(list(sdo)) > 10
+        assert "vendor id" in sdo[0x1018]
+        vendor = sdo[0x1018, 1].read()
+        assert sdo["Identity object.Vendor-ID"].read() == vendor == sdo.read((0x1018, 1))
+        with pytest.raises(ObjectNotFoundError, match=r"0x1018 \('Identity object'\) has no sub"):
+            sdo[0x1018][9]
+        sent = net.frames_sent
+        with pytest.raises(ObjectAccessError, match=r"'Device type' .* is ro .* nothing was sent"):
+            sdo.write("Device type", 5)
+        assert net.frames_sent == sent
+        assert issubclass(ObjectAccessError, SdoAbortedError)
+        net.remove_remote(5)
+        with pytest.raises(NetworkClosedError, match="node 5 was removed"):
+            sdo.read(0x1000)

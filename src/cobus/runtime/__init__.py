@@ -42,7 +42,13 @@ from cobus.runtime.pdo import (
     PdoRejected,
     PdoTimeoutError,
 )
-from cobus.runtime.remote import NmtMaster, ObjectNotFoundError, SdoChannel, SyncService
+from cobus.runtime.remote import (
+    NmtMaster,
+    ObjectAccessError,
+    ObjectNotFoundError,
+    SdoChannel,
+    SyncService,
+)
 from cobus.runtime.remote import RemoteNode as AsyncRemoteNode
 
 __all__ = [
@@ -60,6 +66,7 @@ __all__ = [
     "NetworkClosedError",
     "NmtMaster",
     "NmtTimeoutError",
+    "ObjectAccessError",
     "ObjectNotFoundError",
     "PdoConfigurationError",
     "PdoReceived",

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import weakref
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
@@ -22,6 +23,9 @@ if TYPE_CHECKING:
 __all__ = ["BlockingTwin", "public_names", "twin_of"]
 
 _TWINS: dict[type, type[BlockingTwin]] = {}
+_CALLBACKS: weakref.WeakKeyDictionary[Any, dict[Callable[..., object], Callable[..., None]]] = (
+    weakref.WeakKeyDictionary()
+)
 
 
 def _registers_callback(name: str) -> bool:
@@ -60,6 +64,9 @@ class BlockingTwin:
         def __getattr__(self, name: str) -> Any: ...
         def __getitem__(self, key: Any) -> Any: ...
         def __setitem__(self, key: Any, value: Any) -> None: ...
+        def __iter__(self) -> Iterator[Any]: ...
+        def __len__(self) -> int: ...
+        def __contains__(self, key: object) -> bool: ...
 
     else:
 
@@ -80,19 +87,34 @@ class BlockingTwin:
     def __init__(self, aio: Any, runner: Runner) -> None:
         self.aio = aio
         self._runner = runner
-        self._children: dict[int, tuple[Any, BlockingTwin]] = {}
-        self._wrapped_callbacks: dict[Callable[..., object], Callable[..., None]] = {}
+        # the twins handed out, while their users hold them (an object gives the same twin)
+        self._children: weakref.WeakValueDictionary[int, BlockingTwin] = (
+            weakref.WeakValueDictionary()
+        )
 
     def _wrap(self, value: Any) -> Any:
+        if isinstance(value, list | tuple) and value and twin_of(type(value[0])) is not None:
+            return type(value)(self._wrap(item) for item in value)
         twin = twin_of(type(value))
         if twin is None:
             return value
         known = self._children.get(id(value))
-        if known is not None and known[0] is value:
-            return known[1]
+        if known is not None and known.aio is value:
+            return known
         made = twin(value, self._runner)
-        self._children[id(value)] = (value, made)
+        self._children[id(value)] = made
         return made
+
+    def _callbacks(self) -> dict[Callable[..., object], Callable[..., None]]:
+        """User callbacks and their wrapped forms, kept with the async object (any twin of
+        it can take a callback back)."""
+        try:
+            table = _CALLBACKS.get(self.aio)
+            if table is None:
+                table = _CALLBACKS[self.aio] = {}
+        except TypeError:  # an object without weak references: kept with this twin
+            table = self.__dict__.setdefault("_own_callbacks", {})
+        return table
 
     def __repr__(self) -> str:
         return repr(self.aio)
@@ -154,7 +176,7 @@ def _plain(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
         @functools.wraps(fn)
         def add(self: BlockingTwin, callback: Callable[..., object], *args: Any) -> Any:
             wrapped = self._runner.callback(callback)
-            self._wrapped_callbacks[callback] = wrapped
+            self._callbacks()[callback] = wrapped
             return self._runner.call(getattr(self.aio, name), wrapped, *_in(args))
 
         return add
@@ -162,7 +184,7 @@ def _plain(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
 
         @functools.wraps(fn)
         def remove(self: BlockingTwin, callback: Callable[..., object]) -> Any:
-            wrapped = self._wrapped_callbacks.pop(callback, callback)
+            wrapped = self._callbacks().pop(callback, callback)
             return self._runner.call(getattr(self.aio, name), wrapped)
 
         return remove

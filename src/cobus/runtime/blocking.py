@@ -31,7 +31,7 @@ from cobus.runtime import nmt as _nmt
 from cobus.runtime import pdo as _pdo
 from cobus.runtime import remote as _remote
 from cobus.runtime._twin import BlockingTwin
-from cobus.runtime.loop import new_event_loop
+from cobus.runtime.loop import SimulatedEventLoop, new_event_loop
 from cobus.runtime.network import AsyncNetwork, FrameHandler, NetworkClosedError, Subscription
 from cobus.runtime.remote import NmtCommands, SdoChannel
 from cobus.runtime.remote import RemoteNode as AsyncRemoteNode
@@ -98,9 +98,11 @@ class Runner:
                     "a blocking call from inside a callback on the simulated clock would "
                     "re-enter the event loop: use the async API there (AsyncNetwork, await)"
                 )
+            assert isinstance(self.loop, SimulatedEventLoop)
+            task = self.loop.start_first(coro)  # listening before queued frames arrive
             if timeout is not None:
-                return self.loop.run_until_complete(asyncio.wait_for(coro, timeout))
-            return self.loop.run_until_complete(coro)
+                return self.loop.run_until_complete(asyncio.wait_for(task, timeout))
+            return self.loop.run_until_complete(task)
         if threading.current_thread() is self._thread:
             coro.close()
             raise ReentrantCallError(

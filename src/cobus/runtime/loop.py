@@ -15,14 +15,15 @@ from __future__ import annotations
 
 import asyncio
 import selectors
-from collections.abc import Callable, Mapping
-from typing import Any
+from collections.abc import Callable, Coroutine, Mapping
+from typing import Any, TypeVar
 
 from cobus.errors import CobusError
 
 __all__ = ["SimulatedEventLoop", "SimulationStalledError", "new_event_loop"]
 
 PollHook = Callable[[], bool]
+T = TypeVar("T")
 
 
 class SimulationStalledError(CobusError, RuntimeError):
@@ -89,6 +90,20 @@ class SimulatedEventLoop(asyncio.SelectorEventLoop):
         """Stop calling ``hook`` (given to :meth:`add_poll_hook`)."""
         if hook in self._poll_hooks:
             self._poll_hooks.remove(hook)
+
+    def start_first(self, coro: Coroutine[Any, Any, T]) -> asyncio.Task[T]:
+        """A task for ``coro`` whose first step runs before the callbacks already queued.
+
+        That is what ``await coro`` does in async code: the coroutine runs at once, up to its
+        first wait. Blocking code on the simulated clock uses it, so that an operation that
+        waits for an answer (``wait_for_bootup()`` right after ``reset_node()``) is listening
+        before the frames sent just before it are delivered, exactly as in async code.
+        """
+        task = self.create_task(coro)
+        ready = getattr(self, "_ready", None)  # the loop's queue of callbacks (a deque)
+        if ready:
+            ready.rotate(1)  # the task's first step, queued last, goes first
+        return task
 
     def _run_poll_hooks(self) -> bool:
         progressed = False

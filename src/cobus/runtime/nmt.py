@@ -34,6 +34,7 @@ __all__ = ["NmtTimeoutError", "RemoteNmt"]
 
 _HEARTBEAT = 0x700
 _STATES = frozenset(int(s) for s in NmtState)
+_RESETS = (NmtCommand.RESET_NODE, NmtCommand.RESET_COMMUNICATION)
 
 
 class NmtTimeoutError(CobusError, TimeoutError):
@@ -70,6 +71,7 @@ class RemoteNmt:
         self.last_heard = None
         self.bootups = 0
         self.commanded = None
+        self._reset_answered = False  # a boot-up answered our last reset, unclaimed
         self._monitor = HeartbeatMonitor(track_all=False)
         self._monitor.watch(node_id, 0.0, 0.0)
         self._host: MachineHost = network.attach(self._monitor, on_event=self._on_event)
@@ -81,7 +83,8 @@ class RemoteNmt:
 
     def __repr__(self) -> str:
         state = "unknown" if self.state is None else self.state.name
-        return f"<NMT of node {self.node_id}: {state}>"
+        lost = " (heartbeat lost)" if self.lost else ""
+        return f"<NMT of node {self.node_id}: {state}{lost}>"
 
     # ------------------------------------------------------------------ state
     @property
@@ -114,6 +117,7 @@ class RemoteNmt:
         parsed = parse_nmt_command(command)
         self._network.send(nmt_command_frame(parsed, self.node_id))
         self.commanded = NmtCommand(parsed)
+        self._reset_answered = False
 
     def start(self) -> None:
         """Start the node (NMT state OPERATIONAL)."""
@@ -151,8 +155,13 @@ class RemoteNmt:
 
     async def wait_for_bootup(self, timeout: float = 5.0) -> None:
         """Return at the node's next boot-up message; :class:`NmtTimeoutError` after
-        ``timeout`` seconds."""
+        ``timeout`` seconds. After :meth:`reset_node` or :meth:`reset_communication`, the
+        boot-up that answered it counts even if it came before this call (a fast node)."""
+        if self._reset_answered:
+            self._reset_answered = False
+            return
         await self._wait(lambda e: isinstance(e, BootupReceived), timeout, "boot up")
+        self._reset_answered = False
 
     async def wait_for_heartbeat(self, timeout: float = 1.0) -> NmtState:
         """The state in the node's next heartbeat; :class:`NmtTimeoutError` after
@@ -201,6 +210,7 @@ class RemoteNmt:
         self.last_heard = now
         if data[0] == NmtState.INITIALISING:
             self.bootups += 1
+            self._reset_answered = self.commanded in _RESETS
         self._resolve(_HEARD)
 
     def _on_event(self, event: Event) -> None:

@@ -37,6 +37,7 @@ if TYPE_CHECKING:
 __all__ = [
     "NmtCommands",
     "NmtMaster",
+    "ObjectAccessError",
     "ObjectNotFoundError",
     "RemoteNode",
     "SdoChannel",
@@ -46,7 +47,14 @@ __all__ = [
 ]
 
 Key = int | str
-_NO_VALUE: Any = object()
+
+
+class _NoValue:
+    def __repr__(self) -> str:
+        return "<sub-index 0>"
+
+
+_NO_VALUE: Any = _NoValue()
 
 
 class ObjectNotFoundError(CobusError, KeyError):
@@ -104,7 +112,15 @@ class SdoChannel:
         )
         self._lock = asyncio.Lock()
         self._pending: asyncio.Future[Event] | None = None
+        self._removed = False
         network.on_disconnect(self._on_disconnect)
+
+    def __repr__(self) -> str:
+        od = "no dictionary" if self.od is None else f"{len(self.od)} objects"
+        return (
+            f"<SdoChannel to node {self.node_id} (0x{self.client.rx_cob_id:X}/"
+            f"0x{self.client.tx_cob_id:X}, {od})>"
+        )
 
     def _on_event(self, event: Event) -> None:
         if isinstance(event, UploadDone | DownloadDone | TransferFailed):
@@ -114,6 +130,7 @@ class SdoChannel:
         self._network.emit(event)
 
     def _close(self) -> None:
+        self._removed = True
         self._host.close()
         pending = self._pending
         if pending is not None and not pending.done():
@@ -131,6 +148,11 @@ class SdoChannel:
             )
 
     async def _transfer(self, start: Any) -> Event:
+        if self._removed:
+            raise NetworkClosedError(
+                f"node {self.node_id} was removed from the network (remove_remote): add it "
+                "again with add_remote()"
+            )
         async with self._lock:
             self._pending = self._network.loop.create_future()
             try:
@@ -187,38 +209,59 @@ class SdoChannel:
             raise event.error
 
     # -- typed access through the object dictionary
-    def variable(self, index: Key, subindex: Key = 0) -> Variable:
+    def variable(self, index: Key | tuple[Key, Key], subindex: Key = 0) -> Variable:
         """The object dictionary entry named by index or name, and subindex or name.
 
         Names match with case and separators ignored (``"producer heartbeat time"``); a name
-        that matches nothing gets the close names in its error."""
-        obj = self._object(index)
+        that matches nothing gets the close names in its error. ``"Record.Sub"`` (as PDOs
+        name their values) and ``(index, subindex)`` name a sub-object too."""
         from cobus.od import Variable
 
+        if isinstance(index, tuple):
+            index, subindex = index
+        if isinstance(index, str) and subindex == 0 and self._split(index) is not None:
+            index, subindex = self._split(index)  # type: ignore[misc]
+        obj = self._object(index)
         if isinstance(obj, Variable):
             if subindex not in (0, obj.name):
                 raise ObjectNotFoundError(
-                    f"node {self.node_id}: object {_fmt(index)} is a single variable; "
-                    f"it has no subindex {_fmt(subindex)}"
+                    f"node {self.node_id}: {_describe(obj.index, obj.name)} is a single "
+                    f"variable; it has no sub-index {_fmt_sub(subindex)}"
                 )
             return obj
+        where = _describe(obj.index, obj.name)
         if isinstance(subindex, str):
             names = [v.name for v in obj]
             name = match_name(subindex, names)
             if name is None:
                 raise ObjectNotFoundError(
-                    f"node {self.node_id}: object {_fmt(index)} ({obj.name!r}) has no "
-                    f"sub-object {subindex!r}{did_you_mean(subindex, names)}"
+                    f"node {self.node_id}: {where} has no sub-object {subindex!r}"
+                    f"{did_you_mean(subindex, names)}"
                 )
             subindex = name
         try:
             var = obj[subindex]
         except KeyError:
+            subs = ", ".join(str(v.subindex) for v in obj)
             raise ObjectNotFoundError(
-                f"node {self.node_id}: object {_fmt(index)} has no subindex {_fmt(subindex)}"
+                f"node {self.node_id}: {where} has no sub-index {_fmt_sub(subindex)} "
+                f"(it has {subs})"
             ) from None
         assert isinstance(var, Variable)
         return var
+
+    def _split(self, name: str) -> tuple[str, str] | None:
+        """``"Record.Sub"`` as (record name, sub-object name), when it names no object."""
+        if "." not in name or self.od is None:
+            return None
+        names = [obj.name for obj in self.od]
+        if match_name(name, names) is not None:
+            return None
+        for cut in [i for i, c in enumerate(name) if c == "."]:
+            head, tail = name[:cut], name[cut + 1 :]
+            if match_name(head, names) is not None:
+                return head, tail
+        return None
 
     def _object(self, index: Key) -> Object:
         if self.od is None:
@@ -242,29 +285,80 @@ class SdoChannel:
                 f"node {self.node_id}: no object {_fmt(index)} in its object dictionary{hint}"
             ) from None
 
-    def __getitem__(self, key: Key) -> SdoVariable | SdoRecord:
+    def __contains__(self, key: object) -> bool:
+        """Whether the node's dictionary has the object (index, name or ``(index, sub)``)."""
+        if self.od is None or not isinstance(key, int | str | tuple):
+            return False
+        try:
+            self.variable(key) if isinstance(key, tuple) else self._object(key)
+        except (ObjectNotFoundError, ValueError, TypeError):
+            return False
+        return True
+
+    def __iter__(self) -> Iterator[SdoVariable | SdoRecord]:
+        """Every object of the node's dictionary, in index order."""
+        return iter([self[obj.index] for obj in (self.od or ())])
+
+    def __len__(self) -> int:
+        """How many objects the node's dictionary has (0 without one)."""
+        return 0 if self.od is None else len(self.od)
+
+    def __getitem__(self, key: Key | tuple[Key, Key]) -> SdoVariable | SdoRecord:
         """An object of the node by index or name: ``await sdo["Producer heartbeat
-        time"].read()``; a record or array gives its sub-objects by ``[sub]``."""
+        time"].read()``; a record or array gives its sub-objects by ``[sub]``;
+        ``sdo[0x1018, 1]`` and ``sdo["Identity object.Vendor-ID"]`` give a sub-object."""
         from cobus.od import Variable
 
+        if isinstance(key, tuple) or (isinstance(key, str) and self._split(key) is not None):
+            return SdoVariable(self, self.variable(key))
         obj = self._object(key)
         if isinstance(obj, Variable):
             return SdoVariable(self, obj)
         return SdoRecord(self, obj)
 
-    async def read(self, index: Key, subindex: Key = 0) -> Any:
-        """Read an entry and decode it with its data type."""
+    async def read(self, index: Key | tuple[Key, Key], subindex: Key = 0) -> Any:
+        """Read an entry and decode it with its data type (refused at once when the EDS
+        says it cannot be read; ``upload()`` reads the raw bytes regardless)."""
         var = self.variable(index, subindex)
+        _check_access(var, self.node_id, write=False)
         data = await self.upload(var.index, var.subindex)
         return var.decode(data)
 
-    async def write(self, index: Key, subindex: Any, value: Any = _NO_VALUE) -> None:
+    async def write(
+        self, index: Key | tuple[Key, Key], subindex: Any, value: Any = _NO_VALUE
+    ) -> None:
         """Encode ``value`` with the entry's data type (limits checked) and write it:
         ``write(index, subindex, value)``, or ``write(index, value)`` for sub-index 0."""
         if value is _NO_VALUE:
             subindex, value = 0, subindex
         var = self.variable(index, subindex)
+        _check_access(var, self.node_id, write=True)
         await self.download(var.index, var.subindex, encode_for(var, value, self.node_id))
+
+
+class ObjectAccessError(SdoAbortedError):
+    """Refused before anything was sent: the EDS says the object cannot be read (or written).
+
+    An :class:`SdoAbortedError` with the code the node would have answered, so code that
+    handles aborts handles this too."""
+
+    def __init__(self, var: Variable, node_id: int, *, write: bool) -> None:
+        code = SdoAbortCode.WRITE_READ_ONLY if write else SdoAbortCode.READ_WRITE_ONLY
+        super().__init__(code, index=var.index, subindex=var.subindex, node=node_id, by_peer=False)
+        what = "written" if write else "read"
+        raw = "download" if write else "upload"
+        self.args = (
+            f"node {node_id}: {var.name!r} (0x{var.index:04X}:{var.subindex:02X}) is "
+            f"{var.access} in its EDS and cannot be {what}; nothing was sent (the node would "
+            f"abort 0x{int(code):08X}). If the device allows more than its EDS says, use "
+            f"sdo.{raw}() for raw bytes",
+        )
+
+
+def _check_access(var: Variable, node_id: int, *, write: bool) -> None:
+    """Refuse before anything is sent what the EDS says the object does not allow."""
+    if not (var.writable if write else var.readable):
+        raise ObjectAccessError(var, node_id, write=write)
 
 
 def encode_for(var: Variable, value: Any, node_id: int) -> bytes:
@@ -312,10 +406,12 @@ class SdoVariable:
 
     async def read(self) -> Any:
         """Read the value from the node and decode it."""
+        _check_access(self.od, self._channel.node_id, write=False)
         return self.od.decode(await self._channel.upload(self.od.index, self.od.subindex))
 
     async def write(self, value: Any) -> None:
-        """Check ``value`` against the type and limits and write it to the node."""
+        """Check ``value`` against the type, access and limits and write it to the node."""
+        _check_access(self.od, self._channel.node_id, write=True)
         data = encode_for(self.od, value, self._channel.node_id)
         await self._channel.download(self.od.index, self.od.subindex, data)
 
@@ -356,6 +452,9 @@ class SdoRecord:
         return len(self.od)
 
     def __contains__(self, subindex: object) -> bool:
+        """Whether the record has the sub-object (number or name, case ignored)."""
+        if isinstance(subindex, str):
+            return match_name(subindex, [v.name for v in self.od]) is not None
         return subindex in self.od
 
 
@@ -371,6 +470,14 @@ def _refused_block(event: Event) -> bool:
 
 def _fmt(key: Key) -> str:
     return f"0x{key:04X}" if isinstance(key, int) else repr(key)
+
+
+def _fmt_sub(key: Key) -> str:
+    return str(key) if isinstance(key, int) else repr(key)
+
+
+def _describe(index: int, name: str) -> str:
+    return f"0x{index:04X} ({name!r})"
 
 
 class NmtCommands:
