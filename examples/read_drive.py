@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
             identity = drive.sdo["Identity object"]
             print(f"node {args.node}: device type 0x{drive.sdo.read(0x1000):08X}")
             for sub in identity:
-                print(f"  {sub.name}: 0x{sub.read():08X}")
+                print(f"  {sub.name}: {sub.read():#x}")
         except SdoError as exc:
             print(f"the drive does not answer: {exc}", file=sys.stderr)
             return 1
@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
         net.sleep(args.duration)
         for pdo in drive.tpdo:
             values = ", ".join(f"{k} = {v}" for k, v in pdo.values.items())
-            print(f"  TPDO {pdo.number}: {pdo.count} frames; last: {values or '-'}")
+            print(f"  TPDO {pdo.number}: {pdo.count} frames; last: {values if pdo.count else '-'}")
         print(f"node {args.node} is {drive.nmt.state}; {drive.emcy.count} emergencies")
     return 0
 

@@ -132,12 +132,32 @@ def test_remapping_a_tpdo_with_the_cia_procedure():
         values = await node.tpdo[4].wait_for_reception()
         assert list(values) == ["Position actual value", "Statusword"]
 
-        # a mapping the node refuses names the step and the node's answer
+        # what the EDS forbids is refused before anything is sent
+        with pytest.raises(PdoError, match="not PDO-mappable in the node's EDS"):
+            tpdo.add("Producer heartbeat time")
+        with pytest.raises(PdoError, match="maps with 16 bits, not 8"):
+            tpdo.add("Statusword", bits=8)
+        with pytest.raises(PdoError, match="an RPDO cannot write it"):
+            node.rpdo[1].add("Statusword")
+
+        # a mapping the node refuses (its EDS said otherwise) names the step, the node's
+        # answer and what the node is left with
+        assert node.od is not None
+        node.od[0x1017].pdo_mappable = True  # type: ignore[union-attr]
         tpdo.clear()
-        tpdo.add("Producer heartbeat time")  # not PDO-mappable
+        tpdo.add("Producer heartbeat time")
         tpdo.add(0x6041)
-        with pytest.raises(PdoConfigurationError, match=r"TPDO 4 of node 10: .*mapping entry 1"):
+        with pytest.raises(
+            PdoConfigurationError,
+            match=r"TPDO 4 of node 10: writing mapping entry 1 .* the node now has <TPDO 4 "
+            r"of node 10 disabled: no mapping>",
+        ):
             await tpdo.save()
+        assert not tpdo.enabled and tpdo.names == []
+
+        # a PDO only looked at is not listed, nor saved
+        assert node.tpdo[7].configured is False
+        assert [p.number for p in node.tpdo] == [1, 2, 3, 4]
 
     drive_run(scenario)
 
@@ -511,3 +531,53 @@ def test_sdo_objects_as_a_container_and_names_as_pdos_write_them():
         net.remove_remote(5)
         with pytest.raises(NetworkClosedError, match="node 5 was removed"):
             sdo.read(0x1000)
+
+
+def test_pdo_values_are_checked_when_set_and_a_removed_node_fails_at_once():
+    async def main():
+        async with AsyncNetwork() as net:
+            node = net.add_remote(9)  # no dictionary: the mapping's bits are the limits
+            rpdo = node.rpdo[1]
+            rpdo.add(0x6200, 1, 8)
+            with pytest.raises(PdoError, match=r"RPDO 1 of node 9, '0x6200:01'"):
+                rpdo[(0x6200, 1)] = 0x1FF
+            rpdo[(0x6200, 1)] = 0xFF
+            tpdo = node.tpdo[5]  # beyond the pre-defined set: no identifier, disabled
+            tpdo.add(0x6000, 1, 8)
+            with pytest.raises(PdoError, match="is disabled"):
+                await tpdo.wait_for_reception()
+            net.remove_remote(9)
+            for wait in (
+                node.nmt.wait_for_bootup(),
+                node.emcy.wait(),
+                node.tpdo[1].wait_for_reception(),
+            ):
+                with pytest.raises(NetworkClosedError, match="node 9 was removed"):
+                    await wait
+            with pytest.raises(NetworkClosedError):
+                rpdo.transmit()
+
+    simulate(main())
+
+
+def test_the_blocking_network_lists_its_nodes_and_takes_listeners_back():
+    with Network(simulated=True) as net:
+        dev = net.add_device(5, _valve().build())
+        node = net.add_remote(5)
+        assert net.remotes == {5: node} and net.remotes[5] is node
+        assert list(net.devices) == [5] and net.devices[5].aio is dev.aio
+        seen: list[object] = []
+        net.add_listener(seen.append)
+        node.nmt.start()
+        net.sleep(0.01)
+        count = len(seen)
+        assert count > 0  # the device's state change, at least
+        net.remove_listener(seen.append)
+        node.nmt.stop()
+        net.sleep(0.01)
+        assert len(seen) == count
+        was_connected = net.connected
+        assert str(net.bus_state) == "error-active" and net.tx_backlog == 0
+    assert was_connected and not net.connected
+    with pytest.raises(TypeError, match="SimulatedEventLoop"):
+        AsyncNetwork(simulated=True)

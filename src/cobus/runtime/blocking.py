@@ -31,6 +31,7 @@ from cobus.runtime import nmt as _nmt
 from cobus.runtime import pdo as _pdo
 from cobus.runtime import remote as _remote
 from cobus.runtime._twin import BlockingTwin
+from cobus.runtime.events import BusState
 from cobus.runtime.loop import SimulatedEventLoop, new_event_loop
 from cobus.runtime.network import AsyncNetwork, FrameHandler, NetworkClosedError, Subscription
 from cobus.runtime.remote import NmtCommands, SdoChannel
@@ -234,6 +235,8 @@ class Network:
         **bus_kwargs: Any,
     ) -> None:
         self._runner = Runner(simulated=simulated)
+        self._listeners: dict[Callable[[Event], object], Callable[..., None]] = {}
+        self._remote_twins: dict[int, RemoteNode] = {}
         self.aio = AsyncNetwork(
             bus, interface=interface, channel=channel, bitrate=bitrate, **bus_kwargs
         )
@@ -298,7 +301,48 @@ class Network:
     def add_listener(self, listener: Callable[[Event], object]) -> None:
         """Call ``listener(event)`` for every event of the network (in the callback thread in real
         time)."""
-        self._runner.call(self.aio.add_listener, self._runner.callback(listener))
+        wrapped = self._runner.callback(listener)
+        self._listeners[listener] = wrapped
+        self._runner.call(self.aio.add_listener, wrapped)
+
+    def remove_listener(self, listener: Callable[[Event], object]) -> None:
+        """Stop calling ``listener`` (given to :meth:`add_listener`)."""
+        wrapped = self._listeners.pop(listener, None)
+        if wrapped is not None:
+            self._runner.call(self.aio.remove_listener, wrapped)
+
+    @property
+    def connected(self) -> bool:
+        """Whether the network is connected (False once closed)."""
+        return self.aio.connected
+
+    @property
+    def bus_state(self) -> BusState:
+        """The controller's last reported state: error-active, warning, error-passive, bus-off."""
+        return self.aio.bus_state
+
+    @property
+    def tx_backlog(self) -> int:
+        """How many frames wait for the interface to take them."""
+        return self.aio.tx_backlog
+
+    @property
+    def remotes(self) -> dict[int, RemoteNode]:
+        """The nodes added with :meth:`add_remote`, by node-ID."""
+        return {n: self._remote(node) for n, node in self.aio.remotes.items()}
+
+    @property
+    def devices(self) -> dict[int, BlockingDevice]:
+        """The devices added with :meth:`add_device`, by node-ID."""
+        from cobus.device import BlockingDevice
+
+        return {n: BlockingDevice(device, self._runner) for n, device in self.aio.devices.items()}
+
+    def _remote(self, node: AsyncRemoteNode) -> RemoteNode:
+        twin = self._remote_twins.get(node.node_id)
+        if twin is None or twin.aio is not node:
+            twin = self._remote_twins[node.node_id] = RemoteNode(node, self._runner)
+        return twin
 
     @property
     def frames_sent(self) -> int:
@@ -320,7 +364,7 @@ class Network:
     ) -> RemoteNode:
         """A node this network talks to as a client; ``od`` may be an EDS/DCF path."""
         node = self._runner.call(lambda: self.aio.add_remote(node_id, od, sdo_timeout=sdo_timeout))
-        return RemoteNode(node, self._runner)
+        return self._remote(node)
 
     def remove_remote(self, node_id: int) -> None:
         """Forget a node added with :meth:`add_remote` (it can be added again)."""

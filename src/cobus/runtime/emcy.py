@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 from cobus.errors import CobusError
 from cobus.proto import Frame
 from cobus.proto.emcy import EMCY_BASE, ErrorRegister, MalformedEmcy, parse_emcy
+from cobus.runtime.network import NetworkClosedError
 
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, Subscription
@@ -60,6 +61,7 @@ class RemoteEmcy:
 
     def __init__(self, network: AsyncNetwork, node_id: int, *, history: int = 64) -> None:
         self._network = network
+        self._removed = False
         self.node_id = node_id
         self.cob_id = EMCY_BASE + node_id
         self.count = 0
@@ -115,6 +117,11 @@ class RemoteEmcy:
 
     async def wait(self, timeout: float = 1.0) -> Emergency:
         """The node's next emergency; :class:`EmcyTimeoutError` after ``timeout`` seconds."""
+        if self._removed:
+            raise NetworkClosedError(
+                f"node {self.node_id} was removed from the network (remove_remote): add it "
+                "again with add_remote()"
+            )
         future: asyncio.Future[Emergency] = self._network.loop.create_future()
         self._waiters.append(future)
         try:
@@ -158,6 +165,7 @@ class RemoteEmcy:
         self._network.emit(parsed)
 
     def _close(self) -> None:
+        self._removed = True
         if self._subscription is not None:
             self._subscription.cancel()
             self._subscription = None

@@ -28,6 +28,9 @@ class BusState(enum.Enum):
     PASSIVE = "error-passive"
     BUS_OFF = "bus-off"
 
+    def __str__(self) -> str:
+        return self.value
+
 
 @dataclass(frozen=True, slots=True)
 class BusStateChanged(Event):

@@ -211,6 +211,11 @@ class AsyncNetwork:
         tx_backlog: int = 4096,
         **bus_kwargs: Any,
     ) -> None:
+        if "simulated" in bus_kwargs:
+            raise TypeError(
+                "AsyncNetwork takes no simulated=: run it on a cobus.runtime.SimulatedEventLoop "
+                "(its clock is the loop's), or use the blocking Network(simulated=True)"
+            )
         self._bus = bus
         self._owns_bus = bus is None
         self._bus_args: dict[str, Any] = dict(bus_kwargs)

@@ -26,6 +26,7 @@ from cobus.proto.heartbeat import (
     RemoteStateChanged,
 )
 from cobus.proto.nmt import NmtCommand, NmtState, nmt_command_frame
+from cobus.runtime.network import NetworkClosedError
 
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, MachineHost, Subscription
@@ -67,6 +68,7 @@ class RemoteNmt:
 
     def __init__(self, network: AsyncNetwork, node_id: int) -> None:
         self._network = network
+        self._removed = False
         self.node_id = node_id
         self.last_heard = None
         self.bootups = 0
@@ -172,6 +174,11 @@ class RemoteNmt:
         return state
 
     async def _wait(self, match: Callable[[Event], bool], timeout: float, what: str) -> None:
+        if self._removed:
+            raise NetworkClosedError(
+                f"node {self.node_id} was removed from the network (remove_remote): add it "
+                "again with add_remote()"
+            )
         future: asyncio.Future[Event] = self._network.loop.create_future()
         waiter = (match, future)
         self._waiters.append(waiter)
@@ -228,6 +235,7 @@ class RemoteNmt:
                 future.set_result(event)
 
     def _close(self) -> None:
+        self._removed = True
         if self._subscription is not None:
             self._subscription.cancel()
             self._subscription = None

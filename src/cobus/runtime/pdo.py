@@ -49,6 +49,7 @@ from cobus.proto.pdo import (
     tpdo_default_can_id,
 )
 from cobus.proto.sdo import SdoAbortCode, SdoAbortedError, SdoError
+from cobus.runtime.network import NetworkClosedError
 
 if TYPE_CHECKING:
     from cobus.od import ObjectDictionary
@@ -193,6 +194,9 @@ class RemotePdo:
     timestamp: float | None
     #: How many frames were received (TPDO) or sent (RPDO).
     count: int
+    #: Whether the configuration was read, loaded or edited (a PDO only looked at is not
+    #: listed by its set, nor written by :meth:`PdoSet.save`).
+    configured: bool
 
     def __init__(self, pdos: PdoSet, number: int) -> None:
         self._pdos = pdos
@@ -211,6 +215,7 @@ class RemotePdo:
         self.sync_start = None
         self.timestamp = None
         self.count = 0
+        self.configured = False
         self._fields: list[PdoField] = []
         self._codec = PdoMap([])
         self._values: dict[str, Any] = {}
@@ -271,12 +276,19 @@ class RemotePdo:
             return self._append(PdoField(_field_name(None, entry), entry, None))
         var = self._pdos._sdo.variable(key, subindex)
         size = var.bit_length
+        where = f"{self._label()}: {var.name!r} (0x{var.index:04X}:{var.subindex:02X})"
         if bits is None:
             if size is None:
-                raise PdoError(
-                    f"{var.name!r} ({var.data_type.name}) has no fixed size: give its bit length"
-                )
+                raise PdoError(f"{where} ({var.data_type.name}) has no fixed size: give its bits")
             bits = size
+        elif size is not None and bits != size:
+            raise PdoError(f"{where} is {var.data_type.name}: it maps with {size} bits, not {bits}")
+        if not var.pdo_mappable:
+            raise PdoError(f"{where} is not PDO-mappable in the node's EDS")
+        if self.transmit_by_node and not var.readable:
+            raise PdoError(f"{where} is {var.access}: a TPDO cannot send it")
+        if not self.transmit_by_node and not var.writable:
+            raise PdoError(f"{where} is {var.access}: an RPDO cannot write it")
         entry = MappingEntry(var.index, var.subindex, bits)
         return self._append(PdoField(_field_name(var, entry), entry, var))
 
@@ -288,6 +300,7 @@ class RemotePdo:
 
     def _set_fields(self, fields: list[PdoField]) -> None:
         codec = PdoMap([(f.entry, _kind(f)) for f in fields])  # raises for > 64 bits
+        self.configured = True
         self._fields = fields
         self._codec = codec
         zeros = codec.unpack(bytes(codec.length)) if codec.value_count else ()
@@ -323,11 +336,13 @@ class RemotePdo:
 
     def __setitem__(self, key: str | int | tuple[int, int], value: Any) -> None:
         field = self.field(key)
-        if field.variable is not None:
-            try:
+        try:
+            if field.variable is not None:
                 field.variable.check(value)
-            except ValueError as exc:
-                raise type(exc)(f"{self!r}, {field.name!r}: {exc}") from None
+            else:  # no dictionary: the mapping's bits are all there is to check against
+                PdoMap([(field.entry, Kind.UNSIGNED)]).pack([value])
+        except ValueError as exc:
+            raise type(exc)(f"{self._label()}, {field.name!r}: {exc}") from None
         self._values[field.name] = value
 
     def __iter__(self) -> Iterator[str]:
@@ -358,6 +373,10 @@ class RemotePdo:
     async def wait_for_reception(self, timeout: float = 1.0) -> dict[str, Any]:
         """Wait for the next frame of this TPDO and return its values by name;
         :class:`PdoTimeoutError` after ``timeout`` seconds."""
+        self._pdos._check_open()
+        if not self.transmit_by_node:
+            raise PdoError(f"{self!r} is sent by this side: nothing to receive")
+        self._check_enabled()
         waiter: asyncio.Future[PdoReceived] = self._network.loop.create_future()
         self._waiters.append(waiter)
         try:
@@ -417,8 +436,12 @@ class RemotePdo:
         """Send this RPDO now with its current values."""
         if self.transmit_by_node:
             raise PdoError(f"{self!r} is sent by the node; use request() to ask for it")
+        self._pdos._check_open()
         self._check_enabled()
-        data = self._codec.pack([self._values[n] for n in self.names])
+        try:
+            data = self._codec.pack([self._values[n] for n in self.names])
+        except PdoError as exc:
+            raise PdoError(f"{self._label()}: {exc}") from None
         self._network.send(Frame(self.cob_id, data, extended=self.extended))
         self.count += 1
 
@@ -581,12 +604,19 @@ class RemotePdo:
         )
         if self.enabled:
             steps.append(("enabling the PDO", comm, 1, u32(self._cob_u32(valid=True))))
-        for what, index, sub, data in steps:
+        for n, (what, index, sub, data) in enumerate(steps):
             try:
                 await sdo.download(index, sub, data)
             except SdoError as exc:
+                left = ""
+                if n:  # the node may be left half-way: show what it has now
+                    try:
+                        await self.read()
+                        left = f"; the node now has {self!r}"
+                    except PdoConfigurationError:
+                        left = "; the node may be left with the PDO disabled"
                 raise PdoConfigurationError(
-                    f"{self._label()}: {what} ({index:04X}h sub {sub}) failed: {exc}"
+                    f"{self._label()}: {what} ({index:04X}h sub {sub}) failed: {exc}{left}"
                 ) from exc
         self._resubscribe()
 
@@ -674,7 +704,7 @@ class PdoSet:
 
     def __repr__(self) -> str:
         kind = "TPDOs" if self.transmit_by_node else "RPDOs"
-        return f"<{kind} of node {self.node_id}: {sorted(self._pdos)}>"
+        return f"<{kind} of node {self.node_id}: {[p.number for p in self]}>"
 
     def __getitem__(self, number: int) -> RemotePdo:
         if not isinstance(number, int) or not 1 <= number <= MAX_PDOS:
@@ -685,13 +715,24 @@ class PdoSet:
         return pdo
 
     def __iter__(self) -> Iterator[RemotePdo]:
-        return iter([self._pdos[n] for n in sorted(self._pdos)])
+        """The PDOs read, loaded or edited so far, by number."""
+        return iter([self._pdos[n] for n in sorted(self._pdos) if self._pdos[n].configured])
 
     def __len__(self) -> int:
-        return len(self._pdos)
+        """How many PDOs were read, loaded or edited."""
+        return sum(1 for pdo in self._pdos.values() if pdo.configured)
 
     def __contains__(self, number: object) -> bool:
-        return number in self._pdos
+        """Whether PDO ``number`` was read, loaded or edited."""
+        pdo = self._pdos.get(number) if isinstance(number, int) else None
+        return pdo is not None and pdo.configured
+
+    def _check_open(self) -> None:
+        if not self._active:
+            raise NetworkClosedError(
+                f"node {self.node_id} was removed from the network (remove_remote): add it "
+                "again with add_remote()"
+            )
 
     def _numbers(self) -> list[int]:
         od = self.od
