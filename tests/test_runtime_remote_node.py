@@ -19,7 +19,7 @@ from cobus.proto.heartbeat import (
     HeartbeatTimeout,
     RemoteStateChanged,
 )
-from cobus.proto.nmt import NmtState
+from cobus.proto.nmt import NmtCommand, NmtState
 from cobus.proto.pdo import PdoError
 from cobus.proto.sdo import SdoAbortedError
 from cobus.runtime import (
@@ -219,6 +219,12 @@ def test_blocking_node_on_a_device_with_names_as_people_type_them():
         assert node.sdo["identity object"]["vendor-id"].read() == node.sdo.read(0x1018, 1)
         node.sdo.write(0x1017, 0)  # write(index, value) for sub-index 0
         assert node.sdo.read(0x1017) == 0
+        node.sdo.write(0x1017, value=20)
+        assert node.sdo["Producer heartbeat time"].raw == 20  # python-canopen's .raw
+        node.sdo["Producer heartbeat time"].raw = 0
+        assert node.sdo.read(0x1017) == 0
+        node.sdo.timeout = 2.5
+        assert node.sdo.aio.client.timeout == 2.5
         with pytest.raises(ObjectNotFoundError, match="did you mean 'Producer heartbeat time'"):
             node.sdo["Producr heartbeat"]
         with pytest.raises(
@@ -231,8 +237,11 @@ def test_blocking_node_on_a_device_with_names_as_people_type_them():
         node.rpdo.read()
         seen: list[PdoReceived] = []
         node.tpdo[1].add_callback(seen.append)
-        node.nmt.start()
+        node.nmt.state = "OPERATIONAL"  # python-canopen's way: sends start
+        assert node.nmt.commanded is NmtCommand.START
         assert node.nmt.wait_for_state("operational") is NmtState.OPERATIONAL
+        with pytest.raises(ValueError, match="no NMT command leads to INITIALISING"):
+            node.nmt.state = "initialising"
         dev.set(0x2001, 0, -321)  # the event-driven TPDO goes out
         net.sleep(0.001)
         assert node.tpdo[1].values == {"Pressure": -321, "Valve open": False}
@@ -344,7 +353,10 @@ def test_every_async_operation_has_its_blocking_twin():
         Device: BlockingDevice,
     }
     # what a blocking face adds: letting the network run (async code awaits the network)
-    added: dict[type, set[str]] = {BlockingMaster: {"sleep"}}
+    added: dict[type, set[str]] = {
+        BlockingMaster: {"sleep"},
+        blocking.SdoVariable: {"raw"},  # python-canopen's habit; a property cannot await
+    }
     assert dict(_twin._TWINS) == expected
     for async_cls, twin in expected.items():
         missing = _twin.public_names(async_cls) - _twin.public_names(twin)

@@ -399,6 +399,16 @@ class SdoVariable(BlockingTwin, twin_of=_remote.SdoVariable):
     """One object of a remote node over SDO, for blocking code: ``node.sdo["Device
     type"].read()``."""
 
+    @property
+    def raw(self) -> Any:
+        """The value, read from the node now; ``var.raw = 5`` writes it (as python-canopen's
+        ``.raw``)."""
+        return self.read()
+
+    @raw.setter
+    def raw(self, value: Any) -> None:
+        self.write(value)
+
 
 class SdoRecord(BlockingTwin, twin_of=_remote.SdoRecord):
     """A record or array of a remote node over SDO, for blocking code: ``[sub]`` gives its

@@ -36,6 +36,11 @@ __all__ = ["NmtTimeoutError", "RemoteNmt"]
 _HEARTBEAT = 0x700
 _STATES = frozenset(int(s) for s in NmtState)
 _RESETS = (NmtCommand.RESET_NODE, NmtCommand.RESET_COMMUNICATION)
+_COMMAND_FOR = {
+    NmtState.OPERATIONAL: NmtCommand.START,
+    NmtState.STOPPED: NmtCommand.STOP,
+    NmtState.PRE_OPERATIONAL: NmtCommand.ENTER_PREOPERATIONAL,
+}
 
 
 class NmtTimeoutError(CobusError, TimeoutError):
@@ -91,8 +96,20 @@ class RemoteNmt:
     # ------------------------------------------------------------------ state
     @property
     def state(self) -> NmtState | None:
-        """The state the node last reported (None: not heard yet)."""
+        """The state the node last reported (None: not heard yet). Setting it sends the
+        command that leads there (``nmt.state = "OPERATIONAL"`` sends start), as with
+        python-canopen; the state itself changes when the node reports it."""
         return self._monitor.state(self.node_id)
+
+    @state.setter
+    def state(self, state: NmtState | int | str) -> None:
+        wanted = _parse_state(state)
+        command = _COMMAND_FOR.get(wanted)
+        if command is None:
+            raise ValueError(
+                f"no NMT command leads to {wanted.name}; use reset_node() for a boot-up"
+            )
+        self.send(command)
 
     @property
     def heartbeat_timeout(self) -> float:
@@ -186,7 +203,8 @@ class RemoteNmt:
             await asyncio.wait_for(future, timeout)
         except TimeoutError:
             heard = (
-                "it has not been heard"
+                "it has not been heard: its heartbeat producer time 1017h may be 0, or its "
+                "boot-up came before this side listened"
                 if self.last_heard is None
                 else f"last heard {self._network.time() - self.last_heard:.3g} s ago in state "
                 f"{'unknown' if self.state is None else self.state.name}"

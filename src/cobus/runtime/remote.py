@@ -115,6 +115,16 @@ class SdoChannel:
         self._removed = False
         network.on_disconnect(self._on_disconnect)
 
+    @property
+    def timeout(self) -> float:
+        """Seconds to wait for each answer of the server (``sdo.timeout = 3`` for a slow
+        device); applies from the next frame sent."""
+        return self.client.timeout
+
+    @timeout.setter
+    def timeout(self, seconds: float) -> None:
+        self.client.timeout = seconds
+
     def __repr__(self) -> str:
         od = "no dictionary" if self.od is None else f"{len(self.od)} objects"
         return (
@@ -325,12 +335,18 @@ class SdoChannel:
         return var.decode(data)
 
     async def write(
-        self, index: Key | tuple[Key, Key], subindex: Any, value: Any = _NO_VALUE
+        self, index: Key | tuple[Key, Key], subindex: Any = _NO_VALUE, value: Any = _NO_VALUE
     ) -> None:
-        """Encode ``value`` with the entry's data type (limits checked) and write it:
-        ``write(index, subindex, value)``, or ``write(index, value)`` for sub-index 0."""
+        """Encode ``value`` with the entry's data type (access and limits checked) and write
+        it: ``write(index, subindex, value)``, or ``write(index, value)`` /
+        ``write(index, value=v)`` for sub-index 0 (or a ``(index, sub)`` / ``"Record.Sub"``
+        index)."""
         if value is _NO_VALUE:
+            if subindex is _NO_VALUE:
+                raise TypeError("write() needs the value to write")
             subindex, value = 0, subindex
+        elif subindex is _NO_VALUE:
+            subindex = 0
         var = self.variable(index, subindex)
         _check_access(var, self.node_id, write=True)
         await self.download(var.index, var.subindex, encode_for(var, value, self.node_id))
