@@ -517,7 +517,7 @@ def test_blocking_handles_are_not_kept_and_callbacks_come_back():
         node.tpdo[1].add_callback(callback)
         gc.collect()  # the twin that took the callback is gone; another gives it back
         node.tpdo[1].remove_callback(callback)
-        assert node.tpdo.aio[1]._callbacks == []
+        assert len(node.tpdo.aio[1]._callbacks) == 0
 
 
 def test_sdo_objects_as_a_container_and_names_as_pdos_write_them():

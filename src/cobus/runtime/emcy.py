@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 from cobus.errors import CobusError
 from cobus.proto import Frame
 from cobus.proto.emcy import EMCY_BASE, ErrorRegister, MalformedEmcy, parse_emcy
-from cobus.runtime.network import NetworkClosedError
+from cobus.runtime._service import Callbacks, removed_error
 
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, Subscription
@@ -67,7 +67,7 @@ class RemoteEmcy:
         self.count = 0
         self._log: deque[Emergency] = deque(maxlen=history)
         self._active: list[Emergency] = []
-        self._callbacks: list[Callable[[Emergency], object]] = []
+        self._callbacks: Callbacks[Emergency] = Callbacks(network, f"EMCY of node {node_id}")
         self._waiters: list[asyncio.Future[Emergency]] = []
         self._subscription: Subscription | None = network.subscribe(self.cob_id, self._on_frame)
 
@@ -108,20 +108,16 @@ class RemoteEmcy:
 
     def add_callback(self, callback: Callable[[Emergency], object]) -> None:
         """Call ``callback(emergency)`` with each emergency of the node."""
-        self._callbacks.append(callback)
+        self._callbacks.add(callback)
 
     def remove_callback(self, callback: Callable[[Emergency], object]) -> None:
         """Stop calling ``callback`` (given to :meth:`add_callback`)."""
-        if callback in self._callbacks:
-            self._callbacks.remove(callback)
+        self._callbacks.remove(callback)
 
     async def wait(self, timeout: float = 1.0) -> Emergency:
         """The node's next emergency; :class:`EmcyTimeoutError` after ``timeout`` seconds."""
         if self._removed:
-            raise NetworkClosedError(
-                f"node {self.node_id} was removed from the network (remove_remote): add it "
-                "again with add_remote()"
-            )
+            raise removed_error(self.node_id)
         future: asyncio.Future[Emergency] = self._network.loop.create_future()
         self._waiters.append(future)
         try:
@@ -157,11 +153,7 @@ class RemoteEmcy:
         for future in self._waiters:
             if not future.done():
                 future.set_result(emcy)
-        for callback in list(self._callbacks):
-            try:
-                callback(emcy)
-            except Exception as exc:
-                self._network._report_failure(f"EMCY callback of node {self.node_id}", exc)
+        self._callbacks(emcy)
         self._network.emit(parsed)
 
     def _close(self) -> None:

@@ -26,7 +26,7 @@ from cobus.proto.heartbeat import (
     RemoteStateChanged,
 )
 from cobus.proto.nmt import NmtCommand, NmtState, nmt_command_frame
-from cobus.runtime.network import NetworkClosedError
+from cobus.runtime._service import Callbacks, removed_error
 
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, MachineHost, Subscription
@@ -85,7 +85,7 @@ class RemoteNmt:
         self._subscription: Subscription | None = network.subscribe(
             _HEARTBEAT + node_id, self._on_frame
         )
-        self._callbacks: list[Callable[[Event], object]] = []
+        self._callbacks: Callbacks[Event] = Callbacks(network, f"NMT of node {node_id}")
         self._waiters: list[tuple[Callable[[Event], bool], asyncio.Future[Event]]] = []
 
     def __repr__(self) -> str:
@@ -192,10 +192,7 @@ class RemoteNmt:
 
     async def _wait(self, match: Callable[[Event], bool], timeout: float, what: str) -> None:
         if self._removed:
-            raise NetworkClosedError(
-                f"node {self.node_id} was removed from the network (remove_remote): add it "
-                "again with add_remote()"
-            )
+            raise removed_error(self.node_id)
         future: asyncio.Future[Event] = self._network.loop.create_future()
         waiter = (match, future)
         self._waiters.append(waiter)
@@ -220,12 +217,11 @@ class RemoteNmt:
     def add_callback(self, callback: Callable[[Event], object]) -> None:
         """Call ``callback(event)`` with each NMT event of the node: state changes, boot-up,
         heartbeat timeout and resumption, malformed heartbeats."""
-        self._callbacks.append(callback)
+        self._callbacks.add(callback)
 
     def remove_callback(self, callback: Callable[[Event], object]) -> None:
         """Stop calling ``callback`` (given to :meth:`add_callback`)."""
-        if callback in self._callbacks:
-            self._callbacks.remove(callback)
+        self._callbacks.remove(callback)
 
     def _on_frame(self, frame: Frame, now: float) -> None:
         self._host.feed(frame, now)  # the monitor's events first: the state is then current
@@ -240,11 +236,7 @@ class RemoteNmt:
 
     def _on_event(self, event: Event) -> None:
         self._resolve(event)
-        for callback in list(self._callbacks):
-            try:
-                callback(event)
-            except Exception as exc:
-                self._network._report_failure(f"NMT callback of node {self.node_id}", exc)
+        self._callbacks(event)
         self._network.emit(event)
 
     def _resolve(self, event: Event) -> None:

@@ -49,7 +49,7 @@ from cobus.proto.pdo import (
     tpdo_default_can_id,
 )
 from cobus.proto.sdo import SdoAbortCode, SdoAbortedError, SdoError
-from cobus.runtime.network import NetworkClosedError
+from cobus.runtime._service import Callbacks, removed_error
 
 if TYPE_CHECKING:
     from cobus.od import ObjectDictionary
@@ -219,7 +219,10 @@ class RemotePdo:
         self._fields: list[PdoField] = []
         self._codec = PdoMap([])
         self._values: dict[str, Any] = {}
-        self._callbacks: list[Callable[[PdoReceived], object]] = []
+        self._callbacks: Callbacks[PdoReceived] = Callbacks(
+            self._network,
+            f"{'TPDO' if self.transmit_by_node else 'RPDO'} {number} of node {self.node_id}",
+        )
         self._waiters: list[asyncio.Future[PdoReceived]] = []
         self._subscription: Subscription | None = None
         self._periodic: asyncio.TimerHandle | None = None
@@ -363,12 +366,11 @@ class RemotePdo:
     # ------------------------------------------------------------------ receiving (TPDO)
     def add_callback(self, callback: Callable[[PdoReceived], object]) -> None:
         """Call ``callback(event)`` with each :class:`PdoReceived` of this TPDO."""
-        self._callbacks.append(callback)
+        self._callbacks.add(callback)
 
     def remove_callback(self, callback: Callable[[PdoReceived], object]) -> None:
         """Stop calling ``callback`` (given to :meth:`add_callback`)."""
-        if callback in self._callbacks:
-            self._callbacks.remove(callback)
+        self._callbacks.remove(callback)
 
     async def wait_for_reception(self, timeout: float = 1.0) -> dict[str, Any]:
         """Wait for the next frame of this TPDO and return its values by name;
@@ -415,11 +417,7 @@ class RemotePdo:
         for waiter in self._waiters:
             if not waiter.done():
                 waiter.set_result(event)
-        for callback in list(self._callbacks):
-            try:
-                callback(event)
-            except Exception as exc:
-                self._network._report_failure(f"callback of {self!r}", exc)
+        self._callbacks(event)
         self._network.emit(event)
 
     def _resubscribe(self) -> None:
@@ -729,10 +727,7 @@ class PdoSet:
 
     def _check_open(self) -> None:
         if not self._active:
-            raise NetworkClosedError(
-                f"node {self.node_id} was removed from the network (remove_remote): add it "
-                "again with add_remote()"
-            )
+            raise removed_error(self.node_id)
 
     def _numbers(self) -> list[int]:
         od = self.od

@@ -23,6 +23,7 @@ from cobus.proto.sdo import (
     UploadDone,
 )
 from cobus.proto.sync import SyncProducer
+from cobus.runtime._service import removed_error
 from cobus.runtime.network import NetworkClosedError
 
 if TYPE_CHECKING:
@@ -159,10 +160,7 @@ class SdoChannel:
 
     async def _transfer(self, start: Any) -> Event:
         if self._removed:
-            raise NetworkClosedError(
-                f"node {self.node_id} was removed from the network (remove_remote): add it "
-                "again with add_remote()"
-            )
+            raise removed_error(self.node_id)
         async with self._lock:
             self._pending = self._network.loop.create_future()
             try:

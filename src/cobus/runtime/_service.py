@@ -1,0 +1,51 @@
+"""What the services of a remote node share: user callbacks, and the error of a removed node."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Generic, TypeVar
+
+from cobus.runtime.network import NetworkClosedError
+
+if TYPE_CHECKING:
+    from cobus.runtime.network import AsyncNetwork
+
+E = TypeVar("E")
+
+
+class Callbacks(Generic[E]):
+    """The user callbacks of one service, called in the order they were added; one that
+    raises is reported (a :class:`~cobus.runtime.events.HandlerFailed` event) and the others
+    still run."""
+
+    __slots__ = ("_callbacks", "_network", "_where")
+
+    def __init__(self, network: AsyncNetwork, where: str) -> None:
+        self._network = network
+        self._where = where
+        self._callbacks: list[Callable[[E], object]] = []
+
+    def add(self, callback: Callable[[E], object]) -> None:
+        self._callbacks.append(callback)
+
+    def remove(self, callback: Callable[[E], object]) -> None:
+        if callback in self._callbacks:
+            self._callbacks.remove(callback)
+
+    def __len__(self) -> int:
+        return len(self._callbacks)
+
+    def __call__(self, event: E) -> None:
+        for callback in list(self._callbacks):
+            try:
+                callback(event)
+            except Exception as exc:
+                self._network._report_failure(f"callback of {self._where}", exc)
+
+
+def removed_error(node_id: int) -> NetworkClosedError:
+    """The error of an operation on a node taken off the network with ``remove_remote``."""
+    return NetworkClosedError(
+        f"node {node_id} was removed from the network (remove_remote): add it again with "
+        "add_remote()"
+    )
