@@ -6,6 +6,7 @@ names looked up the way people type them, against simulated devices on the simul
 from __future__ import annotations
 
 import asyncio
+import itertools
 from pathlib import Path
 
 import pytest
@@ -167,6 +168,10 @@ def test_nmt_follows_bootup_and_heartbeat_loss():
         node = b.master
         events: list[object] = []
         node.nmt.add_callback(events.append)
+
+        def lost() -> bool:  # read afresh each time (a property, not a value)
+            return node.nmt.lost
+
         await node.sdo.write(0x1017, 0, 20)
         await node.nmt.wait_for_heartbeat()
         node.nmt.watch_heartbeat(0.05)
@@ -180,7 +185,7 @@ def test_nmt_follows_bootup_and_heartbeat_loss():
         await node.nmt.wait_for_heartbeat()
         b.sim.power_off()
         await b.net.sleep(0.2)
-        assert node.nmt.lost
+        assert lost()
         assert any(isinstance(e, HeartbeatTimeout) for e in events)
         with pytest.raises(
             NmtTimeoutError, match="node 10 did not report state OPERATIONAL"
@@ -190,9 +195,17 @@ def test_nmt_follows_bootup_and_heartbeat_loss():
         assert "last heard" in str(err.value)
         b.sim.power_on()
         await node.nmt.wait_for_bootup()
+        assert not lost()  # a boot-up starts supervision over
         await node.sdo.write(0x1017, 0, 20)
-        await node.nmt.wait_for_heartbeat()
-        assert any(isinstance(e, HeartbeatResumed) for e in events) or not node.nmt.lost
+        node.nmt.start()
+        await node.nmt.wait_for_state("operational")
+        # silent without a boot-up, then back in the same state: the wait hears it
+        b.sim.inject("heartbeat_stop")
+        await b.net.sleep(0.2)
+        assert lost() and node.nmt.state is NmtState.OPERATIONAL
+        b.sim.inject("heartbeat_resume")
+        assert await node.nmt.wait_for_state("operational") is NmtState.OPERATIONAL
+        assert isinstance(events[-1], HeartbeatResumed) and not lost()
 
     drive_run(scenario)
 
@@ -593,3 +606,94 @@ def test_the_blocking_network_lists_its_nodes_and_takes_listeners_back():
     assert was_connected and not net.connected
     with pytest.raises(TypeError, match="SimulatedEventLoop"):
         AsyncNetwork(simulated=True)
+
+
+def test_review_findings_stay_fixed():
+    """A PDO never read cannot wipe the node's mapping; out-of-range parameters are typed
+    errors; guarding replies count as the node's state; waits running at removal fail with
+    NetworkClosedError; a periodic RPDO does not burst after a stall; TPDOs on 29-bit
+    identifiers and longer frames decode; a reset EMCY clears what the register no longer
+    shows."""
+
+    async def main():
+        async with AsyncNetwork() as net:
+            node = net.add_remote(7)
+            with pytest.raises(PdoConfigurationError, match="nothing to save"):
+                await node.tpdo[1].save()
+            tpdo = node.tpdo[1]
+            tpdo.add(0x6041, 0, 16)
+            tpdo.inhibit_time = 70_000
+            with pytest.raises(PdoConfigurationError, match="inhibit time 70000 is out of range"):
+                await tpdo.save()
+
+            # node guarding replies: toggle bit 7 set, state in bits 0-6
+            events: list[object] = []
+            node.nmt.add_callback(events.append)
+            net.send(Frame(0x707, b"\x85"))
+            await asyncio.sleep(0)
+            assert node.nmt.state is NmtState.OPERATIONAL and node.nmt.last_heard == 0.0
+            assert not [e for e in events if "Malformed" in type(e).__name__]
+
+            # 29-bit TPDO, frame longer than the mapping
+            tpdo.extended = True
+            tpdo.cob_id = 0x1ABCDE07
+            net.send(Frame(0x1ABCDE07, b"\x37\x02\xff\xff", extended=True))
+            await asyncio.sleep(0)
+            assert tpdo.values == {"0x6041:00": 0x0237} and tpdo.count == 1
+
+            # periodic RPDO after a stall of the loop: no burst of the missed ones
+            frames: list[float] = []
+            rpdo = node.rpdo[1]
+            rpdo.add(0x6040, 0, 16)
+            net.subscribe(0x207, lambda f, now: frames.append(now))
+            rpdo.start(0.01)
+            await asyncio.sleep(0.05)
+            net.loop.call_soon(net.loop._advance, 0.2)  # type: ignore[attr-defined]
+            await asyncio.sleep(0.05)
+            rpdo.stop()
+            gaps = [b - a for a, b in itertools.pairwise(frames)]
+            assert min(gaps) > 0.009, gaps
+
+            # a reset EMCY keeps the errors its register still shows
+            for data in (
+                b"\x10\x42\x09\x00\x00\x00\x00\x00",  # 4210h temperature (bit 3)
+                b"\x10\x81\x11\x00\x00\x00\x00\x00",  # 8110h communication (bit 4)
+                b"\x00\x00\x09\x00\x00\x00\x00\x00",  # reset: temperature remains
+            ):
+                net.send(Frame(0x87, data))
+                await asyncio.sleep(0)
+            assert [e.code for e in node.emcy.active] == [0x4210]
+
+            # waits running when the node is removed fail with NetworkClosedError
+            waits = [
+                asyncio.ensure_future(w)
+                for w in (
+                    node.nmt.wait_for_bootup(),
+                    node.emcy.wait(),
+                    tpdo.wait_for_reception(),
+                    node.sdo.upload(0x1000),
+                    node.sdo.upload(0x1001),  # waits for the channel
+                )
+            ]
+            requests: list[bytes] = []
+            net.subscribe(0x607, lambda f, now: requests.append(f.data))
+            await asyncio.sleep(0)
+            net.remove_remote(7)
+            results = await asyncio.gather(*waits, return_exceptions=True)
+            assert all(isinstance(r, NetworkClosedError) for r in results), results
+            # the running upload is aborted towards the node; the queued one never went out
+            assert [d[:4].hex() for d in requests] == ["40001000", "80001000"]
+
+    simulate(main())
+
+
+def test_sync_skips_are_counted_exactly():
+    from cobus.proto.sync import SyncProducer
+
+    for k in range(1, 400):
+        p = SyncProducer()
+        p.set_period(1000, 0.0)
+        deadline = p.deadline
+        assert deadline is not None
+        p.on_timer(deadline + 3 * 0.001 + k * 1e-12)  # three whole periods late
+        assert p.skipped == 3, k

@@ -236,7 +236,8 @@ class SyncProducer:
         period = self._period
         deadline += period
         if deadline <= now:  # whole periods passed: they are not made up for
-            self.skipped += int((now - deadline) / period) + 1
+            # whole periods between the missed deadline and now (1 ns tolerance for floats)
+            self.skipped += int((now - deadline) / period + 1e-9) + 1
             deadline = now + period
         self._deadline = deadline
         return self.send(now)

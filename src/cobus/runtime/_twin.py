@@ -76,7 +76,7 @@ class BlockingTwin:
             with its own methods): forwarded like the generated members."""
             if name.startswith("_"):
                 raise AttributeError(name)
-            value = getattr(self.aio, name)
+            value = self._runner.call(getattr, self.aio, name)
             if inspect.iscoroutinefunction(value):
                 return lambda *a, **k: self._wrap(self._runner.run(value(*_in(a), **_kin(k))))
             if callable(value) and inspect.ismethod(value):
@@ -200,7 +200,8 @@ def _plain(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
 
 def _property(name: str, doc: str | None, settable: bool) -> property:
     def get(self: BlockingTwin) -> Any:
-        return self._wrap(getattr(self.aio, name))
+        # on the loop thread: a property may compute from state the loop is changing
+        return self._wrap(self._runner.call(getattr, self.aio, name))
 
     def put(self: BlockingTwin, value: Any) -> None:
         self._runner.call(setattr, self.aio, name, value)
@@ -222,11 +223,13 @@ def _setitem(self: BlockingTwin, key: Any, value: Any) -> None:
 
 
 def _len(self: BlockingTwin) -> int:
-    return len(self.aio)
+    result: int = self._runner.call(len, self.aio)
+    return result
 
 
 def _contains(self: BlockingTwin, key: object) -> bool:
-    return key in self.aio
+    result: bool = self._runner.call(lambda: key in self.aio)
+    return result
 
 
 _PROTOCOL: dict[str, Callable[..., Any]] = {

@@ -369,6 +369,7 @@ class Network:
     def remove_remote(self, node_id: int) -> None:
         """Forget a node added with :meth:`add_remote` (it can be added again)."""
         self._runner.call(self.aio.remove_remote, node_id)
+        self._remote_twins.pop(node_id, None)
 
     def add_device(
         self, node_id: int, od: ObjectDictionary | str | Path, **options: Any

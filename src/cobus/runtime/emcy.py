@@ -49,6 +49,16 @@ class Emergency:
         return f"0x{self.code:04X} {self.text} (register 0x{int(self.register):02X})"
 
 
+#: Error register bits (1001h) of the emergency code classes that have one.
+_CLASS_BITS = {0x2: 0x02, 0x3: 0x04, 0x4: 0x08, 0x8: 0x10}
+
+
+def _still_shown(emcy: Emergency, register: int) -> bool:
+    """Whether ``register`` still shows the error ``emcy`` reported."""
+    bit = _CLASS_BITS.get(emcy.code >> 12, 0x01)
+    return bool(register & bit)
+
+
 class RemoteEmcy:
     """The emergencies of one remote node (see the module docstring)."""
 
@@ -83,7 +93,10 @@ class RemoteEmcy:
 
     @property
     def active(self) -> list[Emergency]:
-        """The errors the node reported and has not reset since, oldest first."""
+        """The errors the node reported and has not reset since, oldest first. An "error
+        reset" emergency (00xxh) clears those whose class its error register no longer
+        shows (current, voltage, temperature, communication; the others while the generic
+        bit stays set), all of them when the register is 0."""
         return list(self._active)
 
     @property
@@ -99,6 +112,8 @@ class RemoteEmcy:
 
     def set_cob_id(self, cob_id: int) -> None:
         """Receive the node's emergencies on ``cob_id`` (its 1014h) instead of 80h + id."""
+        if self._removed:
+            raise removed_error(self.node_id)
         if not isinstance(cob_id, int) or not 0x001 <= cob_id <= 0x7FF:
             raise ValueError(f"EMCY identifier {cob_id!r} is not an 11-bit identifier 1..7FFh")
         if self._subscription is not None:
@@ -146,7 +161,9 @@ class RemoteEmcy:
         self._log.append(emcy)
         self.count += 1
         if emcy.is_reset:
-            self._active.clear()
+            # what the error register still shows stays active (0: every error is gone)
+            register = int(emcy.register)
+            self._active = [e for e in self._active if register and _still_shown(e, register)]
         else:
             self._active = [e for e in self._active if e.code != emcy.code]
             self._active.append(emcy)
@@ -162,4 +179,5 @@ class RemoteEmcy:
             self._subscription.cancel()
             self._subscription = None
         for future in self._waiters:
-            future.cancel()
+            if not future.done():
+                future.set_exception(removed_error(self.node_id))

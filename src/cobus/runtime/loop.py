@@ -99,10 +99,11 @@ class SimulatedEventLoop(asyncio.SelectorEventLoop):
         waits for an answer (``wait_for_bootup()`` right after ``reset_node()``) is listening
         before the frames sent just before it are delivered, exactly as in async code.
         """
+        ready = self._ready  # type: ignore[attr-defined]  # asyncio's queue of callbacks
+        before = len(ready)
         task = self.create_task(coro)
-        ready = getattr(self, "_ready", None)  # the loop's queue of callbacks (a deque)
-        if ready:
-            ready.rotate(1)  # the task's first step, queued last, goes first
+        if len(ready) == before + 1:  # its first step was queued last: it goes first
+            ready.rotate(1)
         return task
 
     def _run_poll_hooks(self) -> bool:

@@ -23,6 +23,7 @@ from cobus.proto import NOTHING, Event, Frame
 from cobus.proto.heartbeat import (
     BootupReceived,
     HeartbeatMonitor,
+    HeartbeatResumed,
     RemoteStateChanged,
 )
 from cobus.proto.nmt import NmtCommand, NmtState, nmt_command_frame
@@ -103,6 +104,13 @@ class RemoteNmt:
 
     @state.setter
     def state(self, state: NmtState | int | str) -> None:
+        if isinstance(state, str):
+            key = state.upper().replace("-", " ").replace("_", " ")
+            reset = {"RESET": NmtCommand.RESET_NODE, "RESET NODE": NmtCommand.RESET_NODE}
+            reset["RESET COMMUNICATION"] = NmtCommand.RESET_COMMUNICATION
+            if key in reset:
+                self.send(reset[key])
+                return
         wanted = _parse_state(state)
         command = _COMMAND_FOR.get(wanted)
         if command is None:
@@ -166,7 +174,10 @@ class RemoteNmt:
         if self.state is wanted and not self.lost:
             return wanted
         await self._wait(
-            lambda e: isinstance(e, RemoteStateChanged) and e.new is wanted,
+            lambda e: (
+                (isinstance(e, RemoteStateChanged) and e.new is wanted)
+                or (isinstance(e, HeartbeatResumed) and e.state is wanted)
+            ),
             timeout,
             f"report state {wanted.name}",
         )
@@ -224,8 +235,12 @@ class RemoteNmt:
         self._callbacks.remove(callback)
 
     def _on_frame(self, frame: Frame, now: float) -> None:
-        self._host.feed(frame, now)  # the monitor's events first: the state is then current
         data = frame.data
+        if len(data) == 1 and data[0] & 0x80 and not frame.rtr:
+            # a node guarding reply: bit 7 is the toggle, bits 0-6 the state
+            data = bytes((data[0] & 0x7F,))
+            frame = Frame(frame.cob_id, data)
+        self._host.feed(frame, now)  # the monitor's events first: the state is then current
         if frame.rtr or len(data) != 1 or data[0] not in _STATES:
             return
         self.last_heard = now
@@ -251,7 +266,8 @@ class RemoteNmt:
             self._subscription = None
         self._host.close()
         for _, future in self._waiters:
-            future.cancel()
+            if not future.done():
+                future.set_exception(removed_error(self.node_id))
 
 
 class _Heard(Event):

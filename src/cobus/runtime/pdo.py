@@ -174,12 +174,6 @@ class RemotePdo:
     number: int
     #: True for a TPDO of the node (received here), False for an RPDO (sent from here).
     transmit_by_node: bool
-    #: The CAN identifier (1400h/1800h sub 1, without flags).
-    cob_id: int
-    #: Whether the PDO exists on the node (bit 31 of its COB-ID clear).
-    enabled: bool
-    #: Whether the identifier is a 29-bit one.
-    extended: bool
     #: Whether the node accepts remote requests for it (bit 30 clear).
     rtr_allowed: bool
     #: Sub 2: 0 acyclic sync, 1-240 every n-th SYNC, 252/253 RTR only, 254/255 event.
@@ -205,9 +199,9 @@ class RemotePdo:
         self.number = number
         self.transmit_by_node = pdos.transmit_by_node
         default = _default_can_id(self.transmit_by_node, number, self.node_id)
-        self.cob_id = default
-        self.enabled = default != 0
-        self.extended = False
+        self._cob_id = default
+        self._enabled = default != 0
+        self._extended = False
         self.rtr_allowed = True
         self.transmission_type = 255
         self.inhibit_time = None
@@ -233,6 +227,41 @@ class RemotePdo:
         state = f"0x{self.cob_id:X}" if self.enabled else "disabled"
         names = ", ".join(f.name for f in self._fields if not f.dummy)
         return f"<{kind} {self.number} of node {self.node_id} {state}: {names or 'no mapping'}>"
+
+    # ------------------------------------------------------------------ the identifier
+    @property
+    def cob_id(self) -> int:
+        """The CAN identifier (1400h/1800h sub 1, without flags). Setting it changes it here
+        (a TPDO is then received on it); :meth:`save` writes it to the node."""
+        return self._cob_id
+
+    @cob_id.setter
+    def cob_id(self, value: int) -> None:
+        limit = 0x1FFFFFFF if self._extended else 0x7FF
+        if not isinstance(value, int) or not 1 <= value <= limit:
+            raise PdoError(f"{self._label()}: COB-ID {value!r} is not 1..0x{limit:X}")
+        self._cob_id = value
+        self._resubscribe()
+
+    @property
+    def enabled(self) -> bool:
+        """Whether the PDO exists (bit 31 of its COB-ID clear); settable like :attr:`cob_id`."""
+        return self._enabled
+
+    @enabled.setter
+    def enabled(self, value: bool) -> None:
+        self._enabled = bool(value)
+        self._resubscribe()
+
+    @property
+    def extended(self) -> bool:
+        """Whether the identifier is a 29-bit one (bit 29); settable like :attr:`cob_id`."""
+        return self._extended
+
+    @extended.setter
+    def extended(self, value: bool) -> None:
+        self._extended = bool(value)
+        self._resubscribe()
 
     # ------------------------------------------------------------------ the mapping
     @property
@@ -346,7 +375,7 @@ class RemotePdo:
                 PdoMap([(field.entry, Kind.UNSIGNED)]).pack([value])
         except ValueError as exc:
             raise type(exc)(f"{self._label()}, {field.name!r}: {exc}") from None
-        self._values[field.name] = value
+        self._values = {**self._values, field.name: value}  # events keep the values they had
 
     def __iter__(self) -> Iterator[str]:
         return iter(self.names)
@@ -474,7 +503,10 @@ class RemotePdo:
             self.transmit()
         except CobusError as exc:
             self._network._report_failure(f"periodic {self!r}", exc)
-        self._schedule(when + self._period)
+        later = when + self._period
+        now = self._network.time()
+        # after a stall, go on one period from now instead of sending the missed ones at once
+        self._schedule(later if later > now else now + self._period)
 
     def _check_enabled(self) -> None:
         if not self.enabled:
@@ -492,8 +524,8 @@ class RemotePdo:
 
     def _set_cob(self, value: int) -> None:
         cob = PdoCobId.from_u32(value)
-        self.cob_id, self.enabled = cob.can_id, cob.valid
-        self.rtr_allowed, self.extended = cob.rtr_allowed, cob.extended
+        self._cob_id, self._enabled = cob.can_id, cob.valid
+        self.rtr_allowed, self._extended = cob.rtr_allowed, cob.extended
 
     def _entry_field(self, value: int) -> PdoField:
         entry = MappingEntry.from_u32(value)
@@ -568,8 +600,20 @@ class RemotePdo:
         set the count, enable it again."""
         sdo = self._pdos._sdo
         comm, mapping = self._comm(), self._map()
+        if not self.configured:
+            raise PdoConfigurationError(
+                f"{self._label()}: nothing to save: read() it from the node, load_from_od() "
+                "or map objects with clear()/add() first (saving would clear its mapping)"
+            )
         try:
             TransmissionType(self.transmission_type)
+            for what, value, limit in (
+                ("inhibit time", self.inhibit_time, 0xFFFF),
+                ("event timer", self.event_timer, 0xFFFF),
+                ("SYNC start value", self.sync_start, 0xF0),
+            ):
+                if value is not None and not (isinstance(value, int) and 0 <= value <= limit):
+                    raise PdoError(f"{what} {value!r} is out of range: use 0..{limit}")
         except PdoError as exc:
             raise PdoConfigurationError(f"{self._label()}: {exc}") from None
 
@@ -628,7 +672,8 @@ class RemotePdo:
             self._subscription.cancel()
             self._subscription = None
         for waiter in self._waiters:
-            waiter.cancel()
+            if not waiter.done():
+                waiter.set_exception(removed_error(self.node_id))
 
 
 def _kind(field: PdoField) -> Kind | FieldCodec | None:
@@ -761,7 +806,7 @@ class PdoSet:
                     and cause.code in (SdoAbortCode.NO_OBJECT, SdoAbortCode.NO_SUBINDEX)
                     and self.od is None
                 ):
-                    del self._pdos[number]
+                    self._pdos.pop(number)._close()
                     continue
                 raise
             found.append(pdo)

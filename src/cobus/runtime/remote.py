@@ -7,6 +7,7 @@ object dictionary (type, access and limits checked before anything is sent).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -143,6 +144,8 @@ class SdoChannel:
     def _close(self) -> None:
         self._removed = True
         self._host.close()
+        with contextlib.suppress(ValueError):
+            self._network._on_disconnect.remove(self._on_disconnect)
         pending = self._pending
         if pending is not None and not pending.done():
             pending.set_exception(
@@ -162,6 +165,8 @@ class SdoChannel:
         if self._removed:
             raise removed_error(self.node_id)
         async with self._lock:
+            if self._removed:  # removed while this transfer waited for the channel
+                raise removed_error(self.node_id)
             self._pending = self._network.loop.create_future()
             try:
                 self._host.run(start)
@@ -571,6 +576,8 @@ class RemoteNode:
     tpdo: PdoSet
     #: The node's receive PDOs (sent from here).
     rpdo: PdoSet
+    #: The network the node is on.
+    network: AsyncNetwork
 
     def __init__(
         self,
@@ -587,7 +594,7 @@ class RemoteNode:
         check_node_id(node_id)
         self.node_id = node_id
         self.od = od
-        self._network = network
+        self.network = network
         self.sdo = SdoChannel(network, node_id, od, timeout=sdo_timeout)
         self.nmt = RemoteNmt(network, node_id)
         self.emcy = RemoteEmcy(network, node_id)
