@@ -370,6 +370,8 @@ def test_every_async_operation_has_its_blocking_twin():
         BlockingMaster: {"sleep"},
         blocking.SdoVariable: {"raw"},  # python-canopen's habit; a property cannot await
     }
+    expected[remote.NmtMaster] = blocking.BlockingNmt
+    expected[remote.SyncService] = blocking.BlockingSync
     assert dict(_twin._TWINS) == expected
     for async_cls, twin in expected.items():
         missing = _twin.public_names(async_cls) - _twin.public_names(twin)
@@ -606,6 +608,24 @@ def test_the_blocking_network_lists_its_nodes_and_takes_listeners_back():
     assert was_connected and not net.connected
     with pytest.raises(TypeError, match="SimulatedEventLoop"):
         AsyncNetwork(simulated=True)
+
+
+def test_the_blocking_network_has_what_the_async_one_has():
+    """Network is written by hand (it owns the loop); it has every operation of AsyncNetwork
+    but the plumbing for code that runs on the loop, which blocking code does through
+    ``run()`` and ``close()``."""
+    from cobus.runtime import _twin
+
+    plumbing = {"attach", "connect", "disconnect", "emit", "loop", "on_disconnect"}
+    missing = _twin.public_names(AsyncNetwork) - _twin.public_names(Network)
+    assert missing == plumbing
+    assert _twin.public_names(Network) - _twin.public_names(AsyncNetwork) == {"close", "run"}
+    with Network(simulated=True) as net:
+        net.sync.start(0.01)
+        assert net.sync is net.sync and net.sync.running and net.sync.period == 0.01
+        net.nmt.start(5)
+        net.sleep(0.1)
+        assert net.frames_sent == 11 and net.bus is net.aio.bus
 
 
 def test_review_findings_stay_fixed():

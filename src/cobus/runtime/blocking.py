@@ -25,16 +25,15 @@ import can
 
 from cobus.errors import CobusError
 from cobus.proto import Event, Frame
-from cobus.proto.nmt import NmtCommand
 from cobus.runtime import emcy as _emcy
 from cobus.runtime import nmt as _nmt
 from cobus.runtime import pdo as _pdo
 from cobus.runtime import remote as _remote
-from cobus.runtime._twin import BlockingTwin
+from cobus.runtime._twin import BlockingTwin, twin_of
 from cobus.runtime.events import BusState
 from cobus.runtime.loop import SimulatedEventLoop, new_event_loop
 from cobus.runtime.network import AsyncNetwork, FrameHandler, NetworkClosedError, Subscription
-from cobus.runtime.remote import NmtCommands, SdoChannel
+from cobus.runtime.remote import NmtMaster, SdoChannel, SyncService
 from cobus.runtime.remote import RemoteNode as AsyncRemoteNode
 
 if TYPE_CHECKING:
@@ -237,6 +236,7 @@ class Network:
         self._runner = Runner(simulated=simulated)
         self._listeners: dict[Callable[[Event], object], Callable[..., None]] = {}
         self._remote_twins: dict[int, RemoteNode] = {}
+        self._services: dict[int, BlockingTwin] = {}  # nmt and sync: one each, for good
         self.aio = AsyncNetwork(
             bus, interface=interface, channel=channel, bitrate=bitrate, **bus_kwargs
         )
@@ -317,6 +317,11 @@ class Network:
         return self.aio.connected
 
     @property
+    def bus(self) -> can.BusABC:
+        """The python-can bus (for what only the interface offers: filters, its state...)."""
+        return self.aio.bus
+
+    @property
     def bus_state(self) -> BusState:
         """The controller's last reported state: error-active, warning, error-passive, bus-off."""
         return self.aio.bus_state
@@ -383,12 +388,22 @@ class Network:
     @property
     def nmt(self) -> BlockingNmt:
         """The NMT master service: ``net.nmt.start(2)``, ``net.nmt.reset_node()``..."""
-        return BlockingNmt(self)
+        twin: BlockingNmt = self._service(self.aio.nmt)
+        return twin
 
     @property
     def sync(self) -> BlockingSync:
         """The SYNC producer: ``net.sync.start(0.01)``, ``net.sync.stop()``."""
-        return BlockingSync(self)
+        twin: BlockingSync = self._service(self.aio.sync)
+        return twin
+
+    def _service(self, aio: Any) -> Any:
+        twin = self._services.get(id(aio))
+        if twin is None:
+            made = twin_of(type(aio))
+            assert made is not None
+            twin = self._services[id(aio)] = made(aio, self._runner)
+        return twin
 
 
 class BlockingSdo(BlockingTwin, twin_of=SdoChannel):
@@ -455,48 +470,10 @@ class RemoteNode(BlockingTwin, twin_of=AsyncRemoteNode):
         rpdo: PdoSet
 
 
-class BlockingNmt(NmtCommands):
-    """NMT commands from blocking code; each call returns once the frame is handed over."""
-
-    def __init__(self, network: Network) -> None:
-        self._network = network
-
-    def send(self, command: NmtCommand | int | str, node_id: int = 0) -> None:
-        """Send an NMT command to ``node_id`` (0: every node); returns once it is handed over."""
-        aio = self._network.aio
-        self._network._runner.call(lambda: aio.nmt.send(command, node_id))
+class BlockingNmt(BlockingTwin, twin_of=NmtMaster):
+    """NMT commands from blocking code (``net.nmt.start(2)``); each call returns once the
+    frame is handed over."""
 
 
-class BlockingSync:
-    """The SYNC producer from blocking code."""
-
-    def __init__(self, network: Network) -> None:
-        self._network = network
-
-    def start(self, period: float, *, overflow: int = 0, cob_id: int = 0x80) -> None:
-        """Send SYNC every ``period`` seconds (see :meth:`SyncService.start`)."""
-        aio = self._network.aio
-        self._network._runner.call(lambda: aio.sync.start(period, overflow=overflow, cob_id=cob_id))
-
-    def stop(self) -> None:
-        """Stop sending SYNC."""
-        self._network._runner.call(self._network.aio.sync.stop)
-
-    def send(self) -> None:
-        """Send one SYNC now."""
-        self._network._runner.call(self._network.aio.sync.send)
-
-    @property
-    def running(self) -> bool:
-        """Whether SYNC is being sent periodically."""
-        return self._network.aio.sync.running
-
-    @property
-    def late_max(self) -> float:
-        """The longest delay of a SYNC behind its time so far, in seconds (the host was busy)."""
-        return self._network.aio.sync.late_max
-
-    @property
-    def skipped(self) -> int:
-        """SYNC periods that passed without a SYNC because the host was busy for longer."""
-        return self._network.aio.sync.skipped
+class BlockingSync(BlockingTwin, twin_of=SyncService):
+    """The SYNC producer from blocking code (``net.sync.start(0.01)``)."""

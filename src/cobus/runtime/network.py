@@ -201,6 +201,15 @@ class AsyncNetwork:
     given, the network opens a private python-can ``virtual`` bus.
     """
 
+    #: Frames received from the bus so far.
+    frames_received: int
+    #: Frames sent so far.
+    frames_sent: int
+    #: The nodes added with :meth:`add_remote`, by node-ID.
+    remotes: dict[int, RemoteNode]
+    #: The devices added with :meth:`add_device`, by node-ID.
+    devices: dict[int, Device]
+
     def __init__(
         self,
         bus: can.BusABC | None = None,
