@@ -17,8 +17,8 @@ import time
 import can
 import canopen
 
-from benchmarks.common import best_of, header, row
-from cobus.runtime import AsyncNetwork, SimulatedEventLoop
+from benchmarks.common import best_of, cobus_receive_rate, header, row
+from cobus.runtime import AsyncNetwork
 
 N = 20_000
 
@@ -33,29 +33,16 @@ def _messages() -> list[can.Message]:
 
 
 def dispatch_cobus(msgs: list[can.Message]) -> float:
-    loop = SimulatedEventLoop()
     count = [0]
 
     def handler(frame: object, now: float) -> None:
         count[0] += 1
 
-    async def setup() -> AsyncNetwork:
-        net = await AsyncNetwork().connect()
+    def setup(net: AsyncNetwork) -> None:
         for cob_id in range(0x181, 0x185):
             net.subscribe(cob_id, handler)
-        return net
 
-    net = loop.run_until_complete(setup())
-    batches = [msgs[i : i + 64] for i in range(0, len(msgs), 64)]
-
-    def run() -> None:
-        for batch in batches:
-            net._on_messages(batch)
-
-    elapsed = best_of(run)
-    loop.run_until_complete(net.disconnect())
-    loop.close()
-    return N / elapsed
+    return cobus_receive_rate(setup, msgs)
 
 
 def dispatch_canopen(msgs: list[can.Message]) -> float:

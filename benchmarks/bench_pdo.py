@@ -12,7 +12,7 @@ from __future__ import annotations
 import can
 import canopen
 
-from benchmarks.common import best_of, header, row
+from benchmarks.common import best_of, cobus_receive_rate, header, row
 from cobus.device import export_eds
 from cobus.runtime import AsyncNetwork, PdoReceived, SimulatedEventLoop
 from cobus.sim import Drive402
@@ -47,30 +47,17 @@ def _messages() -> list[can.Message]:
 
 
 def cobus_rate(eds: str, msgs: list[can.Message]) -> float:
-    loop = SimulatedEventLoop()
     seen = [0]
 
     def callback(event: PdoReceived) -> None:
         seen[0] += event.values["Position actual value"] >= 0
 
-    async def setup() -> AsyncNetwork:
-        net = await AsyncNetwork().connect()
+    def setup(net: AsyncNetwork) -> None:
         node = net.add_remote(NODE, eds)
         node.tpdo.load_from_od()
         node.tpdo[2].add_callback(callback)
-        return net
 
-    net = loop.run_until_complete(setup())
-    batches = [msgs[i : i + 64] for i in range(0, len(msgs), 64)]
-
-    def run() -> None:
-        for batch in batches:
-            net._on_messages(batch)
-
-    elapsed = best_of(run)
-    loop.run_until_complete(net.disconnect())
-    loop.close()
-    return N / elapsed
+    return cobus_receive_rate(setup, msgs)
 
 
 def canopen_rate(eds: str, msgs: list[can.Message]) -> float:

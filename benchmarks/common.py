@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+
+import can
+
+from cobus.runtime import AsyncNetwork, SimulatedEventLoop
 
 
 def best_of(fn: Callable[[], object], repeat: int = 5) -> float:
@@ -26,3 +30,28 @@ def row(label: str, cobus: float, other: float | None, unit: str, higher_is_bett
 
 def header(title: str) -> str:
     return f"\n{title}\n  {'':<44} {'cobus':>12} {'':<8} {'canopen':>12}"
+
+
+def cobus_receive_rate(
+    setup: Callable[[AsyncNetwork], object], msgs: Sequence[can.Message]
+) -> float:
+    """Frames per second through a cobus network's receive path (messages already read, in
+    batches as its reader takes them), after ``setup(network)`` subscribed what it measures."""
+    loop = SimulatedEventLoop()
+
+    async def connect() -> AsyncNetwork:
+        net = await AsyncNetwork().connect()
+        setup(net)
+        return net
+
+    net = loop.run_until_complete(connect())
+    batches = [msgs[i : i + 64] for i in range(0, len(msgs), 64)]
+
+    def run() -> None:
+        for batch in batches:
+            net._on_messages(batch)
+
+    elapsed = best_of(run)
+    loop.run_until_complete(net.disconnect())
+    loop.close()
+    return len(msgs) / elapsed

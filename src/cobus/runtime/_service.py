@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Generic, TypeVar
 
@@ -41,6 +42,47 @@ class Callbacks(Generic[E]):
                 callback(event)
             except Exception as exc:
                 self._network._report_failure(f"callback of {self._where}", exc)
+
+
+class Waiters(Generic[E]):
+    """The operations waiting for an event of a service (``wait_for_bootup()``...): each
+    ends with the first event its test accepts, with the error ``on_timeout`` makes when the
+    time is up, or with the service's end (:meth:`fail`)."""
+
+    __slots__ = ("_items", "_network")
+
+    def __init__(self, network: AsyncNetwork) -> None:
+        self._network = network
+        self._items: list[tuple[Callable[[E], bool], asyncio.Future[E]]] = []
+
+    async def wait(
+        self,
+        timeout: float,
+        on_timeout: Callable[[], Exception],
+        match: Callable[[E], bool] = lambda event: True,
+    ) -> E:
+        future: asyncio.Future[E] = self._network.loop.create_future()
+        item = (match, future)
+        self._items.append(item)
+        try:
+            return await asyncio.wait_for(future, timeout)
+        except TimeoutError:
+            raise on_timeout() from None
+        finally:
+            if item in self._items:
+                self._items.remove(item)
+
+    def resolve(self, event: E) -> None:
+        """End the waits whose test accepts ``event``."""
+        for match, future in list(self._items):
+            if not future.done() and match(event):
+                future.set_result(event)
+
+    def fail(self, error: Exception) -> None:
+        """End every wait with ``error``."""
+        for _, future in self._items:
+            if not future.done():
+                future.set_exception(error)
 
 
 def removed_error(node_id: int) -> NetworkClosedError:

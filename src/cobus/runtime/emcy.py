@@ -7,7 +7,6 @@ the errors not yet cleared by an "error reset / no error" emergency (00xxh) of t
 
 from __future__ import annotations
 
-import asyncio
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -16,7 +15,7 @@ from typing import TYPE_CHECKING
 from cobus.errors import CobusError
 from cobus.proto import Frame
 from cobus.proto.emcy import EMCY_BASE, ErrorRegister, MalformedEmcy, parse_emcy
-from cobus.runtime._service import Callbacks, removed_error
+from cobus.runtime._service import Callbacks, Waiters, removed_error
 
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, Subscription
@@ -78,7 +77,7 @@ class RemoteEmcy:
         self._log: deque[Emergency] = deque(maxlen=history)
         self._active: list[Emergency] = []
         self._callbacks: Callbacks[Emergency] = Callbacks(network, f"EMCY of node {node_id}")
-        self._waiters: list[asyncio.Future[Emergency]] = []
+        self._waiters: Waiters[Emergency] = Waiters(network)
         self._subscription: Subscription | None = network.subscribe(self.cob_id, self._on_frame)
 
     def __repr__(self) -> str:
@@ -133,17 +132,10 @@ class RemoteEmcy:
         """The node's next emergency; :class:`EmcyTimeoutError` after ``timeout`` seconds."""
         if self._removed:
             raise removed_error(self.node_id)
-        future: asyncio.Future[Emergency] = self._network.loop.create_future()
-        self._waiters.append(future)
-        try:
-            return await asyncio.wait_for(future, timeout)
-        except TimeoutError:
-            raise EmcyTimeoutError(
-                f"node {self.node_id} sent no emergency within {timeout:g} s"
-            ) from None
-        finally:
-            if future in self._waiters:
-                self._waiters.remove(future)
+        return await self._waiters.wait(
+            timeout,
+            lambda: EmcyTimeoutError(f"node {self.node_id} sent no emergency within {timeout:g} s"),
+        )
 
     def _on_frame(self, frame: Frame, now: float) -> None:
         parsed = parse_emcy(frame, self.node_id)
@@ -167,9 +159,7 @@ class RemoteEmcy:
         else:
             self._active = [e for e in self._active if e.code != emcy.code]
             self._active.append(emcy)
-        for future in self._waiters:
-            if not future.done():
-                future.set_result(emcy)
+        self._waiters.resolve(emcy)
         self._callbacks(emcy)
         self._network.emit(parsed)
 
@@ -178,6 +168,4 @@ class RemoteEmcy:
         if self._subscription is not None:
             self._subscription.cancel()
             self._subscription = None
-        for future in self._waiters:
-            if not future.done():
-                future.set_exception(removed_error(self.node_id))
+        self._waiters.fail(removed_error(self.node_id))

@@ -14,7 +14,6 @@ or refused it, would then be shown wrongly). :attr:`RemoteNmt.commanded` keeps t
 
 from __future__ import annotations
 
-import asyncio
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -27,7 +26,7 @@ from cobus.proto.heartbeat import (
     RemoteStateChanged,
 )
 from cobus.proto.nmt import NmtCommand, NmtState, nmt_command_frame
-from cobus.runtime._service import Callbacks, removed_error
+from cobus.runtime._service import Callbacks, Waiters, removed_error
 
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, MachineHost, Subscription
@@ -87,7 +86,7 @@ class RemoteNmt:
             _HEARTBEAT + node_id, self._on_frame
         )
         self._callbacks: Callbacks[Event] = Callbacks(network, f"NMT of node {node_id}")
-        self._waiters: list[tuple[Callable[[Event], bool], asyncio.Future[Event]]] = []
+        self._waiters: Waiters[Event] = Waiters(network)
 
     def __repr__(self) -> str:
         state = "unknown" if self.state is None else self.state.name
@@ -204,12 +203,8 @@ class RemoteNmt:
     async def _wait(self, match: Callable[[Event], bool], timeout: float, what: str) -> None:
         if self._removed:
             raise removed_error(self.node_id)
-        future: asyncio.Future[Event] = self._network.loop.create_future()
-        waiter = (match, future)
-        self._waiters.append(waiter)
-        try:
-            await asyncio.wait_for(future, timeout)
-        except TimeoutError:
+
+        def timed_out() -> NmtTimeoutError:
             heard = (
                 "it has not been heard: its heartbeat producer time 1017h may be 0, or its "
                 "boot-up came before this side listened"
@@ -217,12 +212,11 @@ class RemoteNmt:
                 else f"last heard {self._network.time() - self.last_heard:.3g} s ago in state "
                 f"{'unknown' if self.state is None else self.state.name}"
             )
-            raise NmtTimeoutError(
+            return NmtTimeoutError(
                 f"node {self.node_id} did not {what} within {timeout:g} s ({heard})"
-            ) from None
-        finally:
-            if waiter in self._waiters:
-                self._waiters.remove(waiter)
+            )
+
+        await self._waiters.wait(timeout, timed_out, match)
 
     # ------------------------------------------------------------------ events
     def add_callback(self, callback: Callable[[Event], object]) -> None:
@@ -255,9 +249,7 @@ class RemoteNmt:
         self._network.emit(event)
 
     def _resolve(self, event: Event) -> None:
-        for match, future in list(self._waiters):
-            if not future.done() and match(event):
-                future.set_result(event)
+        self._waiters.resolve(event)
 
     def _close(self) -> None:
         self._removed = True
@@ -265,9 +257,7 @@ class RemoteNmt:
             self._subscription.cancel()
             self._subscription = None
         self._host.close()
-        for _, future in self._waiters:
-            if not future.done():
-                future.set_exception(removed_error(self.node_id))
+        self._waiters.fail(removed_error(self.node_id))
 
 
 class _Heard(Event):

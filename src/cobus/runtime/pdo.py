@@ -49,7 +49,7 @@ from cobus.proto.pdo import (
     tpdo_default_can_id,
 )
 from cobus.proto.sdo import SdoAbortCode, SdoAbortedError, SdoError
-from cobus.runtime._service import Callbacks, removed_error
+from cobus.runtime._service import Callbacks, Waiters, removed_error
 
 if TYPE_CHECKING:
     from cobus.od import ObjectDictionary
@@ -217,7 +217,7 @@ class RemotePdo:
             self._network,
             f"{'TPDO' if self.transmit_by_node else 'RPDO'} {number} of node {self.node_id}",
         )
-        self._waiters: list[asyncio.Future[PdoReceived]] = []
+        self._waiters: Waiters[PdoReceived] = Waiters(self._network)
         self._subscription: Subscription | None = None
         self._periodic: asyncio.TimerHandle | None = None
         self._period = 0.0
@@ -408,18 +408,13 @@ class RemotePdo:
         if not self.transmit_by_node:
             raise PdoError(f"{self!r} is sent by this side: nothing to receive")
         self._check_enabled()
-        waiter: asyncio.Future[PdoReceived] = self._network.loop.create_future()
-        self._waiters.append(waiter)
-        try:
-            event = await asyncio.wait_for(waiter, timeout)
-        except TimeoutError:
-            raise PdoTimeoutError(
+        event = await self._waiters.wait(
+            timeout,
+            lambda: PdoTimeoutError(
                 f"{self!r}: no frame within {timeout:g} s (is the node operational, the PDO "
                 "enabled on it and, for a synchronous PDO, SYNC running?)"
-            ) from None
-        finally:
-            if waiter in self._waiters:
-                self._waiters.remove(waiter)
+            ),
+        )
         return event.values
 
     def request(self) -> None:
@@ -443,9 +438,7 @@ class RemotePdo:
         self.timestamp = now
         self.count += 1
         event = PdoReceived(self.node_id, self.number, values, now)
-        for waiter in self._waiters:
-            if not waiter.done():
-                waiter.set_result(event)
+        self._waiters.resolve(event)
         self._callbacks(event)
         self._network.emit(event)
 
@@ -671,9 +664,7 @@ class RemotePdo:
         if self._subscription is not None:
             self._subscription.cancel()
             self._subscription = None
-        for waiter in self._waiters:
-            if not waiter.done():
-                waiter.set_exception(removed_error(self.node_id))
+        self._waiters.fail(removed_error(self.node_id))
 
 
 def _kind(field: PdoField) -> Kind | FieldCodec | None:
