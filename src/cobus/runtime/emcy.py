@@ -47,6 +47,12 @@ class Emergency:
     def __str__(self) -> str:
         return f"0x{self.code:04X} {self.text} (register 0x{int(self.register):02X})"
 
+    def __repr__(self) -> str:
+        return (
+            f"<Emergency of node {self.node_id} at {self.time:.3f} s: {self}"
+            f"{', data ' + self.manufacturer_data.hex(' ') if any(self.manufacturer_data) else ''}>"
+        )
+
 
 #: Error register bits (1001h) of the emergency code classes that have one.
 _CLASS_BITS = {0x2: 0x02, 0x3: 0x04, 0x4: 0x08, 0x8: 0x10}
