@@ -135,7 +135,10 @@ class RemoteEmcy:
         self._callbacks.remove(callback)
 
     async def wait(self, timeout: float = 1.0) -> Emergency:
-        """The node's next emergency; :class:`EmcyTimeoutError` after ``timeout`` seconds."""
+        """The node's next emergency; :class:`EmcyTimeoutError` after ``timeout`` seconds.
+
+        It waits for one that arrives after the call: in real time, one the node sent just
+        before may already be in :attr:`log` (a callback sees every one)."""
         if self._removed:
             raise removed_error(self.node_id)
         return await self._waiters.wait(

@@ -403,7 +403,8 @@ class RemotePdo:
 
     async def wait_for_reception(self, timeout: float = 1.0) -> dict[str, Any]:
         """Wait for the next frame of this TPDO and return its values by name;
-        :class:`PdoTimeoutError` after ``timeout`` seconds."""
+        :class:`PdoTimeoutError` after ``timeout`` seconds (a frame that arrived before the
+        call is in :attr:`values`; a callback sees every one)."""
         self._pdos._check_open()
         if not self.transmit_by_node:
             raise PdoError(f"{self!r} is sent by this side: nothing to receive")
