@@ -717,3 +717,30 @@ def test_sync_skips_are_counted_exactly():
         assert deadline is not None
         p.on_timer(deadline + 3 * 0.001 + k * 1e-12)  # three whole periods late
         assert p.skipped == 3, k
+
+
+def test_a_callback_failing_on_every_frame_does_not_flood_the_log(caplog):
+    from cobus.runtime import HandlerFailed
+
+    async def main():
+        async with AsyncNetwork() as net:
+            node = net.add_remote(7)
+            tpdo = node.tpdo[1]
+            tpdo.add(0x6041, 0, 16)
+
+            def broken(event: PdoReceived) -> None:
+                raise RuntimeError("a bug in the application")
+
+            tpdo.add_callback(broken)
+            failed: list[object] = []
+            net.add_listener(lambda e: failed.append(e) if isinstance(e, HandlerFailed) else None)
+            for _ in range(50):
+                net.send(Frame(0x187, b"\x37\x02"))
+                await asyncio.sleep(0.001)
+            assert tpdo.count == 50 and len(failed) == 50  # every failure is an event
+
+    with caplog.at_level("ERROR", logger="cobus.runtime.network"):
+        simulate(main())
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 2, lines  # the first with its traceback, then the 10th
+    assert "a bug in the application" in lines[0] and "10 times so far" in lines[1]

@@ -252,6 +252,7 @@ class AsyncNetwork:
         self._state_poll: asyncio.TimerHandle | None = None
         self.frames_received = 0
         self.frames_sent = 0
+        self._failures: dict[tuple[object, ...], int] = {}  # by where they were raised
         self.remotes: dict[int, RemoteNode] = {}
         self.devices: dict[int, Device] = {}
         self._nmt: NmtMaster | None = None
@@ -523,7 +524,18 @@ class AsyncNetwork:
             self._report_failure(f"listener task {task.get_name()}", task.exception())  # type: ignore[arg-type]
 
     def _report_failure(self, where: str, exc: BaseException) -> None:
-        log.error("%s failed: %r", where, exc, exc_info=exc)
+        """Report a failing handler or callback: a :class:`HandlerFailed` event each time; in
+        the log, its traceback the first time, then a line at the 10th, 100th, 1000th... time
+        (a callback that fails on every frame must not flood the log)."""
+        tb = exc.__traceback__
+        while tb is not None and tb.tb_next is not None:
+            tb = tb.tb_next
+        site = (type(exc), tb.tb_frame.f_code.co_filename, tb.tb_lineno) if tb else (type(exc),)
+        count = self._failures[site] = self._failures.get(site, 0) + 1
+        if count == 1:
+            log.error("%s failed: %r", where, exc, exc_info=exc)
+        elif count in (10, 100, 1000) or count % 10_000 == 0:
+            log.error("%s failed again: %r (%d times so far)", where, exc, count)
         self.emit(HandlerFailed(where, repr(exc)))
 
     # ------------------------------------------------------------------ transmit backlog
