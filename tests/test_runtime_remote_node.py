@@ -269,6 +269,10 @@ def test_blocking_node_on_a_device_with_names_as_people_type_them():
         assert dev.get(0x2000, 0) == 42
         with pytest.raises(ValueRangeError, match="'Setpoint'"):
             node.rpdo[1]["Setpoint"] = 1 << 20
+        with pytest.raises(ValueRangeError, match="True is a bool but the object is INTEGER16"):
+            node.rpdo[1]["Setpoint"] = True
+        with pytest.raises(ValueRangeError, match=r"node 5, 'Setpoint'.*a bool"):
+            node.sdo.write("Setpoint", False)
 
         # periodic RPDO on the simulated clock
         writes: list[int] = []

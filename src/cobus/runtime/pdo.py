@@ -50,6 +50,7 @@ from cobus.proto.pdo import (
 )
 from cobus.proto.sdo import SdoAbortCode, SdoAbortedError, SdoError
 from cobus.runtime._service import Callbacks, Waiters, removed_error
+from cobus.runtime.remote import check_not_bool
 
 if TYPE_CHECKING:
     from cobus.od import ObjectDictionary
@@ -370,6 +371,7 @@ class RemotePdo:
         field = self.field(key)
         try:
             if field.variable is not None:
+                check_not_bool(field.variable, value)
                 field.variable.check(value)
             else:  # no dictionary: the mapping's bits are all there is to check against
                 PdoMap([(field.entry, Kind.UNSIGNED)]).pack([value])

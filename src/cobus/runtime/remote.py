@@ -385,10 +385,22 @@ def encode_for(var: Variable, value: Any, node_id: int) -> bytes:
     from cobus.od import ValueRangeError
 
     try:
+        check_not_bool(var, value)
         return var.encode(value)
     except ValueRangeError as exc:
         where = f"0x{var.index:04X}:{var.subindex:02X}"
         raise ValueRangeError(f"node {node_id}, {var.name!r} ({where}): {exc}") from None
+
+
+def check_not_bool(var: Variable, value: Any) -> None:
+    """Refuse True/False for an integer object: Python counts them as 1 and 0, a user who
+    writes ``True`` into a mode of operation has most likely mistaken the object."""
+    from cobus.od import ValueRangeError
+
+    if isinstance(value, bool) and var.data_type.is_integer:
+        raise ValueRangeError(
+            f"{value!r} is a bool but the object is {var.data_type.name}: give a number"
+        )
 
 
 class SdoVariable:
