@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import re
 import weakref
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
@@ -241,11 +242,37 @@ _PROTOCOL: dict[str, Callable[..., Any]] = {
 }
 
 
+_DOC_COMMENT = re.compile(r"^\s*#: ?(.*)$")
+_ANNOTATION = re.compile(r"^\s*([A-Za-z_]\w*)\s*:")
+
+
+def _attribute_docs(cls: type) -> dict[str, str]:
+    """The ``#:`` comments above a class's annotated attributes, as their docs."""
+    try:
+        lines = inspect.getsource(cls).splitlines()
+    except (OSError, TypeError):
+        return {}
+    docs: dict[str, str] = {}
+    pending: list[str] = []
+    for line in lines:
+        comment = _DOC_COMMENT.match(line)
+        if comment:
+            pending.append(comment.group(1))
+            continue
+        annotation = _ANNOTATION.match(line)
+        if annotation and pending:
+            docs.setdefault(annotation.group(1), " ".join(pending))
+        pending = []
+    return docs
+
+
 def _fill(twin: type[BlockingTwin], async_cls: type) -> None:
     twin.__twin_of__ = async_cls
     annotated: set[str] = set()
-    for klass in async_cls.__mro__:
+    docs: dict[str, str] = {}
+    for klass in reversed(async_cls.__mro__):
         annotated.update(vars(klass).get("__annotations__", {}))
+        docs.update(_attribute_docs(klass))
     for attr in sorted(public_names(async_cls)):
         if attr in vars(twin):
             continue  # written out in the twin's body: it knows better
@@ -259,7 +286,7 @@ def _fill(twin: type[BlockingTwin], async_cls: type) -> None:
         elif inspect.isfunction(member):
             made = _plain(attr, member)
         elif attr in annotated:
-            doc = f"``{async_cls.__name__}.{attr}`` of the async object."
+            doc = docs.get(attr) or f"``{async_cls.__name__}.{attr}`` of the async object."
             made = _property(attr, doc, True)
         else:  # a class constant
             made = member
