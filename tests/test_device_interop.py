@@ -5,7 +5,6 @@ parameters, starts the node, sends SYNC and RPDOs and receives the device's TPDO
 from __future__ import annotations
 
 import os
-import time
 
 import canopen
 import pytest
@@ -15,6 +14,7 @@ from cobus.device import DictionaryBuilder
 from cobus.od import DataType
 from cobus.proto.nmt import NmtState
 from cobus.runtime import Network
+from tests.util import until
 
 pytestmark = pytest.mark.interop
 
@@ -29,14 +29,6 @@ def _od():
     b.array(0x6000, "Digital inputs", DataType.UNSIGNED8, 2, access="ro", mappable=True)
     b.tpdo(1, [(0x2006, 0)], transmission_type=255)
     return b.build()
-
-
-def _until(check, timeout: float = 2.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not check():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not reached in time")
-        time.sleep(0.005)
 
 
 def test_python_canopen_configures_and_runs_a_cobus_device():
@@ -80,7 +72,7 @@ def test_python_canopen_configures_and_runs_a_cobus_device():
             node.store()  # 1010h sub 1 "save"
 
             node.nmt.state = "OPERATIONAL"
-            _until(lambda: device.state is NmtState.OPERATIONAL)
+            until(lambda: device.state is NmtState.OPERATIONAL)
             device.set(0x2000, 0, 0x1234)
             device.set(0x6000, 2, 0x5A)
             master.sync.transmit()
@@ -89,11 +81,11 @@ def test_python_canopen_configures_and_runs_a_cobus_device():
             assert tpdo["Digital inputs.Digital inputs 2"].raw == 0x5A
             device.set(0x2000, 0, 0x4321)
             master.sync.transmit()
-            _until(lambda: tpdo["Counter"].raw == 0x4321)
+            until(lambda: tpdo["Counter"].raw == 0x4321)
 
             rpdo["Setpoint"].raw = -321
             rpdo.transmit()
-            _until(lambda: device.get(0x2001) == -321)
+            until(lambda: device.get(0x2001) == -321)
 
             assert node.sdo[0x1017].raw == 0
             node.sdo[0x1017].raw = 50

@@ -5,8 +5,6 @@ from python-canopen's heartbeat, an emergency with its text."""
 from __future__ import annotations
 
 import os
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import canopen
@@ -14,19 +12,12 @@ import pytest
 
 from cobus.proto.nmt import NmtState
 from cobus.runtime import Network, PdoReceived
+from tests.util import until
 
 pytestmark = pytest.mark.interop
 
 EDS = str(Path(__file__).resolve().parent.parent / "examples" / "networks" / "servo.eds")
 NODE = 10
-
-
-def until(check: Callable[[], object], timeout: float = 2.0) -> None:
-    end = time.monotonic() + timeout
-    while not check():
-        if time.monotonic() > end:
-            raise AssertionError("not reached in time")
-        time.sleep(0.005)
 
 
 def test_cobus_remote_node_against_a_canopen_device():
