@@ -1,12 +1,11 @@
 """Blocking twins generated from the async classes, so the two surfaces cannot drift apart.
 
-A subclass of :class:`BlockingTwin` declared with ``twin_of=`` gets the async class's
-public names: a
-coroutine method becomes a method that runs it on the network's loop and waits for it; a
-plain method runs on the loop thread; properties and the annotated public attributes read
-through; callbacks given to ``add_callback`` run in the blocking network's callback thread
-(inline on the simulated clock). What a call returns is wrapped in its own twin when its
-class has one, so ``node.tpdo[1]`` from a blocking node is the blocking PDO.
+A subclass of :class:`BlockingTwin` declared with ``twin_of=`` gets the async class's public
+names: a coroutine method becomes a method that runs it on the network's loop and waits for
+it; a plain method, a property or an annotated public attribute is run or read on the loop
+thread; a callback given to an ``add_*callback``/``add_*listener`` method runs in the blocking
+network's callback thread (inline on the simulated clock). What a call returns is wrapped in
+its own twin when its class has one, so ``node.tpdo[1]`` of a blocking node is a blocking PDO.
 """
 
 from __future__ import annotations
