@@ -352,6 +352,7 @@ def test_every_async_operation_has_its_blocking_twin():
     import cobus.sim.blocking
     from cobus.device import BlockingDevice, Device
     from cobus.master import BlockingMaster, Master
+    from cobus.profiles import AsyncDrive402, Drive402
     from cobus.runtime import _twin, blocking, emcy, nmt, pdo, remote
     from cobus.sim import Rig, SimulatedDevice
 
@@ -368,6 +369,7 @@ def test_every_async_operation_has_its_blocking_twin():
         SimulatedDevice: cobus.sim.blocking.BlockingSimulatedDevice,
         Master: BlockingMaster,
         Device: BlockingDevice,
+        AsyncDrive402: Drive402,
     }
     # what a blocking face adds: letting the network run (async code awaits the network)
     added: dict[type, set[str]] = {

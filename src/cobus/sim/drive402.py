@@ -21,11 +21,11 @@ applies when a heartbeat or life guarding is lost, the node is stopped or reset 
   (within 606Dh for 606Eh ms), bit 12 speed zero (below 606Fh).
 - 4 profile torque: target torque 6071h (per mille of 6076h) with the slope 6087h; the speed
   is limited to 6080h.
-- 6 homing: method 6098h — 1/2 limit switch negative/positive then the encoder index pulse,
-  17/18 limit switch negative/positive, 35/37 the current position; speeds 6099h (sub 1
-  search for the switch, sub 2 search for zero), acceleration 609Ah, home offset 607Ch (the
-  position the home point gets); start with the rising edge of bit 4; bit 12 homing attained,
-  bit 13 homing error.
+- 6 homing: method 6098h (the supported ones listed in 60E3h) — 1/2 limit switch
+  negative/positive then the encoder index pulse, 17/18 limit switch negative/positive,
+  35/37 the current position; speeds 6099h (sub 1 search for the switch, sub 2 search for
+  zero), acceleration 609Ah, home offset 607Ch (the position the home point gets); start
+  with the rising edge of bit 4; bit 12 homing attained, bit 13 homing error.
 - 8/9/10 cyclic synchronous position/velocity/torque: 607Ah/60FFh/6071h are taken at each
   SYNC (received by RPDO of any type); positions are interpolated over the SYNC period
   (60C2h when set, else the measured interval); bit 12 "drive follows the command value".
@@ -468,6 +468,9 @@ class Drive402(CanopenSimDevice):
         var(0x6085, "Quick stop deceleration", U32, default=2_000_000)
         var(0x6087, "Torque slope", U32, default=10_000)
         var(0x6098, "Homing method", I8, default=37)
+        methods = b.array(0x60E3, "Supported homing methods", I8, len(_HOMING_METHODS), access="ro")
+        for n, method in enumerate(sorted(_HOMING_METHODS), 1):
+            methods[n].default = method
         b.record(0x6099, "Homing speeds")
         b.variable(0x6099, "Speed during search for switch", U32, subindex=1, default=20_000)
         b.variable(0x6099, "Speed during search for zero", U32, subindex=2, default=2_000)

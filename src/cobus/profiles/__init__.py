@@ -1,0 +1,35 @@
+"""Device profiles run from the master side: the drives and I/O a user commands.
+
+- :mod:`cobus.profiles.cia402` — CiA 402 sans I/O: power states from the statusword, the
+  controlword commands, modes of operation, error code texts.
+- :mod:`cobus.profiles.drive402` — :class:`AsyncDrive402` / :class:`Drive402`: enable, move,
+  home, run at a velocity or a torque, with typed errors.
+"""
+
+from cobus.profiles.cia402 import Command, OperationMode, PowerState, Statusword, error_text
+from cobus.profiles.drive402 import (
+    AsyncDrive402,
+    Drive402,
+    DriveError,
+    DriveFault,
+    DriveStateError,
+    DriveTimeoutError,
+    HomingError,
+    Quirks,
+)
+
+__all__ = [
+    "AsyncDrive402",
+    "Command",
+    "Drive402",
+    "DriveError",
+    "DriveFault",
+    "DriveStateError",
+    "DriveTimeoutError",
+    "HomingError",
+    "OperationMode",
+    "PowerState",
+    "Quirks",
+    "Statusword",
+    "error_text",
+]

@@ -1,0 +1,187 @@
+"""The narrow port a drive profile talks through: SDO bytes, the newest TPDO value of an
+object, RPDO outputs, the last emergency. One implementation per kind of node: a bare
+:class:`~cobus.runtime.remote.RemoteNode`, or a node the :class:`~cobus.master.Master`
+manages (its process image carries the PDOs)."""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Protocol
+
+if TYPE_CHECKING:
+    from cobus.master.master import Master
+    from cobus.master.node import ManagedNode
+    from cobus.runtime.emcy import Emergency
+    from cobus.runtime.network import AsyncNetwork
+    from cobus.runtime.pdo import PdoReceived
+    from cobus.runtime.remote import RemoteNode
+
+__all__ = ["DrivePort", "ManagedNodePort", "RemoteNodePort", "port_for"]
+
+Key = tuple[int, int]
+
+
+class DrivePort(Protocol):
+    """What a drive profile needs from the node it runs."""
+
+    node_id: int
+    network: AsyncNetwork
+
+    async def upload(self, index: int, subindex: int) -> bytes: ...
+    async def download(self, index: int, subindex: int, data: bytes) -> None: ...
+
+    def input(self, index: int, subindex: int) -> tuple[Any, float] | None:
+        """The raw value of an object as its last TPDO carried it, and when (None: no
+        TPDO maps it, or none came yet)."""
+
+    def add_input_callback(self, callback: Callable[[float], object]) -> None:
+        """Call ``callback(now)`` after each TPDO of the node was taken."""
+
+    def remove_input_callback(self, callback: Callable[[float], object]) -> None: ...
+
+    def set_output(self, index: int, subindex: int, value: int) -> bool:
+        """Put a raw value into the RPDO that maps the object and send it as that RPDO
+        is configured; False when no RPDO the port sends maps it."""
+
+    def last_emergency(self) -> Emergency | None: ...
+
+
+class RemoteNodePort:
+    """A bare remote node: SDO through its channel, inputs from the TPDOs whose mapping was
+    read or loaded (``node.tpdo.read()``); outputs go by SDO (an RPDO of a bare node would
+    send its other mapped objects too, with values the drive does not own)."""
+
+    def __init__(self, node: RemoteNode) -> None:
+        self.node = node
+        self.node_id = node.node_id
+        self.network = node.network
+        self._values: dict[Key, tuple[Any, float]] = {}
+        self._callbacks: list[Callable[[float], object]] = []
+        self._watched: set[int] = set()
+
+    def _watch(self) -> None:
+        for pdo in self.node.tpdo:
+            if pdo.number in self._watched:
+                continue
+            self._watched.add(pdo.number)
+            pdo.add_callback(functools.partial(self._taken, pdo))
+
+    def _taken(self, pdo: Any, event: PdoReceived) -> None:
+        for field in pdo.fields:
+            if not field.dummy and field.name in event.values:
+                key = (field.entry.index, field.entry.subindex)
+                self._values[key] = (event.values[field.name], event.time)
+        for callback in list(self._callbacks):
+            callback(event.time)
+
+    async def upload(self, index: int, subindex: int) -> bytes:
+        return await self.node.sdo.upload(index, subindex)
+
+    async def download(self, index: int, subindex: int, data: bytes) -> None:
+        await self.node.sdo.download(index, subindex, data)
+
+    def input(self, index: int, subindex: int) -> tuple[Any, float] | None:
+        self._watch()
+        return self._values.get((index, subindex))
+
+    def add_input_callback(self, callback: Callable[[float], object]) -> None:
+        self._watch()
+        self._callbacks.append(callback)
+
+    def remove_input_callback(self, callback: Callable[[float], object]) -> None:
+        if callback in self._callbacks:
+            self._callbacks.remove(callback)
+
+    def set_output(self, index: int, subindex: int, value: int) -> bool:
+        return False
+
+    def last_emergency(self) -> Emergency | None:
+        return self.node.emcy.last
+
+
+class ManagedNodePort:
+    """A node the master manages: inputs and outputs through its process image (raw values:
+    a signal's scale and offset are undone), SDO through the master's link to it."""
+
+    def __init__(self, node: ManagedNode) -> None:
+        self.managed = node
+        self.master: Master = node.master
+        self.node_id = node.node_id
+        self.network = self.master.network
+        self._callbacks: list[Callable[[float], object]] = []
+        self._times: dict[int, float] = {}
+        self.master.add_tpdo_listener(self._taken)
+
+    def _taken(self, node_id: int, number: int, now: float) -> None:
+        if node_id != self.node_id:
+            return
+        self._times[number] = now
+        for callback in list(self._callbacks):
+            callback(now)
+
+    def _signal(self, table: dict[str, Any], index: int, subindex: int) -> Any:
+        for sig in table.values():
+            if sig.node_id == self.node_id and (sig.index, sig.subindex) == (index, subindex):
+                return sig
+        return None
+
+    async def upload(self, index: int, subindex: int) -> bytes:
+        return await self.managed.sdo.upload(index, subindex)
+
+    async def download(self, index: int, subindex: int, data: bytes) -> None:
+        await self.managed.sdo.download(index, subindex, data)
+
+    def input(self, index: int, subindex: int) -> tuple[Any, float] | None:
+        image = self.master.image
+        sig = self._signal(image.inputs_by_name, index, subindex)
+        if sig is None or sig.pdo not in self._times:
+            return None
+        value = image.read_input(sig.name)
+        if sig.scale is not None or sig.offset:
+            value = round((value - sig.offset) / (sig.scale or 1.0))
+        return value, self._times[sig.pdo]
+
+    def add_input_callback(self, callback: Callable[[float], object]) -> None:
+        self._callbacks.append(callback)
+
+    def remove_input_callback(self, callback: Callable[[float], object]) -> None:
+        if callback in self._callbacks:
+            self._callbacks.remove(callback)
+
+    def set_output(self, index: int, subindex: int, value: int) -> bool:
+        sig = self._signal(self.master.image.outputs_by_name, index, subindex)
+        if sig is None:
+            return False
+        shown: Any = value
+        if sig.scale is not None or sig.offset:
+            shown = value * (sig.scale or 1.0) + sig.offset
+        if self.master.outputs[sig.name] == shown:
+            self.master.send_rpdo(self.node_id, sig.pdo)  # unchanged: send it all the same
+        else:
+            self.master.set_output(sig.name, shown)
+        return True
+
+    def last_emergency(self) -> Emergency | None:
+        history = self.managed.emcy_history
+        return history[0] if history else None
+
+    def close(self) -> None:
+        self.master.remove_tpdo_listener(self._taken)
+
+
+def port_for(node: Any) -> DrivePort:
+    """The port to a node: a :class:`RemoteNode`, a master's :class:`ManagedNode`, or the
+    blocking twin of either (its async object is used)."""
+    from cobus.master.node import ManagedNode
+    from cobus.runtime.remote import RemoteNode
+
+    aio = getattr(node, "aio", node)
+    if isinstance(aio, RemoteNode):
+        return RemoteNodePort(aio)
+    if isinstance(aio, ManagedNode):
+        return ManagedNodePort(aio)
+    raise TypeError(
+        f"a drive runs on a RemoteNode (net.add_remote(...)) or a node the master manages "
+        f"(master.node('name')), not on {type(node).__name__}"
+    )

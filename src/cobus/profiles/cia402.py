@@ -1,0 +1,296 @@
+"""CiA 402 (IEC 61800-7-201) for the master side, sans I/O: the power state machine decoded
+from the statusword (6041h), the controlword (6040h) commands and the path from any state to
+any other, the modes of operation (6060h/6061h), and the texts of the error codes (603Fh).
+
+Nothing here touches a bus; :mod:`cobus.profiles.drive402` runs a drive with it.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+from cobus._enum import NamedIntEnum
+from cobus.proto.emcy import describe as _describe_emcy
+
+__all__ = [
+    "Command",
+    "OperationMode",
+    "PowerState",
+    "Statusword",
+    "command_towards",
+    "error_text",
+]
+
+
+class PowerState(enum.Enum):
+    """The states of the CiA 402 power drive state machine (statusword bits 0-3, 5, 6)."""
+
+    NOT_READY_TO_SWITCH_ON = "not ready to switch on"
+    SWITCH_ON_DISABLED = "switch on disabled"
+    READY_TO_SWITCH_ON = "ready to switch on"
+    SWITCHED_ON = "switched on"
+    OPERATION_ENABLED = "operation enabled"
+    QUICK_STOP_ACTIVE = "quick stop active"
+    FAULT_REACTION_ACTIVE = "fault reaction active"
+    FAULT = "fault"
+
+    def __str__(self) -> str:
+        return self.name
+
+    @classmethod
+    def from_statusword(cls, statusword: int) -> PowerState:
+        """The state a statusword reports (CiA 402 table of bits 0-3, 5 and 6)."""
+        for mask, value, state in _DECODE:
+            if statusword & mask == value:
+                return state
+        # 0bxx0x_1111 with bit 6 set, and similar combinations CiA 402 leaves undefined:
+        # the nearest reading is "not ready" (the drive is not in any defined state)
+        return cls.NOT_READY_TO_SWITCH_ON
+
+
+_P = PowerState
+#: (mask, value, state): CiA 402's decoding of the statusword, in its order.
+_DECODE: tuple[tuple[int, int, PowerState], ...] = (
+    (0x4F, 0x00, _P.NOT_READY_TO_SWITCH_ON),
+    (0x4F, 0x40, _P.SWITCH_ON_DISABLED),
+    (0x6F, 0x21, _P.READY_TO_SWITCH_ON),
+    (0x6F, 0x23, _P.SWITCHED_ON),
+    (0x6F, 0x27, _P.OPERATION_ENABLED),
+    (0x6F, 0x07, _P.QUICK_STOP_ACTIVE),
+    (0x4F, 0x0F, _P.FAULT_REACTION_ACTIVE),
+    (0x4F, 0x08, _P.FAULT),
+)
+
+
+class Command(NamedIntEnum):
+    """The controlword device-control commands (bits 0-3 and 7; the other bits are the
+    mode's and are kept by the caller)."""
+
+    SHUTDOWN = 0x06
+    SWITCH_ON = 0x07
+    DISABLE_VOLTAGE = 0x00
+    QUICK_STOP = 0x02
+    DISABLE_OPERATION = 0x07
+    ENABLE_OPERATION = 0x0F
+    FAULT_RESET = 0x80
+
+    @staticmethod
+    def mask() -> int:
+        """The controlword bits the commands own: 0-3 and 7."""
+        return 0x8F
+
+
+class OperationMode(NamedIntEnum):
+    """The modes of operation of CiA 402 (6060h / 6061h values)."""
+
+    NO_MODE = 0
+    PROFILE_POSITION = 1
+    VELOCITY = 2
+    PROFILE_VELOCITY = 3
+    PROFILE_TORQUE = 4
+    HOMING = 6
+    INTERPOLATED_POSITION = 7
+    CYCLIC_SYNC_POSITION = 8
+    CYCLIC_SYNC_VELOCITY = 9
+    CYCLIC_SYNC_TORQUE = 10
+
+    @property
+    def supported_bit(self) -> int:
+        """This mode's bit in 6502h "supported drive modes" (0 for NO_MODE)."""
+        return 0 if self is OperationMode.NO_MODE else 1 << (self.value - 1)
+
+
+#: Statusword bits by their CiA 402 names (bits 10, 12 and 13 depend on the mode).
+SW_READY_TO_SWITCH_ON = 1 << 0
+SW_SWITCHED_ON = 1 << 1
+SW_OPERATION_ENABLED = 1 << 2
+SW_FAULT = 1 << 3
+SW_VOLTAGE_ENABLED = 1 << 4
+SW_QUICK_STOP = 1 << 5
+SW_SWITCH_ON_DISABLED = 1 << 6
+SW_WARNING = 1 << 7
+SW_REMOTE = 1 << 9
+SW_TARGET_REACHED = 1 << 10
+SW_INTERNAL_LIMIT = 1 << 11
+SW_BIT12 = 1 << 12
+SW_BIT13 = 1 << 13
+
+#: Controlword bits of the modes.
+CW_NEW_SETPOINT = 1 << 4  # profile position; homing: start
+CW_CHANGE_IMMEDIATELY = 1 << 5
+CW_RELATIVE = 1 << 6
+CW_FAULT_RESET = 1 << 7
+CW_HALT = 1 << 8
+CW_CHANGE_ON_SETPOINT = 1 << 9
+
+
+@dataclass(frozen=True, slots=True)
+class Statusword:
+    """A statusword decoded: the state and each flag, with the mode-specific bits 12 and 13
+    named for ``mode`` (``print(Statusword(0x1637, OperationMode.PROFILE_POSITION))``)."""
+
+    value: int
+    mode: int = 0
+
+    @property
+    def state(self) -> PowerState:
+        """The power state the statusword reports."""
+        return PowerState.from_statusword(self.value)
+
+    @property
+    def voltage_enabled(self) -> bool:
+        """Bit 4: high voltage is applied to the drive."""
+        return bool(self.value & SW_VOLTAGE_ENABLED)
+
+    @property
+    def warning(self) -> bool:
+        """Bit 7: a warning (the drive still runs)."""
+        return bool(self.value & SW_WARNING)
+
+    @property
+    def remote(self) -> bool:
+        """Bit 9: the controlword is obeyed (else the drive is under local control)."""
+        return bool(self.value & SW_REMOTE)
+
+    @property
+    def target_reached(self) -> bool:
+        """Bit 10: the target is reached (or, after halt, the drive stands still)."""
+        return bool(self.value & SW_TARGET_REACHED)
+
+    @property
+    def internal_limit(self) -> bool:
+        """Bit 11: an internal limit is active (a limit switch, a clamped set-point...)."""
+        return bool(self.value & SW_INTERNAL_LIMIT)
+
+    def flags(self) -> list[str]:
+        """The flags that are set, in words, the mode-specific bits named for :attr:`mode`."""
+        names = [
+            (SW_VOLTAGE_ENABLED, "voltage enabled"),
+            (SW_WARNING, "warning"),
+            (SW_REMOTE, "remote"),
+            (SW_TARGET_REACHED, "target reached"),
+            (SW_INTERNAL_LIMIT, "internal limit active"),
+        ]
+        bit12, bit13 = _MODE_BITS.get(self.mode, ("operation mode specific (bit 12)", "bit 13"))
+        names += [(SW_BIT12, bit12), (SW_BIT13, bit13)]
+        return [text for bit, text in names if self.value & bit]
+
+    def __str__(self) -> str:
+        flags = ", ".join(self.flags())
+        return f"0x{self.value:04X} {self.state.name}" + (f" ({flags})" if flags else "")
+
+
+#: The names of statusword bits 12 and 13 in each mode.
+_MODE_BITS: dict[int, tuple[str, str]] = {
+    OperationMode.PROFILE_POSITION: ("set-point acknowledge", "following error"),
+    OperationMode.PROFILE_VELOCITY: ("speed is zero", "max slippage error"),
+    OperationMode.PROFILE_TORQUE: ("bit 12 reserved", "bit 13 reserved"),
+    OperationMode.HOMING: ("homing attained", "homing error"),
+    OperationMode.INTERPOLATED_POSITION: ("interpolation active", "bit 13"),
+    OperationMode.CYCLIC_SYNC_POSITION: ("drive follows the command value", "following error"),
+    OperationMode.CYCLIC_SYNC_VELOCITY: ("drive follows the command value", "bit 13"),
+    OperationMode.CYCLIC_SYNC_TORQUE: ("drive follows the command value", "bit 13"),
+}
+
+
+#: The next command on the way from a state to OPERATION_ENABLED, SWITCHED_ON,
+#: READY_TO_SWITCH_ON or SWITCH_ON_DISABLED (None: nothing the controlword can do — wait).
+_TOWARDS: dict[PowerState, dict[PowerState, Command | None]] = {
+    _P.OPERATION_ENABLED: {
+        _P.NOT_READY_TO_SWITCH_ON: None,
+        _P.SWITCH_ON_DISABLED: Command.SHUTDOWN,
+        _P.READY_TO_SWITCH_ON: Command.SWITCH_ON,
+        _P.SWITCHED_ON: Command.ENABLE_OPERATION,
+        _P.QUICK_STOP_ACTIVE: Command.DISABLE_VOLTAGE,
+        _P.FAULT_REACTION_ACTIVE: None,
+        _P.FAULT: Command.FAULT_RESET,
+    },
+    _P.SWITCHED_ON: {
+        _P.NOT_READY_TO_SWITCH_ON: None,
+        _P.SWITCH_ON_DISABLED: Command.SHUTDOWN,
+        _P.READY_TO_SWITCH_ON: Command.SWITCH_ON,
+        _P.OPERATION_ENABLED: Command.DISABLE_OPERATION,
+        _P.QUICK_STOP_ACTIVE: Command.DISABLE_VOLTAGE,
+        _P.FAULT_REACTION_ACTIVE: None,
+        _P.FAULT: Command.FAULT_RESET,
+    },
+    _P.READY_TO_SWITCH_ON: {
+        _P.NOT_READY_TO_SWITCH_ON: None,
+        _P.SWITCH_ON_DISABLED: Command.SHUTDOWN,
+        _P.SWITCHED_ON: Command.SHUTDOWN,
+        _P.OPERATION_ENABLED: Command.SHUTDOWN,
+        _P.QUICK_STOP_ACTIVE: Command.DISABLE_VOLTAGE,
+        _P.FAULT_REACTION_ACTIVE: None,
+        _P.FAULT: Command.FAULT_RESET,
+    },
+    _P.SWITCH_ON_DISABLED: {
+        _P.NOT_READY_TO_SWITCH_ON: None,
+        _P.READY_TO_SWITCH_ON: Command.DISABLE_VOLTAGE,
+        _P.SWITCHED_ON: Command.DISABLE_VOLTAGE,
+        _P.OPERATION_ENABLED: Command.DISABLE_VOLTAGE,
+        _P.QUICK_STOP_ACTIVE: Command.DISABLE_VOLTAGE,
+        _P.FAULT_REACTION_ACTIVE: None,
+        _P.FAULT: Command.FAULT_RESET,
+    },
+}
+
+
+def command_towards(current: PowerState, target: PowerState) -> Command | None:
+    """The command that takes a drive one transition from ``current`` towards ``target``
+    (OPERATION_ENABLED, SWITCHED_ON, READY_TO_SWITCH_ON or SWITCH_ON_DISABLED): ``None``
+    when ``current`` is ``target`` or a state only the drive leaves by itself (not ready to
+    switch on, fault reaction active). From FAULT it is a fault reset, the caller's choice."""
+    if current is target:
+        return None
+    table = _TOWARDS.get(target)
+    if table is None:
+        raise ValueError(
+            f"{target.name} is not a state a controlword command leads to; the targets are "
+            + ", ".join(s.name for s in _TOWARDS)
+        )
+    return table[current]
+
+
+#: The CiA 402-2 error codes (603Fh) a drive reports, with their texts; any other code is
+#: described by its CiA 301 emergency class.
+_ERROR_TEXTS: dict[int, str] = {
+    0x2211: "Over-current inside the drive",
+    0x2212: "Over-current device output side",
+    0x2310: "Continuous over-current",
+    0x2311: "Continuous over-current (motor)",
+    0x2320: "Short circuit / earth leakage",
+    0x2330: "Earth leakage",
+    0x3110: "Mains over-voltage",
+    0x3120: "Mains under-voltage",
+    0x3130: "Phase failure",
+    0x3210: "DC link over-voltage",
+    0x3220: "DC link under-voltage",
+    0x4110: "Excess ambient temperature",
+    0x4210: "Excess temperature device",
+    0x4310: "Excess temperature drive (motor over-temperature)",
+    0x5112: "Supply low voltage",
+    0x5530: "Data storage (non-volatile memory) fault",
+    0x6010: "Software reset (watchdog)",
+    0x6320: "Parameter error",
+    0x7110: "Brake chopper failure",
+    0x7121: "Motor blocked",
+    0x7300: "Sensor failure",
+    0x7305: "Incremental sensor 1 fault",
+    0x7310: "Speed error",
+    0x7320: "Position error",
+    0x8110: "CAN overrun",
+    0x8130: "Life guard error or heartbeat error",
+    0x8311: "Excess torque",
+    0x8400: "Velocity speed controller error",
+    0x8611: "Following error",
+    0x8612: "Reference limit",
+    0xFF00: "Manufacturer specific",
+}
+
+
+def error_text(code: int) -> str:
+    """The text of a 603Fh error code: the CiA 402 wording when the code is one of its
+    drive errors, else the CiA 301 emergency class it belongs to."""
+    text = _ERROR_TEXTS.get(code)
+    return text if text is not None else _describe_emcy(code)

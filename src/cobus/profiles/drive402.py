@@ -1,0 +1,695 @@
+"""A CiA 402 drive run from the master side: ``await drive.enable()``, ``await
+drive.move_to(1000)``, ``await drive.home()`` — each returns when the drive reports it done.
+
+:class:`AsyncDrive402` runs on a bare :class:`~cobus.runtime.remote.RemoteNode` or on a node
+the :class:`~cobus.master.Master` manages; :class:`Drive402` is its blocking twin. The
+statusword comes from a TPDO where one maps it (the newest value not older than ``poll``),
+by SDO otherwise; the controlword and the set-points go through the master's process image
+where an RPDO maps them, by SDO otherwise (always on a bare node). Objects are written as
+their CiA 402 data types, so no EDS is needed.
+
+Positions, velocities and accelerations are in user units: ``scale`` drive increments per
+user unit (``Drive402(node, scale=4096, unit="rev")``); torques in per mille of the rated
+torque.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import functools
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from cobus.errors import CobusError
+from cobus.od import DataType, decode, encode
+from cobus.profiles._port import DrivePort, port_for
+from cobus.profiles.cia402 import (
+    CW_CHANGE_IMMEDIATELY,
+    CW_FAULT_RESET,
+    CW_HALT,
+    CW_NEW_SETPOINT,
+    CW_RELATIVE,
+    SW_BIT12,
+    SW_BIT13,
+    SW_TARGET_REACHED,
+    Command,
+    OperationMode,
+    PowerState,
+    Statusword,
+    command_towards,
+    error_text,
+)
+from cobus.proto.sdo import SdoAbortedError
+from cobus.runtime._twin import BlockingTwin
+
+__all__ = [
+    "AsyncDrive402",
+    "Drive402",
+    "DriveError",
+    "DriveFault",
+    "DriveStateError",
+    "DriveTimeoutError",
+    "HomingError",
+    "Quirks",
+]
+
+_D = DataType
+#: The CiA 402 objects the drive uses, with their data types.
+_TYPES: dict[int, DataType] = {
+    0x603F: _D.UNSIGNED16,
+    0x6040: _D.UNSIGNED16,
+    0x6041: _D.UNSIGNED16,
+    0x605A: _D.INTEGER16,
+    0x6060: _D.INTEGER8,
+    0x6061: _D.INTEGER8,
+    0x6064: _D.INTEGER32,
+    0x606C: _D.INTEGER32,
+    0x6071: _D.INTEGER16,
+    0x6077: _D.INTEGER16,
+    0x607A: _D.INTEGER32,
+    0x607C: _D.INTEGER32,
+    0x6081: _D.UNSIGNED32,
+    0x6083: _D.UNSIGNED32,
+    0x6084: _D.UNSIGNED32,
+    0x6087: _D.UNSIGNED32,
+    0x6098: _D.INTEGER8,
+    0x6099: _D.UNSIGNED32,
+    0x609A: _D.UNSIGNED32,
+    0x60E3: _D.INTEGER8,
+    0x60FF: _D.INTEGER32,
+    0x6502: _D.UNSIGNED32,
+}
+_MODE_NAMES = ", ".join(f"{m.value} {m.name}" for m in OperationMode)
+
+
+def _left(state: PowerState, status: Statusword) -> bool:
+    return status.state is not state
+
+
+class DriveError(CobusError):
+    """A drive did not do what it was asked (the subclasses say why)."""
+
+
+class DriveStateError(DriveError):
+    """The drive is not in a state the operation needs (e.g. a move while not enabled)."""
+
+
+class DriveTimeoutError(DriveError, TimeoutError):
+    """A transition or a move did not happen in time; the text names it and the statusword
+    the drive was left with."""
+
+
+class DriveFault(DriveError):
+    """The drive is in FAULT (or reacting to one): the 603Fh ``code`` with its ``text``, the
+    last ``emergency`` the node sent, the decoded ``statusword`` and the ``state``."""
+
+    def __init__(
+        self,
+        node_id: int,
+        code: int | None,
+        statusword: Statusword,
+        emergency: Any = None,
+        doing: str = "",
+    ) -> None:
+        self.node_id = node_id
+        self.code = code
+        self.text = error_text(code) if code else "no error code in 603Fh"
+        self.statusword = statusword
+        self.state = statusword.state
+        self.emergency = emergency
+        where = f" while {doing}" if doing else ""
+        shown = f"0x{code:04X} {self.text}" if code else self.text
+        last = f"; last EMCY: {emergency}" if emergency is not None else ""
+        super().__init__(
+            f"drive {node_id} faulted{where}: {shown}{last}; statusword {statusword}; "
+            "fault_reset() clears it once the cause is gone"
+        )
+
+
+class HomingError(DriveError):
+    """The drive reported a homing error (statusword bit 13 in homing mode)."""
+
+
+@dataclass
+class Quirks:
+    """What real drives need beyond CiA 402, per drive.
+
+    ``halt_during_mode_change``: set Halt while 6060h changes and clear it afterwards (drives
+    that refuse a mode change while moving). ``mode_change_state``: the power state to switch
+    modes in (e.g. SWITCHED_ON for drives that accept 6060h only with the power stage off);
+    None changes the mode in any state. ``fault_reset_pulse``: how long bit 7 is held high.
+    ``clear_halt``: clear Halt before a move (a Halt left over from a stop blocks every move).
+    """
+
+    halt_during_mode_change: bool = False
+    mode_change_state: PowerState | None = None
+    fault_reset_pulse: float = 0.01
+    clear_halt: bool = True
+
+
+class AsyncDrive402:
+    """A CiA 402 drive on ``node`` (see the module docstring).
+
+    ``scale``: drive increments per user unit of position (velocities per second,
+    accelerations per second squared); ``unit``: the unit's name, for messages. ``poll``:
+    seconds between statusword reads while waiting (a TPDO that carries it wakes the wait
+    sooner; its value is used when it came after the last write and is at most
+    ``max_age`` seconds old). ``timeout``: the default time for a state transition or a mode change.
+    """
+
+    def __init__(
+        self,
+        node: Any,
+        *,
+        scale: float = 1.0,
+        unit: str = "inc",
+        poll: float = 0.005,
+        max_age: float = 0.05,
+        timeout: float = 2.0,
+        quirks: Quirks | None = None,
+    ) -> None:
+        if not scale or not math.isfinite(scale):
+            raise ValueError(f"scale {scale!r}: drive increments per user unit, not 0")
+        self._port: DrivePort = port_for(node)
+        self.node_id = self._port.node_id
+        #: Drive increments per user unit.
+        self.scale = float(scale)
+        #: The user unit's name.
+        self.unit = unit
+        #: Seconds between statusword reads while waiting.
+        self.poll = poll
+        #: Seconds a state transition or a mode change may take.
+        self.timeout = timeout
+        #: The oldest TPDO value (seconds) taken instead of an SDO read; only values that
+        #: came after the last write count.
+        self.max_age = max_age
+        self._written_at = -math.inf
+        #: The drive's deviations from CiA 402.
+        self.quirks = quirks or Quirks()
+        self._cw = 0
+        self._sw = 0
+        self._mode: int | None = None
+        self._supported: int | None = None
+        self._homing_methods: list[int] | None = None
+        self._updated = asyncio.Event()
+        self._port.add_input_callback(self._on_input)
+
+    def __repr__(self) -> str:
+        return f"<Drive402 node {self.node_id}: {self.status}>"
+
+    # ------------------------------------------------------------------ the objects
+    async def read(self, index: int, subindex: int = 0) -> Any:
+        """Read a CiA 402 object by SDO (decoded as its data type)."""
+        data = await self._port.upload(index, subindex)
+        dt = _TYPES.get(index, _D.UNSIGNED32)
+        if index == 0x60E3 and subindex == 0:
+            dt = _D.UNSIGNED8
+        return decode(dt, data[: dt.size or len(data)])
+
+    async def write(self, index: int, subindex: int, value: int) -> None:
+        """Write a CiA 402 object: into its RPDO where the master maps it, else by SDO."""
+        if not self._port.set_output(index, subindex, value):
+            data = encode(_TYPES.get(index, _D.UNSIGNED32), value)
+            await self._port.download(index, subindex, data)
+        self._written_at = self._port.network.time()
+
+    def _fresh(self, index: int) -> Any:
+        got = self._port.input(index, 0)
+        if got is None:
+            return None
+        value, when = got
+        if when <= self._written_at or self._port.network.time() - when > self.max_age:
+            return None
+        return value
+
+    def _on_input(self, now: float) -> None:
+        self._updated.set()
+
+    async def read_statusword(self) -> Statusword:
+        """The statusword now: the newest TPDO value when one is fresh, else read by SDO."""
+        value = self._fresh(0x6041)
+        self._sw = int(value if value is not None else await self.read(0x6041))
+        return self.status
+
+    @property
+    def statusword(self) -> int:
+        """The statusword as last read or received."""
+        return self._sw
+
+    @property
+    def status(self) -> Statusword:
+        """The last statusword, decoded (state and flags named for the mode)."""
+        return Statusword(self._sw, self._mode or 0)
+
+    @property
+    def state(self) -> PowerState:
+        """The power state of the last statusword."""
+        return PowerState.from_statusword(self._sw)
+
+    @property
+    def controlword(self) -> int:
+        """The controlword as last sent."""
+        return self._cw
+
+    async def _send_cw(self, cw: int) -> None:
+        self._cw = cw & 0xFFFF
+        await self.write(0x6040, 0, self._cw)
+
+    async def _fault(self, doing: str) -> DriveFault:
+        try:
+            code: int | None = int(await self.read(0x603F))
+        except SdoAbortedError:
+            code = None  # the drive has no 603Fh
+        return DriveFault(self.node_id, code, self.status, self._port.last_emergency(), doing)
+
+    async def _wait(
+        self,
+        done: Callable[[Statusword], bool],
+        timeout: float,
+        what: str,
+        *,
+        fault_ok: bool = False,
+        progress: Callable[[Statusword], object] | None = None,
+    ) -> Statusword:
+        """Read the statusword until ``done`` accepts it; DriveFault if the drive faults,
+        DriveTimeoutError naming ``what`` after ``timeout`` seconds."""
+        loop = self._port.network
+        deadline = loop.time() + timeout
+        while True:
+            status = await self.read_statusword()
+            if not fault_ok and status.state in (
+                PowerState.FAULT,
+                PowerState.FAULT_REACTION_ACTIVE,
+            ):
+                raise await self._fault(what)
+            if done(status):
+                return status
+            if progress is not None:
+                progress(status)
+            left = deadline - loop.time()
+            if left <= 1e-6:  # (a timer shorter than the clock's resolution would not fire)
+                raise DriveTimeoutError(
+                    f"drive {self.node_id}: {what} did not happen within {timeout:g} s; "
+                    f"statusword {status}"
+                )
+            self._updated.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._updated.wait(), min(self.poll, left))
+
+    # ------------------------------------------------------------------ the state machine
+    async def set_state(self, target: PowerState | str, timeout: float | None = None) -> None:
+        """Take the drive to ``target`` (OPERATION_ENABLED, SWITCHED_ON, READY_TO_SWITCH_ON or
+        SWITCH_ON_DISABLED) one transition at a time, each within ``timeout`` (default
+        :attr:`timeout`). A drive in FAULT raises :class:`DriveFault` (call
+        :meth:`fault_reset` first); a transition that does not happen raises
+        :class:`DriveTimeoutError` naming it."""
+        goal = target if isinstance(target, PowerState) else PowerState[str(target).upper()]
+        limit = self.timeout if timeout is None else timeout
+        status = await self.read_statusword()
+        for _step in range(8):
+            state = status.state
+            if state is goal:
+                return
+            if state in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE):
+                raise await self._fault(f"going to {goal.name}")
+            command = command_towards(state, goal)
+            if command is None:  # not ready to switch on: the drive leaves it by itself
+                status = await self._wait(
+                    functools.partial(_left, state),
+                    limit,
+                    f"leaving {state.name} (the drive's own initialisation)",
+                )
+                continue
+            await self._send_cw((self._cw & ~Command.mask()) | command)
+            status = await self._wait(
+                functools.partial(_left, state),
+                limit,
+                f"{state.name} -> {goal.name} by {command.name} (controlword 0x{self._cw:04X})",
+            )
+        raise DriveStateError(
+            f"drive {self.node_id} did not settle in {goal.name}: it is {status.state.name}"
+        )
+
+    async def enable(self, timeout: float | None = None) -> None:
+        """Shutdown -> switch on -> enable operation: the drive holds its position (or its
+        mode's set-point) with the power stage on. A drive in FAULT raises
+        :class:`DriveFault`; reset it with :meth:`fault_reset` first."""
+        await self.set_state(PowerState.OPERATION_ENABLED, timeout)
+
+    async def disable(self, timeout: float | None = None) -> None:
+        """Switch the power stage off (disable voltage: SWITCH_ON_DISABLED); the motor
+        coasts unless the drive has a brake."""
+        await self.set_state(PowerState.SWITCH_ON_DISABLED, timeout)
+
+    async def quick_stop(self, timeout: float | None = None) -> None:
+        """Stop with the quick stop deceleration (the drive's 605Ah option) and return once it
+        stands: in SWITCH_ON_DISABLED, or in QUICK_STOP_ACTIVE with target reached."""
+        await self._send_cw((self._cw & ~Command.mask()) | Command.QUICK_STOP)
+        await self._wait(
+            lambda s: (
+                s.state is PowerState.SWITCH_ON_DISABLED
+                or (s.state is PowerState.QUICK_STOP_ACTIVE and s.target_reached)
+            ),
+            self.timeout if timeout is None else timeout,
+            "quick stop",
+        )
+
+    async def fault_reset(self, timeout: float | None = None) -> None:
+        """Clear a fault (a rising edge of controlword bit 7, held ``quirks.fault_reset_pulse``
+        seconds) and wait for SWITCH_ON_DISABLED; :class:`DriveFault` when the fault stays
+        (its cause is still there). Does nothing to a drive that is not faulted."""
+        status = await self.read_statusword()
+        limit = self.timeout if timeout is None else timeout
+        if status.state is PowerState.FAULT_REACTION_ACTIVE:
+            status = await self._wait(
+                lambda s: s.state is not PowerState.FAULT_REACTION_ACTIVE,
+                limit,
+                "the end of the fault reaction",
+                fault_ok=True,
+            )
+        if status.state is not PowerState.FAULT:
+            return
+        base = self._cw & ~(Command.mask() | CW_NEW_SETPOINT)
+        await self._send_cw(base)
+        await self._send_cw(base | CW_FAULT_RESET)
+        await asyncio.sleep(self.quirks.fault_reset_pulse)
+        await self._send_cw(base)
+        try:
+            await self._wait(
+                lambda s: s.state is not PowerState.FAULT,
+                limit,
+                "FAULT -> SWITCH_ON_DISABLED",
+                fault_ok=True,
+            )
+        except DriveTimeoutError:
+            raise await self._fault("resetting the fault (its cause is still there?)") from None
+
+    # ------------------------------------------------------------------ modes
+    async def supported_modes(self) -> list[OperationMode]:
+        """The modes 6502h lists (every mode when the drive has no 6502h)."""
+        if self._supported is None:
+            try:
+                self._supported = int(await self.read(0x6502))
+            except SdoAbortedError:
+                self._supported = 0xFFFFFFFF
+        return [m for m in OperationMode if m.supported_bit & self._supported]
+
+    async def set_mode(self, mode: OperationMode | int | str, timeout: float | None = None) -> None:
+        """Switch to ``mode`` and wait until 6061h shows it. A mode 6502h does not list
+        raises :class:`DriveStateError` at once; the quirks apply (halt during the change,
+        the state to change in)."""
+        try:
+            wanted = OperationMode[mode.upper()] if isinstance(mode, str) else OperationMode(mode)
+        except (KeyError, ValueError):
+            raise ValueError(f"mode {mode!r}: the modes are {_MODE_NAMES}") from None
+        if self._mode == wanted:
+            return
+        if wanted not in await self.supported_modes():
+            modes = ", ".join(m.name for m in await self.supported_modes())
+            raise DriveStateError(
+                f"drive {self.node_id} does not support {wanted.name} (6502h lists: {modes})"
+            )
+        quirks = self.quirks
+        if quirks.mode_change_state is not None:
+            await self.set_state(quirks.mode_change_state, timeout)
+        if quirks.halt_during_mode_change:
+            await self._send_cw(self._cw | CW_HALT)
+        await self.write(0x6060, 0, int(wanted))
+        limit = self.timeout if timeout is None else timeout
+        deadline = self._port.network.time() + limit
+        while True:
+            shown = int(await self.read(0x6061))
+            if shown == wanted:
+                break
+            if self._port.network.time() >= deadline:
+                raise DriveTimeoutError(
+                    f"drive {self.node_id}: mode {wanted.name} written to 6060h, but 6061h "
+                    f"still shows {shown} after {limit:g} s"
+                )
+            await asyncio.sleep(self.poll)
+        self._mode = wanted
+        if quirks.halt_during_mode_change:
+            await self._send_cw(self._cw & ~CW_HALT)
+
+    async def read_mode(self) -> OperationMode | int:
+        """The mode 6061h shows now."""
+        shown = int(await self.read(0x6061))
+        self._mode = shown
+        try:
+            return OperationMode(shown)
+        except ValueError:
+            return shown  # a manufacturer's mode (negative values)
+
+    def _require_enabled(self, doing: str) -> None:
+        if self.state is not PowerState.OPERATION_ENABLED:
+            raise DriveStateError(
+                f"drive {self.node_id} cannot {doing}: it is {self.state.name}, not "
+                "OPERATION_ENABLED (call enable() first)"
+            )
+
+    def _inc(self, value: float) -> int:
+        return round(value * self.scale)
+
+    async def _profile(
+        self, velocity: float | None, acceleration: float | None, deceleration: float | None
+    ) -> None:
+        for index, value in ((0x6081, velocity), (0x6083, acceleration), (0x6084, deceleration)):
+            if value is not None:
+                if value <= 0:
+                    raise ValueError(f"0x{index:04X}: {value} must be above 0")
+                await self.write(index, 0, self._inc(value))
+
+    # ------------------------------------------------------------------ profile position
+    async def move_to(
+        self,
+        position: float,
+        velocity: float | None = None,
+        acceleration: float | None = None,
+        deceleration: float | None = None,
+        *,
+        relative: bool = False,
+        immediate: bool = True,
+        wait: bool = True,
+        timeout: float = 60.0,
+        progress: Callable[[Statusword], object] | None = None,
+    ) -> None:
+        """Move to ``position`` (user units) in profile position mode, with the profile
+        ``velocity``, ``acceleration`` and ``deceleration`` when given (else the drive's).
+
+        The set-point handshake: new set-point (bit 4) -> set-point acknowledge (bit 12) ->
+        bit 4 cleared. ``immediate=False`` queues it behind the move in progress (the drive
+        buffers one set-point; the call waits for room). ``wait=False`` returns once the
+        drive took the set-point; :meth:`wait_for_target` waits for the end. ``progress`` is
+        called with each statusword read while waiting."""
+        await self.set_mode(OperationMode.PROFILE_POSITION)
+        await self.read_statusword()
+        self._require_enabled("move")
+        await self._profile(velocity, acceleration, deceleration)
+        await self.write(0x607A, 0, self._inc(position))
+        bits = (CW_RELATIVE if relative else 0) | (CW_CHANGE_IMMEDIATELY if immediate else 0)
+        base = self._cw & ~(CW_NEW_SETPOINT | CW_RELATIVE | CW_CHANGE_IMMEDIATELY)
+        if self.quirks.clear_halt:
+            base &= ~CW_HALT
+        what = f"the set-point {position:g} {self.unit}"
+        if self._cw & CW_NEW_SETPOINT:
+            await self._send_cw(base | bits)
+        await self._wait(lambda s: not s.value & SW_BIT12, timeout, f"room for {what}")
+        await self._send_cw(base | bits | CW_NEW_SETPOINT)
+        await self._wait(lambda s: bool(s.value & SW_BIT12), self.timeout, f"acknowledge of {what}")
+        await self._send_cw(base | bits)
+        if wait:
+            await self.wait_for_target(timeout, progress=progress, what=f"reaching {what}")
+
+    async def move_by(
+        self,
+        distance: float,
+        velocity: float | None = None,
+        acceleration: float | None = None,
+        deceleration: float | None = None,
+        **options: Any,
+    ) -> None:
+        """Move ``distance`` user units from the previous target (relative profile
+        position); the options are those of :meth:`move_to`."""
+        await self.move_to(distance, velocity, acceleration, deceleration, relative=True, **options)
+
+    async def wait_for_target(
+        self,
+        timeout: float = 60.0,
+        *,
+        progress: Callable[[Statusword], object] | None = None,
+        what: str = "reaching the target",
+    ) -> Statusword:
+        """Wait for target reached (statusword bit 10) with no set-point pending (bit 12
+        clear in profile position)."""
+        pp = self._mode == OperationMode.PROFILE_POSITION
+
+        def reached(s: Statusword) -> bool:
+            return s.target_reached and not (pp and s.value & SW_BIT12)
+
+        return await self._wait(reached, timeout, what, progress=progress)
+
+    async def halt(self, timeout: float | None = None) -> None:
+        """Stop with the profile deceleration (controlword bit 8) and stay enabled; the next
+        move clears Halt (unless ``quirks.clear_halt`` is False)."""
+        await self._send_cw(self._cw | CW_HALT)
+        await self._wait(
+            lambda s: s.target_reached,
+            self.timeout if timeout is None else timeout,
+            "standstill after halt",
+        )
+
+    # ------------------------------------------------------------------ velocity and torque
+    async def set_velocity(
+        self,
+        velocity: float,
+        acceleration: float | None = None,
+        deceleration: float | None = None,
+        *,
+        wait: bool = True,
+        timeout: float = 30.0,
+    ) -> None:
+        """Run at ``velocity`` (user units per second) in profile velocity mode; with ``wait``
+        return when the drive reports the velocity reached (bit 10)."""
+        await self.set_mode(OperationMode.PROFILE_VELOCITY)
+        await self.read_statusword()
+        self._require_enabled("run at a velocity")
+        await self._profile(None, acceleration, deceleration)
+        await self.write(0x60FF, 0, self._inc(velocity))
+        if self.quirks.clear_halt and self._cw & CW_HALT:
+            await self._send_cw(self._cw & ~CW_HALT)
+        if wait:
+            await asyncio.sleep(self.poll)  # the drive takes the new target first
+            await self.wait_for_target(timeout, what=f"velocity {velocity:g} {self.unit}/s")
+
+    async def set_torque(
+        self,
+        torque: int,
+        slope: int | None = None,
+        *,
+        wait: bool = True,
+        timeout: float = 10.0,
+    ) -> None:
+        """Apply ``torque`` (per mille of the rated torque) in profile torque mode, ramped
+        with ``slope`` (per mille per second) when given; with ``wait`` return when the
+        drive reports it reached."""
+        await self.set_mode(OperationMode.PROFILE_TORQUE)
+        await self.read_statusword()
+        self._require_enabled("apply a torque")
+        if slope is not None:
+            await self.write(0x6087, 0, int(slope))
+        await self.write(0x6071, 0, int(torque))
+        if self.quirks.clear_halt and self._cw & CW_HALT:
+            await self._send_cw(self._cw & ~CW_HALT)
+        if wait:
+            await asyncio.sleep(self.poll)
+            await self.wait_for_target(timeout, what=f"torque {torque} per mille")
+
+    # ------------------------------------------------------------------ homing
+    async def homing_methods(self) -> list[int] | None:
+        """The methods 60E3h lists (None: the drive has no 60E3h, so any may be tried)."""
+        if self._homing_methods is None:
+            try:
+                count = int(await self.read(0x60E3, 0))
+            except SdoAbortedError:
+                return None
+            self._homing_methods = [int(await self.read(0x60E3, s)) for s in range(1, count + 1)]
+        return self._homing_methods
+
+    async def home(
+        self,
+        method: int | None = None,
+        *,
+        speeds: tuple[float, float] | None = None,
+        acceleration: float | None = None,
+        offset: float | None = None,
+        timeout: float = 60.0,
+        progress: Callable[[Statusword], object] | None = None,
+    ) -> None:
+        """Home the drive: ``method`` (6098h; None keeps the drive's), ``speeds`` (search for
+        the switch, search for zero; user units/s), ``acceleration`` and ``offset`` (the
+        position the home point gets). Returns when homing is attained; a method 60E3h does
+        not list raises :class:`DriveStateError` before anything moves, a homing error
+        :class:`HomingError`, no result within ``timeout`` :class:`DriveTimeoutError`."""
+        if method is not None:
+            methods = await self.homing_methods()
+            if methods is not None and method not in methods:
+                raise DriveStateError(
+                    f"drive {self.node_id} does not support homing method {method} (60E3h "
+                    f"lists: {', '.join(map(str, methods)) or 'none'})"
+                )
+        await self.set_mode(OperationMode.HOMING)
+        await self.read_statusword()
+        self._require_enabled("home")
+        if method is not None:
+            await self.write(0x6098, 0, method)
+        if speeds is not None:
+            await self.write(0x6099, 1, self._inc(speeds[0]))
+            await self.write(0x6099, 2, self._inc(speeds[1]))
+        if acceleration is not None:
+            await self.write(0x609A, 0, self._inc(acceleration))
+        if offset is not None:
+            await self.write(0x607C, 0, self._inc(offset))
+        base = self._cw & ~(CW_NEW_SETPOINT | CW_HALT)
+        await self._send_cw(base)
+        await self._send_cw(base | CW_NEW_SETPOINT)
+
+        def over(s: Statusword) -> bool:
+            return bool(s.value & SW_BIT13) or (
+                bool(s.value & SW_BIT12) and bool(s.value & SW_TARGET_REACHED)
+            )
+
+        try:
+            status = await self._wait(over, timeout, "homing attained", progress=progress)
+        finally:
+            await self._send_cw(base)
+        if status.value & SW_BIT13:
+            raise HomingError(
+                f"drive {self.node_id}: homing error (method {method if method else 'as set'}); "
+                f"statusword {status}"
+            )
+
+    # ------------------------------------------------------------------ actual values
+    async def read_position(self) -> float:
+        """The actual position 6064h in user units."""
+        value = self._fresh(0x6064)
+        return float(value if value is not None else await self.read(0x6064)) / self.scale
+
+    async def read_velocity(self) -> float:
+        """The actual velocity 606Ch in user units per second."""
+        value = self._fresh(0x606C)
+        return float(value if value is not None else await self.read(0x606C)) / self.scale
+
+    def close(self) -> None:
+        """Stop listening to the node's process data."""
+        self._port.remove_input_callback(self._on_input)
+
+
+class Drive402(BlockingTwin, twin_of=AsyncDrive402):
+    """A CiA 402 drive for blocking code, with the methods of :class:`AsyncDrive402`, each
+    returning once done: ``Drive402(node)`` on a node of a blocking
+    :class:`~cobus.runtime.Network` (``net.add_remote(...)``), or ``Drive402(master,
+    "servo")`` on a node a :class:`~cobus.master.BlockingMaster` manages (its process image
+    carries the PDOs). The keyword options are :class:`AsyncDrive402`'s."""
+
+    def __init__(self, node: Any, name: Any = None, **options: Any) -> None:
+        if isinstance(node, AsyncDrive402):  # a twin made for an async drive
+            super().__init__(node, name)
+            return
+        runner = getattr(node, "_runner", None)
+        if runner is None:
+            raise TypeError(
+                "Drive402 takes a node of a blocking Network (net.add_remote(...)) or a "
+                "BlockingMaster and a node name; in async code use AsyncDrive402"
+            )
+        target = node.aio
+        if name is not None:
+            from cobus.master import Master
+
+            if not isinstance(target, Master):
+                raise TypeError("Drive402(master, name): the name is for a master's node")
+            target = runner.call(target.node, name)
+        aio = runner.call(lambda: AsyncDrive402(target, **options))
+        super().__init__(aio, runner)

@@ -1,0 +1,92 @@
+"""CiA 402 sans I/O: the statusword decoding, the command paths, the error texts."""
+
+from __future__ import annotations
+
+import pytest
+
+from cobus.profiles import Command, OperationMode, PowerState, Statusword, error_text
+from cobus.profiles.cia402 import command_towards
+
+P = PowerState
+
+#: The CiA 402 statusword of each state (bits 0-3, 5, 6), and the same with every bit the
+#: decoding must ignore set (voltage enabled, warning, remote, target reached, 12-15).
+STATES = {
+    P.NOT_READY_TO_SWITCH_ON: 0x00,
+    P.SWITCH_ON_DISABLED: 0x40,
+    P.READY_TO_SWITCH_ON: 0x21,
+    P.SWITCHED_ON: 0x23,
+    P.OPERATION_ENABLED: 0x27,
+    P.QUICK_STOP_ACTIVE: 0x07,
+    P.FAULT_REACTION_ACTIVE: 0x0F,
+    P.FAULT: 0x08,
+}
+IGNORED = 0x10 | 0x80 | 0x200 | 0x400 | 0x800 | 0xF000
+
+
+@pytest.mark.parametrize("state", list(STATES))
+def test_every_state_decodes_from_its_bits_whatever_the_other_bits(state: PowerState) -> None:
+    assert P.from_statusword(STATES[state]) is state
+    assert P.from_statusword(STATES[state] | IGNORED) is state
+    # bit 5 (quick stop) is part of the state only where CiA 402 says so
+    if state in (P.NOT_READY_TO_SWITCH_ON, P.SWITCH_ON_DISABLED, P.FAULT):
+        assert P.from_statusword(STATES[state] | 0x20) is state
+
+
+def _model(state: PowerState, command: Command) -> PowerState:
+    """The device side of CiA 402's transitions, for the commands ``command_towards`` gives
+    (quick stop option 2: quick stop active ends in switch on disabled)."""
+    if command is Command.FAULT_RESET:
+        return P.SWITCH_ON_DISABLED if state is P.FAULT else state
+    if command is Command.DISABLE_VOLTAGE:
+        return P.SWITCH_ON_DISABLED
+    if command is Command.SHUTDOWN:
+        return P.READY_TO_SWITCH_ON if state is not P.QUICK_STOP_ACTIVE else state
+    if command is Command.SWITCH_ON:  # also disable operation (the same bits)
+        if state in (P.READY_TO_SWITCH_ON, P.OPERATION_ENABLED):
+            return P.SWITCHED_ON
+        return state
+    if command is Command.ENABLE_OPERATION:
+        return P.OPERATION_ENABLED if state is P.SWITCHED_ON else state
+    raise AssertionError(command)
+
+
+@pytest.mark.parametrize(
+    "target",
+    [P.OPERATION_ENABLED, P.SWITCHED_ON, P.READY_TO_SWITCH_ON, P.SWITCH_ON_DISABLED],
+)
+def test_the_commands_lead_from_every_state_to_every_target(target: PowerState) -> None:
+    for start in STATES:
+        state, steps = start, 0
+        while state is not target:
+            command = command_towards(state, target)
+            if command is None:  # only the drive leaves these
+                assert state in (P.NOT_READY_TO_SWITCH_ON, P.FAULT_REACTION_ACTIVE)
+                break
+            state = _model(state, command)
+            steps += 1
+            assert steps <= 4, f"{start} -> {target} does not end"
+    assert command_towards(target, target) is None
+
+
+def test_a_target_no_command_leads_to_is_refused_with_the_possible_ones() -> None:
+    with pytest.raises(ValueError, match=r"FAULT is not a state .* OPERATION_ENABLED"):
+        command_towards(P.SWITCHED_ON, P.FAULT)
+
+
+def test_statusword_prints_state_and_the_mode_s_own_bits() -> None:
+    sw = Statusword(0x1637, OperationMode.PROFILE_POSITION)
+    assert sw.state is P.OPERATION_ENABLED and sw.target_reached and sw.voltage_enabled
+    assert str(sw) == (
+        "0x1637 OPERATION_ENABLED (voltage enabled, remote, target reached, set-point acknowledge)"
+    )
+    assert "homing attained" in str(Statusword(0x1637, OperationMode.HOMING))
+    assert str(Statusword(0x0008)) == "0x0008 FAULT"
+    assert OperationMode.CYCLIC_SYNC_POSITION.supported_bit == 0x80
+    assert str(OperationMode.HOMING) == "HOMING" and str(P.FAULT) == "FAULT"
+
+
+def test_error_codes_have_the_cia402_text_or_their_class() -> None:
+    assert error_text(0x8611) == "Following error"
+    assert error_text(0x2310) == "Continuous over-current"
+    assert error_text(0x4321) == "Temperature (4321h)"  # no CiA 402 text: the CiA 301 class

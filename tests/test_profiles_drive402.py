@@ -1,0 +1,243 @@
+"""The CiA 402 drive from the master side against the simulated servo (cobus.sim), on the
+simulated clock: every move's duration is checked against its motion profile's physics."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import pytest
+
+from cobus.master import BlockingMaster
+from cobus.profiles import (
+    AsyncDrive402,
+    Drive402,
+    DriveFault,
+    DriveStateError,
+    DriveTimeoutError,
+    OperationMode,
+    PowerState,
+    Statusword,
+)
+from cobus.runtime import AsyncNetwork, Network
+from cobus.sim import Rig, start_rig
+from cobus.sim.blocking import BlockingRig
+from tests.util import simulate
+
+SERVO = """
+bus: embedded
+devices:
+  - node: 10
+    kind: cia402_drive
+    name: servo
+    options:
+      negative_limit: -200000
+      positive_limit: 200000
+"""
+
+
+@dataclass
+class Bench:
+    net: Network
+    rig: BlockingRig
+    drive: Drive402
+
+
+@pytest.fixture
+def bench() -> Iterator[Bench]:
+    with Network(simulated=True) as net:
+        rig = start_rig(net, Rig.loads(SERVO))
+        drive = Drive402(net.add_remote(10))  # no EDS: the drive knows CiA 402's types
+        yield Bench(net, rig, drive)
+
+
+def trapezoid(distance: float, v: float, a: float, d: float) -> float:
+    """The time a profile move takes: ramps at ``a`` and ``d``, cruise at ``v`` (or a
+    triangle when the distance is too short to reach it)."""
+    ramps = v * v / (2 * a) + v * v / (2 * d)
+    if distance >= ramps:
+        return v / a + v / d + (distance - ramps) / v
+    peak = math.sqrt(2 * distance * a * d / (a + d))
+    return peak / a + peak / d
+
+
+def test_enable_goes_through_the_state_machine_and_disable_back(bench: Bench) -> None:
+    drive = bench.drive
+    drive.enable()
+    assert drive.state is PowerState.OPERATION_ENABLED
+    assert bench.rig.device(10).status()["state"] == "operation enabled"
+    drive.disable()
+    assert drive.read_statusword().state is PowerState.SWITCH_ON_DISABLED
+    drive.set_state("switched_on")
+    assert drive.read_statusword().state is PowerState.SWITCHED_ON
+    drive.enable()
+    assert str(drive.state) == "OPERATION_ENABLED"
+
+
+def test_move_to_takes_the_time_of_its_trapezoid_and_ends_on_target(bench: Bench) -> None:
+    net = bench.net
+    drive = bench.drive
+    drive.enable()
+    for target, v, a in ((10_000, 20_000, 100_000), (12_000, 50_000, 100_000)):
+        start, began = drive.read_position(), net.time()
+        seen: list[Statusword] = []
+        drive.move_to(target, velocity=v, acceleration=a, deceleration=a, progress=seen.append)
+        took = net.time() - began
+        expected = trapezoid(abs(target - start), v, a, a)
+        # + the drive's position window time (10 ms) and a poll period of slack
+        assert expected - 0.01 <= took <= expected + 0.03, (took, expected)
+        assert abs(drive.read_position() - target) <= 20  # the position window 6067h
+        assert seen and "set-point acknowledge" not in str(drive.status)
+    # the second was a triangle (12000 - 10000 too short to reach 50 000 inc/s)
+    assert trapezoid(2000, 50_000, 100_000, 100_000) == pytest.approx(2 * math.sqrt(0.02))
+
+
+def test_move_by_is_relative_and_user_units_scale_everything() -> None:
+    with Network(simulated=True) as net:
+        start_rig(net, Rig.loads(SERVO))
+        drive = Drive402(net.add_remote(10), scale=1000, unit="mm")
+        drive.enable()
+        drive.move_to(5, velocity=20, acceleration=100, deceleration=100)
+        began = net.time()
+        drive.move_by(-2, velocity=10)
+        assert drive.read_position() == pytest.approx(3, abs=0.02)
+        assert net.time() - began == pytest.approx(trapezoid(2, 10, 100, 100), abs=0.03)
+
+
+def test_queued_set_points_run_one_after_the_other(bench: Bench) -> None:
+    net = bench.net
+    drive = bench.drive
+    drive.enable()
+    began = net.time()
+    drive.move_to(20_000, 40_000, 200_000, 200_000, wait=False)
+    drive.move_to(30_000, immediate=False, wait=False)  # buffered behind the first
+    assert drive.read_position() < 20_000
+    drive.wait_for_target()
+    took = net.time() - began
+    expected = trapezoid(20_000, 40_000, 200_000, 200_000) + trapezoid(
+        10_000, 40_000, 200_000, 200_000
+    )
+    assert expected - 0.03 <= took <= expected + 0.05, (took, expected)  # two 1 ms-step ends
+    assert abs(drive.read_position() - 30_000) <= 20
+
+
+def test_homing_on_the_negative_limit_switch_sets_the_home_offset(bench: Bench) -> None:
+    net = bench.net
+    drive = bench.drive
+    assert drive.homing_methods() == [1, 2, 17, 18, 35, 37]  # 60E3h
+    drive.enable()
+    seen: list[Statusword] = []
+    began = net.time()
+    drive.home(
+        17, speeds=(100_000, 5_000), acceleration=1_000_000, offset=1000, progress=seen.append
+    )
+    # 200 000 increments to the switch at 100 000 inc/s (2.05 s with the ramp), braking past
+    # it (0.1 s, 5 000 increments), then back off the switch at 5 000 inc/s (1 s)
+    assert 3.1 <= net.time() - began <= 3.25
+    assert "homing attained" in str(drive.read_statusword())
+    assert abs(drive.read_position() - 1000) <= 20
+    assert len(seen) > 10  # progress reported while it searched
+
+
+def test_homing_refuses_a_method_the_drive_lacks_before_anything_moves(bench: Bench) -> None:
+    drive = bench.drive
+    drive.enable()
+    with pytest.raises(DriveStateError, match=r"homing method 19 \(60E3h lists: 1, 2, 17"):
+        drive.home(19)
+    assert drive.read_mode() == OperationMode.PROFILE_POSITION  # the default 6060h, unchanged
+
+
+def test_homing_that_does_not_finish_times_out_naming_what_was_awaited(bench: Bench) -> None:
+    drive = bench.drive
+    drive.enable()
+    with pytest.raises(DriveTimeoutError, match=r"homing attained did not happen within 0\.2 s"):
+        drive.home(18, speeds=(1000, 100), timeout=0.2)
+    assert isinstance(DriveTimeoutError("x"), TimeoutError)
+
+
+def test_a_following_error_is_a_drive_fault_with_code_text_emcy_and_state(bench: Bench) -> None:
+    drive = bench.drive
+    drive.enable()
+    bench.rig.inject(10, "blocked_rotor")
+    with pytest.raises(DriveFault) as caught:
+        drive.move_to(50_000)
+    fault = caught.value
+    assert fault.code == 0x8611 and fault.text == "Following error"
+    assert fault.state in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE)
+    assert fault.emergency is not None and fault.emergency.code == 0x8611
+    assert "drive 10 faulted while reaching the set-point 50000 inc: 0x8611 Following" in str(fault)
+    with pytest.raises(DriveFault, match="fault_reset"):
+        drive.enable()  # a faulted drive is not enabled behind the user's back
+    bench.rig.inject(10, "free_rotor")
+    drive.fault_reset()
+    assert drive.state is PowerState.SWITCH_ON_DISABLED
+    drive.enable()
+    drive.move_to(1000)
+    assert abs(drive.read_position() - 1000) <= 20
+
+
+def test_a_fault_whose_cause_stays_is_not_reset(bench: Bench) -> None:
+    net = bench.net
+    drive = bench.drive
+    drive.enable()
+    bench.rig.inject(10, "overtemperature")
+    net.sleep(0.05)
+    with pytest.raises(DriveFault, match=r"resetting the fault .*0x4310 Excess temperature"):
+        drive.fault_reset()
+
+
+def test_velocity_torque_and_quick_stop(bench: Bench) -> None:
+    drive = bench.drive
+    drive.enable()
+    drive.set_velocity(30_000, acceleration=300_000, deceleration=300_000)
+    assert drive.read_velocity() == pytest.approx(30_000, abs=100)  # the velocity window
+    assert drive.read_mode() == OperationMode.PROFILE_VELOCITY
+    drive.quick_stop()
+    assert drive.state is PowerState.SWITCH_ON_DISABLED  # 605Ah = 2: then switch on disabled
+    assert drive.read_velocity() == 0
+    drive.enable()
+    drive.set_torque(100, slope=10_000)
+    assert drive.read_mode() == OperationMode.PROFILE_TORQUE
+    drive.halt()
+    drive.disable()
+
+
+def test_moves_need_an_enabled_drive_and_unknown_modes_are_named(bench: Bench) -> None:
+    drive = bench.drive
+    with pytest.raises(DriveStateError, match="cannot move: it is SWITCH_ON_DISABLED"):
+        drive.move_to(100)
+    with pytest.raises(DriveStateError, match="does not support INTERPOLATED_POSITION"):
+        drive.set_mode("interpolated_position")
+    with pytest.raises(ValueError, match="the modes are 0 NO_MODE"):
+        drive.set_mode(42)
+
+
+def test_a_drive_the_master_manages_uses_its_process_image() -> None:
+    with Network(simulated=True) as net:
+        start_rig(net, "thesis")
+        master = BlockingMaster(net, "examples/networks/thesis.yml")
+        master.boot(timeout=10)
+        drive = Drive402(master, "servo")  # RPDO4: controlword + target velocity
+        drive.enable()
+        assert master.outputs["servo.cw"] == 0x0F  # the controlword went by RPDO
+        drive.set_velocity(20_000)
+        assert master.outputs["servo.target"] == 20_000
+        master.sleep(0.1)
+        assert master.inputs["servo.velocity"] == pytest.approx(20_000, abs=100)
+        drive.disable()
+
+
+def test_the_async_drive_has_the_same_methods() -> None:
+    async def main() -> float:
+        async with AsyncNetwork() as net:
+            rig = Rig.loads(SERVO)
+            await rig.start(net)
+            drive = AsyncDrive402(net.add_remote(10), scale=10)
+            await drive.enable()
+            await drive.move_to(100)
+            position = await drive.read_position()
+            await rig.stop()
+            return position
+
+    assert simulate(main()) == pytest.approx(100, abs=2)
