@@ -30,7 +30,6 @@ import pytest
 from cobus.device import export_eds
 from cobus.master import (
     Diagnostic,
-    Master,
     MasterState,
     MasterValueError,
     NetworkConfig,
@@ -40,6 +39,7 @@ from cobus.master import (
     TpdoMissing,
     loads_network,
 )
+from cobus.profiles.zapi import AsyncZapiDrive
 from cobus.proto import Frame
 from cobus.proto.nmt import NmtState
 from cobus.proto.sdo import SdoTimeoutError
@@ -84,8 +84,7 @@ def place(rig: Rig, cob_id: int, data: bytes | None = None) -> int:
 
 # ================================================================================ ZAPI ACE2
 ZAPI = 8
-A16, ENABLE, ACK, CW = 1 << 1, 1 << 3, 1 << 4, 1 << 6  # controlword byte 2 bits 1, 3, 4, 6
-TOGGLE = 1 << 15  # controlword / statusword byte 3 bit 7
+ACK = 1 << 4  # controlword byte 2 bit 4: fault acknowledge
 SW_A16, SW_ENABLED, SW_IDLE = 1 << 1, 1 << 3, 1 << 14
 
 ZAPI_NETWORK = """
@@ -102,39 +101,6 @@ ZAPI_NETWORK = """
           speed: {object: actual_speed, scale: 0.01, unit: Hz}
           alarm: alarm_code
 """
-
-
-class Handshake:
-    """The thesis's RPDO/TPDO processing block on the master's process image: every TPDO1 of
-    the ZAPI is answered at once with the opposite toggle bit (controlword byte 3 bit 7) and
-    the command bits the application sets. RPDO1 is event-driven: it goes out at once when
-    the controlword changes, and by :meth:`Master.send_rpdo` when it does not (the first
-    answer after a start may equal the controlword held)."""
-
-    def __init__(self, master: Master) -> None:
-        self.master = master
-        self.command = 0
-        self.answering = True
-        self.answers = 0
-        master.add_tpdo_listener(self._on_tpdo)
-
-    def _on_tpdo(self, node_id: int, number: int, now: float) -> None:
-        if node_id == ZAPI and number == 1 and self.answering:
-            self.answers += 1
-            self._write()
-
-    def _write(self) -> None:
-        toggle = self.master.inputs["zapi.statusword"] & TOGGLE
-        word = self.command | (TOGGLE if not toggle else 0)
-        if self.master.outputs["zapi.controlword"] == word:
-            self.master.send_rpdo("zapi", 1)
-        else:
-            self.master.outputs["zapi.controlword"] = word
-
-    def set(self, command: int) -> None:
-        """New command bits, sent at once with the answer of this cycle."""
-        self.command = command
-        self._write()
 
 
 def handshake_kept(rig: Rig, since: float, until: float) -> bool:
@@ -162,7 +128,7 @@ def test_zapi_ace2_run_by_the_master(tmp_path: Path) -> None:
             rig = Rig(net, config)
             master = rig.master
             node = master.nodes[ZAPI]
-            plc = Handshake(master)
+            plc = AsyncZapiDrive(master, "zapi")  # the thesis's RPDO/TPDO processing block
             zapi.start()
             try:
                 # -- boot: 1000h read, SYNC running, then the start
@@ -177,11 +143,10 @@ def test_zapi_ace2_run_by_the_master(tmp_path: Path) -> None:
                 byte3 = [f.data[3] for f in frames_of(rig, 0x188)]
                 assert byte3[:4] == [0x44, 0xC4, 0x44, 0xC4]  # the thesis's 44h / C4h
                 assert handshake_kept(rig, first(rig, 0x188), net.time())
-                assert plc.answers >= 20
+                assert plc.cycles >= 20
 
                 # -- run at 50 Hz clockwise (default ramp 10 Hz/s)
-                master.outputs["zapi.speed_setpoint"] = 50.0
-                plc.set(A16 | ENABLE | CW)
+                plc.run(50.0)  # A16, enable, clockwise
                 began = net.time()
                 await net.sleep(5.5)
                 assert master.inputs["zapi.speed"] == 50.0
@@ -212,9 +177,8 @@ def test_zapi_ace2_run_by_the_master(tmp_path: Path) -> None:
 
                 # -- acknowledge: controlword 2.4 with the run bits released, start again
                 plc.answering = True
-                plc.set(ACK)
                 acked = net.time()
-                await master.restart_node("zapi")
+                await plc.acknowledge()  # controlword 2.4, run bits released, NMT start
                 await net.sleep(0.2)
                 assert rig.data(0x000, since=acked) == [b"\x01\x08"]
                 assert frames_of(rig, 0x208, since=acked)[0].data[2] == ACK
@@ -224,7 +188,7 @@ def test_zapi_ace2_run_by_the_master(tmp_path: Path) -> None:
                 assert diagnostic(node) is Diagnostic.OK and len(rig.of(TpdoMissing)) == 1
                 assert master.inputs["zapi.statusword"] & 0x0400  # CNA6 input, i.e. taken
                 assert master.inputs["zapi.speed"] == pytest.approx(zapi.speed, abs=0.2)
-                plc.set(A16 | ENABLE | CW)
+                plc.run(50.0)
                 again = net.time()
                 await net.sleep(1.0)
                 assert zapi.alarm == 0 and zapi.status()["handshake"] == "running"

@@ -7,12 +7,13 @@ a small application in the spirit of the thesis's PLC program:
 
 - the master boots the CiA 301 nodes (I/O module and servo) the CiA 302 way, produces SYNC
   every 20 ms and supervises heartbeats and emergencies;
-- the potentiometer sweeps slowly; the servo runs in profile velocity mode, backwards below
-  the potentiometer's middle and forwards above (through the master's process image), so it
-  swings back and forth inside its limit switches;
+- the potentiometer sweeps slowly; the servo, run by :class:`cobus.profiles.AsyncDrive402`
+  through the master's process image, is enabled and runs in profile velocity mode,
+  backwards below the potentiometer's middle and forwards above, so it swings back and forth
+  inside its limit switches;
 - the ZAPI inverter, which has no boot-up and no heartbeat, is started by the master once
-  SYNC runs; the application answers each of its TPDO1 through the process image with the
-  opposite handshake toggle, running it clockwise at a speed that follows the potentiometer.
+  SYNC runs; :class:`cobus.profiles.zapi.AsyncZapiDrive` answers each of its TPDO1 with the
+  opposite handshake toggle and runs it clockwise at a speed that follows the potentiometer.
 
 A live table shows each node: NMT state, the master's node state, heartbeat age (or why
 there is none), EMCY count and speed, and in its note the drive's state, the newest error
@@ -45,6 +46,8 @@ from cobus.master.events import (
     TpdoRestored,
 )
 from cobus.master.states import NodeState
+from cobus.profiles import AsyncDrive402, DriveError
+from cobus.profiles.zapi import AsyncZapiDrive
 from cobus.proto.nmt import NmtState
 from cobus.runtime import AsyncNetwork, SimulatedEventLoop
 from cobus.runtime.emcy import Emergency
@@ -63,10 +66,6 @@ SERVO_MAX_SPEED = 40_000  # increments/s at either end of the potentiometer
 ZAPI_MAX_HZ = 50.0  # the thesis's example speed: 50 Hz clockwise
 POT_PERIOD = 20.0  # seconds for one sweep of the potentiometer
 
-# ZAPI controlword (RPDO1 bytes 2-3): main contactor A16 + enable + clockwise, and the
-# handshake toggle (byte 3 bit 7) that must be the opposite of the statusword's every cycle.
-_ZAPI_RUN = (1 << 1) | (1 << 3) | (1 << 6)
-_TOGGLE = 1 << 15
 
 #: The thesis bench's network file (also ``examples/networks/thesis.yml``); its EDS files are
 #: exported from the simulated devices into the demo's working folder.
@@ -88,7 +87,8 @@ class Demo:
         #: The text of the last master event about each node.
         self.events: dict[int, str] = {}
         self.started_at = 0.0
-        self.zapi_cycles = 0
+        #: The ZAPI inverter's adapter (it keeps the handshake), once the master runs.
+        self.zapi: AsyncZapiDrive | None = None
         self._tasks: list[asyncio.Task[None]] = []
 
     # -- life cycle
@@ -104,12 +104,13 @@ class Demo:
         self.watch = {n: self.master_net.add_remote(n) for n in self.rig.devices}
         self.started_at = self.master_net.time()
         self.master = Master(self.master_net, config)
-        self.master.add_tpdo_listener(self._on_tpdo)
         self.master.add_listener(self._on_master_event)
         await self.master.boot(timeout=10)
+        self.zapi = AsyncZapiDrive(self.master, "zapi")
         self._tasks = [
             asyncio.create_task(self._sweep_potentiometer()),
             asyncio.create_task(self._run_servo()),
+            asyncio.create_task(self._run_zapi()),
         ]
 
     async def stop(self) -> None:
@@ -142,29 +143,27 @@ class Demo:
             io.set_potentiometer(0.5 - 0.5 * math.cos(2 * math.pi * phase))  # type: ignore[attr-defined]
             await asyncio.sleep(0.1)
 
+    @property
+    def zapi_cycles(self) -> int:
+        """The ZAPI handshake cycles answered so far."""
+        return self.zapi.cycles if self.zapi is not None else 0
+
     async def _run_servo(self) -> None:
         assert self.master is not None
-        outputs = self.master.outputs
-        for controlword in (0x06, 0x07, 0x0F):  # shut down, switch on, enable operation
-            outputs["servo.cw"] = controlword
-            await asyncio.sleep(0.05)
+        servo = AsyncDrive402(self.master.node("servo"))  # RPDO4: controlword + velocity
+        await servo.enable()
         while True:
-            outputs["servo.target"] = round((self._pot() - 0.5) * 2 * SERVO_MAX_SPEED)
+            velocity = round((self._pot() - 0.5) * 2 * SERVO_MAX_SPEED)
+            # a faulted drive stays so (the table shows its EMCY): no reset behind the user
+            with contextlib.suppress(DriveError):
+                await servo.set_velocity(velocity, wait=False)
             await asyncio.sleep(0.1)
 
-    def _on_tpdo(self, node_id: int, number: int, now: float) -> None:
-        """The thesis's handshake: answer every ZAPI TPDO1 in the same SYNC cycle."""
-        if node_id != ZAPI or number != 1 or self.master is None:
-            return
-        master = self.master
-        toggle = master.inputs["zapi.statusword"] & _TOGGLE
-        master.outputs["zapi.setpoint"] = round(self._pot() * ZAPI_MAX_HZ, 2)
-        word = _ZAPI_RUN | (0 if toggle else _TOGGLE)
-        if master.outputs["zapi.controlword"] == word:
-            master.send_rpdo("zapi", 1)  # unchanged outputs still need this cycle's answer
-        else:
-            master.outputs["zapi.controlword"] = word
-        self.zapi_cycles += 1
+    async def _run_zapi(self) -> None:
+        assert self.zapi is not None
+        while True:
+            self.zapi.run(round(self._pot() * ZAPI_MAX_HZ, 2))
+            await asyncio.sleep(0.1)
 
     def _on_master_event(self, event: MasterEvent) -> None:
         """Keep the master's last word on a node's problem until the problem is over."""

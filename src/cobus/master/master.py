@@ -15,7 +15,7 @@ import asyncio
 import contextlib
 import logging
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from datetime import UTC, datetime
 from typing import Any
 
@@ -534,14 +534,24 @@ class Master:
 
         Event-driven RPDOs (254/255) go out at once when the value changes, synchronous ones
         with the next SYNC; nothing goes to a node that is not operational."""
-        for node_id, number, changed in self.image.set_output(name, value):
-            layout = self._rpdos[(node_id, number)]
-            if not changed:
-                continue
+        self.set_outputs({name: value})
+
+    def set_outputs(self, values: Mapping[str, Any], *, always: bool = False) -> None:
+        """Set several output signals at once: each event-driven RPDO they are in goes out
+        once (not once per signal) when one of its values changed, or with ``always=True``
+        even when none did (a device such as the ZAPI ACE2 wants an answer every cycle);
+        synchronous RPDOs go with the next SYNC."""
+        touched: dict[tuple[int, int], bool] = {}
+        for name, value in values.items():
+            for node_id, number, changed in self.image.set_output(name, value):
+                touched[(node_id, number)] = touched.get((node_id, number), False) or changed
+        for key, changed in touched.items():
+            layout = self._rpdos[key]
             if layout.transmission_type >= 254:
-                self.nodes[node_id]._send_rpdo(layout)
-            elif layout.transmission_type == 0:
-                self._dirty.add((node_id, number))
+                if changed or always:
+                    self.nodes[key[0]]._send_rpdo(layout)
+            elif layout.transmission_type == 0 and changed:
+                self._dirty.add(key)
 
     def send_rpdo(self, key: int | str, number: int) -> bool:
         """Send RPDO ``number`` of a node now with the current outputs, whether they changed

@@ -6,7 +6,7 @@ manages (its process image carries the PDOs)."""
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
@@ -35,14 +35,15 @@ class DrivePort(Protocol):
         """The raw value of an object as its last TPDO carried it, and when (None: no
         TPDO maps it, or none came yet)."""
 
-    def add_input_callback(self, callback: Callable[[float], object]) -> None:
-        """Call ``callback(now)`` after each TPDO of the node was taken."""
+    def add_input_callback(self, callback: Callable[[int, float], object]) -> None:
+        """Call ``callback(tpdo_number, now)`` after each TPDO of the node was taken."""
 
-    def remove_input_callback(self, callback: Callable[[float], object]) -> None: ...
+    def remove_input_callback(self, callback: Callable[[int, float], object]) -> None: ...
 
-    def set_output(self, index: int, subindex: int, value: int) -> bool:
-        """Put a raw value into the RPDO that maps the object and send it as that RPDO
-        is configured; False when no RPDO the port sends maps it."""
+    def set_outputs(self, values: Mapping[Key, int], *, always: bool = False) -> bool:
+        """Put raw values into the RPDOs that map the objects and send each RPDO once as it
+        is configured (``always``: even when no value changed); False, and nothing set,
+        when an object is in no RPDO the port sends."""
 
     def last_emergency(self) -> Emergency | None: ...
 
@@ -57,7 +58,7 @@ class RemoteNodePort:
         self.node_id = node.node_id
         self.network = node.network
         self._values: dict[Key, tuple[Any, float]] = {}
-        self._callbacks: list[Callable[[float], object]] = []
+        self._callbacks: list[Callable[[int, float], object]] = []
         self._watched: set[int] = set()
 
     def _watch(self) -> None:
@@ -73,7 +74,7 @@ class RemoteNodePort:
                 key = (field.entry.index, field.entry.subindex)
                 self._values[key] = (event.values[field.name], event.time)
         for callback in list(self._callbacks):
-            callback(event.time)
+            callback(pdo.number, event.time)
 
     async def upload(self, index: int, subindex: int) -> bytes:
         return await self.node.sdo.upload(index, subindex)
@@ -85,15 +86,15 @@ class RemoteNodePort:
         self._watch()
         return self._values.get((index, subindex))
 
-    def add_input_callback(self, callback: Callable[[float], object]) -> None:
+    def add_input_callback(self, callback: Callable[[int, float], object]) -> None:
         self._watch()
         self._callbacks.append(callback)
 
-    def remove_input_callback(self, callback: Callable[[float], object]) -> None:
+    def remove_input_callback(self, callback: Callable[[int, float], object]) -> None:
         if callback in self._callbacks:
             self._callbacks.remove(callback)
 
-    def set_output(self, index: int, subindex: int, value: int) -> bool:
+    def set_outputs(self, values: Mapping[Key, int], *, always: bool = False) -> bool:
         return False
 
     def last_emergency(self) -> Emergency | None:
@@ -109,7 +110,7 @@ class ManagedNodePort:
         self.master: Master = node.master
         self.node_id = node.node_id
         self.network = self.master.network
-        self._callbacks: list[Callable[[float], object]] = []
+        self._callbacks: list[Callable[[int, float], object]] = []
         self._times: dict[int, float] = {}
         self.master.add_tpdo_listener(self._taken)
 
@@ -118,7 +119,7 @@ class ManagedNodePort:
             return
         self._times[number] = now
         for callback in list(self._callbacks):
-            callback(now)
+            callback(number, now)
 
     def _signal(self, table: dict[str, Any], index: int, subindex: int) -> Any:
         for sig in table.values():
@@ -142,24 +143,24 @@ class ManagedNodePort:
             value = round((value - sig.offset) / (sig.scale or 1.0))
         return value, self._times[sig.pdo]
 
-    def add_input_callback(self, callback: Callable[[float], object]) -> None:
+    def add_input_callback(self, callback: Callable[[int, float], object]) -> None:
         self._callbacks.append(callback)
 
-    def remove_input_callback(self, callback: Callable[[float], object]) -> None:
+    def remove_input_callback(self, callback: Callable[[int, float], object]) -> None:
         if callback in self._callbacks:
             self._callbacks.remove(callback)
 
-    def set_output(self, index: int, subindex: int, value: int) -> bool:
-        sig = self._signal(self.master.image.outputs_by_name, index, subindex)
-        if sig is None:
-            return False
-        shown: Any = value
-        if sig.scale is not None or sig.offset:
-            shown = value * (sig.scale or 1.0) + sig.offset
-        if self.master.outputs[sig.name] == shown:
-            self.master.send_rpdo(self.node_id, sig.pdo)  # unchanged: send it all the same
-        else:
-            self.master.set_output(sig.name, shown)
+    def set_outputs(self, values: Mapping[Key, int], *, always: bool = False) -> bool:
+        shown: dict[str, Any] = {}
+        for (index, subindex), value in values.items():
+            sig = self._signal(self.master.image.outputs_by_name, index, subindex)
+            if sig is None:
+                return False
+            scaled: Any = value
+            if sig.scale is not None or sig.offset:
+                scaled = value * (sig.scale or 1.0) + sig.offset
+            shown[sig.name] = scaled
+        self.master.set_outputs(shown, always=always)
         return True
 
     def last_emergency(self) -> Emergency | None:

@@ -156,9 +156,25 @@ class AsyncDrive402:
     ``scale``: drive increments per user unit of position (velocities per second,
     accelerations per second squared); ``unit``: the unit's name, for messages. ``poll``:
     seconds between statusword reads while waiting (a TPDO that carries it wakes the wait
-    sooner; its value is used when it came after the last write and is at most
-    ``max_age`` seconds old). ``timeout``: the default time for a state transition or a mode change.
+    sooner; its value is used when it came after the last write and is at most ``max_age``
+    seconds old). ``timeout``: the default time for a state transition or a mode change.
     """
+
+    #: The node-ID of the drive.
+    node_id: int
+    #: Drive increments per user unit.
+    scale: float
+    #: The user unit's name.
+    unit: str
+    #: Seconds between statusword reads while waiting.
+    poll: float
+    #: The oldest TPDO value (seconds) taken instead of an SDO read; only values that came
+    #: after the last write count.
+    max_age: float
+    #: Seconds a state transition or a mode change may take.
+    timeout: float
+    #: The drive's deviations from CiA 402.
+    quirks: Quirks
 
     def __init__(
         self,
@@ -175,19 +191,12 @@ class AsyncDrive402:
             raise ValueError(f"scale {scale!r}: drive increments per user unit, not 0")
         self._port: DrivePort = port_for(node)
         self.node_id = self._port.node_id
-        #: Drive increments per user unit.
         self.scale = float(scale)
-        #: The user unit's name.
         self.unit = unit
-        #: Seconds between statusword reads while waiting.
         self.poll = poll
-        #: Seconds a state transition or a mode change may take.
         self.timeout = timeout
-        #: The oldest TPDO value (seconds) taken instead of an SDO read; only values that
-        #: came after the last write count.
         self.max_age = max_age
         self._written_at = -math.inf
-        #: The drive's deviations from CiA 402.
         self.quirks = quirks or Quirks()
         self._cw = 0
         self._sw = 0
@@ -211,7 +220,7 @@ class AsyncDrive402:
 
     async def write(self, index: int, subindex: int, value: int) -> None:
         """Write a CiA 402 object: into its RPDO where the master maps it, else by SDO."""
-        if not self._port.set_output(index, subindex, value):
+        if not self._port.set_outputs({(index, subindex): value}):
             data = encode(_TYPES.get(index, _D.UNSIGNED32), value)
             await self._port.download(index, subindex, data)
         self._written_at = self._port.network.time()
@@ -225,7 +234,7 @@ class AsyncDrive402:
             return None
         return value
 
-    def _on_input(self, now: float) -> None:
+    def _on_input(self, number: int, now: float) -> None:
         self._updated.set()
 
     async def read_statusword(self) -> Statusword:

@@ -57,6 +57,7 @@ from cobus.device import (
 )
 from cobus.device.device import Deviations
 from cobus.od import DataType, ObjectDictionary
+from cobus.profiles.zapi import ALARM_TEXTS, alarm_text
 from cobus.proto import Frame
 from cobus.proto.nmt import NmtCommand, NmtState
 from cobus.runtime.network import AsyncNetwork, Subscription
@@ -64,11 +65,6 @@ from cobus.sim.base import SimulatedDevice, SimulationError
 
 __all__ = ["ALARM_TEXTS", "ZapiAce2"]
 
-#: ZAPI alarm codes (decimal) the documents name, with the controller's text.
-ALARM_TEXTS: Mapping[int, str] = {
-    17: "LOGIC FAILURE #3",
-    248: "CAN BUS KO",
-}
 CAN_BUS_KO = 248
 
 # object indexes (see the module docstring)
@@ -603,11 +599,6 @@ class ZapiAce2(SimulatedDevice):
             self.bdi = bdi
         else:
             super().inject(fault, **params)
-
-
-def alarm_text(code: int) -> str:
-    """The controller's text of alarm ``code`` (as the HMI of the thesis shows it)."""
-    return ALARM_TEXTS.get(code, f"ALARM {code}")
 
 
 def _i8(value: float) -> int:
