@@ -28,6 +28,7 @@ def test_the_readme_has_snippets_for_every_part_it_promises():
     headings = {h for h, _ in snippets()}
     assert {
         "Talk to a node (blocking)",
+        "Drive a motor",
         "The same with asyncio",
         "Be a device",
         "Run a network as its master",
