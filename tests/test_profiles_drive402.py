@@ -18,6 +18,7 @@ from cobus.profiles import (
     DriveTimeoutError,
     OperationMode,
     PowerState,
+    Quirks,
     Statusword,
 )
 from cobus.runtime import AsyncNetwork, Network
@@ -241,3 +242,96 @@ def test_the_async_drive_has_the_same_methods() -> None:
             return position
 
     assert simulate(main()) == pytest.approx(100, abs=2)
+
+
+def test_the_mode_is_read_from_the_drive_not_trusted_from_before_a_reset(bench: Bench) -> None:
+    net, drive = bench.net, bench.drive
+    drive.enable()
+    drive.set_velocity(20_000)
+    drive.disable()
+    net.nmt.reset_node(10)  # 6060h back to its default, profile position
+    net.sleep(0.5)
+    drive.enable()
+    drive.set_velocity(20_000)
+    assert drive.read_mode() == OperationMode.PROFILE_VELOCITY
+    assert drive.read_velocity() == pytest.approx(20_000, abs=100)
+
+
+def test_halt_returns_once_the_motor_stands(bench: Bench) -> None:
+    drive = bench.drive
+    with pytest.raises(DriveStateError, match="cannot halt: it is SWITCH_ON_DISABLED"):
+        drive.halt()
+    drive.enable()
+    drive.set_velocity(30_000, acceleration=100_000, deceleration=100_000)
+    began = bench.net.time()
+    drive.halt()
+    assert abs(drive.read_velocity()) <= 20  # the velocity threshold 606Fh
+    assert bench.net.time() - began == pytest.approx(0.3, abs=0.03)  # 30 000 at 100 000/s²
+    drive.set_velocity(-10_000)  # Halt is cleared by the next command
+    assert drive.read_velocity() == pytest.approx(-10_000, abs=100)
+
+
+def test_a_drive_that_changes_modes_only_when_switched_on_is_enabled_again() -> None:
+    with Network(simulated=True) as net:
+        start_rig(net, Rig.loads(SERVO))
+        quirks = Quirks(mode_change_state=PowerState.SWITCHED_ON, halt_during_mode_change=True)
+        drive = Drive402(net.add_remote(10), quirks=quirks)
+        drive.enable()
+        drive.set_velocity(20_000)
+        assert drive.state is PowerState.OPERATION_ENABLED
+        assert drive.read_velocity() == pytest.approx(20_000, abs=100)
+
+
+def test_bad_arguments_are_refused_before_anything_is_sent(bench: Bench) -> None:
+    drive = bench.drive
+    drive.enable()
+    drive.move_to(100_000, wait=False)
+    with pytest.raises(ValueError, match="velocity must be a finite number"):
+        drive.set_velocity(float("nan"))
+    assert drive.read_mode() == OperationMode.PROFILE_POSITION  # the move goes on
+    for call, error, text in (
+        (lambda: drive.move_to(float("inf")), ValueError, "position must be a finite"),
+        (lambda: drive.move_to("100"), TypeError, "position must be a number"),
+        (lambda: drive.move_to(True), TypeError, "position must be a number, not True"),
+        (lambda: drive.move_to(3e9), ValueError, "beyond INTEGER32"),
+        (lambda: drive.move_to(5000, velocity=0.2), ValueError, "0 increments at scale 1"),
+        (lambda: drive.move_to(5000, velocity=-5), ValueError, "must be above 0"),
+        (lambda: drive.set_state("bogus"), ValueError, "the states are NOT_READY"),
+        (lambda: drive.set_mode(True), ValueError, "the modes are 0 NO_MODE"),
+        (lambda: drive.home(True), TypeError, "homing method must be an integer"),
+        (lambda: drive.set_torque(1.9), TypeError, "torque must be an integer"),
+        (lambda: drive.wait_for_target(timeout=float("nan")), ValueError, "timeout must be"),
+    ):
+        with pytest.raises(error, match=text):
+            call()
+    with pytest.raises(ValueError, match="poll must be above 0 s"):
+        Drive402(bench.net.add_remote(11), poll=0)
+
+
+def test_objects_are_read_and_written_as_their_types(bench: Bench) -> None:
+    drive = bench.drive
+    drive.enable()
+    drive.move_to(-5000)
+    assert drive.read(0x6062) == pytest.approx(-5000, abs=20)  # INTEGER32, signed
+    assert isinstance(drive.read(0x6074), int)  # INTEGER16
+    drive.write(0x6072, 0, 1500)  # UNSIGNED16
+    drive.write(0x607D, 1, -100_000)  # INTEGER32 sub-object of a record
+    with pytest.raises(ValueError, match="give the node its EDS"):
+        drive.read(0x2000)  # a manufacturer object, no EDS
+    drive.close()
+    bench.net.remove_remote(10)
+    with_eds = Drive402(bench.net.add_remote(10, "examples/networks/servo.eds"))
+    assert with_eds.read(0x2000) == pytest.approx(250, abs=100)  # motor temperature, 0.1 °C
+
+
+def test_a_managed_drive_before_the_network_runs_goes_by_sdo_and_close_detaches() -> None:
+    with Network(simulated=True) as net:
+        start_rig(net, "thesis")
+        master = BlockingMaster(net, "examples/networks/thesis.yml")
+        listeners = len(master.aio._tpdo_listeners)
+        drive = Drive402(master, "servo")
+        net.sleep(0.5)  # the servo booted to pre-operational; the master sends no RPDO yet
+        drive.enable()  # so the controlword goes by SDO
+        assert drive.state is PowerState.OPERATION_ENABLED
+        drive.close()
+        assert len(master.aio._tpdo_listeners) == listeners

@@ -5,6 +5,7 @@ manages (its process image carries the PDOs)."""
 
 from __future__ import annotations
 
+import contextlib
 import functools
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any, Protocol
@@ -12,6 +13,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 if TYPE_CHECKING:
     from cobus.master.master import Master
     from cobus.master.node import ManagedNode
+    from cobus.od import ObjectDictionary
     from cobus.runtime.emcy import Emergency
     from cobus.runtime.network import AsyncNetwork
     from cobus.runtime.pdo import PdoReceived
@@ -27,6 +29,8 @@ class DrivePort(Protocol):
 
     node_id: int
     network: AsyncNetwork
+    #: The node's dictionary (from its EDS), or None.
+    od: ObjectDictionary | None
 
     async def upload(self, index: int, subindex: int) -> bytes: ...
     async def download(self, index: int, subindex: int, data: bytes) -> None: ...
@@ -42,10 +46,14 @@ class DrivePort(Protocol):
 
     def set_outputs(self, values: Mapping[Key, int], *, always: bool = False) -> bool:
         """Put raw values into the RPDOs that map the objects and send each RPDO once as it
-        is configured (``always``: even when no value changed); False, and nothing set,
-        when an object is in no RPDO the port sends."""
+        is configured (``always``: even when no value changed). False when an object is in
+        no RPDO the port sends (nothing is set), or while the RPDOs do not go out (the
+        values are kept for when they do): the caller writes by SDO then."""
 
     def last_emergency(self) -> Emergency | None: ...
+
+    def close(self) -> None:
+        """Stop listening to the node."""
 
 
 class RemoteNodePort:
@@ -57,16 +65,19 @@ class RemoteNodePort:
         self.node = node
         self.node_id = node.node_id
         self.network = node.network
+        self.od = node.od
         self._values: dict[Key, tuple[Any, float]] = {}
         self._callbacks: list[Callable[[int, float], object]] = []
         self._watched: set[int] = set()
+        self._bound: dict[int, Callable[[PdoReceived], None]] = {}
 
     def _watch(self) -> None:
         for pdo in self.node.tpdo:
             if pdo.number in self._watched:
                 continue
             self._watched.add(pdo.number)
-            pdo.add_callback(functools.partial(self._taken, pdo))
+            bound = self._bound[pdo.number] = functools.partial(self._taken, pdo)
+            pdo.add_callback(bound)
 
     def _taken(self, pdo: Any, event: PdoReceived) -> None:
         for field in pdo.fields:
@@ -97,6 +108,14 @@ class RemoteNodePort:
     def set_outputs(self, values: Mapping[Key, int], *, always: bool = False) -> bool:
         return False
 
+    def close(self) -> None:
+        for pdo in self.node.tpdo:
+            if pdo.number in self._watched:
+                with contextlib.suppress(ValueError, KeyError):
+                    pdo.remove_callback(self._bound[pdo.number])
+        self._watched.clear()
+        self._callbacks.clear()
+
     def last_emergency(self) -> Emergency | None:
         return self.node.emcy.last
 
@@ -110,6 +129,7 @@ class ManagedNodePort:
         self.master: Master = node.master
         self.node_id = node.node_id
         self.network = self.master.network
+        self.od: ObjectDictionary | None = node.config.od
         self._callbacks: list[Callable[[int, float], object]] = []
         self._times: dict[int, float] = {}
         self.master.add_tpdo_listener(self._taken)
@@ -161,7 +181,7 @@ class ManagedNodePort:
                 scaled = value * (sig.scale or 1.0) + sig.offset
             shown[sig.name] = scaled
         self.master.set_outputs(shown, always=always)
-        return True
+        return self.managed.operational and self.master.running
 
     def last_emergency(self) -> Emergency | None:
         history = self.managed.emcy_history
@@ -184,5 +204,6 @@ def port_for(node: Any) -> DrivePort:
         return ManagedNodePort(aio)
     raise TypeError(
         f"a drive runs on a RemoteNode (net.add_remote(...)) or a node the master manages "
-        f"(master.node('name')), not on {type(node).__name__}"
+        f"(AsyncDrive402(master.node('name')) in async code, Drive402(master, 'name') with a "
+        f"BlockingMaster), not on {type(node).__name__}"
     )

@@ -3,10 +3,11 @@ drive.move_to(1000)``, ``await drive.home()`` — each returns when the drive re
 
 :class:`AsyncDrive402` runs on a bare :class:`~cobus.runtime.remote.RemoteNode` or on a node
 the :class:`~cobus.master.Master` manages; :class:`Drive402` is its blocking twin. The
-statusword comes from a TPDO where one maps it (the newest value not older than ``poll``),
-by SDO otherwise; the controlword and the set-points go through the master's process image
-where an RPDO maps them, by SDO otherwise (always on a bare node). Objects are written as
-their CiA 402 data types, so no EDS is needed.
+statusword comes from a TPDO where one maps it (a value that came after the last write and
+is not older than ``max_age``), by SDO otherwise; the controlword and the set-points go
+through the master's process image where an RPDO maps them and the master sends it, by SDO
+otherwise (always on a bare node).
+Objects are written as their CiA 402 data types, so no EDS is needed.
 
 Positions, velocities and accelerations are in user units: ``scale`` drive increments per
 user unit (``Drive402(node, scale=4096, unit="rev")``); torques in per mille of the rated
@@ -57,32 +58,93 @@ __all__ = [
 ]
 
 _D = DataType
-#: The CiA 402 objects the drive uses, with their data types.
-_TYPES: dict[int, DataType] = {
+#: The CiA 402 objects (sub-index 0 unless keyed with one), with their data types.
+_TYPES: dict[int | tuple[int, int], DataType] = {
+    0x6007: _D.INTEGER16,
     0x603F: _D.UNSIGNED16,
     0x6040: _D.UNSIGNED16,
     0x6041: _D.UNSIGNED16,
     0x605A: _D.INTEGER16,
+    0x605B: _D.INTEGER16,
+    0x605C: _D.INTEGER16,
+    0x605D: _D.INTEGER16,
+    0x605E: _D.INTEGER16,
     0x6060: _D.INTEGER8,
     0x6061: _D.INTEGER8,
+    0x6062: _D.INTEGER32,
+    0x6063: _D.INTEGER32,
     0x6064: _D.INTEGER32,
+    0x6065: _D.UNSIGNED32,
+    0x6066: _D.UNSIGNED16,
+    0x6067: _D.UNSIGNED32,
+    0x6068: _D.UNSIGNED16,
+    0x606B: _D.INTEGER32,
     0x606C: _D.INTEGER32,
+    0x606D: _D.UNSIGNED16,
+    0x606E: _D.UNSIGNED16,
+    0x606F: _D.UNSIGNED16,
+    0x6070: _D.UNSIGNED16,
     0x6071: _D.INTEGER16,
+    0x6072: _D.UNSIGNED16,
+    0x6073: _D.UNSIGNED16,
+    0x6074: _D.INTEGER16,
+    0x6075: _D.UNSIGNED32,
+    0x6076: _D.UNSIGNED32,
     0x6077: _D.INTEGER16,
+    0x6078: _D.INTEGER16,
     0x607A: _D.INTEGER32,
     0x607C: _D.INTEGER32,
+    (0x607D, 0): _D.UNSIGNED8,
+    0x607D: _D.INTEGER32,
+    0x607E: _D.UNSIGNED8,
+    0x607F: _D.UNSIGNED32,
+    0x6080: _D.UNSIGNED32,
     0x6081: _D.UNSIGNED32,
     0x6083: _D.UNSIGNED32,
     0x6084: _D.UNSIGNED32,
+    0x6085: _D.UNSIGNED32,
+    0x6086: _D.INTEGER16,
     0x6087: _D.UNSIGNED32,
     0x6098: _D.INTEGER8,
+    (0x6099, 0): _D.UNSIGNED8,
     0x6099: _D.UNSIGNED32,
     0x609A: _D.UNSIGNED32,
+    (0x60C2, 0): _D.UNSIGNED8,
+    (0x60C2, 1): _D.UNSIGNED8,
+    (0x60C2, 2): _D.INTEGER8,
+    (0x60E3, 0): _D.UNSIGNED8,
     0x60E3: _D.INTEGER8,
+    0x60F4: _D.INTEGER32,
+    0x60FD: _D.UNSIGNED32,
     0x60FF: _D.INTEGER32,
     0x6502: _D.UNSIGNED32,
 }
+_I32 = (-(2**31), 2**31 - 1)
 _MODE_NAMES = ", ".join(f"{m.value} {m.name}" for m in OperationMode)
+
+
+def _number(what: str, value: Any) -> float:
+    """A finite real number, or a ValueError/TypeError that names ``what``."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise TypeError(f"{what} must be a number, not {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{what} must be a finite number, not {value!r}")
+    return float(value)
+
+
+def _seconds(what: str, value: Any) -> float:
+    seconds = _number(what, value)
+    if seconds <= 0:
+        raise ValueError(f"{what} must be above 0 s, not {value!r}")
+    return seconds
+
+
+def _integer(what: str, value: Any, low: int, high: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"{what} must be an integer, not {value!r}")
+    if not low <= value <= high:
+        raise ValueError(f"{what} {value} is outside {low}..{high}")
+    return value
 
 
 def _left(state: PowerState, status: Statusword) -> bool:
@@ -187,8 +249,10 @@ class AsyncDrive402:
         timeout: float = 2.0,
         quirks: Quirks | None = None,
     ) -> None:
-        if not scale or not math.isfinite(scale):
-            raise ValueError(f"scale {scale!r}: drive increments per user unit, not 0")
+        if not _number("scale", scale):
+            raise ValueError("scale: drive increments per user unit, not 0")
+        poll, max_age = _seconds("poll", poll), _seconds("max_age", max_age)
+        timeout = _seconds("timeout", timeout)
         self._port: DrivePort = port_for(node)
         self.node_id = self._port.node_id
         self.scale = float(scale)
@@ -210,19 +274,31 @@ class AsyncDrive402:
         return f"<Drive402 node {self.node_id}: {self.status}>"
 
     # ------------------------------------------------------------------ the objects
+    def _type(self, index: int, subindex: int) -> DataType:
+        dt = _TYPES.get((index, subindex)) or _TYPES.get(index)
+        if dt is not None:
+            return dt
+        od = self._port.od
+        var = od.get_variable(index, subindex) if od is not None else None
+        if var is None:
+            raise ValueError(
+                f"0x{index:04X}:{subindex:02X} is not a CiA 402 object whose type cobus "
+                "knows: give the node its EDS (net.add_remote(node_id, 'drive.eds')) or use "
+                "node.sdo for manufacturer objects"
+            )
+        return var.data_type
+
     async def read(self, index: int, subindex: int = 0) -> Any:
-        """Read a CiA 402 object by SDO (decoded as its data type)."""
+        """Read an object by SDO, decoded as its data type (CiA 402's, else the EDS's)."""
+        dt = self._type(index, subindex)
         data = await self._port.upload(index, subindex)
-        dt = _TYPES.get(index, _D.UNSIGNED32)
-        if index == 0x60E3 and subindex == 0:
-            dt = _D.UNSIGNED8
         return decode(dt, data[: dt.size or len(data)])
 
     async def write(self, index: int, subindex: int, value: int) -> None:
-        """Write a CiA 402 object: into its RPDO where the master maps it, else by SDO."""
+        """Write an object: into its RPDO where the master maps it, else by SDO."""
+        data = encode(self._type(index, subindex), value)  # checks type and range first
         if not self._port.set_outputs({(index, subindex): value}):
-            data = encode(_TYPES.get(index, _D.UNSIGNED32), value)
-            await self._port.download(index, subindex, data)
+            await self._port.download(index, subindex, data)  # (also while no RPDO goes)
         self._written_at = self._port.network.time()
 
     def _fresh(self, index: int) -> Any:
@@ -286,7 +362,7 @@ class AsyncDrive402:
         """Read the statusword until ``done`` accepts it; DriveFault if the drive faults,
         DriveTimeoutError naming ``what`` after ``timeout`` seconds."""
         loop = self._port.network
-        deadline = loop.time() + timeout
+        deadline = loop.time() + _seconds("timeout", timeout)
         while True:
             status = await self.read_statusword()
             if not fault_ok and status.state in (
@@ -315,8 +391,16 @@ class AsyncDrive402:
         :attr:`timeout`). A drive in FAULT raises :class:`DriveFault` (call
         :meth:`fault_reset` first); a transition that does not happen raises
         :class:`DriveTimeoutError` naming it."""
-        goal = target if isinstance(target, PowerState) else PowerState[str(target).upper()]
-        limit = self.timeout if timeout is None else timeout
+        if isinstance(target, PowerState):
+            goal = target
+        else:
+            try:
+                goal = PowerState[str(target).upper().replace(" ", "_")]
+            except KeyError:
+                raise ValueError(
+                    f"state {target!r}: the states are " + ", ".join(s.name for s in PowerState)
+                ) from None
+        limit = self.timeout if timeout is None else _seconds("timeout", timeout)
         status = await self.read_statusword()
         for _step in range(8):
             state = status.state
@@ -333,10 +417,13 @@ class AsyncDrive402:
                 )
                 continue
             await self._send_cw((self._cw & ~Command.mask()) | command)
+            name = command.name
+            if command == Command.DISABLE_OPERATION and state is PowerState.OPERATION_ENABLED:
+                name = "DISABLE_OPERATION"  # the same bits as SWITCH_ON
             status = await self._wait(
                 functools.partial(_left, state),
                 limit,
-                f"{state.name} -> {goal.name} by {command.name} (controlword 0x{self._cw:04X})",
+                f"{state.name} -> {goal.name} by {name} (controlword 0x{self._cw:04X})",
             )
         raise DriveStateError(
             f"drive {self.node_id} did not settle in {goal.name}: it is {status.state.name}"
@@ -411,10 +498,13 @@ class AsyncDrive402:
         raises :class:`DriveStateError` at once; the quirks apply (halt during the change,
         the state to change in)."""
         try:
+            if isinstance(mode, bool):
+                raise ValueError
             wanted = OperationMode[mode.upper()] if isinstance(mode, str) else OperationMode(mode)
-        except (KeyError, ValueError):
+        except (KeyError, ValueError, AttributeError):
             raise ValueError(f"mode {mode!r}: the modes are {_MODE_NAMES}") from None
-        if self._mode == wanted:
+        limit = self.timeout if timeout is None else _seconds("timeout", timeout)
+        if await self.read_mode() == wanted:  # the drive's own word: a reset changes it
             return
         if wanted not in await self.supported_modes():
             modes = ", ".join(m.name for m in await self.supported_modes())
@@ -422,12 +512,15 @@ class AsyncDrive402:
                 f"drive {self.node_id} does not support {wanted.name} (6502h lists: {modes})"
             )
         quirks = self.quirks
+        back_to: PowerState | None = None
         if quirks.mode_change_state is not None:
+            before = (await self.read_statusword()).state
             await self.set_state(quirks.mode_change_state, timeout)
+            if before is PowerState.OPERATION_ENABLED:
+                back_to = before
         if quirks.halt_during_mode_change:
             await self._send_cw(self._cw | CW_HALT)
         await self.write(0x6060, 0, int(wanted))
-        limit = self.timeout if timeout is None else timeout
         deadline = self._port.network.time() + limit
         while True:
             shown = int(await self.read(0x6061))
@@ -442,6 +535,8 @@ class AsyncDrive402:
         self._mode = wanted
         if quirks.halt_during_mode_change:
             await self._send_cw(self._cw & ~CW_HALT)
+        if back_to is not None:
+            await self.set_state(back_to, timeout)
 
     async def read_mode(self) -> OperationMode | int:
         """The mode 6061h shows now."""
@@ -459,17 +554,36 @@ class AsyncDrive402:
                 "OPERATION_ENABLED (call enable() first)"
             )
 
-    def _inc(self, value: float) -> int:
-        return round(value * self.scale)
+    def _inc(self, what: str, value: Any, *, positive: bool = False) -> int:
+        """``value`` user units as drive increments, checked: a finite number, in INTEGER32,
+        above 0 (``positive``) also after the scaling."""
+        number = _number(what, value)
+        inc = round(number * self.scale)
+        if not _I32[0] <= inc <= _I32[1]:
+            raise ValueError(
+                f"{what} {value:g} {self.unit} is {inc} increments, beyond INTEGER32 (scale "
+                f"{self.scale:g} increments per {self.unit})"
+            )
+        if positive and inc <= 0:
+            raise ValueError(
+                f"{what} {value:g} {self.unit} is {inc} increments at scale {self.scale:g}: "
+                "it must be above 0"
+            )
+        return inc
 
-    async def _profile(
+    def _profile(
         self, velocity: float | None, acceleration: float | None, deceleration: float | None
-    ) -> None:
-        for index, value in ((0x6081, velocity), (0x6083, acceleration), (0x6084, deceleration)):
+    ) -> list[tuple[int, int]]:
+        """The profile objects to write, checked before anything is sent."""
+        out = []
+        for index, what, value in (
+            (0x6081, "velocity", velocity),
+            (0x6083, "acceleration", acceleration),
+            (0x6084, "deceleration", deceleration),
+        ):
             if value is not None:
-                if value <= 0:
-                    raise ValueError(f"0x{index:04X}: {value} must be above 0")
-                await self.write(index, 0, self._inc(value))
+                out.append((index, self._inc(what, value, positive=True)))
+        return out
 
     # ------------------------------------------------------------------ profile position
     async def move_to(
@@ -492,12 +606,17 @@ class AsyncDrive402:
         bit 4 cleared. ``immediate=False`` queues it behind the move in progress (the drive
         buffers one set-point; the call waits for room). ``wait=False`` returns once the
         drive took the set-point; :meth:`wait_for_target` waits for the end. ``progress`` is
-        called with each statusword read while waiting."""
+        called with each statusword read while waiting, on the event loop (in blocking code
+        too: it must not call the drive's blocking methods)."""
+        target = self._inc("position", position)
+        profile = self._profile(velocity, acceleration, deceleration)
+        _seconds("timeout", timeout)
         await self.set_mode(OperationMode.PROFILE_POSITION)
         await self.read_statusword()
         self._require_enabled("move")
-        await self._profile(velocity, acceleration, deceleration)
-        await self.write(0x607A, 0, self._inc(position))
+        for index, value in profile:
+            await self.write(index, 0, value)
+        await self.write(0x607A, 0, target)
         bits = (CW_RELATIVE if relative else 0) | (CW_CHANGE_IMMEDIATELY if immediate else 0)
         base = self._cw & ~(CW_NEW_SETPOINT | CW_RELATIVE | CW_CHANGE_IMMEDIATELY)
         if self.quirks.clear_halt:
@@ -540,15 +659,44 @@ class AsyncDrive402:
 
         return await self._wait(reached, timeout, what, progress=progress)
 
+    async def _velocity_window(self, index: int, fallback: int) -> int:
+        try:
+            return max(int(await self.read(index)), 1)
+        except SdoAbortedError:
+            return fallback
+
+    async def _wait_velocity(
+        self, target: int, window: int, timeout: float, what: str, *, reached: bool = True
+    ) -> None:
+        """Until the actual velocity 606Ch is within ``window`` increments/s of ``target``
+        (and, with ``reached``, the statusword shows target reached): a statusword from
+        before the command cannot end the wait, the measured velocity must agree."""
+        loop = self._port.network
+        deadline = loop.time() + _seconds("timeout", timeout)
+        while True:
+            status = await self.read_statusword()
+            if status.state in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE):
+                raise await self._fault(what)
+            actual = round(await self.read_velocity() * self.scale)
+            if abs(actual - target) <= window and (status.target_reached or not reached):
+                return
+            if loop.time() >= deadline:
+                raise DriveTimeoutError(
+                    f"drive {self.node_id}: {what} did not happen within {timeout:g} s "
+                    f"(velocity {actual / self.scale:g} {self.unit}/s); statusword {status}"
+                )
+            await asyncio.sleep(self.poll)
+
     async def halt(self, timeout: float | None = None) -> None:
-        """Stop with the profile deceleration (controlword bit 8) and stay enabled; the next
-        move clears Halt (unless ``quirks.clear_halt`` is False)."""
+        """Stop with the profile deceleration (controlword bit 8), stay enabled, and return
+        once the drive stands (its actual velocity within the velocity threshold 606Fh); the
+        next move clears Halt (unless ``quirks.clear_halt`` is False)."""
+        limit = self.timeout if timeout is None else _seconds("timeout", timeout)
+        await self.read_statusword()
+        self._require_enabled("halt")
         await self._send_cw(self._cw | CW_HALT)
-        await self._wait(
-            lambda s: s.target_reached,
-            self.timeout if timeout is None else timeout,
-            "standstill after halt",
-        )
+        window = await self._velocity_window(0x606F, 1)
+        await self._wait_velocity(0, window, limit, "standstill after halt", reached=False)
 
     # ------------------------------------------------------------------ velocity and torque
     async def set_velocity(
@@ -561,17 +709,24 @@ class AsyncDrive402:
         timeout: float = 30.0,
     ) -> None:
         """Run at ``velocity`` (user units per second) in profile velocity mode; with ``wait``
-        return when the drive reports the velocity reached (bit 10)."""
+        return when the actual velocity 606Ch is within the velocity window 606Dh of it and
+        the drive reports target reached."""
+        target = self._inc("velocity", velocity)
+        profile = self._profile(None, acceleration, deceleration)
+        _seconds("timeout", timeout)
         await self.set_mode(OperationMode.PROFILE_VELOCITY)
         await self.read_statusword()
         self._require_enabled("run at a velocity")
-        await self._profile(None, acceleration, deceleration)
-        await self.write(0x60FF, 0, self._inc(velocity))
+        for index, value in profile:
+            await self.write(index, 0, value)
+        await self.write(0x60FF, 0, target)
         if self.quirks.clear_halt and self._cw & CW_HALT:
             await self._send_cw(self._cw & ~CW_HALT)
         if wait:
-            await asyncio.sleep(self.poll)  # the drive takes the new target first
-            await self.wait_for_target(timeout, what=f"velocity {velocity:g} {self.unit}/s")
+            window = await self._velocity_window(0x606D, max(abs(target) // 100, 1))
+            await self._wait_velocity(
+                target, window, timeout, f"velocity {velocity:g} {self.unit}/s"
+            )
 
     async def set_torque(
         self,
@@ -583,13 +738,17 @@ class AsyncDrive402:
     ) -> None:
         """Apply ``torque`` (per mille of the rated torque) in profile torque mode, ramped
         with ``slope`` (per mille per second) when given; with ``wait`` return when the
-        drive reports it reached."""
+        drive reports it reached (bit 10, read one poll period after the command)."""
+        torque = _integer("torque", torque, -32768, 32767)
+        if slope is not None:
+            slope = _integer("slope", slope, 1, 2**32 - 1)
+        _seconds("timeout", timeout)
         await self.set_mode(OperationMode.PROFILE_TORQUE)
         await self.read_statusword()
         self._require_enabled("apply a torque")
         if slope is not None:
-            await self.write(0x6087, 0, int(slope))
-        await self.write(0x6071, 0, int(torque))
+            await self.write(0x6087, 0, slope)
+        await self.write(0x6071, 0, torque)
         if self.quirks.clear_halt and self._cw & CW_HALT:
             await self._send_cw(self._cw & ~CW_HALT)
         if wait:
@@ -623,6 +782,19 @@ class AsyncDrive402:
         not list raises :class:`DriveStateError` before anything moves, a homing error
         :class:`HomingError`, no result within ``timeout`` :class:`DriveTimeoutError`."""
         if method is not None:
+            method = _integer("homing method", method, -128, 127)
+        writes: list[tuple[int, int, int]] = []
+        if speeds is not None:
+            if len(speeds) != 2:
+                raise ValueError(f"speeds {speeds!r}: (search for the switch, search for zero)")
+            writes.append((0x6099, 1, self._inc("switch search speed", speeds[0], positive=True)))
+            writes.append((0x6099, 2, self._inc("zero search speed", speeds[1], positive=True)))
+        if acceleration is not None:
+            writes.append((0x609A, 0, self._inc("acceleration", acceleration, positive=True)))
+        if offset is not None:
+            writes.append((0x607C, 0, self._inc("offset", offset)))
+        _seconds("timeout", timeout)
+        if method is not None:
             methods = await self.homing_methods()
             if methods is not None and method not in methods:
                 raise DriveStateError(
@@ -634,13 +806,8 @@ class AsyncDrive402:
         self._require_enabled("home")
         if method is not None:
             await self.write(0x6098, 0, method)
-        if speeds is not None:
-            await self.write(0x6099, 1, self._inc(speeds[0]))
-            await self.write(0x6099, 2, self._inc(speeds[1]))
-        if acceleration is not None:
-            await self.write(0x609A, 0, self._inc(acceleration))
-        if offset is not None:
-            await self.write(0x607C, 0, self._inc(offset))
+        for index, subindex, value in writes:
+            await self.write(index, subindex, value)
         base = self._cw & ~(CW_NEW_SETPOINT | CW_HALT)
         await self._send_cw(base)
         await self._send_cw(base | CW_NEW_SETPOINT)
@@ -674,6 +841,7 @@ class AsyncDrive402:
     def close(self) -> None:
         """Stop listening to the node's process data."""
         self._port.remove_input_callback(self._on_input)
+        self._port.close()
 
 
 class Drive402(BlockingTwin, twin_of=AsyncDrive402):

@@ -379,8 +379,9 @@ class AsyncZapiDrive:
     async def wait_for_speed(
         self, speed: float, tolerance: float = 0.2, timeout: float = 30.0
     ) -> None:
-        """Wait until the actual speed is within ``tolerance`` Hz of ``speed``;
-        :class:`ZapiError` if an alarm comes first, a TimeoutError after ``timeout``."""
+        """Wait until the actual speed TPDO1 reports is within ``tolerance`` Hz of ``speed``;
+        :class:`ZapiError` if an alarm comes first or the handshake is lost (or not
+        answered), a TimeoutError after ``timeout``."""
 
         def there() -> bool:
             if self._alarm:
@@ -388,7 +389,11 @@ class AsyncZapiDrive:
                     f"node {self.node_id}: alarm {self._alarm} {self.alarm_text} while "
                     f"waiting for {speed:g} Hz"
                 )
-            return abs(self.speed - speed) <= tolerance
+            if self._lost or not self.answering:
+                why = "handshake lost (no TPDO1)" if self._lost else "answering is off"
+                raise ZapiError(f"node {self.node_id}: {why} while waiting for {speed:g} Hz")
+            # only a speed a TPDO1 brought counts (none before the first one)
+            return self._running and abs(self.speed - speed) <= tolerance
 
         try:
             await self._wait(there, timeout)
@@ -484,6 +489,8 @@ class AsyncZapiDrive:
                 future.set_exception(exc)
 
     async def _wait(self, test: Callable[[], bool], timeout: float) -> None:
+        if isinstance(timeout, bool) or not isinstance(timeout, int | float) or not timeout > 0:
+            raise ValueError(f"timeout must be a number of seconds above 0, not {timeout!r}")
         if test():
             return
         future: asyncio.Future[None] = self._port.network.loop.create_future()
