@@ -21,6 +21,7 @@ from cobus.profiles import (
     Quirks,
     Statusword,
 )
+from cobus.profiles.trajectory import Trapezoid
 from cobus.runtime import AsyncNetwork, Network
 from cobus.sim import Rig, start_rig
 from cobus.sim.blocking import BlockingRig
@@ -335,3 +336,56 @@ def test_a_managed_drive_before_the_network_runs_goes_by_sdo_and_close_detaches(
         assert drive.state is PowerState.OPERATION_ENABLED
         drive.close()
         assert len(master.aio._tpdo_listeners) == listeners
+
+
+def csp_bench(net: Network) -> tuple[Drive402, BlockingRig]:
+    rig = start_rig(net, Rig.loads(SERVO))
+    node = net.add_remote(10)
+    node.rpdo.read()  # RPDO3 maps controlword + target position: the cyclic set-point
+    node.nmt.start()
+    return Drive402(node), rig
+
+
+def test_csp_follows_a_trapezoid_fed_every_1_ms_sync() -> None:
+    with Network(simulated=True) as net:
+        drive, rig = csp_bench(net)
+        net.sync.start(0.001)
+        drive.enable()
+        start = drive.read_position()
+        move = Trapezoid(start, start + 50_000, velocity=40_000, acceleration=200_000)
+        assert move.duration == pytest.approx(trapezoid(50_000, 40_000, 200_000, 200_000))
+        worst: list[float] = [0.0]
+
+        def watch(fraction: float) -> None:  # on the loop: the simulated drive, directly
+            error = abs(rig.aio.devices[10].status()["following_error"])
+            worst[0] = max(worst[0], error)
+
+        began = net.time()
+        drive.follow(move, progress=watch)
+        # fed one SYNC ahead, taken at the next SYNC: the end comes two periods later
+        assert net.time() - began == pytest.approx(move.duration, abs=0.005)
+        assert abs(drive.read_position() - (start + 50_000)) <= 20
+        assert worst[0] < 500  # the drive followed: far inside its following error window
+        assert move.position(move.duration / 2) == pytest.approx(start + 25_000)
+
+
+def test_csp_refuses_what_cannot_work_and_reports_a_fault_on_the_way() -> None:
+    with Network(simulated=True) as net:
+        drive, rig = csp_bench(net)
+        drive.enable()
+        with pytest.raises(DriveStateError, match="the trajectory starts at 1000"):
+            drive.follow(Trapezoid(1000, 2000, 1000, 1000))
+        with pytest.raises(DriveTimeoutError, match=r"no SYNC came within 0\.3 s"):
+            drive.follow(Trapezoid(0, 2000, 1000, 1000), timeout=0.3)
+        net.sync.start(0.001)
+        rig.inject(10, "blocked_rotor")
+        with pytest.raises(DriveFault, match="following a trajectory: 0x8611 Following error"):
+            drive.follow(Trapezoid(0, 100_000, 50_000, 500_000))
+    with Network(simulated=True) as net:
+        start_rig(net, Rig.loads(SERVO))
+        drive = Drive402(net.add_remote(10))  # no RPDO mapping known
+        drive.enable()
+        with pytest.raises(DriveStateError, match="no RPDO maps the target position 607Ah"):
+            drive.follow(Trapezoid(0, 1000, 1000, 1000))
+    with pytest.raises(ValueError, match="velocity must be above 0"):
+        Trapezoid(0, 1, 0, 1)

@@ -3,7 +3,9 @@
 - :mod:`cobus.profiles.cia402` — CiA 402 sans I/O: power states from the statusword, the
   controlword commands, modes of operation, error code texts.
 - :mod:`cobus.profiles.drive402` — :class:`AsyncDrive402` / :class:`Drive402`: enable, move,
-  home, run at a velocity or a torque, with typed errors.
+  home, run at a velocity or a torque, follow a trajectory every SYNC, with typed errors.
+- :mod:`cobus.profiles.trajectory` — motion profiles for the cyclic modes (:class:`Trapezoid`).
+- :mod:`cobus.profiles.zapi` — the ZAPI ACE2 inverter of the thesis, its handshake kept.
 """
 
 from cobus.profiles.cia402 import Command, OperationMode, PowerState, Statusword, error_text
@@ -17,6 +19,7 @@ from cobus.profiles.drive402 import (
     HomingError,
     Quirks,
 )
+from cobus.profiles.trajectory import Trajectory, Trapezoid
 
 __all__ = [
     "AsyncDrive402",
@@ -31,5 +34,7 @@ __all__ = [
     "PowerState",
     "Quirks",
     "Statusword",
+    "Trajectory",
+    "Trapezoid",
     "error_text",
 ]

@@ -52,6 +52,10 @@ class DrivePort(Protocol):
 
     def last_emergency(self) -> Emergency | None: ...
 
+    def send_cyclic(self, values: Mapping[Key, int]) -> bool:
+        """Send ``values`` by the RPDO that carries them (every object it maps is among
+        them), now: a set-point of a cyclic mode. False when no such RPDO is configured."""
+
     def close(self) -> None:
         """Stop listening to the node."""
 
@@ -70,6 +74,7 @@ class RemoteNodePort:
         self._callbacks: list[Callable[[int, float], object]] = []
         self._watched: set[int] = set()
         self._bound: dict[int, Callable[[PdoReceived], None]] = {}
+        self._cyclic: dict[frozenset[Key], Any] = {}
 
     def _watch(self) -> None:
         for pdo in self.node.tpdo:
@@ -107,6 +112,25 @@ class RemoteNodePort:
 
     def set_outputs(self, values: Mapping[Key, int], *, always: bool = False) -> bool:
         return False
+
+    def send_cyclic(self, values: Mapping[Key, int]) -> bool:
+        keys = frozenset(values)
+        pdo = self._cyclic.get(keys)
+        if pdo is None:
+            for candidate in self.node.rpdo:
+                mapped = {
+                    (f.entry.index, f.entry.subindex) for f in candidate.fields if not f.dummy
+                }
+                if candidate.enabled and mapped and mapped <= keys and next(iter(values)) in mapped:
+                    pdo = self._cyclic[keys] = candidate
+                    break
+            else:
+                return False
+        for key in values:
+            if key in pdo:
+                pdo[key] = values[key]
+        pdo.transmit()
+        return True
 
     def close(self) -> None:
         for pdo in self.node.tpdo:
@@ -182,6 +206,17 @@ class ManagedNodePort:
             shown[sig.name] = scaled
         self.master.set_outputs(shown, always=always)
         return self.managed.operational and self.master.running
+
+    def send_cyclic(self, values: Mapping[Key, int]) -> bool:
+        first = next(iter(values))
+        if self._signal(self.master.image.outputs_by_name, *first) is None:
+            return False
+        known = {
+            key: value
+            for key, value in values.items()
+            if self._signal(self.master.image.outputs_by_name, *key) is not None
+        }
+        return self.set_outputs(known, always=True)
 
     def last_emergency(self) -> Emergency | None:
         history = self.managed.emcy_history

@@ -43,6 +43,8 @@ from cobus.profiles.cia402 import (
     command_towards,
     error_text,
 )
+from cobus.profiles.trajectory import Trajectory
+from cobus.proto import Frame
 from cobus.proto.sdo import SdoAbortedError
 from cobus.runtime._twin import BlockingTwin
 
@@ -659,7 +661,7 @@ class AsyncDrive402:
 
         return await self._wait(reached, timeout, what, progress=progress)
 
-    async def _velocity_window(self, index: int, fallback: int) -> int:
+    async def _read_window(self, index: int, fallback: int) -> int:
         try:
             return max(int(await self.read(index)), 1)
         except SdoAbortedError:
@@ -695,7 +697,7 @@ class AsyncDrive402:
         await self.read_statusword()
         self._require_enabled("halt")
         await self._send_cw(self._cw | CW_HALT)
-        window = await self._velocity_window(0x606F, 1)
+        window = await self._read_window(0x606F, 1)
         await self._wait_velocity(0, window, limit, "standstill after halt", reached=False)
 
     # ------------------------------------------------------------------ velocity and torque
@@ -723,7 +725,7 @@ class AsyncDrive402:
         if self.quirks.clear_halt and self._cw & CW_HALT:
             await self._send_cw(self._cw & ~CW_HALT)
         if wait:
-            window = await self._velocity_window(0x606D, max(abs(target) // 100, 1))
+            window = await self._read_window(0x606D, max(abs(target) // 100, 1))
             await self._wait_velocity(
                 target, window, timeout, f"velocity {velocity:g} {self.unit}/s"
             )
@@ -754,6 +756,113 @@ class AsyncDrive402:
         if wait:
             await asyncio.sleep(self.poll)
             await self.wait_for_target(timeout, what=f"torque {torque} per mille")
+
+    # ------------------------------------------------------------------ cyclic synchronous
+    async def follow(
+        self,
+        trajectory: Trajectory,
+        *,
+        sync_cob_id: int = 0x80,
+        timeout: float | None = None,
+        progress: Callable[[float], object] | None = None,
+    ) -> None:
+        """Follow ``trajectory`` (user units; a :class:`~cobus.profiles.trajectory.Trapezoid`
+        or any object with ``start``, ``end``, ``duration`` and ``position(t)``) in cyclic
+        synchronous position mode: at each SYNC the position for the next SYNC goes out by
+        the RPDO that maps 607Ah (with the controlword, if it maps it too). Someone must
+        produce SYNC (``net.sync.start(0.001)``, or the master). Returns when the last
+        set-point is sent and the drive stands within its position window 6067h of the end;
+        ``progress(fraction)`` is called each cycle, on the event loop.
+
+        :class:`DriveStateError` when the drive is not enabled, is not at the trajectory's
+        start, or no RPDO maps 607Ah; :class:`DriveFault` if it faults on the way (the
+        feeding stops); :class:`DriveTimeoutError` when no SYNC comes or the end is not
+        reached within ``timeout`` (default: the duration + 1 s)."""
+        start = self._inc("trajectory start", trajectory.start)
+        end = self._inc("trajectory end", trajectory.end)
+        duration = _number("trajectory duration", trajectory.duration)
+        limit = duration + 1.0 if timeout is None else _seconds("timeout", timeout)
+        await self.set_mode(OperationMode.CYCLIC_SYNC_POSITION)
+        await self.read_statusword()
+        self._require_enabled("follow a trajectory")
+        actual = round(await self.read_position() * self.scale)
+        window = await self._read_window(0x6067, 20)
+        if abs(actual - start) > window:
+            raise DriveStateError(
+                f"drive {self.node_id} is at {actual / self.scale:g} {self.unit}, the "
+                f"trajectory starts at {trajectory.start:g} (more than the position window "
+                f"6067h, {window} increments, away): start it where the drive stands"
+            )
+        cw = self._cw & ~CW_HALT
+        self._cw = cw
+        if not self._port.send_cyclic({(0x607A, 0): start, (0x6040, 0): cw}):
+            raise DriveStateError(
+                f"drive {self.node_id}: no RPDO maps the target position 607Ah (with nothing "
+                "but the controlword beside it): map one (the network file's rpdoN, or "
+                "node.rpdo.read() on a bare node) to feed it every SYNC"
+            )
+        loop = self._port.network
+        done: asyncio.Future[None] = loop.loop.create_future()
+        began: list[float] = []
+        last: list[float] = []
+
+        def on_sync(frame: Frame, now: float) -> None:
+            if done.done() or frame.rtr:
+                return
+            period = now - last[0] if last else 0.0
+            last[:] = [now]
+            if not began:
+                began.append(now)
+            t = now - began[0] + period  # the position the drive takes at the next SYNC
+            target = self._inc("set-point", trajectory.position(t))
+            self._port.send_cyclic({(0x607A, 0): target, (0x6040, 0): cw})
+            if progress is not None:
+                progress(min(t / duration, 1.0) if duration > 0 else 1.0)
+            if t >= duration:
+                done.set_result(None)
+
+        subscription = loop.subscribe(sync_cob_id, on_sync)
+        deadline = loop.time() + limit
+        try:
+            while not done.done():
+                status = await self.read_statusword()
+                if status.state in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE):
+                    raise await self._fault("following a trajectory")
+                if status.state is not PowerState.OPERATION_ENABLED:
+                    raise DriveStateError(
+                        f"drive {self.node_id} left OPERATION_ENABLED while following a "
+                        f"trajectory: statusword {status}"
+                    )
+                if loop.time() >= deadline:
+                    why = "no SYNC came" if not began else "the trajectory did not end"
+                    raise DriveTimeoutError(
+                        f"drive {self.node_id}: {why} within {limit:g} s (is a SYNC producer "
+                        "running?)"
+                    )
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(
+                        asyncio.shield(done), min(0.05, max(deadline - loop.time(), 1e-3))
+                    )
+        finally:
+            subscription.cancel()
+            if not done.done():
+                done.cancel()
+        left = max(deadline - loop.time(), self.timeout)
+        position_window = window
+        while True:
+            status = await self.read_statusword()
+            if status.state in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE):
+                raise await self._fault("reaching the trajectory's end")
+            actual = round(await self.read_position() * self.scale)
+            if abs(actual - end) <= position_window:
+                return
+            left -= self.poll
+            if left <= 0:
+                raise DriveTimeoutError(
+                    f"drive {self.node_id}: the trajectory's end {trajectory.end:g} "
+                    f"{self.unit} not reached (at {actual / self.scale:g}); statusword {status}"
+                )
+            await asyncio.sleep(self.poll)
 
     # ------------------------------------------------------------------ homing
     async def homing_methods(self) -> list[int] | None:
