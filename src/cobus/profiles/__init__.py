@@ -6,6 +6,7 @@
   home, run at a velocity or a torque, follow a trajectory every SYNC, with typed errors.
 - :mod:`cobus.profiles.trajectory` — motion profiles for the cyclic modes (:class:`Trapezoid`).
 - :mod:`cobus.profiles.zapi` — the ZAPI ACE2 inverter of the thesis, its handshake kept.
+- :mod:`cobus.profiles.stober` — the STÖBER MDS 5000: parameters by name, E82 events.
 """
 
 from cobus.profiles.cia402 import Command, OperationMode, PowerState, Statusword, error_text

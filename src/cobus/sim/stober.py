@@ -72,6 +72,8 @@ from cobus.device import (
 from cobus.device.device import Deviations
 from cobus.errors import CobusError
 from cobus.od import Access, DataType, ObjectDictionary, Record, Variable
+from cobus.profiles.stober import EVENTS, STATES, StoberError
+from cobus.profiles.stober import parameter_index as _parameter_index
 from cobus.proto import Frame
 from cobus.proto.nmt import NmtState
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer, SdoServerBackend
@@ -81,78 +83,22 @@ from cobus.sim.base import SimulatedDevice, SimulationError
 
 __all__ = ["EVENTS", "STATES", "StoberMds5000", "parameter_index"]
 
-#: E82 event -> (text, EMCY error code, error register), from the manual's table.
-EVENTS: Mapping[int, tuple[str, int, int]] = {
-    30: ("no event", 0x0000, 0x00),
-    31: ("short/earth fault", 0x2110, 0x02),
-    32: ("internal short circuit", 0x2230, 0x02),
-    33: ("overcurrent", 0x2310, 0x02),
-    34: ("hardware defect", 0x5000, 0x01),
-    35: ("watchdog", 0x6010, 0x01),
-    36: ("overvoltage", 0x3110, 0x04),
-    37: ("speed feedback", 0x7303, 0x01),
-    38: ("device temperature sensor", 0x4210, 0x08),
-    39: ("device i2t", 0x4280, 0x08),
-    40: ("invalid data", 0x6310, 0x01),
-    41: ("motor temperature", 0x4310, 0x08),
-    42: ("brake resistor temperature", 0x7110, 0x08),
-    44: ("external fault", 0x9000, 0x01),
-    45: ("motor i2t", 0x4380, 0x08),
-    46: ("undervoltage", 0x3120, 0x04),
-    47: ("M-Max limit", 0x8311, 0x01),
-    48: ("overload accelerating", 0x8312, 0x01),
-    49: ("overload braking", 0x8331, 0x01),
-    52: ("communication", 0x8100, 0x10),
-    55: ("option board", 0x5200, 0x01),
-    56: ("overspeed", 0x8400, 0x01),
-    57: ("runtime load", 0x6100, 0x01),
-    58: ("earth fault", 0x2110, 0x02),
-    59: ("device i2t", 0x4280, 0x08),
-    **{n: (f"application event {n - 60}", 0x6200, 0x01) for n in range(60, 68)},
-    68: ("external fault 2", 0x9000, 0x01),
-    69: ("motor connection", 0x7120, 0x01),
-    70: ("parameter consistency", 0x6300, 0x01),
-}
 NO_EVENT, MOTOR_TEMPERATURE, M_MAX, COMMUNICATION, OVERSPEED = 30, 41, 47, 52, 56
 CAUSE_ERROR_CONTROL = 1
 
-#: E48 device states.
-STATES: Mapping[int, str] = {
-    0: "self test",
-    1: "switch-on disabled",
-    2: "ready to switch on",
-    3: "switched on",
-    4: "operation enabled",
-    5: "quick stop active",
-    6: "fault reaction active",
-    7: "fault",
-}
 SWITCH_ON_DISABLED, ENABLED, QUICK_STOP, FAULT_REACTION, FAULT = 1, 4, 5, 6, 7
 
 VENDOR_ID = 0xB9
-GROUPS = "ABCDEFGHIJKLMNOPQRSTUVWXYZ"
 
 
 def parameter_index(coordinate: str) -> tuple[int, int]:
     """The CANopen index and sub-index of a STOeBER parameter: ``"C01"`` -> (2401h, 0),
-    ``"A225.3"`` -> (20E1h, 3), ``"E08"`` -> (2808h, 0)."""
-    text = coordinate.strip().upper()
-    group, rest = text[:1], text[1:]
-    number_text, _, element_text = rest.partition(".")
-    if (
-        group not in GROUPS
-        or not number_text.isdigit()
-        or (element_text and not element_text.isdigit())
-    ):
-        raise SimulationError(
-            f"{coordinate!r} is not a parameter coordinate: a group A..Z, a number, an optional "
-            "element (e.g. C01, A225.3)"
-        )
-    number = int(number_text)
-    element = int(element_text) if element_text else 0
-    if not 0 <= number <= 0x1FF or not 0 <= element <= 0xFF:
-        raise SimulationError(f"{coordinate!r}: the number is 0..511 and the element 0..255")
-    return 0x2000 + 0x200 * GROUPS.index(group) + number, element
+    ``"A225.3"`` -> (20E1h, 3), ``"E08"`` -> (2808h, 0) (see
+    :func:`cobus.profiles.stober.parameter_index`; a bad name is a SimulationError here)."""
+    try:
+        return _parameter_index(coordinate)
+    except StoberError as exc:
+        raise SimulationError(str(exc)) from None
 
 
 A11 = parameter_index("A11")[0]
