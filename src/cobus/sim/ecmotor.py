@@ -50,6 +50,7 @@ import math
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
+from cobus.profiles.ecmotor import MODES, UNITS
 from cobus.proto import Event, Frame
 from cobus.proto.sdo import SdoAbortCode
 from cobus.runtime.network import AsyncNetwork, MachineHost, Subscription
@@ -67,39 +68,6 @@ from cobus.sim.base import SimulatedDevice, SimulationError
 
 __all__ = ["DEFAULT_S_ERR", "LIMITS", "MODES", "UNITS", "EcMotor"]
 
-#: Unit classes: (name, factor to the physical unit, unit).
-UNITS: Mapping[str, tuple[str, float, str]] = {
-    "V": ("velocity", 0.1875, "rpm"),
-    "A": ("acceleration", 0.0146484375, "rpm/ms"),
-    "D": ("deceleration", 0.0146484375, "rpm/ms"),
-    "P": ("position", 0.1171875, "deg"),
-    "M": ("torque", 0.000135, "Nm"),
-    "C": ("current", 0.000135, "A"),
-    "U": ("voltage", 0.01, "V"),
-    "T": ("temperature", 0.01, "degC"),
-    "K": ("time", 0.8, "ms"),
-}
-
-#: T_MOD: the working modes.
-MODES: Mapping[int, str] = {
-    0: "MON",
-    1: "OFF",
-    2: "STP",
-    3: "PON",
-    4: "MOM",
-    5: "VEL",
-    6: "POZ",
-    15: "VELP",
-    16: "ARRP",
-    17: "ETY1",
-    18: "ETY2",
-    19: "VYSR",
-    20: "VYSL",
-    28: "M24",
-    29: "ERR",
-    30: "JMP",
-    31: "RES",
-}
 MON, OFF, STP, PON, MOM, VEL, POZ, VELP, ERR, RES = 0, 1, 2, 3, 4, 5, 6, 15, 29, 31
 _POWER_ON_MODES = frozenset((STP, PON, MOM, VEL, POZ, VELP))
 
