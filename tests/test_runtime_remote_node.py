@@ -354,6 +354,7 @@ def test_every_async_operation_has_its_blocking_twin():
     from cobus.master import BlockingMaster, Master
     from cobus.profiles import AsyncDrive402, Drive402
     from cobus.profiles.ecmotor import AsyncEcMotorDrive, EcMotorDrive
+    from cobus.profiles.io401 import AsyncIo401, Io401
     from cobus.profiles.stober import AsyncStoberDrive, StoberDrive
     from cobus.profiles.zapi import AsyncZapiDrive, ZapiDrive
     from cobus.runtime import _twin, blocking, emcy, nmt, pdo, remote
@@ -376,6 +377,7 @@ def test_every_async_operation_has_its_blocking_twin():
         AsyncZapiDrive: ZapiDrive,
         AsyncStoberDrive: StoberDrive,
         AsyncEcMotorDrive: EcMotorDrive,
+        AsyncIo401: Io401,
     }
     # what a blocking face adds: letting the network run (async code awaits the network)
     added: dict[type, set[str]] = {

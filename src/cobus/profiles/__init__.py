@@ -8,6 +8,7 @@
 - :mod:`cobus.profiles.zapi` — the ZAPI ACE2 inverter of the thesis, its handshake kept.
 - :mod:`cobus.profiles.stober` — the STÖBER MDS 5000: parameters by name, E82 events.
 - :mod:`cobus.profiles.ecmotor` — the EC motor of seed 002: its own SDO dialect as a client.
+- :mod:`cobus.profiles.io401` — CiA 401 I/O modules: named channels, scaling, change callbacks.
 """
 
 from cobus.profiles.cia402 import Command, OperationMode, PowerState, Statusword, error_text
