@@ -353,6 +353,7 @@ def test_every_async_operation_has_its_blocking_twin():
     from cobus.device import BlockingDevice, Device
     from cobus.master import BlockingMaster, Master
     from cobus.profiles import AsyncDrive402, Drive402
+    from cobus.profiles.axes import AsyncAxes, Axes
     from cobus.profiles.ecmotor import AsyncEcMotorDrive, EcMotorDrive
     from cobus.profiles.io401 import AsyncIo401, Io401
     from cobus.profiles.stober import AsyncStoberDrive, StoberDrive
@@ -378,6 +379,7 @@ def test_every_async_operation_has_its_blocking_twin():
         AsyncStoberDrive: StoberDrive,
         AsyncEcMotorDrive: EcMotorDrive,
         AsyncIo401: Io401,
+        AsyncAxes: Axes,
     }
     # what a blocking face adds: letting the network run (async code awaits the network)
     added: dict[type, set[str]] = {

@@ -4,6 +4,7 @@
   controlword commands, modes of operation, error code texts.
 - :mod:`cobus.profiles.drive402` — :class:`AsyncDrive402` / :class:`Drive402`: enable, move,
   home, run at a velocity or a torque, follow a trajectory every SYNC, with typed errors.
+- :mod:`cobus.profiles.axes` — several drives enabled or quick-stopped together.
 - :mod:`cobus.profiles.trajectory` — motion profiles for the cyclic modes (:class:`Trapezoid`).
 - :mod:`cobus.profiles.zapi` — the ZAPI ACE2 inverter of the thesis, its handshake kept.
 - :mod:`cobus.profiles.stober` — the STÖBER MDS 5000: parameters by name, E82 events.

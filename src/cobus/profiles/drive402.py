@@ -270,6 +270,12 @@ class AsyncDrive402:
         self._supported: int | None = None
         self._homing_methods: list[int] | None = None
         self._updated = asyncio.Event()
+        self._jog_timer: asyncio.TimerHandle | None = None
+        self._halt_task: asyncio.Future[None] | None = None
+        self._jog_deadman = 0.0
+        #: Why the last jog ended ("" while one runs or none ran): "stopped", or "dead-man:
+        #: no keep_jogging() for 0.2 s".
+        self.jog_ended = ""
         self._port.add_input_callback(self._on_input)
 
     def __repr__(self) -> str:
@@ -947,8 +953,54 @@ class AsyncDrive402:
         value = self._fresh(0x606C)
         return float(value if value is not None else await self.read(0x606C)) / self.scale
 
+    # ------------------------------------------------------------------ jog
+    async def jog(self, velocity: float, *, deadman: float = 0.2) -> None:
+        """Run at ``velocity`` (user units/s, profile velocity) for as long as someone says
+        so: :meth:`keep_jogging` must come at least every ``deadman`` seconds (a held
+        button, a panel's heartbeat), else the drive halts by itself — a lost operator
+        link never leaves a motor running. :meth:`stop_jog` ends it; :attr:`jog_ended` says
+        how the last one ended."""
+        deadman = _seconds("deadman", deadman)
+        await self.set_velocity(velocity, wait=False)
+        self._jog_deadman = deadman
+        self.jog_ended = ""
+        self.keep_jogging()
+
+    @property
+    def jogging(self) -> bool:
+        """Whether a jog runs (its dead-man timer is armed)."""
+        return self._jog_timer is not None
+
+    def keep_jogging(self) -> None:
+        """The operator still holds the jog: the dead-man timer starts again."""
+        if self._jog_deadman <= 0:
+            raise DriveStateError(f"drive {self.node_id}: no jog runs (call jog() first)")
+        if self._jog_timer is not None:
+            self._jog_timer.cancel()
+        loop = self._port.network.loop
+        self._jog_timer = loop.call_later(self._jog_deadman, self._deadman_expired)
+
+    def _deadman_expired(self) -> None:
+        self._jog_timer = None
+        self.jog_ended = f"dead-man: no keep_jogging() for {self._jog_deadman:g} s"
+        self._jog_deadman = 0.0
+        self._halt_task = asyncio.ensure_future(self._send_cw(self._cw | CW_HALT))
+
+    async def stop_jog(self, timeout: float | None = None) -> None:
+        """End the jog: halt and wait for standstill."""
+        if self._jog_timer is not None:
+            self._jog_timer.cancel()
+            self._jog_timer = None
+        self._jog_deadman = 0.0
+        if not self.jog_ended:
+            self.jog_ended = "stopped"
+        await self.halt(timeout)
+
     def close(self) -> None:
-        """Stop listening to the node's process data."""
+        """Stop listening to the node's process data (and end a jog: the drive halts)."""
+        if self._jog_timer is not None:
+            self._deadman_expired()
+            self.jog_ended = "closed"
         self._port.remove_input_callback(self._on_input)
         self._port.close()
 
