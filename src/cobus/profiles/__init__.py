@@ -5,7 +5,8 @@
 - :mod:`cobus.profiles.drive402` — :class:`AsyncDrive402` / :class:`Drive402`: enable, move,
   home, run at a velocity or a torque, follow a trajectory every SYNC, with typed errors.
 - :mod:`cobus.profiles.axes` — several drives enabled or quick-stopped together.
-- :mod:`cobus.profiles.trajectory` — motion profiles for the cyclic modes (:class:`Trapezoid`).
+- :mod:`cobus.profiles.trajectory` — motion profiles for the cyclic modes (:class:`Trapezoid`,
+  jerk-limited :class:`SCurve`).
 - :mod:`cobus.profiles.zapi` — the ZAPI ACE2 inverter of the thesis, its handshake kept.
 - :mod:`cobus.profiles.stober` — the STÖBER MDS 5000: parameters by name, E82 events.
 - :mod:`cobus.profiles.ecmotor` — the EC motor of seed 002: its own SDO dialect as a client.
@@ -23,7 +24,7 @@ from cobus.profiles.drive402 import (
     HomingError,
     Quirks,
 )
-from cobus.profiles.trajectory import Trajectory, Trapezoid
+from cobus.profiles.trajectory import SCurve, Trajectory, Trapezoid
 
 __all__ = [
     "AsyncDrive402",
@@ -37,6 +38,7 @@ __all__ = [
     "OperationMode",
     "PowerState",
     "Quirks",
+    "SCurve",
     "Statusword",
     "Trajectory",
     "Trapezoid",

@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Protocol
 
-__all__ = ["Trajectory", "Trapezoid"]
+__all__ = ["SCurve", "Trajectory", "Trapezoid"]
 
 
 class Trajectory(Protocol):
@@ -112,3 +112,102 @@ class Trapezoid:
         if t < self.t_acc + self.t_cruise:
             return sign * self.peak
         return sign * self.peak * (self.duration - t) / self.t_dec
+
+
+@dataclass(frozen=True)
+class SCurve:
+    """A jerk-limited move from ``start`` to ``end``: the acceleration ramps at ``jerk`` up
+    to ``acceleration`` and back (seven phases: jerk, constant acceleration, jerk, cruise at
+    ``velocity``, and the mirror image to stand at ``end``). When the distance is too short
+    for the velocity, the highest velocity that fits is used; when the velocity is too low
+    for the acceleration, the highest acceleration that fits. Gentler on the mechanics than
+    :class:`Trapezoid`, for a little more time."""
+
+    start: float
+    end: float
+    velocity: float
+    acceleration: float
+    jerk: float
+    #: The peak velocity and acceleration reached, the jerk and constant-acceleration
+    #: phase times, and the cruise time (computed).
+    peak: float = field(init=False)
+    peak_acceleration: float = field(init=False)
+    t_jerk: float = field(init=False)
+    t_const: float = field(init=False)
+    t_cruise: float = field(init=False)
+
+    def __post_init__(self) -> None:
+        for what in ("start", "end"):
+            value = getattr(self, what)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise TypeError(f"{what} must be a number, not {value!r}")
+            if not math.isfinite(value):
+                raise ValueError(f"{what} must be finite, not {value!r}")
+        v_max = _positive("velocity", self.velocity)
+        a_max = _positive("acceleration", self.acceleration)
+        j = _positive("jerk", self.jerk)
+        distance = abs(self.end - self.start)
+
+        def ramp(v: float) -> tuple[float, float, float]:
+            """(peak acceleration, jerk time, constant time) to reach ``v`` from rest."""
+            a = min(a_max, math.sqrt(v * j))
+            tj = a / j
+            return a, tj, max(v / a - tj, 0.0) if a > 0 else 0.0
+
+        def ramp_distance(v: float) -> float:
+            _a, tj, tc = ramp(v)
+            return v * (2 * tj + tc) / 2  # the ramp's mean velocity is v / 2 (symmetry)
+
+        v = v_max
+        if 2 * ramp_distance(v) > distance:  # too short: the highest velocity that fits
+            low, high = 0.0, v_max
+            for _ in range(80):
+                mid = (low + high) / 2
+                low, high = (mid, high) if 2 * ramp_distance(mid) <= distance else (low, mid)
+            v = low
+        a, tj, tc = ramp(v)
+        cruise = (distance - 2 * ramp_distance(v)) / v if v > 0 else 0.0
+        object.__setattr__(self, "peak", v)
+        object.__setattr__(self, "peak_acceleration", a)
+        object.__setattr__(self, "t_jerk", tj)
+        object.__setattr__(self, "t_const", tc)
+        object.__setattr__(self, "t_cruise", max(cruise, 0.0))
+
+    @property
+    def _ramp_time(self) -> float:
+        return 2 * self.t_jerk + self.t_const
+
+    @property
+    def duration(self) -> float:
+        """Seconds from the start to the end."""
+        return 2 * self._ramp_time + self.t_cruise
+
+    def _ramp(self, t: float) -> float:
+        """The distance covered ``t`` seconds into the acceleration ramp."""
+        j, tj, tc, a = self.jerk, self.t_jerk, self.t_const, self.peak_acceleration
+        if t <= tj:
+            return j * t**3 / 6
+        s1, v1 = j * tj**3 / 6, j * tj**2 / 2
+        if t <= tj + tc:
+            u = t - tj
+            return s1 + v1 * u + a * u * u / 2
+        s2, v2 = s1 + v1 * tc + a * tc * tc / 2, v1 + a * tc
+        u = min(t - tj - tc, tj)
+        return s2 + v2 * u + a * u * u / 2 - j * u**3 / 6
+
+    def position(self, t: float) -> float:
+        """The position ``t`` seconds after the start."""
+        if t <= 0:
+            return self.start
+        if t >= self.duration:
+            return self.end
+        sign = 1.0 if self.end >= self.start else -1.0
+        distance = abs(self.end - self.start)
+        ramp = self._ramp_time
+        if t <= ramp:
+            s = self._ramp(t)
+        elif t <= ramp + self.t_cruise:
+            s = self._ramp(ramp) + self.peak * (t - ramp)
+        else:
+            s = distance - self._ramp(self.duration - t)
+        return self.start + sign * s
