@@ -3,9 +3,11 @@ simulated clock: every move's duration is checked against its motion profile's p
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 
@@ -22,6 +24,7 @@ from cobus.profiles import (
     Statusword,
 )
 from cobus.profiles.trajectory import Trapezoid
+from cobus.proto import Frame
 from cobus.runtime import AsyncNetwork, Network
 from cobus.sim import Rig, start_rig
 from cobus.sim.blocking import BlockingRig
@@ -389,3 +392,66 @@ def test_csp_refuses_what_cannot_work_and_reports_a_fault_on_the_way() -> None:
             drive.follow(Trapezoid(0, 1000, 1000, 1000))
     with pytest.raises(ValueError, match="velocity must be above 0"):
         Trapezoid(0, 1, 0, 1)
+
+
+SYNC_NETWORK = """
+master: {sync_period: 20}
+nodes:
+  servo:
+    node_id: 10
+    eds: servo.eds
+    rpdo1: {enabled: false}
+    rpdo2: {enabled: false}
+    rpdo3: {mapping: [controlword, target_position], transmission_type: 1}
+    rpdo4: {enabled: false}
+"""
+
+
+def test_controlword_edges_survive_a_synchronous_rpdo() -> None:
+    """Through an RPDO sent at the SYNC, every controlword value reaches the drive: a
+    homing start edge, a fault-reset pulse, a new set-point after homing."""
+    from cobus.master import loads_network
+
+    examples = Path(__file__).resolve().parent.parent / "examples" / "networks"
+    with Network(simulated=True) as net:
+        rig = start_rig(net, Rig.loads(SERVO))
+        master = BlockingMaster(net, loads_network(SYNC_NETWORK, base_dir=examples))
+        master.boot(timeout=10)
+        drive = Drive402(master, "servo")
+        drive.enable()
+        drive.home(37)
+        began = net.time()
+        drive.home(17, speeds=(100_000, 5_000), acceleration=1_000_000, offset=0)
+        assert net.time() - began > 3.0  # it really went to the switch and back
+        drive.move_to(5000)
+        assert abs(drive.read_position() - 5000) <= 20
+        rig.inject(10, "drive_fault", code=0x7305)
+        net.sleep(0.1)
+        drive.fault_reset()  # the pulse lasts until the drive took it
+        assert drive.state is PowerState.SWITCH_ON_DISABLED
+
+
+def test_follow_reports_errors_of_its_feeding_and_samples_every_period() -> None:
+    class Ramp:  # a trajectory that starts moving at once: 10 000 increments/s
+        start, end, duration = 0.0, 500.0, 0.05
+
+        def position(self, t: float) -> float:
+            return min(10_000 * t, 500.0)
+
+    with Network(simulated=True) as net:
+        drive, _rig = csp_bench(net)
+        frames: list[Frame] = []
+        net.aio.subscribe(0x40A, lambda frame, now: frames.append(frame))  # RPDO3
+        net.sync.start(0.001)
+        drive.enable()
+        drive.follow(Ramp())
+        targets = [int.from_bytes(f.data[2:6], "little", signed=True) for f in frames]
+        steps = [b - a for a, b in itertools.pairwise(targets) if a < 500]
+        assert steps[0] == 0 and set(steps[1:]) == {10}  # the start, then every sample
+        assert targets[-1] == 500
+
+        def broken(fraction: float) -> None:
+            raise RuntimeError("the operator panel crashed")
+
+        with pytest.raises(RuntimeError, match="the operator panel crashed"):
+            drive.follow(Trapezoid(500, 1000, 10_000, 100_000), progress=broken)

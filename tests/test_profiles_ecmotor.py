@@ -74,3 +74,15 @@ def test_the_master_reads_and_writes_the_ec_motor_over_its_dialect() -> None:
         missing = EcMotorDrive(net, 4, timeout=0.2)
         with pytest.raises(EcTimeoutError, match="EC motor 4: no answer to read p_ven"):
             missing.read("p_ven")
+
+
+def test_an_emergency_that_is_no_refusal_does_not_fail_the_request() -> None:
+    with Network(simulated=True) as net:
+        start_rig(net, Rig.loads(RIG))
+        motor = EcMotorDrive(net, 3)
+        seen = []
+        motor.add_callback(seen.append)
+        motor.set_bits("c_sss", 1 << 9)  # bcse: the motor sends its error message...
+        net.sleep(0.01)
+        assert seen and "bad command" not in seen[-1].communication  # ... which is no refusal
+        assert motor.read("p_ven") == 0

@@ -100,3 +100,16 @@ def _call(fn: Callable[[], object]) -> Coroutine[Any, Any, None]:
         fn()
 
     return run()
+
+
+def test_a_refused_construction_leaves_nothing_behind() -> None:
+    with Network(simulated=True) as net:
+        start_rig(net, "thesis")
+        master = BlockingMaster(net, "examples/networks/thesis.yml")
+        listeners = len(master.aio._tpdo_listeners)
+        for _ in range(3):
+            with pytest.raises(IoError, match="channel 0 must be an integer from 1"):
+                Io401(master, "io", inputs={"door": 0})
+        assert len(master.aio._tpdo_listeners) == listeners
+        with pytest.raises(TypeError, match="the name is for a master's node"):
+            Io401(net.add_remote(9), "io")

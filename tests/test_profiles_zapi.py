@@ -19,6 +19,7 @@ from cobus.profiles.zapi import (
     ZapiDrive,
     ZapiError,
     ZapiEvent,
+    ZapiObjects,
     ZapiStatus,
     alarm_text,
 )
@@ -168,3 +169,14 @@ def test_named_outputs_texts_and_what_the_adapter_refuses(tmp_path: Path) -> Non
             zapi.run(10, ramp=30)
         with pytest.raises(KeyError):
             zapi.set_output("warp drive")
+
+
+def test_the_adapter_needs_a_master_and_a_mapped_node(tmp_path: Path) -> None:
+    with Network(simulated=True) as net:
+        bench = Bench(net, tmp_path)
+        with pytest.raises(TypeError, match="runs on a node the master manages"):
+            ZapiDrive(net, "zapi")
+        listeners = len(bench.master.aio._tpdo_listeners)
+        with pytest.raises(ZapiError, match="no TPDO of the network file maps 0x2199"):
+            ZapiDrive(bench.master, "zapi", objects=ZapiObjects(statusword=0x2199))
+        assert len(bench.master.aio._tpdo_listeners) == listeners

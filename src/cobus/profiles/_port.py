@@ -5,10 +5,13 @@ manages (its process image carries the PDOs)."""
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import functools
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any, Protocol
+
+from cobus.proto import Frame
 
 if TYPE_CHECKING:
     from cobus.master.master import Master
@@ -55,6 +58,14 @@ class DrivePort(Protocol):
     def send_cyclic(self, values: Mapping[Key, int]) -> bool:
         """Send ``values`` by the RPDO that carries them (every object it maps is among
         them), now: a set-point of a cyclic mode. False when no such RPDO is configured."""
+
+    def maps(self, index: int, subindex: int) -> bool:
+        """Whether an RPDO the port sends maps the object."""
+
+    async def settle(self, timeout: float) -> bool:
+        """Wait until the values given to :meth:`set_outputs` reached the node and took
+        effect (synchronous RPDOs: sent after the next SYNC, applied at the one after);
+        False when no SYNC came within ``timeout``."""
 
     def close(self) -> None:
         """Stop listening to the node."""
@@ -132,6 +143,14 @@ class RemoteNodePort:
         pdo.transmit()
         return True
 
+    def maps(self, index: int, subindex: int) -> bool:
+        return any(
+            pdo.enabled and (index, subindex) in pdo for pdo in self.node.rpdo if pdo.configured
+        )
+
+    async def settle(self, timeout: float) -> bool:
+        return True
+
     def close(self) -> None:
         for pdo in self.node.tpdo:
             if pdo.number in self._watched:
@@ -154,6 +173,7 @@ class ManagedNodePort:
         self.node_id = node.node_id
         self.network = self.master.network
         self.od: ObjectDictionary | None = node.config.od
+        self._sync_pending = False
         self._callbacks: list[Callable[[int, float], object]] = []
         self._times: dict[int, float] = {}
         self.master.add_tpdo_listener(self._taken)
@@ -205,7 +225,39 @@ class ManagedNodePort:
                 scaled = value * (sig.scale or 1.0) + sig.offset
             shown[sig.name] = scaled
         self.master.set_outputs(shown, always=always)
-        return self.managed.operational and self.master.running
+        sending = self.managed.operational and self.master.running
+        if sending and any(
+            self.master._rpdos[(self.node_id, sig.pdo)].transmission_type <= 240
+            for sig in (self._signal(self.master.image.outputs_by_name, *key) for key in values)
+            if sig is not None
+        ):
+            self._sync_pending = True
+        return sending
+
+    def maps(self, index: int, subindex: int) -> bool:
+        return self._signal(self.master.image.outputs_by_name, index, subindex) is not None
+
+    async def settle(self, timeout: float) -> bool:
+        if not self._sync_pending:
+            return True
+        self._sync_pending = False
+        loop = self.network.loop
+        seen: list[float] = []
+        done: asyncio.Future[None] = loop.create_future()
+
+        def on_sync(frame: Frame, now: float) -> None:
+            seen.append(now)
+            if len(seen) >= 2 and not done.done():  # sent after one, applied at the next
+                done.set_result(None)
+
+        subscription = self.network.subscribe(self.master.config.master.sync_cob_id, on_sync)
+        try:
+            await asyncio.wait_for(done, timeout)
+        except TimeoutError:
+            return False
+        finally:
+            subscription.cancel()
+        return True
 
     def send_cyclic(self, values: Mapping[Key, int]) -> bool:
         first = next(iter(values))

@@ -307,6 +307,11 @@ class AsyncDrive402:
         data = encode(self._type(index, subindex), value)  # checks type and range first
         if not self._port.set_outputs({(index, subindex): value}):
             await self._port.download(index, subindex, data)  # (also while no RPDO goes)
+        elif not await self._port.settle(self.timeout):
+            raise DriveTimeoutError(
+                f"drive {self.node_id}: 0x{index:04X} waits in a synchronous RPDO, but no "
+                f"SYNC came within {self.timeout:g} s"
+            )
         self._written_at = self._port.network.time()
 
     def _fresh(self, index: int) -> Any:
@@ -799,9 +804,15 @@ class AsyncDrive402:
                 f"trajectory starts at {trajectory.start:g} (more than the position window "
                 f"6067h, {window} increments, away): start it where the drive stands"
             )
-        cw = self._cw & ~CW_HALT
-        self._cw = cw
+        if self._cw & CW_HALT:  # a halted drive ignores its set-points
+            await self._send_cw(self._cw & ~CW_HALT)
+        cw = self._cw
         if not self._port.send_cyclic({(0x607A, 0): start, (0x6040, 0): cw}):
+            if self._port.maps(0x607A, 0):
+                raise DriveStateError(
+                    f"drive {self.node_id}: its RPDOs do not go out (the node is not "
+                    "operational, or the master does not run): start it first"
+                )
             raise DriveStateError(
                 f"drive {self.node_id}: no RPDO maps the target position 607Ah (with nothing "
                 "but the controlword beside it): map one (the network file's rpdoN, or "
@@ -810,22 +821,29 @@ class AsyncDrive402:
         loop = self._port.network
         done: asyncio.Future[None] = loop.loop.create_future()
         began: list[float] = []
-        last: list[float] = []
+        cycles = [0]
 
         def on_sync(frame: Frame, now: float) -> None:
             if done.done() or frame.rtr:
                 return
-            period = now - last[0] if last else 0.0
-            last[:] = [now]
-            if not began:
-                began.append(now)
-            t = now - began[0] + period  # the position the drive takes at the next SYNC
-            target = self._inc("set-point", trajectory.position(t))
-            self._port.send_cyclic({(0x607A, 0): target, (0x6040, 0): cw})
-            if progress is not None:
-                progress(min(t / duration, 1.0) if duration > 0 else 1.0)
-            if t >= duration:
-                done.set_result(None)
+            try:
+                if not began:
+                    began.append(now)
+                k = cycles[0]
+                cycles[0] += 1
+                # the set-point the drive takes at the next SYNC is the trajectory at k
+                # periods (measured over the SYNCs so far): the start first, then one sample
+                # per period, none skipped
+                period = (now - began[0]) / k if k else 0.0
+                t = k * period
+                target = self._inc("set-point", trajectory.position(t))
+                self._port.send_cyclic({(0x607A, 0): target, (0x6040, 0): cw})
+                if progress is not None:
+                    progress(min(t / duration, 1.0) if duration > 0 else 1.0)
+                if k and t >= duration:
+                    done.set_result(None)
+            except Exception as exc:  # the trajectory's, the range check's, progress's
+                done.set_exception(exc)
 
         subscription = loop.subscribe(sync_cob_id, on_sync)
         deadline = loop.time() + limit
@@ -853,17 +871,16 @@ class AsyncDrive402:
             subscription.cancel()
             if not done.done():
                 done.cancel()
-        left = max(deadline - loop.time(), self.timeout)
-        position_window = window
+        done.result()  # an error in the feeding is the caller's
+        settle_by = loop.time() + max(deadline - loop.time(), self.timeout)
         while True:
             status = await self.read_statusword()
             if status.state in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE):
                 raise await self._fault("reaching the trajectory's end")
             actual = round(await self.read_position() * self.scale)
-            if abs(actual - end) <= position_window:
+            if abs(actual - end) <= window:
                 return
-            left -= self.poll
-            if left <= 0:
+            if loop.time() >= settle_by:
                 raise DriveTimeoutError(
                     f"drive {self.node_id}: the trajectory's end {trajectory.end:g} "
                     f"{self.unit} not reached (at {actual / self.scale:g}); statusword {status}"

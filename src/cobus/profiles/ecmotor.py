@@ -154,6 +154,7 @@ M_SSS_BITS: Mapping[int, str] = {
     1: "min position limit",
     0: "max position limit",
 }
+_BAD_COMMAND, _FRAME_ERROR = 1 << 14, 1 << 15
 #: c_sss (200Ch) communication status bits, by name.
 C_SSS_BITS: Mapping[int, str] = {
     15: "frame error",
@@ -312,8 +313,9 @@ class AsyncEcMotorDrive:
         self._emergencies.append(emergency)
         del self._emergencies[:-32]
         pending = self._pending
-        if pending is not None and not pending[1].done():
-            pending[1].set_result(emergency)
+        refused = c_sss & (_BAD_COMMAND | _FRAME_ERROR)
+        if refused and pending is not None and not pending[1].done():
+            pending[1].set_result(emergency)  # the motor's answer to a refused request
         self._callbacks(emergency)
 
     # ------------------------------------------------------------------ transfers
@@ -449,9 +451,12 @@ class AsyncEcMotorDrive:
         self._callbacks.remove(callback)
 
     def close(self) -> None:
-        """Stop listening to the motor."""
+        """Stop listening to the motor; a transfer under way fails at once."""
         for subscription in self._subscriptions:
             subscription.cancel()
+        pending = self._pending
+        if pending is not None and not pending[1].done():
+            pending[1].set_exception(EcMotorError(f"EC motor {self.address}: closed"))
 
 
 class EcMotorDrive(BlockingTwin, twin_of=AsyncEcMotorDrive):

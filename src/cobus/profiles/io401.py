@@ -103,12 +103,13 @@ class AsyncIo401:
         analog_inputs: Mapping[str, int | AnalogChannel] | None = None,
         analog_outputs: Mapping[str, int | AnalogChannel] | None = None,
     ) -> None:
-        self._port: DrivePort = port_for(node)
-        self.node_id = self._port.node_id
+        # the channels are checked before the port listens to anything
         self._inputs = {n: _channel(n, c) for n, c in (inputs or {}).items()}
         self._outputs = {n: _channel(n, c) for n, c in (outputs or {}).items()}
         self._ain = {n: self._analog(n, c) for n, c in (analog_inputs or {}).items()}
         self._aout = {n: self._analog(n, c) for n, c in (analog_outputs or {}).items()}
+        self._port: DrivePort = port_for(node)
+        self.node_id = self._port.node_id
         self._out_bytes: dict[int, int] = {}
         self._written_at = -math.inf
         self._last: dict[str, Any] = {}
@@ -290,6 +291,8 @@ class Io401(BlockingTwin, twin_of=AsyncIo401):
             raise TypeError("Io401 takes a node of a blocking Network; use AsyncIo401")
         target = node.aio
         if name is not None:
+            if not callable(getattr(target, "node", None)):
+                raise TypeError("Io401(master, name): the name is for a master's node")
             target = runner.call(target.node, name)
         aio = runner.call(lambda: AsyncIo401(target, **options))
         super().__init__(aio, runner)

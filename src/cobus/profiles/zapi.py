@@ -216,9 +216,27 @@ class AsyncZapiDrive:
         watchdog: float | None = None,
         feedback_cycles: int = 5,
     ) -> None:
-        managed = master.node(node)
-        port = port_for(managed)
+        if not callable(getattr(master, "node", None)) or not hasattr(master, "image"):
+            raise TypeError(
+                f"AsyncZapiDrive runs on a node the master manages: AsyncZapiDrive(master, "
+                f"'zapi'), not on {type(master).__name__}"
+            )
+        port = port_for(master.node(node))
         assert isinstance(port, ManagedNodePort)
+        try:
+            self._setup(master, port, objects, watchdog, feedback_cycles)
+        except BaseException:
+            port.close()  # no listener left behind on the master
+            raise
+
+    def _setup(
+        self,
+        master: Any,
+        port: ManagedNodePort,
+        objects: ZapiObjects | None,
+        watchdog: float | None,
+        feedback_cycles: int,
+    ) -> None:
         self._port = port
         self._master = master
         self.node_id = port.node_id
@@ -419,6 +437,9 @@ class AsyncZapiDrive:
         self._port.close()
         if self._watchdog is not None:
             self._watchdog.cancel()
+        for _test, future in self._waiters:
+            if not future.done():
+                future.set_exception(ZapiError(f"node {self.node_id}: the adapter was closed"))
 
     # ------------------------------------------------------------------ the cycle
     def _send(self, *, always: bool) -> None:
