@@ -29,7 +29,7 @@ def example(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[object]
         return out.getvalue()
 
     yield run
-    for name in ("_bench", "read_drive", "be_a_device", "boot_network"):
+    for name in ("_bench", "read_drive", "be_a_device", "boot_network", "drive_a_motor"):
         sys.modules.pop(name, None)
 
 
@@ -61,3 +61,17 @@ def test_boot_network_names_a_broken_file(example, tmp_path: Path, capsys) -> No
     module = importlib.import_module("boot_network")
     assert module.main([str(broken), "--simulated"]) == 2
     assert "broken.yml" in capsys.readouterr().err
+
+
+def test_drive_a_motor(example) -> None:
+    out = example("drive_a_motor", "--simulated", "--home", "35")
+    assert "node 10: 0x0240 SWITCH_ON_DISABLED" in out
+    assert "homed (method 35)" in out
+    lines = [line for line in out.splitlines() if "(asked " in line]
+    assert len(lines) == 3
+    # 50 000, then 100 000, then 50 000 increments at 100 000 inc/s and 500 000 inc/s²:
+    # trapezoids of 0.7, 1.2 and 0.7 s
+    for line, asked, took in zip(lines, (50_000, -50_000, 0), (0.7, 1.2, 0.7), strict=True):
+        assert abs(float(line.split()[1]) - asked) <= 20, line
+        assert float(line.split("after ")[1].split()[0]) == pytest.approx(took, abs=0.02)
+    assert "switched off: 0x0240 SWITCH_ON_DISABLED" in out
