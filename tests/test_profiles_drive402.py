@@ -455,3 +455,34 @@ def test_follow_reports_errors_of_its_feeding_and_samples_every_period() -> None
 
         with pytest.raises(RuntimeError, match="the operator panel crashed"):
             drive.follow(Trapezoid(500, 1000, 10_000, 100_000), progress=broken)
+
+
+def test_cyclic_synchronous_velocity_and_torque() -> None:
+    with Network(simulated=True) as net:
+        drive, _rig = csp_bench(net)  # RPDO4: controlword + target velocity
+        node = net.remotes[10]
+        net.sync.start(0.001)
+        drive.enable()
+        # a velocity profile: up to 30 000 inc/s and back to rest, as a trapezoid's velocity
+        move = Trapezoid(0, 30_000, velocity=30_000, acceleration=100_000)
+        began = net.time()
+        drive.follow(move, mode="velocity")
+        assert net.time() - began == pytest.approx(move.duration, abs=0.01)
+        assert abs(drive.read_velocity()) <= 100
+        # the distance the velocities add up to: the trapezoid's (within a few cycles)
+        assert drive.read_position() == pytest.approx(30_000, abs=300)
+
+        # torque: remap RPDO1 to controlword + target torque (CiA 301 procedure)
+        drive.disable()
+        node.nmt.enter_preoperational()
+        node.rpdo[1].clear()
+        node.rpdo[1].add(0x6040, 0, 16)  # no EDS: the bit lengths are given
+        node.rpdo[1].add(0x6071, 0, 16)
+        node.rpdo[1].save()
+        node.nmt.start()
+        drive.enable()
+        ramp = Trapezoid(0, 200, velocity=2000, acceleration=20_000)  # per mille of torque
+        drive.follow(ramp, mode="torque")
+        assert drive.read(0x6071) == 200
+        with pytest.raises(ValueError, match="position, velocity or torque"):
+            drive.follow(ramp, mode="acceleration")

@@ -773,48 +773,77 @@ class AsyncDrive402:
         self,
         trajectory: Trajectory,
         *,
+        mode: str = "position",
         sync_cob_id: int = 0x80,
         timeout: float | None = None,
         progress: Callable[[float], object] | None = None,
     ) -> None:
-        """Follow ``trajectory`` (user units; a :class:`~cobus.profiles.trajectory.Trapezoid`
-        or any object with ``start``, ``end``, ``duration`` and ``position(t)``) in cyclic
-        synchronous position mode: at each SYNC the position for the next SYNC goes out by
-        the RPDO that maps 607Ah (with the controlword, if it maps it too). Someone must
-        produce SYNC (``net.sync.start(0.001)``, or the master). Returns when the last
-        set-point is sent and the drive stands within its position window 6067h of the end;
-        ``progress(fraction)`` is called each cycle, on the event loop.
+        """Follow ``trajectory`` in a cyclic synchronous mode: at each SYNC the set-point for
+        the next SYNC goes out by the RPDO that maps it (with the controlword, if it maps it
+        too). Someone must produce SYNC (``net.sync.start(0.001)``, or the master).
+
+        ``mode="position"`` (CSP): ``trajectory.position(t)`` in user units into 607Ah; ends
+        when the drive stands within its position window 6067h of ``trajectory.end``.
+        ``mode="velocity"`` (CSV): ``trajectory.velocity_at(t)`` in user units/s into 60FFh
+        (:class:`~cobus.profiles.trajectory.Trapezoid` and ``SCurve`` have it); ends when the
+        actual velocity is within 606Dh of the last one. ``mode="torque"`` (CST): the
+        trajectory's ``position(t)`` read as a torque in per mille into 6071h (a torque
+        profile); ends with the last set-point. ``progress(fraction)`` is called each cycle,
+        on the event loop.
 
         :class:`DriveStateError` when the drive is not enabled, is not at the trajectory's
-        start, or no RPDO maps 607Ah; :class:`DriveFault` if it faults on the way (the
-        feeding stops); :class:`DriveTimeoutError` when no SYNC comes or the end is not
-        reached within ``timeout`` (default: the duration + 1 s)."""
-        start = self._inc("trajectory start", trajectory.start)
-        end = self._inc("trajectory end", trajectory.end)
+        start (position mode), or no RPDO maps the set-point; :class:`DriveFault` if it
+        faults on the way (the feeding stops); an error while feeding (the trajectory, a
+        range check, ``progress``) is raised as it is; :class:`DriveTimeoutError` when no
+        SYNC comes or the end is not reached within ``timeout`` (default: the duration +
+        1 s)."""
+        modes = {
+            "position": (OperationMode.CYCLIC_SYNC_POSITION, 0x607A, "target position"),
+            "velocity": (OperationMode.CYCLIC_SYNC_VELOCITY, 0x60FF, "target velocity"),
+            "torque": (OperationMode.CYCLIC_SYNC_TORQUE, 0x6071, "target torque"),
+        }
+        if mode not in modes:
+            raise ValueError(f"mode {mode!r}: position, velocity or torque")
+        drive_mode, index, name = modes[mode]
+        if mode == "velocity" and not callable(getattr(trajectory, "velocity_at", None)):
+            raise TypeError("velocity mode needs a trajectory with velocity_at(t)")
+        velocity_at: Callable[[float], float] = getattr(trajectory, "velocity_at", None) or (
+            lambda t: 0.0
+        )
+
+        def setpoint(t: float) -> int:
+            if mode == "position":
+                return self._inc("set-point", trajectory.position(t))
+            if mode == "velocity":
+                return self._inc("velocity set-point", velocity_at(t))
+            return _integer("torque set-point", round(trajectory.position(t)), -32768, 32767)
+
+        first = setpoint(0.0)
         duration = _number("trajectory duration", trajectory.duration)
         limit = duration + 1.0 if timeout is None else _seconds("timeout", timeout)
-        await self.set_mode(OperationMode.CYCLIC_SYNC_POSITION)
+        await self.set_mode(drive_mode)
         await self.read_statusword()
         self._require_enabled("follow a trajectory")
-        actual = round(await self.read_position() * self.scale)
-        window = await self._read_window(0x6067, 20)
-        if abs(actual - start) > window:
-            raise DriveStateError(
-                f"drive {self.node_id} is at {actual / self.scale:g} {self.unit}, the "
-                f"trajectory starts at {trajectory.start:g} (more than the position window "
-                f"6067h, {window} increments, away): start it where the drive stands"
-            )
+        window = await self._read_window(0x6067 if mode == "position" else 0x606D, 20)
+        if mode == "position":
+            actual = round(await self.read_position() * self.scale)
+            if abs(actual - first) > window:
+                raise DriveStateError(
+                    f"drive {self.node_id} is at {actual / self.scale:g} {self.unit}, the "
+                    f"trajectory starts at {trajectory.start:g} (more than the position "
+                    f"window 6067h, {window} increments, away): start it where the drive stands"
+                )
         if self._cw & CW_HALT:  # a halted drive ignores its set-points
             await self._send_cw(self._cw & ~CW_HALT)
         cw = self._cw
-        if not self._port.send_cyclic({(0x607A, 0): start, (0x6040, 0): cw}):
-            if self._port.maps(0x607A, 0):
+        if not self._port.send_cyclic({(index, 0): first, (0x6040, 0): cw}):
+            if self._port.maps(index, 0):
                 raise DriveStateError(
                     f"drive {self.node_id}: its RPDOs do not go out (the node is not "
                     "operational, or the master does not run): start it first"
                 )
             raise DriveStateError(
-                f"drive {self.node_id}: no RPDO maps the target position 607Ah (with nothing "
+                f"drive {self.node_id}: no RPDO maps the {name} {index:04X}h (with nothing "
                 "but the controlword beside it): map one (the network file's rpdoN, or "
                 "node.rpdo.read() on a bare node) to feed it every SYNC"
             )
@@ -836,8 +865,7 @@ class AsyncDrive402:
                 # per period, none skipped
                 period = (now - began[0]) / k if k else 0.0
                 t = k * period
-                target = self._inc("set-point", trajectory.position(t))
-                self._port.send_cyclic({(0x607A, 0): target, (0x6040, 0): cw})
+                self._port.send_cyclic({(index, 0): setpoint(t), (0x6040, 0): cw})
                 if progress is not None:
                     progress(min(t / duration, 1.0) if duration > 0 else 1.0)
                 if k and t >= duration:
@@ -872,18 +900,25 @@ class AsyncDrive402:
             if not done.done():
                 done.cancel()
         done.result()  # an error in the feeding is the caller's
+        if mode == "torque":
+            return
+        last = setpoint(duration)
         settle_by = loop.time() + max(deadline - loop.time(), self.timeout)
         while True:
             status = await self.read_statusword()
             if status.state in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE):
                 raise await self._fault("reaching the trajectory's end")
-            actual = round(await self.read_position() * self.scale)
-            if abs(actual - end) <= window:
+            if mode == "position":
+                actual = round(await self.read_position() * self.scale)
+            else:
+                actual = round(await self.read_velocity() * self.scale)
+            if abs(actual - last) <= window:
                 return
             if loop.time() >= settle_by:
                 raise DriveTimeoutError(
-                    f"drive {self.node_id}: the trajectory's end {trajectory.end:g} "
-                    f"{self.unit} not reached (at {actual / self.scale:g}); statusword {status}"
+                    f"drive {self.node_id}: the trajectory's end {last / self.scale:g} "
+                    f"{self.unit}{'' if mode == 'position' else '/s'} not reached (at "
+                    f"{actual / self.scale:g}); statusword {status}"
                 )
             await asyncio.sleep(self.poll)
 

@@ -211,3 +211,10 @@ class SCurve:
         else:
             s = distance - self._ramp(self.duration - t)
         return self.start + sign * s
+
+    def velocity_at(self, t: float) -> float:
+        """The velocity ``t`` seconds after the start (signed)."""
+        if t <= 0 or t >= self.duration:
+            return 0.0
+        h = min(1e-6, t / 2, (self.duration - t) / 2)
+        return (self.position(t + h) - self.position(t - h)) / (2 * h)
