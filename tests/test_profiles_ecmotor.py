@@ -86,3 +86,27 @@ def test_an_emergency_that_is_no_refusal_does_not_fail_the_request() -> None:
         net.sleep(0.01)
         assert seen and "bad command" not in seen[-1].communication  # ... which is no refusal
         assert motor.read("p_ven") == 0
+
+
+def test_the_command_line_reads_and_writes_the_motor(capsys: pytest.CaptureFixture[str]) -> None:
+    import os
+
+    from cobus.cli import main
+
+    channel = f"cli-ec-{os.getpid()}"
+    with Network(interface="virtual", channel=channel) as net:
+        start_rig(net, Rig.loads(RIG))
+        bus = ["-i", "virtual", "-c", channel]
+        assert main(["ec", "write", "3", "p_ven", "2000", *bus]) == 0
+        assert main(["ec", "read", "3", "p_ven", "sw_version", *bus]) == 0
+        out = capsys.readouterr().out
+        assert "p_ven <- 2000" in out and "p_ven: 2000 = 375 rpm" in out
+        assert "sw_version: 190" in out
+        assert main(["ec", "mode", "3", "PON", *bus]) == 0
+        assert main(["ec", "status", "3", *bus]) == 0
+        status = capsys.readouterr().out
+        assert "mode PON" in status and "power stage on" in status
+        assert main(["ec", "read", "3", "warp", *bus]) == 2
+        assert "no object 'warp'" in capsys.readouterr().err
+        assert main(["ec", "read", "4", "p_ven", "--timeout", "0.1", *bus]) == 1
+        assert "EC motor 4: no answer" in capsys.readouterr().err

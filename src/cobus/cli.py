@@ -19,6 +19,7 @@ _COMMAND_MODULES = (
     "cobus.od._cli",
     "cobus.master._cli",
     "cobus.sim._cli",
+    "cobus.profiles._cli",
     "cobus.apps.demo",
 )
 
