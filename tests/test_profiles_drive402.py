@@ -23,7 +23,7 @@ from cobus.profiles import (
     Quirks,
     Statusword,
 )
-from cobus.profiles.trajectory import Trapezoid
+from cobus.profiles.trajectory import SCurve, Trapezoid
 from cobus.proto import Frame
 from cobus.runtime import AsyncNetwork, Network
 from cobus.sim import Rig, start_rig
@@ -212,8 +212,8 @@ def test_moves_need_an_enabled_drive_and_unknown_modes_are_named(bench: Bench) -
     drive = bench.drive
     with pytest.raises(DriveStateError, match="cannot move: it is SWITCH_ON_DISABLED"):
         drive.move_to(100)
-    with pytest.raises(DriveStateError, match="does not support INTERPOLATED_POSITION"):
-        drive.set_mode("interpolated_position")
+    with pytest.raises(DriveStateError, match="does not support VELOCITY"):
+        drive.set_mode("velocity")
     with pytest.raises(ValueError, match="the modes are 0 NO_MODE"):
         drive.set_mode(42)
 
@@ -388,7 +388,7 @@ def test_csp_refuses_what_cannot_work_and_reports_a_fault_on_the_way() -> None:
         start_rig(net, Rig.loads(SERVO))
         drive = Drive402(net.add_remote(10))  # no RPDO mapping known
         drive.enable()
-        with pytest.raises(DriveStateError, match="no RPDO maps the target position 607Ah"):
+        with pytest.raises(DriveStateError, match="no RPDO maps the target position 607Ah:00"):
             drive.follow(Trapezoid(0, 1000, 1000, 1000))
     with pytest.raises(ValueError, match="velocity must be above 0"):
         Trapezoid(0, 1, 0, 1)
@@ -484,5 +484,25 @@ def test_cyclic_synchronous_velocity_and_torque() -> None:
         ramp = Trapezoid(0, 200, velocity=2000, acceleration=20_000)  # per mille of torque
         drive.follow(ramp, mode="torque")
         assert drive.read(0x6071) == 200
-        with pytest.raises(ValueError, match="position, velocity or torque"):
+        with pytest.raises(ValueError, match="position, velocity, torque or interpolated"):
             drive.follow(ramp, mode="acceleration")
+
+
+def test_interpolated_position_mode() -> None:
+    with Network(simulated=True) as net:
+        drive, _rig = csp_bench(net)
+        node = net.remotes[10]
+        node.nmt.enter_preoperational()
+        node.rpdo[3].clear()  # controlword + interpolation data record 60C1h sub 1
+        node.rpdo[3].add(0x6040, 0, 16)
+        node.rpdo[3].add(0x60C1, 1, 32)
+        node.rpdo[3].save()
+        node.nmt.start()
+        net.sync.start(0.002)
+        drive.enable()
+        move = SCurve(0, 20_000, 40_000, 200_000, 2_000_000)
+        began = net.time()
+        drive.follow(move, mode="interpolated")
+        assert net.time() - began == pytest.approx(move.duration, abs=0.01)
+        assert abs(drive.read_position() - 20_000) <= 20
+        assert "interpolation active" in str(drive.read_statusword())  # bit 12, still held

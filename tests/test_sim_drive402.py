@@ -424,9 +424,9 @@ def test_stopping_the_node_disables_the_drive_and_power_cycle_loses_the_position
 def test_unsupported_mode_is_refused_and_status_tells_the_model():
     async def scenario(b: SimBench):
         with pytest.raises(SdoAbortedError) as err:
-            await b.sdo.write(0x6060, 0, 7)
+            await b.sdo.write(0x6060, 0, 2)  # velocity mode (vl): not this drive's
         assert err.value.code == 0x06090030
-        assert await b.sdo.read(0x6502) == 0x3AD
+        assert await b.sdo.read(0x6502) == 0x3ED
         assert await b.sdo.read(0x1000) == 0x00020192
         status = b.sim.status()
         assert status["state"] == "switch on disabled"

@@ -111,6 +111,9 @@ _TYPES: dict[int | tuple[int, int], DataType] = {
     (0x6099, 0): _D.UNSIGNED8,
     0x6099: _D.UNSIGNED32,
     0x609A: _D.UNSIGNED32,
+    0x60C0: _D.INTEGER16,
+    (0x60C1, 0): _D.UNSIGNED8,
+    (0x60C1, 1): _D.INTEGER32,
     (0x60C2, 0): _D.UNSIGNED8,
     (0x60C2, 1): _D.UNSIGNED8,
     (0x60C2, 2): _D.INTEGER8,
@@ -788,7 +791,9 @@ class AsyncDrive402:
         (:class:`~cobus.profiles.trajectory.Trapezoid` and ``SCurve`` have it); ends when the
         actual velocity is within 606Dh of the last one. ``mode="torque"`` (CST): the
         trajectory's ``position(t)`` read as a torque in per mille into 6071h (a torque
-        profile); ends with the last set-point. ``progress(fraction)`` is called each cycle,
+        profile); ends with the last set-point. ``mode="interpolated"`` (IP, linear): as
+        position, into 60C1h sub 1 with controlword bit 4 "enable ip mode" set (and left set:
+        the drive holds the last point). ``progress(fraction)`` is called each cycle,
         on the event loop.
 
         :class:`DriveStateError` when the drive is not enabled, is not at the trajectory's
@@ -798,13 +803,21 @@ class AsyncDrive402:
         SYNC comes or the end is not reached within ``timeout`` (default: the duration +
         1 s)."""
         modes = {
-            "position": (OperationMode.CYCLIC_SYNC_POSITION, 0x607A, "target position"),
-            "velocity": (OperationMode.CYCLIC_SYNC_VELOCITY, 0x60FF, "target velocity"),
-            "torque": (OperationMode.CYCLIC_SYNC_TORQUE, 0x6071, "target torque"),
+            "position": (OperationMode.CYCLIC_SYNC_POSITION, 0x607A, 0, "target position"),
+            "velocity": (OperationMode.CYCLIC_SYNC_VELOCITY, 0x60FF, 0, "target velocity"),
+            "torque": (OperationMode.CYCLIC_SYNC_TORQUE, 0x6071, 0, "target torque"),
+            "interpolated": (
+                OperationMode.INTERPOLATED_POSITION,
+                0x60C1,
+                1,
+                "interpolation set-point",
+            ),
         }
         if mode not in modes:
-            raise ValueError(f"mode {mode!r}: position, velocity or torque")
-        drive_mode, index, name = modes[mode]
+            raise ValueError(f"mode {mode!r}: position, velocity, torque or interpolated")
+        drive_mode, index, sub, name = modes[mode]
+        key = (index, sub)
+        positional = mode in ("position", "interpolated")
         if mode == "velocity" and not callable(getattr(trajectory, "velocity_at", None)):
             raise TypeError("velocity mode needs a trajectory with velocity_at(t)")
         velocity_at: Callable[[float], float] = getattr(trajectory, "velocity_at", None) or (
@@ -812,7 +825,7 @@ class AsyncDrive402:
         )
 
         def setpoint(t: float) -> int:
-            if mode == "position":
+            if positional:
                 return self._inc("set-point", trajectory.position(t))
             if mode == "velocity":
                 return self._inc("velocity set-point", velocity_at(t))
@@ -824,8 +837,8 @@ class AsyncDrive402:
         await self.set_mode(drive_mode)
         await self.read_statusword()
         self._require_enabled("follow a trajectory")
-        window = await self._read_window(0x6067 if mode == "position" else 0x606D, 20)
-        if mode == "position":
+        window = await self._read_window(0x6067 if positional else 0x606D, 20)
+        if positional:
             actual = round(await self.read_position() * self.scale)
             if abs(actual - first) > window:
                 raise DriveStateError(
@@ -836,17 +849,20 @@ class AsyncDrive402:
         if self._cw & CW_HALT:  # a halted drive ignores its set-points
             await self._send_cw(self._cw & ~CW_HALT)
         cw = self._cw
-        if not self._port.send_cyclic({(index, 0): first, (0x6040, 0): cw}):
-            if self._port.maps(index, 0):
+        if not self._port.send_cyclic({key: first, (0x6040, 0): cw}):
+            if self._port.maps(*key):
                 raise DriveStateError(
                     f"drive {self.node_id}: its RPDOs do not go out (the node is not "
                     "operational, or the master does not run): start it first"
                 )
             raise DriveStateError(
-                f"drive {self.node_id}: no RPDO maps the {name} {index:04X}h (with nothing "
-                "but the controlword beside it): map one (the network file's rpdoN, or "
+                f"drive {self.node_id}: no RPDO maps the {name} {index:04X}h:{sub:02X} (with "
+                "nothing but the controlword beside it): map one (the network file's rpdoN, or "
                 "node.rpdo.read() on a bare node) to feed it every SYNC"
             )
+        if mode == "interpolated":  # controlword bit 4: enable ip mode
+            await self._send_cw(self._cw | CW_NEW_SETPOINT)
+            cw = self._cw
         loop = self._port.network
         done: asyncio.Future[None] = loop.loop.create_future()
         began: list[float] = []
@@ -865,7 +881,7 @@ class AsyncDrive402:
                 # per period, none skipped
                 period = (now - began[0]) / k if k else 0.0
                 t = k * period
-                self._port.send_cyclic({(index, 0): setpoint(t), (0x6040, 0): cw})
+                self._port.send_cyclic({key: setpoint(t), (0x6040, 0): cw})
                 if progress is not None:
                     progress(min(t / duration, 1.0) if duration > 0 else 1.0)
                 if k and t >= duration:
@@ -908,7 +924,7 @@ class AsyncDrive402:
             status = await self.read_statusword()
             if status.state in (PowerState.FAULT, PowerState.FAULT_REACTION_ACTIVE):
                 raise await self._fault("reaching the trajectory's end")
-            if mode == "position":
+            if positional:
                 actual = round(await self.read_position() * self.scale)
             else:
                 actual = round(await self.read_velocity() * self.scale)
@@ -917,7 +933,7 @@ class AsyncDrive402:
             if loop.time() >= settle_by:
                 raise DriveTimeoutError(
                     f"drive {self.node_id}: the trajectory's end {last / self.scale:g} "
-                    f"{self.unit}{'' if mode == 'position' else '/s'} not reached (at "
+                    f"{self.unit}{'' if positional else '/s'} not reached (at "
                     f"{actual / self.scale:g}); statusword {status}"
                 )
             await asyncio.sleep(self.poll)

@@ -26,6 +26,9 @@ applies when a heartbeat or life guarding is lost, the node is stopped or reset 
   35/37 the current position; speeds 6099h (sub 1 search for the switch, sub 2 search for
   zero), acceleration 609Ah, home offset 607Ch (the position the home point gets); start
   with the rising edge of bit 4; bit 12 homing attained, bit 13 homing error.
+- 7 interpolated position (linear, 60C0h = 0): while controlword bit 4 "enable ip mode"
+  is set, the set-point 60C1h sub 1 is taken at each SYNC and interpolated over the period
+  as in cyclic synchronous position; bit 12 "ip mode active".
 - 8/9/10 cyclic synchronous position/velocity/torque: 607Ah/60FFh/6071h are taken at each
   SYNC (received by RPDO of any type); positions are interpolated over the SYNC period
   (60C2h when set, else the measured interval); bit 12 "drive follows the command value".
@@ -108,6 +111,7 @@ class Mode(NamedIntEnum):
     PROFILE_VELOCITY = 3
     PROFILE_TORQUE = 4
     HOMING = 6
+    INTERPOLATED_POSITION = 7
     CYCLIC_SYNC_POSITION = 8
     CYCLIC_SYNC_VELOCITY = 9
     CYCLIC_SYNC_TORQUE = 10
@@ -136,8 +140,15 @@ _VOLTAGE = frozenset(
     )
 )
 _HOMING_METHODS = frozenset((1, 2, 17, 18, 35, 37))
-_SUPPORTED_MODES = 0x1 | 0x4 | 0x8 | 0x20 | 0x80 | 0x100 | 0x200  # 6502h bits
-_CYCLIC = frozenset((Mode.CYCLIC_SYNC_POSITION, Mode.CYCLIC_SYNC_VELOCITY, Mode.CYCLIC_SYNC_TORQUE))
+_SUPPORTED_MODES = 0x1 | 0x4 | 0x8 | 0x20 | 0x40 | 0x80 | 0x100 | 0x200  # 6502h bits
+_CYCLIC = frozenset(
+    (
+        Mode.INTERPOLATED_POSITION,
+        Mode.CYCLIC_SYNC_POSITION,
+        Mode.CYCLIC_SYNC_VELOCITY,
+        Mode.CYCLIC_SYNC_TORQUE,
+    )
+)
 
 # controlword bits
 _CW_NEW_SETPOINT = 0x0010
@@ -482,6 +493,17 @@ class Drive402(CanopenSimDevice):
         b.variable(
             0x60C2, "Interpolation time index", I8, subindex=2, default=-3, low=-128, high=63
         )
+        var(0x60C0, "Interpolation sub mode select", I16, default=0, low=0, high=0)
+        b.record(0x60C1, "Interpolation data record")
+        b.variable(
+            0x60C1,
+            "Interpolation position set-point",
+            I32,
+            subindex=1,
+            access="rww",
+            mappable=True,
+            default=0,
+        )
         var(0x60F4, "Following error actual value", I32, "ro", mappable=True, default=0)
         var(0x60FD, "Digital inputs", U32, "ro", mappable=True, default=0)
         var(0x60FF, "Target velocity", I32, "rww", mappable=True, default=0)
@@ -654,8 +676,11 @@ class Drive402(CanopenSimDevice):
         last, self._last_sync = self._last_sync, now
         if self.state is not DriveState.OPERATION_ENABLED or self.mode not in _CYCLIC:
             return
-        if self.mode == Mode.CYCLIC_SYNC_POSITION:
-            target = float(self._od(0x607A, 0, 0))
+        if self.mode == Mode.INTERPOLATED_POSITION and not self._cw & _CW_NEW_SETPOINT:
+            return  # interpolation not enabled (controlword bit 4): hold
+        if self.mode in (Mode.CYCLIC_SYNC_POSITION, Mode.INTERPOLATED_POSITION):
+            index, sub = (0x607A, 0) if self.mode == Mode.CYCLIC_SYNC_POSITION else (0x60C1, 1)
+            target = float(self._od(index, sub, 0))
             period = self._interpolation_period(now, last)
             self._cyclic_target = target
             self._csp_v = (target - self._p_d) / period
@@ -1025,7 +1050,7 @@ class Drive402(CanopenSimDevice):
             self._t_d = _approach(self._t_d, want, slope, slope)
         elif mode == Mode.HOMING:
             self._hm_step(h)
-        elif mode == Mode.CYCLIC_SYNC_POSITION:
+        elif mode in (Mode.CYCLIC_SYNC_POSITION, Mode.INTERPOLATED_POSITION):
             if self._csp_left > 0:
                 used = min(h, self._csp_left)
                 self._p_d += self._csp_v * used
@@ -1185,6 +1210,11 @@ class Drive402(CanopenSimDevice):
             sw |= _SW_TARGET_REACHED if done or (self._halted and self._v_d == 0.0) else 0
             sw |= _SW_BIT12 if self._homed and done else 0
             sw |= _SW_BIT13 if self._homing_error else 0
+        elif mode == Mode.INTERPOLATED_POSITION:  # bit 12: interpolation active
+            active = bool(self._cw & _CW_NEW_SETPOINT) and not self._halted
+            sw |= _SW_BIT12 if active else 0
+            sw |= _SW_BIT13 if fe_bit else 0
+            sw |= _SW_TARGET_REACHED if self._csp_left <= 0 else 0
         elif mode in _CYCLIC:
             sw |= _SW_BIT12 if not self._halted else 0
             if mode == Mode.CYCLIC_SYNC_POSITION and fe_bit:
