@@ -273,6 +273,9 @@ def test_halt_returns_once_the_motor_stands(bench: Bench) -> None:
     assert bench.net.time() - began == pytest.approx(0.3, abs=0.03)  # 30 000 at 100 000/s²
     drive.set_velocity(-10_000)  # Halt is cleared by the next command
     assert drive.read_velocity() == pytest.approx(-10_000, abs=100)
+    drive.halt()
+    drive.move_to(0)  # a mode change after a halt: Halt cleared first
+    assert abs(drive.read_position()) <= 20
 
 
 def test_a_drive_that_changes_modes_only_when_switched_on_is_enabled_again() -> None:

@@ -208,7 +208,8 @@ class Quirks:
     that refuse a mode change while moving). ``mode_change_state``: the power state to switch
     modes in (e.g. SWITCHED_ON for drives that accept 6060h only with the power stage off);
     None changes the mode in any state. ``fault_reset_pulse``: how long bit 7 is held high.
-    ``clear_halt``: clear Halt before a move (a Halt left over from a stop blocks every move).
+    ``clear_halt``: clear Halt before a move or a mode change (a Halt left over from a stop
+    blocks every move, and some drives refuse a mode change while it is set).
     """
 
     halt_during_mode_change: bool = False
@@ -536,6 +537,8 @@ class AsyncDrive402:
                 back_to = before
         if quirks.halt_during_mode_change:
             await self._send_cw(self._cw | CW_HALT)
+        elif quirks.clear_halt and self._cw & CW_HALT:
+            await self._send_cw(self._cw & ~CW_HALT)  # drives that refuse a change halted
         await self.write(0x6060, 0, int(wanted))
         deadline = self._port.network.time() + limit
         while True:
