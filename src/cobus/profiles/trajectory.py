@@ -42,6 +42,14 @@ def _positive(what: str, value: float) -> float:
     return float(value)
 
 
+def _check_ends(start: float, end: float) -> None:
+    for what, value in (("start", start), ("end", end)):
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise TypeError(f"{what} must be a number, not {value!r}")
+        if not math.isfinite(value):
+            raise ValueError(f"{what} must be finite, not {value!r}")
+
+
 @dataclass(frozen=True)
 class Trapezoid:
     """A move from ``start`` to ``end``: accelerate at ``acceleration`` up to ``velocity``,
@@ -61,12 +69,7 @@ class Trapezoid:
     peak: float = field(init=False)
 
     def __post_init__(self) -> None:
-        for what in ("start", "end"):
-            value = getattr(self, what)
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise TypeError(f"{what} must be a number, not {value!r}")
-            if not math.isfinite(value):
-                raise ValueError(f"{what} must be finite, not {value!r}")
+        _check_ends(self.start, self.end)
         v = _positive("velocity", self.velocity)
         a = _positive("acceleration", self.acceleration)
         d = _positive("deceleration", a if self.deceleration is None else self.deceleration)
@@ -137,12 +140,7 @@ class SCurve:
     t_cruise: float = field(init=False)
 
     def __post_init__(self) -> None:
-        for what in ("start", "end"):
-            value = getattr(self, what)
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise TypeError(f"{what} must be a number, not {value!r}")
-            if not math.isfinite(value):
-                raise ValueError(f"{what} must be finite, not {value!r}")
+        _check_ends(self.start, self.end)
         v_max = _positive("velocity", self.velocity)
         a_max = _positive("acceleration", self.acceleration)
         j = _positive("jerk", self.jerk)

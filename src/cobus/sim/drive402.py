@@ -57,7 +57,6 @@ each power-on the position counts from 0 and homing attained is cleared.
 
 from __future__ import annotations
 
-import enum
 import math
 from collections.abc import Mapping
 from typing import Any, ClassVar
@@ -76,6 +75,7 @@ from cobus.device import (
 )
 from cobus.device.events import Booted
 from cobus.od import DataType, ObjectDictionary
+from cobus.profiles.cia402 import PowerState
 from cobus.proto import Frame
 from cobus.proto.emcy import EmcyCode, ErrorRegister
 from cobus.proto.nmt import NmtCommand, NmtState
@@ -91,17 +91,9 @@ _I16_MIN, _I16_MAX = -(2**15), 2**15 - 1
 _MAX_STEP = 0.001  # seconds: the longest physics step
 
 
-class DriveState(enum.Enum):
-    """The states of the CiA 402 drive state machine."""
-
-    NOT_READY_TO_SWITCH_ON = "not ready to switch on"
-    SWITCH_ON_DISABLED = "switch on disabled"
-    READY_TO_SWITCH_ON = "ready to switch on"
-    SWITCHED_ON = "switched on"
-    OPERATION_ENABLED = "operation enabled"
-    QUICK_STOP_ACTIVE = "quick stop active"
-    FAULT_REACTION_ACTIVE = "fault reaction active"
-    FAULT = "fault"
+#: The states of the CiA 402 drive state machine (the master side's own enum: one set of
+#: states for both sides).
+DriveState = PowerState
 
 
 class Mode(NamedIntEnum):
