@@ -57,6 +57,14 @@ def test_named_channels_polarity_interrupts_and_changes_on_a_bare_node() -> None
         assert sim.digital_output(1) and sim.digital_output(8)
         io.set_output("lamp", False)  # the other bit of the byte stays
         assert not sim.digital_output(1) and sim.digital_output(8)
+        io.set_filter("horn", False, output=True)  # 6208h: writes leave the horn as it is
+        io.set_output("horn", False)
+        assert sim.digital_output(8)
+        io.set_filter("horn", True, output=True)
+        io.set_output("horn", False)
+        assert not sim.digital_output(8)
+        io.set_filter("door", True)  # 6003h: the module debounces the door input
+        assert node.sdo.upload(0x6003, 1) == b"\x01"
 
         io.enable_interrupts()  # 6423h is off by default (CiA 401)
         io.set_delta("pot", 10.0)  # 10 % of the range: 3277 raw

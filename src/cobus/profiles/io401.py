@@ -1,5 +1,6 @@
 """A CiA 401 I/O module from the master side: digital inputs and outputs by name, polarity,
-interrupt masks, analogue channels with scaling and interrupt deltas, change callbacks::
+filters and filter masks, interrupt masks, analogue channels with scaling and interrupt
+deltas, change callbacks::
 
     io = Io401(net.add_remote(9), inputs={"door": 1}, outputs={"lamp": 1},
                analog_inputs={"pot": AnalogChannel(1, scale=100 / 32767, unit="%")})
@@ -202,6 +203,17 @@ class AsyncIo401:
         byte = int(await self._read(index, sub))
         bit = 1 << (channel - 1) % 8
         await self._write(index, sub, byte | bit if inverted else byte & ~bit)
+
+    async def set_filter(self, key: str | int, on: bool, *, output: bool = False) -> None:
+        """An input's filter (6003h "filter constant": the module debounces it) or, with
+        ``output``, an output's filter mask bit (6208h: off, writes leave the output as it
+        is)."""
+        table, index = (self._outputs, 0x6208) if output else (self._inputs, 0x6003)
+        channel = self._digital(table, key, "output" if output else "input")
+        sub = (channel - 1) // 8 + 1
+        byte = int(await self._read(index, sub))
+        bit = 1 << (channel - 1) % 8
+        await self._write(index, sub, byte | bit if on else byte & ~bit)
 
     async def set_interrupt(
         self,

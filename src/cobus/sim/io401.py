@@ -2,7 +2,9 @@
 
 Objects (CiA 401): 6000h digital inputs (bytes, with the polarity 6002h), the interrupt
 objects 6005h (global enable), 6006h (any change), 6007h (low-to-high), 6008h (high-to-low);
-6200h digital outputs with polarity 6202h, error mode 6206h and error value 6207h; 6401h
+6200h digital outputs with polarity 6202h, filter mask 6208h (a write changes only the bits
+whose mask bit is 1), error mode 6206h and error value 6207h; 6003h the input filter constant
+(kept, not modelled: the simulated inputs do not bounce); 6401h
 analogue inputs with the global interrupt enable 6423h and the delta 6426h; 6411h analogue
 outputs with error mode 6443h and error value 6444h.
 
@@ -101,6 +103,9 @@ class Io401(CanopenSimDevice):
         self._ain = [0] * self.analog_inputs
         self._ai_sent = [0] * self.analog_inputs
         self._error_state = False
+        #: the output bytes in effect: a write of 6200h changes only the bits its filter
+        #: mask 6208h lets through
+        self._dout = [0] * self._out_bytes
         self.pot_channel: int | None = None
         super().__init__(network, node_id, **options)
         if potentiometer is None:
@@ -142,6 +147,7 @@ class Io401(CanopenSimDevice):
             n = self._in_bytes
             b.array(0x6000, "Read input 8-bit", U8, n, access="ro", mappable=True, default=0)
             b.array(0x6002, "Polarity input 8-bit", U8, n, default=0)
+            b.array(0x6003, "Filter constant input 8-bit", U8, n, default=0)
             b.variable(
                 0x6005, "Global interrupt enable digital 8-bit", DataType.BOOLEAN, default=True
             )
@@ -155,6 +161,7 @@ class Io401(CanopenSimDevice):
             b.array(0x6202, "Change polarity output 8-bit", U8, n, default=0)
             b.array(0x6206, "Error mode output 8-bit", U8, n, default=0xFF)
             b.array(0x6207, "Error value output 8-bit", U8, n, default=0)
+            b.array(0x6208, "Filter mask output 8-bit", U8, n, default=0xFF)
             b.rpdo(1, [(0x6200, s) for s in range(1, min(n, 8) + 1)], transmission_type=255)
         if self.analog_inputs:
             n = self.analog_inputs
@@ -180,6 +187,7 @@ class Io401(CanopenSimDevice):
 
     def on_power_on(self) -> None:
         self._error_state = False
+        self._dout = [0] * self._out_bytes
         self._ai_sent = list(self._ain)
 
     def on_event(self, event: DeviceEvent) -> None:
@@ -191,8 +199,19 @@ class Io401(CanopenSimDevice):
         elif isinstance(event, RpdoReceived):
             if any(index in (0x6200, 0x6411) for index, _ in event.entries):
                 self._error_state = False
+            for (index, sub), value in zip(event.entries, event.values, strict=True):
+                if index == 0x6200:
+                    self._output_written(sub, int(value))
         elif isinstance(event, EntryWritten) and event.index in (0x6200, 0x6411):
             self._error_state = False
+            if event.index == 0x6200:
+                self._output_written(event.subindex, int(event.value))
+
+    def _output_written(self, sub: int, value: int) -> None:
+        if not 1 <= sub <= self._out_bytes:
+            return
+        mask = int(self._get(0x6208, sub, 0xFF))
+        self._dout[sub - 1] = (value & mask | self._dout[sub - 1] & ~mask) & 0xFF
 
     # ------------------------------------------------------------------ inputs
     def _din_logical(self, sub: int) -> int:
@@ -331,7 +350,7 @@ class Io401(CanopenSimDevice):
             return False
         byte, bit = divmod(channel - 1, 8)
         sub = byte + 1
-        level = (device.get(0x6200, sub) ^ device.get(0x6202, sub)) >> bit & 1
+        level = (self._dout[byte] ^ device.get(0x6202, sub)) >> bit & 1
         if self._error_state and device.get(0x6206, sub) >> bit & 1:
             level = device.get(0x6207, sub) >> bit & 1
         return bool(level)
