@@ -509,3 +509,12 @@ def test_interpolated_position_mode() -> None:
         assert net.time() - began == pytest.approx(move.duration, abs=0.01)
         assert abs(drive.read_position() - 20_000) <= 20
         assert "interpolation active" in str(drive.read_statusword())  # bit 12, still held
+
+
+def test_a_move_stopped_by_a_limit_switch_says_so_at_once(bench: Bench) -> None:
+    drive = bench.drive
+    drive.enable()
+    began = bench.net.time()
+    with pytest.raises(DriveStateError, match=r"stopped at a limit at 20[0-9]+ inc before"):
+        drive.move_to(300_000, velocity=100_000)  # the switch is at 200 000
+    assert bench.net.time() - began < 4.0  # not the 60 s timeout

@@ -20,7 +20,7 @@ import asyncio
 import contextlib
 import functools
 import math
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -375,9 +375,11 @@ class AsyncDrive402:
         *,
         fault_ok: bool = False,
         progress: Callable[[Statusword], object] | None = None,
+        check: Callable[[Statusword], Awaitable[None]] | None = None,
     ) -> Statusword:
         """Read the statusword until ``done`` accepts it; DriveFault if the drive faults,
-        DriveTimeoutError naming ``what`` after ``timeout`` seconds."""
+        DriveTimeoutError naming ``what`` after ``timeout`` seconds; ``check`` may end the
+        wait with its own error."""
         loop = self._port.network
         deadline = loop.time() + _seconds("timeout", timeout)
         while True:
@@ -391,6 +393,8 @@ class AsyncDrive402:
                 return status
             if progress is not None:
                 progress(status)
+            if check is not None:
+                await check(status)
             left = deadline - loop.time()
             if left <= 1e-6:  # (a timer shorter than the clock's resolution would not fire)
                 raise DriveTimeoutError(
@@ -672,11 +676,29 @@ class AsyncDrive402:
         """Wait for target reached (statusword bit 10) with no set-point pending (bit 12
         clear in profile position)."""
         pp = self._mode == OperationMode.PROFILE_POSITION
+        stalled = [0]
 
         def reached(s: Statusword) -> bool:
             return s.target_reached and not (pp and s.value & SW_BIT12)
 
-        return await self._wait(reached, timeout, what, progress=progress)
+        async def at_a_limit(s: Statusword) -> None:
+            """A drive stopped by a limit (a limit switch, bit 11) never reaches the target:
+            say so at once rather than after the timeout."""
+            if not s.internal_limit:
+                stalled[0] = 0
+                return
+            if abs(await self.read_velocity() * self.scale) > 1:
+                stalled[0] = 0
+                return
+            stalled[0] += 1
+            if stalled[0] >= 3:
+                raise DriveStateError(
+                    f"drive {self.node_id} stopped at a limit at "
+                    f"{await self.read_position():g} {self.unit} before {what}; "
+                    f"statusword {s}"
+                )
+
+        return await self._wait(reached, timeout, what, progress=progress, check=at_a_limit)
 
     async def _read_window(self, index: int, fallback: int) -> int:
         try:
