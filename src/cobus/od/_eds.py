@@ -77,8 +77,8 @@ _VAR_ONLY = (
 
 _OBJ_SECTION = re.compile(r"([0-9A-F]{4})(?:SUB([0-9A-F]+)|(NAME|VALUE|DENOTATION))?\Z")
 _DUMMY_KEY = re.compile(r"DUMMY([0-9A-F]{4})\Z")
-_BAUD_KEY = re.compile(r"BAUDRATE_(\d+)\Z")
-_LINE_KEY = re.compile(r"LINE(\d+)\Z")
+_BAUD_KEY = re.compile(r"BAUDRATE_(\d{1,7})\Z")
+_LINE_KEY = re.compile(r"LINE(\d{1,4})\Z")  # up to Line9999: a comment, not a book
 
 _ACCESS = {a.value: a for a in Access}
 _DT_CACHE: dict[str, DataType] = {}
@@ -976,7 +976,9 @@ class _Loader:
                 extra[key] = value
                 continue
             lines[int(m.group(1))] = value
-        count = max(declared or 0, max(lines, default=0))
+        # the lines given make the comment: a Lines= count only gets a warning (a count
+        # from a file is never what memory is allocated by)
+        count = max(lines, default=0)
         if declared is not None and declared != len(lines):
             self.warning(
                 self.key_line(sec, "Lines"),

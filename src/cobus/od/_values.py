@@ -35,8 +35,18 @@ class TextError(Exception):
         self.out_of_range = out_of_range
 
 
+#: The longest integer literal taken (a 64-bit value in octal with its sign and zeros fits):
+#: longer ones are refused before Python builds a number that no object can hold.
+MAX_LITERAL = 40
+
+
 def parse_int(text: str) -> int:
     """A CiA 306 integer literal: ``0x1F``, ``017`` (octal), ``-5``, ``+12``."""
+    if len(text) > MAX_LITERAL and len(text.strip()) > MAX_LITERAL:
+        raise TextError(
+            f"number {text.strip()[:16]!r}... is {len(text.strip())} characters long; CiA 306 "
+            f"values fit in 64 bits (at most {MAX_LITERAL} characters here)"
+        )
     try:
         return int(text, 0)
     except ValueError:
