@@ -411,3 +411,22 @@ def test_dcf_values_beyond_the_eds_limits_are_written_with_a_warning(tmp_path):
     assert "dcf: error:" in errors[0] and "dev.dcf:" in errors[0]
     assert "'70000' = 70000 is out of range for INTEGER16" in errors[0]
     assert "the master cannot write it" in errors[0]
+
+
+@pytest.mark.parametrize(
+    ("text", "reason"),
+    [
+        ("master: {node_id: 1}\nnodes:\n  a: \x01\n", "3: error: not valid YAML: character 0x1"),
+        ("? [a, b]\n: 1\n", "1: error: not valid YAML: a key must be a plain value"),
+        ("[" * 100_000, "not valid YAML: nested too deeply to read"),
+        ("a: " + "{b: " * 5000 + "1" + "}" * 5000, "nested too deeply to read"),
+    ],
+    ids=["control character", "list as a key", "deep sequence", "deep mapping"],
+)
+def test_hostile_yaml_is_a_config_error_with_its_line(tmp_path, text, reason):
+    with pytest.raises(NetworkConfigError, match=re.escape(reason)):
+        loads_network(text)
+    path = tmp_path / "hostile.yml"
+    path.write_text(text)
+    cfg, problems = check_network(path)  # cobus config check's path
+    assert cfg is None and any(reason.split("error: ")[-1] in str(p) for p in problems)

@@ -144,6 +144,13 @@ def _construct_map(loader: _Loader, node: yaml.MappingNode) -> _Map:
     for key_node, value_node in node.value:
         key = loader.construct_object(key_node, deep=True)
         line = key_node.start_mark.line + 1
+        if isinstance(key, list | dict):
+            raise yaml.constructor.ConstructorError(
+                None,
+                None,
+                "a key must be a plain value, not a list or a mapping",
+                key_node.start_mark,
+            )
         if key in out:
             loader.duplicates.append((str(key), line))
         out[key] = loader.construct_object(value_node, deep=True)
@@ -1888,18 +1895,31 @@ def _parse(data: Any, base_dir: Path, report: _Report) -> NetworkConfig | None:
 
 
 def _read_text(text: str, path: str, report: _Report) -> Any:
-    loader = _Loader(text)
-    loader.duplicates = []
+    loader: _Loader | None = None
     try:
+        loader = _Loader(text)  # (the reader refuses control characters here already)
+        loader.duplicates = []
         data = loader.get_single_data()
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = mark.line + 1 if mark is not None else None
-        problem = getattr(exc, "problem", None) or str(exc)
+        if isinstance(exc, yaml.reader.ReaderError):
+            line = text.count("\n", 0, exc.position) + 1
+            problem = (
+                f"character 0x{exc.character:X} is not allowed in YAML (a control character?)"
+                if isinstance(exc.character, int)
+                else str(exc)
+            )
+        else:
+            problem = getattr(exc, "problem", None) or str(exc)
         report.error(None, None, f"not valid YAML: {problem}", line)
         return None
+    except RecursionError:
+        report.error(None, None, "not valid YAML: nested too deeply to read", None)
+        return None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
     for key, line in loader.duplicates:
         report.error(None, key, "the key is given twice (the second would silently win)", line)
     return data
