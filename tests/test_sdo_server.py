@@ -423,3 +423,39 @@ def test_settings_are_checked(kwargs: dict[str, object], match: str) -> None:
         SdoServer(-5, TX, DictBackend())
     with pytest.raises(SdoParameterError):
         make_server().timeout = 0
+
+
+class _OneByte(DictBackend):
+    """An object of a fixed size: one byte."""
+
+    def size_hint(self, index: int, subindex: int) -> int | None:
+        super().size_hint(index, subindex)
+        return 1
+
+
+@pytest.mark.parametrize("block", [False, True], ids=["segmented", "block"])
+def test_a_download_without_size_stops_at_the_object_size_not_at_the_end(block: bool) -> None:
+    """A hostile client sending 100 000 segments without a size indication into a 1-byte
+    object is refused at the first segment that overflows it (it used to be buffered whole)."""
+    s = SdoServer(RX, TX, _OneByte({(IDX, 0): b""}))
+    if block:
+        out = s.on_frame(c2s(0xC0, LO, HI, 0), 0.0)  # block download, no size
+        assert out.frames[0].data[0] == 0xA4
+        # block segments are whole: the first (7 bytes) may still end in the object
+        assert s.on_frame(Frame(RX, bytes((1, 1, 2, 3, 4, 5, 6, 7))), 0.0) == NOTHING
+        out = s.on_frame(Frame(RX, bytes((2, 1, 2, 3, 4, 5, 6, 7))), 0.0)
+    else:
+        s.on_frame(c2s(0x20, LO, HI, 0), 0.0)  # segmented, no size
+        out = s.on_frame(c2s(0x00, 1, 2, 3, 4, 5, 6, 7), 0.0)
+    assert_abort(s, out, SdoAbortCode.LENGTH_TOO_HIGH)
+
+
+def test_a_domain_without_size_is_capped_by_max_download() -> None:
+    s = SdoServer(RX, TX, DictBackend({(IDX, 0): b""}), max_download=20)
+    s.on_frame(c2s(0x20, LO, HI, 0), 0.0)
+    toggle = 0
+    for _ in range(2):  # 14 bytes: taken
+        assert s.on_frame(c2s(toggle, *range(7)), 0.0).frames[0].data[0] == 0x20 | toggle
+        toggle ^= 0x10
+    out = s.on_frame(c2s(toggle, *range(7)), 0.0)  # 21 bytes: one too many
+    assert_abort(s, out, SdoAbortCode.LENGTH_TOO_HIGH)

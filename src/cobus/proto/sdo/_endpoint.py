@@ -54,6 +54,7 @@ class Endpoint:
         "_ext",
         "_in",
         "_index",
+        "_limit",
         "_max_buf",
         "_out",
         "_pos",
@@ -102,6 +103,8 @@ class Endpoint:
         self._buf = bytearray()
         self._pos = 0
         self._size: int | None = None
+        #: the most bytes taken when no size was indicated (None: no limit)
+        self._limit: int | None = None
         self._max_buf = 0
         self._toggle = 0
         self._blksize = 0
@@ -175,10 +178,7 @@ class Endpoint:
                 buf = self._buf
                 buf += data[1:]
                 if len(buf) > self._max_buf:
-                    return self._violation(
-                        SdoAbortCode.LENGTH_TOO_HIGH,
-                        f"{self._PEER} sent more segments than the {self._size} bytes it announced",
-                    )
+                    return self._violation(SdoAbortCode.LENGTH_TOO_HIGH, self._too_long())
                 if cmd & w.LAST_SEGMENT:
                     self._state = BLOCK_IN_END
                     return self._send(w.ACK.pack(w.BLOCK_ACK, seq, self._blksize), now)
@@ -229,6 +229,8 @@ class Endpoint:
                 SdoAbortCode.LENGTH_TOO_HIGH,
                 f"{self._PEER} sent more than the {size} bytes it announced",
             )
+        if size is None and self._limit is not None and len(buf) > self._limit:
+            return self._violation(SdoAbortCode.LENGTH_TOO_HIGH, self._too_long())
         answer = self._SEGMENT_ANSWER[toggle >> 4]
         if cmd & w.LAST:
             if size is not None and len(buf) < size:
@@ -331,7 +333,16 @@ class Endpoint:
             f"{self._PEER}'s frame {data.hex(' ').upper()} is too short for {what}",
         )
 
+    def _too_long(self) -> str:
+        if self._size is not None:
+            return f"{self._PEER} sent more segments than the {self._size} bytes it announced"
+        return (
+            f"{self._PEER} sent more than the {self._limit} bytes the object takes (no size "
+            "was indicated)"
+        )
+
     def _reset(self) -> None:
+        self._limit = None
         self._state = IDLE
         self._deadline = None
         self._data = b""

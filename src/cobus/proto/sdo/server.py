@@ -29,7 +29,10 @@ Choices where CiA 301 leaves room:
   received in sequence and the client resends from there. Sequence number 0 or above the block
   size: abort 05040003.
 - Size checks: more data than indicated is refused with 06070012 as soon as it arrives, less
-  with 06070013 at the end. Without a size indication the back end sees what arrived.
+  with 06070013 at the end. Without a size indication the download may bring at most the
+  object's size (the back end's ``size_hint``) or, for objects of no fixed size,
+  ``max_download`` bytes (1 MiB by default): more is refused with 06070012 as soon as it
+  arrives, so a hostile client cannot make the server buffer without end.
 - A stalled segmented or block transfer is aborted with 05040000 after ``timeout`` seconds.
 """
 
@@ -178,7 +181,7 @@ class SdoServer(ep.Endpoint):
     next frame of a segmented or block transfer before aborting with 05040000.
     """
 
-    __slots__ = ("_backend", "_size_hint", "node")
+    __slots__ = ("_backend", "_hint", "_size_hint", "max_download", "node")
 
     _ROLE = "server"
     _PEER = "the client"
@@ -200,9 +203,14 @@ class SdoServer(ep.Endpoint):
         timeout: float = 1.0,
         block_size: int = w.MAX_BLOCK_SIZE,
         crc: bool = True,
+        max_download: int = 1 << 20,
     ) -> None:
         super().__init__(rx_cob_id, tx_cob_id, timeout=timeout, block_size=block_size, crc=crc)
         self._backend = backend
+        #: The most bytes a download without size indication may bring into an object of no
+        #: fixed size (a domain); objects of a fixed size take at most that size.
+        self.max_download = max_download
+        self._hint: int | None = None
         hint = getattr(backend, "size_hint", None)
         self._size_hint = cast("_SizeHint | None", hint if callable(hint) else None)
         self.node = w.node_of(rx_cob_id, tx_cob_id)
@@ -301,6 +309,7 @@ class SdoServer(ep.Endpoint):
         refused = self._take_size(data, w.SIZE)
         if refused is not None:
             return self._abort(refused)
+        self._limit = self._no_size_limit()
         self._buf = bytearray()
         self._toggle = 0
         self._state = _DL_SEG
@@ -335,7 +344,8 @@ class SdoServer(ep.Endpoint):
         refused = self._take_size(data, w.BLOCK_SIZE_FLAG)
         if refused is not None:
             return self._abort(refused)
-        self._max_buf = w.block_room(self._size)
+        self._limit = self._no_size_limit()
+        self._max_buf = w.block_room(self._size if self._size is not None else self._limit)
         self._buf = bytearray()
         self._expected = 1
         self._blksize = self.block_size
@@ -359,14 +369,23 @@ class SdoServer(ep.Endpoint):
             self._size = size
         return refused
 
+    def _no_size_limit(self) -> int | None:
+        """The most bytes a download without size indication may bring: the object's size,
+        else :attr:`max_download` (None when a size was indicated: that one applies)."""
+        if self._size is not None:
+            return None
+        return self._hint if self._hint is not None else self.max_download
+
     def _check_size(self, size: int | None) -> int | None:
         """Ask the back end about a download before its data arrives; the abort code or None."""
+        self._hint = None
         if self._size_hint is None:
             return None
         try:
             expected = self._size_hint(self._index, self._subindex)
         except SdoAbort as refusal:
             return refusal.code
+        self._hint = expected
         if expected is None or size is None or size == expected:
             return None
         return SdoAbortCode.LENGTH_TOO_HIGH if size > expected else SdoAbortCode.LENGTH_TOO_LOW
