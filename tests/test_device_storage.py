@@ -229,3 +229,47 @@ def test_unreadable_parameter_files(tmp_path):
     assert len(problems) == 3
     assert any("1000:00" in p for p in problems)
     assert any("2001:00" in p for p in problems)
+
+
+@pytest.mark.parametrize(
+    ("content", "reason"),
+    [
+        (b'{"format": "cobus device parameters", \xff\xfe}', "byte 38 is not UTF-8"),
+        (b"[" * 100_000 + b"]" * 100_000, "nested too deeply"),
+        (b'{"version": ' + b"9" * 5000 + b"}", "not a parameter file"),
+    ],
+    ids=["not UTF-8", "deep nesting", "5000-digit number"],
+)
+def test_a_hostile_parameter_file_is_a_storage_error(tmp_path, content, reason):
+    path = tmp_path / "node5.json"
+    path.write_bytes(content)
+    with pytest.raises(StorageError, match=reason):
+        FileStorage(path).load()
+
+    # after an NMT reset the device still boots, on its defaults, and says why
+    async def scenario(b: Bench):
+        path.write_bytes(content)  # broken while the device runs
+        b.net.nmt.reset_node(NODE)
+        await b.net.sleep(0.1)
+        assert b.data(0x700 + NODE)[-1] == b"\x00"  # the boot-up came
+        assert await b.sdo.read(0x1017) == 0  # and it answers, on its defaults
+        problems = [e for e in b.events if isinstance(e, StorageProblem)]
+        assert problems and reason in problems[-1].reason
+
+    path.unlink()
+    run_bench(scenario, storage=path)
+
+
+def test_a_stored_offset_of_infinity_is_a_problem_not_a_crash(tmp_path):
+    path = tmp_path / "node5.json"
+    path.write_text(
+        '{"format": "cobus device parameters", "version": 1, "application": {}, '
+        '"communication": {"1800:01": {"node_id_offset": Infinity}}}'
+    )
+
+    async def scenario(b: Bench):
+        problems = [e for e in b.events if isinstance(e, StorageProblem)]
+        assert problems and "1800:01" in problems[0].reason
+        assert await b.sdo.read(0x1800, 1) == 0x180 + NODE  # the default
+
+    run_bench(scenario, storage=path)

@@ -891,7 +891,7 @@ class Device:
                 value = check_value(entry, self._node_id + int(item["node_id_offset"]))
             else:
                 value = decode_download(entry, bytes.fromhex(str(item["data"])))
-        except (KeyError, ValueError, TypeError, SdoAbort) as exc:
+        except (KeyError, ValueError, TypeError, OverflowError, SdoAbort) as exc:
             self._emit(StorageProblem(self._node_id, f"stored {group} entry {key}: {exc}"))
             return
         entry.value = value

@@ -90,11 +90,17 @@ class FileStorage:
             raise StorageError(
                 f"{self.path}: cannot read the stored parameters: {exc.strerror}"
             ) from None
+        except UnicodeDecodeError as exc:
+            raise StorageError(
+                f"{self.path}: not a parameter file (byte {exc.start} is not UTF-8); delete it "
+                "to start with the default values"
+            ) from None
         try:
             doc = json.loads(text)
-        except ValueError as exc:
+        except (ValueError, RecursionError) as exc:
+            why = "nested too deeply" if isinstance(exc, RecursionError) else str(exc)
             raise StorageError(
-                f"{self.path}: not a parameter file ({exc}); delete it to start with the "
+                f"{self.path}: not a parameter file ({why}); delete it to start with the "
                 "default values"
             ) from None
         if not isinstance(doc, dict) or doc.get("format") != _FORMAT:
