@@ -81,3 +81,29 @@ def test_a_hostile_number_is_a_finding_or_an_eds_error(case: str) -> None:
         assert not result.startswith("UNTYPED"), (mode, result)
     if "digits" in case and "key" not in case:  # the literal is named, with the limit
         assert "characters long" in json.dumps(results) or "loaded" in results["False"]
+
+
+def test_an_empty_file_is_not_an_eds(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from cobus.cli import main
+    from cobus.od import EdsError, loads
+
+    empty = tmp_path / "empty.eds"
+    empty.write_text("")
+    assert main(["eds", "check", str(empty)]) == 2
+    assert "defines no objects: it is not an EDS or DCF" in capsys.readouterr().out
+    with pytest.raises(EdsError, match="defines no objects"):
+        loads("", strict=True)
+
+
+@pytest.mark.parametrize(
+    "argv", [["sim", "thesis", "--duration", "nan"], ["demo", "--duration", "-1"]]
+)
+def test_durations_must_be_finite_and_positive(
+    argv: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    from cobus.cli import main
+
+    with pytest.raises(SystemExit) as done:
+        main(argv)
+    assert done.value.code == 2
+    assert "seconds" in capsys.readouterr().err

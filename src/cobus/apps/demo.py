@@ -34,6 +34,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
+from cobus._args import seconds
 from cobus.device import export_eds
 from cobus.master import Master, loads_network
 from cobus.master.events import (
@@ -319,7 +320,7 @@ def register(sub: Any) -> None:
             "potentiometer. A live table shows every node."
         ),
     )
-    parser.add_argument("--duration", type=float, help="stop after this many seconds")
+    parser.add_argument("--duration", type=seconds, help="stop after this many seconds")
     parser.add_argument("--refresh", type=float, default=0.5, help="seconds between tables")
     parser.add_argument(
         "--simulated",

@@ -1117,6 +1117,13 @@ def loads(
     loader = _Loader(path, strict)
     sections = loader.tokenize(text)
     od = loader.build(sections, node_id)
+    if not od._objects:
+        loader.error(
+            None,
+            None,
+            "the file defines no objects: it is not an EDS or DCF (CiA 306 needs at least "
+            "1000h, 1001h and 1018h)",
+        )
     loader.findings.sort(key=_sort_key)
     od.findings = loader.findings
     return od

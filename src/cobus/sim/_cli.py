@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
+from cobus._args import seconds, seconds_or_zero
 from cobus.errors import CobusError
 from cobus.sim.faults import fault_catalogue
 from cobus.sim.rig import Rig, ready_rig, ready_rigs, resolve_kind
@@ -41,13 +42,13 @@ def register(sub: Any) -> None:
     sim.add_argument("--bitrate", "-b", type=int, help="bit rate in bit/s")
     sim.add_argument(
         "--status-every",
-        type=float,
+        type=seconds_or_zero,
         default=2.0,
         metavar="SECONDS",
         help="print the status table this often (0: never; default 2)",
     )
     sim.add_argument(
-        "--duration", type=float, metavar="SECONDS", help="stop after this many seconds"
+        "--duration", type=seconds, metavar="SECONDS", help="stop after this many seconds"
     )
     sim.add_argument(
         "--list-faults",
