@@ -336,6 +336,7 @@ class Device:
             self._storage = FileStorage(storage)
         else:
             self._storage = storage
+        self._storage_failed = False
         self._entries: dict[int, Entry] = {}
         self._indices: set[int] = set()
         for var in od.variables():
@@ -642,15 +643,24 @@ class Device:
     def start(self) -> None:
         """Power on: power-on values, stored parameters, boot-up message, pre-operational.
 
-        Raises :class:`StorageError` when the parameter file cannot be read."""
+        A parameter file that cannot be read never keeps the device from starting: it
+        starts on its default values, emits :class:`StorageProblem` with the reason and
+        sends EMCY 6300h "data set" (active until the application clears it)."""
         if self._started:
             raise DeviceConfigError(f"device {self._node_id} is already started")
         if self._closed:
             raise DeviceConfigError(f"device {self._node_id} was closed; create a new one")
-        self._power_on(communication=True, application=True, strict=True)
+        self._power_on(communication=True, application=True)
         self._started = True
         self._open_nmt()
         self._boot()
+        self._report_storage()
+
+    def _report_storage(self) -> None:
+        """After a boot on a parameter file that could not be read: EMCY 6300h."""
+        if self._storage_failed:
+            self._storage_failed = False
+            self.send_emergency(0x6300)
 
     def close(self) -> None:
         """Take the device off the network (it falls silent, as if unplugged)."""
@@ -841,7 +851,7 @@ class Device:
         value = entry.var.value
         return zero_value(entry.data_type) if value is None else value
 
-    def _power_on(self, *, communication: bool, application: bool, strict: bool) -> None:
+    def _power_on(self, *, communication: bool, application: bool) -> None:
         self.od.node_id = self._node_id
         for entry in self._entries.values():
             index = entry.index
@@ -855,10 +865,9 @@ class Device:
                 entry.value = self._default(entry)
         try:
             stored = self._storage.load()
-        except StorageError as exc:
-            if strict:
-                raise
+        except StorageError as exc:  # the defaults then; said by event here, by EMCY at boot
             self._emit(StorageProblem(self._node_id, str(exc)))
+            self._storage_failed = True
             stored = {}
         groups = []
         if communication:
@@ -899,8 +908,9 @@ class Device:
     def _reset(self, *, application: bool) -> None:
         self._teardown_comm()
         communication = application or not self.deviations.reset_communication_keeps_values
-        self._power_on(communication=communication, application=application, strict=False)
+        self._power_on(communication=communication, application=application)
         self._boot()
+        self._report_storage()
 
     def _boot(self) -> None:
         self._build_comm()

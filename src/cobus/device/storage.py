@@ -7,12 +7,16 @@ so that it follows a node-ID change.
 
 :class:`FileStorage` writes the file atomically: a temporary file in the same directory is
 written, flushed and synced, then renamed over the old file, and the directory is synced. A
-crash at any point leaves either the old or the new file, never a mix.
+crash at any point leaves either the old or the new file, never a mix; temporary files a
+crash left behind are removed at the next load or save. The file carries a SHA-256 of its
+parameters: a damaged file (a flipped bit that still parses) is refused as a whole with a
+:class:`StorageError` instead of being half applied.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import tempfile
@@ -80,8 +84,16 @@ class FileStorage:
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
 
+    def _clean(self) -> None:
+        """Remove the temporary files a crash during a save left behind."""
+        directory = self.path.parent if str(self.path.parent) else Path(".")
+        for stale in directory.glob(f".{self.path.name}.*.tmp"):
+            with contextlib.suppress(OSError):
+                stale.unlink()
+
     def load(self) -> Parameters:
         """The stored parameters by area (empty when nothing was saved yet)."""
+        self._clean()
         try:
             text = self.path.read_text(encoding="utf-8")
         except FileNotFoundError:
@@ -119,12 +131,20 @@ class FileStorage:
             if not isinstance(items, dict) or not all(isinstance(v, dict) for v in items.values()):
                 raise StorageError(f"{self.path}: group {group!r} is not a table of entries")
             out[group] = items
+        stored = doc.get("sha256")
+        if stored is not None and stored != _digest(out):
+            raise StorageError(
+                f"{self.path}: the file is damaged (its SHA-256 does not match the parameters "
+                "it holds); delete it to start with the default values"
+            )
         return out
 
     def save(self, parameters: Parameters) -> None:
         """Store ``values`` for the area; written to a temporary file and renamed, so a crash never
         leaves half a file."""
-        doc = {"format": _FORMAT, "version": _VERSION, **_copy(parameters)}
+        self._clean()
+        groups = _copy(parameters)
+        doc = {"format": _FORMAT, "version": _VERSION, "sha256": _digest(groups), **groups}
         data = json.dumps(doc, indent=1, sort_keys=True).encode("utf-8")
         try:
             atomic_write(self.path, data)
@@ -132,6 +152,12 @@ class FileStorage:
             raise StorageError(
                 f"{self.path}: cannot store the parameters ({exc}); the previous file is unchanged"
             ) from None
+
+
+def _digest(groups: Mapping[str, Any]) -> str:
+    """The SHA-256 of the parameters, over their canonical JSON."""
+    canonical = json.dumps({g: groups.get(g, {}) for g in _GROUPS}, sort_keys=True)
+    return hashlib.sha256(canonical.encode("utf-8")).hexdigest()
 
 
 def atomic_write(path: Path, data: bytes) -> None:
