@@ -22,6 +22,7 @@ from cobus.master import (
     NodeState,
     NodeStateChanged,
 )
+from cobus.od import Access
 from cobus.proto.nmt import NmtState
 from cobus.proto.sdo import SdoAbortCode
 from tests.test_master_support import (
@@ -466,5 +467,27 @@ def test_a_node_silent_during_configuration_is_retried_then_absent(tmp_path):
         tries = [t for t, f in rig.on(0x605) if f.data[0] >> 5 == 1 and f.data[1:4] == key]
         assert len(tries) == 3  # the first write and 2 retries, one SDO timeout apart
         assert tries[2] - tries[0] == pytest.approx(2.0)
+
+    rig_test(cfg, scenario)
+
+
+def test_a_node_that_refuses_every_error_control_is_not_ok(tmp_path):
+    """A node refusing heartbeat (1017h) and node guarding (100Ch/100Dh) runs, but nothing
+    would tell the master if it stopped: its diagnostic says so instead of OK."""
+    text = "master: {node_id: 127}\nnodes:\n" + node_block("a", 5)
+    cfg = network(tmp_path, text)
+
+    async def scenario(rig: Rig) -> None:
+        od = io_od()
+        for index in (0x1017, 0x100C, 0x100D):
+            var = od.get_variable(index, 0)
+            if var is not None:
+                var.access = Access.RO
+        rig.add(5, od)
+        await rig.master.boot(timeout=5)
+        node = rig.master.nodes[5]
+        assert node.error_control is None
+        assert diagnostic(node) is Diagnostic.SDO_SYNTAX_ERROR
+        assert node.problem is not None and "no error control" in node.problem
 
     rig_test(cfg, scenario)

@@ -360,7 +360,15 @@ class ManagedNode:
         if mode != "none":
             for entry in cfg.startup:
                 await self._write(entry)
+            wanted = kind
             kind = await self._set_up_error_control(kind)
+            if wanted is not None and kind is None:
+                # it runs, but nothing would tell if it stopped: not OK, say why
+                self._sdo_error = True
+                self.problem = (
+                    "no error control: the node refused heartbeat (1017h) and node guarding "
+                    "(100Ch/100Dh)"
+                )
         self.error_control = kind
         self._configured_at = loop.time()
         self._start_supervision()
