@@ -518,3 +518,19 @@ def test_a_move_stopped_by_a_limit_switch_says_so_at_once(bench: Bench) -> None:
     with pytest.raises(DriveStateError, match=r"stopped at a limit at 20[0-9]+ inc before"):
         drive.move_to(300_000, velocity=100_000)  # the switch is at 200 000
     assert bench.net.time() - began < 4.0  # not the 60 s timeout
+
+
+def test_every_command_through_the_process_image_goes_out() -> None:
+    """A controlword the image already holds is sent all the same: the drive may have been
+    reset meanwhile and not have it."""
+    with Network(simulated=True) as net:
+        start_rig(net, "thesis")
+        master = BlockingMaster(net, "examples/networks/thesis.yml")
+        master.boot(timeout=10)
+        drive = Drive402(master, "servo")
+        frames: list[Frame] = []
+        net.aio.subscribe(0x50A, lambda frame, now: frames.append(frame))  # RPDO4
+        drive.write(0x6040, 0, 0x06)
+        drive.write(0x6040, 0, 0x06)
+        net.sleep(0.01)
+        assert [f.data[:2] for f in frames] == [b"\x06\x00", b"\x06\x00"]

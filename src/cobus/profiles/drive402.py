@@ -309,7 +309,9 @@ class AsyncDrive402:
     async def write(self, index: int, subindex: int, value: int) -> None:
         """Write an object: into its RPDO where the master maps it, else by SDO."""
         data = encode(self._type(index, subindex), value)  # checks type and range first
-        if not self._port.set_outputs({(index, subindex): value}):
+        # always=True: a command goes out even when the image already holds the value (a
+        # drive that was reset or power-cycled meanwhile has not seen it)
+        if not self._port.set_outputs({(index, subindex): value}, always=True):
             await self._port.download(index, subindex, data)  # (also while no RPDO goes)
         elif not await self._port.settle(self.timeout):
             raise DriveTimeoutError(
@@ -1078,6 +1080,15 @@ class AsyncDrive402:
         self.jog_ended = f"dead-man: no keep_jogging() for {self._jog_deadman:g} s"
         self._jog_deadman = 0.0
         self._halt_task = asyncio.ensure_future(self._send_cw(self._cw | CW_HALT))
+        self._halt_task.add_done_callback(self._halt_done)
+
+    def _halt_done(self, task: asyncio.Future[None]) -> None:
+        """The dead-man halt could not be sent: reported (a HandlerFailed event), not lost."""
+        if not task.cancelled() and task.exception() is not None:
+            self.jog_ended += f"; the halt could not be sent: {task.exception()}"
+            exc = task.exception()
+            assert exc is not None
+            self._port.network._report_failure(f"dead-man halt of drive {self.node_id}", exc)
 
     async def stop_jog(self, timeout: float | None = None) -> None:
         """End the jog: halt and wait for standstill."""
