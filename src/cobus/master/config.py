@@ -59,8 +59,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from cobus._yaml import line_of, read_yaml
 from cobus.errors import CobusError
 from cobus.master.errors import (
     ConfigProblem,
@@ -118,65 +117,6 @@ _IDENTITY_KEYS = ("vendor_id", "product_code", "revision_number", "serial_number
 # ------------------------------------------------------------------------------- YAML reading
 
 
-class _Map(dict[Any, Any]):
-    """A YAML mapping that remembers the line of each key."""
-
-    line: int | None = None
-    lines: dict[str, int]
-
-
-class _Seq(list[Any]):
-    """A YAML sequence that remembers the line of each item."""
-
-    line: int | None = None
-    lines: list[int]
-
-
-class _Loader(yaml.SafeLoader):
-    duplicates: list[tuple[str, int]]
-
-
-def _construct_map(loader: _Loader, node: yaml.MappingNode) -> _Map:
-    loader.flatten_mapping(node)
-    out = _Map()
-    out.line = node.start_mark.line + 1
-    out.lines = {}
-    for key_node, value_node in node.value:
-        key = loader.construct_object(key_node, deep=True)
-        line = key_node.start_mark.line + 1
-        if isinstance(key, list | dict):
-            raise yaml.constructor.ConstructorError(
-                None,
-                None,
-                "a key must be a plain value, not a list or a mapping",
-                key_node.start_mark,
-            )
-        if key in out:
-            loader.duplicates.append((str(key), line))
-        out[key] = loader.construct_object(value_node, deep=True)
-        out.lines[str(key)] = line
-    return out
-
-
-def _construct_seq(loader: _Loader, node: yaml.SequenceNode) -> _Seq:
-    out = _Seq(loader.construct_object(item, deep=True) for item in node.value)
-    out.line = node.start_mark.line + 1
-    out.lines = [item.start_mark.line + 1 for item in node.value]
-    return out
-
-
-_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_map)
-_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_SEQUENCE_TAG, _construct_seq)
-
-
-def _line_of(container: Any, key: Any) -> int | None:
-    if isinstance(container, _Map):
-        return container.lines.get(str(key), container.line)
-    if isinstance(container, _Seq) and isinstance(key, int) and key < len(container.lines):
-        return container.lines[key]
-    return None
-
-
 # ------------------------------------------------------------------------------- problems
 
 
@@ -211,8 +151,9 @@ class _Report:
         return [p for p in self.problems if p.severity is Severity.ERROR]
 
 
-class _Bad(Exception):
-    """A value that cannot be used; the text says why."""
+class _Bad(ValueError):
+    """A value that cannot be used; the text says why (a ValueError: what the public
+    :class:`ObjectIndex` raises)."""
 
 
 def _suggest(word: str, choices: Iterable[str]) -> str:
@@ -323,7 +264,7 @@ class ObjectIndex:
         return key if len(self._names.get(key, ())) < 2 else f"{key}_{var.index:04x}"
 
     def resolve(self, text: Any) -> Variable:
-        """The variable ``text`` names; :class:`_Bad` says why none (with close names)."""
+        """The variable ``text`` names; a ValueError says why none (with close names)."""
         if not isinstance(text, str):
             raise _Bad(
                 f"{text!r} is not an object name or address; write a name from the EDS or an "
@@ -792,12 +733,12 @@ class _NodeReader:
     # --- helpers
     def error(self, key: str | None, reason: str, container: Any = None, at: Any = None) -> None:
         where = container if container is not None else self.raw
-        line = _line_of(where, at if at is not None else key)
+        line = line_of(where, at if at is not None else key)
         self.report.error(self.name, key, reason, line)
 
     def warning(self, key: str | None, reason: str, container: Any = None, at: Any = None) -> None:
         where = container if container is not None else self.raw
-        line = _line_of(where, at if at is not None else key)
+        line = line_of(where, at if at is not None else key)
         self.report.warning(self.name, key, reason, line)
 
     def value(self, key: str) -> tuple[bool, Any, Any]:
@@ -1708,7 +1649,7 @@ def _read_master(raw: Any, report: _Report) -> MasterConfig:
                 None,
                 f"master.{key}",
                 f"unknown key{_suggest(str(key), _MASTER_KEYS)}",
-                _line_of(spec, key),
+                line_of(spec, key),
             )
 
     def get(key: str, parse: Any, default: Any) -> Any:
@@ -1717,7 +1658,7 @@ def _read_master(raw: Any, report: _Report) -> MasterConfig:
         try:
             return parse(spec[key])
         except _Bad as exc:
-            report.error(None, f"master.{key}", str(exc), _line_of(spec, key))
+            report.error(None, f"master.{key}", str(exc), line_of(spec, key))
             return default
 
     if "node_id" in spec and spec["node_id"] is not None:
@@ -1750,7 +1691,7 @@ def _read_master(raw: Any, report: _Report) -> MasterConfig:
     cfg.bus_load_window = get("bus_load_window", lambda v: _ms(v, 10_000), 250.0) / 1000.0
     if cfg.bus_load_window < 0.01:
         report.error(
-            None, "master.bus_load_window", "use at least 10 ms", _line_of(spec, "bus_load_window")
+            None, "master.bus_load_window", "use at least 10 ms", line_of(spec, "bus_load_window")
         )
         cfg.bus_load_window = 0.25
     if cfg.heartbeat_time and cfg.node_id is None:
@@ -1758,10 +1699,10 @@ def _read_master(raw: Any, report: _Report) -> MasterConfig:
             None,
             "master.heartbeat_time",
             "a master heartbeat needs master.node_id",
-            _line_of(spec, "heartbeat_time"),
+            line_of(spec, "heartbeat_time"),
         )
     if cfg.sync_period and cfg.sync_period_us < 1:
-        report.error(None, "master.sync_period", "use at least 1 µs", _line_of(spec, "sync_period"))
+        report.error(None, "master.sync_period", "use at least 1 µs", line_of(spec, "sync_period"))
     return cfg
 
 
@@ -1837,7 +1778,7 @@ def _parse(data: Any, base_dir: Path, report: _Report) -> NetworkConfig | None:
                 None,
                 str(key),
                 f"unknown section{_suggest(str(key), _TOP_KEYS)}",
-                _line_of(data, key),
+                line_of(data, key),
             )
     master = _read_master(data.get("master"), report)
     defaults: Mapping[Any, Any] = {}
@@ -1845,7 +1786,7 @@ def _parse(data: Any, base_dir: Path, report: _Report) -> NetworkConfig | None:
         try:
             defaults = _mapping(data["defaults"], "defaults")
         except _Bad as exc:
-            report.error(None, "defaults", str(exc), _line_of(data, "defaults"))
+            report.error(None, "defaults", str(exc), line_of(data, "defaults"))
         for key in defaults:
             if str(key) not in _NODE_KEYS or key in _NOT_DEFAULTABLE:
                 allowed = [k for k in _NODE_KEYS if k not in _NOT_DEFAULTABLE]
@@ -1853,7 +1794,7 @@ def _parse(data: Any, base_dir: Path, report: _Report) -> NetworkConfig | None:
                     None,
                     f"defaults.{key}",
                     f"not a key nodes can share{_suggest(str(key), allowed)}",
-                    _line_of(defaults, key),
+                    line_of(defaults, key),
                 )
     nodes_raw = data.get("nodes")
     if not isinstance(nodes_raw, Mapping) or not nodes_raw:
@@ -1861,7 +1802,7 @@ def _parse(data: Any, base_dir: Path, report: _Report) -> NetworkConfig | None:
             None,
             "nodes",
             "give the nodes: a mapping of node name to its settings",
-            _line_of(data, "nodes"),
+            line_of(data, "nodes"),
         )
         return None
     nodes: dict[int, NodeConfig] = {}
@@ -1874,12 +1815,12 @@ def _parse(data: Any, base_dir: Path, report: _Report) -> NetworkConfig | None:
                 sname,
                 None,
                 "node names start with a letter and use letters, digits, _ and -",
-                _line_of(nodes_raw, name),
+                line_of(nodes_raw, name),
             )
             continue
         if not isinstance(raw, Mapping):
             report.error(
-                sname, None, "the node's settings must be a mapping", _line_of(nodes_raw, name)
+                sname, None, "the node's settings must be a mapping", line_of(nodes_raw, name)
             )
             continue
         reader = _NodeReader(sname, raw, defaults, master, base_dir, report, texts)
@@ -1895,33 +1836,9 @@ def _parse(data: Any, base_dir: Path, report: _Report) -> NetworkConfig | None:
 
 
 def _read_text(text: str, path: str, report: _Report) -> Any:
-    loader: _Loader | None = None
-    try:
-        loader = _Loader(text)  # (the reader refuses control characters here already)
-        loader.duplicates = []
-        data = loader.get_single_data()
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = mark.line + 1 if mark is not None else None
-        if isinstance(exc, yaml.reader.ReaderError):
-            line = text.count("\n", 0, exc.position) + 1
-            problem = (
-                f"character 0x{exc.character:X} is not allowed in YAML (a control character?)"
-                if isinstance(exc.character, int)
-                else str(exc)
-            )
-        else:
-            problem = getattr(exc, "problem", None) or str(exc)
-        report.error(None, None, f"not valid YAML: {problem}", line)
-        return None
-    except RecursionError:
-        report.error(None, None, "not valid YAML: nested too deeply to read", None)
-        return None
-    finally:
-        if loader is not None:
-            loader.dispose()
-    for key, line in loader.duplicates:
-        report.error(None, key, "the key is given twice (the second would silently win)", line)
+    data, problems = read_yaml(text)
+    for problem in problems:
+        report.error(None, problem.key, problem.reason, problem.line)
     return data
 
 

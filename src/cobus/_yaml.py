@@ -1,0 +1,115 @@
+"""YAML read for the data files cobus takes (network descriptions, parameter sets, variable
+lists): mappings and sequences that remember the line of each key and item, duplicate keys
+and unreadable input reported as :class:`YamlProblem` with a line, never a bare exception."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import yaml
+
+__all__ = ["LineMap", "LineSeq", "YamlProblem", "line_of", "read_yaml"]
+
+
+class LineMap(dict[Any, Any]):
+    """A YAML mapping that remembers the line of each key."""
+
+    line: int | None = None
+    lines: dict[str, int]
+
+
+class LineSeq(list[Any]):
+    """A YAML sequence that remembers the line of each item."""
+
+    line: int | None = None
+    lines: list[int]
+
+
+@dataclass(frozen=True)
+class YamlProblem:
+    """Why the text could not be read (``key``: a key given twice), and where."""
+
+    line: int | None
+    reason: str
+    key: str | None = None
+
+
+class _Loader(yaml.SafeLoader):
+    duplicates: list[tuple[str, int]]
+
+
+def _construct_map(loader: _Loader, node: yaml.MappingNode) -> LineMap:
+    loader.flatten_mapping(node)
+    out = LineMap()
+    out.line = node.start_mark.line + 1
+    out.lines = {}
+    for key_node, value_node in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        line = key_node.start_mark.line + 1
+        if isinstance(key, list | dict):
+            raise yaml.constructor.ConstructorError(
+                None,
+                None,
+                "a key must be a plain value, not a list or a mapping",
+                key_node.start_mark,
+            )
+        if key in out:
+            loader.duplicates.append((str(key), line))
+        out[key] = loader.construct_object(value_node, deep=True)
+        out.lines[str(key)] = line
+    return out
+
+
+def _construct_seq(loader: _Loader, node: yaml.SequenceNode) -> LineSeq:
+    out = LineSeq(loader.construct_object(item, deep=True) for item in node.value)
+    out.line = node.start_mark.line + 1
+    out.lines = [item.start_mark.line + 1 for item in node.value]
+    return out
+
+
+_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_map)
+_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_SEQUENCE_TAG, _construct_seq)
+
+
+def line_of(container: Any, key: Any) -> int | None:
+    """The line of ``key`` in a :class:`LineMap` (an index in a :class:`LineSeq`), else the
+    container's own line, else None."""
+    if isinstance(container, LineMap):
+        return container.lines.get(str(key), container.line)
+    if isinstance(container, LineSeq) and isinstance(key, int) and key < len(container.lines):
+        return container.lines[key]
+    return None
+
+
+def read_yaml(text: str) -> tuple[Any, list[YamlProblem]]:
+    """The data of ``text`` and the problems found (data None when it cannot be read;
+    duplicate keys are problems too, the data then holds the second value)."""
+    loader: _Loader | None = None
+    try:
+        loader = _Loader(text)  # (the reader refuses control characters here already)
+        loader.duplicates = []
+        data = loader.get_single_data()
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = mark.line + 1 if mark is not None else None
+        if isinstance(exc, yaml.reader.ReaderError):
+            line = text.count("\n", 0, exc.position) + 1
+            problem = (
+                f"character 0x{exc.character:X} is not allowed in YAML (a control character?)"
+                if isinstance(exc.character, int)
+                else str(exc)
+            )
+        else:
+            problem = getattr(exc, "problem", None) or str(exc)
+        return None, [YamlProblem(line, f"not valid YAML: {problem}")]
+    except RecursionError:
+        return None, [YamlProblem(None, "not valid YAML: nested too deeply to read")]
+    finally:
+        if loader is not None:
+            loader.dispose()
+    problems = [
+        YamlProblem(line, "the key is given twice (the second would silently win)", key)
+        for key, line in loader.duplicates
+    ]
+    return data, problems
