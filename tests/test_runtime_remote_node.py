@@ -350,6 +350,7 @@ def test_emergencies_keep_their_history_and_active_errors():
 
 def test_every_async_operation_has_its_blocking_twin():
     import cobus.sim.blocking
+    from cobus.blocks import AsyncParameterManager, ParameterManager
     from cobus.device import BlockingDevice, Device
     from cobus.master import BlockingMaster, Master
     from cobus.profiles import AsyncDrive402, Drive402
@@ -380,6 +381,7 @@ def test_every_async_operation_has_its_blocking_twin():
         AsyncEcMotorDrive: EcMotorDrive,
         AsyncIo401: Io401,
         AsyncAxes: Axes,
+        AsyncParameterManager: ParameterManager,
     }
     # what a blocking face adds: letting the network run (async code awaits the network)
     added: dict[type, set[str]] = {

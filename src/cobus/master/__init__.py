@@ -26,6 +26,7 @@ from cobus.master.config import (
 )
 from cobus.master.diagnostics import BusLoadMeter, MasterDiagnostics, frame_bits
 from cobus.master.errors import (
+    BootStepError,
     BootTimeoutError,
     ConfigProblem,
     MasterError,
@@ -37,6 +38,8 @@ from cobus.master.errors import (
     SignalValueError,
 )
 from cobus.master.events import (
+    BootStepDone,
+    BootStepFailed,
     ConfigurationFailed,
     DeviceTypeMismatch,
     ErrorControlLost,
@@ -57,7 +60,7 @@ from cobus.master.events import (
     UnexpectedState,
 )
 from cobus.master.image import Inputs, Outputs
-from cobus.master.master import Master, MasterListener, TpdoListener
+from cobus.master.master import BootStep, Master, MasterListener, TpdoListener
 from cobus.master.node import ManagedNode
 from cobus.master.states import (
     Diagnostic,
@@ -71,6 +74,10 @@ from cobus.master.states import (
 
 __all__ = [
     "BlockingMaster",
+    "BootStep",
+    "BootStepDone",
+    "BootStepError",
+    "BootStepFailed",
     "BootTimeoutError",
     "BusLoadMeter",
     "ConfigProblem",

@@ -9,6 +9,7 @@ from cobus.errors import CobusError
 from cobus.od import Severity  # one scale for every finding: errors stop loading
 
 __all__ = [
+    "BootStepError",
     "BootTimeoutError",
     "ConfigProblem",
     "MasterError",
@@ -92,3 +93,8 @@ class SignalError(CobusError, KeyError):
 
 class SignalValueError(CobusError, ValueError):
     """A value an output signal cannot carry (type or range of its mapped object)."""
+
+
+class BootStepError(MasterError):
+    """A boot step (:meth:`Master.add_boot_step`) found the node unfit to start; the text
+    says why and becomes the node's problem."""

@@ -13,6 +13,8 @@ from cobus.proto import Event
 from cobus.proto.nmt import NmtState
 
 __all__ = [
+    "BootStepDone",
+    "BootStepFailed",
     "ConfigurationFailed",
     "DeviceTypeMismatch",
     "ErrorControlLost",
@@ -144,6 +146,29 @@ class ConfigurationFailed(NodeEvent):
             f"node {self.node_id}: configuring 0x{self.index:04X}:{self.subindex:02X} "
             f"failed: {self.reason}"
         )
+
+
+@dataclass(frozen=True, slots=True)
+class BootStepDone(NodeEvent):
+    """A boot step of the application (:meth:`Master.add_boot_step`) finished for the node;
+    ``detail`` is what it says it did (e.g. "re-parameterised, 3 of 12 written...")."""
+
+    step: str
+    detail: str
+
+    def __str__(self) -> str:
+        return f"node {self.node_id}: {self.step}: {self.detail}"
+
+
+@dataclass(frozen=True, slots=True)
+class BootStepFailed(NodeEvent):
+    """A boot step failed: the node is held back (not started), ``reason`` says why."""
+
+    step: str
+    reason: str
+
+    def __str__(self) -> str:
+        return f"node {self.node_id}: {self.step} failed: {self.reason}"
 
 
 @dataclass(frozen=True, slots=True)

@@ -15,7 +15,7 @@ import asyncio
 import contextlib
 import logging
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Awaitable, Callable, Mapping
 from datetime import UTC, datetime
 from typing import Any
 
@@ -55,13 +55,15 @@ from cobus.runtime import (
     TxQueueFull,
 )
 
-__all__ = ["Master", "MasterListener", "TpdoListener"]
+__all__ = ["BootStep", "Master", "MasterListener", "TpdoListener"]
 
 log = logging.getLogger(__name__)
 
 MasterListener = Callable[[MasterEvent], object]
 #: ``listener(node_id, tpdo_number, now)``: see :meth:`Master.add_tpdo_listener`.
 TpdoListener = Callable[[int, int, float], object]
+#: ``await step(node)`` in a node's boot-up: see :meth:`Master.add_boot_step`.
+BootStep = Callable[[ManagedNode], Awaitable[str | None]]
 _INVALID = 1 << 31
 _EXTENDED = 1 << 29
 
@@ -159,6 +161,22 @@ class Master:
                 return node
         names = ", ".join(f"{n.name} ({n.node_id})" for n in self.nodes.values())
         raise NodeNotFoundError(f"no node {key!r} in this network; the nodes are: {names}")
+
+    def add_boot_step(self, key: int | str | None, step: BootStep, name: str | None = None) -> None:
+        """Run ``await step(node)`` in the boot-up of node ``key`` (None: of every node) each
+        time it boots: after the start-up writes and the error control set-up, before the
+        node counts as configured and is started; in the order the steps were added, also
+        for nodes with ``do_not_initialise`` (the step decides what to send).
+
+        The text the step returns is the detail of a :class:`BootStepDone` event and is kept
+        in ``node.step_results[name]``. A step raising :class:`BootStepError` (or failing
+        otherwise) holds the node back: it is not started, its diagnostic says SDO error, its
+        ``problem`` names the step and the reason, and :class:`BootStepFailed` is emitted.
+        ``name``: default the step's ``name`` attribute or its function name."""
+        label = name or getattr(step, "name", None) or getattr(step, "__name__", None) or "step"
+        nodes = self.nodes.values() if key is None else [self.node(key)]
+        for node in nodes:
+            node.boot_steps.append((str(label), step))
 
     def _set_state(self, new: MasterState) -> None:
         old = self._state

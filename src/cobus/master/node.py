@@ -13,12 +13,16 @@ import asyncio
 import contextlib
 import logging
 from collections import deque
+from collections.abc import Awaitable, Callable
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
 from cobus.master._sdo import SdoLink
 from cobus.master.config import NodeConfig, PdoLayout, SdoEntry
+from cobus.master.errors import BootStepError
 from cobus.master.events import (
+    BootStepDone,
+    BootStepFailed,
     ConfigurationFailed,
     DeviceTypeMismatch,
     ErrorControlLost,
@@ -131,6 +135,10 @@ class ManagedNode:
         #: Frames counted per PDO: received TPDOs and sent RPDOs by number.
         self.tpdo_received: dict[int, int] = {}
         self.rpdo_sent: dict[int, int] = {}
+        #: The application's boot steps (:meth:`Master.add_boot_step`), as (name, step).
+        self.boot_steps: list[tuple[str, Callable[[ManagedNode], Awaitable[str | None]]]] = []
+        #: What each boot step said at the last boot-up (name -> detail).
+        self.step_results: dict[str, str] = {}
 
     # ================================================================== public
 
@@ -370,10 +378,30 @@ class ManagedNode:
                     "(100Ch/100Dh)"
                 )
         self.error_control = kind
+        await self._run_boot_steps()
         self._configured_at = loop.time()
         self._start_supervision()
         self._set_state(NodeState.CONFIGURED)
         self.master._node_configured(self)
+
+    async def _run_boot_steps(self) -> None:
+        for name, step in self.boot_steps:
+            try:
+                detail = await step(self)
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:
+                if not isinstance(exc, BootStepError):
+                    log.exception("master: boot step %r of node %d failed", name, self.node_id)
+                reason = str(exc) or repr(exc)
+                self.step_results[name] = f"failed: {reason}"
+                self._sdo_error = True
+                self.problem = f"boot step {name!r} failed: {reason}"
+                self.master._emit(BootStepFailed(self.node_id, name, reason))
+                raise _Held() from None
+            text = "done" if detail is None else str(detail)
+            self.step_results[name] = text
+            self.master._emit(BootStepDone(self.node_id, name, text))
 
     async def _reset_and_wait(self) -> None:
         self._bootup = self.master.network.loop.create_future()
@@ -828,4 +856,5 @@ class ManagedNode:
             "emcy_count": self.emcy_count,
             "error_control": self.error_control,
             "problem": self.problem,
+            "steps": dict(self.step_results),
         }
