@@ -4,8 +4,26 @@ from __future__ import annotations
 
 import argparse
 import math
+from typing import Any
 
-__all__ = ["seconds", "seconds_or_zero"]
+__all__ = ["add_bus_options", "bus_options", "seconds", "seconds_or_zero"]
+
+
+def add_bus_options(parser: argparse.ArgumentParser) -> None:
+    """``-i/--interface``, ``-c/--channel``, ``-b/--bitrate`` as python-can's own tools have
+    them; what is not given comes from python-can's configuration (``CAN_INTERFACE``...)."""
+    group = parser.add_argument_group("bus (default: python-can's configuration)")
+    group.add_argument("--interface", "-i", help="python-can interface (socketcan, pcan...)")
+    group.add_argument("--channel", "-c", help="python-can channel (can0, PCAN_USBBUS1...)")
+    group.add_argument("--bitrate", "-b", type=int, help="bit rate in bit/s")
+
+
+def bus_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The keyword arguments for :class:`cobus.runtime.Network` from :func:`add_bus_options`."""
+    options: dict[str, Any] = {"interface": args.interface, "channel": args.channel}
+    if args.bitrate:
+        options["bitrate"] = args.bitrate
+    return options
 
 
 def seconds(text: str) -> float:

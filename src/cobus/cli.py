@@ -20,6 +20,7 @@ _COMMAND_MODULES = (
     "cobus.master._cli",
     "cobus.sim._cli",
     "cobus.profiles._cli",
+    "cobus.blocks._cli",
     "cobus.apps.demo",
 )
 

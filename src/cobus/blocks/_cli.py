@@ -1,0 +1,256 @@
+"""cobus params: compare, apply and capture a node's parameters on a live bus.
+
+    cobus params diff 8 zapi.yml                 # what differs from the file (nothing written)
+    cobus params apply 8 zapi.yml                # write what differs, save, read back, verify
+    cobus params snapshot 8 zapi-now.yml --eds zapi.eds   # the node's parameters to a file
+    cobus params apply servo servo.yml --network line.yml  # a node by name, its EDS from there
+
+The file is YAML (objects by EDS name or address), CSV or a DCF (its ParameterValues); see
+``cobus.blocks.parameters``. Names come from ``--eds``, the network file's EDS, or the file's
+own ``eds:``. The bus is python-can's (``-i/--interface``, ``-c/--channel``, ``-b/--bitrate``,
+else its configuration).
+
+Exit codes: 0 the node holds the set (diff: nothing differs; snapshot: every object read),
+1 a transfer failed (no answer, refused, verify mismatch; snapshot: some objects left out),
+2 bad usage or a bad file, 3 diff found differences.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from cobus._args import add_bus_options, bus_options, seconds
+
+__all__ = ["register"]
+
+_EXIT_OK, _EXIT_FAILED, _EXIT_USAGE, _EXIT_DIFFERS = 0, 1, 2, 3
+_EXITS = (
+    "exit codes: 0 the node holds the set (snapshot: every object read), 1 a transfer failed "
+    "(snapshot: objects left out), 2 bad usage or file, 3 diff found differences"
+)
+
+
+def register(sub: Any) -> None:
+    """Add ``cobus params ...`` to the top-level sub-command parser."""
+    params: argparse.ArgumentParser = sub.add_parser(
+        "params",
+        help="compare, apply and capture a node's parameters (parameter manager)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    actions = params.add_subparsers(dest="action", metavar="ACTION", required=True)
+    for name, help_text in (
+        ("diff", "read the node and show what differs from FILE (writes nothing)"),
+        ("apply", "bring the node to FILE: write what differs, save, read back, verify"),
+        ("snapshot", "read the node's parameters into FILE (.yml or .csv)"),
+    ):
+        p = actions.add_parser(name, help=help_text, description=help_text, epilog=_EXITS)
+        p.add_argument("node", help="node-ID 1-127 (or a node name with --network)")
+        p.add_argument("file", type=Path, help="the parameter file")
+        p.add_argument("--eds", type=Path, help="the node's EDS or DCF (names, types, limits)")
+        p.add_argument("--network", type=Path, help="a network description naming the node")
+        p.add_argument("--timeout", type=seconds, default=1.0, help="seconds per SDO answer")
+        p.add_argument("--json", action="store_true", help="print the result as JSON")
+        if name == "apply":
+            p.add_argument("--no-save", action="store_true", help="do not send the save command")
+            p.add_argument("--retries", type=int, default=2, help="tries again after a timeout")
+            p.add_argument("--restarts", type=int, default=1, help="runs again after a failure")
+        if name == "snapshot":
+            p.add_argument(
+                "--objects",
+                nargs="+",
+                metavar="OBJ",
+                help="objects by name, index (0x2001) or range (0x2000-0x5FFF); default: "
+                "every read-write object from 2000h",
+            )
+            p.add_argument(
+                "--communication",
+                action="store_true",
+                help="include the communication objects (1000h-1FFFh, not PDOs or 1010h/1011h)",
+            )
+        add_bus_options(p)
+        p.set_defaults(handler=_run)
+
+
+def _fail(message: str, code: int = _EXIT_USAGE) -> int:
+    print(f"cobus params: {message}", file=sys.stderr)
+    return code
+
+
+def _target(args: argparse.Namespace) -> tuple[int, Any]:
+    """The node-ID and the dictionary the arguments name; ValueError says why not."""
+    from cobus.od import EdsError, load
+
+    od = None
+    node_id: int | None = None
+    if args.network is not None:
+        from cobus.master import NetworkConfigError, load_network
+
+        try:
+            network = load_network(args.network)
+            cfg = network.node(int(args.node) if args.node.isdigit() else args.node)
+        except (NetworkConfigError, KeyError) as exc:
+            raise ValueError(str(exc)) from None
+        node_id, od = cfg.node_id, cfg.od
+    if args.eds is not None:
+        try:
+            od = load(args.eds)
+        except (OSError, EdsError) as exc:
+            raise ValueError(f"cannot read {args.eds}: {exc}") from None
+    if node_id is None:
+        if not args.node.isdigit() or not 1 <= int(args.node) <= 127:
+            raise ValueError(f"node {args.node!r}: give a node-ID 1-127 (or --network FILE)")
+        node_id = int(args.node)
+    return node_id, od
+
+
+def _run(args: argparse.Namespace) -> int:
+    from cobus.blocks.param_manager import ParameterManager
+    from cobus.blocks.parameters import ParameterFileError, load_parameters
+    from cobus.runtime import Network
+
+    try:
+        node_id, od = _target(args)
+    except ValueError as exc:
+        return _fail(str(exc))
+    pset = None
+    if args.action != "snapshot":
+        try:
+            pset = load_parameters(args.file, od=od)
+        except ParameterFileError as exc:
+            return _fail(str(exc))
+        od = od or pset.od
+    elif od is None:
+        return _fail("a snapshot needs the node's EDS for names and types: give --eds FILE")
+    options: dict[str, Any] = {}
+    if args.action == "apply":
+        options = {"retries": args.retries, "restarts": args.restarts, "save": not args.no_save}
+    quiet = args.json or not sys.stderr.isatty()
+    with _Progress(quiet) as progress:
+        try:
+            with Network(**bus_options(args)) as net:
+                node = net.add_remote(node_id, od, sdo_timeout=args.timeout)
+                manager = ParameterManager(node, pset, progress=progress.update, **options)
+                if args.action == "snapshot":
+                    objects = _objects(args.objects, od) if args.objects else None
+                    snap, failures = manager.snapshot(objects, communication=args.communication)
+                    snap.write(args.file)
+                    progress.stop()
+                    return _snapshot_done(args, snap, failures)
+                report = manager.diff() if args.action == "diff" else manager.apply()
+        except (OSError, ValueError) as exc:
+            return _fail(str(exc))
+        except Exception as exc:  # the bus could not be opened (python-can's errors)
+            if type(exc).__module__.startswith("can"):
+                return _fail(f"cannot open the bus: {exc}")
+            raise
+    return _report_done(args, report)
+
+
+def _objects(specs: list[str], od: Any) -> list[Any]:
+    out: list[Any] = []
+    for spec in specs:
+        low, sep, high = spec.partition("-")
+        try:
+            if sep:
+                lo, hi = int(low, 16), int(high, 16)
+                out.extend(obj.index for obj in od if lo <= obj.index <= hi)
+                continue
+            out.append(int(spec, 16) if spec.lower().startswith("0x") else spec)
+        except ValueError:
+            raise ValueError(f"--objects {spec!r}: a name, 0x2001 or 0x2000-0x5FFF") from None
+    return out
+
+
+def _snapshot_done(args: argparse.Namespace, snap: Any, failures: list[Any]) -> int:
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "file": str(args.file),
+                    "parameters": len(snap),
+                    "left_out": [str(f) for f in failures],
+                }
+            )
+        )
+    else:
+        from rich.console import Console
+
+        console = Console(highlight=False)
+        console.print(f"{len(snap)} parameters written to {args.file}")
+        for failure in failures:
+            console.print(f"[yellow]left out:[/] {failure}")
+    return _EXIT_FAILED if failures else _EXIT_OK
+
+
+def _report_done(args: argparse.Namespace, report: Any) -> int:
+    if args.json:
+        print(json.dumps(report.to_dict(), default=str))
+    else:
+        from rich.console import Console
+        from rich.table import Table
+
+        console = Console(highlight=False)
+        if report.differences:
+            table = Table(title=f"{report.node}: {len(report.differences)} difference(s)")
+            for column in ("object", "name", "set-point", "node held", "written"):
+                table.add_column(column)
+            written = {(p.index, p.subindex) for p in report.written}
+            for param, held in report.differences:
+                table.add_row(
+                    param.address,
+                    param.name,
+                    repr(param.value),
+                    "unreadable" if held is None else repr(held),
+                    "yes" if (param.index, param.subindex) in written else "",
+                )
+            console.print(table)
+        for failure in report.failures:
+            console.print(f"[red]failed:[/] {failure}")
+        colour = "green" if report.ok else ("yellow" if report.dry_run else "red")
+        console.print(f"[{colour}]{report.summary}[/]")
+    if report.failures or report.aborted:
+        return _EXIT_FAILED
+    return _EXIT_DIFFERS if report.dry_run and report.differences else _EXIT_OK
+
+
+class _Progress:
+    """A rich progress bar on stderr fed by the manager's progress callback (any thread)."""
+
+    def __init__(self, quiet: bool) -> None:
+        self.quiet = quiet
+        self._bar: Any = None
+        self._task: Any = None
+
+    def __enter__(self) -> _Progress:
+        if not self.quiet:
+            from rich.console import Console
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+            self._bar = Progress(
+                TextColumn("{task.description:<10}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                console=Console(stderr=True),
+                transient=True,
+            )
+            self._bar.start()
+            self._task = self._bar.add_task("read", total=None)
+        return self
+
+    def update(self, step: Any, done: int, total: int) -> None:
+        if self._bar is not None:
+            description = step.name.lower().replace("_", " ")
+            self._bar.update(self._task, description=description, completed=done, total=total)
+
+    def stop(self) -> None:
+        if self._bar is not None:
+            self._bar.stop()
+            self._bar = None
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
