@@ -11,6 +11,7 @@ import enum
 from dataclasses import dataclass
 
 from cobus._enum import NamedIntEnum
+from cobus.profiles._tables import table
 from cobus.proto.emcy import describe as _describe_emcy
 
 __all__ = [
@@ -254,39 +255,7 @@ def command_towards(current: PowerState, target: PowerState) -> Command | None:
 
 #: The CiA 402-2 error codes (603Fh) a drive reports, with their texts; any other code is
 #: described by its CiA 301 emergency class.
-_ERROR_TEXTS: dict[int, str] = {
-    0x2211: "Over-current inside the drive",
-    0x2212: "Over-current device output side",
-    0x2310: "Continuous over-current",
-    0x2311: "Continuous over-current (motor)",
-    0x2320: "Short circuit / earth leakage",
-    0x2330: "Earth leakage",
-    0x3110: "Mains over-voltage",
-    0x3120: "Mains under-voltage",
-    0x3130: "Phase failure",
-    0x3210: "DC link over-voltage",
-    0x3220: "DC link under-voltage",
-    0x4110: "Excess ambient temperature",
-    0x4210: "Excess temperature device",
-    0x4310: "Excess temperature drive (motor over-temperature)",
-    0x5112: "Supply low voltage",
-    0x5530: "Data storage (non-volatile memory) fault",
-    0x6010: "Software reset (watchdog)",
-    0x6320: "Parameter error",
-    0x7110: "Brake chopper failure",
-    0x7121: "Motor blocked",
-    0x7300: "Sensor failure",
-    0x7305: "Incremental sensor 1 fault",
-    0x7310: "Speed error",
-    0x7320: "Position error",
-    0x8110: "CAN overrun",
-    0x8130: "Life guard error or heartbeat error",
-    0x8311: "Excess torque",
-    0x8400: "Velocity speed controller error",
-    0x8611: "Following error",
-    0x8612: "Reference limit",
-    0xFF00: "Manufacturer specific",
-}
+_ERROR_TEXTS: dict[int, str] = dict(table("cia402_errors")["codes"])
 
 
 def error_text(code: int) -> str:

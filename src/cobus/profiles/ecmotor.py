@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from cobus.errors import CobusError
+from cobus.profiles._tables import table
 from cobus.proto import Frame
 from cobus.runtime._service import Callbacks
 from cobus.runtime._twin import BlockingTwin
@@ -136,34 +137,10 @@ OBJECTS: Mapping[str, EcObject] = _objects()
 _BY_INDEX = {obj.index: obj for obj in OBJECTS.values()}
 
 #: m_sss (200Eh) error and warning bits, by name.
-M_SSS_BITS: Mapping[int, str] = {
-    15: "flash/eeprom",
-    14: "reset occurred",
-    13: "HW protection",
-    12: "SW protection",
-    11: "supply max",
-    10: "supply min",
-    9: "max current",
-    8: "max position error",
-    7: "sensor temperature",
-    6: "motor thermal",
-    5: "brake thermal",
-    4: "communication error",
-    3: "disabled",
-    2: "ECI error",
-    1: "min position limit",
-    0: "max position limit",
-}
+M_SSS_BITS: Mapping[int, str] = dict(table("ecmotor_status")["m_sss"])
 _BAD_COMMAND, _FRAME_ERROR = 1 << 14, 1 << 15
 #: c_sss (200Ch) communication status bits, by name.
-C_SSS_BITS: Mapping[int, str] = {
-    15: "frame error",
-    14: "bad command",
-    9: "send error message",
-    8: "send status message",
-    5: "RS232 ok",
-    4: "RS232 bad",
-}
+C_SSS_BITS: Mapping[int, str] = dict(table("ecmotor_status")["c_sss"])
 
 
 def _bits(value: int, names: Mapping[int, str]) -> list[str]:

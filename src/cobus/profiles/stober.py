@@ -17,6 +17,7 @@ from typing import Any
 
 from cobus.errors import CobusError
 from cobus.od import DataType, decode, encode
+from cobus.profiles._tables import table
 from cobus.runtime._twin import BlockingTwin
 
 __all__ = [
@@ -32,35 +33,8 @@ __all__ = [
 
 #: E82 event -> (text, EMCY error code, error register), from the manual's table.
 EVENTS: Mapping[int, tuple[str, int, int]] = {
-    30: ("no event", 0x0000, 0x00),
-    31: ("short/earth fault", 0x2110, 0x02),
-    32: ("internal short circuit", 0x2230, 0x02),
-    33: ("overcurrent", 0x2310, 0x02),
-    34: ("hardware defect", 0x5000, 0x01),
-    35: ("watchdog", 0x6010, 0x01),
-    36: ("overvoltage", 0x3110, 0x04),
-    37: ("speed feedback", 0x7303, 0x01),
-    38: ("device temperature sensor", 0x4210, 0x08),
-    39: ("device i2t", 0x4280, 0x08),
-    40: ("invalid data", 0x6310, 0x01),
-    41: ("motor temperature", 0x4310, 0x08),
-    42: ("brake resistor temperature", 0x7110, 0x08),
-    44: ("external fault", 0x9000, 0x01),
-    45: ("motor i2t", 0x4380, 0x08),
-    46: ("undervoltage", 0x3120, 0x04),
-    47: ("M-Max limit", 0x8311, 0x01),
-    48: ("overload accelerating", 0x8312, 0x01),
-    49: ("overload braking", 0x8331, 0x01),
-    52: ("communication", 0x8100, 0x10),
-    55: ("option board", 0x5200, 0x01),
-    56: ("overspeed", 0x8400, 0x01),
-    57: ("runtime load", 0x6100, 0x01),
-    58: ("earth fault", 0x2110, 0x02),
-    59: ("device i2t", 0x4280, 0x08),
-    **{n: (f"application event {n - 60}", 0x6200, 0x01) for n in range(60, 68)},
-    68: ("external fault 2", 0x9000, 0x01),
-    69: ("motor connection", 0x7120, 0x01),
-    70: ("parameter consistency", 0x6300, 0x01),
+    number: (event["text"], event["emcy"], event["register"])
+    for number, event in table("stober_events")["events"].items()
 }
 
 #: E48 device states.

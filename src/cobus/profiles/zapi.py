@@ -26,6 +26,7 @@ from typing import Any
 
 from cobus.errors import CobusError
 from cobus.profiles._port import ManagedNodePort, port_for
+from cobus.profiles._tables import table as data_table
 from cobus.runtime._service import Callbacks
 from cobus.runtime._twin import BlockingTwin
 
@@ -46,10 +47,7 @@ __all__ = [
 ]
 
 #: ZAPI alarm codes (decimal) the thesis names, with the controller's text.
-ALARM_TEXTS: Mapping[int, str] = {
-    17: "LOGIC FAILURE #3",
-    248: "CAN BUS KO",
-}
+ALARM_TEXTS: Mapping[int, str] = dict(data_table("zapi_alarms")["codes"])
 
 
 def alarm_text(code: int) -> str:
