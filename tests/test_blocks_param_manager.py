@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Awaitable, Callable
+from dataclasses import replace
 from typing import Any
 
 import pytest
@@ -241,3 +242,74 @@ def test_arguments_are_checked() -> None:
             await AsyncParameterManager(b.node).apply()
 
     run(scenario)
+
+
+def test_a_save_that_timed_out_is_sent_again_by_the_restart() -> None:
+    class LostSave:
+        """The node's SDO, except that the first save goes unanswered."""
+
+        def __init__(self, sdo: Any) -> None:
+            self.sdo, self.lost = sdo, 0
+
+        async def upload(self, index: int, subindex: int) -> bytes:
+            data: bytes = await self.sdo.upload(index, subindex)
+            return data
+
+        async def download(self, index: int, subindex: int, data: bytes) -> None:
+            if index == 0x1010 and not self.lost:
+                self.lost += 1
+                raise TimeoutError("no answer")
+            await self.sdo.download(index, subindex, data)
+
+    async def scenario(b: Bench) -> tuple[ParameterReport, ParameterReport, list[str]]:
+        port = LostSave(b.node.sdo)
+        first = await AsyncParameterManager(port, b.parameters(), retries=0).apply()
+        await b.power_cycle()
+        after = await AsyncParameterManager(b.node, b.parameters()).diff()
+        return first, after, b.sdo_requests()
+
+    first, after, requests = run(scenario)
+    assert first.ok and first.attempts == 2 and first.saved is True and first.verified
+    assert len(first.differences) == 3 and len(first.written) == 3  # as the node was at first
+    assert not first.up_to_date
+    assert requests.count("608: 23 10 10 00 73 61 76 65") == 1  # sent by the restart
+    assert after.up_to_date  # the values survived the power cycle: they were saved
+
+
+def test_odd_answers_write_only_objects_and_a_failing_progress_display() -> None:
+    from cobus.blocks import Parameter
+
+    p = Parameter(0x2000, 0, -1, DataType.INTEGER16)
+    assert p.decode(b"\xff\xff\xff\xff") == -1  # expedited without size: 4 bytes
+    assert p.decode(b"\xff") == -1  # fewer bytes than the type takes
+    assert Parameter(0x2000, 0, 0.0, DataType.REAL32).holds(-0.0)
+
+    async def scenario(b: Bench) -> tuple[ParameterReport, ParameterReport]:
+        pset = b.parameters()
+        only_written = replace(pset[0], readable=False)
+        pset.parameters = (only_written, *pset.parameters[1:])
+
+        def broken(*args: Any) -> None:
+            raise RuntimeError("the display is gone")
+
+        manager = AsyncParameterManager(b.node, pset, progress=broken)
+        return await manager.apply(), await manager.apply()
+
+    first, second = run(scenario)
+    assert first.ok and second.ok
+    assert [p.index for p, _ in second.differences] == [0x20A8]  # never read: always written
+
+
+def test_snapshot_lists_what_the_node_refuses_and_skips_what_is_no_parameter() -> None:
+    def refuse() -> int:
+        raise SdoAbort(SdoAbortCode.READ_WRITE_ONLY)
+
+    async def scenario(b: Bench) -> tuple[ParameterSet, list[Any]]:
+        b.device.on_read(0x2001, 0, refuse)
+        manager = AsyncParameterManager(b.node)
+        return await manager.snapshot([0x1000, 0x1017, 0x1010, 0x1400, 0x2001, 0x20A8])
+
+    snap, failures = run(scenario)
+    assert [p.index for p in snap] == [0x1017, 0x20A8]  # 1000h ro, 1010h, PDO: no parameters
+    assert [f.code for f in failures] == [12]
+    assert "0x2001:00 acceleration time" in str(failures[0])

@@ -205,3 +205,41 @@ def test_a_set_written_out_reads_back_the_same(tmp_path: Path) -> None:
         ]
     assert load_parameters(tmp_path / "out.yml").save == SaveCommand(0x1010, 0)
     assert isinstance(load_parameters(tmp_path / "out.yml", od=od), ParameterSet)
+
+
+def test_numbers_mean_what_they_say_and_files_from_excel_read(tmp_path: Path) -> None:
+    od = dictionary()
+    pset = loads_parameters("parameters: {acceleration time: 010}\n", od=od)
+    assert pset[0].value == 10  # YAML 1.2: not octal
+    with pytest.raises(ParameterFileError, match="'1:30' is not a valid UNSIGNED16"):
+        loads_parameters("parameters: {acceleration time: 1:30}\n", od=od)
+    with pytest.raises(ParameterFileError, match="more than 40 digits"):
+        loads_parameters(f"parameters: {{acceleration time: {'9' * 5000}}}\n", od=od)
+    with pytest.raises(ParameterFileError, match="give a finite number"):
+        loads_parameters("parameters: {ramp gain: .inf}\n", od=od)
+    with pytest.raises(ParameterFileError, match="not an address: index 0001h-FFFFh"):
+        loads_parameters('parameters: {"0x2100:100": {value: 1, type: u8}}\n')
+    (tmp_path / "excel.csv").write_bytes(
+        "\ufeffindex,subindex,value,type\n2001h,0,25,UNSIGNED16\n20A8,0,,UNSIGNED8\n".encode()
+    )
+    with pytest.raises(ParameterFileError) as exc:
+        load_parameters(tmp_path / "excel.csv")
+    assert problems(exc) == [
+        f"{tmp_path / 'excel.csv'}:3: 0x20A8:00: '' is not a valid UNSIGNED8: the value is missing"
+    ]
+    (tmp_path / "excel.csv").write_bytes(b"\xef\xbb\xbfindex,subindex,value\n2001,0,25\n")
+    assert load_parameters(tmp_path / "excel.csv", od=od)[0].index == 0x2001  # hex index
+
+
+def test_a_dcf_leaves_out_the_commands_and_the_pdo_parameters(tmp_path: Path) -> None:
+    od = dictionary()
+    od[0x1010][1].parameter_value = 0x65766173  # type: ignore[index]
+    od[0x1017].parameter_value = 100  # type: ignore[union-attr]
+    od[0x20A8].parameter_value = 80  # type: ignore[union-attr]
+    (tmp_path / "zapi.dcf").write_text(od.to_dcf(8))
+    pset = load_parameters(tmp_path / "zapi.dcf", save=SaveCommand(0x1010, 0))
+    assert [(p.index, p.value) for p in pset] == [(0x1017, 100), (0x20A8, 80)]
+    assert pset.save == SaveCommand(0x1010, 0)
+    numeric = ParameterSet(pset.parameters, SaveCommand(0x1010, 1, b"\x78\x56\x34\x12"))
+    numeric.write(tmp_path / "n.yml")
+    assert load_parameters(tmp_path / "n.yml").save == numeric.save

@@ -1,9 +1,15 @@
 """YAML read for the data files cobus takes (network descriptions, parameter sets, variable
 lists): mappings and sequences that remember the line of each key and item, duplicate keys
-and unreadable input reported as :class:`YamlProblem` with a line, never a bare exception."""
+and unreadable input reported as :class:`YamlProblem` with a line, never a bare exception.
+
+Plain scalars are typed as YAML 1.2 types them, not as PyYAML's YAML 1.1 would, so that a
+set-point means what it says: ``010`` is ten (not octal eight), ``1:30`` is text (not 90),
+``no``/``on`` are text (only true/false are booleans); hex ``0x1A`` and octal ``0o17`` stay.
+A number of more than 40 digits is refused (a value no CANopen type holds)."""
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Any
 
@@ -39,6 +45,44 @@ class _Loader(yaml.SafeLoader):
     duplicates: list[tuple[str, int]]
 
 
+_BOOL, _INT, _FLOAT = (f"tag:yaml.org,2002:{t}" for t in ("bool", "int", "float"))
+_Loader.yaml_implicit_resolvers = {
+    first: [r for r in resolvers if r[0] not in (_BOOL, _INT, _FLOAT)]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+_Loader.add_implicit_resolver(
+    _BOOL, re.compile(r"^(?:true|True|TRUE|false|False|FALSE)$"), list("tTfF")
+)
+_Loader.add_implicit_resolver(
+    _INT, re.compile(r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$"), list("-+0123456789")
+)
+_Loader.add_implicit_resolver(
+    _FLOAT,
+    re.compile(
+        r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
+        r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"
+    ),
+    list("-+.0123456789"),
+)
+_MAX_DIGITS = 40
+
+
+def _construct_int(loader: _Loader, node: yaml.ScalarNode) -> int:
+    text = str(loader.construct_scalar(node))
+    digits = text.lstrip("+-")
+    if len(digits) > _MAX_DIGITS:
+        raise yaml.constructor.ConstructorError(
+            None, None, f"a number of more than {_MAX_DIGITS} digits", node.start_mark
+        )
+    if digits[:2] in ("0x", "0X"):
+        value = int(digits[2:], 16)
+    elif digits[:2] in ("0o", "0O"):
+        value = int(digits[2:], 8)
+    else:
+        value = int(digits, 10)
+    return -value if text.startswith("-") else value
+
+
 def _construct_map(loader: _Loader, node: yaml.MappingNode) -> LineMap:
     loader.flatten_mapping(node)
     out = LineMap()
@@ -70,6 +114,7 @@ def _construct_seq(loader: _Loader, node: yaml.SequenceNode) -> LineSeq:
 
 _Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_map)
 _Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_SEQUENCE_TAG, _construct_seq)
+_Loader.add_constructor(_INT, _construct_int)
 
 
 def line_of(container: Any, key: Any) -> int | None:

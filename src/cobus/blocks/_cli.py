@@ -57,6 +57,14 @@ def register(sub: Any) -> None:
         p.add_argument("--json", action="store_true", help="print the result as JSON")
         if name == "apply":
             p.add_argument("--no-save", action="store_true", help="do not send the save command")
+            p.add_argument(
+                "--save-subindex",
+                type=int,
+                choices=range(256),
+                metavar="N",
+                help="send 'save' to 1010h sub N (the ZAPI ACE2 wants 0; default: the file's, "
+                "else 1)",
+            )
             p.add_argument("--retries", type=int, default=2, help="tries again after a timeout")
             p.add_argument("--restarts", type=int, default=1, help="runs again after a failure")
         if name == "snapshot":
@@ -123,12 +131,22 @@ def _run(args: argparse.Namespace) -> int:
             pset = load_parameters(args.file, od=od)
         except ParameterFileError as exc:
             return _fail(str(exc))
+        if getattr(args, "save_subindex", None) is not None:
+            from cobus.blocks.parameters import SaveCommand
+
+            pset.save = SaveCommand(0x1010, args.save_subindex)
         od = od or pset.od
     elif od is None:
         return _fail("a snapshot needs the node's EDS for names and types: give --eds FILE")
     options: dict[str, Any] = {}
     if args.action == "apply":
         options = {"retries": args.retries, "restarts": args.restarts, "save": not args.no_save}
+    objects = None
+    if args.action == "snapshot" and args.objects:
+        try:
+            objects = _objects(args.objects, od)
+        except ValueError as exc:
+            return _fail(str(exc))
     quiet = args.json or not sys.stderr.isatty()
     with _Progress(quiet) as progress:
         try:
@@ -136,7 +154,6 @@ def _run(args: argparse.Namespace) -> int:
                 node = net.add_remote(node_id, od, sdo_timeout=args.timeout)
                 manager = ParameterManager(node, pset, progress=progress.update, **options)
                 if args.action == "snapshot":
-                    objects = _objects(args.objects, od) if args.objects else None
                     snap, failures = manager.snapshot(objects, communication=args.communication)
                     snap.write(args.file)
                     progress.stop()
@@ -160,9 +177,12 @@ def _objects(specs: list[str], od: Any) -> list[Any]:
                 lo, hi = int(low, 16), int(high, 16)
                 out.extend(obj.index for obj in od if lo <= obj.index <= hi)
                 continue
-            out.append(int(spec, 16) if spec.lower().startswith("0x") else spec)
+            key: Any = int(spec, 16) if spec.lower().startswith("0x") else spec
         except ValueError:
             raise ValueError(f"--objects {spec!r}: a name, 0x2001 or 0x2000-0x5FFF") from None
+        if od.get(key) is None:
+            raise ValueError(f"--objects {spec!r}: the EDS has no such object")
+        out.append(key)
     return out
 
 
@@ -179,11 +199,12 @@ def _snapshot_done(args: argparse.Namespace, snap: Any, failures: list[Any]) -> 
         )
     else:
         from rich.console import Console
+        from rich.markup import escape
 
         console = Console(highlight=False)
-        console.print(f"{len(snap)} parameters written to {args.file}")
+        console.print(f"{len(snap)} parameters written to {escape(str(args.file))}")
         for failure in failures:
-            console.print(f"[yellow]left out:[/] {failure}")
+            console.print(f"[yellow]left out:[/] {escape(str(failure))}")
     return _EXIT_FAILED if failures else _EXIT_OK
 
 
@@ -192,6 +213,7 @@ def _report_done(args: argparse.Namespace, report: Any) -> int:
         print(json.dumps(report.to_dict(), default=str))
     else:
         from rich.console import Console
+        from rich.markup import escape
         from rich.table import Table
 
         console = Console(highlight=False)
@@ -203,16 +225,16 @@ def _report_done(args: argparse.Namespace, report: Any) -> int:
             for param, held in report.differences:
                 table.add_row(
                     param.address,
-                    param.name,
-                    repr(param.value),
-                    "unreadable" if held is None else repr(held),
+                    escape(param.name),
+                    escape(repr(param.value)),
+                    "unreadable" if held is None else escape(repr(held)),
                     "yes" if (param.index, param.subindex) in written else "",
                 )
             console.print(table)
         for failure in report.failures:
-            console.print(f"[red]failed:[/] {failure}")
+            console.print(f"[red]failed:[/] {escape(str(failure))}")
         colour = "green" if report.ok else ("yellow" if report.dry_run else "red")
-        console.print(f"[{colour}]{report.summary}[/]")
+        console.print(f"[{colour}]{escape(report.summary)}[/]")
     if report.failures or report.aborted:
         return _EXIT_FAILED
     return _EXIT_DIFFERS if report.dry_run and report.differences else _EXIT_OK

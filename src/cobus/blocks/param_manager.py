@@ -19,6 +19,7 @@ re-parameterised) and reports it by a :class:`~cobus.master.BootStepDone` event.
 
 from __future__ import annotations
 
+import logging
 import os
 import time
 from collections.abc import Callable, Iterable, Mapping
@@ -39,6 +40,8 @@ from cobus.errors import CobusError
 from cobus.master.errors import BootStepError
 from cobus.od import DataType, ObjectDictionary, Variable
 from cobus.runtime._twin import BlockingTwin
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "AsyncParameterManager",
@@ -178,7 +181,9 @@ class ParameterReport:
             return f"{self.node}: up to date ({self.checked} parameters)"
         if self.dry_run:
             return f"{self.node}: {len(self.differences)} of {self.checked} parameters differ"
-        saved = {True: ", saved", False: ", NOT saved", None: ""}[self.saved]
+        saved = {True: ", saved", False: ", NOT saved", None: ", not saved (no save command)"}[
+            self.saved
+        ]
         return (
             f"{self.node}: re-parameterised, {len(self.written)} of {self.checked} written"
             f"{saved} and verified"
@@ -341,6 +346,8 @@ class AsyncParameterManager:
         #: The report of the last run (None before the first).
         self.last_report: ParameterReport | None = None
         self._abort = False
+        self._running = False
+        self._failures: list[ParameterFailure] = []
         self._now = _clock(node)
 
     def abort(self) -> None:
@@ -372,28 +379,39 @@ class AsyncParameterManager:
         if od is None:
             raise ValueError("a snapshot needs the node's EDS for names and types: give od=")
         chosen = list(_chosen(od, objects, communication))
+        if not chosen:
+            raise ValueError("none of those objects is a readable and writable parameter")
+        if self._running:
+            raise RuntimeError(f"the parameter manager of {self.node_name} runs already")
         values: list[tuple[Variable, Any]] = []
-        failures: list[ParameterFailure] = []
+        self._running = True
         self._abort = False
-        for done, var in enumerate(chosen):
-            self._report_progress(ParameterStep.READ, done, len(chosen))
-            probe = Parameter(var.index, var.subindex, None, var.data_type, var.name)
-            try:
-                data = await self._transfer(ParameterStep.READ, probe, None)
-                values.append((var, probe.decode(data)))
-            except _Restart:
-                failures.append(self._failures.pop())
-            except ValueError as exc:
-                failures.append(
-                    ParameterFailure(ParameterStep.READ, ParameterFault.BAD_ANSWER, probe, str(exc))
-                )
-            except _Aborted:
-                failures.append(
-                    ParameterFailure(ParameterStep.READ, ParameterFault.ABORTED, None, "abort()")
-                )
-                break
-        self._report_progress(ParameterStep.READ, len(chosen), len(chosen))
-        return parameters_of(od, values), failures
+        self._failures = []
+        try:
+            for done, var in enumerate(chosen):
+                self._report_progress(ParameterStep.READ, done, len(chosen))
+                probe = Parameter(var.index, var.subindex, None, var.data_type, var.name)
+                try:
+                    data = await self._transfer(ParameterStep.READ, probe, None)
+                except (_Restart, _Refused):
+                    continue  # (its failure is listed)
+                try:
+                    values.append((var, probe.decode(data)))
+                except ValueError as exc:
+                    self._failures.append(
+                        ParameterFailure(
+                            ParameterStep.READ, ParameterFault.BAD_ANSWER, probe, str(exc)
+                        )
+                    )
+            self._report_progress(ParameterStep.READ, len(chosen), len(chosen))
+        except _Aborted:
+            self._failures.append(
+                ParameterFailure(ParameterStep.READ, ParameterFault.ABORTED, None, "abort()")
+            )
+        finally:
+            self.step = ParameterStep.IDLE
+            self._running = False
+        return parameters_of(od, values), list(self._failures)
 
     # ------------------------------------------------------------------ the sequence
 
@@ -401,19 +419,21 @@ class AsyncParameterManager:
         params = self.parameters
         if params is None:
             raise ValueError("no parameter set: give one to the manager")
+        if self._running:
+            raise RuntimeError(f"the parameter manager of {self.node_name} runs already")
         report = ParameterReport(self.node_name, checked=len(params), dry_run=not apply)
         began = self._now()
+        self._running = True
         self._abort = False
-        self._failures: list[ParameterFailure] = []
+        self._failures = []
+        self._written: dict[tuple[int, int], Parameter] = {}
+        self._unsaved = False
         try:
             for attempt in range(self.restarts + 1):
                 report.attempts = attempt + 1
-                report.differences.clear()
-                report.written.clear()
-                report.saved = None
                 self._failures = []
                 try:
-                    await self._sequence(params, report, apply)
+                    await self._sequence(params, report, apply, first=attempt == 0)
                     break
                 except _Restart:
                     continue
@@ -424,57 +444,80 @@ class AsyncParameterManager:
             )
         finally:
             self.step = ParameterStep.IDLE
+            self._running = False
+        report.written = list(self._written.values())
+        if report.written and report.saved is None and self._unsaved and self._save_command:
+            report.saved = False  # written, then the run ended before the save went through
         report.failures = self._failures
         report.duration = self._now() - began
         self.last_report = report
         return report
 
-    async def _sequence(self, params: ParameterSet, report: ParameterReport, apply: bool) -> None:
+    @property
+    def _save_command(self) -> SaveCommand | None:
+        if not self.save or self.parameters is None or isinstance(self.port, _EcPort):
+            return None  # (the EC motor's dialect has no save command)
+        return self.parameters.save
+
+    async def _sequence(
+        self, params: ParameterSet, report: ParameterReport, apply: bool, *, first: bool
+    ) -> None:
         # READ (refused or odd answers are differences with an unknown value: writing them
-        # is the way to bring them to their set-point)
+        # is the way to bring them to their set-point; a write-only object is not read)
         held: dict[int, Any] = {}
         readable: dict[int, bool] = {}
         for n, param in enumerate(params):
             self._report_progress(ParameterStep.READ, n, len(params))
-            value, ok = await self._read(ParameterStep.READ, param)
-            held[n], readable[n] = value, ok
+            if param.readable:
+                held[n], readable[n] = await self._read(ParameterStep.READ, param)
+            else:
+                held[n], readable[n] = None, False
         self._report_progress(ParameterStep.READ, len(params), len(params))
-        # COMPARE
+        # COMPARE (the differences reported are those the node had before the first write)
         self.step = ParameterStep.COMPARE
-        todo = []
-        for n, param in enumerate(params):
-            if not readable[n] or not param.holds(held[n]):
-                report.differences.append((param, held[n] if readable[n] else None))
-                todo.append(param)
-        if not apply or not todo:
+        differences = [
+            (param, held[n] if readable[n] else None)
+            for n, param in enumerate(params)
+            if not readable[n] or not param.holds(held[n])
+        ]
+        if first:
+            report.differences = differences
+        if not apply:
             self.step = ParameterStep.DONE
-            report.verified = apply and not self._failures
             return
+        todo = [param for param, _ in differences]
         # what could not be read is written: its read problems are not failures now
         self._failures = [f for f in self._failures if f.step is not ParameterStep.READ]
         # WRITE
         refused = 0
+        written_now = []
         for n, param in enumerate(todo):
             self._report_progress(ParameterStep.WRITE, n, len(todo))
             try:
                 await self._transfer(ParameterStep.WRITE, param, param.encode())
-                report.written.append(param)
             except _Refused:
                 refused += 1
-        self._report_progress(ParameterStep.WRITE, len(todo), len(todo))
-        # SAVE
-        command = params.save if self.save else None
-        if command is not None and report.written:
+                continue
+            written_now.append(param)
+            self._written[(param.index, param.subindex)] = param
+            self._unsaved = True
+        if todo:
+            self._report_progress(ParameterStep.WRITE, len(todo), len(todo))
+        # SAVE (also what an earlier attempt wrote and could not save)
+        command = self._save_command
+        if command is not None and self._unsaved:
             if refused:
-                report.saved = False
+                report.saved = False  # a half-applied set is not made permanent
             else:
                 self._report_progress(ParameterStep.SAVE, 0, 1)
                 report.saved = await self._save(command)
+                self._unsaved = not report.saved
                 self._report_progress(ParameterStep.SAVE, 1, 1)
-        # READ BACK and VERIFY
+        # READ BACK and VERIFY what was written now
         mismatched = False
-        for n, param in enumerate(report.written):
-            self._report_progress(ParameterStep.READ_BACK, n, len(report.written))
+        checked = [p for p in written_now if p.readable]
+        for n, param in enumerate(checked):
+            self._report_progress(ParameterStep.READ_BACK, n, len(checked))
             value, ok = await self._read(ParameterStep.READ_BACK, param)
             self.step = ParameterStep.VERIFY
             if ok and not param.holds(value):
@@ -488,7 +531,8 @@ class AsyncParameterManager:
                         actual=value,
                     )
                 )
-        self._report_progress(ParameterStep.READ_BACK, len(report.written), len(report.written))
+        if checked:
+            self._report_progress(ParameterStep.READ_BACK, len(checked), len(checked))
         if mismatched:
             raise _Restart()
         self.step = ParameterStep.DONE
@@ -558,7 +602,10 @@ class AsyncParameterManager:
     def _report_progress(self, step: ParameterStep, done: int, total: int) -> None:
         self.step = step
         if self.progress is not None:
-            self.progress(step, done, total)
+            try:
+                self.progress(step, done, total)
+            except Exception:  # a display's failure must not leave a node half-written
+                log.exception("parameter manager: progress callback %r failed", self.progress)
 
 
 class _Refused(Exception):
@@ -568,34 +615,39 @@ class _Refused(Exception):
 _U32 = DataType.UNSIGNED32
 
 
+def is_parameter(var: Variable) -> bool:
+    """Whether ``var`` is a parameter a set may hold: readable and writable, not a DOMAIN,
+    not the save/restore commands (1010h/1011h), not a PDO's communication or mapping
+    parameter (the master configures those), not a record's sub-index 0."""
+    if not (var.readable and var.writable) or var.data_type is DataType.DOMAIN:
+        return False
+    if var.index in (0x1010, 0x1011) or 0x1400 <= var.index <= 0x1BFF:
+        return False
+    return not (var.subindex == 0 and var.parent is not None)
+
+
 def _chosen(
     od: ObjectDictionary,
     objects: Iterable[int | tuple[int, int] | str] | None,
     communication: bool,
 ) -> Iterable[Variable]:
-    if objects is not None:
-        for key in objects:
-            if isinstance(key, tuple):
-                var = od.get_variable(*key)
-                if var is None:
-                    raise ValueError(f"the EDS has no object 0x{key[0]:04X}:{key[1]:02X}")
-                yield var
-                continue
-            obj = od[key]
-            if isinstance(obj, Variable):
-                yield obj
-            else:
-                yield from (v for v in obj if v.subindex > 0 and v.readable and v.writable)
+    if objects is None:
+        low = 0x1000 if communication else 0x2000
+        yield from (v for v in od.variables() if v.index >= low and is_parameter(v))
         return
-    low = 0x1000 if communication else 0x2000
-    for var in od.variables():
-        if var.index < low or not (var.readable and var.writable):
-            continue
-        if var.index in (0x1010, 0x1011) or 0x1400 <= var.index <= 0x1BFF:
-            continue
-        if var.data_type.name == "DOMAIN" or (var.subindex == 0 and var.parent is not None):
-            continue
-        yield var
+    for key in objects:
+        if isinstance(key, tuple):
+            var = od.get_variable(*key)
+            if var is None:
+                raise ValueError(f"the EDS has no object 0x{key[0]:04X}:{key[1]:02X}")
+            found: Iterable[Variable] = [var]
+        else:
+            obj = od.get(key)
+            if obj is None:
+                shown = f"0x{key:04X}" if isinstance(key, int) else repr(key)
+                raise ValueError(f"the EDS has no object {shown}")
+            found = [obj] if isinstance(obj, Variable) else list(obj)
+        yield from (v for v in found if is_parameter(v))
 
 
 class ParameterManager(BlockingTwin, twin_of=AsyncParameterManager):
@@ -621,6 +673,8 @@ class ParameterManager(BlockingTwin, twin_of=AsyncParameterManager):
             if not isinstance(aio_target, Master):
                 raise TypeError("ParameterManager(master, ..., node=NAME): node= is for a master")
             aio_target = runner.call(aio_target.node, node)
+        if options.get("progress") is not None:  # in the callback thread, as every callback
+            options["progress"] = runner.callback(options["progress"])
         aio = runner.call(lambda: AsyncParameterManager(aio_target, parameters, **options))
         super().__init__(aio, runner)
 
@@ -643,6 +697,7 @@ class Parameterise:
         self.parameters = parameters
         self.options = options
         self.reports: dict[int, ParameterReport] = {}
+        self._sets: dict[int, ParameterSet] = {}  # a file read once per node (its own EDS)
 
     @property
     def status(self) -> Mapping[int, str]:
@@ -650,14 +705,16 @@ class Parameterise:
         return {n: r.summary for n, r in self.reports.items()}
 
     async def __call__(self, node: Any) -> str:
+        self.reports.pop(node.node_id, None)
         try:
-            manager = AsyncParameterManager(node, self.parameters, **self.options)
-        except ParameterFileError as exc:
+            source = self._sets.get(node.node_id, self.parameters)
+            manager = AsyncParameterManager(node, source, **self.options)
+        except (ParameterFileError, ValueError, TypeError) as exc:
             raise BootStepError(str(exc)) from None
         if manager.parameters is not None:
-            self.parameters = manager.parameters  # read a file once
+            self._sets[node.node_id] = manager.parameters
         report = await manager.apply()
         self.reports[node.node_id] = report
         if not report.ok:
-            raise BootStepError(str(report))
+            raise BootStepError(report.summary)
         return report.summary

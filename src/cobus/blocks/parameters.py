@@ -26,6 +26,7 @@ import csv
 import io
 import math
 import os
+import re
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -120,6 +121,8 @@ class Parameter:
     name: str = ""
     #: Where the file sets it (None: not from a file).
     line: int | None = None
+    #: False for a write-only object: it is written every time, never read or verified.
+    readable: bool = True
 
     @property
     def address(self) -> str:
@@ -135,21 +138,27 @@ class Parameter:
         return encode(self.data_type, self.value)
 
     def decode(self, data: bytes) -> Any:
-        """A value the node answered (integers of a fixed size: zero bytes beyond the size,
-        as an expedited answer without size indication has, are dropped).
+        """A value the node answered (integers: bytes beyond the type's size, as an expedited
+        answer without size indication has, are dropped; a shorter answer is extended).
         :class:`~cobus.od.DataLengthError` when the length does not fit the type."""
         size = self.data_type.size
-        if size is not None and len(data) > size and not any(data[size:]):
-            data = data[:size]
+        if size is not None and len(data) != size and self.data_type.is_integer and data:
+            if len(data) > size:  # an expedited answer without size: 4 bytes
+                data = data[:size]
+            else:  # a device answering fewer bytes than its type takes
+                fill = b"\xff" if self.data_type.is_signed and data[-1] & 0x80 else b"\0"
+                data = data + fill * (size - len(data))
         return decode(self.data_type, data)
 
     def holds(self, value: Any) -> bool:
         """Whether ``value`` (as read) is the set-point (compared as encoded, so a REAL32 is
         compared at its own precision)."""
         try:
-            return encode(self.data_type, value) == self.encode()
+            if encode(self.data_type, value) == self.encode():
+                return True
         except (ValueError, TypeError):
             return False
+        return bool(self.data_type.is_real and value == self.value)  # -0.0 and 0.0
 
     def matches(self, data: bytes) -> bool:
         """Whether the node's answer ``data`` holds the set-point (compared as encoded, so a
@@ -203,10 +212,13 @@ class ParameterSet:
     def from_dcf(
         cls, od: ObjectDictionary, *, save: SaveCommand | None = None, path: str | None = None
     ) -> ParameterSet:
-        """Every writable object of ``od`` with a ParameterValue (a DCF), in index order."""
+        """Every parameter of ``od`` with a ParameterValue (a DCF), in index order: readable
+        and writable, without 1010h/1011h and the PDO parameters (the master's part)."""
+        from cobus.blocks.param_manager import is_parameter
+
         params = []
         for var in od.variables():
-            if var.parameter_value is None or not var.writable:
+            if var.parameter_value is None or not is_parameter(var):
                 continue
             params.append(_parameter(var, var.parameter_value, None))
         return cls(tuple(params), save if save is not None else SaveCommand(), path, od)
@@ -219,8 +231,9 @@ class ParameterSet:
             lines.append("save: false")
         else:
             s = self.save
-            signature = s.signature.decode("latin-1") if s.signature.isascii() else None
-            sig = f"signature: {signature}" if signature else f"signature: {s.signature.hex()}"
+            text = s.signature.decode("latin-1")
+            number = int.from_bytes(s.signature, "little")
+            sig = f"signature: {text}" if text.isalnum() else f"signature: 0x{number:08X}"
             lines.append(f"save: {{index: 0x{s.index:04X}, subindex: {s.subindex}, {sig}}}")
         lines.append("parameters:")
         for p in self.parameters:
@@ -266,7 +279,7 @@ def _yaml_value(value: Any) -> str:
 
 
 def _parameter(var: Variable, value: Any, line: int | None) -> Parameter:
-    return Parameter(var.index, var.subindex, value, var.data_type, var.name, line)
+    return Parameter(var.index, var.subindex, value, var.data_type, var.name, line, var.readable)
 
 
 # ------------------------------------------------------------------------------- reading
@@ -301,10 +314,13 @@ class _Reader:
         else:
             address = _address(key)
             if address is None:
+                looks = isinstance(key, str) and bool(_ADDRESS_LIKE.match(key.strip()))
                 self.error(
                     line,
                     shown,
-                    'without an EDS objects are named by address, e.g. "0x20A8:00"; add '
+                    'not an address: index 0001h-FFFFh, sub-index 00h-FFh, e.g. "0x20A8:00"'
+                    if looks
+                    else 'without an EDS objects are named by address, e.g. "0x20A8:00"; add '
                     "'eds: FILE' to name them",
                 )
                 return None
@@ -393,6 +409,9 @@ class _Reader:
         self.use_dictionary(od, str(path))
 
 
+_ADDRESS_LIKE = re.compile(r"(?i)(0x)?[0-9a-f]+h?\s*(:|sub)")
+
+
 def _address(key: Any) -> tuple[int, int] | None:
     if not isinstance(key, str):
         return None
@@ -441,6 +460,8 @@ def _value(raw: Any, data_type: DataType) -> Any:
         if isinstance(raw, bool | int) and raw in (0, 1):
             return bool(raw)
         raise ValueError("write true or false")
+    if isinstance(raw, str) and not raw.strip() and data_type is not DataType.VISIBLE_STRING:
+        raise ValueError("the value is missing")
     if data_type.is_integer:
         if isinstance(raw, str):
             text = raw.strip().replace("_", "")
@@ -454,8 +475,8 @@ def _value(raw: Any, data_type: DataType) -> Any:
         value = float(raw.strip()) if isinstance(raw, str) else raw
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ValueError("give a number")
-        if math.isnan(value):
-            raise ValueError("NaN cannot be compared: give a number")
+        if not math.isfinite(value):
+            raise ValueError("give a finite number")
         return float(value)
     if data_type in (DataType.VISIBLE_STRING, DataType.UNICODE_STRING):
         if not isinstance(raw, str):
@@ -595,23 +616,46 @@ def _read_csv(text: str, reader: _Reader) -> list[Parameter]:
 
 
 def _numbers(index: str, sub: str) -> tuple[int, int] | None:
+    """The index (always hex: ``2001``, ``0x2001``, ``2001h``) and the sub-index (decimal,
+    or hex with ``0x``/``h``)."""
+
+    def number(text: str, hex_default: bool) -> int:
+        text = text.strip().lower()
+        if text.startswith("0x"):
+            return int(text[2:], 16)
+        if text.endswith("h"):
+            return int(text[:-1], 16)
+        return int(text, 16 if hex_default else 10)
+
     try:
-        i, s = int(index.strip().removesuffix("h"), 0), int(sub.strip(), 0)
+        i, s = number(index, True), number(sub, False)
     except ValueError:
-        try:
-            i, s = int(index.strip().removesuffix("h"), 16), int(sub.strip(), 0)
-        except ValueError:
-            return None
+        return None
     if not (0 < i <= 0xFFFF and 0 <= s <= 0xFF):
         return None
     return i, s
 
 
+_KEEP: Any = object()
+
+
 def load_parameters(
-    path: str | os.PathLike[str], *, od: ObjectDictionary | None = None
+    path: str | os.PathLike[str],
+    *,
+    od: ObjectDictionary | None = None,
+    save: SaveCommand | None = _KEEP,
 ) -> ParameterSet:
     """Read a parameter file: ``.csv`` as CSV, ``.dcf`` as a DCF (its ParameterValues),
-    anything else as YAML. Raises :class:`ParameterFileError` with every problem."""
+    anything else as YAML. ``save`` replaces the file's save command (None: never save; CSV
+    and DCF files have none of their own: CiA 301's 1010h sub 1). Raises
+    :class:`ParameterFileError` with every problem."""
+    pset = _load(path, od)
+    if save is not _KEEP:
+        pset.save = save
+    return pset
+
+
+def _load(path: str | os.PathLike[str], od: ObjectDictionary | None) -> ParameterSet:
     name = os.fspath(path)
     if name.lower().endswith(".dcf"):
         try:
@@ -620,7 +664,7 @@ def load_parameters(
             raise ParameterFileError([ParameterProblem(name, None, None, str(exc))]) from None
         return ParameterSet.from_dcf(dcf, path=name)
     try:
-        text = Path(name).read_text(encoding="utf-8")
+        text = Path(name).read_text(encoding="utf-8-sig")  # (a BOM, as Excel writes it)
     except (OSError, UnicodeDecodeError) as exc:
         reason = exc.strerror if isinstance(exc, OSError) else str(exc)
         raise ParameterFileError(

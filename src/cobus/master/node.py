@@ -319,6 +319,7 @@ class ManagedNode:
         self._stop_supervision()
         self._clear_flags()
         self.expected_nmt = None
+        self.step_results.clear()  # (what the steps say of this boot only)
         self.boot_count += 1
         if cfg.do_not_initialise:
             mode = "none"
