@@ -3,9 +3,24 @@ master, the drive profiles and any node with an SDO server.
 
 - :mod:`cobus.blocks.parameters` — parameter sets from YAML, CSV or a DCF;
 - :mod:`cobus.blocks.param_manager` — read, compare, write, save, read back and verify a
-  node's parameters, by hand or by the master before it starts the node.
+  node's parameters, by hand or by the master before it starts the node;
+- :mod:`cobus.blocks.alarms` — the alarm handler: active alarms from codes, rules, EMCY and
+  the master's events, the rotating current alarm, acknowledgement;
+  :mod:`cobus.blocks.alarm_history` its SQLite history, :mod:`cobus.blocks.alarm_texts`
+  the code → text tables.
 """
 
+from cobus.blocks.alarm_history import AlarmHistory, AlarmHistoryError, AlarmRecord
+from cobus.blocks.alarm_texts import MasterAlarm, Severity, table_text
+from cobus.blocks.alarms import (
+    Alarm,
+    AlarmAcknowledged,
+    AlarmCleared,
+    AlarmEvent,
+    AlarmHandler,
+    AlarmRaised,
+    AlarmRuleError,
+)
 from cobus.blocks.param_manager import (
     AsyncParameterManager,
     ParameterFailure,
@@ -25,7 +40,18 @@ from cobus.blocks.parameters import (
 )
 
 __all__ = [
+    "Alarm",
+    "AlarmAcknowledged",
+    "AlarmCleared",
+    "AlarmEvent",
+    "AlarmHandler",
+    "AlarmHistory",
+    "AlarmHistoryError",
+    "AlarmRaised",
+    "AlarmRecord",
+    "AlarmRuleError",
     "AsyncParameterManager",
+    "MasterAlarm",
     "Parameter",
     "ParameterFailure",
     "ParameterFileError",
@@ -36,6 +62,8 @@ __all__ = [
     "ParameterStep",
     "Parameterise",
     "SaveCommand",
+    "Severity",
     "load_parameters",
     "loads_parameters",
+    "table_text",
 ]

@@ -1,0 +1,351 @@
+"""The alarm handler: rotation timing, edge semantics, AND/OR rules, the SQLite history
+(queries, CSV, retention, restart, a crash mid-write), and the handler fed by the simulated
+thesis rig's faults through the master and the ZAPI adapter on the simulated clock."""
+
+from __future__ import annotations
+
+import csv
+import multiprocessing
+import os
+import signal
+import sqlite3
+import textwrap
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from cobus.blocks.alarm_history import AlarmHistory, AlarmHistoryError
+from cobus.blocks.alarm_texts import MasterAlarm, Severity, table_text
+from cobus.blocks.alarms import (
+    AlarmAcknowledged,
+    AlarmCleared,
+    AlarmEvent,
+    AlarmHandler,
+    AlarmRaised,
+    AlarmRuleError,
+)
+from cobus.device import export_eds
+from cobus.master import BlockingMaster, loads_network
+from cobus.profiles import Drive402
+from cobus.profiles.zapi import ZapiDrive
+from cobus.runtime import Network
+from cobus.sim import Rig, start_rig
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+EPOCH = 1_750_000_000.0
+
+
+def handler(tmp_path: Path | None = None, **options: Any) -> tuple[AlarmHandler, Clock]:
+    clock = Clock()
+    history = None if tmp_path is None else tmp_path / "alarms.db"
+    h = AlarmHandler(history, clock=clock, wall_clock=lambda: EPOCH + clock.now, **options)
+    return h, clock
+
+
+def shown(h: AlarmHandler) -> int | None:
+    alarm = h.current()
+    return None if alarm is None else alarm.code
+
+
+def test_the_current_alarm_rotates_each_view_time_and_is_none_when_none_is_active() -> None:
+    h, clock = handler()
+    assert shown(h) is None
+    h.raise_alarm("zapi", 17)
+    clock.now = 1.0
+    h.raise_alarm("zapi", 248, node=8)
+    h.raise_alarm("plant", 3, text="door open")
+    seen = []
+    for t in range(0, 13):
+        clock.now = float(t)
+        seen.append(shown(h))
+    # 17 from 0 s (raised alone), then each for 3 s in the order raised
+    assert seen == [17, 17, 17, 248, 248, 248, 3, 3, 3, 17, 17, 17, 248]
+    clock.now = 13.5
+    h.clear_alarm("zapi", 248, node=8)  # the shown one goes: the next shows at once
+    assert shown(h) == 3
+    clock.now = 16.4
+    assert shown(h) == 3
+    clock.now = 16.5
+    assert shown(h) == 17
+    h.clear_alarm("zapi", 17)
+    h.clear_alarm("plant", 3)
+    assert shown(h) is None and h.active == ()
+    with pytest.raises(ValueError, match="view_time=0"):
+        AlarmHandler(view_time=0)
+
+
+def test_each_activation_and_clearing_is_logged_exactly_once(tmp_path: Path) -> None:
+    h, clock = handler(tmp_path)
+    events: list[AlarmEvent] = []
+    h.add_listener(events.append)
+    for _ in range(3):  # the same code every cycle, as a PLC would feed it
+        h.set_code("zapi", 17, node=8)
+        clock.now += 0.02
+    clock.now = 5.0
+    h.set_code("zapi", 248, node=8)  # replaces 17
+    h.set_code("zapi", 248, node=8)
+    clock.now = 9.0
+    assert h.acknowledge(by="anna") == 1 and h.acknowledge(by="bob") == 0
+    h.set_code("zapi", 0, node=8)
+    h.set_code("zapi", 0, node=8)
+    assert not h.clear_alarm("zapi", 248, node=8)
+    rows = h.history.query(newest_first=False) if h.history else []
+    assert [(r.code, r.raised_at - EPOCH, r.cleared_at) for r in rows] == [
+        (17, 0.0, EPOCH + 5.0),
+        (248, 5.0, EPOCH + 9.0),
+    ]
+    assert rows[0].text == "LOGIC FAILURE #3" and rows[1].text == "CAN BUS KO"
+    assert rows[1].acknowledged_by == "anna" and rows[0].acknowledged_by is None
+    assert [type(e) for e in events] == [
+        AlarmRaised,
+        AlarmCleared,
+        AlarmRaised,
+        AlarmAcknowledged,
+        AlarmCleared,
+    ]
+    h.close()
+
+
+def test_rules_combine_conditions_with_and_or_not() -> None:
+    h, _ = handler()
+    h.add_rule(101, "overtemp and not fan_ok or door_open", text="cabinet too hot")
+    h.add_rule(102, "estop", text="emergency stop", severity=Severity.WARNING)
+    assert h.active == ()
+    h.set_conditions({"overtemp": True, "fan_ok": True})
+    assert h.active == ()
+    h.set_condition("fan_ok", False)
+    assert [(a.source, a.code, a.text) for a in h.active] == [("rule", 101, "cabinet too hot")]
+    h.set_conditions({"overtemp": False, "door_open": True})  # together: no flicker
+    assert [a.code for a in h.active] == [101]
+    h.set_condition("door_open", False)
+    h.set_condition("estop", True)
+    assert [(a.code, a.severity) for a in h.active] == [(102, Severity.WARNING)]
+    for bad, reason in (
+        ("", "write conditions"),
+        ("a and", "does not read"),
+        ("__import__('os')", "only condition names"),
+        ("a.b", "only condition names"),
+        ("a == b", "only condition names"),
+    ):
+        with pytest.raises(AlarmRuleError, match=reason):
+            h.add_rule(200, bad, text="x")
+    with pytest.raises(AlarmRuleError, match="there is a rule 101 already"):
+        h.add_rule(101, "x", text="again")
+    with pytest.raises(ValueError, match="True or False"):
+        h.set_condition("estop", 1)  # type: ignore[arg-type]
+
+
+def test_codes_show_their_text_or_at_least_their_number_and_class() -> None:
+    assert table_text("zapi", 17) == "LOGIC FAILURE #3"
+    assert table_text("zapi", 99) == "ALARM 99"
+    assert table_text("cia402", 0x7121) == "Motor blocked"
+    assert table_text("cia402", 0x4399) == "Temperature (4399h)"
+    assert table_text("cia301", 0x8130) == "Life guard error or heartbeat error"
+    assert table_text("cia301", 0x4399) == "Temperature (4399h)"
+    assert table_text("stober", 33) == "overcurrent"
+    assert table_text("stober", 99) == "E82 event 99"
+    assert table_text("ecmotor", 9) == "max current"
+    assert table_text("ecmotor", 20) == "m_sss bit 20"
+    assert table_text("master", MasterAlarm.BUS_OFF) == "CAN bus-off"
+    with pytest.raises(KeyError, match="no alarm text table 'acme'"):
+        table_text("acme", 1)
+    h, _ = handler()
+    assert h.raise_alarm("plant", 7).text == "alarm 7"
+
+
+def test_history_queries_csv_and_retention(tmp_path: Path) -> None:
+    with AlarmHistory(tmp_path / "h.db", max_rows=3) as history:
+        rows = []
+        for n in range(6):
+            rows.append(
+                history.opened(
+                    source="emcy",
+                    node=n % 2 + 1,
+                    code=0x1000 + n,
+                    text=f"e{n}",
+                    severity="alarm",
+                    at=EPOCH + n,
+                )
+            )
+            if n != 0:
+                history.cleared(rows[-1], EPOCH + n + 0.5)
+        history.cleared(rows[1], EPOCH + 99)  # a second clearing changes nothing
+        # the first is still active: never pruned; of the cleared, the newest 3 are kept
+        assert [r.code for r in history.query(newest_first=False)] == [
+            0x1000,
+            0x1003,
+            0x1004,
+            0x1005,
+        ]
+        assert [r.code for r in history.query(node=2)] == [0x1005, 0x1003]
+        assert [r.code for r in history.query(since=EPOCH + 3, until=EPOCH + 5)] == [
+            0x1004,
+            0x1003,
+        ]
+        assert [r.code for r in history.query(active=True)] == [0x1000]
+        assert [r.code for r in history.query(code=0x1004, source="emcy")] == [0x1004]
+        assert len(history) == 4 and history.check() == "ok"
+        count = history.export_csv(tmp_path / "h.csv", node=2)
+        lines = list(csv.reader((tmp_path / "h.csv").open()))
+        assert count == 2 and lines[0][:3] == ["raised", "cleared", "node"]
+        assert lines[1][2:6] == ["2", "emcy", str(0x1003), "e3"]
+        assert lines[1][0].endswith("+00:00")
+    with AlarmHistory(tmp_path / "age.db", max_rows=None, max_age=10) as history:
+        old = history.opened(source="s", node=None, code=1, text="t", severity="info", at=0.0)
+        history.cleared(old, 1.0)
+        history.opened(source="s", node=None, code=2, text="t", severity="info", at=100.0)
+        assert [r.code for r in history] == [2]
+
+
+def test_a_restart_keeps_the_history_and_the_active_alarms(tmp_path: Path) -> None:
+    h, clock = handler(tmp_path)
+    h.raise_alarm("zapi", 17, node=8)
+    h.raise_alarm("plant", 5, text="low air pressure", severity=Severity.WARNING)
+    h.acknowledge(by="anna")
+    h.close()
+    again, clock = handler(tmp_path)  # the program starts again
+    assert [(a.code, a.acknowledged_by, a.severity) for a in again.active] == [
+        (17, "anna", Severity.ALARM),
+        (5, "anna", Severity.WARNING),
+    ]
+    again.set_code("zapi", 17, node=8)  # the source reports it again: no new row
+    clock.now = 4.0
+    again.set_code("zapi", 0, node=8)
+    assert again.history is not None
+    rows = again.history.query(newest_first=False)
+    assert [(r.code, r.cleared_at) for r in rows] == [(17, EPOCH + 4.0), (5, None)]
+    again.close()
+
+
+def _write_alarms(path: str, done: Any) -> None:
+    history = AlarmHistory(path)
+    n = 0
+    while True:
+        row = history.opened(
+            source="soak", node=1, code=n, text="x" * 200, severity="alarm", at=float(n)
+        )
+        history.cleared(row, n + 0.5)
+        n += 1
+        done.value = n
+
+
+def test_a_crash_mid_write_loses_nothing_committed(tmp_path: Path) -> None:
+    path = str(tmp_path / "crash.db")
+    ctx = multiprocessing.get_context("fork")
+    done = ctx.Value("i", 0)
+    child = ctx.Process(target=_write_alarms, args=(path, done))
+    child.start()
+    deadline = time.monotonic() + 20
+    while done.value < 200 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert child.pid is not None
+    os.kill(child.pid, signal.SIGKILL)  # mid-write, most likely
+    child.join()
+    reported = done.value
+    assert reported >= 200
+    with AlarmHistory(path) as history:
+        assert history.check() == "ok"
+        rows = history.query(newest_first=False)
+        assert len(rows) >= reported  # every committed activation is there
+        assert [r.code for r in rows] == list(range(len(rows)))
+        assert all(r.cleared_at == r.code + 0.5 for r in rows[:reported])
+
+
+def test_a_file_that_is_no_alarm_history_is_refused(tmp_path: Path) -> None:
+    (tmp_path / "text.db").write_text("hello " * 1000)
+    with pytest.raises(AlarmHistoryError, match="is not an alarm history database"):
+        AlarmHistory(tmp_path / "text.db")
+    other = sqlite3.connect(tmp_path / "other.db")
+    other.execute("CREATE TABLE customers (name TEXT)")
+    other.commit()
+    other.close()
+    with pytest.raises(AlarmHistoryError, match="tables of another program"):
+        AlarmHistory(tmp_path / "other.db")
+    with pytest.raises(ValueError, match="max_rows=0"):
+        AlarmHistory(tmp_path / "x.db", max_rows=0)
+
+
+RIG = """
+bus: embedded
+devices:
+  - {node: 8, kind: zapi_ace2, name: ace2 traction}
+  - {node: 10, kind: cia402_drive, name: servo}
+"""
+NETWORK = """
+master: {node_id: 1, sync_period: 20}
+nodes:
+  zapi: {node_id: 8, eds: zapi.eds, mandatory: true, do_not_initialise: true}
+  servo: {node_id: 10, eds: servo.eds, mandatory: false, heartbeat_time: 100}
+"""
+
+
+def test_the_handler_fed_by_the_thesis_rig_through_master_and_zapi_adapter(
+    tmp_path: Path,
+) -> None:
+    with Network(simulated=True) as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        (tmp_path / "zapi.eds").write_text(export_eds(rig.aio.devices[8].od))
+        (tmp_path / "servo.eds").write_text(export_eds(rig.aio.devices[10].od))
+        master = BlockingMaster(net, loads_network(textwrap.dedent(NETWORK), base_dir=tmp_path))
+        master.boot(timeout=10)
+        zapi = ZapiDrive(master, "zapi")
+        alarms = AlarmHandler(
+            tmp_path / "alarms.db", clock=net.time, wall_clock=lambda: EPOCH + net.time()
+        )
+        alarms.attach_master(master, emcy_tables={"servo": "cia402"})
+        alarms.attach_zapi(zapi)
+        net.sleep(0.5)
+        assert alarms.active == () and alarms.current() is None
+
+        rig.inject(8, "alarm", code=17)  # the inverter's LOGIC FAILURE #3
+        net.sleep(0.2)
+        rig.inject(10, "drive_fault", code=0x7121)  # the servo: motor blocked
+        net.sleep(0.2)
+        texts = [str(a) for a in alarms.active]
+        assert texts == [
+            "node 8 zapi 17: LOGIC FAILURE #3",
+            # the alarm drops the inverter to pre-operational: its TPDO1 stops
+            "node 8 zapi_check 1: handshake lost (no TPDO1 for 60 ms)",
+            "node 10 emcy 28961: Motor blocked (7121h)",
+        ]
+        first = alarms.current()
+        net.sleep(3.0)
+        assert alarms.current() is not first  # rotated after view_time
+
+        Drive402(master, "servo").fault_reset()  # EMCY 0000h clears the node's emergencies
+        net.sleep(0.2)
+        assert [a.source for a in alarms.active] == ["zapi", "zapi_check"]
+        zapi.acknowledge()
+        net.sleep(0.5)
+        assert alarms.active == ()
+
+        rig.inject(10, "drive_fault", code=0x2310)
+        net.sleep(0.2)
+        assert [a.code for a in alarms.active] == [0x2310]
+        rig.inject(10, "power_loss")  # heartbeat lost: the master's alarm
+        net.sleep(0.5)
+        lost = [a for a in alarms.active if a.source == "master"]
+        assert [(a.node, a.code) for a in lost] == [(10, MasterAlarm.ERROR_CONTROL_LOST)]
+        assert lost[0].text == "heartbeat or node guarding lost: heartbeat lost"
+        rig.inject(10, "power_return")
+        net.sleep(5)
+        # operational again; the boot-up voided the emergency of before the power loss
+        assert alarms.active == () and alarms.current() is None
+        assert alarms.history is not None
+        rows = alarms.history.query(newest_first=False)
+        keys = [(r.source, r.node, r.code) for r in rows]
+        assert keys.count(("zapi", 8, 17)) == 1 and keys.count(("emcy", 10, 0x7121)) == 1
+        assert keys.count(("master", 10, MasterAlarm.ERROR_CONTROL_LOST)) == 1
+        assert all(r.cleared_at is not None for r in rows)
+        alarms.close()
+        master.stop()
