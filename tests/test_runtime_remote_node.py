@@ -350,7 +350,12 @@ def test_emergencies_keep_their_history_and_active_errors():
 
 def test_every_async_operation_has_its_blocking_twin():
     import cobus.sim.blocking
-    from cobus.blocks import AsyncParameterManager, ParameterManager
+    from cobus.blocks import (
+        AsyncNetworkVariables,
+        AsyncParameterManager,
+        NetworkVariables,
+        ParameterManager,
+    )
     from cobus.device import BlockingDevice, Device
     from cobus.master import BlockingMaster, Master
     from cobus.profiles import AsyncDrive402, Drive402
@@ -382,6 +387,7 @@ def test_every_async_operation_has_its_blocking_twin():
         AsyncIo401: Io401,
         AsyncAxes: Axes,
         AsyncParameterManager: ParameterManager,
+        AsyncNetworkVariables: NetworkVariables,
     }
     # what a blocking face adds: letting the network run (async code awaits the network)
     added: dict[type, set[str]] = {

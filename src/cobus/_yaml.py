@@ -9,13 +9,14 @@ A number of more than 40 digits is refused (a value no CANopen type holds)."""
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from typing import Any
 
 import yaml
 
-__all__ = ["LineMap", "LineSeq", "YamlProblem", "line_of", "read_yaml"]
+__all__ = ["LineMap", "LineSeq", "YamlProblem", "line_of", "milliseconds", "read_yaml"]
 
 
 class LineMap(dict[Any, Any]):
@@ -158,3 +159,26 @@ def read_yaml(text: str) -> tuple[Any, list[YamlProblem]]:
         for key, line in loader.duplicates
     ]
     return data, problems
+
+
+_DURATION = re.compile(r"\s*([0-9]+(?:\.[0-9]*)?|\.[0-9]+)\s*(us|µs|ms|s)?\s*\Z")
+_UNIT_MS = {"us": 0.001, "µs": 0.001, "ms": 1.0, "s": 1000.0, None: 1.0}
+
+
+def milliseconds(value: Any, high: float = 1e9) -> float:
+    """A duration in milliseconds from a data file: a number (ms) or text with a unit
+    (``"1.5 s"``, ``"500 us"``); ValueError says why not."""
+    if isinstance(value, str):
+        match = _DURATION.match(value)
+        if match is None:
+            raise ValueError(
+                f"{value!r} is not a duration: write milliseconds or e.g. '1.5 s', '500 us'"
+            )
+        ms = float(match.group(1)) * _UNIT_MS[match.group(2)]
+    elif isinstance(value, bool) or not isinstance(value, int | float) or math.isnan(value):
+        raise ValueError(f"{value!r} is not a duration in milliseconds")
+    else:
+        ms = float(value)
+    if not 0 <= ms <= high:
+        raise ValueError(f"{ms:g} ms is out of range: use 0..{high:g} ms")
+    return ms

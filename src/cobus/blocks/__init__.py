@@ -7,7 +7,10 @@ master, the drive profiles and any node with an SDO server.
 - :mod:`cobus.blocks.alarms` — the alarm handler: active alarms from codes, rules, EMCY and
   the master's events, the rotating current alarm, acknowledgement;
   :mod:`cobus.blocks.alarm_history` its SQLite history, :mod:`cobus.blocks.alarm_texts`
-  the code → text tables.
+  the code → text tables;
+- :mod:`cobus.blocks.netvars` — CAN network variables between controllers, lists defined in
+  one shared file (:mod:`cobus.blocks.netvar_lists`; wire format in
+  ``docs/network-variables.md``).
 """
 
 from cobus.blocks.alarm_history import AlarmHistory, AlarmHistoryError, AlarmRecord
@@ -20,6 +23,23 @@ from cobus.blocks.alarms import (
     AlarmHandler,
     AlarmRaised,
     AlarmRuleError,
+)
+from cobus.blocks.netvar_lists import (
+    NetVarConfigError,
+    NetVarDefinition,
+    VarList,
+    load_netvars,
+    loads_netvars,
+)
+from cobus.blocks.netvars import (
+    AsyncNetworkVariables,
+    ListIncomplete,
+    ListMalformed,
+    ListReceived,
+    ListRequested,
+    ListStale,
+    NetVarEvent,
+    NetworkVariables,
 )
 from cobus.blocks.param_manager import (
     AsyncParameterManager,
@@ -50,8 +70,18 @@ __all__ = [
     "AlarmRaised",
     "AlarmRecord",
     "AlarmRuleError",
+    "AsyncNetworkVariables",
     "AsyncParameterManager",
+    "ListIncomplete",
+    "ListMalformed",
+    "ListReceived",
+    "ListRequested",
+    "ListStale",
     "MasterAlarm",
+    "NetVarConfigError",
+    "NetVarDefinition",
+    "NetVarEvent",
+    "NetworkVariables",
     "Parameter",
     "ParameterFailure",
     "ParameterFileError",
@@ -63,7 +93,10 @@ __all__ = [
     "Parameterise",
     "SaveCommand",
     "Severity",
+    "VarList",
+    "load_netvars",
     "load_parameters",
+    "loads_netvars",
     "loads_parameters",
     "table_text",
 ]

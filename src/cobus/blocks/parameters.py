@@ -326,7 +326,7 @@ class _Reader:
                 return None
         data_type: DataType | None = var.data_type if var is not None else None
         if type_name is not None:
-            given = _data_type(type_name)
+            given = data_type_named(type_name)
             if given is None:
                 names = ", ".join(t.name for t in DataType if t is not DataType.DOMAIN)
                 self.error(line, shown, f"type {type_name!r} is not a CiA 301 type ({names})")
@@ -429,7 +429,9 @@ def _address(key: Any) -> tuple[int, int] | None:
     return index, sub
 
 
-def _data_type(name: Any) -> DataType | None:
+def data_type_named(name: Any) -> DataType | None:
+    """The CiA 301 type ``name`` means: ``UNSIGNED16``, ``u16``, ``uint16``, ``float``,
+    ``bool``, ``string``..., or its number; None when none."""
     if isinstance(name, int) and not isinstance(name, bool):
         try:
             return DataType(name)

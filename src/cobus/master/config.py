@@ -59,7 +59,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from cobus._yaml import line_of, read_yaml
+from cobus._yaml import line_of, milliseconds, read_yaml
 from cobus.errors import CobusError
 from cobus.master.errors import (
     ConfigProblem,
@@ -192,24 +192,12 @@ def _choice(value: Any, options: tuple[str, ...]) -> str:
     return value
 
 
-_DURATION = re.compile(r"\s*([0-9]+(?:\.[0-9]*)?|\.[0-9]+)\s*(us|µs|ms|s)?\s*\Z")
-_UNIT_MS = {"us": 0.001, "µs": 0.001, "ms": 1.0, "s": 1000.0, None: 1.0}
-
-
 def _ms(value: Any, high: float = 1e9) -> float:
     """A duration in milliseconds: a number (ms) or text with a unit."""
-    if isinstance(value, str):
-        match = _DURATION.match(value)
-        if match is None:
-            raise _Bad(f"{value!r} is not a duration: write milliseconds or e.g. '1.5 s', '500 us'")
-        ms = float(match.group(1)) * _UNIT_MS[match.group(2)]
-    elif isinstance(value, bool) or not isinstance(value, int | float) or math.isnan(value):
-        raise _Bad(f"{value!r} is not a duration in milliseconds")
-    else:
-        ms = float(value)
-    if not 0 <= ms <= high:
-        raise _Bad(f"{ms:g} ms is out of range: use 0..{high:g} ms")
-    return ms
+    try:
+        return milliseconds(value, high)
+    except ValueError as exc:
+        raise _Bad(str(exc)) from None
 
 
 def _whole_ms(value: Any, high: int = 0xFFFF) -> int:
