@@ -316,7 +316,8 @@ def test_the_handler_fed_by_the_thesis_rig_through_master_and_zapi_adapter(
             "node 8 zapi 17: LOGIC FAILURE #3",
             # the alarm drops the inverter to pre-operational: its TPDO1 stops
             "node 8 zapi_check 1: handshake lost (no TPDO1 for 60 ms)",
-            "node 10 emcy 28961: Motor blocked (7121h)",
+            "node 8 master 7: TPDO missing: TPDO 1 (0x188) missing",
+            "node 10 emcy 7121h: Motor blocked",
         ]
         first = alarms.current()
         net.sleep(3.0)
@@ -324,10 +325,10 @@ def test_the_handler_fed_by_the_thesis_rig_through_master_and_zapi_adapter(
 
         Drive402(master, "servo").fault_reset()  # EMCY 0000h clears the node's emergencies
         net.sleep(0.2)
-        assert [a.source for a in alarms.active] == ["zapi", "zapi_check"]
+        assert [a.source for a in alarms.active] == ["zapi", "zapi_check", "master"]
         zapi.acknowledge()
         net.sleep(0.5)
-        assert alarms.active == ()
+        assert alarms.active == ()  # the inverter runs again: its TPDO1 is back
 
         rig.inject(10, "drive_fault", code=0x2310)
         net.sleep(0.2)
@@ -335,8 +336,12 @@ def test_the_handler_fed_by_the_thesis_rig_through_master_and_zapi_adapter(
         rig.inject(10, "power_loss")  # heartbeat lost: the master's alarm
         net.sleep(0.5)
         lost = [a for a in alarms.active if a.source == "master"]
-        assert [(a.node, a.code) for a in lost] == [(10, MasterAlarm.ERROR_CONTROL_LOST)]
-        assert lost[0].text == "heartbeat or node guarding lost: heartbeat lost"
+        assert sorted((a.node, a.code) for a in lost) == [
+            (10, MasterAlarm.ERROR_CONTROL_LOST),
+            (10, MasterAlarm.TPDO_MISSING),
+        ]
+        lost_texts = {a.text for a in lost}
+        assert "heartbeat or node guarding lost: heartbeat lost" in lost_texts
         rig.inject(10, "power_return")
         net.sleep(5)
         # operational again; the boot-up voided the emergency of before the power loss
@@ -349,3 +354,140 @@ def test_the_handler_fed_by_the_thesis_rig_through_master_and_zapi_adapter(
         assert all(r.cleared_at is not None for r in rows)
         alarms.close()
         master.stop()
+
+
+class FakeNetwork:
+    connected = False
+
+    def __init__(self) -> None:
+        self.listeners: list[Any] = []
+
+    def add_listener(self, listener: Any) -> None:
+        self.listeners.append(listener)
+
+    def remove_listener(self, listener: Any) -> None:
+        self.listeners.remove(listener)
+
+
+class FakeMaster:
+    """What attach_master uses of a master: its listeners and nodes by name."""
+
+    def __init__(self) -> None:
+        self.network = FakeNetwork()
+        self.listeners: list[Any] = []
+
+    def node(self, key: int | str) -> Any:
+        return type("Node", (), {"node_id": 10 if key == "servo" else key})()
+
+    def add_listener(self, listener: Any) -> None:
+        self.listeners.append(listener)
+
+    def remove_listener(self, listener: Any) -> None:
+        self.listeners.remove(listener)
+
+    def emit(self, event: Any) -> None:
+        for listener in self.listeners:
+            listener(event)
+
+
+def test_emcy_error_reset_clears_what_the_register_no_longer_shows() -> None:
+    from cobus.master import NodeEmergency, StateRestored, UnexpectedState
+    from cobus.proto.nmt import NmtState
+
+    h, _ = handler()
+    master = FakeMaster()
+    h.attach_master(master, emcy_tables={"servo": "cia402", 11: "stober"})
+    master.emit(NodeEmergency(10, 0x2310, 0x03, b"", "Current"))
+    master.emit(NodeEmergency(10, 0x4310, 0x0B, b"", "Temperature"))
+    master.emit(NodeEmergency(11, 0x2310, 0x03, b"", "Current"))
+    assert [str(a) for a in h.active] == [
+        "node 10 emcy 2310h: Continuous over-current",
+        "node 10 emcy 4310h: Excess temperature drive (motor over-temperature)",
+        "node 11 emcy 2310h: overcurrent (E82 33)",
+    ]
+    master.emit(NodeEmergency(10, 0x0000, 0x09, b"", "reset"))  # the temperature bit stays
+    assert [a.code for a in h.select(node=10)] == [0x4310]
+    master.emit(NodeEmergency(10, 0x0001, 0x00, b"", "reset"))  # 00xxh: all gone
+    assert h.select(node=10) == ()
+    master.emit(UnexpectedState(12, NmtState.OPERATIONAL, NmtState.PRE_OPERATIONAL))
+    assert [a.code for a in h.select(node=12)] == [MasterAlarm.UNEXPECTED_STATE]
+    master.emit(StateRestored(12, NmtState.OPERATIONAL))
+    assert h.select(node=12) == ()
+    with pytest.raises(KeyError, match="does not name EMCY codes"):
+        h.attach_master(master, emcy_tables={"servo": "zapi"})
+    h.close()
+    assert master.listeners == [] and master.network.listeners == []
+
+
+def test_listeners_run_outside_the_lock_and_see_events_in_order() -> None:
+    h, _ = handler()
+    seen: list[str] = []
+
+    def first(event: AlarmEvent) -> None:
+        seen.append(f"first {type(event).__name__}")
+        if isinstance(event, AlarmRaised) and event.alarm.code == 1:
+            h.clear_alarm("plant", 1)  # a listener calling back into the handler
+
+    h.add_listener(first)
+    h.add_listener(lambda e: seen.append(f"second {type(e).__name__}"))
+    h.raise_alarm("plant", 1)
+    assert seen == [
+        "first AlarmRaised",
+        "second AlarmRaised",
+        "first AlarmCleared",
+        "second AlarmCleared",
+    ]
+
+
+def test_a_broken_history_loses_no_alarm_and_says_so(tmp_path: Path) -> None:
+    h, _ = handler(tmp_path)
+    events: list[AlarmEvent] = []
+    h.add_listener(events.append)
+    assert h.history is not None
+    h.history.close()  # the file goes away under the handler
+    h.raise_alarm("zapi", 17, node=8)
+    assert [(a.source, a.code) for a in h.active] == [("zapi", 17), ("history", 1)]
+    assert h.history_problem is not None and "cannot be written" in h.history_problem
+    assert h.active[1].severity is Severity.WARNING
+    assert h.clear_alarm("zapi", 17, node=8)
+    assert [type(e) for e in events] == [AlarmRaised, AlarmRaised, AlarmCleared]
+
+
+def test_adopted_alarms_stay_only_if_their_source_confirms_them(tmp_path: Path) -> None:
+    h, _ = handler(tmp_path)
+    h.raise_alarm("zapi", 17, node=8)
+    h.raise_alarm("master", MasterAlarm.BUS_OFF)
+    h.close()
+    again, clock = handler(tmp_path, adopt_grace=5.0)
+    assert len(again.active) == 2 and all(a.adopted for a in again.active)
+    again.set_code("zapi", 17, node=8)  # confirmed
+    clock.now = 6.0
+    assert [(a.source, a.adopted) for a in again.active] == [("zapi", False)]
+    assert again.history is not None
+    rows = again.history.query(newest_first=False)
+    assert [r.cleared_at for r in rows] == [None, EPOCH + 6.0]  # the bus-off: cleared, logged
+    again.close()
+
+
+def test_odd_inputs() -> None:
+    h, clock = handler()
+    h.set_code("stober", 33, node=5)
+    assert h.active[0].text == "overcurrent"
+    h.set_code("stober", 30, node=5)  # E82 30: no event
+    assert h.active == ()
+    h.add_rule(1, "a", text="a")
+    with pytest.raises(ValueError, match="True or False"):
+        h.set_conditions({"a": True, "b": 1})
+    assert h.conditions == {} and h.active == ()  # nothing half-set
+    h.raise_alarm("p", 1, severity="warning")
+    h.raise_alarm("p", 2, severity=Severity.ALARM)
+    clock.now = 100.0
+    assert shown(h) == 2  # (2 of 1, 2 after 100 s)
+    clock.now = 10.0  # the clock set back: rotation goes on from there
+    assert shown(h) == 2
+    clock.now = 13.0
+    assert shown(h) == 1
+    assert h.highest_severity is Severity.ALARM and h.unacknowledged == 2
+    assert [a.code for a in h.select(min_severity="alarm")] == [2]
+    with pytest.raises(ValueError, match="severity 'loud'"):
+        h.raise_alarm("p", 3, severity="loud")

@@ -40,6 +40,7 @@ CREATE TABLE IF NOT EXISTS alarms (
 );
 CREATE INDEX IF NOT EXISTS alarms_raised ON alarms (raised_at);
 CREATE INDEX IF NOT EXISTS alarms_node_code ON alarms (node, code);
+CREATE INDEX IF NOT EXISTS alarms_cleared ON alarms (cleared_at);
 """
 _COLUMNS = (
     "id",
@@ -118,16 +119,21 @@ class AlarmHistory:
         self.max_age = max_age
         self._lock = threading.Lock()
         try:
-            self._db = sqlite3.connect(self.path, check_same_thread=False, isolation_level=None)
+            # a writer of another process holds the file at most this long (not SQLite's 5 s)
+            self._db = sqlite3.connect(
+                self.path, check_same_thread=False, isolation_level=None, timeout=1.0
+            )
         except sqlite3.Error as exc:
             raise AlarmHistoryError(f"cannot open the alarm history {self.path}: {exc}") from None
         try:
             self._set_up()
+        except sqlite3.OperationalError as exc:  # locked, read-only, no room, I/O
+            self._db.close()
+            raise AlarmHistoryError(f"cannot use the alarm history {self.path}: {exc}") from None
         except sqlite3.DatabaseError as exc:
             self._db.close()
             raise AlarmHistoryError(
-                f"{self.path} is not an alarm history database ({exc}): move it away or name "
-                "another file"
+                f"{self.path} is not an alarm history database ({exc}): name another file"
             ) from None
 
     def _set_up(self) -> None:
@@ -142,6 +148,8 @@ class AlarmHistory:
             raise sqlite3.DatabaseError(f"written by a newer cobus (format {version})")
         if version == 0:  # new: the schema and its version in one transaction
             db.executescript(f"BEGIN IMMEDIATE;{_SCHEMA}PRAGMA user_version={_VERSION};COMMIT;")
+        else:
+            db.executescript(f"BEGIN IMMEDIATE;{_SCHEMA}COMMIT;")  # (indexes added later)
 
     def _transaction(self) -> Any:
         return _Transaction(self._db)
@@ -192,10 +200,10 @@ class AlarmHistory:
                 "DELETE FROM alarms WHERE cleared_at IS NOT NULL AND cleared_at < ?",
                 (now - self.max_age,),
             )
-        if self.max_rows is not None:
+        if self.max_rows is not None:  # (ids only grow: the newest max_rows ids stay)
             self._db.execute(
-                "DELETE FROM alarms WHERE cleared_at IS NOT NULL AND id <= ("
-                "SELECT id FROM alarms ORDER BY id DESC LIMIT 1 OFFSET ?)",
+                "DELETE FROM alarms WHERE cleared_at IS NOT NULL AND "
+                "id <= (SELECT MAX(id) FROM alarms) - ?",
                 (self.max_rows,),
             )
 
@@ -248,7 +256,8 @@ class AlarmHistory:
     def export_csv(self, target: str | os.PathLike[str] | IO[str], **filters: Any) -> int:
         """Write the activations :meth:`query` selects (oldest first) as CSV, times in ISO
         8601 (UTC); the number of rows."""
-        records = self.query(newest_first=False, **filters)
+        filters.setdefault("newest_first", False)
+        records = self.query(**filters)
         if isinstance(target, str | os.PathLike):
             with Path(target).open("w", newline="", encoding="utf-8") as f:
                 return self._write_csv(f, records)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from cobus._enum import NamedIntEnum
 from cobus.proto.emcy import describe
 
-__all__ = ["TABLES", "MasterAlarm", "Severity", "Table", "table_text"]
+__all__ = ["ALIASES", "TABLES", "MasterAlarm", "Severity", "Table", "emcy_text", "table_text"]
 
 
 class Severity(NamedIntEnum):
@@ -32,6 +32,17 @@ class Severity(NamedIntEnum):
     INFO = 0
     WARNING = 1
     ALARM = 2
+
+    @classmethod
+    def of(cls, value: Severity | int | str) -> Severity:
+        """A severity from itself, its number or its name (``"warning"``)."""
+        if isinstance(value, str):
+            try:
+                return cls[value.strip().upper()]
+            except KeyError:
+                names = ", ".join(s.name.lower() for s in cls)
+                raise ValueError(f"severity {value!r}: one of {names}") from None
+        return cls(value)
 
 
 class MasterAlarm(NamedIntEnum):
@@ -42,8 +53,11 @@ class MasterAlarm(NamedIntEnum):
     WRONG_DEVICE = 3
     CONFIGURATION_FAILED = 4
     UNEXPECTED_STATE = 5
+    GUARDING_TOGGLE = 6
+    TPDO_MISSING = 7
     BUS_OFF = 10
     ERROR_PASSIVE = 11
+    NETWORK_STOPPED = 12
 
 
 _MASTER_TEXTS = {
@@ -52,8 +66,11 @@ _MASTER_TEXTS = {
     MasterAlarm.WRONG_DEVICE: "wrong device type or identity",
     MasterAlarm.CONFIGURATION_FAILED: "configuration failed",
     MasterAlarm.UNEXPECTED_STATE: "node in an unexpected NMT state",
+    MasterAlarm.GUARDING_TOGGLE: "node guarding toggle bit wrong",
+    MasterAlarm.TPDO_MISSING: "TPDO missing",
     MasterAlarm.BUS_OFF: "CAN bus-off",
     MasterAlarm.ERROR_PASSIVE: "CAN error passive",
+    MasterAlarm.NETWORK_STOPPED: "network stopped",
 }
 
 
@@ -66,6 +83,10 @@ class Table:
     text: Callable[[int], str]
     #: The severity an alarm of this table gets unless the caller says otherwise.
     severity: Severity = Severity.ALARM
+    #: The code that means "no alarm" (besides 0).
+    no_alarm: int = 0
+    #: Whether the table can name an EMCY error code (for :func:`emcy_text`).
+    emcy: bool = False
 
 
 def _cia301(code: int) -> str:
@@ -114,19 +135,40 @@ def _master(code: int) -> str:
 TABLES: Mapping[str, Table] = {
     t.name: t
     for t in (
-        Table("cia301", "EMCY error codes (CiA 301)", _cia301),
-        Table("cia402", "drive error codes, 603Fh (CiA 402-2)", _cia402),
+        Table("cia301", "EMCY error codes (CiA 301)", _cia301, emcy=True),
+        Table("cia402", "drive error codes, 603Fh (CiA 402-2)", _cia402, emcy=True),
         Table("zapi", "ZAPI ACE2 alarm codes", _zapi),
-        Table("stober", "STÖBER MDS 5000 E82 events", _stober),
+        Table("stober", "STÖBER MDS 5000 E82 events", _stober, no_alarm=30, emcy=True),
         Table("ecmotor", "EC motor m_sss bits", _ecmotor),
         Table("master", "the master's alarms", _master),
     )
 }
 
 
+#: Sources whose codes another table names.
+ALIASES: Mapping[str, str] = {"emcy": "cia301"}
+
+
 def table_text(table: str, code: int) -> str:
     """The text of ``code`` in ``table`` (an unknown code: its number and class)."""
-    found = TABLES.get(table)
+    found = TABLES.get(ALIASES.get(table, table))
     if found is None:
         raise KeyError(f"no alarm text table {table!r}; the tables: {', '.join(TABLES)}")
+    return found.text(code)
+
+
+def emcy_text(table: str, code: int) -> str:
+    """The text of EMCY error ``code`` as a device of ``table`` means it: a CiA 402 drive's
+    wording, the STÖBER event sent with that code (``"overcurrent (E82 33)"``), else CiA 301."""
+    found = TABLES.get(table)
+    if found is None or not found.emcy:
+        names = ", ".join(t.name for t in TABLES.values() if t.emcy)
+        raise KeyError(f"table {table!r} does not name EMCY codes; these do: {names}")
+    if table == "stober":
+        from cobus.profiles.stober import EVENTS
+
+        for number, (text, emcy_code, _register) in EVENTS.items():
+            if emcy_code == code and number != 30:
+                return f"{text} (E82 {number})"
+        return _cia301(code)
     return found.text(code)

@@ -27,14 +27,17 @@ import ast
 import functools
 import logging
 import os
+import re
+import sqlite3
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
-from cobus.blocks.alarm_history import AlarmHistory
-from cobus.blocks.alarm_texts import TABLES, MasterAlarm, Severity, table_text
+from cobus.blocks.alarm_history import AlarmHistory, AlarmHistoryError
+from cobus.blocks.alarm_texts import ALIASES, TABLES, MasterAlarm, Severity, emcy_text, table_text
 from cobus.errors import CobusError
 
 __all__ = [
@@ -54,10 +57,16 @@ T = TypeVar("T")
 
 
 def _locked(method: Callable[..., T]) -> Callable[..., T]:
+    """Run ``method`` under the handler's lock; the events it produced are delivered after
+    the lock is released, in order (a listener may call the handler again)."""
+
     @functools.wraps(method)
     def run(self: AlarmHandler, *args: Any, **kwargs: Any) -> T:
         with self._lock:
-            return method(self, *args, **kwargs)
+            self._expire_adopted()
+            result = method(self, *args, **kwargs)
+        self._deliver()
+        return result
 
     return run
 
@@ -79,6 +88,8 @@ class Alarm:
     raised_at: float
     acknowledged_by: str | None = None
     row: int | None = field(default=None, repr=False)
+    #: Active when the program started (from the history), not yet confirmed by its source.
+    adopted: bool = False
 
     @property
     def key(self) -> Key:
@@ -90,9 +101,14 @@ class Alarm:
         """Whether someone acknowledged it."""
         return self.acknowledged_by is not None
 
+    @property
+    def code_text(self) -> str:
+        """The code as the device's documents write it: EMCY codes in hex (``7121h``)."""
+        return f"{self.code:04X}h" if self.source == "emcy" else str(self.code)
+
     def __str__(self) -> str:
         node = f"node {self.node} " if self.node is not None else ""
-        return f"{node}{self.source} {self.code}: {self.text}"
+        return f"{node}{self.source} {self.code_text}: {self.text}"
 
 
 @dataclass(frozen=True)
@@ -153,7 +169,12 @@ class AlarmHandler:
     """The alarm handler. ``history``: an :class:`AlarmHistory` or a file for one (None:
     no history); ``view_time``: seconds each active alarm is the current one; ``clock``: the
     time the rotation runs on (default: monotonic; a network's ``time`` on the simulated
-    clock); ``wall_clock``: the time logged (default: ``time.time``)."""
+    clock); ``wall_clock``: the time logged (default: ``time.time``); ``adopt_grace``:
+    seconds an alarm still active in the history when the handler starts stays active
+    without its source raising it again (then it is cleared and logged so).
+
+    Listeners run in the thread that raised or cleared the alarm (a blocking master's
+    callback thread for its events); the handler may be called from any thread."""
 
     def __init__(
         self,
@@ -162,6 +183,7 @@ class AlarmHandler:
         view_time: float = 3.0,
         clock: Callable[[], float] | None = None,
         wall_clock: Callable[[], float] | None = None,
+        adopt_grace: float = 30.0,
     ) -> None:
         if isinstance(view_time, bool) or not isinstance(view_time, int | float):
             raise ValueError(f"view_time={view_time!r}: seconds above 0")
@@ -183,16 +205,22 @@ class AlarmHandler:
         # sources call in from the network's loop or callback thread, a panel reads from
         # its own: every public method holds this lock
         self._lock = threading.RLock()
+        self._outbox: deque[AlarmEvent] = deque()
+        self._delivering = False
+        self.adopt_grace = float(adopt_grace)
+        self._adopted_until: float | None = self.clock() + self.adopt_grace
+        #: Why the history could not be written last (None: it works).
+        self.history_problem: str | None = None
         if history is not None:
             self._adopt(history)
 
     def _adopt(self, history: AlarmHistory) -> None:
-        """Alarms still active when the program stopped are active again (their sources
-        clear them once they report; their history rows go on)."""
+        """Alarms still active when the program stopped are active again, their history rows
+        going on; a source confirms one by raising it again within ``adopt_grace``."""
         for record in history.query(active=True, newest_first=False):
             try:
-                severity = Severity[record.severity.upper()]
-            except KeyError:
+                severity = Severity.of(record.severity)
+            except ValueError:
                 severity = Severity.ALARM
             alarm = Alarm(
                 record.source,
@@ -203,6 +231,7 @@ class AlarmHandler:
                 record.raised_at,
                 record.acknowledged_by,
                 record.id,
+                adopted=True,
             )
             self._active[alarm.key] = alarm
 
@@ -219,11 +248,87 @@ class AlarmHandler:
             self._listeners.remove(listener)
 
     def _emit(self, event: AlarmEvent) -> None:
-        for listener in list(self._listeners):
-            try:
-                listener(event)
-            except Exception:  # a listener's failure must not lose the alarm
-                log.exception("alarm listener %r failed", listener)
+        self._outbox.append(event)
+
+    def _deliver(self) -> None:
+        """Give the queued events to the listeners, outside the lock, in order; a call
+        made by a listener queues its events behind those still to come."""
+        with self._lock:
+            if self._delivering:
+                return
+            self._delivering = True
+        try:
+            while True:
+                with self._lock:
+                    if not self._outbox:
+                        self._delivering = False
+                        return
+                    event = self._outbox.popleft()
+                for listener in list(self._listeners):
+                    try:
+                        listener(event)
+                    except Exception:  # a listener's failure must not lose the alarm
+                        log.exception("alarm listener %r failed", listener)
+        except BaseException:
+            with self._lock:
+                self._delivering = False
+            raise
+
+    def _log(self, what: str, call: Callable[[], T]) -> T | None:
+        """Run a history write; a failure is logged and shown as an alarm of its own, and
+        never loses the alarm it was about (that is active in memory already)."""
+        if self.history is None:
+            return None
+        try:
+            result = call()
+        except (sqlite3.Error, AlarmHistoryError) as exc:
+            problem = f"the alarm history cannot be written ({what}): {exc}"
+            log.error("%s", problem)
+            first = self.history_problem is None
+            self.history_problem = problem
+            if first:
+                self._raise_unlogged("history", 1, problem, Severity.WARNING)
+            return None
+        if self.history_problem is not None:
+            self.history_problem = None
+            self._clear_unlogged("history", 1)
+        return result
+
+    def _raise_unlogged(self, source: str, code: int, text: str, severity: Severity) -> None:
+        key = (source, None, code)
+        if key not in self._active:
+            alarm = Alarm(source, None, code, text, severity, self.wall_clock())
+            self._insert(alarm)
+
+    def _clear_unlogged(self, source: str, code: int) -> None:
+        alarm = self._remove((source, None, code))
+        if alarm is not None:
+            self._emit(AlarmCleared(alarm))
+
+    def _insert(self, alarm: Alarm) -> None:
+        self._active[alarm.key] = alarm
+        if len(self._active) == 1:
+            self._shown, self._since = alarm.key, self.clock()
+        self._emit(AlarmRaised(alarm))
+
+    def _remove(self, key: Key) -> Alarm | None:
+        alarm = self._active.get(key)
+        if alarm is None:
+            return None
+        if key == self._shown:
+            order = list(self._active)
+            following = order[(order.index(key) + 1) % len(order)]
+            self._shown = None if following == key else following
+            self._since = self.clock()
+        del self._active[key]
+        return alarm
+
+    def _expire_adopted(self) -> None:
+        if self._adopted_until is None or self.clock() < self._adopted_until:
+            return
+        self._adopted_until = None
+        for key in [k for k, a in self._active.items() if a.adopted]:
+            self._clear(key)
 
     # ------------------------------------------------------------------ raise / clear
 
@@ -248,45 +353,44 @@ class AlarmHandler:
         key = (source, node, code)
         alarm = self._active.get(key)
         if alarm is not None:
+            alarm.adopted = False  # (its source confirms an alarm of before a restart)
             return alarm
-        tab = TABLES.get(table or source)
+        tab = TABLES.get(ALIASES.get(table or source, table or source))
         if text is None:
             text = tab.text(code) if tab is not None else f"alarm {code}"
-        if severity is None:
-            severity = tab.severity if tab is not None else Severity.ALARM
-        alarm = Alarm(source, node, code, text, Severity(severity), self.wall_clock())
-        if self.history is not None:
-            alarm.row = self.history.opened(
+        level = Severity.of(severity) if severity is not None else None
+        if level is None:
+            level = tab.severity if tab is not None else Severity.ALARM
+        alarm = Alarm(source, node, code, text, level, self.wall_clock())
+        self._insert(alarm)  # active and announced first: a history failure loses nothing
+        alarm.row = self._log(
+            "activation",
+            lambda: self.history.opened(  # type: ignore[union-attr]
                 source=source,
                 node=node,
                 code=code,
-                text=text,
+                text=alarm.text,
                 severity=alarm.severity.name.lower(),
                 at=alarm.raised_at,
-            )
-        self._active[key] = alarm
-        if len(self._active) == 1:
-            self._shown, self._since = key, self.clock()
-        self._emit(AlarmRaised(alarm))
+            ),
+        )
         return alarm
 
     @_locked
     def clear_alarm(self, source: str, code: int, *, node: int | None = None) -> bool:
         """The cause of alarm (``source``, ``node``, ``code``) is gone; False if it was not
         active."""
-        key = (source, node, code)
-        alarm = self._active.get(key)
+        return self._clear((source, node, code))
+
+    def _clear(self, key: Key) -> bool:
+        alarm = self._remove(key)
         if alarm is None:
             return False
-        if key == self._shown:
-            order = list(self._active)
-            following = order[(order.index(key) + 1) % len(order)]
-            self._shown = None if following == key else following
-            self._since = self.clock()
-        del self._active[key]
-        if self.history is not None and alarm.row is not None:
-            self.history.cleared(alarm.row, self.wall_clock())
         self._emit(AlarmCleared(alarm))
+        row = alarm.row
+        if row is not None:
+            at = self.wall_clock()
+            self._log("clearing", lambda: self.history.cleared(row, at))  # type: ignore[union-attr]
         return True
 
     @_locked
@@ -294,7 +398,7 @@ class AlarmHandler:
         """Clear every active alarm of ``source`` (of ``node`` only, when given)."""
         keys = [k for k in self._active if k[0] == source and (node is None or k[1] == node)]
         for k in keys:
-            self.clear_alarm(k[0], k[2], node=k[1])
+            self._clear(k)
         return len(keys)
 
     @_locked
@@ -302,11 +406,14 @@ class AlarmHandler:
         self, source: str, code: int, *, node: int | None = None, table: str | None = None
     ) -> None:
         """An integer alarm input (like the ZAPI alarm byte): ``code`` is the one active
-        alarm of ``source`` and ``node``; 0 clears it."""
+        alarm of ``source`` and ``node``; 0 (or the table's "no alarm" code, e.g. STÖBER's
+        event 30) clears it."""
+        tab = TABLES.get(ALIASES.get(table or source, table or source))
+        quiet = code == 0 or (tab is not None and code == tab.no_alarm)
         for key in [k for k in self._active if k[0] == source and k[1] == node]:
-            if key[2] != code:
-                self.clear_alarm(source, key[2], node=node)
-        if code:
+            if quiet or key[2] != code:
+                self._clear(key)
+        if not quiet:
             self.raise_alarm(source, code, node=node, table=table)
 
     # ------------------------------------------------------------------ rules
@@ -328,7 +435,7 @@ class AlarmHandler:
         if number in self._rules:
             raise AlarmRuleError(f"there is a rule {number} already ({self._rules[number].text})")
         code, names = _compile_rule(when)
-        self._rules[number] = _Rule(number, when, code, names, text, Severity(severity))
+        self._rules[number] = _Rule(number, when, code, names, text, Severity.of(severity))
         self._evaluate([self._rules[number]])
 
     def set_condition(self, name: str, value: bool) -> None:
@@ -339,10 +446,11 @@ class AlarmHandler:
     def set_conditions(self, values: Mapping[str, bool]) -> None:
         """Set several conditions at once (rules see them together: no alarm flickers on
         between two of them)."""
-        changed = set()
         for name, value in values.items():
             if not isinstance(value, bool):
                 raise ValueError(f"condition {name!r} = {value!r}: True or False")
+        changed = set()
+        for name, value in values.items():
             if self._conditions.get(name, False) != value:
                 changed.add(name)
             self._conditions[name] = value
@@ -360,7 +468,7 @@ class AlarmHandler:
             if eval(rule.code, {"__builtins__": {}}, scope):
                 self.raise_alarm("rule", rule.number, text=rule.text, severity=rule.severity)
             else:
-                self.clear_alarm("rule", rule.number)
+                self._clear(("rule", None, rule.number))
 
     # ------------------------------------------------------------------ state
 
@@ -368,7 +476,10 @@ class AlarmHandler:
     def active(self) -> tuple[Alarm, ...]:
         """The active alarms, oldest first."""
         with self._lock:
-            return tuple(self._active.values())
+            self._expire_adopted()
+            found = tuple(self._active.values())
+        self._deliver()
+        return found
 
     @_locked
     def current(self) -> Alarm | None:
@@ -379,8 +490,9 @@ class AlarmHandler:
             return None
         now = self.clock()
         order = list(self._active)
-        if self._shown not in self._active:
-            self._shown, self._since = order[0], now
+        if self._shown not in self._active or now < self._since:  # (a clock set back)
+            self._shown = self._shown if self._shown in self._active else order[0]
+            self._since = now
         steps = int((now - self._since) // self.view_time)
         if steps > 0:
             assert self._shown is not None
@@ -400,72 +512,143 @@ class AlarmHandler:
             key = alarm.key if isinstance(alarm, Alarm) else alarm
             found = self._active.get(key)
             targets = [found] if found is not None and not found.acknowledged else []
+        at = self.wall_clock()
         for target in targets:
             target.acknowledged_by = by
-            if self.history is not None and target.row is not None:
-                self.history.acknowledged(target.row, self.wall_clock(), by)
             self._emit(AlarmAcknowledged(target))
+            row = target.row
+            if row is not None:
+                self._log(
+                    "acknowledgement",
+                    lambda row=row: self.history.acknowledged(row, at, by),  # type: ignore[union-attr,misc]
+                )
         return len(targets)
+
+    @_locked
+    def select(
+        self,
+        *,
+        node: int | None = None,
+        source: str | None = None,
+        min_severity: Severity | int | str | None = None,
+        unacknowledged: bool = False,
+    ) -> tuple[Alarm, ...]:
+        """The active alarms of ``node``/``source`` (None: any), at least ``min_severity``,
+        only those not acknowledged yet (``unacknowledged``), oldest first."""
+        low = Severity.of(min_severity) if min_severity is not None else None
+        return tuple(
+            a
+            for a in self._active.values()
+            if (node is None or a.node == node)
+            and (source is None or a.source == source)
+            and (low is None or a.severity >= low)
+            and not (unacknowledged and a.acknowledged)
+        )
+
+    @property
+    def highest_severity(self) -> Severity | None:
+        """The worst severity among the active alarms (None: none active) — for a horn or
+        a lamp."""
+        return max((a.severity for a in self.active), default=None)
+
+    @property
+    def unacknowledged(self) -> int:
+        """How many active alarms nobody acknowledged yet."""
+        return sum(1 for a in self.active if not a.acknowledged)
 
     # ------------------------------------------------------------------ sources
 
     def attach_master(
         self, master: Any, *, emcy_tables: Mapping[int | str, str] | None = None
     ) -> None:
-        """Raise and clear alarms from ``master``'s events (an async
-        :class:`~cobus.master.Master` or a blocking one): emergencies (source ``emcy``, cleared
-        by the node's EMCY 0000h or its boot-up; text
-        from ``emcy_tables[node]`` — a table name per node-ID or node name, e.g. ``{"servo":
-        "cia402"}`` —, else CiA 301), and the master's own alarms (source ``master``, codes
-        of :class:`~cobus.blocks.alarm_texts.MasterAlarm`)."""
+        """Raise and clear alarms from ``master``'s events (a :class:`~cobus.master.Master`,
+        or a :class:`~cobus.master.BlockingMaster`: then the handler works in its callback
+        thread, off the bus loop):
+
+        - emergencies (source ``emcy``), cleared by the node's error reset (00xxh: those its
+          error register no longer shows) or its boot-up; texts from ``emcy_tables[node]``
+          (node-ID or name → ``cia402``, ``stober`` or ``cia301``, the default);
+        - the master's alarms (source ``master``, codes of
+          :class:`~cobus.blocks.alarm_texts.MasterAlarm`): node missing, heartbeat or
+          guarding lost, guarding toggle, wrong device, configuration failed (until the next
+          configuration), unexpected NMT state, TPDO missing, bus-off, error passive,
+          network stopped.
+        """
         from cobus.master import events as ev
-        from cobus.master.states import NodeState
+        from cobus.master.states import MasterState, NodeState
         from cobus.runtime import BusState, BusStateChanged
+        from cobus.runtime.emcy import error_still_shown
 
-        master = getattr(master, "aio", master)  # (a blocking master: its loop's events)
-
+        runner = getattr(master, "_runner", None)
+        aio = getattr(master, "aio", master)
         tables: dict[int, str] = {}
         for key, name in (emcy_tables or {}).items():
-            if name not in TABLES:
-                raise KeyError(f"no alarm text table {name!r}; the tables: {', '.join(TABLES)}")
-            tables[master.node(key).node_id] = name
+            emcy_text(name, 0x1000)  # KeyError for a table that names no EMCY codes
+            tables[aio.node(key).node_id] = name
+        per_node = (
+            MasterAlarm.NODE_MISSING,
+            MasterAlarm.ERROR_CONTROL_LOST,
+            MasterAlarm.GUARDING_TOGGLE,
+            MasterAlarm.WRONG_DEVICE,
+            MasterAlarm.UNEXPECTED_STATE,
+            MasterAlarm.TPDO_MISSING,
+        )
 
         def master_alarm(node: int | None, code: MasterAlarm, detail: str) -> None:
             base = table_text("master", code)
+            detail = re.sub(r"^node \d+:? ", "", detail)  # (the alarm names its node)
             self.raise_alarm("master", int(code), node=node, text=f"{base}: {detail}")
+
+        def clear(node: int | None, *codes: MasterAlarm) -> None:
+            for code in codes:
+                self.clear_alarm("master", int(code), node=node)
+
+        def on_emergency(event: Any) -> None:
+            node = event.node_id
+            if event.code >> 8 == 0:  # error reset: what the register no longer shows goes
+                for alarm in self.select(node=node, source="emcy"):
+                    if not event.register or not error_still_shown(alarm.code, event.register):
+                        self.clear_alarm("emcy", alarm.code, node=node)
+                return
+            table = tables.get(node)
+            text = emcy_text(table, event.code) if table else event.text
+            self.raise_alarm("emcy", event.code, node=node, text=text)
 
         def on_event(event: Any) -> None:
             if isinstance(event, ev.NodeEmergency):
-                if event.code == 0:
-                    self.clear_source("emcy", node=event.node_id)
-                    return
-                table = tables.get(event.node_id)
-                text = table_text(table, event.code) if table else event.text
-                self.raise_alarm(
-                    "emcy", event.code, node=event.node_id, text=f"{text} ({event.code:04X}h)"
-                )
+                on_emergency(event)
             elif isinstance(event, ev.NodeBooted):
                 self.clear_source("emcy", node=event.node_id)  # a reset forgets its errors
+                clear(event.node_id, MasterAlarm.NODE_MISSING, MasterAlarm.ERROR_CONTROL_LOST)
             elif isinstance(event, ev.NodeMissing):
                 master_alarm(event.node_id, MasterAlarm.NODE_MISSING, event.reason)
             elif isinstance(event, ev.ErrorControlLost):
                 master_alarm(event.node_id, MasterAlarm.ERROR_CONTROL_LOST, f"{event.kind} lost")
             elif isinstance(event, ev.ErrorControlRestored):
-                self.clear_alarm("master", MasterAlarm.ERROR_CONTROL_LOST, node=event.node_id)
+                clear(event.node_id, MasterAlarm.ERROR_CONTROL_LOST, MasterAlarm.GUARDING_TOGGLE)
+            elif isinstance(event, ev.GuardingToggleFault):
+                master_alarm(event.node_id, MasterAlarm.GUARDING_TOGGLE, str(event))
             elif isinstance(event, ev.DeviceTypeMismatch | ev.IdentityMismatch):
                 master_alarm(event.node_id, MasterAlarm.WRONG_DEVICE, str(event))
             elif isinstance(event, ev.ConfigurationFailed | ev.BootStepFailed):
                 master_alarm(event.node_id, MasterAlarm.CONFIGURATION_FAILED, str(event))
             elif isinstance(event, ev.UnexpectedState):
                 master_alarm(event.node_id, MasterAlarm.UNEXPECTED_STATE, str(event))
+            elif isinstance(event, ev.StateRestored):
+                clear(event.node_id, MasterAlarm.UNEXPECTED_STATE)
+            elif isinstance(event, ev.TpdoMissing):
+                master_alarm(event.node_id, MasterAlarm.TPDO_MISSING, str(event))
+            elif isinstance(event, ev.TpdoRestored):
+                clear(event.node_id, MasterAlarm.TPDO_MISSING)
+            elif isinstance(event, ev.NetworkStopped):
+                master_alarm(None, MasterAlarm.NETWORK_STOPPED, str(event))
+            elif isinstance(event, ev.MasterStateChanged) and event.new is MasterState.RUNNING:
+                clear(None, MasterAlarm.NETWORK_STOPPED)
             elif isinstance(event, ev.NodeStateChanged):
-                if event.new is NodeState.OPERATIONAL:
-                    for code in MasterAlarm:
-                        if code < MasterAlarm.BUS_OFF:
-                            self.clear_alarm("master", code, node=event.node_id)
-                elif event.new is NodeState.CONFIGURED:
-                    self.clear_alarm("master", MasterAlarm.NODE_MISSING, node=event.node_id)
-                    self.clear_alarm("master", MasterAlarm.WRONG_DEVICE, node=event.node_id)
+                if event.new is NodeState.CONFIGURING:  # configured again: judged again
+                    clear(event.node_id, MasterAlarm.CONFIGURATION_FAILED)
+                if event.new in (NodeState.CONFIGURED, NodeState.OPERATIONAL):
+                    clear(event.node_id, *per_node)
 
         def on_network(event: Any) -> None:
             if not isinstance(event, BusStateChanged):
@@ -473,7 +656,7 @@ class AlarmHandler:
             if event.new is BusState.BUS_OFF:
                 master_alarm(None, MasterAlarm.BUS_OFF, "the controller stopped sending")
             elif event.new is BusState.PASSIVE:
-                self.clear_alarm("master", MasterAlarm.BUS_OFF)
+                clear(None, MasterAlarm.BUS_OFF)
                 self.raise_alarm(
                     "master",
                     MasterAlarm.ERROR_PASSIVE,
@@ -481,21 +664,28 @@ class AlarmHandler:
                     severity=Severity.WARNING,
                 )
             else:
-                self.clear_alarm("master", MasterAlarm.BUS_OFF)
-                self.clear_alarm("master", MasterAlarm.ERROR_PASSIVE)
+                clear(None, MasterAlarm.BUS_OFF, MasterAlarm.ERROR_PASSIVE)
 
-        master.add_listener(on_event)
-        master.network.add_listener(on_network)
-        self._detach.append(lambda: master.remove_listener(on_event))
-        self._detach.append(lambda: master.network.remove_listener(on_network))
+        if runner is not None:  # a blocking master: off the loop, in its callback thread
+            on_event = runner.callback(on_event)
+            on_network = runner.callback(on_network)
+        aio.add_listener(on_event)
+        aio.network.add_listener(on_network)
+        self._detach.append(lambda: aio.remove_listener(on_event))
+        self._detach.append(lambda: aio.network.remove_listener(on_network))
+        if aio.network.connected and aio.network.bus_state is not BusState.ACTIVE:
+            on_network(BusStateChanged(BusState.ACTIVE, aio.network.bus_state))
 
     def attach_zapi(self, drive: Any) -> None:
         """Raise and clear alarms from a ZAPI adapter (:class:`~cobus.profiles.zapi.
-        AsyncZapiDrive`): its alarm byte (source ``zapi``), a lost handshake and
-        command/feedback mismatches (source ``zapi_check``: 1 handshake, 2 feedback)."""
+        AsyncZapiDrive` or the blocking one): its alarm byte (source ``zapi``), a lost
+        handshake (source ``zapi_check`` code 1) and command/feedback mismatches (codes 11,
+        12, 13: A16 main contactor, A18 output, enable), each cleared when it ends."""
         from cobus.profiles import zapi
 
-        drive = getattr(drive, "aio", drive)
+        runner = getattr(drive, "_runner", None)
+        aio = getattr(drive, "aio", drive)
+        outputs = {name: 11 + n for n, name in enumerate(zapi.FEEDBACK_OUTPUTS)}
 
         def on_event(event: Any) -> None:
             node = event.node_id
@@ -508,13 +698,17 @@ class AlarmHandler:
             elif isinstance(event, zapi.FeedbackMismatch):
                 self.raise_alarm(
                     "zapi_check",
-                    2,
+                    outputs.get(event.output, 10),
                     node=node,
                     text=f"{event.output} commanded but not reported back",
                 )
+            elif isinstance(event, zapi.FeedbackRestored):
+                self.clear_alarm("zapi_check", outputs.get(event.output, 10), node=node)
 
-        drive.add_listener(on_event)
-        self._detach.append(lambda: drive.remove_listener(on_event))
+        if runner is not None:
+            on_event = runner.callback(on_event)
+        aio.add_listener(on_event)
+        self._detach.append(lambda: aio.remove_listener(on_event))
 
     def close(self) -> None:
         """Stop listening to the sources and close the history."""

@@ -29,6 +29,7 @@ __all__ = [
     "NodeEvent",
     "NodeMissing",
     "NodeStateChanged",
+    "StateRestored",
     "TpdoLengthError",
     "TpdoMissing",
     "TpdoRestored",
@@ -208,6 +209,16 @@ class UnexpectedState(NodeEvent):
 
     def __str__(self) -> str:
         return f"node {self.node_id} reports {self.reported.name}, expected {self.expected.name}"
+
+
+@dataclass(frozen=True, slots=True)
+class StateRestored(NodeEvent):
+    """The node reports the NMT state the master put it in again (after another one)."""
+
+    state: NmtState
+
+    def __str__(self) -> str:
+        return f"node {self.node_id} reports {self.state.name} again"
 
 
 @dataclass(frozen=True, slots=True)

@@ -33,6 +33,7 @@ from cobus.master.events import (
     NodeEmergency,
     NodeMissing,
     NodeStateChanged,
+    StateRestored,
     TpdoLengthError,
     TpdoMissing,
     TpdoRestored,
@@ -734,6 +735,8 @@ class ManagedNode:
         ):
             # back in operational: supervise the TPDOs again
             self._started(self.master.network.time())
+        if expected is not None and state is expected and old is not None and old is not state:
+            self.master._emit(StateRestored(self.node_id, state))
 
     def _on_bootup(self) -> None:
         """The node sent its boot-up message."""

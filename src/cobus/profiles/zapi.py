@@ -32,9 +32,11 @@ from cobus.runtime._twin import BlockingTwin
 
 __all__ = [
     "ALARM_TEXTS",
+    "FEEDBACK_OUTPUTS",
     "AlarmChanged",
     "AsyncZapiDrive",
     "FeedbackMismatch",
+    "FeedbackRestored",
     "HandshakeLost",
     "HandshakeRestored",
     "ZapiControl",
@@ -169,6 +171,21 @@ class FeedbackMismatch(ZapiEvent):
             f"node {self.node_id}: {self.output} commanded but not reported back for "
             f"{self.cycles} cycles"
         )
+
+
+#: The outputs the feedback check watches, by name.
+FEEDBACK_OUTPUTS = ("A16 main contactor", "A18 output", "enable")
+
+
+@dataclass(frozen=True)
+class FeedbackRestored(ZapiEvent):
+    """An output of a :class:`FeedbackMismatch` is reported as commanded again (or is no
+    longer commanded)."""
+
+    output: str
+
+    def __str__(self) -> str:
+        return f"node {self.node_id}: {self.output} feedback matches again"
 
 
 #: The commanded outputs the statusword reports back, checked each cycle.
@@ -481,6 +498,8 @@ class AsyncZapiDrive:
                 if misses == self.feedback_cycles:
                     self._listeners(FeedbackMismatch(self.node_id, now, name, misses))
             else:
+                if self._misses.get(name, 0) >= self.feedback_cycles:
+                    self._listeners(FeedbackRestored(self.node_id, now, name))
                 self._misses[name] = 0
 
     def _arm(self, now: float) -> None:

@@ -20,7 +20,7 @@ from cobus.runtime._service import Callbacks, Waiters, removed_error
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, Subscription
 
-__all__ = ["EmcyTimeoutError", "Emergency", "RemoteEmcy"]
+__all__ = ["EmcyTimeoutError", "Emergency", "RemoteEmcy", "error_still_shown"]
 
 
 class EmcyTimeoutError(CobusError, TimeoutError):
@@ -60,7 +60,13 @@ _CLASS_BITS = {0x2: 0x02, 0x3: 0x04, 0x4: 0x08, 0x8: 0x10}
 
 def _still_shown(emcy: Emergency, register: int) -> bool:
     """Whether ``register`` still shows the error ``emcy`` reported."""
-    bit = _CLASS_BITS.get(emcy.code >> 12, 0x01)
+    return error_still_shown(emcy.code, register)
+
+
+def error_still_shown(code: int, register: int) -> bool:
+    """Whether an error register (1001h) still shows an error of emergency ``code``: its
+    class's bit (current, voltage, temperature, communication), else the generic bit."""
+    bit = _CLASS_BITS.get(code >> 12, 0x01)
     return bool(register & bit)
 
 
