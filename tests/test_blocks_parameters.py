@@ -243,3 +243,13 @@ def test_a_dcf_leaves_out_the_commands_and_the_pdo_parameters(tmp_path: Path) ->
     numeric = ParameterSet(pset.parameters, SaveCommand(0x1010, 1, b"\x78\x56\x34\x12"))
     numeric.write(tmp_path / "n.yml")
     assert load_parameters(tmp_path / "n.yml").save == numeric.save
+
+
+def test_the_example_files_read_on_their_own() -> None:
+    from cobus.blocks import load_netvars
+
+    root = Path(__file__).resolve().parent.parent / "examples"
+    zapi = load_parameters(root / "parameters" / "zapi.yml")  # names from its eds:
+    assert zapi.save == SaveCommand(0x1010, 0) and zapi[0].index == 0x20A8
+    assert len(load_parameters(root / "parameters" / "servo.yml")) == 3
+    assert set(load_netvars(root / "netvars" / "plant.yml").lists) == {"status", "alarms"}

@@ -33,6 +33,9 @@ def test_the_readme_has_snippets_for_every_part_it_promises():
         "Be a device",
         "Run a network as its master",
         "Simulated time",
+        "Keep parameters up to date",
+        "Alarms with a history",
+        "Network variables between controllers",
     } <= headings
 
 
@@ -55,5 +58,9 @@ def test_readme_snippet_runs(heading, code, tmp_path, monkeypatch):
         "Be a device": "set-point written: 500\npressure: 1234",
         "Run a network as its master": "RUNNING",
         "Simulated time": "60.000 s, 60000 frames",
+        "Keep parameters up to date": "re-parameterised, 3 of 3 written, saved and verified\n"
+        "node 10 'servo': up to date (3 parameters)",
+        "Alarms with a history": "node 10 emcy 7121h: Motor blocked\n1 0",
+        "Network variables between controllers": "12.5 2.5 17",
     }
     assert expected.get(heading, "") in out.getvalue(), out.getvalue()
