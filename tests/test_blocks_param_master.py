@@ -184,3 +184,62 @@ def test_the_ec_motor_is_parameterised_through_its_own_dialect() -> None:
     assert report.ok and len(report.written) == 2 and report.saved is None
     assert again.up_to_date
     assert values == [1500, -4000]
+
+
+ZAPI_NETWORK = """
+master: {sync_period: 20}
+nodes:
+  zapi: {node_id: 8, eds: zapi.eds, mandatory: true, do_not_initialise: true}
+"""
+
+
+def test_a_swapped_factory_fresh_zapi_is_re_parameterised_and_saved_on_sub_0(
+    tmp_path: Path,
+) -> None:
+    from cobus.device import MemoryStorage
+    from cobus.sim.zapi import ZapiAce2
+
+    async def main() -> tuple[list[str], list[int]]:
+        async with AsyncNetwork() as net:
+            zapi = ZapiAce2(net, 8)
+            zapi.start()
+            (tmp_path / "zapi.eds").write_text(export_eds(zapi.od))
+            (tmp_path / "zapi.yml").write_text(
+                "save: {subindex: 0}\nparameters: {main contactor voltage: 90}\n"
+            )
+            master = Master(net, loads_network(ZAPI_NETWORK, base_dir=tmp_path))
+            master.add_boot_step("zapi", Parameterise(tmp_path / "zapi.yml"))
+            details: list[str] = []
+            master.add_listener(
+                lambda e: details.append(e.detail) if isinstance(e, BootStepDone) else None
+            )
+            await master.boot(timeout=10)
+
+            def voltage() -> int:
+                assert zapi.device is not None
+                return int(zapi.device.get(0x20A8, 0))
+
+            values = [voltage()]
+            zapi.power_off()
+            await asyncio.sleep(0.2)
+            zapi.power_on()  # power cycle: the saved value stays
+            await asyncio.sleep(0.2)
+            await master.restart_node("zapi")
+            values.append(voltage())
+            zapi.power_off()  # swapped for a factory-fresh one (no boot-up message: the
+            zapi.storage = MemoryStorage()  # application restarts the node, e.g. on
+            zapi.power_on()  # HandshakeLost)
+            await asyncio.sleep(0.2)
+            values.append(voltage())
+            await master.restart_node("zapi")
+            values.append(voltage())
+            await master.stop()
+            return details, values
+
+    details, values = simulate(main())
+    assert details == [
+        "node 8 'zapi': re-parameterised, 1 of 1 written, saved and verified",
+        "node 8 'zapi': up to date (1 parameter)",
+        "node 8 'zapi': re-parameterised, 1 of 1 written, saved and verified",
+    ]
+    assert values == [90, 90, 100, 90]

@@ -178,9 +178,11 @@ class ParameterReport:
         if self.failures:
             return f"{self.node}: failed, {len(self.failures)} problem(s): {self.failures[0]}"
         if not self.differences:
-            return f"{self.node}: up to date ({self.checked} parameters)"
+            plural = "" if self.checked == 1 else "s"
+            return f"{self.node}: up to date ({self.checked} parameter{plural})"
         if self.dry_run:
-            return f"{self.node}: {len(self.differences)} of {self.checked} parameters differ"
+            differ = "differs" if len(self.differences) == 1 else "differ"
+            return f"{self.node}: {len(self.differences)} of {self.checked} parameters {differ}"
         saved = {True: ", saved", False: ", NOT saved", None: ", not saved (no save command)"}[
             self.saved
         ]
