@@ -491,3 +491,34 @@ def test_odd_inputs() -> None:
     assert [a.code for a in h.select(min_severity="alarm")] == [2]
     with pytest.raises(ValueError, match="severity 'loud'"):
         h.raise_alarm("p", 3, severity="loud")
+
+
+def test_the_command_line_shows_and_exports_a_history(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import json
+
+    from cobus.cli import main
+
+    monkeypatch.setenv("COLUMNS", "200")  # a wide terminal: rich wraps nothing
+    h, clock = handler(tmp_path)
+    h.raise_alarm("zapi", 17, node=8)
+    clock.now = 60.0
+    h.raise_alarm("emcy", 0x7121, node=10, text="Motor blocked")
+    h.set_code("zapi", 0, node=8)
+    h.close()
+    db = str(tmp_path / "alarms.db")
+    assert main(["alarms", "show", db]) == 0
+    out = capsys.readouterr().out
+    assert "LOGIC FAILURE #3" in out and "7121h" in out and "Motor blocked" in out
+    assert main(["alarms", "show", db, "--node", "10", "--active", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [(r["node"], r["code"], r["cleared_at"]) for r in rows] == [(10, 0x7121, None)]
+    assert main(["alarms", "show", db, "--code", "7121h", "--json"]) == 0
+    assert len(json.loads(capsys.readouterr().out)) == 1
+    assert main(["alarms", "export", db, str(tmp_path / "out.csv"), "--source", "zapi"]) == 0
+    assert (tmp_path / "out.csv").read_text().count("\n") == 2
+    assert main(["alarms", "show", str(tmp_path / "none.db")]) == 1
+    (tmp_path / "junk.db").write_text("junk" * 500)
+    assert main(["alarms", "show", str(tmp_path / "junk.db")]) == 1
+    assert "not an alarm history database" in capsys.readouterr().err

@@ -21,6 +21,7 @@ _COMMAND_MODULES = (
     "cobus.sim._cli",
     "cobus.profiles._cli",
     "cobus.blocks._cli",
+    "cobus.blocks._alarms_cli",
     "cobus.apps.demo",
 )
 
