@@ -24,7 +24,7 @@ from cobus.blocks.netvars import (
 )
 from cobus.od import DataType
 from cobus.proto import Frame
-from cobus.runtime import AsyncNetwork, Network
+from cobus.runtime import AsyncNetwork, Network, NetworkClosedError, TxOverflowError
 from cobus.sim.faults import FaultyBus
 
 from .util import simulate
@@ -103,8 +103,8 @@ def test_lists_are_flattened_packed_and_split_into_frames() -> None:
         (
             "lists:\n  a: {id: 0x300, sender: x, interval: 10, variables: {v: u32, w: u32, "
             "x: u8}}\n"
-            "  b: {id: 0x301, sender: x, interval: 10, variables: {v: u8}}\n",
-            "net.yml:3: lists.b.id: COB-IDs 301h.. overlap list 'a' (300h..301h)",
+            "  b:\n    sender: x\n    interval: 10\n    variables: {v: u8}\n    id: 0x301\n",
+            "net.yml:7: lists.b.id: COB-IDs 301h.. overlap list 'a' (300h..301h)",
         ),
         (
             "lists:\n  a:\n    id: 0x300\n    sender: x\n    interval: 10\n    frames: 1\n"
@@ -121,8 +121,20 @@ def test_lists_are_flattened_packed_and_split_into_frames() -> None:
             "lists.a.id: COB-ID 701h is reserved by CANopen",
         ),
         (
+            "lists:\n  a: {id: 0x80, sender: x, interval: 10, variables: {v: u8}}\n",
+            "lists.a.id: COB-ID 080h is reserved by CANopen",
+        ),
+        (
+            "lists:\n  a: {id: 0x300, sender: x, interval: 10, min_gap: 5, variables: {v: u8}}\n",
+            "lists.a.min_gap: only an on_change list has one",
+        ),
+        (
+            "lists:\n  a: {id: 0x300, sender: x, interval: 0.1, variables: {v: u8}}\n",
+            "lists.a.interval: at least 1 ms",
+        ),
+        (
             "lists:\n  a: {id: 0x300, sender: x, interval: 10, variables: {v: u17}}\n",
-            "net.yml:2: v: type 'u17' is not a CiA 301 type of fixed size",
+            "net.yml:2: lists.a.variables.v: type 'u17' is not a CiA 301 type of fixed size",
         ),
         (
             "lists:\n  a: {id: 0x300, sender: x, variables: {v: u8}}\n",
@@ -246,7 +258,7 @@ def test_two_controllers_exchange_three_lists_with_frame_loss() -> None:
     recipes = plc2.of(ListReceived, "recipe")
     assert len(recipes) == 2 and recipes[0].values["name"] == "bread"
     assert recipes[0].values["setpoint"] == 1.25
-    assert plc1.lists.statistics()["recipe"] == {"sent": 2}
+    assert plc1.lists.statistics()["recipe"] == {"sent": 2, "failed": 0}
     stale = plc2.of(ListStale, "status")
     assert stale and stale[0].silence == pytest.approx(0.03)  # plc1 stopped at the end
 
@@ -281,3 +293,100 @@ def test_the_blocking_face() -> None:
         assert plc2.values("recipe")["send"] is True
         plc1.close()
         plc2.close()
+
+
+LINE = """
+lists:
+  wide:
+    id: 0x680
+    sender: plc1
+    transmit: on_event
+    variables: {a: UNSIGNED32, b: UNSIGNED32, c: UNSIGNED32, d: UNSIGNED32}
+  small:
+    id: 0x690
+    sender: plc1
+    transmit: on_change
+    frames: 2
+    variables: {x: UNSIGNED8, go: BOOLEAN}
+"""
+
+
+def test_a_reader_never_mixes_frames_of_two_transmissions() -> None:
+    async def main() -> tuple[list[Any], list[Any], dict[str, Any]]:
+        async with AsyncNetwork() as net:
+            plant = loads_netvars(LINE)
+            reader = AsyncNetworkVariables(net, plant, me="plc2")
+            events: list[NetVarEvent] = []
+            reader.add_listener(events.append)
+            reader.start()
+            wide = plant["wide"]
+
+            def frames(counter: int, value: int) -> list[Frame]:
+                payload = wide.pack({"a": value, "b": value, "c": value, "d": value})
+                return [Frame(0x680 + k, d) for k, d in enumerate(wide.split(payload, counter))]
+
+            old, new = frames(0, 5), frames(0, 6)  # the same counter: a writer restarted
+            net.send(old[1])
+            await asyncio.sleep(3600)
+            net.send(new[0])
+            net.send(new[1])  # no frame 2: not complete
+            net.send(new[1])  # a duplicate: ignored
+            await asyncio.sleep(0.01)
+            for frame in frames(1, 7):
+                net.send(frame)
+            net.send(frames(1, 7)[2])  # the last frame again: nothing new
+            await asyncio.sleep(0.01)
+            received = [e.values for e in events if isinstance(e, ListReceived)]
+            lost = [e for e in events if isinstance(e, ListIncomplete)]
+            return received, lost, reader.statistics()["wide"]
+
+    received, lost, stats = simulate(main())
+    assert received == [{"a": 7, "b": 7, "c": 7, "d": 7}]  # never 5 and 6 mixed
+    assert [(e.counter, e.missing) for e in lost] == [(0, (0, 2)), (0, (2,))]
+    assert stats == {"received": 1, "incomplete": 2, "malformed": 0}
+
+
+def test_a_reader_that_starts_first_gets_the_list_and_edges_are_truthy() -> None:
+    async def main() -> tuple[Any, Any, list[str], int]:
+        async with AsyncNetwork() as net:
+            plant = loads_netvars(LINE)
+            reader = AsyncNetworkVariables(net, plant, me="plc2")
+            reader.start()  # first: nothing to read yet
+            await asyncio.sleep(1)
+            writer = AsyncNetworkVariables(net, plant, me="plc1")
+            writer["small.x"] = 9
+            writer.start()  # an on_change list goes out once at the start
+            await asyncio.sleep(0.01)
+            small = reader.values("small")
+            with pytest.raises(NetworkClosedError, match="start"):
+                AsyncNetworkVariables(net, plant, me="plc1").send("wide")
+            writer["wide.a"] = 1
+            sent = writer.statistics()["wide"]["sent"]
+            failures: list[str] = []
+            writer.add_listener(lambda e: failures.append(str(e)) if "not sent" in str(e) else 0)
+            real_send = net.send
+
+            def refuse(frame: Frame) -> None:
+                raise TxOverflowError("the backlog is full")
+
+            net.send = refuse  # type: ignore[method-assign]
+            writer.send("wide")
+            net.send = real_send  # type: ignore[method-assign]
+            writer.close()
+            with pytest.raises(NetworkClosedError, match="closed"):
+                writer["small.x"] = 1
+            return small, writer.values("small"), failures, sent
+
+    small, mine, failures, sent = simulate(main())
+    assert small == {"x": 9, "go": False}
+    assert mine["x"] == 9 and sent == 0
+    assert failures == ["list wide: not sent: the backlog is full"]
+
+
+def test_a_hostile_definition_is_refused_quickly() -> None:
+    nested = "{array: {array: {array: {array: u99, length: 112}, length: 112}, length: 112}, "
+    head = "lists:\n  a: {id: 0x300, sender: x, interval: 10, variables: {v: "
+    text = f"{head}{nested}length: 112}}}}}}\n"
+    with pytest.raises(NetVarConfigError) as exc:
+        loads_netvars(text)
+    assert len(exc.value.problems) == 1 and "u99" in str(exc.value)

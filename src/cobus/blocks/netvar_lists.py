@@ -51,6 +51,13 @@ from cobus.errors import CobusError
 from cobus.od import DataType, decode, encode
 from cobus.proto.pdo import is_restricted_can_id
 
+
+def _reserved(can_id: int) -> bool:
+    """CiA 301's restricted identifiers, and those of SYNC (080h), EMCY (081h-0FFh) and
+    TIME (100h), which a PDO may take over but a variable list must not."""
+    return is_restricted_can_id(can_id) or 0x080 <= can_id <= 0x100
+
+
 __all__ = [
     "MAX_FRAMES",
     "NetVar",
@@ -68,6 +75,9 @@ _MODES = ("cyclic", "on_change", "on_event")
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 _MAX_ELEMENTS = 256
 _MAX_DEPTH = 8
+_MAX_PROBLEMS = 100
+#: The shortest interval of a cyclic list (a shorter one would flood the bus).
+MIN_INTERVAL = 0.001
 
 
 @dataclass(frozen=True)
@@ -149,6 +159,8 @@ class VarList:
     #: The frames (COB-IDs) reserved for the list: at least those it needs.
     reserved: int = 1
     line: int | None = None
+    #: The line of its ``id`` (for messages).
+    id_line: int | None = None
 
     @property
     def size(self) -> int:
@@ -156,10 +168,16 @@ class VarList:
         return sum(v.size for v in self.variables)
 
     @property
+    def headed(self) -> bool:
+        """Whether each frame starts with a counter byte: when the list takes, or reserves,
+        more than one frame (a one-frame list without reserve is its payload alone)."""
+        return self.reserved > 1 or self.size > 8
+
+    @property
     def frames(self) -> int:
-        """Frames per transmission: 1 for up to 8 bytes (no header), else one per 7 bytes
-        (each with a counter byte first)."""
-        return frames_for(self.size)
+        """Frames per transmission: 1 for up to 8 bytes without a header, else one per 7
+        payload bytes (each with a counter byte first)."""
+        return max(1, -(-self.size // 7)) if self.headed else 1
 
     @property
     def cob_ids(self) -> range:
@@ -185,9 +203,10 @@ class VarList:
     def split(self, payload: bytes, counter: int) -> list[bytes]:
         """The data of each frame: the payload itself when it fits one frame, else a
         counter byte and up to 7 payload bytes per frame."""
-        if self.frames == 1:
+        if not self.headed:
             return [payload]
-        return [bytes([counter & 0xFF]) + payload[k : k + 7] for k in range(0, len(payload), 7)]
+        head = bytes([counter & 0xFF])
+        return [head + payload[k : k + 7] for k in range(0, max(len(payload), 1), 7)]
 
 
 def frames_for(size: int) -> int:
@@ -228,54 +247,65 @@ class _Reader:
         line: int | None,
         out: list[tuple[str, DataType, int]],
         depth: int,
-    ) -> None:
-        """Append (name, type, size) of every scalar ``spec`` holds."""
+        key: str,
+    ) -> bool:
+        """Append (name, type, size) of every scalar ``spec`` holds; False when ``spec`` is
+        wrong (reported once, under ``key``: its place in the file)."""
+        where = f"{key}.{name}"
         if depth > _MAX_DEPTH:
-            self.error(line, name, f"nested more than {_MAX_DEPTH} deep")
-            return
+            self.error(line, where, f"nested more than {_MAX_DEPTH} deep")
+            return False
         if len(out) > _MAX_ELEMENTS:
-            return
+            return True  # (reported by the caller: too many values)
         if isinstance(spec, str | int) and not isinstance(spec, bool):
             data_type = data_type_named(spec)
             if data_type is None or data_type.size is None:
                 self.error(
                     line,
-                    name,
+                    where,
                     f"type {spec!r} is not a CiA 301 type of fixed size (UNSIGNED16, REAL32, "
                     "BOOLEAN...; text: {string: LENGTH})",
                 )
-                return
+                return False
             out.append((name, data_type, data_type.size))
-            return
+            return True
+        shapes = "give a type, {array: T, length: N}, {struct: {...}} or {string: N}"
         if not isinstance(spec, Mapping):
-            self.error(
-                line, name, "give a type, {array: T, length: N}, {struct: ...} or {string: N}"
-            )
-            return
+            self.error(line, where, shapes)
+            return False
         if set(spec) == {"string"}:
             length = spec["string"]
             if isinstance(length, bool) or not isinstance(length, int) or not 1 <= length <= 112:
-                self.error(line, name, f"string length {length!r}: 1..112 characters")
-                return
+                self.error(line, where, f"string length {length!r}: 1..112 characters")
+                return False
             out.append((name, DataType.VISIBLE_STRING, length))
-            return
+            return True
         if set(spec) == {"array", "length"}:
             length = spec["length"]
             if isinstance(length, bool) or not isinstance(length, int) or not 1 <= length <= 112:
-                self.error(line, name, f"array length {length!r}: 1..112 elements")
-                return
-            for n in range(length):
-                self.flatten(f"{name}[{n}]", spec["array"], line, out, depth + 1)
-            return
+                self.error(line, where, f"array length {length!r}: 1..112 elements")
+                return False
+            for n in range(length):  # (a wrong element type is reported once, not n times)
+                if not self.flatten(f"{name}[{n}]", spec["array"], line, out, depth + 1, key):
+                    return False
+                if len(out) > _MAX_ELEMENTS:
+                    break
+            return True
         if set(spec) == {"struct"} and isinstance(spec["struct"], Mapping) and spec["struct"]:
             members = spec["struct"]
+            fine = True
             for member, sub in members.items():
+                mline = line_of(members, member)
                 if not isinstance(member, str) or not _NAME.match(member):
-                    self.error(line_of(members, member), f"{name}.{member}", "not a valid name")
+                    self.error(mline, f"{where}.{member}", "not a valid name")
+                    fine = False
                     continue
-                self.flatten(f"{name}.{member}", sub, line_of(members, member), out, depth + 1)
-            return
-        self.error(line, name, "give a type, {array: T, length: N}, {struct: {...}} or {string: N}")
+                fine = self.flatten(f"{name}.{member}", sub, mline, out, depth + 1, key) and fine
+                if len(self.problems) > _MAX_PROBLEMS:
+                    return False
+            return fine
+        self.error(line, where, shapes)
+        return False
 
     def seconds(self, raw: Any, line: int | None, key: str) -> float | None:
         try:
@@ -326,6 +356,10 @@ class _Reader:
         interval = None
         if "interval" in raw:
             interval = self.seconds(raw["interval"], line_of(raw, "interval"), f"{key}.interval")
+        if interval is not None and transmit != "cyclic":
+            self.error(line_of(raw, "interval"), f"{key}.interval", "only a cyclic list has one")
+        if transmit == "cyclic" and interval is not None and 0 < interval < MIN_INTERVAL:
+            self.error(line_of(raw, "interval"), f"{key}.interval", "at least 1 ms")
         if transmit == "cyclic" and not interval:
             self.error(
                 line_of(raw, "interval"),
@@ -333,6 +367,8 @@ class _Reader:
                 "a cyclic list needs an interval above 0",
             )
         min_gap = 0.0
+        if "min_gap" in raw and transmit != "on_change":
+            self.error(line_of(raw, "min_gap"), f"{key}.min_gap", "only an on_change list has one")
         if "min_gap" in raw:
             min_gap = self.seconds(raw["min_gap"], line_of(raw, "min_gap"), f"{key}.min_gap") or 0.0
         request = raw.get("request_at_boot", False)
@@ -349,7 +385,9 @@ class _Reader:
                 if not isinstance(var_name, str) or not _NAME.match(var_name):
                     self.error(vline, f"{key}.variables.{var_name}", "not a valid name")
                     continue
-                self.flatten(var_name, spec, vline, flat, 0)
+                self.flatten(var_name, spec, vline, flat, 0, f"{key}.variables")
+                if len(self.problems) > _MAX_PROBLEMS:
+                    break
         if len(flat) > _MAX_ELEMENTS:
             self.error(line_of(raw, "variables"), f"{key}.variables", "more than 256 values")
         variables, offset = [], 0
@@ -402,7 +440,7 @@ class _Reader:
             if last > 0x7FF:
                 self.error(line_of(raw, "id"), f"{key}.id", f"its {reserved} frames run past 7FFh")
             for can_id in range(cob_id, min(last, 0x7FF) + 1):
-                if is_restricted_can_id(can_id):
+                if _reserved(can_id):
                     self.error(
                         line_of(raw, "id"),
                         f"{key}.id",
@@ -425,6 +463,7 @@ class _Reader:
             request,
             reserved,
             line,
+            line_of(raw, "id"),
         )
 
 
@@ -449,6 +488,8 @@ def loads_netvars(text: str, *, path: str = "<string>") -> NetVarDefinition:
         isinstance(c, str) for c in raw_controllers
     ):
         reader.error(line_of(data, "controllers"), "controllers", "a list of names")
+    elif len(set(raw_controllers)) != len(raw_controllers) or "" in raw_controllers:
+        reader.error(line_of(data, "controllers"), "controllers", "names given twice or empty")
     else:
         controllers = tuple(raw_controllers)
     raw_lists = data.get("lists")
@@ -472,7 +513,7 @@ def loads_netvars(text: str, *, path: str = "<string>") -> NetVarDefinition:
         if widest is not None and second.cob_id <= widest.cob_id + widest.reserved - 1:
             first = widest
             reader.error(
-                second.line,
+                second.id_line,
                 f"lists.{second.name}.id",
                 f"COB-IDs {second.cob_id:03X}h.. overlap list {first.name!r} "
                 f"({first.cob_id:03X}h..{first.cob_id + first.reserved - 1:03X}h)",

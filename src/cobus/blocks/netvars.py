@@ -24,6 +24,7 @@ from typing import Any
 from cobus.blocks.netvar_lists import NetVarDefinition, VarList
 from cobus.proto import Event, Frame
 from cobus.runtime._twin import BlockingTwin
+from cobus.runtime.network import NetworkClosedError
 
 __all__ = [
     "AsyncNetworkVariables",
@@ -31,6 +32,7 @@ __all__ = [
     "ListMalformed",
     "ListReceived",
     "ListRequested",
+    "ListSendFailed",
     "ListStale",
     "NetVarEvent",
     "NetworkVariables",
@@ -40,6 +42,12 @@ log = logging.getLogger(__name__)
 
 #: A cyclic list counts as stale after this many intervals without a complete set.
 STALE_INTERVALS = 3
+#: Seconds the frames of one transmission may take to come in (at most half a cyclic
+#: list's interval); a partial set older than that is dropped, never completed by frames
+#: of a later transmission with the same counter.
+SET_WINDOW = 0.1
+#: Seconds between a reader's requests at boot-up until the list comes (at most 10).
+REQUEST_RETRY = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,6 +105,17 @@ class ListStale(NetVarEvent):
 
 
 @dataclass(frozen=True, slots=True)
+class ListSendFailed(NetVarEvent):
+    """A transmission of a list this controller writes could not go out (backlog full,
+    network closed); the next one is tried as usual."""
+
+    reason: str
+
+    def __str__(self) -> str:
+        return f"list {self.list}: not sent: {self.reason}"
+
+
+@dataclass(frozen=True, slots=True)
 class ListRequested(NetVarEvent):
     """A reader asked for a list this controller sends (at its boot-up)."""
 
@@ -113,16 +132,27 @@ class _Writer:
         self.last_sent: float | None = None
         self.pending: asyncio.TimerHandle | None = None
         self.timer: asyncio.TimerHandle | None = None
+        self.due = 0.0
         self.sent = 0
+        self.failed = 0
 
     def start(self) -> None:
         if self.list.transmit == "cyclic":
+            self.due = self.owner.network.time()
             self._cycle()
+        elif self.list.transmit == "on_change":
+            self.send()  # the values it starts with: a reader that came first has them
 
     def _cycle(self) -> None:
         assert self.list.interval is not None
-        self.send()
-        self.timer = self.owner.network.loop.call_later(self.list.interval, self._cycle)
+        try:
+            self.send()
+        finally:  # (a failed transmission does not end the cycle)
+            self.due += self.list.interval
+            now = self.owner.network.time()
+            if self.due < now:  # late (a busy loop): skip, do not burst
+                self.due = now
+            self.timer = self.owner.network.loop.call_at(self.due, self._cycle)
 
     def changed(self, edges: set[str]) -> None:
         lst = self.list
@@ -149,11 +179,17 @@ class _Writer:
         lst = self.list
         net = self.owner.network
         payload = self.owner._payload(lst)
-        for k, data in enumerate(lst.split(payload, self.counter)):
-            net.send(Frame(lst.cob_id + k, data))
-        self.counter = (self.counter + 1) & 0xFF
+        counter, self.counter = self.counter, (self.counter + 1) & 0xFF
         self.last_payload = payload
         self.last_sent = net.time()
+        try:
+            for k, data in enumerate(lst.split(payload, counter)):
+                net.send(Frame(lst.cob_id + k, data))
+        except Exception as exc:  # backlog full, network closed: said, and tried again later
+            self.failed += 1
+            self.last_payload = None
+            self.owner._emit(ListSendFailed(lst.name, net.time(), str(exc) or repr(exc)))
+            return
         self.sent += 1
 
     def stop(self) -> None:
@@ -169,17 +205,32 @@ class _Reader:
         self.list = var_list
         self.parts: dict[int, bytes] = {}
         self.counter: int | None = None
+        self.began = 0.0
+        self.done: tuple[int, float] | None = None  # the counter completed last, and when
         self.received_at: float | None = None
         self.watch: asyncio.TimerHandle | None = None
+        self.asking: asyncio.TimerHandle | None = None
         self.stale = False
         self.received = 0
         self.incomplete = 0
+        self.malformed = 0
+        interval = var_list.interval
+        self.window = min(SET_WINDOW, interval / 2) if interval else SET_WINDOW
 
     def start(self) -> None:
         if self.list.request_at_boot:
-            first = min(8, self.list.size if self.list.frames == 1 else 8)
-            self.owner.network.send(Frame(self.list.cob_id, rtr=True, dlc=first))
+            self._ask(10)
         self._arm()
+
+    def _ask(self, tries: int) -> None:
+        """Request the list (a remote frame on its first COB-ID), again until it comes."""
+        self.asking = None
+        if self.received or tries <= 0:
+            return
+        dlc = self.list.size if not self.list.headed else 8
+        self.owner._send(Frame(self.list.cob_id, rtr=True, dlc=dlc))
+        loop = self.owner.network.loop
+        self.asking = loop.call_later(REQUEST_RETRY, self._ask, tries - 1)
 
     def _arm(self) -> None:
         interval = self.list.interval
@@ -203,28 +254,35 @@ class _Reader:
             return  # another reader's request
         k = frame.cob_id - lst.cob_id
         data = bytes(frame.data)
-        if lst.frames == 1:
+        if not lst.headed:
             if len(data) != lst.size:
                 self._malformed(frame, now, f"{len(data)} bytes, the list has {lst.size}")
                 return
             self._complete(data, None, now)
+            return
+        if k >= lst.frames:
+            self._malformed(frame, now, f"frame {k}: the list has {lst.frames} frame(s)")
             return
         chunk = min(7, lst.size - 7 * k)
         if len(data) != chunk + 1:
             self._malformed(frame, now, f"{len(data)} bytes, frame {k} has {chunk + 1}")
             return
         counter = data[0]
-        if counter != self.counter:
+        if self.done is not None and self.done[0] == counter and now - self.done[1] <= self.window:
+            return  # a frame of the set just completed, again: nothing new
+        if self.parts and (counter != self.counter or now - self.began > self.window):
+            self._drop(now)  # another transmission (or one too old to finish): no mixing
+        if k in self.parts:
+            if self.parts[k] == data[1:]:
+                return  # the same frame twice
             self._drop(now)
-            self.counter = counter
-        if k in self.parts:  # the same frame twice: the set is broken
-            self._drop(now)
-            self.counter = counter
+        if not self.parts:
+            self.counter, self.began = counter, now
         self.parts[k] = data[1:]
         if len(self.parts) == lst.frames:
             payload = b"".join(self.parts[n] for n in range(lst.frames))
             self.parts = {}
-            self.counter = None
+            self.done = (counter, now)
             self._complete(payload, counter, now)
 
     def _drop(self, now: float) -> None:
@@ -235,6 +293,7 @@ class _Reader:
         self.parts = {}
 
     def _malformed(self, frame: Frame, now: float, reason: str) -> None:
+        self.malformed += 1
         self.owner._emit(ListMalformed(self.list.name, now, frame.cob_id, reason))
 
     def _complete(self, payload: bytes, counter: int | None, now: float) -> None:
@@ -247,9 +306,12 @@ class _Reader:
         self.owner._emit(ListReceived(self.list.name, now, values, counter))
 
     def stop(self) -> None:
-        if self.watch is not None:
-            self.watch.cancel()
-            self.watch = None
+        for handle in (self.watch, self.asking):
+            if handle is not None:
+                handle.cancel()
+        self.watch = self.asking = None
+        self.parts = {}
+        self.counter = None
 
 
 class AsyncNetworkVariables:
@@ -276,6 +338,7 @@ class AsyncNetworkVariables:
         self._listeners: list[Callable[[NetVarEvent], object]] = []
         self._subs: list[Any] = []
         self._started = False
+        self._closed = False
 
     # ------------------------------------------------------------------ life cycle
 
@@ -284,8 +347,11 @@ class AsyncNetworkVariables:
         cyclic ones and ask for the ``request_at_boot`` ones (call on the network's loop)."""
         if self._started:
             return
-        self._started = True
         net = self.network
+        if not net.connected:
+            raise NetworkClosedError("the network is not connected: connect it first")
+        self._started = True
+        self._closed = False
         for reader in self._readers.values():
             for cob_id in reader.list.cob_ids:
                 self._subs.append(net.subscribe(cob_id, reader.on_frame))
@@ -314,6 +380,17 @@ class AsyncNetworkVariables:
         for reader in self._readers.values():
             reader.stop()
         self._started = False
+        self._closed = True
+
+    def _send(self, frame: Frame) -> None:
+        try:
+            self.network.send(frame)
+        except Exception as exc:  # (a request that cannot go out is tried again)
+            log.warning("network variables: %s not sent: %s", frame, exc)
+
+    def _check_running(self) -> None:
+        if self._closed:
+            raise NetworkClosedError("the network variables were closed")
 
     # ------------------------------------------------------------------ values
 
@@ -346,19 +423,23 @@ class AsyncNetworkVariables:
             raise PermissionError(
                 f"list {lst.name!r} is written by {lst.sender!r}, not by {self.me!r}"
             )
+        self._check_running()
+        normal = {}
         for var_name, value in values.items():
-            lst.variable(var_name).encode(value)  # ValueError before anything changes
+            var = lst.variable(var_name)
+            normal[var_name] = var.decode(var.encode(value))  # ValueError before any change
         stored = self._values[lst.name]
-        edges = {
-            name for name, value in values.items() if value is True and stored.get(name) is not True
-        }
-        stored.update(values)
+        edges = {name for name, value in normal.items() if value and not stored.get(name)}
+        stored.update(normal)  # (as a reader will see them: 1 is True, REAL32 rounded)
         if self._started:
             writer.changed(edges)
 
     def send(self, list_name: str) -> None:
-        """Send a list this controller writes now (an event)."""
+        """Send a list this controller writes now (an event; after :meth:`start`)."""
         lst = self.definition[list_name]
+        self._check_running()
+        if not self._started:
+            raise NetworkClosedError("start() the network variables first")
         writer = self._writers.get(lst.name)
         if writer is None:
             raise PermissionError(
@@ -377,10 +458,20 @@ class AsyncNetworkVariables:
         """Per list: transmissions sent, or complete sets received and incomplete ones."""
         out: dict[str, dict[str, int]] = {}
         for name, writer in self._writers.items():
-            out[name] = {"sent": writer.sent}
+            out[name] = {"sent": writer.sent, "failed": writer.failed}
         for name, reader in self._readers.items():
-            out[name] = {"received": reader.received, "incomplete": reader.incomplete}
+            out[name] = {
+                "received": reader.received,
+                "incomplete": reader.incomplete,
+                "malformed": reader.malformed,
+            }
         return out
+
+    def stale(self, list_name: str) -> bool:
+        """Whether a cyclic list this controller reads brought no complete set for
+        3 intervals (until the next one comes)."""
+        reader = self._readers.get(self.definition[list_name].name)
+        return reader is not None and reader.stale
 
     def _payload(self, lst: VarList) -> bytes:
         return lst.pack(self._values[lst.name])
@@ -389,7 +480,9 @@ class AsyncNetworkVariables:
 
     def add_listener(self, listener: Callable[[NetVarEvent], object]) -> None:
         """Call ``listener(event)`` for each :class:`ListReceived`, :class:`ListIncomplete`,
-        :class:`ListMalformed`, :class:`ListStale` and :class:`ListRequested`."""
+        :class:`ListMalformed`, :class:`ListStale`, :class:`ListRequested` and
+        :class:`ListSendFailed` (on the network's loop; a blocking network's callback
+        thread for :class:`NetworkVariables`)."""
         self._listeners.append(listener)
 
     def remove_listener(self, listener: Callable[[NetVarEvent], object]) -> None:
