@@ -1,7 +1,9 @@
-"""Code → text tables for alarms, one per kind of device, from the documents' data files
-(``cobus/profiles/tables``) and CiA 301. An unknown code still shows its number and, where the
-table has classes, its class: ``text("zapi", 99)`` is ``"ALARM 99"``, ``text("cia301",
-0x4399)`` is ``"Temperature (4399h)"``.
+"""Code → text tables for alarms, one per kind of device, read from data files: the
+documents' tables (``cobus/profiles/tables/*.yaml``) and CiA 301's
+(``cobus/proto/emcy_codes.yaml``); only the master's own alarm texts are in code. An
+unknown code still shows its number and, where the table has classes, its class:
+``table_text("zapi", 99)`` is ``"ALARM 99"``, ``table_text("cia301", 0x4399)`` is
+``"Temperature (4399h)"``.
 
 =========  ===========================================================================
 table      codes

@@ -93,74 +93,18 @@ class EmcyCode(IntEnum):
         return f"0x{self.value:04X} {_TEXTS[self]}"
 
 
-_TEXTS: dict[int, str] = {
-    EmcyCode.NO_ERROR: "Error reset or no error",
-    EmcyCode.GENERIC: "Generic error",
-    EmcyCode.CURRENT: "Current – generic error",
-    EmcyCode.CURRENT_INPUT: "Current, CANopen device input side – generic",
-    EmcyCode.CURRENT_INSIDE: "Current inside the CANopen device – generic",
-    EmcyCode.CURRENT_OUTPUT: "Current, CANopen device output side – generic",
-    EmcyCode.VOLTAGE: "Voltage – generic error",
-    EmcyCode.MAINS_VOLTAGE: "Mains voltage – generic",
-    EmcyCode.VOLTAGE_INSIDE: "Voltage inside the CANopen device – generic",
-    EmcyCode.OUTPUT_VOLTAGE: "Output voltage – generic",
-    EmcyCode.TEMPERATURE: "Temperature – generic error",
-    EmcyCode.AMBIENT_TEMPERATURE: "Ambient temperature – generic",
-    EmcyCode.DEVICE_TEMPERATURE: "Device temperature – generic",
-    EmcyCode.HARDWARE: "CANopen device hardware – generic error",
-    EmcyCode.SOFTWARE: "CANopen device software – generic error",
-    EmcyCode.INTERNAL_SOFTWARE: "Internal software – generic",
-    EmcyCode.USER_SOFTWARE: "User software – generic",
-    EmcyCode.DATA_SET: "Data set – generic",
-    EmcyCode.ADDITIONAL_MODULES: "Additional modules – generic error",
-    EmcyCode.MONITORING: "Monitoring – generic error",
-    EmcyCode.COMMUNICATION: "Communication – generic",
-    EmcyCode.CAN_OVERRUN: "CAN overrun (objects lost)",
-    EmcyCode.CAN_ERROR_PASSIVE: "CAN in error passive mode",
-    EmcyCode.LIFE_GUARD_OR_HEARTBEAT: "Life guard error or heartbeat error",
-    EmcyCode.BUS_OFF_RECOVERED: "Recovered from bus off",
-    EmcyCode.CAN_ID_COLLISION: "CAN-ID collision",
-    EmcyCode.PROTOCOL: "Protocol error – generic",
-    EmcyCode.PDO_LENGTH_ERROR: "PDO not processed due to length error",
-    EmcyCode.PDO_LENGTH_EXCEEDED: "PDO length exceeded",
-    EmcyCode.DAM_MPDO_NOT_PROCESSED: "DAM MPDO not processed, destination object not available",
-    EmcyCode.UNEXPECTED_SYNC_LENGTH: "Unexpected SYNC data length",
-    EmcyCode.RPDO_TIMEOUT: "RPDO timeout",
-    EmcyCode.EXTERNAL: "External error – generic error",
-    EmcyCode.ADDITIONAL_FUNCTIONS: "Additional functions – generic error",
-    EmcyCode.DEVICE_SPECIFIC: "Device specific – generic error",
-}
+def _load_codes() -> tuple[dict[int, str], dict[int, str], dict[int, str]]:
+    """The code and class texts from the data file beside this module."""
+    from importlib import resources
 
-# classes by high byte (sub-classes of CiA 301), then by high nibble
-_SUBCLASSES: dict[int, str] = {
-    0x00: "Error reset or no error",
-    0x21: "Current, CANopen device input side",
-    0x22: "Current inside the CANopen device",
-    0x23: "Current, CANopen device output side",
-    0x31: "Mains voltage",
-    0x32: "Voltage inside the CANopen device",
-    0x33: "Output voltage",
-    0x41: "Ambient temperature",
-    0x42: "Device temperature",
-    0x61: "Internal software",
-    0x62: "User software",
-    0x63: "Data set",
-    0x81: "Communication",
-    0x82: "Protocol error",
-    0xF0: "Additional functions",
-    0xFF: "Device specific",
-}
-_CLASSES: dict[int, str] = {
-    0x1: "Generic error",
-    0x2: "Current",
-    0x3: "Voltage",
-    0x4: "Temperature",
-    0x5: "CANopen device hardware",
-    0x6: "CANopen device software",
-    0x7: "Additional modules",
-    0x8: "Monitoring",
-    0x9: "External error",
-}
+    import yaml
+
+    text = (resources.files("cobus.proto") / "emcy_codes.yaml").read_text("utf-8")
+    data = yaml.safe_load(text)
+    return dict(data["codes"]), dict(data["subclasses"]), dict(data["classes"])
+
+
+_TEXTS, _SUBCLASSES, _CLASSES = _load_codes()
 
 
 def describe(code: int) -> str:
