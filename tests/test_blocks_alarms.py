@@ -522,3 +522,16 @@ def test_the_command_line_shows_and_exports_a_history(
     (tmp_path / "junk.db").write_text("junk" * 500)
     assert main(["alarms", "show", str(tmp_path / "junk.db")]) == 1
     assert "not an alarm history database" in capsys.readouterr().err
+
+
+def test_a_command_not_reported_back_for_some_cycles_is_an_alarm() -> None:
+    h, _ = handler()
+    seen = []
+    for commanded, reported in [(1, 0), (1, 0), (1, 0), (1, 0), (1, 1), (1, 0), (0, 0)]:
+        seen.append(
+            h.check_feedback("A16", bool(commanded), bool(reported), code=16, node=8, cycles=3)
+        )
+    assert seen == [False, False, True, True, False, False, False]
+    assert h.history is None
+    with pytest.raises(ValueError, match="cycles=0"):
+        h.check_feedback("A16", True, False, code=16, cycles=0)

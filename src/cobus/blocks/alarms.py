@@ -7,6 +7,7 @@ Sources:
   clears; another code replaces the previous one of that source and node);
 - boolean conditions combined by rules into alarm numbers: :meth:`AlarmHandler.add_rule`
   (``"overtemp and not fan_ok or door_open"``) and :meth:`AlarmHandler.set_condition`;
+- command/feedback checks per program cycle: :meth:`AlarmHandler.check_feedback`;
 - a master's events (:meth:`AlarmHandler.attach_master`): emergencies of any node (code
   0000h clears the node's), node missing, heartbeat/guarding lost, wrong device, failed
   configuration, unexpected NMT state, bus-off and error passive;
@@ -198,6 +199,7 @@ class AlarmHandler:
         self._active: dict[Key, Alarm] = {}
         self._listeners: list[Callable[[AlarmEvent], object]] = []
         self._rules: dict[int, _Rule] = {}
+        self._misses: dict[tuple[str, int | None], int] = {}
         self._conditions: dict[str, bool] = {}
         self._shown: Key | None = None
         self._since = 0.0
@@ -417,6 +419,37 @@ class AlarmHandler:
             self.raise_alarm(source, code, node=node, table=table)
 
     # ------------------------------------------------------------------ rules
+
+    @_locked
+    def check_feedback(
+        self,
+        name: str,
+        commanded: bool,
+        reported: bool,
+        *,
+        code: int,
+        node: int | None = None,
+        cycles: int = 3,
+        text: str | None = None,
+    ) -> bool:
+        """A command/feedback check, called once per program cycle: alarm ``code`` (source
+        ``feedback``) when ``commanded`` is on and ``reported`` stayed off for ``cycles``
+        calls in a row (a contactor that does not close); cleared once it is reported or
+        no longer commanded. Returns whether the alarm is active."""
+        if isinstance(cycles, bool) or not isinstance(cycles, int) or cycles < 1:
+            raise ValueError(f"cycles={cycles!r}: 1 or more")
+        key = (name, node)
+        if commanded and not reported:
+            misses = self._misses.get(key, 0) + 1
+            self._misses[key] = misses
+            if misses >= cycles:
+                shown = text or f"{name} commanded but not reported back"
+                self.raise_alarm("feedback", code, node=node, text=shown)
+                return True
+            return ("feedback", node, code) in self._active
+        self._misses[key] = 0
+        self._clear(("feedback", node, code))
+        return False
 
     @_locked
     def add_rule(
