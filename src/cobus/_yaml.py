@@ -11,12 +11,24 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import yaml
 
-__all__ = ["LineMap", "LineSeq", "YamlProblem", "line_of", "milliseconds", "read_yaml"]
+from cobus.errors import CobusError
+
+__all__ = [
+    "DataFileError",
+    "FileProblem",
+    "LineMap",
+    "LineSeq",
+    "YamlProblem",
+    "line_of",
+    "milliseconds",
+    "read_yaml",
+]
 
 
 class LineMap(dict[Any, Any]):
@@ -40,6 +52,33 @@ class YamlProblem:
     line: int | None
     reason: str
     key: str | None = None
+
+
+@dataclass(frozen=True)
+class FileProblem:
+    """One problem of a data file: where (file, line, key) and why."""
+
+    path: str
+    line: int | None
+    key: str | None
+    reason: str
+
+    def __str__(self) -> str:
+        where = self.path if self.line is None else f"{self.path}:{self.line}"
+        key = "" if self.key is None else f" {self.key}:"
+        return f"{where}:{key} {self.reason}"
+
+
+class DataFileError(CobusError, ValueError):
+    """A data file that cannot be used; ``problems`` lists every one found."""
+
+    #: How the message names the file.
+    what: ClassVar[str] = "the file"
+
+    def __init__(self, problems: Sequence[FileProblem]) -> None:
+        self.problems = list(problems)
+        head = f"{self.what} has {len(self.problems)} problem(s):"
+        super().__init__("\n".join([head, *(f"  {p}" for p in self.problems)]))
 
 
 class _Loader(yaml.SafeLoader):

@@ -40,14 +40,13 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cobus._yaml import LineMap, line_of, milliseconds, read_yaml
+from cobus._yaml import DataFileError, FileProblem, LineMap, line_of, milliseconds, read_yaml
 from cobus.blocks.parameters import data_type_named
-from cobus.errors import CobusError
 from cobus.od import DataType, decode, encode
 from cobus.proto.pdo import is_restricted_can_id
 
@@ -80,28 +79,14 @@ _MAX_PROBLEMS = 100
 MIN_INTERVAL = 0.001
 
 
-@dataclass(frozen=True)
-class NetVarProblem:
-    """One problem of a definition file: where (file, line, key) and why."""
-
-    path: str
-    line: int | None
-    key: str | None
-    reason: str
-
-    def __str__(self) -> str:
-        where = self.path if self.line is None else f"{self.path}:{self.line}"
-        key = "" if self.key is None else f" {self.key}:"
-        return f"{where}:{key} {self.reason}"
+class NetVarProblem(FileProblem):
+    """One problem of a network variable definition: where (file, line, key) and why."""
 
 
-class NetVarConfigError(CobusError, ValueError):
-    """A definition file that cannot be used; ``problems`` lists every one found."""
+class NetVarConfigError(DataFileError):
+    """A network variable definition that cannot be used; ``problems`` lists every one found."""
 
-    def __init__(self, problems: Sequence[NetVarProblem]) -> None:
-        self.problems = list(problems)
-        head = f"the network variable definition has {len(self.problems)} problem(s):"
-        super().__init__("\n".join([head, *(f"  {p}" for p in self.problems)]))
+    what = "the network variable definition"
 
 
 @dataclass(frozen=True)

@@ -27,15 +27,14 @@ import io
 import math
 import os
 import re
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from cobus._yaml import LineMap, line_of, read_yaml
-from cobus.errors import CobusError
+from cobus._yaml import DataFileError, FileProblem, LineMap, line_of, read_yaml
 from cobus.master.config import ObjectIndex
 from cobus.od import (
     DataType,
@@ -86,28 +85,14 @@ _SHORT_TYPES = {
 _MAX_TEXT = 64  # characters of a value shown in a message
 
 
-@dataclass(frozen=True)
-class ParameterProblem:
+class ParameterProblem(FileProblem):
     """One problem of a parameter file: where (file, line, key) and why."""
 
-    path: str
-    line: int | None
-    key: str | None
-    reason: str
 
-    def __str__(self) -> str:
-        where = self.path if self.line is None else f"{self.path}:{self.line}"
-        key = "" if self.key is None else f" {self.key}:"
-        return f"{where}:{key} {self.reason}"
-
-
-class ParameterFileError(CobusError, ValueError):
+class ParameterFileError(DataFileError):
     """A parameter file that cannot be used; ``problems`` lists every one found."""
 
-    def __init__(self, problems: Sequence[ParameterProblem]) -> None:
-        self.problems = list(problems)
-        head = f"the parameter file has {len(self.problems)} problem(s):"
-        super().__init__("\n".join([head, *(f"  {p}" for p in self.problems)]))
+    what = "the parameter file"
 
 
 @dataclass(frozen=True)
