@@ -1,0 +1,524 @@
+"""A sans-I/O CANopen decoder: a frame and its time in, typed records out.
+
+>>> decoder = Decoder(dictionaries={5: load("servo.eds")})
+>>> for record in decoder.feed(frame, now):
+...     print(record)            # node 5 read 1008h:00 Device name = 'servo' (5 bytes, ...)
+
+It knows the pre-defined connection set of CiA 301: NMT commands, boot-up, heartbeat, node
+guarding (with its toggle bit), SYNC (with counter), TIME, EMCY (code text and error register
+bits), LSS, SDO transfers **reassembled** across frames (expedited and segmented into one
+record with the value, its size and how long it took; an abort with its text; block transfers
+are reported by their frames), and PDOs decoded into named values from a node's dictionary —
+learning a new mapping when an SDO on the bus writes it. No threads, no clock, no bus: the
+caller feeds frames (live, or from a trace file) and prints or keeps what comes out.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from cobus.od import DataType, ObjectDictionary, Variable, decode
+from cobus.proto import Frame
+from cobus.proto.emcy import ErrorRegister, describe
+from cobus.proto.sdo import SdoAbortCode
+
+__all__ = [
+    "Bootup",
+    "Decoder",
+    "Emergency",
+    "GuardRequest",
+    "GuardResponse",
+    "Heartbeat",
+    "LssFrame",
+    "NmtCommand",
+    "PdoRecord",
+    "Record",
+    "SdoBlockFrame",
+    "SdoTransfer",
+    "SyncRecord",
+    "TimeRecord",
+    "Unknown",
+]
+
+_STATES = {0x00: "BOOTUP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE_OPERATIONAL"}
+_NMT = {
+    0x01: "start",
+    0x02: "stop",
+    0x80: "enter pre-operational",
+    0x81: "reset node",
+    0x82: "reset communication",
+}
+_EPOCH = dt.datetime(1984, 1, 1, tzinfo=dt.UTC)
+
+
+@dataclass(frozen=True)
+class Record:
+    """What one or more frames meant: ``time`` of the (last) frame, its ``cob_id``."""
+
+    time: float
+    cob_id: int
+
+    @property
+    def kind(self) -> str:
+        """The service: nmt, bootup, heartbeat, guarding, sync, time, emcy, sdo, pdo, lss..."""
+        return _KINDS.get(type(self).__name__, "other")
+
+
+@dataclass(frozen=True)
+class NmtCommand(Record):
+    """An NMT command: ``command`` to ``target`` (0: all nodes)."""
+
+    command: str
+    target: int
+
+    def __str__(self) -> str:
+        to = "all nodes" if self.target == 0 else f"node {self.target}"
+        return f"NMT {self.command} -> {to}"
+
+
+@dataclass(frozen=True)
+class Bootup(Record):
+    """A node's boot-up message."""
+
+    node: int
+
+    def __str__(self) -> str:
+        return f"node {self.node} boot-up"
+
+
+@dataclass(frozen=True)
+class Heartbeat(Record):
+    """A heartbeat: the NMT state the node reports."""
+
+    node: int
+    state: str
+
+    def __str__(self) -> str:
+        return f"node {self.node} heartbeat {self.state}"
+
+
+@dataclass(frozen=True)
+class GuardRequest(Record):
+    """The master's node guarding request (a remote frame)."""
+
+    node: int
+
+    def __str__(self) -> str:
+        return f"node {self.node} guarding request"
+
+
+@dataclass(frozen=True)
+class GuardResponse(Record):
+    """A node guarding answer: state and toggle bit."""
+
+    node: int
+    state: str
+    toggle: int
+
+    def __str__(self) -> str:
+        return f"node {self.node} guarding {self.state} (toggle {self.toggle})"
+
+
+@dataclass(frozen=True)
+class SyncRecord(Record):
+    """A SYNC, with its counter when it has one."""
+
+    counter: int | None
+
+    def __str__(self) -> str:
+        return "SYNC" if self.counter is None else f"SYNC {self.counter}"
+
+
+@dataclass(frozen=True)
+class TimeRecord(Record):
+    """A TIME stamp (TIME_OF_DAY)."""
+
+    moment: dt.datetime
+
+    def __str__(self) -> str:
+        return f"TIME {self.moment.isoformat(timespec='milliseconds')}"
+
+
+@dataclass(frozen=True)
+class Emergency(Record):
+    """An emergency: code with its CiA 301 text, the error register and its bits."""
+
+    node: int
+    code: int
+    register: int
+    data: bytes
+
+    @property
+    def text(self) -> str:
+        """The code's meaning."""
+        return describe(self.code)
+
+    @property
+    def register_bits(self) -> list[str]:
+        """The error register's bits by name (generic, current, voltage...)."""
+        return [str(bit.name).lower() for bit in ErrorRegister if self.register & bit]
+
+    def __str__(self) -> str:
+        if self.code >> 8 == 0:
+            register = f"{self.register:02X}h"
+            return f"node {self.node} EMCY {self.code:04X}h error reset (register {register})"
+        bits = ", ".join(self.register_bits) or "none"
+        extra = f", data {self.data.hex(' ')}" if any(self.data) else ""
+        return (
+            f"node {self.node} EMCY {self.code:04X}h {self.text} (register {self.register:02X}h: "
+            f"{bits}{extra})"
+        )
+
+
+@dataclass(frozen=True)
+class SdoTransfer(Record):
+    """A whole SDO transfer: read (upload) or write (download) of ``index``:``subindex``,
+    its data and value (decoded with the node's dictionary, else as a number when short),
+    how (expedited, segmented), how long from request to last answer; or its abort."""
+
+    node: int
+    write: bool
+    index: int
+    subindex: int
+    data: bytes
+    mode: str
+    duration: float
+    name: str | None = None
+    value: Any = None
+    abort_code: int | None = None
+
+    @property
+    def ok(self) -> bool:
+        """Whether it ended without an abort."""
+        return self.abort_code is None
+
+    def __str__(self) -> str:
+        verb = "write" if self.write else "read"
+        name = f" {self.name}" if self.name else ""
+        head = f"node {self.node} {verb} {self.index:04X}h:{self.subindex:02X}{name}"
+        ms = f"{self.duration * 1000:.1f} ms"
+        if self.abort_code is not None:
+            try:
+                text = SdoAbortCode(self.abort_code).text
+            except ValueError:
+                text = "unknown abort code"
+            return f"{head} ABORTED 0x{self.abort_code:08X} {text} ({ms})"
+        shown = repr(self.value) if self.value is not None else self.data.hex(" ")
+        return f"{head} = {shown} ({len(self.data)} bytes, {self.mode}, {ms})"
+
+
+@dataclass(frozen=True)
+class SdoBlockFrame(Record):
+    """A frame of an SDO block transfer (not reassembled)."""
+
+    node: int
+    data: bytes
+
+    def __str__(self) -> str:
+        return f"node {self.node} SDO block frame {self.data.hex(' ')}"
+
+
+@dataclass(frozen=True)
+class PdoRecord(Record):
+    """A PDO: its number and direction as the node sees it (``tpdo``: sent by the node), the
+    data, and its values by name when the mapping is known."""
+
+    node: int | None
+    number: int | None
+    tpdo: bool
+    data: bytes
+    values: Mapping[str, Any] = field(default_factory=dict)
+
+    def __str__(self) -> str:
+        kind = "TPDO" if self.tpdo else "RPDO"
+        number = f"{kind}{self.number}" if self.number else "PDO"
+        who = f"node {self.node} " if self.node is not None else ""
+        if self.values:
+            body = ", ".join(f"{k}={v!r}" for k, v in self.values.items())
+        else:
+            body = self.data.hex(" ") or "(no data)"
+        return f"{who}{number} {body}"
+
+
+@dataclass(frozen=True)
+class LssFrame(Record):
+    """An LSS frame (master request 7E5h, slave answer 7E4h) by its command specifier."""
+
+    command: int
+    data: bytes
+
+    def __str__(self) -> str:
+        who = "master" if self.cob_id == 0x7E5 else "slave"
+        return f"LSS {who} cs {self.command:02X}h {self.data[1:].hex(' ')}"
+
+
+@dataclass(frozen=True)
+class Unknown(Record):
+    """A frame the decoder has no meaning for."""
+
+    data: bytes
+    rtr: bool = False
+
+    def __str__(self) -> str:
+        return f"{self.cob_id:03X} {'RTR' if self.rtr else self.data.hex(' ')}"
+
+
+_KINDS = {
+    "NmtCommand": "nmt",
+    "Bootup": "hb",
+    "Heartbeat": "hb",
+    "GuardRequest": "hb",
+    "GuardResponse": "hb",
+    "SyncRecord": "sync",
+    "TimeRecord": "time",
+    "Emergency": "emcy",
+    "SdoTransfer": "sdo",
+    "SdoBlockFrame": "sdo",
+    "PdoRecord": "pdo",
+    "LssFrame": "lss",
+}
+
+
+@dataclass
+class _Sdo:
+    write: bool
+    index: int
+    subindex: int
+    began: float
+    data: bytearray = field(default_factory=bytearray)
+    size: int | None = None
+    segmented: bool = False
+    last_segment: bool = False
+
+
+@dataclass
+class _Pdo:
+    node: int
+    number: int
+    tpdo: bool
+    entries: list[tuple[str, DataType, int]]  # name, type, bits
+
+
+class Decoder:
+    """Decodes frames of a CANopen bus. ``dictionaries``: node-ID → its dictionary (from
+    its EDS/DCF) for object names, value types and PDO mappings."""
+
+    def __init__(self, dictionaries: Mapping[int, ObjectDictionary] | None = None) -> None:
+        self.dictionaries = dict(dictionaries or {})
+        self._sdo: dict[int, _Sdo] = {}
+        self._guard_seen: set[int] = set()
+        self._pdos: dict[int, _Pdo] = {}
+        self._params: dict[int, dict[tuple[int, int], int]] = {}
+        for node, od in self.dictionaries.items():
+            self._learn(node, od)
+
+    # ------------------------------------------------------------------ PDO mappings
+
+    def _learn(self, node: int, od: ObjectDictionary) -> None:
+        """Take the node's PDO parameters (1400h-1BFFh) from its dictionary."""
+        params: dict[tuple[int, int], int] = {}
+        for var in od.variables():
+            if 0x1400 <= var.index <= 0x1BFF and isinstance(var.value, int):
+                params[(var.index, var.subindex)] = var.value
+        self._params[node] = params
+        self._rebuild(node)
+
+    def _rebuild(self, node: int) -> None:
+        for cob_id in [c for c, p in self._pdos.items() if p.node == node]:
+            del self._pdos[cob_id]
+        params = self._params.get(node, {})
+        od = self.dictionaries.get(node)
+        for base, tpdo in ((0x1400, False), (0x1800, True)):
+            for n in range(512):
+                cob = params.get((base + n, 1))
+                if cob is None or cob & (1 << 31):
+                    continue
+                count = params.get((base + 0x200 + n, 0), 0)
+                entries = []
+                for sub in range(1, min(count, 64) + 1):
+                    raw = params.get((base + 0x200 + n, sub), 0)
+                    index, subindex, bits = raw >> 16, (raw >> 8) & 0xFF, raw & 0xFF
+                    var = od.get_variable(index, subindex) if od is not None else None
+                    if var is None:
+                        name = f"{index:04X}h:{subindex:02X}"
+                        data_type = DataType.UNSIGNED32 if bits > 16 else DataType.UNSIGNED16
+                        data_type = DataType.UNSIGNED8 if bits <= 8 else data_type
+                    else:
+                        name, data_type = _name(var), var.data_type
+                    entries.append((name, data_type, bits))
+                self._pdos[cob & 0x7FF] = _Pdo(node, n + 1, tpdo, entries)
+
+    # ------------------------------------------------------------------ frames
+
+    def feed(self, frame: Frame, now: float) -> list[Record]:
+        """The records ``frame`` completes (none while an SDO transfer is under way)."""
+        cob, data = frame.cob_id, bytes(frame.data)
+        if frame.extended:
+            return [Unknown(now, cob, data, frame.rtr)]
+        if cob in self._pdos and not frame.rtr:
+            return [self._pdo(now, cob, data)]
+        func, node = cob & 0x780, cob & 0x7F
+        if cob == 0x000 and len(data) >= 2:
+            return [NmtCommand(now, cob, _NMT.get(data[0], f"command {data[0]:02X}h"), data[1])]
+        if cob == 0x080:
+            return [SyncRecord(now, cob, data[0] if data else None)]
+        if cob == 0x100 and len(data) >= 6:
+            ms = int.from_bytes(data[:4], "little") & 0x0FFFFFFF
+            days = int.from_bytes(data[4:6], "little")
+            moment = _EPOCH + dt.timedelta(days=days, milliseconds=ms)
+            return [TimeRecord(now, cob, moment)]
+        if func == 0x080 and node and len(data) >= 3:
+            code = int.from_bytes(data[:2], "little")
+            return [Emergency(now, cob, node, code, data[2], data[3:8].ljust(5, b"\0"))]
+        if func == 0x700 and node:
+            if frame.rtr:
+                self._guard_seen.add(node)
+                return [GuardRequest(now, cob, node)]
+            if len(data) == 1:
+                state = data[0] & 0x7F
+                if state == 0:
+                    return [Bootup(now, cob, node)]
+                name = _STATES.get(state, f"state {state:02X}h")
+                if node in self._guard_seen:
+                    return [GuardResponse(now, cob, node, name, data[0] >> 7)]
+                return [Heartbeat(now, cob, node, name)]
+        if cob in (0x7E4, 0x7E5) and data:
+            return [LssFrame(now, cob, data[0], data)]
+        if func == 0x600 and node and len(data) == 8:
+            return self._sdo_request(now, cob, node, data)
+        if func == 0x580 and node and len(data) == 8:
+            return self._sdo_response(now, cob, node, data)
+        if 0x180 <= cob <= 0x57F and not frame.rtr:
+            number = ((cob - 0x180) >> 8) // 2 + 1
+            tpdo = ((cob - 0x180) >> 8) % 2 == 0
+            return [PdoRecord(now, cob, cob & 0x7F, number, tpdo, data)]
+        return [Unknown(now, cob, data, frame.rtr)]
+
+    def _pdo(self, now: float, cob: int, data: bytes) -> PdoRecord:
+        pdo = self._pdos[cob]
+        values: dict[str, Any] = {}
+        raw = int.from_bytes(data, "little")
+        bit = 0
+        for name, data_type, bits in pdo.entries:
+            if bit + bits > 8 * len(data):
+                break
+            chunk = (raw >> bit) & ((1 << bits) - 1)
+            size = data_type.size or (bits + 7) // 8
+            if bits == 8 * size and bit % 8 == 0:
+                try:
+                    values[name] = decode(data_type, chunk.to_bytes(size, "little"))
+                except ValueError:
+                    values[name] = chunk
+            else:
+                values[name] = chunk
+            bit += bits
+        return PdoRecord(now, cob, pdo.node, pdo.number, pdo.tpdo, data, values)
+
+    # ------------------------------------------------------------------ SDO
+
+    def _sdo_request(self, now: float, cob: int, node: int, data: bytes) -> list[Record]:
+        ccs = data[0] >> 5
+        index, sub = int.from_bytes(data[1:3], "little"), data[3]
+        if ccs == 1:  # initiate download
+            t = _Sdo(True, index, sub, now)
+            if data[0] & 0x02:  # expedited
+                n = (data[0] >> 2) & 0x3 if data[0] & 0x01 else 0
+                t.data = bytearray(data[4 : 8 - n])
+            else:
+                t.segmented = True
+                t.size = int.from_bytes(data[4:8], "little") if data[0] & 0x01 else None
+            self._sdo[node] = t
+        elif ccs == 2:  # initiate upload
+            self._sdo[node] = _Sdo(False, index, sub, now)
+        elif ccs == 0:  # download segment
+            t2 = self._sdo.get(node)
+            if t2 is not None and t2.write:
+                n = (data[0] >> 1) & 0x7
+                t2.data += data[1 : 8 - n]
+                t2.last_segment = bool(data[0] & 0x01)
+        elif ccs == 4:  # abort by the client
+            return self._abort(now, cob, node, data)
+        elif ccs in (5, 6):
+            return [SdoBlockFrame(now, cob, node, data)]
+        return []
+
+    def _sdo_response(self, now: float, cob: int, node: int, data: bytes) -> list[Record]:
+        scs = data[0] >> 5
+        t = self._sdo.get(node)
+        if scs == 4:
+            return self._abort(now, cob, node, data)
+        if scs in (5, 6):
+            return [SdoBlockFrame(now, cob, node, data)]
+        if t is None:
+            return []
+        if scs == 3 and t.write:  # initiate download response
+            return [] if t.segmented else self._done(now, cob, node, "expedited")
+        if scs == 1 and t.write:  # download segment response
+            return self._done(now, cob, node, "segmented") if t.last_segment else []
+        if scs == 2 and not t.write:  # initiate upload response
+            if data[0] & 0x02:
+                n = (data[0] >> 2) & 0x3 if data[0] & 0x01 else 0
+                t.data = bytearray(data[4 : 8 - n])
+                return self._done(now, cob, node, "expedited")
+            t.segmented = True
+            t.size = int.from_bytes(data[4:8], "little") if data[0] & 0x01 else None
+            return []
+        if scs == 0 and not t.write:  # upload segment response
+            n = (data[0] >> 1) & 0x7
+            t.data += data[1 : 8 - n]
+            if data[0] & 0x01:
+                return self._done(now, cob, node, "segmented")
+        return []
+
+    def _abort(self, now: float, cob: int, node: int, data: bytes) -> list[Record]:
+        t = self._sdo.pop(node, None)
+        index, sub = int.from_bytes(data[1:3], "little"), data[3]
+        code = int.from_bytes(data[4:8], "little")
+        write = t.write if t is not None else False
+        began = t.began if t is not None else now
+        name = self._object_name(node, index, sub)
+        return [
+            SdoTransfer(
+                now, cob, node, write, index, sub, b"", "aborted", now - began, name, None, code
+            )
+        ]
+
+    def _done(self, now: float, cob: int, node: int, mode: str) -> list[Record]:
+        t = self._sdo.pop(node)
+        data = bytes(t.data)
+        var = self._variable(node, t.index, t.subindex)
+        value: Any = None
+        if var is not None:
+            try:
+                size = var.data_type.size
+                value = decode(var.data_type, data[:size] if size else data)
+            except ValueError:
+                value = None
+        elif 0 < len(data) <= 4:
+            value = int.from_bytes(data, "little")
+        if t.write and 0x1400 <= t.index <= 0x1BFF and isinstance(value, int):
+            self._params.setdefault(node, {})[(t.index, t.subindex)] = value
+            self._rebuild(node)  # a mapping written on the bus: learnt
+        name = _name(var) if var is not None else None
+        return [
+            SdoTransfer(
+                now, cob, node, t.write, t.index, t.subindex, data, mode, now - t.began, name, value
+            )
+        ]
+
+    def _variable(self, node: int, index: int, sub: int) -> Variable | None:
+        od = self.dictionaries.get(node)
+        return od.get_variable(index, sub) if od is not None else None
+
+    def _object_name(self, node: int, index: int, sub: int) -> str | None:
+        var = self._variable(node, index, sub)
+        return _name(var) if var is not None else None
+
+
+def _name(var: Variable) -> str:
+    if var.parent is None:
+        return var.name
+    return f"{var.parent.name}.{var.name}"

@@ -1,0 +1,168 @@
+"""The sans-I/O decoder: frames of the documents decoded one by one, and a whole simulated
+session (master booting the thesis servo, SDO reads, an abort, a remapping, a fault)
+decoded into records that say what happened."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from typing import Any
+
+from cobus.device import export_eds
+from cobus.od import loads
+from cobus.proto import Frame
+from cobus.runtime import AsyncNetwork
+from cobus.sim.drive402 import Drive402 as Servo
+from cobus.trace import (
+    Bootup,
+    Decoder,
+    Emergency,
+    GuardResponse,
+    Heartbeat,
+    NmtCommand,
+    PdoRecord,
+    SdoTransfer,
+    SyncRecord,
+    TimeRecord,
+)
+
+from .util import simulate
+
+
+def frame(text: str, rtr: bool = False) -> Frame:
+    cob, _, data = text.partition(":")
+    return Frame(int(cob, 16), bytes.fromhex(data), rtr=rtr)
+
+
+def decoded(decoder: Decoder, *frames: str, step: float = 0.001) -> list[str]:
+    out = []
+    for n, text in enumerate(frames):
+        out += [str(r) for r in decoder.feed(frame(text), n * step)]
+    return out
+
+
+def test_the_documents_frames_decode_to_what_they_mean() -> None:
+    d = Decoder()
+    assert decoded(d, "000: 01 08", "000: 81 00", "080:", "080: 05") == [
+        "NMT start -> node 8",
+        "NMT reset node -> all nodes",
+        "SYNC",
+        "SYNC 5",
+    ]
+    # the ZAPI's save: 1010h sub 0 "save", expedited without size, and its answer
+    assert decoded(d, "608: 22 10 10 00 73 61 76 65", "588: 60 10 10 00 00 00 00 00") == [
+        "node 8 write 1010h:00 = 1702257011 (4 bytes, expedited, 1.0 ms)"
+    ]
+    assert decoded(d, "708: 00", "708: 05", "708: 7f") == [
+        "node 8 boot-up",
+        "node 8 heartbeat OPERATIONAL",
+        "node 8 heartbeat PRE_OPERATIONAL",
+    ]
+    assert [str(r) for r in d.feed(frame("709:", rtr=True), 0)] == ["node 9 guarding request"]
+    (answer,) = d.feed(frame("709: 85"), 0.01)
+    assert isinstance(answer, GuardResponse) and answer.toggle == 1
+    assert str(answer) == "node 9 guarding OPERATIONAL (toggle 1)"
+    (emcy,) = d.feed(frame("08A: 10 43 09 00 00 00 00 00"), 0)
+    assert isinstance(emcy, Emergency) and emcy.register_bits == ["generic", "temperature"]
+    assert (
+        str(emcy) == "node 10 EMCY 4310h Temperature (4310h) (register 09h: generic, temperature)"
+    )
+    assert decoded(d, "08A: 00 00 00 00 00 00 00 00") == [
+        "node 10 EMCY 0000h error reset (register 00h)"
+    ]
+    (stamp,) = d.feed(frame("100: 80 EE 36 00 6A 3A"), 0)  # 1984 + 14954 days, 1 h
+    assert isinstance(stamp, TimeRecord)
+    assert str(stamp) == "TIME 2024-12-10T01:00:00.000+00:00"
+
+
+def test_segmented_transfers_are_one_record_and_aborts_say_why() -> None:
+    d = Decoder()
+    read = decoded(
+        d,
+        "60A: 40 08 10 00 00 00 00 00",
+        "58A: 41 08 10 00 0A 00 00 00",  # segmented, 10 bytes
+        "60A: 60 00 00 00 00 00 00 00",
+        "58A: 00 43 69 41 20 34 30 32",  # "CiA 402"
+        "60A: 70 00 00 00 00 00 00 00",
+        "58A: 19 20 73 76 00 00 00 00",  # " sv", last (4 bytes unused)
+    )
+    assert read == [
+        "node 10 read 1008h:00 = 43 69 41 20 34 30 32 20 73 76 (10 bytes, segmented, 5.0 ms)"
+    ]
+    write = decoded(
+        d,
+        "60A: 21 00 20 00 09 00 00 00",  # segmented download, 9 bytes
+        "58A: 60 00 20 00 00 00 00 00",
+        "60A: 00 01 02 03 04 05 06 07",
+        "58A: 20 00 00 00 00 00 00 00",
+        "60A: 1B 08 09 00 00 00 00 00",  # toggle 1, 2 bytes, last
+        "58A: 30 00 00 00 00 00 00 00",
+    )
+    assert write == [
+        "node 10 write 2000h:00 = 01 02 03 04 05 06 07 08 09 (9 bytes, segmented, 5.0 ms)"
+    ]
+    aborted = decoded(d, "60A: 40 99 99 00 00 00 00 00", "58A: 80 99 99 00 00 00 02 06")
+    assert aborted == [
+        "node 10 read 9999h:00 ABORTED 0x06020000 object does not exist in the object "
+        "dictionary (1.0 ms)"
+    ]
+
+
+def test_a_simulated_session_decodes_into_what_happened() -> None:
+    async def main() -> tuple[list[Any], Decoder]:
+        async with AsyncNetwork() as net:
+            servo = Servo(net, 10, name="servo")
+            od = loads(export_eds(servo.od))
+            od.node_id = 10
+            decoder = Decoder({10: od})
+            records: list[Any] = []
+            net.subscribe_all(lambda f, now: records.extend(decoder.feed(f, now)))
+            servo.start()
+            await asyncio.sleep(0.1)
+            node = net.add_remote(10, od)
+            await node.sdo.upload(0x1008, 0)
+            await node.sdo.download(0x1017, 0, (100).to_bytes(2, "little"))
+            with contextlib.suppress(Exception):
+                await node.sdo.upload(0x5555, 0)
+            # remap TPDO1 to the statusword alone, as a master does, and start the node
+            await node.sdo.download(0x1800, 1, (0x8000018A).to_bytes(4, "little"))
+            await node.sdo.download(0x1A00, 0, b"\x00")
+            await node.sdo.download(0x1A00, 1, (0x60410010).to_bytes(4, "little"))
+            await node.sdo.download(0x1A00, 0, b"\x01")
+            await node.sdo.download(0x1800, 2, b"\x01")
+            await node.sdo.download(0x1800, 1, (0x18A).to_bytes(4, "little"))
+            net.nmt.send(0x01, 10)
+            net.sync.start(0.01)
+            await asyncio.sleep(0.25)
+            servo.inject("drive_fault", code=0x7121)
+            await asyncio.sleep(0.05)
+            net.sync.stop()
+            return records, decoder
+
+    records, _ = simulate(main())
+    texts = [str(r) for r in records]
+    assert any(isinstance(r, Bootup) and r.node == 10 for r in records)
+    reads = [r for r in records if isinstance(r, SdoTransfer)]
+    name = reads[0]
+    assert (name.index, name.write, name.name, name.mode) == (
+        0x1008,
+        False,
+        "Manufacturer device name",
+        "segmented",
+    )
+    assert isinstance(name.value, str) and str(name).startswith(
+        "node 10 read 1008h:00 Manufacturer device name = "
+    )
+    assert (
+        "node 10 write 1017h:00 Producer heartbeat time = 100 (2 bytes, expedited"
+        in texts[texts.index(str(reads[1]))]
+    )
+    assert reads[2].abort_code == 0x06020000 and not reads[2].ok
+    assert any(isinstance(r, NmtCommand) and r.target == 10 for r in records)
+    assert any(isinstance(r, Heartbeat) and r.state == "OPERATIONAL" for r in records)
+    assert any(isinstance(r, SyncRecord) for r in records)
+    tpdos = [r for r in records if isinstance(r, PdoRecord) and r.cob_id == 0x18A]
+    assert tpdos and list(tpdos[-1].values) == ["Statusword"]  # the mapping written: learnt
+    assert str(tpdos[-1]).startswith("node 10 TPDO1 Statusword=")
+    faults = [r for r in records if isinstance(r, Emergency)]
+    assert faults and faults[0].code == 0x7121 and faults[0].kind == "emcy"
