@@ -22,6 +22,7 @@ _COMMAND_MODULES = (
     "cobus.profiles._cli",
     "cobus.blocks._cli",
     "cobus.blocks._alarms_cli",
+    "cobus.trace._cli",
     "cobus.apps.demo",
 )
 
