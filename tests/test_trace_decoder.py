@@ -166,3 +166,53 @@ def test_a_simulated_session_decodes_into_what_happened() -> None:
     assert str(tpdos[-1]).startswith("node 10 TPDO1 Statusword=")
     faults = [r for r in records if isinstance(r, Emergency)]
     assert faults and faults[0].code == 0x7121 and faults[0].kind == "emcy"
+
+
+def test_block_transfers_are_put_back_together_with_their_crc_checked() -> None:
+    async def main() -> list[Any]:
+        async with AsyncNetwork() as net:
+            servo = Servo(net, 10, name="servo")
+            od = loads(export_eds(servo.od))
+            decoder = Decoder({10: od})
+            records: list[Any] = []
+            net.subscribe_all(lambda f, now: records.extend(decoder.feed(f, now)))
+            servo.start()
+            await asyncio.sleep(0.1)
+            node = net.add_remote(10, od)
+            eds = await node.sdo.upload(0x1021, 0, block=True)  # the stored EDS, kilobytes
+            with contextlib.suppress(Exception):  # read-only: the server aborts the block
+                await node.sdo.download(0x1008, 0, b"x" * 30, block=True)
+            return [eds, *records]
+
+    eds, *records = simulate(main())
+    transfers = [r for r in records if isinstance(r, SdoTransfer)]
+    assert [(r.index, r.write, r.mode) for r in transfers] == [
+        (0x1021, False, "block"),
+        (0x1008, True, "aborted"),
+    ]
+    assert transfers[0].data == eds and len(eds) > 1000
+    text = str(transfers[0])
+    assert text.startswith("node 10 read 1021h:00 Store EDS = b'[FileInfo]")
+    assert text.endswith(f"... ({len(eds)} bytes, block, 0.0 ms)")
+    assert transfers[1].abort_code == 0x06010002
+    assert str(transfers[1]).startswith("node 10 write 1008h:00 Manufacturer device name ABORTED")
+
+
+def test_a_block_upload_frame_by_frame_with_a_wrong_crc_and_a_retransmission() -> None:
+    d = Decoder()
+    out = decoded(
+        d,
+        "60A: A4 21 10 00 7F 00 00 00",  # initiate block upload, CRC, 127 segments
+        "58A: C6 21 10 00 0A 00 00 00",  # 10 bytes
+        "60A: A3 00 00 00 00 00 00 00",  # start
+        "58A: 01 30 31 32 33 34 35 36",
+        "58A: 82 37 38 39 00 00 00 00",  # last segment ... lost on the way, say
+        "60A: A2 01 7F 00 00 00 00 00",  # only segment 1 acknowledged
+        "58A: 82 37 38 39 00 00 00 00",  # sent again
+        "60A: A2 02 7F 00 00 00 00 00",
+        "58A: D1 34 12 00 00 00 00 00",  # end: 4 bytes unused, CRC 1234h
+        "60A: A1 00 00 00 00 00 00 00",
+    )
+    assert len(out) == 1
+    assert out[0].startswith("node 10 read 1021h:00 = 30 31 32 33 34 35 36 37 38 39 (10 bytes, ")
+    assert "block, CRC 1234h WRONG (data gives " in out[0]

@@ -6,9 +6,9 @@
 
 It knows the pre-defined connection set of CiA 301: NMT commands, boot-up, heartbeat, node
 guarding (with its toggle bit), SYNC (with counter), TIME, EMCY (code text and error register
-bits), LSS, SDO transfers **reassembled** across frames (expedited and segmented into one
-record with the value, its size and how long it took; an abort with its text; block transfers
-are reported by their frames), and PDOs decoded into named values from a node's dictionary —
+bits), LSS, SDO transfers **reassembled** across frames (expedited, segmented and block —
+retransmitted segments counted once, the CRC checked — into one record with the value, its
+size and how long it took; an abort with its text), and PDOs decoded into named values from a node's dictionary —
 learning a new mapping when an SDO on the bus writes it. No threads, no clock, no bus: the
 caller feeds frames (live, or from a trace file) and prints or keeps what comes out.
 """
@@ -23,7 +23,7 @@ from typing import Any
 from cobus.od import DataType, ObjectDictionary, Variable, decode
 from cobus.proto import Frame
 from cobus.proto.emcy import ErrorRegister, describe
-from cobus.proto.sdo import SdoAbortCode
+from cobus.proto.sdo import SdoAbortCode, crc16
 
 __all__ = [
     "Bootup",
@@ -52,6 +52,7 @@ _NMT = {
     0x82: "reset communication",
 }
 _EPOCH = dt.datetime(1984, 1, 1, tzinfo=dt.UTC)
+_SHOWN = 64  # characters of a value in a record's text
 
 
 @dataclass(frozen=True)
@@ -207,6 +208,8 @@ class SdoTransfer(Record):
                 text = "unknown abort code"
             return f"{head} ABORTED 0x{self.abort_code:08X} {text} ({ms})"
         shown = repr(self.value) if self.value is not None else self.data.hex(" ")
+        if len(shown) > _SHOWN:
+            shown = shown[: _SHOWN - 3] + "..."
         return f"{head} = {shown} ({len(self.data)} bytes, {self.mode}, {ms})"
 
 
@@ -292,6 +295,14 @@ class _Sdo:
     size: int | None = None
     segmented: bool = False
     last_segment: bool = False
+    #: Block transfer: "" (not one), "init", "segments" (a sub-block under way), "acked"
+    #: (waiting for the next sub-block or the end).
+    block: str = ""
+    crc: bool = False
+    #: The current sub-block's segments by sequence number (retransmissions overwrite).
+    segments: dict[int, bytes] = field(default_factory=dict)
+    last_seq: int = 0
+    crc_value: int | None = None
 
 
 @dataclass
@@ -422,6 +433,37 @@ class Decoder:
     def _sdo_request(self, now: float, cob: int, node: int, data: bytes) -> list[Record]:
         ccs = data[0] >> 5
         index, sub = int.from_bytes(data[1:3], "little"), data[3]
+        t0 = self._sdo.get(node)
+        if t0 is not None and t0.block == "segments" and t0.write:
+            return self._block_segment(t0, data)  # a download sub-block: data, not commands
+        if ccs == 6:  # block download: initiate (cs 0) or end (cs 1)
+            if data[0] & 0x01 == 0:
+                t = _Sdo(True, index, sub, now, block="init", crc=bool(data[0] & 0x04))
+                t.size = int.from_bytes(data[4:8], "little") if data[0] & 0x02 else None
+                self._sdo[node] = t
+                return []
+            if t0 is not None and t0.block:
+                n = (data[0] >> 2) & 0x7
+                if n:
+                    del t0.data[len(t0.data) - n :]
+                t0.block = "end"
+                t0.segments = {}
+                t0.crc_value = int.from_bytes(data[1:3], "little")
+            return []
+        if ccs == 5:  # block upload: initiate (cs 0), start (3), ack (2), end response (1)
+            cs = data[0] & 0x03
+            if cs == 0:
+                self._sdo[node] = _Sdo(
+                    False, index, sub, now, block="init", crc=bool(data[0] & 0x04)
+                )
+            elif t0 is not None and t0.block:
+                if cs == 3:
+                    t0.block = "segments"
+                elif cs == 2:
+                    self._block_ack(t0, data[1])
+                elif cs == 1 and t0.block == "end":
+                    return self._done(now, cob, node, "block")
+            return []
         if ccs == 1:  # initiate download
             t = _Sdo(True, index, sub, now)
             if data[0] & 0x02:  # expedited
@@ -441,19 +483,39 @@ class Decoder:
                 t2.last_segment = bool(data[0] & 0x01)
         elif ccs == 4:  # abort by the client
             return self._abort(now, cob, node, data)
-        elif ccs in (5, 6):
-            return [SdoBlockFrame(now, cob, node, data)]
         return []
 
     def _sdo_response(self, now: float, cob: int, node: int, data: bytes) -> list[Record]:
         scs = data[0] >> 5
         t = self._sdo.get(node)
+        if t is not None and t.block == "segments" and not t.write:
+            return self._block_segment(t, data)  # an upload sub-block: data, not commands
         if scs == 4:
             return self._abort(now, cob, node, data)
-        if scs in (5, 6):
-            return [SdoBlockFrame(now, cob, node, data)]
         if t is None:
+            return [SdoBlockFrame(now, cob, node, data)] if scs in (5, 6) else []
+        if t.block and t.write and scs == 5:  # block download answers
+            ss = data[0] & 0x03
+            if ss == 0:
+                t.block = "segments"
+            elif ss == 2:
+                self._block_ack(t, data[1])
+            elif ss == 1:
+                return self._done(now, cob, node, "block")
             return []
+        if t.block and not t.write and scs == 6:  # block upload: initiate answer or end
+            if data[0] & 0x01 == 0:
+                t.size = int.from_bytes(data[4:8], "little") if data[0] & 0x02 else None
+                t.crc = t.crc and bool(data[0] & 0x04)
+            else:
+                n = (data[0] >> 2) & 0x7
+                if n:
+                    del t.data[len(t.data) - n :]
+                t.block = "end"
+                t.crc_value = int.from_bytes(data[1:3], "little")
+            return []
+        if t.block == "init" and not t.write and scs == 2:
+            t.block = ""  # the server switched to a normal upload (protocol switch)
         if scs == 3 and t.write:  # initiate download response
             return [] if t.segmented else self._done(now, cob, node, "expedited")
         if scs == 1 and t.write:  # download segment response
@@ -473,6 +535,27 @@ class Decoder:
                 return self._done(now, cob, node, "segmented")
         return []
 
+    def _block_segment(self, t: _Sdo, data: bytes) -> list[Record]:
+        seq = data[0] & 0x7F
+        t.segments[seq] = data[1:8]
+        if data[0] & 0x80:
+            t.last_segment, t.last_seq = True, seq
+        return []
+
+    def _block_ack(self, t: _Sdo, ackseq: int) -> None:
+        """The receiver confirmed segments 1..ackseq of the sub-block: they count, the
+        rest will come again."""
+        for seq in range(1, ackseq + 1):
+            chunk = t.segments.get(seq)
+            if chunk is not None:
+                t.data += chunk
+        t.segments = {}
+        if t.last_segment and ackseq >= t.last_seq:
+            t.block = "end"  # the whole data went through
+        else:
+            t.last_segment = False  # (the rest of the sub-block comes again)
+            t.block = "segments"
+
     def _abort(self, now: float, cob: int, node: int, data: bytes) -> list[Record]:
         t = self._sdo.pop(node, None)
         index, sub = int.from_bytes(data[1:3], "little"), data[3]
@@ -489,6 +572,10 @@ class Decoder:
     def _done(self, now: float, cob: int, node: int, mode: str) -> list[Record]:
         t = self._sdo.pop(node)
         data = bytes(t.data)
+        if t.block and t.size is not None:
+            data = data[: t.size]
+        if t.block and t.crc and t.crc_value is not None and crc16(data) != t.crc_value:
+            mode = f"block, CRC {t.crc_value:04X}h WRONG (data gives {crc16(data):04X}h)"
         var = self._variable(node, t.index, t.subindex)
         value: Any = None
         if var is not None:
