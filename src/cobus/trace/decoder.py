@@ -9,8 +9,9 @@ guarding (with its toggle bit), SYNC (with counter), TIME, EMCY (code text and e
 bits), LSS, SDO transfers **reassembled** across frames (expedited, segmented and block —
 retransmitted segments counted once, the CRC checked — into one record with the value, its
 size and how long it took; an abort with its text), and PDOs decoded into named values from
-a node's dictionary — learning a new mapping when an SDO on the bus writes it. No threads, no clock, no bus: the
-caller feeds frames (live, or from a trace file) and prints or keeps what comes out.
+a node's dictionary — learning a new mapping when an SDO on the bus writes it. No threads,
+no clock, no bus: the caller feeds frames (live, or from a trace file) and prints or keeps
+what comes out.
 """
 
 from __future__ import annotations
