@@ -216,3 +216,34 @@ def test_a_block_upload_frame_by_frame_with_a_wrong_crc_and_a_retransmission() -
     assert len(out) == 1
     assert out[0].startswith("node 10 read 1021h:00 = 30 31 32 33 34 35 36 37 38 39 (10 bytes, ")
     assert "block, CRC 1234h WRONG (data gives " in out[0]
+
+
+def test_per_node_figures_latency_jitter_missed_beats_and_a_time_line() -> None:
+    d = Decoder()
+    for t, text in [
+        (0.0, "70A: 00"),
+        (0.05, "60A: 40 17 10 00 00 00 00 00"),
+        (0.052, "58A: 4B 17 10 00 64 00 00 00"),
+        (0.1, "70A: 7F"),
+        (0.2, "70A: 7F"),
+        (0.3, "70A: 7F"),
+        (0.41, "70A: 05"),
+        (0.5, "08A: 10 43 09 00 00 00 00 00"),
+        (0.71, "70A: 05"),  # two beats missing (0.51, 0.61)
+    ]:
+        d.feed(frame(text), t)
+    stats = d.stats[10]
+    latency = stats.sdo_latency
+    assert latency is not None and abs(latency[1] - 0.002) < 1e-9
+    assert stats.heartbeats == 5 and stats.missed_beats == 2
+    assert stats.heartbeat_period is not None and abs(stats.heartbeat_period - 0.11) < 1e-9
+    assert stats.jitter is not None and abs(stats.jitter - 0.19) < 1e-9
+    assert [text for _, text in stats.timeline] == [
+        "BOOTUP",
+        "PRE_OPERATIONAL",
+        "OPERATIONAL",
+        "EMCY 4310h",
+    ]
+    summary = stats.summary()
+    assert summary["emcy_count"] == 1 and summary["state"] == "OPERATIONAL"
+    assert summary["last_emcy"].startswith("EMCY 4310h Temperature")

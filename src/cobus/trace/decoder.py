@@ -17,6 +17,7 @@ what comes out.
 from __future__ import annotations
 
 import datetime as dt
+from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -35,6 +36,7 @@ __all__ = [
     "Heartbeat",
     "LssFrame",
     "NmtCommand",
+    "NodeStats",
     "PdoRecord",
     "Record",
     "SdoBlockFrame",
@@ -314,12 +316,93 @@ class _Pdo:
     entries: list[tuple[str, DataType, int]]  # name, type, bits
 
 
+class NodeStats:
+    """What the bus shows of one node over time: SDO answer latency, heartbeat interval,
+    jitter and missed beats, emergencies, and a time line of its states and emergencies."""
+
+    #: How many samples (latencies, intervals) and time-line entries are kept.
+    KEEP = 1000
+
+    def __init__(self, node: int) -> None:
+        self.node = node
+        self.sdo_latencies: deque[float] = deque(maxlen=self.KEEP)
+        self.heartbeat_intervals: deque[float] = deque(maxlen=self.KEEP)
+        self.heartbeats = 0
+        self.missed_beats = 0
+        self.last_heartbeat: float | None = None
+        self.emcy_count = 0
+        self.last_emcy: str | None = None
+        self.state: str | None = None
+        self.timeline: deque[tuple[float, str]] = deque(maxlen=self.KEEP)
+
+    @property
+    def sdo_latency(self) -> tuple[float, float, float] | None:
+        """(min, median, max) seconds from an SDO request to its answer, None before one."""
+        if not self.sdo_latencies:
+            return None
+        values = sorted(self.sdo_latencies)
+        return values[0], values[len(values) // 2], values[-1]
+
+    @property
+    def heartbeat_period(self) -> float | None:
+        """The median interval between heartbeats (None before two came)."""
+        if not self.heartbeat_intervals:
+            return None
+        values = sorted(self.heartbeat_intervals)
+        return values[len(values) // 2]
+
+    @property
+    def jitter(self) -> float | None:
+        """The largest deviation of an interval from the median one (seconds)."""
+        period = self.heartbeat_period
+        if period is None:
+            return None
+        return max(abs(i - period) for i in self.heartbeat_intervals)
+
+    def _heartbeat(self, now: float, state: str) -> None:
+        if self.last_heartbeat is not None:
+            interval = now - self.last_heartbeat
+            period = self.heartbeat_period
+            if period and interval > 1.5 * period:
+                self.missed_beats += max(1, round(interval / period) - 1)
+            self.heartbeat_intervals.append(interval)
+        self.last_heartbeat = now
+        self.heartbeats += 1
+        self._state(now, state)
+
+    def _state(self, now: float, state: str) -> None:
+        if state != self.state:
+            self.state = state
+            self.timeline.append((now, state))
+
+    def summary(self) -> dict[str, Any]:
+        """The figures as plain data (a node table, ``--json``)."""
+        latency = self.sdo_latency
+        return {
+            "node": self.node,
+            "state": self.state,
+            "heartbeats": self.heartbeats,
+            "heartbeat_period": self.heartbeat_period,
+            "jitter": self.jitter,
+            "missed_beats": self.missed_beats,
+            "sdo_latency": None
+            if latency is None
+            else dict(zip(("min", "median", "max"), latency, strict=True)),
+            "emcy_count": self.emcy_count,
+            "last_emcy": self.last_emcy,
+        }
+
+
 class Decoder:
     """Decodes frames of a CANopen bus. ``dictionaries``: node-ID → its dictionary (from
-    its EDS/DCF) for object names, value types and PDO mappings."""
+    its EDS/DCF) for object names, value types and PDO mappings. ``stats`` holds what it saw
+    of each node (:class:`NodeStats`)."""
 
     def __init__(self, dictionaries: Mapping[int, ObjectDictionary] | None = None) -> None:
         self.dictionaries = dict(dictionaries or {})
+        #: Node-ID -> what the bus showed of it.
+        self.stats: dict[int, NodeStats] = {}
+        self._requested: dict[int, float] = {}
         self._sdo: dict[int, _Sdo] = {}
         self._guard_seen: set[int] = set()
         self._pdos: dict[int, _Pdo] = {}
@@ -365,8 +448,38 @@ class Decoder:
 
     # ------------------------------------------------------------------ frames
 
+    def node_stats(self, node: int) -> NodeStats:
+        """What the bus showed of ``node`` (created when first asked for)."""
+        found = self.stats.get(node)
+        if found is None:
+            found = self.stats[node] = NodeStats(node)
+        return found
+
     def feed(self, frame: Frame, now: float) -> list[Record]:
         """The records ``frame`` completes (none while an SDO transfer is under way)."""
+        records = self._decode(frame, now)
+        cob = frame.cob_id
+        if 0x581 <= cob <= 0x5FF and not frame.rtr:
+            asked = self._requested.pop(cob - 0x580, None)
+            if asked is not None:
+                self.node_stats(cob - 0x580).sdo_latencies.append(now - asked)
+        elif 0x601 <= cob <= 0x67F and not frame.rtr:
+            self._requested[cob - 0x600] = now
+        for rec in records:
+            if isinstance(rec, Heartbeat | GuardResponse):
+                self.node_stats(rec.node)._heartbeat(now, rec.state)
+            elif isinstance(rec, Bootup):
+                stats = self.node_stats(rec.node)
+                stats._state(now, "BOOTUP")
+                stats.last_heartbeat = None  # (a reset: the intervals start again)
+            elif isinstance(rec, Emergency):
+                stats = self.node_stats(rec.node)
+                stats.emcy_count += 1
+                stats.last_emcy = str(rec).split(" ", 2)[2]
+                stats.timeline.append((now, f"EMCY {rec.code:04X}h"))
+        return records
+
+    def _decode(self, frame: Frame, now: float) -> list[Record]:
         cob, data = frame.cob_id, bytes(frame.data)
         if frame.extended:
             return [Unknown(now, cob, data, frame.rtr)]
