@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import threading
+import time
 from pathlib import Path
 
 import can
@@ -22,6 +23,16 @@ bus: embedded
 devices:
   - {node: 10, kind: cia402_drive, name: servo}
 """
+
+
+def listening(channel: str, buses: int) -> None:
+    """Wait until ``buses`` python-can buses are open on the virtual ``channel``."""
+    from can.interfaces import virtual
+
+    deadline = time.monotonic() + 20
+    while len(virtual.channels.get(channel, ())) < buses:
+        assert time.monotonic() < deadline, "the command did not open its bus"
+        time.sleep(0.01)
 
 
 def write_trace(path: Path, frames: list[Frame]) -> None:
@@ -81,11 +92,12 @@ def test_record_a_live_bus_and_decode_it_with_the_eds(
         result: list[int] = []
         recorder = threading.Thread(
             target=lambda: result.append(
-                main(["record", str(trace), "--duration", "1", "-i", "virtual", "-c", channel])
+                main(["record", str(trace), "--duration", "1.5", "-i", "virtual", "-c", channel])
             )
         )
         recorder.start()
-        net.sleep(0.3)
+        listening(channel, 2)  # the rig's network and the recorder
+        net.sleep(0.1)
         node.sdo.upload(0x1008, 0)
         node.sdo.download(0x1017, 0, (50).to_bytes(2, "little"))  # heartbeat every 50 ms
         recorder.join()
@@ -100,3 +112,37 @@ def test_record_a_live_bus_and_decode_it_with_the_eds(
     with pytest.raises(SystemExit) as usage:
         main(["decode", str(trace), "--eds", "x=1"])
     assert usage.value.code == 2 and "write NODE=FILE" in capsys.readouterr().err
+
+
+def test_monitor_decodes_the_live_bus_and_ends_with_the_node_table(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("COLUMNS", "200")
+    channel = f"monitor-{os.getpid()}"
+    eds = tmp_path / "servo.eds"
+    with Network(interface="virtual", channel=channel) as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        eds.write_text(export_eds(rig.aio.devices[10].od))
+        node = net.add_remote(10)
+        result: list[int] = []
+        bus = ["-i", "virtual", "-c", channel, "-b", "500000"]
+        monitor = threading.Thread(
+            target=lambda: result.append(
+                main(["monitor", "--duration", "1.5", "--eds", f"10={eds}", *bus])
+            )
+        )
+        monitor.start()
+        listening(channel, 2)  # the rig's network and the monitor
+        net.sleep(0.1)
+        node.sdo.download(0x1017, 0, (50).to_bytes(2, "little"))
+        node.nmt.send("start")
+        monitor.join()
+    assert result == [0]
+    out = capsys.readouterr().out
+    assert "node 10 write 1017h:00 Producer heartbeat time = 50" in out
+    assert "NMT start -> node 10" in out and "node 10 heartbeat OPERATIONAL" in out
+    assert "frames/s, bus load" in out  # the node table at the end
+    table = [line for line in out.splitlines() if "OPERATIONAL" in line and "│" in line]
+    assert table and " 50 ms " in table[0]
+    assert main(["monitor", "--duration", "0.1", "-i", "nosuchbus", "-c", "x"]) == 1
+    assert "cannot open the bus" in capsys.readouterr().err

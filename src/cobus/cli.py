@@ -23,6 +23,7 @@ _COMMAND_MODULES = (
     "cobus.blocks._cli",
     "cobus.blocks._alarms_cli",
     "cobus.trace._cli",
+    "cobus.trace.monitor",
     "cobus.apps.demo",
 )
 

@@ -1,0 +1,269 @@
+"""cobus monitor: the live bus, decoded, with a table of its nodes.
+
+    cobus monitor -i socketcan -c can0 -b 500000 --eds 10=servo.eds
+    cobus monitor --network line.yml --filter sdo,emcy        # EDS files from the network file
+    cobus monitor -i remote -c ws://127.0.0.1:54701/          # beside `cobus sim thesis`
+
+On a terminal: the node table (NMT state, heartbeats with period, jitter and missed beats,
+emergencies and the last one, SDO answer latency), frames/s and bus load, and the newest
+decoded records; ``p`` or space pauses the display (decoding goes on), ``q`` quits. Piped or
+with ``--json``: one line per record, and the node table at the end. A bus error is said and
+the bus opened again; ``--duration S`` stops by itself. Exit codes: 0 done, 1 the bus cannot
+be opened, 2 bad usage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import sys
+import time
+from collections import deque
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from cobus._args import add_bus_options, bus_options, seconds
+
+__all__ = ["register"]
+
+_REOPEN = 1.0  # seconds before a failed bus is opened again
+
+
+def register(sub: Any) -> None:
+    """Add ``cobus monitor``."""
+    from cobus.trace._cli import _eds, _kinds
+
+    p = sub.add_parser(
+        "monitor",
+        help="the live bus decoded, with a node table and the bus load",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "--eds",
+        type=_eds,
+        action="append",
+        default=[],
+        metavar="NODE=FILE",
+        help="a node's EDS/DCF (repeatable)",
+    )
+    p.add_argument("--network", type=Path, help="a network description: its nodes' EDS files")
+    p.add_argument("--filter", type=_kinds, help="only these kinds (nmt,hb,sync,sdo,pdo,...)")
+    p.add_argument("--node", type=int, help="only records of this node-ID")
+    p.add_argument("--duration", type=seconds, help="seconds to run (default: until q/Ctrl-C)")
+    p.add_argument("--json", action="store_true", help="one JSON object per record")
+    add_bus_options(p)
+    p.set_defaults(handler=_run)
+
+
+def _fail(message: str, code: int = 1) -> int:
+    print(f"cobus monitor: {message}", file=sys.stderr)
+    return code
+
+
+def _dictionaries(args: argparse.Namespace) -> dict[int, Any]:
+    from cobus.od import EdsError, load
+
+    out: dict[int, Any] = {}
+    if args.network is not None:
+        from cobus.master import load_network
+
+        network = load_network(args.network)
+        for cfg in network.nodes.values():
+            if cfg.od is not None:
+                out[cfg.node_id] = cfg.od
+    for node, path in args.eds:
+        try:
+            out[node] = load(path, node_id=node)
+        except (OSError, EdsError) as exc:
+            raise ValueError(f"cannot read {path}: {exc}") from None
+    return out
+
+
+class _Keys:
+    """Single key presses on a terminal (p/space: pause, q: quit); nothing elsewhere."""
+
+    def __init__(self) -> None:
+        self._saved: Any = None
+        self.paused = False
+        self.quit = False
+
+    def __enter__(self) -> _Keys:
+        if sys.stdin.isatty():
+            with contextlib.suppress(ImportError, OSError):
+                import termios
+                import tty
+
+                self._saved = termios.tcgetattr(sys.stdin)
+                tty.setcbreak(sys.stdin.fileno())
+        return self
+
+    def poll(self) -> None:
+        if self._saved is None:
+            return
+        import select
+
+        while select.select([sys.stdin], [], [], 0)[0]:
+            key = sys.stdin.read(1)
+            if key in ("p", " "):
+                self.paused = not self.paused
+            elif key in ("q", "Q"):
+                self.quit = True
+
+    def __exit__(self, *exc: object) -> None:
+        if self._saved is not None:
+            import termios
+
+            termios.tcsetattr(sys.stdin, termios.TCSADRAIN, self._saved)
+
+
+def _frames(args: argparse.Namespace, say: Any) -> Iterator[tuple[Any, float] | None]:
+    """Frames from the bus with their time (None about every 0.1 s without one); a bus
+    that fails is said and opened again."""
+    import can
+
+    from cobus.proto import Frame
+
+    options = {k: v for k, v in bus_options(args).items() if v is not None}
+    bus = None
+    try:
+        while True:
+            if bus is None:
+                try:
+                    bus = can.Bus(**options)
+                except (can.CanError, OSError, ValueError, ImportError) as exc:
+                    raise ConnectionError(str(exc)) from None
+            try:
+                msg = bus.recv(0.1)
+            except (can.CanError, OSError) as exc:
+                say(f"bus error: {exc}; opening the bus again in {_REOPEN:g} s")
+                with contextlib.suppress(Exception):
+                    bus.shutdown()
+                bus = None
+                time.sleep(_REOPEN)
+                yield None
+                continue
+            if msg is None:
+                yield None
+                continue
+            if msg.is_error_frame:
+                say("error frame on the bus")
+                continue
+            frame = Frame(
+                msg.arbitration_id,
+                b"" if msg.is_remote_frame else bytes(msg.data),
+                rtr=msg.is_remote_frame,
+                extended=msg.is_extended_id,
+                dlc=msg.dlc if msg.is_remote_frame else None,
+            )
+            yield frame, float(msg.timestamp or time.time())
+    finally:
+        if bus is not None:
+            bus.shutdown()
+
+
+def _table(decoder: Any, rate: float, load: float | None) -> Any:
+    from rich.table import Table
+
+    shown = f"{rate:,.0f} frames/s" + ("" if load is None else f", bus load {load:.1f} %")
+    table = Table(title=f"nodes — {shown}")
+    columns = ("node", "state", "beats", "period", "jitter", "missed", "EMCY", "last error")
+    for column in (*columns, "SDO latency"):
+        table.add_column(column)
+    for node in sorted(decoder.stats):
+        s = decoder.stats[node]
+        period, jitter, latency = s.heartbeat_period, s.jitter, s.sdo_latency
+        table.add_row(
+            str(node),
+            s.state or "",
+            str(s.heartbeats),
+            "" if period is None else f"{period * 1000:.0f} ms",
+            "" if jitter is None else f"{jitter * 1000:.1f} ms",
+            str(s.missed_beats),
+            str(s.emcy_count),
+            s.last_emcy or "",
+            "" if latency is None else f"{latency[1] * 1000:.1f} ms",
+        )
+    return table
+
+
+def _run(args: argparse.Namespace) -> int:
+    from rich.console import Console, Group
+    from rich.live import Live
+    from rich.markup import escape
+    from rich.text import Text
+
+    from cobus.master.diagnostics import frame_bits
+    from cobus.trace.decoder import Decoder
+
+    try:
+        decoder = Decoder(_dictionaries(args))
+    except Exception as exc:  # a network file or EDS that cannot be read
+        return _fail(str(exc), 2)
+    live_view = sys.stdout.isatty() and not args.json
+    console = Console(highlight=False)
+    newest: deque[str] = deque(maxlen=20)
+    window: deque[tuple[float, int]] = deque()  # (time, bits) of the last second
+    first: float | None = None
+    deadline = None if args.duration is None else time.monotonic() + args.duration
+
+    def say(text: str) -> None:
+        if live_view:
+            newest.append(f"[yellow]{escape(text)}[/]")
+        else:
+            print(f"# {text}", file=sys.stderr)
+
+    def figures() -> tuple[float, float | None]:
+        now = time.monotonic()
+        while window and window[0][0] < now - 1.0:
+            window.popleft()
+        bits = sum(b for _, b in window)
+        load = 100.0 * bits / args.bitrate if args.bitrate else None
+        return float(len(window)), load
+
+    def view() -> Any:
+        rate, load = figures()
+        lines = Text.from_markup("\n".join(newest) or "(nothing decoded yet)")
+        return Group(_table(decoder, rate, load), lines)
+
+    display: Any = (
+        Live(view(), console=console, auto_refresh=False) if live_view else contextlib.nullcontext()
+    )
+    try:
+        with _Keys() as keys, display as live:
+            for item in _frames(args, say):
+                keys.poll()
+                if keys.quit or (deadline is not None and time.monotonic() >= deadline):
+                    break
+                if item is None:
+                    if live is not None and not keys.paused:
+                        live.update(view(), refresh=True)
+                    continue
+                frame, stamp = item
+                first = stamp if first is None else first
+                window.append((time.monotonic(), frame_bits(frame)))
+                for rec in decoder.feed(frame, stamp - first):
+                    if args.filter is not None and rec.kind not in args.filter:
+                        continue
+                    if args.node is not None and getattr(rec, "node", None) != args.node:
+                        continue
+                    if args.json:
+                        print(json.dumps({"time": rec.time, "kind": rec.kind, "text": str(rec)}))
+                    elif live_view:
+                        newest.append(f"{rec.time:10.3f}  {escape(str(rec))}")
+                    else:
+                        print(f"{rec.time:12.6f}  {rec}", flush=True)
+                if live is not None and not keys.paused:
+                    live.update(view(), refresh=True)
+    except ConnectionError as exc:
+        return _fail(f"cannot open the bus: {exc}")
+    except KeyboardInterrupt:
+        pass
+    if not live_view and not args.json:
+        rate, load = figures()
+        console.print(_table(decoder, rate, load))
+    elif args.json:
+        print(json.dumps({"nodes": [decoder.stats[n].summary() for n in sorted(decoder.stats)]}))
+    return 0
