@@ -1,0 +1,232 @@
+"""cobus sdo / nmt / sync: talk to nodes from the shell.
+
+    cobus sdo read 10 0x1008 0                  # value, with the EDS's name and type (--eds)
+    cobus sdo write 10 0x6081 0 20000 --type u32
+    cobus sdo upload 10 0x1021 0 servo.eds --block
+    cobus sdo download 10 0x1F50 1 firmware.bin --block
+    cobus nmt start all                         # start | stop | preop | reset | reset-comm
+    cobus sync --period 0.01 --count 100
+
+Exit codes: 0 done, 1 the node refused (abort code and its text) or did not answer, 2 bad
+usage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from cobus._args import add_bus_options, bus_options, seconds
+
+__all__ = ["register"]
+
+_NMT = {
+    "start": "start",
+    "stop": "stop",
+    "preop": "enter_preoperational",
+    "reset": "reset_node",
+    "reset-comm": "reset_communication",
+}
+
+
+def _number(text: str) -> int:
+    try:
+        if text.lower().endswith("h"):
+            return int(text[:-1], 16)
+        return int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: a number (0x1008, 1008h or 4104)") from None
+
+
+def _node(text: str) -> int:
+    value = _number(text)
+    if not 1 <= value <= 127:
+        raise argparse.ArgumentTypeError(f"{text!r}: a node-ID 1-127")
+    return value
+
+
+def register(sub: Any) -> None:
+    """Add ``cobus sdo``, ``cobus nmt`` and ``cobus sync``."""
+    sdo = sub.add_parser(
+        "sdo",
+        help="read and write objects of a node by SDO",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    actions = sdo.add_subparsers(dest="action", metavar="ACTION", required=True)
+    for name, help_text in (
+        ("read", "read an object and show its value"),
+        ("write", "write a value to an object"),
+        ("upload", "read an object's bytes into a file"),
+        ("download", "write a file's bytes to an object"),
+    ):
+        p = actions.add_parser(name, help=help_text, description=help_text)
+        p.add_argument("node", type=_node, help="node-ID 1-127")
+        p.add_argument("index", type=_number, help="index (0x1008, 1008h)")
+        p.add_argument("subindex", type=_number, help="sub-index")
+        if name == "write":
+            p.add_argument("value", help="the value (a number, text, or hex bytes with --type)")
+        if name in ("upload", "download"):
+            p.add_argument("file", type=Path, help="the file")
+        p.add_argument("--eds", type=Path, help="the node's EDS/DCF: names and types")
+        p.add_argument("--type", help="the data type without an EDS (u8, u16, i32, real32...)")
+        p.add_argument("--block", action="store_true", help="a block transfer")
+        p.add_argument("--timeout", type=seconds, default=1.0, help="seconds per answer")
+        add_bus_options(p)
+        p.set_defaults(handler=_sdo)
+    nmt = sub.add_parser("nmt", help="send an NMT command to a node or to all")
+    nmt.add_argument("command", choices=sorted(_NMT), help="the command")
+    nmt.add_argument("target", help="a node-ID 1-127, or all")
+    add_bus_options(nmt)
+    nmt.set_defaults(handler=_nmt)
+    sync = sub.add_parser("sync", help="produce SYNC")
+    sync.add_argument("--period", type=seconds, default=0.01, help="seconds (default 0.01)")
+    sync.add_argument("--count", type=int, help="how many (default: until Ctrl-C)")
+    add_bus_options(sync)
+    sync.set_defaults(handler=_sync)
+
+
+def _fail(message: str, code: int = 1) -> int:
+    print(f"cobus: {message}", file=sys.stderr)
+    return code
+
+
+def _open(args: argparse.Namespace) -> Any:
+    from cobus.runtime import Network
+
+    return Network(**bus_options(args))
+
+
+def _sdo(args: argparse.Namespace) -> int:
+    from cobus.blocks.parameters import data_type_named
+    from cobus.errors import CobusError
+    from cobus.od import DataType, EdsError, decode, encode, load
+
+    od = None
+    if args.eds is not None:
+        try:
+            od = load(args.eds, node_id=args.node)
+        except (OSError, EdsError) as exc:
+            return _fail(f"cannot read {args.eds}: {exc}", 2)
+    var = od.get_variable(args.index, args.subindex) if od is not None else None
+    data_type: DataType | None = var.data_type if var is not None else None
+    if args.type is not None:
+        data_type = data_type_named(args.type)
+        if data_type is None:
+            return _fail(f"--type {args.type!r} is not a CiA 301 type", 2)
+    where = f"{args.index:04X}h:{args.subindex:02X}" + (f" {var.name}" if var else "")
+    payload = b""
+    if args.action == "write":
+        if data_type is None:
+            return _fail("give --type (or --eds) so the value can be encoded", 2)
+        try:
+            payload = _encode(args.value, data_type, encode)
+        except (ValueError, TypeError) as exc:
+            return _fail(f"{args.value!r} is not a valid {data_type.name}: {exc}", 2)
+    elif args.action == "download":
+        try:
+            payload = args.file.read_bytes()
+        except OSError as exc:
+            return _fail(f"cannot read {args.file}: {exc.strerror}", 2)
+    try:
+        with _open(args) as net:
+            node = net.add_remote(args.node, od, sdo_timeout=args.timeout)
+            if args.action in ("read", "upload"):
+                data = node.sdo.upload(args.index, args.subindex, block=args.block)
+            else:
+                node.sdo.download(args.index, args.subindex, payload, block=args.block)
+    except (CobusError, TimeoutError) as exc:
+        return _fail(f"node {args.node} {where}: {exc}")
+    except Exception as exc:
+        if type(exc).__module__.startswith("can"):
+            return _fail(f"cannot open the bus: {exc}")
+        raise
+    if args.action == "read":
+        print(f"{where} = {_show(data, data_type, decode)}")
+    elif args.action == "upload":
+        args.file.write_bytes(data)
+        print(f"{where}: {len(data)} bytes written to {args.file}")
+    elif args.action == "write":
+        print(f"{where} <- {args.value}")
+    else:
+        print(f"{where} <- {len(payload)} bytes from {args.file}")
+    return 0
+
+
+def _encode(text: str, data_type: Any, encode: Any) -> bytes:
+    from cobus.od import DataType
+
+    if data_type.is_integer:
+        value: Any = int(text, 0)
+    elif data_type.is_real:
+        value = float(text)
+    elif data_type is DataType.BOOLEAN:
+        value = text.lower() in ("1", "true", "on", "yes")
+    elif data_type in (DataType.OCTET_STRING, DataType.DOMAIN):
+        return bytes.fromhex(text)
+    else:
+        value = text
+    data: bytes = encode(data_type, value)
+    return data
+
+
+def _show(data: bytes, data_type: Any, decode: Any) -> str:
+    if data_type is not None:
+        try:
+            size = data_type.size
+            return repr(decode(data_type, data[:size] if size else data))
+        except ValueError:
+            pass
+    shown = data.hex(" ") or "(no data)"
+    if 0 < len(data) <= 4:
+        number = int.from_bytes(data, "little")
+        shown += f" ({number}, 0x{number:X})"
+    elif data and all(32 <= b < 127 for b in data):
+        shown += f" ({data.decode('ascii')!r})"
+    return shown
+
+
+def _nmt(args: argparse.Namespace) -> int:
+    target = 0 if args.target == "all" else None
+    if target is None:
+        try:
+            target = _node(args.target)
+        except argparse.ArgumentTypeError as exc:
+            return _fail(f"{exc} or all", 2)
+    try:
+        with _open(args) as net:
+            net.nmt.send(_NMT[args.command], target)
+            net.sleep(0.05)  # (the frame goes out before the bus is closed)
+    except Exception as exc:
+        if type(exc).__module__.startswith(("can", "cobus")):
+            return _fail(f"cannot send: {exc}")
+        raise
+    print(f"NMT {args.command} -> {'all nodes' if target == 0 else f'node {target}'}")
+    return 0
+
+
+def _sync(args: argparse.Namespace) -> int:
+    if args.count is not None and args.count < 1:
+        return _fail("--count: 1 or more", 2)
+    try:
+        with _open(args) as net:
+            net.sync.start(args.period)
+            began = time.monotonic()
+            try:
+                if args.count is None:
+                    while True:
+                        net.sleep(1.0)
+                else:
+                    net.sleep(args.period * args.count - args.period / 2)
+            except KeyboardInterrupt:
+                pass
+            net.sync.stop()
+    except Exception as exc:
+        if type(exc).__module__.startswith(("can", "cobus")):
+            return _fail(f"cannot send: {exc}")
+        raise
+    print(f"SYNC every {args.period:g} s for {time.monotonic() - began:.1f} s")
+    return 0

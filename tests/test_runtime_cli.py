@@ -1,0 +1,67 @@
+"""cobus sdo / nmt / sync against a simulated servo on python-can's virtual bus."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from cobus.cli import main
+from cobus.device import export_eds
+from cobus.proto import Frame
+from cobus.runtime import Network
+from cobus.sim import Rig, start_rig
+
+RIG = """
+bus: embedded
+devices:
+  - {node: 10, kind: cia402_drive, name: servo}
+"""
+
+
+def test_sdo_nmt_and_sync_from_the_shell(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    channel = f"cli-sdo-{os.getpid()}"
+    with Network(interface="virtual", channel=channel) as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        servo = rig.aio.devices[10]
+        eds = tmp_path / "servo.eds"
+        eds.write_text(export_eds(servo.od))
+        seen: list[Frame] = []
+        net.aio.subscribe_all(lambda f, now: seen.append(f))
+        bus = ["-i", "virtual", "-c", channel]
+
+        assert main(["sdo", "read", "10", "0x1008", "0", *bus]) == 0
+        assert "1008h:00 = " in capsys.readouterr().out
+        assert main(["sdo", "read", "10", "1008h", "0", "--eds", str(eds), *bus]) == 0
+        assert "1008h:00 Manufacturer device name = 'cobus CiA 402 drive'" in (
+            capsys.readouterr().out
+        )
+        assert main(["sdo", "write", "10", "0x6081", "0", "20000", "--type", "u32", *bus]) == 0
+        assert servo.device.get(0x6081, 0) == 20000
+        assert main(["sdo", "write", "10", "0x6081", "0", "30000", "--eds", str(eds), *bus]) == 0
+        assert servo.device.get(0x6081, 0) == 30000
+        out = tmp_path / "servo-stored.eds"
+        assert main(["sdo", "upload", "10", "0x1021", "0", str(out), "--block", *bus]) == 0
+        assert out.read_bytes().startswith(b"[FileInfo]")
+        capsys.readouterr()
+
+        assert main(["sdo", "read", "10", "0x5555", "0", *bus]) == 1
+        assert "object does not exist in the object dictionary" in capsys.readouterr().err
+        assert main(["sdo", "write", "10", "0x1008", "0", "x", "--type", "string", *bus]) == 1
+        assert "read only" in capsys.readouterr().err
+        assert main(["sdo", "read", "11", "0x1000", "0", "--timeout", "0.1", *bus]) == 1
+        assert main(["sdo", "write", "10", "0x6081", "0", "5", *bus]) == 2
+        assert "give --type" in capsys.readouterr().err
+
+        assert main(["nmt", "start", "10", *bus]) == 0
+        net.sleep(0.1)
+        assert servo.status()["nmt"] == "OPERATIONAL" or servo.device.state.name == "OPERATIONAL"
+        assert main(["nmt", "preop", "all", *bus]) == 0
+        assert main(["nmt", "reset", "200", *bus]) == 2
+        seen.clear()
+        assert main(["sync", "--period", "0.01", "--count", "5", *bus]) == 0
+        net.sleep(0.05)
+        assert 4 <= sum(1 for f in seen if f.cob_id == 0x80) <= 6
