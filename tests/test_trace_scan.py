@@ -1,0 +1,44 @@
+"""cobus scan: the thesis rig's nodes found with their identity, names and errors."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+from cobus.cli import main
+from cobus.runtime import Network
+from cobus.sim import start_rig
+from cobus.trace.scan import scan
+
+
+def test_scan_finds_the_thesis_rig_on_the_simulated_clock() -> None:
+    with Network(simulated=True) as net:
+        rig = start_rig(net, "thesis")
+        rig.inject(10, "drive_fault", code=0x7121)  # an entry in 1003h
+        seen: list[tuple[int, int]] = []
+        found = net.run(scan(net.aio, progress=lambda d, t: seen.append((d, t))))
+    by_id = {n.node_id: n for n in found}
+    assert set(by_id) >= {8, 9, 10}
+    assert 3 not in by_id  # the EC motor speaks no CANopen SDO
+    servo = by_id[10]
+    assert servo.profile == 402 and servo.device_name and servo.identity["vendor_id"]
+    assert servo.errors and servo.errors[0] & 0xFFFF == 0x7121
+    assert by_id[9].profile == 401
+    assert seen[-1] == (127, 127)
+
+
+def test_the_scan_command(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setenv("COLUMNS", "250")
+    channel = f"scan-{os.getpid()}"
+    with Network(interface="virtual", channel=channel) as net:
+        start_rig(net, "thesis")
+        bus = ["-i", "virtual", "-c", channel, "--listen", "0.2", "--timeout", "0.05"]
+        assert main(["scan", "--nodes", "8-10", "--json", *bus]) == 0
+        found = json.loads(capsys.readouterr().out)
+        assert [n["node_id"] for n in found] == [8, 9, 10]
+        assert found[2]["profile"] == 402
+        assert main(["scan", "--nodes", "9-10", *bus]) == 0
+        out = capsys.readouterr().out
+        assert "2 node(s) found" in out and "0x00020192" in out
