@@ -146,3 +146,24 @@ def test_monitor_decodes_the_live_bus_and_ends_with_the_node_table(
     assert table and " 50 ms " in table[0]
     assert main(["monitor", "--duration", "0.1", "-i", "nosuchbus", "-c", "x"]) == 1
     assert "cannot open the bus" in capsys.readouterr().err
+
+
+def test_decode_skips_a_can_fd_frame_and_reports_an_open_transfer(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    trace = tmp_path / "fd.log"
+    trace.write_text(
+        "(1000.000000) vcan0 70A#05\n"
+        "(1000.001000) vcan0 123##0112233445566778899AA\n"
+        "(1000.002000) vcan0 60A#4009100000000000\n"
+        "(1000.003000) vcan0 70A#05\n"
+    )
+    assert main(["decode", str(trace)]) == 0
+    captured = capsys.readouterr()
+    assert "frame skipped" in captured.err
+    lines = [line.split(None, 1)[1] for line in captured.out.splitlines()]
+    assert lines == [
+        "node 10 heartbeat OPERATIONAL",
+        "node 10 heartbeat OPERATIONAL",
+        "node 10 read 1009h:00 = (no data) (0 bytes, incomplete, 1.0 ms)",
+    ]

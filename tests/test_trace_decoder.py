@@ -247,3 +247,61 @@ def test_per_node_figures_latency_jitter_missed_beats_and_a_time_line() -> None:
     summary = stats.summary()
     assert summary["emcy_count"] == 1 and summary["state"] == "OPERATIONAL"
     assert summary["last_emcy"].startswith("EMCY 4310h Temperature")
+
+
+def test_hostile_and_partial_traces_from_a_review() -> None:
+    d = Decoder()
+    # pre-defined PDOs: direction and number from the COB-ID
+    assert decoded(d, "205: 01", "285: 02", "385: 03", "4FF: 04") == [
+        "node 5 RPDO1 01",
+        "node 5 TPDO2 02",
+        "node 5 TPDO3 03",
+        "node 127 TPDO4 04",
+    ]
+    # a client abort inside a block download sub-block is an abort, and the next transfer
+    # is its own
+    out = decoded(
+        d,
+        "605: C6 00 20 00 0A 00 00 00",
+        "585: A4 00 20 00 7F 00 00 00",
+        "605: 01 30 31 32 33 34 35 36",
+        "605: 80 00 20 00 00 00 04 05",
+        "605: 2B 17 10 00 64 00 00 00",
+        "585: 60 17 10 00 00 00 00 00",
+    )
+    assert out[0].startswith("node 5 write 2000h:00 ABORTED 0x05040000")
+    assert out[1].startswith("node 5 write 1017h:00 = 100 (2 bytes, expedited")
+    # a trace that starts mid-block invents no abort; an answer without its request is kept
+    assert decoded(d, "585: 82 37 38 39 00 00 00 00") == []
+    assert decoded(d, "585: 43 18 10 01 11 22 33 44")[0].startswith(
+        "node 5 read 1018h:01 = 1144201745 (4 bytes, expedited, request not seen"
+    )
+    # an answer about another object than asked is not taken for it
+    out = decoded(d, "605: 40 08 10 00 00 00 00 00", "585: 43 18 10 01 11 22 33 44")
+    assert out == [
+        "node 5 read 1018h:01 = 1144201745 (4 bytes, expedited, request not seen, 0.0 ms)"
+    ]
+    # a repeated segment (same toggle) is not data; a size that disagrees is said
+    out = decoded(
+        d,
+        "605: 40 08 10 00 00 00 00 00",
+        "585: 41 08 10 00 0B 00 00 00",
+        "605: 60 00 00 00 00 00 00 00",
+        "585: 00 43 69 41 20 34 30 32",
+        "585: 00 43 69 41 20 34 30 32",  # again, toggle 0
+        "605: 70 00 00 00 00 00 00 00",
+        "585: 19 20 73 76 00 00 00 00",
+    )
+    assert out == [
+        "node 5 read 1008h:00 = 43 69 41 20 34 30 32 20 73 76 (10 bytes, segmented, "
+        "11 bytes announced, 6.0 ms)"
+    ]
+    # a transfer the trace ends in is reported by flush()
+    decoded(d, "605: 40 09 10 00 00 00 00 00")
+    assert [str(r) for r in d.flush(1.0)] == [
+        "node 5 read 1009h:00 = (no data) (0 bytes, incomplete, 1000.0 ms)"
+    ]
+    # a state frame answers guarding only right after the master's request
+    d.feed(frame("705:", rtr=True), 2.0)
+    assert decoded(d, "705: 85") == ["node 5 guarding OPERATIONAL (toggle 1)"]
+    assert decoded(d, "705: 05") == ["node 5 heartbeat OPERATIONAL"]

@@ -94,7 +94,7 @@ def _decode(args: argparse.Namespace) -> int:
     import can
 
     from cobus.od import EdsError, load
-    from cobus.proto import Frame
+    from cobus.proto import Frame, FrameError
     from cobus.trace.decoder import Decoder
 
     dictionaries = {}
@@ -108,6 +108,7 @@ def _decode(args: argparse.Namespace) -> int:
         return _fail(f"{args.file}: no such file")
     decoder = Decoder(dictionaries)
     first: float | None = None
+    now = 0.0
     try:
         reader = can.LogReader(str(args.file))
     except (ValueError, OSError, ImportError) as exc:
@@ -120,14 +121,19 @@ def _decode(args: argparse.Namespace) -> int:
                 if args.filter is None and args.node is None:
                     print(f"{now - first:12.6f}  error frame")
                 continue
-            frame = Frame(
-                msg.arbitration_id,
-                b"" if msg.is_remote_frame else bytes(msg.data),
-                rtr=msg.is_remote_frame,
-                extended=msg.is_extended_id,
-                dlc=msg.dlc if msg.is_remote_frame else None,
-            )
-            for rec in decoder.feed(frame, now - first):
+            try:
+                frame = Frame(
+                    msg.arbitration_id,
+                    b"" if msg.is_remote_frame else bytes(msg.data),
+                    rtr=msg.is_remote_frame,
+                    extended=msg.is_extended_id,
+                    dlc=msg.dlc if msg.is_remote_frame else None,
+                )
+            except FrameError as exc:  # a CAN FD frame: CANopen (CiA 301) has none
+                print(f"# {now - first:.6f}: frame skipped: {exc}", file=sys.stderr)
+                continue
+            records = decoder.feed(frame, now - first)
+            for rec in records:
                 if args.filter is not None and rec.kind not in args.filter:
                     continue
                 if args.node is not None and getattr(rec, "node", None) != args.node:
@@ -137,6 +143,10 @@ def _decode(args: argparse.Namespace) -> int:
                     print(json.dumps({"kind": rec.kind, "text": str(rec), **body}))
                 else:
                     print(f"{rec.time:12.6f}  {rec}")
+        for rec in decoder.flush(0.0 if first is None else now - first):
+            print(f"{rec.time:12.6f}  {rec}")  # transfers the trace ended in
+    except BrokenPipeError:
+        raise
     except (ValueError, OSError) as exc:
         return _fail(f"{args.file}: {exc}")
     finally:

@@ -56,6 +56,7 @@ _NMT = {
 }
 _EPOCH = dt.datetime(1984, 1, 1, tzinfo=dt.UTC)
 _SHOWN = 64  # characters of a value in a record's text
+_GUARD_ANSWER = 1.0  # seconds within which a state frame answers a guarding request
 
 
 @dataclass(frozen=True)
@@ -211,9 +212,11 @@ class SdoTransfer(Record):
                 text = "unknown abort code"
             return f"{head} ABORTED 0x{self.abort_code:08X} {text} ({ms})"
         shown = repr(self.value) if self.value is not None else self.data.hex(" ")
+        shown = shown or "(no data)"
         if len(shown) > _SHOWN:
             shown = shown[: _SHOWN - 3] + "..."
-        return f"{head} = {shown} ({len(self.data)} bytes, {self.mode}, {ms})"
+        size = f"{len(self.data)} byte{'' if len(self.data) == 1 else 's'}"
+        return f"{head} = {shown} ({size}, {self.mode}, {ms})"
 
 
 @dataclass(frozen=True)
@@ -306,6 +309,8 @@ class _Sdo:
     segments: dict[int, bytes] = field(default_factory=dict)
     last_seq: int = 0
     crc_value: int | None = None
+    #: The toggle bit the next segment carries (segmented transfers).
+    toggle: int = 0
 
 
 @dataclass
@@ -313,7 +318,7 @@ class _Pdo:
     node: int
     number: int
     tpdo: bool
-    entries: list[tuple[str, DataType, int]]  # name, type, bits
+    entries: list[tuple[str | None, DataType, int]]  # name (None: a gap), type, bits
 
 
 class NodeStats:
@@ -404,10 +409,12 @@ class Decoder:
         self.stats: dict[int, NodeStats] = {}
         self._requested: dict[int, float] = {}
         self._sdo: dict[int, _Sdo] = {}
-        self._guard_seen: set[int] = set()
+        self._guard_asked: dict[int, float] = {}  # node -> when the master's RTR came
         self._pdos: dict[int, _Pdo] = {}
         self._params: dict[int, dict[tuple[int, int], int]] = {}
         for node, od in self.dictionaries.items():
+            if od.node_id is None:
+                od.node_id = node  # ($NODEID in COB-IDs: the node it is given for)
             self._learn(node, od)
 
     # ------------------------------------------------------------------ PDO mappings
@@ -432,10 +439,14 @@ class Decoder:
                 if cob is None or cob & (1 << 31):
                     continue
                 count = params.get((base + 0x200 + n, 0), 0)
-                entries = []
+                entries: list[tuple[str | None, DataType, int]] = []
+                names: set[str] = set()
                 for sub in range(1, min(count, 64) + 1):
                     raw = params.get((base + 0x200 + n, sub), 0)
                     index, subindex, bits = raw >> 16, (raw >> 8) & 0xFF, raw & 0xFF
+                    if index < 0x1000:  # a dummy entry (a data type index): a gap
+                        entries.append((None, DataType.UNSIGNED8, bits))
+                        continue
                     var = od.get_variable(index, subindex) if od is not None else None
                     if var is None:
                         name = f"{index:04X}h:{subindex:02X}"
@@ -443,8 +454,15 @@ class Decoder:
                         data_type = DataType.UNSIGNED8 if bits <= 8 else data_type
                     else:
                         name, data_type = _name(var), var.data_type
+                    if name in names:  # the same object mapped twice
+                        name = f"{name}#{sub}"
+                    names.add(name)
                     entries.append((name, data_type, bits))
-                self._pdos[cob & 0x7FF] = _Pdo(node, n + 1, tpdo, entries)
+                key = cob & 0x7FF
+                other = self._pdos.get(key)
+                if other is not None and other.node != node and other.tpdo and not tpdo:
+                    continue  # a node's TPDO names the frame, not another's RPDO of it
+                self._pdos[key] = _Pdo(node, n + 1, tpdo, entries)
 
     # ------------------------------------------------------------------ frames
 
@@ -479,6 +497,30 @@ class Decoder:
                 stats.timeline.append((now, f"EMCY {rec.code:04X}h"))
         return records
 
+    def flush(self, now: float) -> list[Record]:
+        """The SDO transfers still open (a trace that ended mid-transfer), as records of
+        mode "incomplete" with the data seen so far."""
+        out: list[Record] = []
+        for node in sorted(self._sdo):
+            t = self._sdo.pop(node)
+            cob = (0x600 if t.write else 0x580) + node
+            name = self._object_name(node, t.index, t.subindex)
+            out.append(
+                SdoTransfer(
+                    now,
+                    cob,
+                    node,
+                    t.write,
+                    t.index,
+                    t.subindex,
+                    bytes(t.data),
+                    "incomplete",
+                    now - t.began,
+                    name,
+                )
+            )
+        return out
+
     def _decode(self, frame: Frame, now: float) -> list[Record]:
         cob, data = frame.cob_id, bytes(frame.data)
         if frame.extended:
@@ -500,14 +542,15 @@ class Decoder:
             return [Emergency(now, cob, node, code, data[2], data[3:8].ljust(5, b"\0"))]
         if func == 0x700 and node:
             if frame.rtr:
-                self._guard_seen.add(node)
+                self._guard_asked[node] = now
                 return [GuardRequest(now, cob, node)]
             if len(data) == 1:
                 state = data[0] & 0x7F
                 if state == 0:
                     return [Bootup(now, cob, node)]
                 name = _STATES.get(state, f"state {state:02X}h")
-                if node in self._guard_seen:
+                asked = self._guard_asked.pop(node, None)
+                if asked is not None and now - asked <= _GUARD_ANSWER:
                     return [GuardResponse(now, cob, node, name, data[0] >> 7)]
                 return [Heartbeat(now, cob, node, name)]
         if cob in (0x7E4, 0x7E5) and data:
@@ -517,8 +560,8 @@ class Decoder:
         if func == 0x580 and node and len(data) == 8:
             return self._sdo_response(now, cob, node, data)
         if 0x180 <= cob <= 0x57F and not frame.rtr:
-            number = ((cob - 0x180) >> 8) // 2 + 1
-            tpdo = ((cob - 0x180) >> 8) % 2 == 0
+            k = (cob - 0x180) >> 7
+            number, tpdo = k // 2 + 1, k % 2 == 0
             return [PdoRecord(now, cob, cob & 0x7F, number, tpdo, data)]
         return [Unknown(now, cob, data, frame.rtr)]
 
@@ -532,7 +575,10 @@ class Decoder:
                 break
             chunk = (raw >> bit) & ((1 << bits) - 1)
             size = data_type.size or (bits + 7) // 8
-            if bits == 8 * size and bit % 8 == 0:
+            if name is None:  # a dummy entry: a gap
+                bit += bits
+                continue
+            if bits == 8 * size:
                 try:
                     values[name] = decode(data_type, chunk.to_bytes(size, "little"))
                 except ValueError:
@@ -548,8 +594,8 @@ class Decoder:
         ccs = data[0] >> 5
         index, sub = int.from_bytes(data[1:3], "little"), data[3]
         t0 = self._sdo.get(node)
-        if t0 is not None and t0.block == "segments" and t0.write:
-            return self._block_segment(t0, data)  # a download sub-block: data, not commands
+        if t0 is not None and t0.block == "segments" and t0.write and data[0] != 0x80:
+            return self._block_segment(t0, data)  # sub-block data (80h: an abort)
         if ccs == 6:  # block download: initiate (cs 0) or end (cs 1)
             if data[0] & 0x01 == 0:
                 t = _Sdo(True, index, sub, now, block="init", crc=bool(data[0] & 0x04))
@@ -591,27 +637,38 @@ class Decoder:
             self._sdo[node] = _Sdo(False, index, sub, now)
         elif ccs == 0:  # download segment
             t2 = self._sdo.get(node)
-            if t2 is not None and t2.write:
+            if t2 is not None and t2.write and (data[0] >> 4) & 1 == t2.toggle:
                 n = (data[0] >> 1) & 0x7
                 t2.data += data[1 : 8 - n]
                 t2.last_segment = bool(data[0] & 0x01)
-        elif ccs == 4:  # abort by the client
+                t2.toggle ^= 1  # (a segment repeated with the old toggle bit is not data)
+        elif data[0] == 0x80:  # abort by the client
             return self._abort(now, cob, node, data)
         return []
 
     def _sdo_response(self, now: float, cob: int, node: int, data: bytes) -> list[Record]:
         scs = data[0] >> 5
         t = self._sdo.get(node)
-        if t is not None and t.block == "segments" and not t.write:
-            return self._block_segment(t, data)  # an upload sub-block: data, not commands
-        if scs == 4:
+        if t is not None and t.block == "segments" and not t.write and data[0] != 0x80:
+            return self._block_segment(t, data)  # sub-block data (80h: an abort)
+        if data[0] == 0x80:
             return self._abort(now, cob, node, data)
+        answered = (int.from_bytes(data[1:3], "little"), data[3])
+        if t is not None and scs in (2, 3) and not t.block and answered != (t.index, t.subindex):
+            del self._sdo[node]  # an answer about another object: the request was not it
+            t = None
         if t is None:
+            if scs == 2 and data[0] & 0x02:  # a whole expedited answer: its request not seen
+                t = self._sdo[node] = _Sdo(False, int.from_bytes(data[1:3], "little"), data[3], now)
+                n = (data[0] >> 2) & 0x3 if data[0] & 0x01 else 0
+                t.data = bytearray(data[4 : 8 - n])
+                return self._done(now, cob, node, "expedited, request not seen")
             return [SdoBlockFrame(now, cob, node, data)] if scs in (5, 6) else []
         if t.block and t.write and scs == 5:  # block download answers
             ss = data[0] & 0x03
             if ss == 0:
                 t.block = "segments"
+                t.crc = t.crc and bool(data[0] & 0x04)  # (both must support it)
             elif ss == 2:
                 self._block_ack(t, data[1])
             elif ss == 1:
@@ -642,9 +699,10 @@ class Decoder:
             t.segmented = True
             t.size = int.from_bytes(data[4:8], "little") if data[0] & 0x01 else None
             return []
-        if scs == 0 and not t.write:  # upload segment response
+        if scs == 0 and not t.write and (data[0] >> 4) & 1 == t.toggle:  # upload segment
             n = (data[0] >> 1) & 0x7
             t.data += data[1 : 8 - n]
+            t.toggle ^= 1
             if data[0] & 0x01:
                 return self._done(now, cob, node, "segmented")
         return []
@@ -688,6 +746,8 @@ class Decoder:
         data = bytes(t.data)
         if t.block and t.size is not None:
             data = data[: t.size]
+        if not t.block and t.size is not None and len(data) != t.size:
+            mode = f"{mode}, {t.size} bytes announced"
         if t.block and t.crc and t.crc_value is not None and crc16(data) != t.crc_value:
             mode = f"block, CRC {t.crc_value:04X}h WRONG (data gives {crc16(data):04X}h)"
         var = self._variable(node, t.index, t.subindex)

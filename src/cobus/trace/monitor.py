@@ -8,7 +8,10 @@ On a terminal: the node table (NMT state, heartbeats with period, jitter and mis
 emergencies and the last one, SDO answer latency), frames/s and bus load, and the newest
 decoded records; ``p`` or space pauses the display (decoding goes on), ``q`` quits. Piped or
 with ``--json``: one line per record, and the node table at the end. A bus error is said and
-the bus opened again; ``--duration S`` stops by itself. Exit codes: 0 done, 1 the bus cannot
+the bus opened again (until it opens); ``--duration S`` stops by itself. python-can's
+``virtual`` bus is private to one process: to watch a bench run by another process, share
+it (``python -m can_remote -i virtual -c bench -H 127.0.0.1`` and ``-i remote -c
+ws://127.0.0.1:54701/``) or use ``-i udp_multicast``. Exit codes: 0 done, 1 the bus cannot
 be opened, 2 bad usage.
 """
 
@@ -124,17 +127,24 @@ def _frames(args: argparse.Namespace, say: Any) -> Iterator[tuple[Any, float] | 
     that fails is said and opened again."""
     import can
 
-    from cobus.proto import Frame
+    from cobus.proto import Frame, FrameError
 
     options = {k: v for k, v in bus_options(args).items() if v is not None}
     bus = None
+    opened = False
     try:
         while True:
             if bus is None:
                 try:
                     bus = can.Bus(**options)
                 except (can.CanError, OSError, ValueError, ImportError) as exc:
-                    raise ConnectionError(str(exc)) from None
+                    if not opened:
+                        raise ConnectionError(str(exc)) from None
+                    say(f"the bus cannot be opened again: {exc}; next try in {_REOPEN:g} s")
+                    time.sleep(_REOPEN)
+                    yield None
+                    continue
+                opened = True
             try:
                 msg = bus.recv(0.1)
             except (can.CanError, OSError) as exc:
@@ -151,13 +161,17 @@ def _frames(args: argparse.Namespace, say: Any) -> Iterator[tuple[Any, float] | 
             if msg.is_error_frame:
                 say("error frame on the bus")
                 continue
-            frame = Frame(
-                msg.arbitration_id,
-                b"" if msg.is_remote_frame else bytes(msg.data),
-                rtr=msg.is_remote_frame,
-                extended=msg.is_extended_id,
-                dlc=msg.dlc if msg.is_remote_frame else None,
-            )
+            try:
+                frame = Frame(
+                    msg.arbitration_id,
+                    b"" if msg.is_remote_frame else bytes(msg.data),
+                    rtr=msg.is_remote_frame,
+                    extended=msg.is_extended_id,
+                    dlc=msg.dlc if msg.is_remote_frame else None,
+                )
+            except FrameError as exc:  # a CAN FD frame: CANopen (CiA 301) has none
+                say(f"frame skipped: {exc}")
+                continue
             yield frame, float(msg.timestamp or time.time())
     finally:
         if bus is not None:
