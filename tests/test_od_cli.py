@@ -112,3 +112,19 @@ def test_doc_of_every_corpus_file_renders(capsys):
     for path in sorted(EDS_DIR.glob("*.[ed][dc][sf]")):
         code, out, _ = run(capsys, "doc", str(path))
         assert code == 0 and "## Objects" in out, path.name
+
+
+def test_convert_an_eds_to_a_node_dcf_and_back(capsys, tmp_path):
+    from cobus.od import load
+
+    source = Path(__file__).resolve().parent.parent / "examples" / "networks" / "servo.eds"
+    dcf = tmp_path / "servo10.dcf"
+    code, _, err = run(capsys, "convert", str(source), str(dcf), "--node-id", "10")
+    assert code == 0 and "DCF for node 10" in err
+    od = load(dcf)
+    assert od.node_id == 10 and len(od) == len(load(source))
+    eds = tmp_path / "back.eds"
+    assert run(capsys, "convert", str(dcf), str(eds))[0] == 0
+    assert len(load(eds)) == len(od)
+    code, _, err = run(capsys, "convert", str(source), str(tmp_path / "x.dcf"))
+    assert code == 2 and "give --node-id" in err

@@ -167,3 +167,23 @@ def test_decode_skips_a_can_fd_frame_and_reports_an_open_transfer(
         "node 10 heartbeat OPERATIONAL",
         "node 10 read 1009h:00 = (no data) (0 bytes, incomplete, 1.0 ms)",
     ]
+
+
+def test_replay_sends_a_recording_with_its_timing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    trace = tmp_path / "short.log"
+    trace.write_text(
+        "(1000.000000) vcan0 000#010A\n"
+        "(1000.200000) vcan0 70A#05\n"
+        "(1000.400000) vcan0 60A#4009100000000000\n"
+    )
+    channel = f"replay-{os.getpid()}"
+    got: list[tuple[float, Frame]] = []
+    with Network(interface="virtual", channel=channel) as net:
+        net.aio.subscribe_all(lambda f, now: got.append((time.monotonic(), f)))
+        assert main(["replay", str(trace), "-i", "virtual", "-c", channel]) == 0
+        net.sleep(0.1)
+    assert "3 frames sent" in capsys.readouterr().err
+    assert [f.cob_id for _, f in got] == [0x000, 0x70A, 0x60A]
+    assert got[2][0] - got[0][0] >= 0.35  # its timing kept

@@ -43,6 +43,16 @@ def register(sub: Any) -> None:
     doc.add_argument("--node-id", type=int, default=None, help="resolve $NODEID with this id")
     doc.set_defaults(handler=_doc)
 
+    convert = cmds.add_parser(
+        "convert",
+        help="write an EDS as a DCF for a node (or a DCF back as an EDS), by OUT's suffix",
+    )
+    convert.add_argument("file", help="EDS or DCF file")
+    convert.add_argument("out", help="the file to write: .dcf or .eds")
+    convert.add_argument("--node-id", type=int, default=None, help="the node-ID (for a DCF)")
+    convert.add_argument("--bitrate", type=int, default=None, help="bit/s (for a DCF)")
+    convert.set_defaults(handler=_convert)
+
 
 def _usage(parser: argparse.ArgumentParser) -> int:
     parser.print_help()
@@ -79,6 +89,30 @@ def _show(args: argparse.Namespace) -> int:
     if od is None:
         return 2
     print(render_table(od), end="")
+    return 0
+
+
+def _convert(args: argparse.Namespace) -> int:
+    od = _load(args)
+    if od is None:
+        return 2
+    to_dcf = args.out.lower().endswith(".dcf")
+    node_id = args.node_id if args.node_id is not None else od.node_id
+    if to_dcf and node_id is None:
+        print("a DCF is for one node: give --node-id", file=sys.stderr)
+        return 2
+    if node_id is not None and not 1 <= node_id <= 127:
+        print(f"--node-id {node_id}: 1-127", file=sys.stderr)
+        return 2
+    try:
+        text = od.to_dcf(node_id, args.bitrate) if to_dcf else od.to_eds()
+        with open(args.out, "w", encoding="utf-8", newline="\r\n") as fh:
+            fh.write(text)
+    except (OSError, ValueError) as exc:
+        print(f"cannot write {args.out}: {exc}", file=sys.stderr)
+        return 2
+    kind = f"DCF for node {node_id}" if to_dcf else "EDS"
+    print(f"{args.out}: {kind}, {len(od)} objects", file=sys.stderr)
     return 0
 
 

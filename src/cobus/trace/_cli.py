@@ -3,6 +3,7 @@
     cobus record bench.asc --duration 10 -i socketcan -c can0   # any format python-can writes
     cobus decode bench.asc --eds 10=servo.eds                   # every record, in words
     cobus decode bench.log --filter sdo,emcy --node 10 --json
+    cobus replay bench.asc -i socketcan -c can0                   # back onto a bus, timed
 
 Formats are python-can's, chosen by the file's suffix: candump .log, Vector .asc and .blf,
 PCAN .trc, .csv (and what else the installed python-can reads/writes). Exit codes: 0 done,
@@ -73,6 +74,18 @@ def register(sub: Any) -> None:
     record.add_argument("--duration", type=seconds, help="seconds to record (default: Ctrl-C)")
     add_bus_options(record)
     record.set_defaults(handler=_record)
+    replay = sub.add_parser(
+        "replay",
+        help="send a recording back onto a bus with its timing",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    replay.add_argument("file", type=Path, help="a trace file python-can reads")
+    replay.add_argument(
+        "--skip", type=seconds, default=60.0, help="longest pause kept, seconds (60)"
+    )
+    add_bus_options(replay)
+    replay.set_defaults(handler=_replay)
 
 
 def _fail(message: str, code: int = 1) -> int:
@@ -183,4 +196,42 @@ def _record(args: argparse.Namespace) -> int:
         logger.stop()
         bus.shutdown()
     print(f"{count} frames written to {args.file}", file=sys.stderr)
+    return 0
+
+
+def _replay(args: argparse.Namespace) -> int:
+    import can
+
+    if not args.file.is_file():
+        return _fail(f"{args.file}: no such file")
+    try:
+        reader = can.LogReader(str(args.file))
+    except (ValueError, OSError, ImportError) as exc:
+        return _fail(f"cannot read {args.file}: {exc}")
+    try:
+        bus = can.Bus(**{k: v for k, v in bus_options(args).items() if v is not None})
+    except (can.CanError, OSError, ValueError, ImportError) as exc:
+        return _fail(f"cannot open the bus: {exc}")
+    sent = skipped = 0
+    try:
+        for msg in can.MessageSync(reader, timestamps=True, skip=args.skip):
+            if msg.is_error_frame:
+                skipped += 1
+                continue
+            try:
+                bus.send(msg)
+                sent += 1
+            except can.CanError as exc:
+                skipped += 1
+                print(f"# frame {msg.arbitration_id:03X} not sent: {exc}", file=sys.stderr)
+    except KeyboardInterrupt:
+        pass
+    except (ValueError, OSError) as exc:
+        return _fail(f"{args.file}: {exc}")
+    finally:
+        bus.shutdown()
+        stop = getattr(reader, "stop", None)
+        if stop is not None:
+            stop()
+    print(f"{sent} frames sent" + (f", {skipped} skipped" if skipped else ""), file=sys.stderr)
     return 0
