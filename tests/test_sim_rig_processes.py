@@ -96,3 +96,33 @@ def test_python_canopen_masters_a_rig_run_by_cobus_sim_in_another_process(tmp_pa
         out, err = child.communicate(timeout=15)
     assert child.returncode == 0, err
     assert out.rstrip().endswith("cobus sim: stopped")
+
+
+def test_a_newcomer_watches_cobus_sim_thesis_boot_with_cobus_monitor(bus_url):
+    """Two processes as two terminals: `cobus monitor` first, then `cobus sim thesis`; the
+    monitor shows the rig's nodes booting, decoded."""
+    cobus = [sys.executable, "-m", "cobus.cli"]
+    bus = ["-i", "remote", "-c", bus_url]
+    monitor = subprocess.Popen(
+        [*cobus, "monitor", "--duration", "6", *bus],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(2.0)  # (it connects)
+    sim = subprocess.Popen(
+        [*cobus, "sim", "thesis", "--status-every", "0", "--duration", "3", *bus],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        out, err = monitor.communicate(timeout=60)
+    finally:
+        for child in (sim, monitor):
+            if child.poll() is None:
+                child.send_signal(signal.SIGINT)
+                child.wait(10)
+    assert monitor.returncode == 0, err
+    assert "node 10 boot-up" in out and "node 9 boot-up" in out
+    assert "heartbeat PRE_OPERATIONAL" in out
+    assert "frames/s" in out  # the node table at the end
