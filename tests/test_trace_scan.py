@@ -42,3 +42,25 @@ def test_the_scan_command(capsys: pytest.CaptureFixture[str], monkeypatch: pytes
         assert main(["scan", "--nodes", "9-10", *bus]) == 0
         out = capsys.readouterr().out
         assert "2 node(s) found" in out and "0x00020192" in out
+
+
+def test_scan_objects_of_the_zapi_into_a_draft_eds(
+    tmp_path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from cobus.od import load
+
+    monkeypatch.setenv("COLUMNS", "200")
+    channel = f"scan-objects-{os.getpid()}"
+    draft = tmp_path / "zapi-draft.eds"
+    with Network(interface="virtual", channel=channel) as net:
+        start_rig(net, "thesis")
+        bus = ["-i", "virtual", "-c", channel, "--timeout", "0.2"]
+        args = ["scan", "--nodes", "8", "--objects", "0x2000-0x20FF", "--eds-out", str(draft)]
+        assert main([*args, *bus]) == 0
+        out = capsys.readouterr().out
+        assert "20A8h:00" in out and "100" in out  # the main contactor voltage, 100 %
+        assert main(["scan", "--objects", "0x2000-0x2001", *bus]) == 2
+        assert "--objects scans one node" in capsys.readouterr().err
+    od = load(draft)
+    assert od.get_variable(0x20A8, 0) is not None
+    assert draft.read_text().startswith("; draft EDS of node 8")

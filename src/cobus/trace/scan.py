@@ -6,6 +6,9 @@
 First it listens (``--listen`` seconds) for boot-ups and heartbeats, then it reads 1000h
 (device type) from every node-ID (16 at a time; a progress bar on a terminal), and of every
 node that answers: the identity 1018h, the names 1008h-100Ah and the error history 1003h.
+``--objects 0x2000-0x5FFF --nodes 8`` reads (never writes) every object of a range from one
+node, with type guesses and values, and ``--eds-out draft.eds`` writes them as a draft EDS
+to complete.
 Exit codes: 0 done (also when none answered), 1 the bus cannot be used, 2 bad usage.
 """
 
@@ -17,11 +20,12 @@ import json
 import sys
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from cobus._args import add_bus_options, bus_options, seconds
 
-__all__ = ["FoundNode", "register", "scan"]
+__all__ = ["FoundNode", "FoundObject", "register", "scan", "scan_objects"]
 
 _STATES = {0x00: "BOOTUP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE_OPERATIONAL"}
 _IDENTITY = ("vendor_id", "product_code", "revision", "serial")
@@ -161,6 +165,92 @@ async def _details(node: Any, info: FoundNode) -> None:
                 info.errors.append(int.from_bytes(data[:4].ljust(4, b"\0"), "little"))
 
 
+@dataclass(frozen=True)
+class FoundObject:
+    """A sub-index that answered an upload: its bytes and a guess of its type."""
+
+    index: int
+    subindex: int
+    data: bytes
+
+    @property
+    def type_guess(self) -> str:
+        """UNSIGNED8/16/32 by length, VISIBLE_STRING for printable text, else DOMAIN."""
+        sizes = {1: "UNSIGNED8", 2: "UNSIGNED16", 3: "UNSIGNED24", 4: "UNSIGNED32"}
+        if len(self.data) in sizes:
+            return sizes[len(self.data)]
+        if self.data and all(32 <= b < 127 for b in self.data.rstrip(b"\0")):
+            return "VISIBLE_STRING"
+        return "DOMAIN"
+
+
+async def scan_objects(
+    network: Any,
+    node_id: int,
+    indexes: Iterable[int],
+    *,
+    timeout: float = 0.1,
+    progress: Callable[[int, int], object] | None = None,
+) -> list[FoundObject]:
+    """Which objects and sub-indexes of ``indexes`` node ``node_id`` answers (it only
+    reads: sub-index 0 of each index, then 1..n when sub-index 0 is a count), in order."""
+    from cobus.errors import CobusError
+
+    node = _remote(network, node_id, timeout)
+    wanted = list(indexes)
+    found: list[FoundObject] = []
+
+    async def read(index: int, sub: int) -> bytes | None:
+        try:
+            data: bytes = await node.sdo.upload(index, sub)
+            return data
+        except CobusError:
+            return None
+
+    for done, index in enumerate(wanted, 1):
+        data = await read(index, 0)
+        if data is not None:
+            found.append(FoundObject(index, 0, data))
+            if len(data) == 1 and 0 < data[0] < 0xFF:  # a count: a record or an array
+                for sub in range(1, data[0] + 1):
+                    value = await read(index, sub)
+                    if value is not None:
+                        found.append(FoundObject(index, sub, value))
+        if progress is not None:
+            progress(done, len(wanted))
+    return found
+
+
+def draft_eds(node_id: int, objects: list[FoundObject]) -> str:
+    """A draft EDS of what a node answered: every object read-only, types guessed from the
+    answers, names to be completed (the file says so)."""
+    from cobus.od import Access, DataType, ObjectDictionary, Record, Variable
+
+    od = ObjectDictionary()
+    by_index: dict[int, list[FoundObject]] = {}
+    for obj in objects:
+        by_index.setdefault(obj.index, []).append(obj)
+    for index, subs in sorted(by_index.items()):
+        if len(subs) == 1 and subs[0].subindex == 0:
+            var = Variable(
+                index, 0, f"Object {index:04X}h", DataType[subs[0].type_guess], Access.RO
+            )
+            od.add(var)
+            continue
+        record = Record(index, f"Object {index:04X}h")
+        for obj in subs:
+            name = "Highest sub-index supported" if obj.subindex == 0 else f"Sub {obj.subindex}"
+            kind = DataType[obj.type_guess]
+            record.add(Variable(index, obj.subindex, name, kind, Access.RO))
+        od.add(record)
+    head = (
+        f"; draft EDS of node {node_id} from `cobus scan --objects`: every object the node\n"
+        "; answered, read-only, with a type guessed from its answer's length. Complete the\n"
+        "; names, access types, types and limits from the device's documents.\n"
+    )
+    return head + od.to_eds()
+
+
 # ------------------------------------------------------------------------------ command
 
 
@@ -190,11 +280,72 @@ def register(sub: Any) -> None:
     p.add_argument("--timeout", type=seconds, default=0.1, help="seconds per answer (0.1)")
     p.add_argument("--listen", type=seconds, default=0.5, help="seconds to listen first (0.5)")
     p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument(
+        "--objects",
+        metavar="RANGE",
+        help="which objects ONE node answers, e.g. 0x2000-0x5FFF (give --nodes N)",
+    )
+    p.add_argument("--eds-out", type=Path, help="with --objects: write a draft EDS here")
     add_bus_options(p)
     p.set_defaults(handler=_run)
 
 
+def _range(text: str) -> range:
+    low, sep, high = text.partition("-")
+    try:
+        first, last = int(low, 16), int(high, 16) if sep else int(low, 16)
+    except ValueError:
+        raise ValueError(f"--objects {text!r}: a hex range like 0x2000-0x5FFF") from None
+    if not 0x1000 <= first <= last <= 0xFFFF:
+        raise ValueError(f"--objects {text!r}: indexes 1000h-FFFFh, low to high")
+    return range(first, last + 1)
+
+
+def _run_objects(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from cobus.runtime import Network
+
+    if len(args.nodes) != 1:
+        print("cobus scan: --objects scans one node: give --nodes N", file=sys.stderr)
+        return 2
+    try:
+        indexes = _range(args.objects)
+    except ValueError as exc:
+        print(f"cobus scan: {exc}", file=sys.stderr)
+        return 2
+    node_id = args.nodes[0]
+    try:
+        with Network(**bus_options(args)) as net:
+            found = net.run(scan_objects(net.aio, node_id, indexes, timeout=args.timeout))
+    except Exception as exc:
+        if type(exc).__module__.startswith(("can", "cobus")):
+            print(f"cobus scan: cannot use the bus: {exc}", file=sys.stderr)
+            return 1
+        raise
+    if args.eds_out is not None:
+        args.eds_out.write_text(draft_eds(node_id, found), encoding="utf-8")
+    if args.json:
+        rows = [
+            {"index": o.index, "subindex": o.subindex, "data": o.data.hex(), "type": o.type_guess}
+            for o in found
+        ]
+        print(json.dumps(rows))
+        return 0
+    table = Table(title=f"node {node_id}: {len(found)} sub-index(es) answered")
+    for column in ("object", "bytes", "type guess", "value"):
+        table.add_column(column)
+    for o in found:
+        value = str(int.from_bytes(o.data, "little")) if len(o.data) <= 4 else repr(o.data[:24])
+        table.add_row(f"{o.index:04X}h:{o.subindex:02X}", str(len(o.data)), o.type_guess, value)
+    Console(highlight=False).print(table)
+    return 0
+
+
 def _run(args: argparse.Namespace) -> int:
+    if args.objects is not None:
+        return _run_objects(args)
     from rich.console import Console
     from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
