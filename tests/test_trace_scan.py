@@ -64,3 +64,35 @@ def test_scan_objects_of_the_zapi_into_a_draft_eds(
     od = load(draft)
     assert od.get_variable(0x20A8, 0) is not None
     assert draft.read_text().startswith("; draft EDS of node 8")
+
+
+@pytest.mark.interop
+def test_scan_finds_a_python_canopen_local_node(
+    capsys: pytest.CaptureFixture[str], tmp_path
+) -> None:
+    import canopen
+
+    from cobus.device import export_eds
+    from cobus.runtime import AsyncNetwork
+    from cobus.sim.drive402 import Drive402
+    from tests.util import simulate
+
+    async def servo_eds() -> str:
+        async with AsyncNetwork() as net:
+            return export_eds(Drive402(net, 5).od)
+
+    eds = tmp_path / "servo.eds"
+    eds.write_text(simulate(servo_eds()))
+    channel = f"scan-peer-{os.getpid()}"
+    peer = canopen.Network()
+    peer.connect(interface="virtual", channel=channel)
+    try:
+        node = canopen.LocalNode(5, str(eds))
+        peer.add_node(node)
+        bus = ["-i", "virtual", "-c", channel, "--listen", "0.1", "--timeout", "0.2"]
+        assert main(["scan", "--nodes", "1-8", "--json", *bus]) == 0
+        found = json.loads(capsys.readouterr().out)
+    finally:
+        peer.disconnect()
+    assert [n["node_id"] for n in found] == [5]
+    assert found[0]["device_type"] == 0x00020192 and found[0]["profile"] == 402
