@@ -107,7 +107,7 @@ def _decode(args: argparse.Namespace) -> int:
     import can
 
     from cobus.od import EdsError, load
-    from cobus.proto import Frame, FrameError
+    from cobus.runtime.bus import message_to_frame
     from cobus.trace.decoder import Decoder
 
     dictionaries = {}
@@ -134,16 +134,11 @@ def _decode(args: argparse.Namespace) -> int:
                 if args.filter is None and args.node is None:
                     print(f"{now - first:12.6f}  error frame")
                 continue
-            try:
-                frame = Frame(
-                    msg.arbitration_id,
-                    b"" if msg.is_remote_frame else bytes(msg.data),
-                    rtr=msg.is_remote_frame,
-                    extended=msg.is_extended_id,
-                    dlc=msg.dlc if msg.is_remote_frame else None,
+            frame = message_to_frame(msg)
+            if frame is None:  # a CAN FD frame: CANopen (CiA 301) has none
+                print(
+                    f"# {now - first:.6f}: frame skipped: not a classic CAN frame", file=sys.stderr
                 )
-            except FrameError as exc:  # a CAN FD frame: CANopen (CiA 301) has none
-                print(f"# {now - first:.6f}: frame skipped: {exc}", file=sys.stderr)
                 continue
             records = decoder.feed(frame, now - first)
             for rec in records:

@@ -127,7 +127,7 @@ def _frames(args: argparse.Namespace, say: Any) -> Iterator[tuple[Any, float] | 
     that fails is said and opened again."""
     import can
 
-    from cobus.proto import Frame, FrameError
+    from cobus.runtime.bus import message_to_frame
 
     options = {k: v for k, v in bus_options(args).items() if v is not None}
     bus = None
@@ -161,16 +161,9 @@ def _frames(args: argparse.Namespace, say: Any) -> Iterator[tuple[Any, float] | 
             if msg.is_error_frame:
                 say("error frame on the bus")
                 continue
-            try:
-                frame = Frame(
-                    msg.arbitration_id,
-                    b"" if msg.is_remote_frame else bytes(msg.data),
-                    rtr=msg.is_remote_frame,
-                    extended=msg.is_extended_id,
-                    dlc=msg.dlc if msg.is_remote_frame else None,
-                )
-            except FrameError as exc:  # a CAN FD frame: CANopen (CiA 301) has none
-                say(f"frame skipped: {exc}")
+            frame = message_to_frame(msg)
+            if frame is None:  # a CAN FD frame: CANopen (CiA 301) has none
+                say(f"frame {msg.arbitration_id:03X} skipped: not a classic CAN frame")
                 continue
             yield frame, float(msg.timestamp or time.time())
     finally:
