@@ -46,8 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from cobus._yaml import DataFileError, FileProblem, LineMap, line_of, milliseconds, read_yaml
-from cobus.blocks.parameters import data_type_named
-from cobus.od import DataType, decode, encode
+from cobus.od import DataType, data_type_named, decode, encode
 from cobus.proto.pdo import is_restricted_can_id
 
 

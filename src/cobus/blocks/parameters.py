@@ -41,6 +41,7 @@ from cobus.od import (
     EdsError,
     ObjectDictionary,
     Variable,
+    data_type_named,
     decode,
     encode,
     load,
@@ -60,28 +61,6 @@ __all__ = [
 #: "save" as CiA 301 1010h wants it (65766173h, little-endian).
 SAVE_SIGNATURE = b"save"
 
-_SHORT_TYPES = {
-    "bool": DataType.BOOLEAN,
-    "i8": DataType.INTEGER8,
-    "i16": DataType.INTEGER16,
-    "i32": DataType.INTEGER32,
-    "i64": DataType.INTEGER64,
-    "u8": DataType.UNSIGNED8,
-    "u16": DataType.UNSIGNED16,
-    "u32": DataType.UNSIGNED32,
-    "u64": DataType.UNSIGNED64,
-    "int8": DataType.INTEGER8,
-    "int16": DataType.INTEGER16,
-    "int32": DataType.INTEGER32,
-    "int64": DataType.INTEGER64,
-    "uint8": DataType.UNSIGNED8,
-    "uint16": DataType.UNSIGNED16,
-    "uint32": DataType.UNSIGNED32,
-    "uint64": DataType.UNSIGNED64,
-    "float": DataType.REAL32,
-    "double": DataType.REAL64,
-    "string": DataType.VISIBLE_STRING,
-}
 _MAX_TEXT = 64  # characters of a value shown in a message
 
 
@@ -412,26 +391,6 @@ def _address(key: Any) -> tuple[int, int] | None:
     if not (0 < index <= 0xFFFF and 0 <= sub <= 0xFF):
         return None
     return index, sub
-
-
-def data_type_named(name: Any) -> DataType | None:
-    """The CiA 301 type ``name`` means: ``UNSIGNED16``, ``u16``, ``uint16``, ``float``,
-    ``bool``, ``string``..., or its number; None when none."""
-    if isinstance(name, int) and not isinstance(name, bool):
-        try:
-            return DataType(name)
-        except ValueError:
-            return None
-    if not isinstance(name, str):
-        return None
-    text = name.strip()
-    short = _SHORT_TYPES.get(text.lower())
-    if short is not None:
-        return short
-    try:
-        return DataType[text.upper()]
-    except KeyError:
-        return None
 
 
 def _value(raw: Any, data_type: DataType) -> Any:

@@ -34,7 +34,15 @@ from cobus.od._model import (
     Record,
     Variable,
 )
-from cobus.od._types import DataType, TimeDifference, TimeOfDay, Value, decode, encode
+from cobus.od._types import (
+    DataType,
+    TimeDifference,
+    TimeOfDay,
+    Value,
+    data_type_named,
+    decode,
+    encode,
+)
 
 __all__ = [
     "Access",
@@ -59,6 +67,7 @@ __all__ = [
     "Value",
     "ValueRangeError",
     "Variable",
+    "data_type_named",
     "decode",
     "did_you_mean",
     "encode",

@@ -22,6 +22,7 @@ __all__ = [
     "TimeDifference",
     "TimeOfDay",
     "Value",
+    "data_type_named",
     "decode",
     "encode",
 ]
@@ -473,3 +474,47 @@ def same_value(a: object, b: object) -> bool:
     if a == b:
         return True
     return isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b)
+
+
+_SHORT_TYPES = {
+    "bool": DataType.BOOLEAN,
+    "i8": DataType.INTEGER8,
+    "i16": DataType.INTEGER16,
+    "i32": DataType.INTEGER32,
+    "i64": DataType.INTEGER64,
+    "u8": DataType.UNSIGNED8,
+    "u16": DataType.UNSIGNED16,
+    "u32": DataType.UNSIGNED32,
+    "u64": DataType.UNSIGNED64,
+    "int8": DataType.INTEGER8,
+    "int16": DataType.INTEGER16,
+    "int32": DataType.INTEGER32,
+    "int64": DataType.INTEGER64,
+    "uint8": DataType.UNSIGNED8,
+    "uint16": DataType.UNSIGNED16,
+    "uint32": DataType.UNSIGNED32,
+    "uint64": DataType.UNSIGNED64,
+    "float": DataType.REAL32,
+    "double": DataType.REAL64,
+    "string": DataType.VISIBLE_STRING,
+}
+
+
+def data_type_named(name: Any) -> DataType | None:
+    """The CiA 301 type ``name`` means: ``UNSIGNED16``, ``u16``, ``uint16``, ``float``,
+    ``bool``, ``string``..., or its number; None when none."""
+    if isinstance(name, int) and not isinstance(name, bool):
+        try:
+            return DataType(name)
+        except ValueError:
+            return None
+    if not isinstance(name, str):
+        return None
+    text = name.strip()
+    short = _SHORT_TYPES.get(text.lower())
+    if short is not None:
+        return short
+    try:
+        return DataType[text.upper()]
+    except KeyError:
+        return None

@@ -101,9 +101,8 @@ def _open(args: argparse.Namespace) -> Any:
 
 
 def _sdo(args: argparse.Namespace) -> int:
-    from cobus.blocks.parameters import data_type_named
     from cobus.errors import CobusError
-    from cobus.od import DataType, EdsError, decode, encode, load
+    from cobus.od import DataType, EdsError, data_type_named, decode, encode, load
 
     od = None
     if args.eds is not None:
