@@ -19,6 +19,7 @@ def test_scan_finds_the_thesis_rig_on_the_simulated_clock() -> None:
         rig.inject(10, "drive_fault", code=0x7121)  # an entry in 1003h
         seen: list[tuple[int, int]] = []
         found = net.run(scan(net.aio, progress=lambda d, t: seen.append((d, t))))
+        assert net.aio.remotes == {}  # the scan's own remote nodes are gone again
     by_id = {n.node_id: n for n in found}
     assert set(by_id) >= {8, 9, 10}
     assert 3 not in by_id  # the EC motor speaks no CANopen SDO

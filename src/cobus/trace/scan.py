@@ -78,12 +78,14 @@ async def scan(
 ) -> list[FoundNode]:
     """Scan ``nodes`` on an :class:`~cobus.runtime.AsyncNetwork`: listen ``listen`` seconds
     for boot-ups and heartbeats, read 1000h of each node (``timeout`` per answer, ``parallel``
-    at once), then the identity, names and error history of those that answered.
+    at once), then the identity, names and error history of those that answered (the
+    remote nodes it makes for that are removed again; those the network had are used).
     ``progress(done, total)`` is called as node-IDs are asked. The nodes found, by node-ID."""
     from cobus.errors import CobusError
     from cobus.proto.sdo import SdoTimeoutError
 
     wanted = sorted(set(nodes))
+    added: set[int] = set()
     found: dict[int, FoundNode] = {}
     heard: dict[int, str] = {}
 
@@ -101,7 +103,7 @@ async def scan(
         async def probe(node_id: int) -> None:
             nonlocal done
             async with gate:
-                node = _remote(network, node_id, timeout)
+                node = _remote(network, node_id, timeout, added)
                 try:
                     data = await node.sdo.upload(0x1000, 0)
                 except SdoTimeoutError:
@@ -124,6 +126,7 @@ async def scan(
         await asyncio.gather(*(probe(n) for n in wanted))
     finally:
         sub.cancel()
+        _forget(network, added)
     for node_id, state in heard.items():
         if node_id in found:
             found[node_id].heard = state
@@ -132,11 +135,19 @@ async def scan(
     return [found[n] for n in sorted(found)]
 
 
-def _remote(network: Any, node_id: int, timeout: float) -> Any:
+def _remote(network: Any, node_id: int, timeout: float, added: set[int]) -> Any:
+    """The network's remote node ``node_id``; one made for the scan is noted in ``added``
+    (and removed again when the scan ends)."""
     existing = network.remotes.get(node_id)
     if existing is not None:
         return existing
+    added.add(node_id)
     return network.add_remote(node_id, sdo_timeout=timeout)
+
+
+def _forget(network: Any, added: set[int]) -> None:
+    for node_id in added:
+        network.remove_remote(node_id)
 
 
 async def _details(node: Any, info: FoundNode) -> None:
@@ -196,7 +207,8 @@ async def scan_objects(
     reads: sub-index 0 of each index, then 1..n when sub-index 0 is a count), in order."""
     from cobus.errors import CobusError
 
-    node = _remote(network, node_id, timeout)
+    added: set[int] = set()
+    node = _remote(network, node_id, timeout, added)
     wanted = list(indexes)
     found: list[FoundObject] = []
 
@@ -207,17 +219,20 @@ async def scan_objects(
         except CobusError:
             return None
 
-    for done, index in enumerate(wanted, 1):
-        data = await read(index, 0)
-        if data is not None:
-            found.append(FoundObject(index, 0, data))
-            if len(data) == 1 and 0 < data[0] < 0xFF:  # a count: a record or an array
-                for sub in range(1, data[0] + 1):
-                    value = await read(index, sub)
-                    if value is not None:
-                        found.append(FoundObject(index, sub, value))
-        if progress is not None:
-            progress(done, len(wanted))
+    try:
+        for done, index in enumerate(wanted, 1):
+            data = await read(index, 0)
+            if data is not None:
+                found.append(FoundObject(index, 0, data))
+                if len(data) == 1 and 0 < data[0] < 0xFF:  # a count: a record or an array
+                    for sub in range(1, data[0] + 1):
+                        value = await read(index, sub)
+                        if value is not None:
+                            found.append(FoundObject(index, sub, value))
+            if progress is not None:
+                progress(done, len(wanted))
+    finally:
+        _forget(network, added)
     return found
 
 
