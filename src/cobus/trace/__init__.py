@@ -18,6 +18,7 @@ from cobus.trace.decoder import (
     SyncRecord,
     TimeRecord,
     Unknown,
+    frame_kind,
 )
 
 __all__ = [
@@ -37,4 +38,5 @@ __all__ = [
     "SyncRecord",
     "TimeRecord",
     "Unknown",
+    "frame_kind",
 ]

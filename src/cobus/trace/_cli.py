@@ -1,13 +1,16 @@
 """cobus decode / cobus record: CANopen trace files.
 
     cobus record bench.asc --duration 10 -i socketcan -c can0   # any format python-can writes
+    cobus record bench.pcapng --duration 10                     # Wireshark opens it
     cobus decode bench.asc --eds 10=servo.eds                   # every record, in words
     cobus decode bench.log --filter sdo,emcy --node 10 --json
     cobus replay bench.asc -i socketcan -c can0                   # back onto a bus, timed
 
 Formats are python-can's, chosen by the file's suffix: candump .log, Vector .asc and .blf,
-PCAN .trc, .csv (and what else the installed python-can reads/writes). Exit codes: 0 done,
-1 the file or the bus cannot be used, 2 bad usage.
+PCAN .trc, .csv (and what else the installed python-can reads/writes), and pcap/pcapng with
+the SocketCAN link type, which Wireshark and tcpdump read and write (see cobus.trace.pcap; in
+tshark: -d can.subdissector,canopen). Exit codes: 0 done, 1 the file or the bus cannot be used,
+2 bad usage.
 """
 
 from __future__ import annotations
@@ -70,7 +73,9 @@ def register(sub: Any) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    record.add_argument("file", type=Path, help="the trace file (.asc, .blf, .log, .trc, .csv)")
+    record.add_argument(
+        "file", type=Path, help="the trace file (.asc, .blf, .log, .trc, .csv, .pcap, .pcapng)"
+    )
     record.add_argument("--duration", type=seconds, help="seconds to record (default: Ctrl-C)")
     add_bus_options(record)
     record.set_defaults(handler=_record)

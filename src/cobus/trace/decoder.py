@@ -44,6 +44,7 @@ __all__ = [
     "SyncRecord",
     "TimeRecord",
     "Unknown",
+    "frame_kind",
 ]
 
 _STATES = {0x00: "BOOTUP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE_OPERATIONAL"}
@@ -289,6 +290,33 @@ _KINDS = {
     "PdoRecord": "pdo",
     "LssFrame": "lss",
 }
+
+
+def frame_kind(frame: Frame) -> str:
+    """The service of one frame by its COB-ID in the pre-defined connection set of CiA 301
+    (what a sniffer without the network's configuration shows): nmt, sync, emcy, time, pdo,
+    sdo, hb (boot-up, heartbeat, guarding), lss or other. The :class:`Decoder` goes further:
+    it follows PDOs moved to other COB-IDs and reassembles SDO transfers."""
+    cob = frame.cob_id
+    if frame.extended:
+        return "other"
+    if cob == 0x000:
+        return "nmt"
+    if cob == 0x080:
+        return "sync"
+    if cob < 0x100:
+        return "emcy"
+    if cob == 0x100:
+        return "time"
+    if 0x180 <= cob <= 0x57F:
+        return "pdo"
+    if (0x581 <= cob <= 0x5FF) or (0x601 <= cob <= 0x67F):
+        return "sdo"
+    if 0x701 <= cob <= 0x77F:
+        return "hb"
+    if cob in (0x7E4, 0x7E5):
+        return "lss"
+    return "other"
 
 
 @dataclass
