@@ -1,3 +1,4 @@
+import asyncio
 from collections.abc import Mapping
 from typing import ClassVar
 
@@ -83,3 +84,29 @@ def test_a_failing_model_tick_is_reported_not_fatal():
     events = simulate(main())
     failures = [e for e in events if isinstance(e, HandlerFailed)]
     assert len(failures) == 3 and "model bug" in failures[0].error
+
+
+def test_a_model_stops_with_its_network_instead_of_failing_on_it():
+    """A model tick due while the network disconnects (a rig closed with a motor turning)
+    neither runs on the closed network nor reports a failure."""
+
+    async def main():
+        net = AsyncNetwork()
+        await net.connect()
+        events = []
+        net.add_listener(events.append)
+        lamp = Lamp(net, 3)
+        lamp.start()
+
+        def clocked(dt: float) -> None:
+            net.time()  # raises NetworkClosedError once closed
+
+        lamp.every(0.1, clocked)
+        await net.sleep(0.25)
+        await net.disconnect()
+        await asyncio.sleep(0.5)  # the loop runs on: the timers fall due
+        return lamp.ticks, events
+
+    ticks, events = simulate(main())
+    assert len(ticks) == 2
+    assert not [e for e in events if isinstance(e, HandlerFailed)]

@@ -24,6 +24,7 @@ _COMMAND_MODULES = (
     "cobus.blocks._alarms_cli",
     "cobus.trace._cli",
     "cobus.trace.monitor",
+    "cobus.trace.plot",
     "cobus.trace.scan",
     "cobus.runtime._cli",
     "cobus.apps.demo",

@@ -112,6 +112,9 @@ class SimulatedDevice:
         key = object()
 
         def fire() -> None:
+            if not self.network.connected:  # the network closed: the model stops with it
+                self._timers.pop(key, None)
+                return
             now = loop.time()
             dt, last[0] = now - last[0], now
             try:

@@ -1,0 +1,297 @@
+"""cobus plot: PDO signals over time from a trace file, to a PNG.
+
+    cobus plot bench.asc --list --eds 10=servo.eds          # which signals the trace holds
+    cobus plot bench.asc "Position actual value" --eds 10=servo.eds
+    cobus plot bench.pcapng 10:Statusword 20:Digital_in --network line.yml -o run.png
+    cobus plot bench.log 10:6064h:00 --from 2.5 --to 4     # (no EDS: objects by address)
+
+A signal is a mapped object of a PDO, named as the decoder names it: the EDS name (with the
+record's name in front for a sub-index), or its address ``6064h:00`` when the node's EDS is
+not given but the mapping was seen on the bus (an SDO writing 1A00h...). Write ``NODE:NAME``
+when several nodes have the name. Each signal gets its own panel, all on one time axis
+(seconds from the trace's first frame), drawn as steps: a PDO holds its value until the next.
+
+Needs matplotlib (``pip install 'cobus[plot]'``). Exit codes: 0 written (or listed), 1 the
+trace or a signal cannot be used, 2 bad usage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import json
+import math
+import sys
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cobus._args import seconds
+from cobus.od import ObjectDictionary
+from cobus.proto import Frame
+from cobus.trace.decoder import Decoder, PdoRecord
+
+__all__ = ["Series", "SignalError", "collect", "pick", "plot", "register"]
+
+
+class SignalError(ValueError):
+    """A signal asked for is not in the trace (or not a number); the message says which exist."""
+
+
+@dataclass
+class Series:
+    """One signal: the node, its name, and its samples (seconds from the trace's start)."""
+
+    node: int | None
+    name: str
+    times: list[float] = field(default_factory=list)
+    values: list[float] = field(default_factory=list)
+    skipped: int = 0  # samples that were no number (a string, bytes)
+
+    @property
+    def label(self) -> str:
+        return f"{self.node}:{self.name}" if self.node is not None else self.name
+
+
+def collect(
+    frames: Iterable[tuple[float, Frame]],
+    dictionaries: Mapping[int, ObjectDictionary] | None = None,
+) -> dict[tuple[int | None, str], Series]:
+    """Every PDO value of ``frames`` (time, frame), by (node, name), as numbers."""
+    decoder = Decoder(dictionaries)
+    out: dict[tuple[int | None, str], Series] = {}
+    for now, frame in frames:
+        for rec in decoder.feed(frame, now):
+            if not isinstance(rec, PdoRecord):
+                continue
+            for name, value in rec.values.items():
+                series = out.get((rec.node, name))
+                if series is None:
+                    series = out[(rec.node, name)] = Series(rec.node, name)
+                number = _number(value)
+                if number is None:
+                    series.skipped += 1
+                    continue
+                series.times.append(now)
+                series.values.append(number)
+    return out
+
+
+def _number(value: Any) -> float | None:
+    if isinstance(value, bool):
+        return float(value)
+    if isinstance(value, int | float):
+        number = float(value)
+        return number if math.isfinite(number) else None
+    return None
+
+
+def pick(found: Mapping[tuple[int | None, str], Series], wanted: Sequence[str]) -> list[Series]:
+    """The series named by ``wanted`` ("NAME" or "NODE:NAME", any case)."""
+    chosen: list[Series] = []
+    for text in wanted:
+        node: int | None = None
+        name = text
+        head, sep, rest = text.partition(":")
+        if sep and head.strip().isdigit():
+            node, name = int(head), rest
+        key = name.strip().casefold()
+        hits = [
+            s
+            for s in found.values()
+            if s.name.casefold() == key and (node is None or s.node == node)
+        ]
+        if not hits:
+            labels = sorted(s.label for s in found.values())
+            close = difflib.get_close_matches(text, labels, n=3, cutoff=0.5)
+            close += [
+                label
+                for label in labels
+                if key in label.casefold() and label not in close and len(close) < 5
+            ]
+            hint = f"; did you mean {', '.join(close)}?" if close else ""
+            if not labels:
+                hint = (
+                    "; the trace holds no PDO signal this decoder could name: give the "
+                    "nodes' EDS (--eds NODE=FILE or --network FILE)"
+                )
+            raise SignalError(f"no signal {text!r} in the trace{hint}")
+        if len(hits) > 1:
+            raise SignalError(
+                f"{text!r} is a signal of several nodes: write "
+                + " or ".join(s.label for s in sorted(hits, key=lambda s: s.node or 0))
+            )
+        if not hits[0].values:
+            raise SignalError(f"{hits[0].label} has no numeric samples (it is no number)")
+        chosen.append(hits[0])
+    return chosen
+
+
+def plot(
+    series: Sequence[Series],
+    output: Path,
+    title: str = "",
+    start: float | None = None,
+    end: float | None = None,
+) -> None:
+    """Draw ``series`` (one panel each, shared time axis) into the PNG ``output``."""
+    try:
+        from matplotlib.figure import Figure
+    except ImportError:  # pragma: no cover - the plot extra is part of the dev install
+        raise SignalError("cobus plot needs matplotlib: pip install 'cobus[plot]'") from None
+    fig = Figure(figsize=(10, 1.0 + 2.2 * len(series)), layout="constrained")
+    axes = fig.subplots(len(series), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, s in zip(axes, series, strict=True):
+        times, values = _window(s, start, end)
+        ax.step(times, values, where="post", linewidth=1.2)
+        ax.plot(times, values, ".", markersize=3)
+        ax.set_ylabel(s.label, rotation=0, ha="right", va="center")
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xlabel("time (s from the trace's first frame)")
+    if start is not None or end is not None:
+        axes[-1].set_xlim(left=start, right=end)
+    if title:
+        fig.suptitle(title)
+    fig.savefig(output, dpi=100)
+
+
+def _window(s: Series, start: float | None, end: float | None) -> tuple[list[float], list[float]]:
+    pairs = [
+        (t, v)
+        for t, v in zip(s.times, s.values, strict=True)
+        if (start is None or t >= start) and (end is None or t <= end)
+    ]
+    return [t for t, _ in pairs], [v for _, v in pairs]
+
+
+# ---------------------------------------------------------------------------- command
+
+
+def register(sub: Any) -> None:
+    """Add ``cobus plot``."""
+    from cobus.trace._cli import _eds
+
+    p = sub.add_parser(
+        "plot",
+        help="PDO signals over time from a trace file, to a PNG (matplotlib)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("file", type=Path, help="a trace file (.asc .blf .log .trc .csv .pcap ...)")
+    p.add_argument("signal", nargs="*", help="NAME or NODE:NAME of a PDO-mapped object")
+    p.add_argument(
+        "--eds",
+        type=_eds,
+        action="append",
+        default=[],
+        metavar="NODE=FILE",
+        help="a node's EDS/DCF: names, types, PDO mappings (repeatable)",
+    )
+    p.add_argument("--network", type=Path, help="a network description: its nodes' EDS files")
+    p.add_argument("-o", "--output", type=Path, help="the PNG (default: the trace's name .png)")
+    p.add_argument("--from", dest="start", type=seconds, help="first second shown")
+    p.add_argument("--to", dest="end", type=seconds, help="last second shown")
+    p.add_argument("--list", action="store_true", help="list the signals the trace holds")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(handler=_run)
+
+
+def _fail(message: str, code: int = 1) -> int:
+    print(f"cobus plot: {message}", file=sys.stderr)
+    return code
+
+
+def frames_of(path: Path) -> Iterator[tuple[float, Frame]]:
+    """The classic CAN frames of a trace file, with seconds from its first message."""
+    import can
+
+    from cobus.runtime.bus import message_to_frame
+
+    reader = can.LogReader(str(path))
+    first: float | None = None
+    try:
+        for msg in reader:
+            stamp = float(msg.timestamp)
+            first = stamp if first is None else first
+            frame = message_to_frame(msg)
+            if frame is not None:
+                yield stamp - first, frame
+    finally:
+        stop = getattr(reader, "stop", None)
+        if stop is not None:
+            stop()
+
+
+def _run(args: argparse.Namespace) -> int:
+    from cobus.trace.monitor import _dictionaries
+
+    if not args.list and not args.signal:
+        return _fail("name the signals to plot, or --list the trace's signals", 2)
+    if args.start is not None and args.end is not None and args.end <= args.start:
+        return _fail(f"--to {args.end} is not after --from {args.start}", 2)
+    try:
+        dictionaries = _dictionaries(args)
+    except Exception as exc:  # a network file or EDS that cannot be read
+        return _fail(str(exc), 2)
+    if not args.file.is_file():
+        return _fail(f"{args.file}: no such file")
+    try:
+        found = collect(frames_of(args.file), dictionaries)
+    except (ValueError, OSError, ImportError) as exc:
+        return _fail(f"cannot read {args.file}: {exc}")
+    if args.list:
+        return _list(found, args.json)
+    try:
+        chosen = pick(found, args.signal)
+    except SignalError as exc:
+        return _fail(str(exc))
+    output = args.output or args.file.with_suffix(".png")
+    try:
+        plot(chosen, output, title=args.file.name, start=args.start, end=args.end)
+    except SignalError as exc:
+        return _fail(str(exc))
+    except (OSError, ValueError) as exc:
+        return _fail(f"cannot write {output}: {exc}")
+    if args.json:
+        print(json.dumps({"output": str(output), "signals": [_summary(s) for s in chosen]}))
+    else:
+        print(f"{len(chosen)} signal(s) plotted to {output}", file=sys.stderr)
+    return 0
+
+
+def _summary(s: Series) -> dict[str, Any]:
+    return {
+        "node": s.node,
+        "name": s.name,
+        "samples": len(s.values),
+        "min": min(s.values) if s.values else None,
+        "max": max(s.values) if s.values else None,
+        "first": s.times[0] if s.times else None,
+        "last": s.times[-1] if s.times else None,
+        "not_numbers": s.skipped,
+    }
+
+
+def _list(found: Mapping[tuple[int | None, str], Series], as_json: bool) -> int:
+    ordered = sorted(found.values(), key=lambda s: (s.node or 0, s.name))
+    if as_json:
+        print(json.dumps([_summary(s) for s in ordered]))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table("node", "signal", "samples", "min", "max", title="PDO signals in the trace")
+    for s in ordered:
+        low = f"{min(s.values):g}" if s.values else "-"
+        high = f"{max(s.values):g}" if s.values else "-"
+        table.add_row(
+            str(s.node if s.node is not None else "-"), s.name, str(len(s.values)), low, high
+        )
+    Console().print(table)
+    if not ordered:
+        print(
+            "no PDO signal could be named: give the nodes' EDS (--eds NODE=FILE, --network FILE)",
+            file=sys.stderr,
+        )
+    return 0
