@@ -51,6 +51,7 @@ class Series:
 
     @property
     def label(self) -> str:
+        """``NODE:NAME``, as a command line names the signal."""
         return f"{self.node}:{self.name}" if self.node is not None else self.name
 
 
