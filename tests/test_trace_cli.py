@@ -69,7 +69,7 @@ def test_decode_reads_every_format_python_can_writes(
     lines = capsys.readouterr().out.splitlines()
     assert [line.split(None, 1)[1] for line in lines] == [
         "NMT start -> node 10",
-        "node 10 read 1017h:00 = 100 (2 bytes, expedited, 1.0 ms)",
+        "node 10 read 1017h:00 Producer heartbeat time = 100 (2 bytes, expedited, 1.0 ms)",
         "node 10 EMCY 7121h Additional modules (7121h) (register 01h: generic)",
         "node 10 heartbeat OPERATIONAL",
     ]
@@ -165,7 +165,8 @@ def test_decode_skips_a_can_fd_frame_and_reports_an_open_transfer(
     assert lines == [
         "node 10 heartbeat OPERATIONAL",
         "node 10 heartbeat OPERATIONAL",
-        "node 10 read 1009h:00 = (no data) (0 bytes, incomplete, 1.0 ms)",
+        "node 10 read 1009h:00 Manufacturer hardware version = (no data) "
+        "(0 bytes, incomplete, 1.0 ms)",
     ]
 
 

@@ -24,13 +24,17 @@ from cobus.trace import (
     SdoTransfer,
     SyncRecord,
     TimeRecord,
+    frame_kind,
 )
+from cobus.trace.decoder import standard_variable
 
 from .util import simulate
 
 
 def frame(text: str, rtr: bool = False) -> Frame:
     cob, _, data = text.partition(":")
+    if data.strip() == "RTR":
+        return Frame(int(cob, 16), b"", rtr=True)
     return Frame(int(cob, 16), bytes.fromhex(data), rtr=rtr)
 
 
@@ -51,7 +55,8 @@ def test_the_documents_frames_decode_to_what_they_mean() -> None:
     ]
     # the ZAPI's save: 1010h sub 0 "save", expedited without size, and its answer
     assert decoded(d, "608: 22 10 10 00 73 61 76 65", "588: 60 10 10 00 00 00 00 00") == [
-        "node 8 write 1010h:00 = 1702257011 (4 bytes, expedited, 1.0 ms)"
+        "node 8 write 1010h:00 Store parameters.Highest sub-index supported = "
+        "1702257011 (4 bytes, expedited, 1.0 ms)"
     ]
     assert decoded(d, "708: 00", "708: 05", "708: 7f") == [
         "node 8 boot-up",
@@ -87,7 +92,8 @@ def test_segmented_transfers_are_one_record_and_aborts_say_why() -> None:
         "58A: 19 20 73 76 00 00 00 00",  # " sv", last (4 bytes unused)
     )
     assert read == [
-        "node 10 read 1008h:00 = 43 69 41 20 34 30 32 20 73 76 (10 bytes, segmented, 5.0 ms)"
+        "node 10 read 1008h:00 Manufacturer device name = 'CiA 402 sv' "
+        "(10 bytes, segmented, 5.0 ms)"
     ]
     write = decoded(
         d,
@@ -214,7 +220,7 @@ def test_a_block_upload_frame_by_frame_with_a_wrong_crc_and_a_retransmission() -
         "60A: A1 00 00 00 00 00 00 00",
     )
     assert len(out) == 1
-    assert out[0].startswith("node 10 read 1021h:00 = 30 31 32 33 34 35 36 37 38 39 (10 bytes, ")
+    assert out[0].startswith("node 10 read 1021h:00 Store EDS = b'0123456789' (10 bytes, ")
     assert "block, CRC 1234h WRONG (data gives " in out[0]
 
 
@@ -270,16 +276,20 @@ def test_hostile_and_partial_traces_from_a_review() -> None:
         "585: 60 17 10 00 00 00 00 00",
     )
     assert out[0].startswith("node 5 write 2000h:00 ABORTED 0x05040000")
-    assert out[1].startswith("node 5 write 1017h:00 = 100 (2 bytes, expedited")
+    assert out[1].startswith(
+        "node 5 write 1017h:00 Producer heartbeat time = 100 (2 bytes, expedited"
+    )
     # a trace that starts mid-block invents no abort; an answer without its request is kept
     assert decoded(d, "585: 82 37 38 39 00 00 00 00") == []
     assert decoded(d, "585: 43 18 10 01 11 22 33 44")[0].startswith(
-        "node 5 read 1018h:01 = 1144201745 (4 bytes, expedited, request not seen"
+        "node 5 read 1018h:01 Identity object.Vendor-ID = 1144201745 "
+        "(4 bytes, expedited, request not seen"
     )
     # an answer about another object than asked is not taken for it
     out = decoded(d, "605: 40 08 10 00 00 00 00 00", "585: 43 18 10 01 11 22 33 44")
     assert out == [
-        "node 5 read 1018h:01 = 1144201745 (4 bytes, expedited, request not seen, 0.0 ms)"
+        "node 5 read 1018h:01 Identity object.Vendor-ID = 1144201745 "
+        "(4 bytes, expedited, request not seen, 0.0 ms)"
     ]
     # a repeated segment (same toggle) is not data; a size that disagrees is said
     out = decoded(
@@ -293,15 +303,186 @@ def test_hostile_and_partial_traces_from_a_review() -> None:
         "585: 19 20 73 76 00 00 00 00",
     )
     assert out == [
-        "node 5 read 1008h:00 = 43 69 41 20 34 30 32 20 73 76 (10 bytes, segmented, "
+        "node 5 read 1008h:00 Manufacturer device name = 'CiA 402 sv' (10 bytes, segmented, "
         "11 bytes announced, 6.0 ms)"
     ]
     # a transfer the trace ends in is reported by flush()
     decoded(d, "605: 40 09 10 00 00 00 00 00")
     assert [str(r) for r in d.flush(1.0)] == [
-        "node 5 read 1009h:00 = (no data) (0 bytes, incomplete, 1000.0 ms)"
+        "node 5 read 1009h:00 Manufacturer hardware version = (no data) "
+        "(0 bytes, incomplete, 1000.0 ms)"
     ]
     # a state frame answers guarding only right after the master's request
     d.feed(frame("705:", rtr=True), 2.0)
     assert decoded(d, "705: 85") == ["node 5 guarding OPERATIONAL (toggle 1)"]
     assert decoded(d, "705: 05") == ["node 5 heartbeat OPERATIONAL"]
+
+
+def test_lss_frames_in_words_and_sessions_as_sentences() -> None:
+    d = Decoder()
+    out = decoded(
+        d,
+        "7E5: 40 60 03 00 00 00 00 00",  # switch selective: vendor, product, revision, serial
+        "7E5: 41 34 12 00 00 00 00 00",
+        "7E5: 42 00 00 01 00 00 00 00",
+        "7E5: 43 2A 00 00 00 00 00 00",
+        "7E4: 44 00 00 00 00 00 00 00",
+        "7E5: 11 0C 00 00 00 00 00 00",  # configure node-ID 12
+        "7E4: 11 00 00 00 00 00 00 00",
+        "7E5: 13 00 03 00 00 00 00 00",  # 250 kbit/s
+        "7E4: 13 00 00 00 00 00 00 00",
+        "7E5: 17 00 00 00 00 00 00 00",  # store: a media error
+        "7E4: 17 02 00 00 00 00 00 00",
+        "7E5: 15 64 00 00 00 00 00 00",  # activate after 100 ms: no answer
+        "7E5: 04 00 00 00 00 00 00 00",
+    )
+    who = "serial 0x0000002A (vendor-ID 0x00000360, product code 0x00001234, revision 0x00010000)"
+    assert out == [
+        "LSS master switch state selective: vendor-ID 0x00000360",
+        "LSS master switch state selective: product code 0x00001234",
+        "LSS master switch state selective: revision 0x00010000",
+        "LSS master switch state selective: serial 0x0000002A",
+        "LSS slave answer: selected (configuration state)",
+        f"LSS: {who} selected (configuration state)",
+        "LSS master configure node-ID 12",
+        "LSS slave answer: node-ID configured",
+        f"LSS: {who} got node-ID 12",
+        "LSS master configure bit timing: 250 kbit/s",
+        "LSS slave answer: bit timing accepted",
+        f"LSS: {who} will use 250 kbit/s once activated",
+        "LSS master store configuration",
+        "LSS slave answer: not stored: storage media access error",
+        f"LSS: {who} could not store its configuration: storage media access error",
+        "LSS master activate bit timing after 100 ms",
+        "LSS master switch state global: waiting",
+    ]
+    # A fastscan: the reset, then each field confirmed (bits scanned in between say nothing).
+    out = decoded(
+        d,
+        "7E5: 51 00 00 00 00 80 00 00",
+        "7E4: 4F 00 00 00 00 00 00 00",
+        "7E5: 51 00 00 00 80 1F 00 00",  # bit 31 of the vendor-ID: nobody answers
+        "7E5: 51 60 03 00 00 00 00 01",
+        "7E4: 4F 00 00 00 00 00 00 00",
+        "7E5: 51 34 12 00 00 00 01 02",
+        "7E4: 4F 00 00 00 00 00 00 00",
+        "7E5: 51 00 00 01 00 00 02 03",
+        "7E4: 4F 00 00 00 00 00 00 00",
+        "7E5: 51 2B 00 00 00 00 03 00",
+        "7E4: 4F 00 00 00 00 00 00 00",
+        "7E5: 5E 00 00 00 00 00 00 00",
+        "7E4: 5E FF 00 00 00 00 00 00",
+        "7E5: 11 C8 00 00 00 00 00 00",  # 200: out of range
+        "7E4: 11 01 00 00 00 00 00 00",
+        step=0.01,
+    )
+    who = who.replace("2A", "2B")
+    sentences = [line for line in out if line.startswith("LSS: ")]
+    assert sentences == [
+        f"LSS: fastscan found {who}, now in configuration state",
+        f"LSS: {who} has no node-ID (unconfigured)",
+        f"LSS: {who} refused node-ID 200: out of range",
+    ]
+    assert out[0] == "LSS master fastscan: reset, every non-configured slave answer"
+    assert out[2] == "LSS master fastscan: vendor-ID 0x80000000, bits 31..31"
+    # After a global switch the slave is not known by identity; an answer a second late is
+    # no answer; a frame of a kind the decoder does not know keeps its bytes.
+    out = decoded(
+        d,
+        "7E5: 04 01 00 00 00 00 00 00",
+        "7E5: 11 05 00 00 00 00 00 00",
+        "7E4: 11 00 00 00 00 00 00 00",
+        "7E5: 11 06 00 00 00 00 00 00",
+        "7E5: 99 01 02",
+        step=0.6,
+    )
+    assert out == [
+        "LSS master switch state global: configuration",
+        "LSS master configure node-ID 5",
+        "LSS slave answer: node-ID configured",
+        "LSS: the slave in configuration state got node-ID 5",
+        "LSS master configure node-ID 6",
+        "LSS master cs 99h 01 02",
+    ]
+    assert d.feed(frame("7E4: 11 00 00 00 00 00 00 00"), 10.0)[1:] == []  # too late
+    assert {r.kind for r in d.feed(frame("7E4: 5A 01 00 00 00 00 00 00"), 11.0)} == {"lss"}
+
+
+def test_guarding_toggle_errors_are_records_and_counted() -> None:
+    d = Decoder()
+    out = decoded(
+        d,
+        "705: 00",  # boot-up: the first answer carries toggle 0
+        "705: RTR",
+        "705: 7F",
+        "705: RTR",
+        "705: FF",
+        "705: RTR",
+        "705: FF",  # toggle 1 again
+        "705: RTR",
+        "705: 05",
+    )
+    assert out[2] == "node 5 guarding PRE_OPERATIONAL (toggle 0)"
+    assert out[4] == "node 5 guarding PRE_OPERATIONAL (toggle 1)"
+    assert out[6] == "node 5 guarding PRE_OPERATIONAL (toggle 1, TOGGLE ERROR: not alternated)"
+    assert out[8] == "node 5 guarding OPERATIONAL (toggle 0)"
+    stats = d.stats[5]
+    assert stats.toggle_errors == 1 and stats.summary()["toggle_errors"] == 1
+    assert any(text == "guarding toggle error" for _, text in stats.timeline)
+    # A boot-up starts the toggle again; a wrong first toggle after it is an error.
+    assert decoded(d, "705: 00", "705: RTR", "705: FF")[-1].endswith(
+        "TOGGLE ERROR: not alternated)"
+    )
+    # Without a boot-up seen (the trace began mid-run), the first answer sets the rhythm.
+    d2 = Decoder()
+    assert "ERROR" not in " ".join(decoded(d2, "706: RTR", "706: 85", "706: RTR", "706: 05"))
+
+
+def test_cia301_objects_have_their_names_and_types_without_an_eds() -> None:
+    d = Decoder()
+    out = decoded(
+        d,
+        "605: 40 18 10 04 00 00 00 00",
+        "585: 43 18 10 04 2A 00 00 00",
+        "605: 23 03 1A 05 20 00 64 60",  # TPDO4's fifth mapped object
+        "585: 60 03 1A 05 00 00 00 00",
+        "605: 40 03 10 07 00 00 00 00",
+        "585: 43 03 10 07 10 81 00 00",
+        "605: 40 00 20 00 00 00 00 00",  # a manufacturer object: no name
+        "585: 4F 00 20 00 07 00 00 00",
+        "605: 2B 17 10 00 64 00 00 00",  # 1017h written with 2 bytes as CiA 301 types it
+        "585: 60 17 10 00 00 00 00 00",
+        "605: 23 17 10 00 64 00 00 00",  # ... and with 4: its bytes as they came
+        "585: 60 17 10 00 00 00 00 00",
+    )
+    assert [line.split(" (")[0] for line in out] == [
+        "node 5 read 1018h:04 Identity object.Serial number = 42",
+        "node 5 write 1A03h:05 TPDO mapping parameter 4.Mapped object 5 = 1617166368",
+        "node 5 read 1003h:07 Pre-defined error field.Standard error field 7 = 33040",
+        "node 5 read 2000h:00 = 7",
+        "node 5 write 1017h:00 Producer heartbeat time = 100",
+        "node 5 write 1017h:00 Producer heartbeat time = 100",
+    ]
+    assert standard_variable(0x1018, 5) is None and standard_variable(0x2000, 0) is None
+    var = standard_variable(0x1405, 2)
+    assert var is not None and var.name == "RPDO communication parameter 6.Transmission type"
+
+
+def test_frame_kind_is_the_service_of_the_predefined_connection_set() -> None:
+    kinds = {
+        0x000: "nmt",
+        0x080: "sync",
+        0x085: "emcy",
+        0x100: "time",
+        0x185: "pdo",
+        0x57F: "pdo",
+        0x585: "sdo",
+        0x605: "sdo",
+        0x705: "hb",
+        0x7E4: "lss",
+        0x7E5: "lss",
+        0x680: "other",
+        0x700: "other",
+    }
+    assert {cob: frame_kind(Frame(cob, b"")) for cob in kinds} == kinds
+    assert frame_kind(Frame(0x185, b"", extended=True)) == "other"

@@ -17,6 +17,8 @@ what comes out.
 from __future__ import annotations
 
 import datetime as dt
+import functools
+import re
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -26,6 +28,8 @@ from cobus.od import DataType, ObjectDictionary, Variable, decode
 from cobus.proto import Frame
 from cobus.proto.emcy import ErrorRegister, describe
 from cobus.proto.sdo import SdoAbortCode, crc16
+from cobus.trace._lss import LssSessions
+from cobus.trace._lss import describe as describe_lss
 
 __all__ = [
     "Bootup",
@@ -35,6 +39,7 @@ __all__ = [
     "GuardResponse",
     "Heartbeat",
     "LssFrame",
+    "LssSession",
     "NmtCommand",
     "NodeStats",
     "PdoRecord",
@@ -123,9 +128,13 @@ class GuardResponse(Record):
     node: int
     state: str
     toggle: int
+    #: The toggle bit did not alternate (the first answer after a boot-up carries 0):
+    #: CiA 301 says the master treats a node's repeated toggle as a lost answer.
+    toggle_error: bool = False
 
     def __str__(self) -> str:
-        return f"node {self.node} guarding {self.state} (toggle {self.toggle})"
+        error = ", TOGGLE ERROR: not alternated" if self.toggle_error else ""
+        return f"node {self.node} guarding {self.state} (toggle {self.toggle}{error})"
 
 
 @dataclass(frozen=True)
@@ -262,7 +271,18 @@ class LssFrame(Record):
 
     def __str__(self) -> str:
         who = "master" if self.cob_id == 0x7E5 else "slave"
-        return f"LSS {who} cs {self.command:02X}h {self.data[1:].hex(' ')}"
+        return f"LSS {who} {describe_lss(self.cob_id, self.data)}"
+
+
+@dataclass(frozen=True)
+class LssSession(Record):
+    """What an LSS exchange came to, as a sentence: "LSS: serial 0x0000002A (...) got
+    node-ID 12", "LSS: fastscan found ...", "... stored its configuration"."""
+
+    sentence: str
+
+    def __str__(self) -> str:
+        return f"LSS: {self.sentence}"
 
 
 @dataclass(frozen=True)
@@ -289,6 +309,7 @@ _KINDS = {
     "SdoBlockFrame": "sdo",
     "PdoRecord": "pdo",
     "LssFrame": "lss",
+    "LssSession": "lss",
 }
 
 
@@ -364,6 +385,7 @@ class NodeStats:
         self.missed_beats = 0
         self.last_heartbeat: float | None = None
         self.emcy_count = 0
+        self.toggle_errors = 0  # guarding answers whose toggle bit did not alternate
         self.last_emcy: str | None = None
         self.state: str | None = None
         self.timeline: deque[tuple[float, str]] = deque(maxlen=self.KEEP)
@@ -423,6 +445,7 @@ class NodeStats:
             else dict(zip(("min", "median", "max"), latency, strict=True)),
             "emcy_count": self.emcy_count,
             "last_emcy": self.last_emcy,
+            "toggle_errors": self.toggle_errors,
         }
 
 
@@ -438,6 +461,9 @@ class Decoder:
         self._requested: dict[int, float] = {}
         self._sdo: dict[int, _Sdo] = {}
         self._guard_asked: dict[int, float] = {}  # node -> when the master's RTR came
+        self._toggle: dict[int, int] = {}  # node -> the toggle bit its next guard answer carries
+        #: LSS requests and answers followed into sessions (the slave being configured).
+        self.lss = LssSessions()
         self._pdos: dict[int, _Pdo] = {}
         self._params: dict[int, dict[tuple[int, int], int]] = {}
         for node, od in self.dictionaries.items():
@@ -513,7 +539,11 @@ class Decoder:
             self._requested[cob - 0x600] = now
         for rec in records:
             if isinstance(rec, Heartbeat | GuardResponse):
-                self.node_stats(rec.node)._heartbeat(now, rec.state)
+                stats = self.node_stats(rec.node)
+                stats._heartbeat(now, rec.state)
+                if isinstance(rec, GuardResponse) and rec.toggle_error:
+                    stats.toggle_errors += 1
+                    stats.timeline.append((now, "guarding toggle error"))
             elif isinstance(rec, Bootup):
                 stats = self.node_stats(rec.node)
                 stats._state(now, "BOOTUP")
@@ -575,14 +605,20 @@ class Decoder:
             if len(data) == 1:
                 state = data[0] & 0x7F
                 if state == 0:
+                    self._toggle[node] = 0  # the first guarding answer carries 0
                     return [Bootup(now, cob, node)]
                 name = _STATES.get(state, f"state {state:02X}h")
                 asked = self._guard_asked.pop(node, None)
                 if asked is not None and now - asked <= _GUARD_ANSWER:
-                    return [GuardResponse(now, cob, node, name, data[0] >> 7)]
+                    toggle = data[0] >> 7
+                    expected = self._toggle.get(node)
+                    self._toggle[node] = toggle ^ 1
+                    wrong = expected is not None and toggle != expected
+                    return [GuardResponse(now, cob, node, name, toggle, wrong)]
                 return [Heartbeat(now, cob, node, name)]
         if cob in (0x7E4, 0x7E5) and data:
-            return [LssFrame(now, cob, data[0], data)]
+            said = self.lss.feed(cob, data, now)
+            return [LssFrame(now, cob, data[0], data), *(LssSession(now, cob, x) for x in said)]
         if func == 0x600 and node and len(data) == 8:
             return self._sdo_request(now, cob, node, data)
         if func == 0x580 and node and len(data) == 8:
@@ -780,7 +816,12 @@ class Decoder:
             mode = f"block, CRC {t.crc_value:04X}h WRONG (data gives {crc16(data):04X}h)"
         var = self._variable(node, t.index, t.subindex)
         value: Any = None
-        if var is not None:
+        size = var.data_type.size if var is not None else None
+        if var is not None and node not in self.dictionaries and size and size != len(data):
+            # CiA 301's type of an object, but the node sent another length: its own type
+            # (unknown without its EDS) rules, so the bytes are shown as they came.
+            value = int.from_bytes(data, "little") if 0 < len(data) <= 4 else None
+        elif var is not None:
             try:
                 size = var.data_type.size
                 value = decode(var.data_type, data[:size] if size else data)
@@ -800,11 +841,57 @@ class Decoder:
 
     def _variable(self, node: int, index: int, sub: int) -> Variable | None:
         od = self.dictionaries.get(node)
-        return od.get_variable(index, sub) if od is not None else None
+        if od is not None:
+            return od.get_variable(index, sub)
+        return standard_variable(index, sub)  # no EDS: CiA 301 still names 1000h-1BFFh
 
     def _object_name(self, node: int, index: int, sub: int) -> str | None:
         var = self._variable(node, index, sub)
         return _name(var) if var is not None else None
+
+
+_FAMILIES = (
+    (0x1200, 0x127F),
+    (0x1400, 0x15FF),
+    (0x1600, 0x17FF),
+    (0x1800, 0x19FF),
+    (0x1A00, 0x1BFF),
+)
+_LISTS = {0x1003, 0x1016, 0x1600, 0x1A00}  # sub-indexes 1..n: the same kind of entry
+_TRAILING_NUMBER = re.compile(r"\d+$")
+
+
+@functools.cache
+def _cia301() -> ObjectDictionary:
+    from cobus.device.dictionary import minimal_od
+
+    return minimal_od(rpdos=1, tpdos=1, mapping_entries=1, heartbeat_consumers=1, error_history=1)
+
+
+@functools.cache
+def standard_variable(index: int, subindex: int) -> Variable | None:
+    """The CiA 301 communication object at ``index``:``subindex`` (its standard name and
+    type), for a node whose EDS is not known; None outside what CiA 301 defines."""
+    if not 0x1000 <= index <= 0x1BFF:
+        return None
+    base, number = index, None
+    for start, end in _FAMILIES:
+        if start <= index <= end:
+            base, number = start, index - start + 1
+    od = _cia301()
+    var = od.get_variable(base, subindex)
+    renumber = False
+    if var is None and base in _LISTS and 1 <= subindex <= 254:
+        var, renumber = od.get_variable(base, 1), True
+    if var is None:
+        return None
+    name = _TRAILING_NUMBER.sub(str(subindex), var.name) if renumber else var.name
+    if var.parent is not None:
+        parent = var.parent.name
+        if number is not None:
+            parent = _TRAILING_NUMBER.sub(str(number), parent)
+        name = f"{parent}.{name}"
+    return Variable(index, subindex, name, var.data_type, var.access)
 
 
 def _name(var: Variable) -> str:
