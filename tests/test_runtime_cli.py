@@ -65,3 +65,52 @@ def test_sdo_nmt_and_sync_from_the_shell(
         assert main(["sync", "--period", "0.01", "--count", "5", *bus]) == 0
         net.sleep(0.05)
         assert 4 <= sum(1 for f in seen if f.cob_id == 0x80) <= 6
+
+
+def test_sdo_upload_and_download_show_a_progress_bar_on_a_terminal(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """stderr on a (pseudo-)terminal: a rich progress bar with bytes, gone once done;
+    segmented (no --block) so the transfer takes many frames."""
+    import pty
+    import threading
+
+    monkeypatch.setenv("COLUMNS", "120")
+    leader, follower = pty.openpty()
+    terminal = open(follower, "w", buffering=1)  # noqa: SIM115 - closed below
+    chunks: list[bytes] = []
+
+    def read() -> None:
+        while True:
+            try:
+                got = os.read(leader, 65536)
+            except OSError:
+                return
+            if not got:
+                return
+            chunks.append(got)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    channel = f"cli-progress-{os.getpid()}"
+    out = tmp_path / "stored.eds"
+    monkeypatch.setattr("sys.stderr", terminal)
+    try:
+        with Network(interface="virtual", channel=channel) as net:
+            start_rig(net, Rig.loads(RIG))
+            bus = ["-i", "virtual", "-c", channel]
+            assert main(["sdo", "upload", "10", "0x1021", "0", str(out), *bus]) == 0
+            assert main(["sdo", "read", "10", "0x1000", "0", *bus]) == 0  # (no bar)
+            small = tmp_path / "name.bin"
+            small.write_bytes(b"x" * 3000)
+            assert main(["sdo", "download", "10", "0x1021", "0", str(small), *bus]) == 1
+    finally:
+        monkeypatch.undo()
+        terminal.close()
+    reader.join(5)
+    os.close(leader)
+    assert out.read_bytes().startswith(b"[FileInfo]")
+    shown = b"".join(chunks).decode(errors="replace")
+    assert "upload 1021h:00" in shown and "/" in shown and "kB" in shown
+    assert "download 1021h:00" in shown  # the bar, then the refusal
+    assert "node 10 1021h:00:" in shown

@@ -130,3 +130,44 @@ def test_many_transfers_in_a_row_on_one_pair() -> None:
             assert backend.entries[(IDX, 2)] == value
             events = pair(client, server, client.start_upload(IDX, 2, float(n), block=block))
             assert UploadDone(IDX, 2, value) in events
+
+
+def _watched(
+    client: SdoClient, server: SdoServer, out: object
+) -> tuple[list[object], list[tuple[int, int | None]]]:
+    """pair(), with the client's progress noted before every frame while it is busy."""
+    seen: list[tuple[int, int | None]] = []
+
+    def watch(frame: object, position: int, size: int) -> bool:
+        if client.busy:
+            seen.append(client.progress)
+        return False
+
+    return list(pair(client, server, out, drop=watch)), seen  # type: ignore[arg-type]
+
+
+def test_progress_counts_the_bytes_of_every_kind_of_transfer() -> None:
+    """``progress`` (bytes moved, bytes in all) grows frame by frame and is (0, None) when
+    idle: what a progress bar draws."""
+    from tests.test_sdo_helpers import make_server
+
+    data = bytes(range(256)) * 3  # 768 bytes
+    for block in (False, True):
+        server = make_server({(IDX, 1): data})
+        client = SdoClient(RX, TX)
+        assert client.progress == (0, None)
+        events, seen = _watched(client, server, client.start_upload(IDX, 1, 0.0, block=block))
+        (done,) = [e for e in events if isinstance(e, UploadDone)]
+        assert done.data == data
+        moved = [n for n, _ in seen]
+        assert moved == sorted(moved) and 0 < max(moved) <= len(data)
+        assert {total for _, total in seen[2:]} == {len(data)}  # once the size came
+        assert client.progress == (0, None)
+
+        out = client.start_download(IDX, 1, data[::-1], 0.0, block=block)
+        events, seen = _watched(client, server, out)
+        assert any(isinstance(e, DownloadDone) for e in events)
+        moved = [n for n, _ in seen]
+        assert moved == sorted(moved) and max(moved) >= len(data) - 7 * (127 if block else 1)
+        assert {total for _, total in seen} == {len(data)}
+        assert client.progress == (0, None)

@@ -148,6 +148,63 @@ def test_monitor_decodes_the_live_bus_and_ends_with_the_node_table(
     assert "cannot open the bus" in capsys.readouterr().err
 
 
+def test_monitor_on_a_terminal_fits_its_records_below_the_node_table(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """On a terminal (a pseudo-terminal here) the live view never grows past the screen:
+    the newest records that fit, below the node table; --node keeps NMT commands to it."""
+    import pty
+
+    monkeypatch.setenv("COLUMNS", "100")
+    monkeypatch.setenv("LINES", "18")
+    leader, follower = pty.openpty()
+    screen = open(follower, "w", buffering=1)  # noqa: SIM115 - closed below
+    chunks: list[bytes] = []
+
+    def read() -> None:
+        while True:
+            try:
+                got = os.read(leader, 65536)
+            except OSError:
+                return
+            if not got:
+                return
+            chunks.append(got)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    channel = f"monitor-tty-{os.getpid()}"
+    rig = RIG.replace("name: servo}", "name: servo, options: {heartbeat_ms: 10}}")
+    monkeypatch.setattr("sys.stdout", screen)
+    try:
+        with Network(interface="virtual", channel=channel) as net:
+            start_rig(net, Rig.loads(rig))
+            node = net.add_remote(10)
+            result: list[int] = []
+            command = ["monitor", "--duration", "1.2", "--node", "10", "-i", "virtual"]
+            monitor = threading.Thread(
+                target=lambda: result.append(main([*command, "-c", channel]))
+            )
+            monitor.start()
+            listening(channel, 2)
+            net.sleep(0.2)
+            node.nmt.send("start")
+            net.sleep(0.2)
+            net.send(Frame(0x000, bytes([0x80, 0])))  # pre-operational, to all nodes
+            monitor.join()
+    finally:
+        monkeypatch.undo()
+        screen.close()
+    reader.join(5)
+    os.close(leader)
+    assert result == [0]
+    text = b"".join(chunks).decode(errors="replace")
+    last = text.rsplit("nodes —", 1)[1]  # the last picture, from the table's title
+    assert last.count("\n") <= 18
+    assert "node 10 heartbeat" in last and "..." not in last
+    assert "NMT start -> node 10" in text and "NMT enter pre-operational -> all nodes" in text
+
+
 def test_decode_skips_a_can_fd_frame_and_reports_an_open_transfer(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -133,10 +133,17 @@ def _sdo(args: argparse.Namespace) -> int:
     try:
         with _open(args) as net:
             node = net.add_remote(args.node, od, sdo_timeout=args.timeout)
-            if args.action in ("read", "upload"):
-                data = node.sdo.upload(args.index, args.subindex, block=args.block)
-            else:
+
+            def job() -> Any:
+                if args.action in ("read", "upload"):
+                    return node.sdo.upload(args.index, args.subindex, block=args.block)
                 node.sdo.download(args.index, args.subindex, payload, block=args.block)
+                return b""
+
+            if args.action in ("upload", "download"):
+                data = _with_progress(job, node.sdo, f"{args.action} {where}")
+            else:
+                data = job()
     except (CobusError, TimeoutError) as exc:
         return _fail(f"node {args.node} {where}: {exc}")
     except Exception as exc:
@@ -153,6 +160,52 @@ def _sdo(args: argparse.Namespace) -> int:
     else:
         print(f"{where} <- {len(payload)} bytes from {args.file}")
     return 0
+
+
+def _with_progress(job: Any, sdo: Any, what: str) -> Any:
+    """Run the transfer ``job`` with a progress bar on a terminal (stderr): bytes, rate and
+    the time left, from the SDO channel's progress read on the loop ten times a second."""
+    import threading
+
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        DownloadColumn,
+        Progress,
+        TextColumn,
+        TimeRemainingColumn,
+        TransferSpeedColumn,
+    )
+
+    console = Console(stderr=True)
+    if not console.is_terminal:
+        return job()
+    outcome: dict[str, Any] = {}
+
+    def work() -> None:
+        try:
+            outcome["value"] = job()
+        except BaseException as exc:  # handed to the caller's thread below
+            outcome["error"] = exc
+
+    worker = threading.Thread(target=work, name="cobus-sdo-transfer", daemon=True)
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        DownloadColumn(),
+        TransferSpeedColumn(),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, console=console, transient=True) as bar:
+        task = bar.add_task(what, total=None)
+        worker.start()
+        while worker.is_alive():
+            worker.join(0.1)
+            done, total = sdo.progress
+            bar.update(task, completed=done, total=total)
+    if "error" in outcome:
+        raise outcome["error"]
+    return outcome.get("value")
 
 
 def _encode(text: str, data_type: Any, encode: Any) -> bytes:

@@ -127,6 +127,12 @@ class SdoChannel:
     def timeout(self, seconds: float) -> None:
         self.client.timeout = seconds
 
+    @property
+    def progress(self) -> tuple[int, int | None]:
+        """(bytes moved, bytes in all or None while unknown) of the transfer under way, for
+        a progress bar; (0, None) between transfers."""
+        return self.client.progress
+
     def __repr__(self) -> str:
         od = "no dictionary" if self.od is None else f"{len(self.od)} objects"
         return (

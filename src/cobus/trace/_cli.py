@@ -149,7 +149,7 @@ def _decode(args: argparse.Namespace) -> int:
             for rec in records:
                 if args.filter is not None and rec.kind not in args.filter:
                     continue
-                if args.node is not None and getattr(rec, "node", None) != args.node:
+                if args.node is not None and not rec.concerns(args.node):
                     continue
                 if args.json:
                     body = {k: _plain(v) for k, v in vars(rec).items()}

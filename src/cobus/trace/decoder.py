@@ -77,6 +77,13 @@ class Record:
         """The service: nmt, bootup, heartbeat, guarding, sync, time, emcy, sdo, pdo, lss..."""
         return _KINDS.get(type(self).__name__, "other")
 
+    def concerns(self, node: int) -> bool:
+        """Whether the record is about ``node``: its own frames, and NMT commands to it or to
+        all nodes (a filter on one node must still show who stopped it)."""
+        if getattr(self, "node", None) == node:
+            return True
+        return isinstance(self, NmtCommand) and self.target in (0, node)
+
 
 @dataclass(frozen=True)
 class NmtCommand(Record):

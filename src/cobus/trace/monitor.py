@@ -176,7 +176,17 @@ def _table(decoder: Any, rate: float, load: float | None) -> Any:
 
     shown = f"{rate:,.0f} frames/s" + ("" if load is None else f", bus load {load:.1f} %")
     table = Table(title=f"nodes — {shown}")
-    columns = ("node", "state", "beats", "period", "jitter", "missed", "EMCY", "last error")
+    columns = (
+        "node",
+        "state",
+        "beats",
+        "period",
+        "jitter",
+        "missed",
+        "toggle",
+        "EMCY",
+        "last error",
+    )
     for column in (*columns, "SDO latency"):
         table.add_column(column)
     for node in sorted(decoder.stats):
@@ -189,6 +199,7 @@ def _table(decoder: Any, rate: float, load: float | None) -> Any:
             "" if period is None else f"{period * 1000:.0f} ms",
             "" if jitter is None else f"{jitter * 1000:.1f} ms",
             str(s.missed_beats),
+            str(s.toggle_errors),
             str(s.emcy_count),
             s.last_emcy or "",
             "" if latency is None else f"{latency[1] * 1000:.1f} ms",
@@ -211,7 +222,7 @@ def _run(args: argparse.Namespace) -> int:
         return _fail(str(exc), 2)
     live_view = sys.stdout.isatty() and not args.json
     console = Console(highlight=False)
-    newest: deque[str] = deque(maxlen=20)
+    newest: deque[str] = deque(maxlen=500)
     window: deque[tuple[float, int]] = deque()  # (time, bits) of the last second
     first: float | None = None
     deadline = None if args.duration is None else time.monotonic() + args.duration
@@ -232,8 +243,23 @@ def _run(args: argparse.Namespace) -> int:
 
     def view() -> Any:
         rate, load = figures()
-        lines = Text.from_markup("\n".join(newest) or "(nothing decoded yet)")
-        return Group(_table(decoder, rate, load), lines)
+        table = _table(decoder, rate, load)
+        # The records that fit below the node table as the terminal draws it (rows wrap).
+        height = len(console.render_lines(table, console.options, pad=False))
+        room = max(3, console.size.height - height - 1)
+        shown = list(newest)[-room:]
+        lines = Text.from_markup("\n".join(shown) or "(nothing decoded yet)", overflow="crop")
+        lines.no_wrap = True
+        return Group(table, lines)
+
+    drawn = [0.0]
+
+    def redraw(live: Any, force: bool = False) -> None:
+        """At most 10 pictures a second: a loaded bus brings thousands of frames."""
+        now = time.monotonic()
+        if live is not None and (force or now - drawn[0] >= 0.1):
+            drawn[0] = now
+            live.update(view(), refresh=True)
 
     display: Any = (
         Live(view(), console=console, auto_refresh=False) if live_view else contextlib.nullcontext()
@@ -245,8 +271,8 @@ def _run(args: argparse.Namespace) -> int:
                 if keys.quit or (deadline is not None and time.monotonic() >= deadline):
                     break
                 if item is None:
-                    if live is not None and not keys.paused:
-                        live.update(view(), refresh=True)
+                    if not keys.paused:
+                        redraw(live)
                     continue
                 frame, stamp = item
                 first = stamp if first is None else first
@@ -254,7 +280,7 @@ def _run(args: argparse.Namespace) -> int:
                 for rec in decoder.feed(frame, stamp - first):
                     if args.filter is not None and rec.kind not in args.filter:
                         continue
-                    if args.node is not None and getattr(rec, "node", None) != args.node:
+                    if args.node is not None and not rec.concerns(args.node):
                         continue
                     if args.json:
                         print(json.dumps({"time": rec.time, "kind": rec.kind, "text": str(rec)}))
@@ -262,8 +288,10 @@ def _run(args: argparse.Namespace) -> int:
                         newest.append(f"{rec.time:10.3f}  {escape(str(rec))}")
                     else:
                         print(f"{rec.time:12.6f}  {rec}", flush=True)
-                if live is not None and not keys.paused:
-                    live.update(view(), refresh=True)
+                if not keys.paused:
+                    redraw(live)
+            if not keys.paused:
+                redraw(live, force=True)  # the last records before the view is left
     except ConnectionError as exc:
         return _fail(f"cannot open the bus: {exc}")
     except KeyboardInterrupt:

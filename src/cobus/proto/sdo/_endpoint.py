@@ -130,6 +130,18 @@ class Endpoint:
         return self._state != IDLE
 
     @property
+    def progress(self) -> tuple[int, int | None]:
+        """(bytes moved, bytes in all) of the transfer under way: what a progress bar shows.
+        The total is None while unknown (an upload before the size came, or without one);
+        (0, None) when idle."""
+        if self._state == IDLE:
+            return 0, None
+        if self._data:  # this side sends
+            return min(self._pos, len(self._data)), len(self._data)
+        got = len(self._buf)  # (a block's last segment brings padding beyond the size)
+        return (got if self._size is None else min(got, self._size)), self._size
+
+    @property
     def timeout(self) -> float:
         return self._timeout
 
