@@ -486,3 +486,53 @@ def test_frame_kind_is_the_service_of_the_predefined_connection_set() -> None:
     }
     assert {cob: frame_kind(Frame(cob, b"")) for cob in kinds} == kinds
     assert frame_kind(Frame(0x185, b"", extended=True)) == "other"
+
+
+def test_a_network_file_names_and_scales_the_pdo_signals() -> None:
+    """With the master's network file the decoder shows its signals (the master's names,
+    scale, unit) for
+    the mapping the file configures; a mapping changed on the bus is learnt, and the file's
+    names come back once the bus sets the file's mapping again."""
+    from pathlib import Path
+
+    from cobus.master import load_network
+
+    network = load_network(Path(__file__).parent.parent / "examples/networks/line.yml")
+    d = Decoder(network=network)
+    position = (1234).to_bytes(4, "little", signed=True)
+    assert decoded(d, "183: 37 06 " + position.hex(" ")) == [
+        "node 3 TPDO1 drive1.statusword=1591, drive1.position=1.234 mm"
+    ]
+    assert decoded(d, "203: 0F 00 " + (-500).to_bytes(4, "little", signed=True).hex(" ")) == [
+        "node 3 RPDO1 drive1.controlword=15, drive1.target=-0.5 mm"
+    ]
+    (rec,) = d.feed(frame("182: 05 0A"), 1.0)
+    assert isinstance(rec, PdoRecord) and dict(rec.values) == {
+        "io1.inputs_low": 5,
+        "io1.inputs_high": 10,
+    }
+    # Someone maps only the statusword into TPDO1 (count 0, entry, count 1): learnt ...
+    remap = [
+        "603: 2F 00 1A 00 00 00 00 00",
+        "583: 60 00 1A 00 00 00 00 00",
+        "603: 23 00 1A 01 10 00 41 60",
+        "583: 60 00 1A 01 00 00 00 00",
+        "603: 2F 00 1A 00 01 00 00 00",
+        "583: 60 00 1A 00 00 00 00 00",
+    ]
+    decoded(d, *remap)
+    assert decoded(d, "183: 37 06")[0].startswith("node 3 TPDO1 ")
+    assert "position" not in decoded(d, "183: 37 06")[0]
+    # ... and the file's mapping written back brings its signals back.
+    back = [
+        "603: 2F 00 1A 00 00 00 00 00",
+        "583: 60 00 1A 00 00 00 00 00",
+        "603: 23 00 1A 02 20 00 64 60",
+        "583: 60 00 1A 02 00 00 00 00",
+        "603: 2F 00 1A 00 02 00 00 00",
+        "583: 60 00 1A 00 00 00 00 00",
+    ]
+    decoded(d, *back)
+    assert decoded(d, "183: 37 06 " + position.hex(" ")) == [
+        "node 3 TPDO1 drive1.statusword=1591, drive1.position=1.234 mm"
+    ]

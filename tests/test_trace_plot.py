@@ -130,3 +130,24 @@ def test_signals_of_a_mapping_learnt_from_the_bus_and_of_two_nodes() -> None:
         pick(found, ["6064h:00"])
     (six,) = pick(found, ["6:6064H:00"])  # any case
     assert six.values[-1] == float(0xFFFF_FFEC)  # no EDS: an unsigned 32-bit guess
+
+
+def test_decode_and_plot_take_the_signals_of_a_network_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from tests.test_trace_cli import write_trace
+
+    network = str(Path(__file__).parent.parent / "examples/networks/line.yml")
+    trace = tmp_path / "line.log"
+    frames = [Frame(0x183, b"\x37\x06" + (500 * n).to_bytes(4, "little")) for n in range(20)]
+    write_trace(trace, frames)
+    assert main(["decode", str(trace), "--network", network, "--filter", "pdo"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-1].endswith("node 3 TPDO1 drive1.statusword=1591, drive1.position=9.5 mm")
+    png = tmp_path / "line.png"
+    args = ["plot", str(trace), "drive1.position", "--network", network, "-o", str(png)]
+    assert main([*args, "--json"]) == 0
+    (signal,) = json.loads(capsys.readouterr().out)["signals"]
+    assert signal["name"] == "drive1.position" and signal["max"] == pytest.approx(9.5)
+    assert main(["decode", str(trace), "--network", str(tmp_path / "none.yml")]) == 2
+    assert "none.yml" in capsys.readouterr().err

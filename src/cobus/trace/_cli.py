@@ -63,6 +63,9 @@ def register(sub: Any) -> None:
         metavar="NODE=FILE",
         help="a node's EDS/DCF: names, types, PDO mappings (repeatable)",
     )
+    decode.add_argument(
+        "--network", type=Path, help="a network description: its nodes' EDS and PDO signals"
+    )
     decode.add_argument("--filter", type=_kinds, help=f"only these kinds ({','.join(_KINDS)})")
     decode.add_argument("--node", type=int, help="only records of this node-ID")
     decode.add_argument("--json", action="store_true", help="one JSON object per line")
@@ -111,20 +114,17 @@ def _plain(value: Any) -> Any:
 def _decode(args: argparse.Namespace) -> int:
     import can
 
-    from cobus.od import EdsError, load
     from cobus.runtime.bus import message_to_frame
     from cobus.trace.decoder import Decoder
+    from cobus.trace.monitor import _inputs
 
-    dictionaries = {}
-    for node, path in args.eds:
-        try:
-            od = load(path, node_id=node)
-        except (OSError, EdsError) as exc:
-            return _fail(f"cannot read {path}: {exc}", 2)
-        dictionaries[node] = od
+    try:
+        dictionaries, network = _inputs(args)
+    except Exception as exc:  # a network file or EDS that cannot be read
+        return _fail(str(exc), 2)
     if not args.file.is_file():
         return _fail(f"{args.file}: no such file")
-    decoder = Decoder(dictionaries)
+    decoder = Decoder(dictionaries, network=network)
     first: float | None = None
     now = 0.0
     try:

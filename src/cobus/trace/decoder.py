@@ -257,13 +257,18 @@ class PdoRecord(Record):
     tpdo: bool
     data: bytes
     values: Mapping[str, Any] = field(default_factory=dict)
+    #: Units of the values that have one (the signals of a network file).
+    units: Mapping[str, str] = field(default_factory=dict)
 
     def __str__(self) -> str:
         kind = "TPDO" if self.tpdo else "RPDO"
         number = f"{kind}{self.number}" if self.number else "PDO"
         who = f"node {self.node} " if self.node is not None else ""
         if self.values:
-            body = ", ".join(f"{k}={v!r}" for k, v in self.values.items())
+            body = ", ".join(
+                f"{k}={v!r}" + (f" {self.units[k]}" if k in self.units else "")
+                for k, v in self.values.items()
+            )
         else:
             body = self.data.hex(" ") or "(no data)"
         return f"{who}{number} {body}"
@@ -375,6 +380,9 @@ class _Pdo:
     number: int
     tpdo: bool
     entries: list[tuple[str | None, DataType, int]]  # name (None: a gap), type, bits
+    #: From a network file: the PDO's codec and, per value, (name, signal or None).
+    layout: Any = None
+    named: tuple[tuple[str, Any], ...] = ()
 
 
 class NodeStats:
@@ -461,8 +469,15 @@ class Decoder:
     its EDS/DCF) for object names, value types and PDO mappings. ``stats`` holds what it saw
     of each node (:class:`NodeStats`)."""
 
-    def __init__(self, dictionaries: Mapping[int, ObjectDictionary] | None = None) -> None:
+    def __init__(
+        self,
+        dictionaries: Mapping[int, ObjectDictionary] | None = None,
+        network: Any = None,
+    ) -> None:
         self.dictionaries = dict(dictionaries or {})
+        if network is not None:  # a master's NetworkConfig: its nodes' EDS for names
+            for cfg in network.nodes.values():
+                self.dictionaries.setdefault(cfg.node_id, cfg.od)
         #: Node-ID -> what the bus showed of it.
         self.stats: dict[int, NodeStats] = {}
         self._requested: dict[int, float] = {}
@@ -472,11 +487,35 @@ class Decoder:
         #: LSS requests and answers followed into sessions (the slave being configured).
         self.lss = LssSessions()
         self._pdos: dict[int, _Pdo] = {}
+        self._layouts: dict[int, _Pdo] = {}  # COB-ID -> the PDO as a network file has it
         self._params: dict[int, dict[tuple[int, int], int]] = {}
         for node, od in self.dictionaries.items():
             if od.node_id is None:
                 od.node_id = node  # ($NODEID in COB-IDs: the node it is given for)
             self._learn(node, od)
+        if network is not None:
+            for cfg in network.nodes.values():
+                self._configured(cfg)
+
+    def _configured(self, cfg: Any) -> None:
+        """The PDOs as the network file configures them (the master writes that mapping at
+        boot), with its signal names, scales and units: ``drive1 TPDO1 position=12.5 mm``."""
+        alias = {canonical: name for name, canonical in reversed(list(cfg.aliases.items()))}
+        for layout in (*cfg.tpdos, *cfg.rpdos):
+            if layout.extended:
+                continue
+            real = [e for e in layout.codec.entries if not e.is_dummy]
+            named = []
+            for entry, signal in zip(real, layout.positions, strict=False):
+                if signal is not None:
+                    named.append((alias.get(signal.name, signal.name), signal))
+                else:
+                    var = cfg.od.get_variable(entry.index, entry.subindex)
+                    label = _name(var) if var is not None else None
+                    named.append((label or f"{entry.index:04X}h:{entry.subindex:02X}", None))
+            tpdo = layout.direction == "tpdo"
+            pdo = _Pdo(cfg.node_id, layout.number, tpdo, [], layout, tuple(named))
+            self._pdos[layout.cob_id] = self._layouts[layout.cob_id] = pdo
 
     # ------------------------------------------------------------------ PDO mappings
 
@@ -500,6 +539,18 @@ class Decoder:
                 if cob is None or cob & (1 << 31):
                     continue
                 count = params.get((base + 0x200 + n, 0), 0)
+                mapped = [
+                    params.get((base + 0x200 + n, k), 0) for k in range(1, min(count, 64) + 1)
+                ]
+                configured = self._layouts.get(cob & 0x7FF)
+                if configured is not None and configured.node == node and configured.tpdo == tpdo:
+                    wanted = [
+                        (e.index << 16) | (e.subindex << 8) | e.bit_length
+                        for e in configured.layout.codec.entries
+                    ]
+                    if wanted == mapped:  # the bus set the file's mapping: keep its signals
+                        self._pdos[cob & 0x7FF] = configured
+                        continue
                 entries: list[tuple[str | None, DataType, int]] = []
                 names: set[str] = set()
                 for sub in range(1, min(count, 64) + 1):
@@ -638,6 +689,8 @@ class Decoder:
 
     def _pdo(self, now: float, cob: int, data: bytes) -> PdoRecord:
         pdo = self._pdos[cob]
+        if pdo.layout is not None:
+            return self._configured_pdo(now, cob, pdo, data)
         values: dict[str, Any] = {}
         raw = int.from_bytes(data, "little")
         bit = 0
@@ -658,6 +711,25 @@ class Decoder:
                 values[name] = chunk
             bit += bits
         return PdoRecord(now, cob, pdo.node, pdo.number, pdo.tpdo, data, values)
+
+    def _configured_pdo(self, now: float, cob: int, pdo: _Pdo, data: bytes) -> PdoRecord:
+        try:
+            raws = pdo.layout.codec.unpack(data)
+        except Exception:  # shorter than the mapping: the bytes as they came
+            return PdoRecord(now, cob, pdo.node, pdo.number, pdo.tpdo, data)
+        values: dict[str, Any] = {}
+        units: dict[str, str] = {}
+        for (name, signal), raw in zip(pdo.named, raws, strict=False):
+            if signal is None:
+                values[name] = raw
+                continue
+            try:
+                values[name] = signal.to_engineering(raw)
+            except (TypeError, ValueError):
+                values[name] = raw
+            if signal.unit:
+                units[name] = signal.unit
+        return PdoRecord(now, cob, pdo.node, pdo.number, pdo.tpdo, data, values, units)
 
     # ------------------------------------------------------------------ SDO
 

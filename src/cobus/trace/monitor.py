@@ -66,23 +66,23 @@ def _fail(message: str, code: int = 1) -> int:
     return code
 
 
-def _dictionaries(args: argparse.Namespace) -> dict[int, Any]:
+def _inputs(args: argparse.Namespace) -> tuple[dict[int, Any], Any]:
+    """The dictionaries of ``--eds NODE=FILE`` and the network of ``--network FILE`` (its
+    nodes' EDS, and its PDO signals with their names, scales and units)."""
     from cobus.od import EdsError, load
 
-    out: dict[int, Any] = {}
-    if args.network is not None:
+    network = None
+    if getattr(args, "network", None) is not None:
         from cobus.master import load_network
 
         network = load_network(args.network)
-        for cfg in network.nodes.values():
-            if cfg.od is not None:
-                out[cfg.node_id] = cfg.od
+    out: dict[int, Any] = {}
     for node, path in args.eds:
         try:
             out[node] = load(path, node_id=node)
         except (OSError, EdsError) as exc:
             raise ValueError(f"cannot read {path}: {exc}") from None
-    return out
+    return out, network
 
 
 class _Keys:
@@ -217,7 +217,8 @@ def _run(args: argparse.Namespace) -> int:
     from cobus.trace.decoder import Decoder
 
     try:
-        decoder = Decoder(_dictionaries(args))
+        dictionaries, network = _inputs(args)
+        decoder = Decoder(dictionaries, network=network)
     except Exception as exc:  # a network file or EDS that cannot be read
         return _fail(str(exc), 2)
     live_view = sys.stdout.isatty() and not args.json

@@ -58,9 +58,11 @@ class Series:
 def collect(
     frames: Iterable[tuple[float, Frame]],
     dictionaries: Mapping[int, ObjectDictionary] | None = None,
+    network: Any = None,
 ) -> dict[tuple[int | None, str], Series]:
-    """Every PDO value of ``frames`` (time, frame), by (node, name), as numbers."""
-    decoder = Decoder(dictionaries)
+    """Every PDO value of ``frames`` (time, frame), by (node, name), as numbers; a
+    ``network`` (a master's NetworkConfig) names and scales them as its signals."""
+    decoder = Decoder(dictionaries, network=network)
     out: dict[tuple[int | None, str], Series] = {}
     for now, frame in frames:
         for rec in decoder.feed(frame, now):
@@ -225,20 +227,20 @@ def frames_of(path: Path) -> Iterator[tuple[float, Frame]]:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from cobus.trace.monitor import _dictionaries
+    from cobus.trace.monitor import _inputs
 
     if not args.list and not args.signal:
         return _fail("name the signals to plot, or --list the trace's signals", 2)
     if args.start is not None and args.end is not None and args.end <= args.start:
         return _fail(f"--to {args.end} is not after --from {args.start}", 2)
     try:
-        dictionaries = _dictionaries(args)
+        dictionaries, network = _inputs(args)
     except Exception as exc:  # a network file or EDS that cannot be read
         return _fail(str(exc), 2)
     if not args.file.is_file():
         return _fail(f"{args.file}: no such file")
     try:
-        found = collect(frames_of(args.file), dictionaries)
+        found = collect(frames_of(args.file), dictionaries, network)
     except (ValueError, OSError, ImportError) as exc:
         return _fail(f"cannot read {args.file}: {exc}")
     if args.list:
