@@ -536,3 +536,33 @@ def test_a_network_file_names_and_scales_the_pdo_signals() -> None:
     assert decoded(d, "183: 37 06 " + position.hex(" ")) == [
         "node 3 TPDO1 drive1.statusword=1591, drive1.position=1.234 mm"
     ]
+
+
+def test_the_cia402_state_goes_on_the_node_time_line() -> None:
+    """A statusword in a TPDO (as the EDS maps it) or read over SDO puts the drive's power
+    state beside its NMT states and emergencies."""
+    from pathlib import Path
+
+    from cobus.master import load_network
+
+    network = load_network(Path(__file__).parent.parent / "examples/networks/line.yml")
+    d = Decoder(network=network)
+    decoded(
+        d,
+        "703: 7F",
+        "183: 40 02 00 00 00 00",  # switch on disabled
+        "183: 37 02 00 00 00 00",  # operation enabled
+        "183: 37 02 10 00 00 00",  # (the same state: no new entry)
+        "083: 10 23 01 00 00 00 00 00",
+        "603: 40 41 60 00 00 00 00 00",
+        "583: 4B 41 60 00 08 02 00 00",  # fault, read over SDO
+    )
+    stats = d.stats[3]
+    assert [text for _, text in stats.timeline] == [
+        "PRE_OPERATIONAL",
+        "CiA 402 SWITCH_ON_DISABLED",
+        "CiA 402 OPERATION_ENABLED",
+        "EMCY 2310h",
+        "CiA 402 FAULT",
+    ]
+    assert stats.drive_state == "FAULT" and stats.summary()["drive_state"] == "FAULT"

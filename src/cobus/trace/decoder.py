@@ -383,6 +383,8 @@ class _Pdo:
     #: From a network file: the PDO's codec and, per value, (name, signal or None).
     layout: Any = None
     named: tuple[tuple[str, Any], ...] = ()
+    #: The name of the value that is a CiA 402 statusword (6041h, or 6841h... of axis 2..8).
+    statusword: str | None = None
 
 
 class NodeStats:
@@ -403,6 +405,8 @@ class NodeStats:
         self.toggle_errors = 0  # guarding answers whose toggle bit did not alternate
         self.last_emcy: str | None = None
         self.state: str | None = None
+        #: The CiA 402 power state its statusword (6041h in a PDO or an SDO answer) reports.
+        self.drive_state: str | None = None
         self.timeline: deque[tuple[float, str]] = deque(maxlen=self.KEEP)
 
     @property
@@ -445,12 +449,23 @@ class NodeStats:
             self.state = state
             self.timeline.append((now, state))
 
+    def _statusword(self, now: float, statusword: Any) -> None:
+        if isinstance(statusword, bool) or not isinstance(statusword, int):
+            return
+        from cobus.profiles.cia402 import PowerState
+
+        state = PowerState.from_statusword(statusword).name
+        if state != self.drive_state:
+            self.drive_state = state
+            self.timeline.append((now, f"CiA 402 {state}"))
+
     def summary(self) -> dict[str, Any]:
         """The figures as plain data (a node table, ``--json``)."""
         latency = self.sdo_latency
         return {
             "node": self.node,
             "state": self.state,
+            "drive_state": self.drive_state,
             "heartbeats": self.heartbeats,
             "heartbeat_period": self.heartbeat_period,
             "jitter": self.jitter,
@@ -515,6 +530,11 @@ class Decoder:
                     named.append((label or f"{entry.index:04X}h:{entry.subindex:02X}", None))
             tpdo = layout.direction == "tpdo"
             pdo = _Pdo(cfg.node_id, layout.number, tpdo, [], layout, tuple(named))
+            if tpdo:
+                pdo.statusword = next(
+                    (n for (n, _), e in zip(named, real, strict=False) if _is_statusword(e.index)),
+                    None,
+                )
             self._pdos[layout.cob_id] = self._layouts[layout.cob_id] = pdo
 
     # ------------------------------------------------------------------ PDO mappings
@@ -553,6 +573,7 @@ class Decoder:
                         continue
                 entries: list[tuple[str | None, DataType, int]] = []
                 names: set[str] = set()
+                statusword: str | None = None
                 for sub in range(1, min(count, 64) + 1):
                     raw = params.get((base + 0x200 + n, sub), 0)
                     index, subindex, bits = raw >> 16, (raw >> 8) & 0xFF, raw & 0xFF
@@ -570,11 +591,13 @@ class Decoder:
                         name = f"{name}#{sub}"
                     names.add(name)
                     entries.append((name, data_type, bits))
+                    if tpdo and statusword is None and _is_statusword(index):
+                        statusword = name
                 key = cob & 0x7FF
                 other = self._pdos.get(key)
                 if other is not None and other.node != node and other.tpdo and not tpdo:
                     continue  # a node's TPDO names the frame, not another's RPDO of it
-                self._pdos[key] = _Pdo(node, n + 1, tpdo, entries)
+                self._pdos[key] = _Pdo(node, n + 1, tpdo, entries, statusword=statusword)
 
     # ------------------------------------------------------------------ frames
 
@@ -606,6 +629,12 @@ class Decoder:
                 stats = self.node_stats(rec.node)
                 stats._state(now, "BOOTUP")
                 stats.last_heartbeat = None  # (a reset: the intervals start again)
+            elif isinstance(rec, SdoTransfer) and _is_statusword(rec.index) and rec.subindex == 0:
+                if not rec.write and rec.ok and rec.mode != "incomplete":
+                    value = rec.value
+                    if value is None and len(rec.data) == 2:
+                        value = int.from_bytes(rec.data, "little")
+                    self.node_stats(rec.node)._statusword(now, value)
             elif isinstance(rec, Emergency):
                 stats = self.node_stats(rec.node)
                 stats.emcy_count += 1
@@ -710,6 +739,8 @@ class Decoder:
             else:
                 values[name] = chunk
             bit += bits
+        if pdo.statusword is not None:
+            self.node_stats(pdo.node)._statusword(now, values.get(pdo.statusword))
         return PdoRecord(now, cob, pdo.node, pdo.number, pdo.tpdo, data, values)
 
     def _configured_pdo(self, now: float, cob: int, pdo: _Pdo, data: bytes) -> PdoRecord:
@@ -729,6 +760,8 @@ class Decoder:
                 values[name] = raw
             if signal.unit:
                 units[name] = signal.unit
+        if pdo.statusword is not None:
+            self.node_stats(pdo.node)._statusword(now, values.get(pdo.statusword))
         return PdoRecord(now, cob, pdo.node, pdo.number, pdo.tpdo, data, values, units)
 
     # ------------------------------------------------------------------ SDO
@@ -927,6 +960,11 @@ class Decoder:
     def _object_name(self, node: int, index: int, sub: int) -> str | None:
         var = self._variable(node, index, sub)
         return _name(var) if var is not None else None
+
+
+def _is_statusword(index: int) -> bool:
+    """6041h, or the statusword of axis 2..8 (6841h, 7041h... : 800h apart)."""
+    return 0x6041 <= index <= 0x6041 + 7 * 0x800 and (index - 0x6041) % 0x800 == 0
 
 
 _FAMILIES = (

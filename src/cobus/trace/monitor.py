@@ -179,6 +179,7 @@ def _table(decoder: Any, rate: float, load: float | None) -> Any:
     columns = (
         "node",
         "state",
+        "drive",
         "beats",
         "period",
         "jitter",
@@ -195,6 +196,7 @@ def _table(decoder: Any, rate: float, load: float | None) -> Any:
         table.add_row(
             str(node),
             s.state or "",
+            s.drive_state or "",
             str(s.heartbeats),
             "" if period is None else f"{period * 1000:.0f} ms",
             "" if jitter is None else f"{jitter * 1000:.1f} ms",
