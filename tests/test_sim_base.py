@@ -88,7 +88,7 @@ def test_a_failing_model_tick_is_reported_not_fatal():
 
 def test_a_model_stops_with_its_network_instead_of_failing_on_it():
     """A model tick due while the network disconnects (a rig closed with a motor turning)
-    neither runs on the closed network nor reports a failure."""
+    neither runs on the closed network nor reports a failure; connected again, it goes on."""
 
     async def main():
         net = AsyncNetwork()
@@ -105,8 +105,13 @@ def test_a_model_stops_with_its_network_instead_of_failing_on_it():
         await net.sleep(0.25)
         await net.disconnect()
         await asyncio.sleep(0.5)  # the loop runs on: the timers fall due
-        return lamp.ticks, events
+        resting = len(lamp.ticks)
+        await net.connect()  # connected again: the model goes on
+        await net.sleep(0.25)
+        await net.disconnect()
+        return resting, lamp.ticks, events
 
-    ticks, events = simulate(main())
-    assert len(ticks) == 2
+    resting, ticks, events = simulate(main())
+    assert resting == 2 and len(ticks) >= 4
+    assert ticks == pytest.approx([0.1] * len(ticks))  # the rest is no step of the model
     assert not [e for e in events if isinstance(e, HandlerFailed)]

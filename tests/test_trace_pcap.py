@@ -20,7 +20,12 @@ from cobus.runtime import Network
 from cobus.runtime.bus import message_to_frame
 from cobus.sim import Rig, start_rig
 from cobus.trace import frame_kind
-from cobus.trace.pcap import LINKTYPE_CAN_SOCKETCAN, frame_bytes, message_from_bytes
+from cobus.trace.pcap import (
+    LINKTYPE_CAN_SOCKETCAN,
+    PcapReader,
+    frame_bytes,
+    message_from_bytes,
+)
 from tests.test_trace_cli import RIG, listening
 
 MESSAGES = [
@@ -243,3 +248,83 @@ def test_tshark_reads_a_cobus_recording_as_the_same_canopen_frames(tmp_path: Pat
         if node_id and ours not in ("nmt", "lss"):
             assert int(node_id, 0) == frame.cob_id & 0x7F, number
     assert {"nmt", "sync", "emcy", "time", "pdo", "sdo", "hb", "lss"} <= seen
+
+
+def test_gzip_whole_seconds_and_bad_times(tmp_path: Path) -> None:
+    """A .pcap.gz reads back whole (python-can (de)compresses); a time a hair below a whole
+    second is not written as 1e9 ns; negative times are refused, not mangled."""
+    for suffix in (".pcap.gz", ".pcapng.gz"):
+        path = tmp_path / f"many{suffix}"
+        with can.Logger(str(path)) as logger:
+            for n in range(2000):
+                logger(can.Message(timestamp=10.0 + n * 1e-3, arbitration_id=0x181, data=b"ab"))
+        with can.LogReader(str(path)) as reader:
+            assert sum(1 for _ in reader) == 2000
+    near = sum([0.1] * 10)  # 0.9999999999999999
+    path = tmp_path / "near.pcap"
+    with can.Logger(str(path)) as logger:
+        logger(can.Message(timestamp=near, arbitration_id=0x181))
+    raw = path.read_bytes()
+    sec, frac = struct.unpack_from("<II", raw, 24)
+    assert (sec, frac) == (1, 0)
+    for suffix in (".pcap", ".pcapng"):
+        with (
+            can.Logger(str(tmp_path / f"neg{suffix}")) as logger,
+            pytest.raises(ValueError, match="from 1970 on only"),
+        ):
+            logger(can.Message(timestamp=-1.5, arbitration_id=0x181))
+    with pytest.raises(ValueError, match="at most 8"):
+        frame_bytes(can.Message(arbitration_id=1, data=bytes(9), check=False))
+    with pytest.raises(ValueError, match="does not fit 11 bits"):
+        frame_bytes(can.Message(arbitration_id=0x800, is_extended_id=False, check=False))
+    padded = frame_bytes(can.Message(arbitration_id=1, is_fd=True, data=bytes(10)))
+    assert padded[4] == 12
+
+
+def test_a_pcapng_with_several_interfaces_keeps_each_ones_type_time_and_name(
+    tmp_path: Path,
+) -> None:
+    """Ethernet beside two CAN interfaces (nanosecond and microsecond clocks, named): the
+    Ethernet packets are skipped, the CAN frames keep their times and their channel."""
+    ng = dpkt.pcapng
+    tsresol_ns = ng.PcapngOptionLE(code=ng.PCAPNG_OPT_IF_TSRESOL, data=b"\x09")
+    end = ng.PcapngOptionLE(code=ng.PCAPNG_OPT_ENDOFOPT)
+
+    def named(name: bytes, *extra: object) -> list[object]:
+        return [ng.PcapngOptionLE(code=ng.PCAPNG_OPT_IF_NAME, data=name), *extra, end]
+
+    interfaces = [
+        ng.InterfaceDescriptionBlockLE(linktype=1, snaplen=1500, opts=named(b"eth0")),
+        ng.InterfaceDescriptionBlockLE(
+            linktype=LINKTYPE_CAN_SOCKETCAN, snaplen=72, opts=named(b"can0", tsresol_ns)
+        ),
+        ng.InterfaceDescriptionBlockLE(
+            linktype=LINKTYPE_CAN_SOCKETCAN, snaplen=72, opts=named(b"can1")
+        ),
+    ]
+    out = _Buffer()
+    writer = ng.Writer(out, idb=interfaces)
+    frame_a = frame_bytes(MESSAGES[0])
+    frame_b = frame_bytes(MESSAGES[1])
+    for iface, ticks, body in (
+        (0, 5, b"\xff" * 60),  # an Ethernet frame
+        (1, 1_700_000_000_123_456_789, frame_a),  # nanoseconds
+        (2, 1_700_000_000_123_457, frame_b),  # microseconds (the default)
+    ):
+        block = ng.EnhancedPacketBlockLE(
+            iface_id=iface,
+            ts_high=ticks >> 32,
+            ts_low=ticks & 0xFFFF_FFFF,
+            caplen=len(body),
+            pkt_len=len(body),
+            pkt_data=body,
+        )
+        writer.writepkt(block)
+    path = tmp_path / "mixed.pcapng"
+    path.write_bytes(bytes(out.data))
+    reader = PcapReader(path)
+    got = list(reader)
+    assert [(m.arbitration_id, m.channel) for m in got] == [(0x000, "can0"), (0x080, "can1")]
+    assert got[0].timestamp == pytest.approx(1_700_000_000.123456789, abs=1e-6)
+    assert got[1].timestamp == pytest.approx(1_700_000_000.123457, abs=1e-6)
+    assert reader.skipped == 1 and reader.file.closed  # closed once read to the end

@@ -151,3 +151,37 @@ def test_decode_and_plot_take_the_signals_of_a_network_file(
     assert signal["name"] == "drive1.position" and signal["max"] == pytest.approx(9.5)
     assert main(["decode", str(trace), "--network", str(tmp_path / "none.yml")]) == 2
     assert "none.yml" in capsys.readouterr().err
+
+
+def test_a_window_holds_values_and_bad_files_or_windows_are_clear(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from cobus.trace.plot import Series, window
+    from tests.test_trace_cli import write_trace
+
+    s = Series(3, "x", [1.0, 5.0], [567.0, 1591.0])
+    held = window(s, 2.0, 4.0)
+    assert (held.times, held.values) == ([2.0], [567.0])  # the value known since 1 s
+    assert window(s, 0.0, 0.5).times == []
+    network = str(Path(__file__).parent.parent / "examples/networks/line.yml")
+    trace = tmp_path / "line.log"  # one position every millisecond for 20 ms
+    write_trace(
+        trace, [Frame(0x183, b"\x37\x06" + (500 * n).to_bytes(4, "little")) for n in range(20)]
+    )
+    base = ["plot", str(trace), "drive1.position", "--network", network]
+    assert (
+        main([*base, "--from", "0", "--to", "0.0105", "-o", str(tmp_path / "noext"), "--json"]) == 0
+    )
+    result = json.loads(capsys.readouterr().out)
+    assert result["output"] == str(tmp_path / "noext.png") and (tmp_path / "noext.png").is_file()
+    assert result["signals"][0]["samples"] == 11 and result["signals"][0]["max"] == pytest.approx(
+        5.0
+    )
+    assert main([*base, "--from", "100"]) == 1
+    assert "the trace's last PDO came at 0.019 s" in capsys.readouterr().err
+    junk = tmp_path / "junk.blf"
+    junk.write_bytes(bytes(range(256)) * 12)
+    assert main(["plot", str(junk), "x"]) == 1
+    assert main(["decode", str(junk)]) == 1
+    err = capsys.readouterr().err
+    assert "cannot read" in err and "Traceback" not in err

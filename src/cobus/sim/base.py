@@ -112,10 +112,14 @@ class SimulatedDevice:
         key = object()
 
         def fire() -> None:
-            if not self.network.connected:  # the network closed: the model stops with it
-                self._timers.pop(key, None)
-                return
             now = loop.time()
+            if not self.network.connected:
+                # The network is closed: the model rests (no tick on a closed network) and
+                # goes on when it connects again on this loop.
+                last[0] = now
+                if self.powered and key in self._timers and not loop.is_closed():
+                    self._timers[key] = loop.call_later(period, fire)
+                return
             dt, last[0] = now - last[0], now
             try:
                 tick(dt)

@@ -101,6 +101,14 @@ def _fail(message: str, code: int = 1) -> int:
     return code
 
 
+def _unreadable(path: Path, exc: BaseException) -> str:
+    """Why ``path`` cannot be read, naming it once (the pcap reader names it already)."""
+    text = str(exc) or type(exc).__name__
+    if not isinstance(exc, ValueError | OSError):
+        text = f"{type(exc).__name__}: {text}"
+    return text if text.startswith(path.name) else f"cannot read {path}: {text}"
+
+
 def _plain(value: Any) -> Any:
     if isinstance(value, bytes):
         return value.hex(" ")
@@ -129,8 +137,8 @@ def _decode(args: argparse.Namespace) -> int:
     now = 0.0
     try:
         reader = can.LogReader(str(args.file))
-    except (ValueError, OSError, ImportError) as exc:
-        return _fail(f"cannot read {args.file}: {exc}")
+    except Exception as exc:  # python-can's readers raise their own kinds (BLF, zlib...)
+        return _fail(_unreadable(args.file, exc))
     try:
         for msg in reader:
             now = float(msg.timestamp)
@@ -160,8 +168,8 @@ def _decode(args: argparse.Namespace) -> int:
             print(f"{rec.time:12.6f}  {rec}")  # transfers the trace ended in
     except BrokenPipeError:
         raise
-    except (ValueError, OSError) as exc:
-        return _fail(f"{args.file}: {exc}")
+    except Exception as exc:  # a damaged file, whatever the reader raises for it
+        return _fail(_unreadable(args.file, exc))
     finally:
         stop = getattr(reader, "stop", None)
         if stop is not None:
@@ -206,8 +214,8 @@ def _replay(args: argparse.Namespace) -> int:
         return _fail(f"{args.file}: no such file")
     try:
         reader = can.LogReader(str(args.file))
-    except (ValueError, OSError, ImportError) as exc:
-        return _fail(f"cannot read {args.file}: {exc}")
+    except Exception as exc:  # python-can's readers raise their own kinds (BLF, zlib...)
+        return _fail(_unreadable(args.file, exc))
     try:
         bus = can.Bus(**{k: v for k, v in bus_options(args).items() if v is not None})
     except (can.CanError, OSError, ValueError, ImportError) as exc:
@@ -226,8 +234,8 @@ def _replay(args: argparse.Namespace) -> int:
                 print(f"# frame {msg.arbitration_id:03X} not sent: {exc}", file=sys.stderr)
     except KeyboardInterrupt:
         pass
-    except (ValueError, OSError) as exc:
-        return _fail(f"{args.file}: {exc}")
+    except Exception as exc:  # a damaged file, whatever the reader raises for it
+        return _fail(_unreadable(args.file, exc))
     finally:
         bus.shutdown()
         stop = getattr(reader, "stop", None)

@@ -337,10 +337,12 @@ def frame_kind(frame: Frame) -> str:
         return "nmt"
     if cob == 0x080:
         return "sync"
-    if cob < 0x100:
+    if 0x081 <= cob <= 0x0FF:
         return "emcy"
     if cob == 0x100:
         return "time"
+    if cob < 0x180:
+        return "other"
     if 0x180 <= cob <= 0x57F:
         return "pdo"
     if (0x581 <= cob <= 0x5FF) or (0x601 <= cob <= 0x67F):

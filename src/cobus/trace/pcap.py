@@ -17,10 +17,11 @@ reserved bytes, then the payload (8 bytes for classic CAN, 64 for CAN FD, zero-p
 from __future__ import annotations
 
 import io
-import os
+import math
 import struct
 from collections.abc import Iterator
-from decimal import Decimal
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, BinaryIO
 
 import can
@@ -48,6 +49,7 @@ _HEADER = struct.Struct(">IBBBB")
 _CAN_MTU = 16
 _CANFD_MTU = 72
 _SNAPLEN = 0xFFFF
+_FD_SIZES = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 
 
 def frame_bytes(msg: can.Message) -> bytes:
@@ -56,14 +58,22 @@ def frame_bytes(msg: can.Message) -> bytes:
     if msg.is_error_frame:
         ident = _ERR | (msg.arbitration_id & 0x1FFF_FFFF)
         return _HEADER.pack(ident, 8, 0, 0, 0) + data[:8].ljust(8, b"\x00")
-    ident = msg.arbitration_id & (0x1FFF_FFFF if msg.is_extended_id else 0x7FF)
-    if msg.is_extended_id:
-        ident |= _EFF
+    limit = 0x1FFF_FFFF if msg.is_extended_id else 0x7FF
+    if not 0 <= msg.arbitration_id <= limit:
+        raise ValueError(
+            f"identifier 0x{msg.arbitration_id:X} does not fit {limit.bit_length()} bits"
+        )
+    ident = msg.arbitration_id | (_EFF if msg.is_extended_id else 0)
     if msg.is_fd:
+        if len(data) > 64:
+            raise ValueError(f"a CAN FD frame of {len(data)} bytes: at most 64")
+        size = next(n for n in _FD_SIZES if n >= len(data))  # Linux pads to a DLC length
         flags = (
             _FDF | (_BRS if msg.bitrate_switch else 0) | (_ESI if msg.error_state_indicator else 0)
         )
-        return _HEADER.pack(ident, len(data), flags, 0, 0) + data.ljust(64, b"\x00")
+        return _HEADER.pack(ident, size, flags, 0, 0) + data.ljust(64, b"\x00")
+    if len(data) > 8:
+        raise ValueError(f"a classic CAN frame of {len(data)} bytes: at most 8")
     if msg.is_remote_frame:
         return _HEADER.pack(ident | _RTR, min(msg.dlc, 8), 0, 0, 0) + bytes(8)
     return _HEADER.pack(ident, len(data), 0, 0, 0) + data.ljust(8, b"\x00")
@@ -138,7 +148,12 @@ class _Writer(BinaryIOMessageWriter):
             )
 
     def on_message_received(self, msg: can.Message) -> None:
-        self._out.writepkt(frame_bytes(msg), ts=msg.timestamp)
+        stamp = float(msg.timestamp)
+        if not math.isfinite(stamp) or stamp < 0:
+            raise ValueError(f"time stamp {stamp}: pcap files hold times from 1970 on only")
+        if not self._ng and round(stamp % 1 * 1e9) >= 1_000_000_000:
+            stamp = math.floor(stamp) + 1.0  # (dpkt would write 1e9 ns into the fraction)
+        self._out.writepkt(frame_bytes(msg), ts=stamp)
 
 
 class PcapWriter(_Writer):
@@ -146,98 +161,219 @@ class PcapWriter(_Writer):
 
 
 class PcapngWriter(_Writer):
-    """Messages into a pcapng file (one SocketCAN interface)."""
+    """Messages into a pcapng file (one SocketCAN interface, microsecond time stamps)."""
 
     _ng = True
 
 
-class _Capped(io.RawIOBase):
-    """A file that never hands out more than it holds, whatever length a damaged block claims.
+class _Chunked(io.RawIOBase):
+    """A file read in chunks of at most 1 MiB, whatever length a damaged block claims: a
+    block claiming 4 GB costs only the bytes the file really has (plain or gzip alike).
+    ``short`` tells that a read ended inside a block (the file is truncated)."""
 
-    dpkt reads a block by the length written in it; without this a 4 GB length in a 1 kB file
-    would ask for a 4 GB buffer before finding the file short.
-    """
+    _CHUNK = 1 << 20
 
-    def __init__(self, inner: BinaryIO, size: int | None) -> None:
+    def __init__(self, inner: BinaryIO) -> None:
         super().__init__()
         self._inner = inner
-        self._left = size
-        self.short = False  # a read ended inside a block: the file is truncated
+        self.short = False
 
     def readable(self) -> bool:
         return True
 
     def read(self, n: int | None = -1) -> bytes:
         if n is None or n < 0:
-            data = self._inner.read() if self._left is None else self._inner.read(self._left)
-        elif self._left is None:
-            data = self._inner.read(n)
-        else:
-            data = self._inner.read(min(n, self._left))
-        if self._left is not None:
-            self._left -= len(data)
-        if n is not None and 0 < len(data) < n:
+            return bytes(self._inner.read())
+        parts: list[bytes] = []
+        left = n
+        while left > 0:
+            got = self._inner.read(min(left, self._CHUNK))
+            if not got:
+                break
+            parts.append(got)
+            left -= len(got)
+        data = b"".join(parts)
+        if 0 < len(data) < n:
             self.short = True
-        return bytes(data)
+        return data
 
     def seek(self, offset: int, whence: int = 0) -> int:
-        if offset != 0 or whence != 0:
-            raise io.UnsupportedOperation("only a seek to the start")
-        position = self._inner.seek(0)
-        self._left = _size(self._inner)
-        return position
+        return int(self._inner.seek(offset, whence))
+
+    def tell(self) -> int:
+        return int(self._inner.tell())
 
 
-def _size(file: BinaryIO) -> int | None:
-    try:
-        return os.fstat(file.fileno()).st_size - file.tell()
-    except (OSError, AttributeError, ValueError):
-        return None
+@dataclass
+class _Interface:
+    linktype: int
+    divisor: float = 1e6
+    offset: int = 0
+    name: str | None = None
 
 
 class PcapReader(BinaryIOMessageReader):
     """Messages from a pcap or pcapng file with the SocketCAN link type.
 
-    A damaged, truncated or foreign file raises ``ValueError`` naming the file, the packet
-    and what is wrong; frames before the damage have been yielded.
+    In a pcapng file every interface keeps its own link type, time resolution and name (the
+    message's ``channel``); packets of interfaces that are no SocketCAN interface (Ethernet
+    beside CAN in one capture) are skipped and counted in ``skipped``. A damaged, truncated
+    or foreign file raises ``ValueError`` naming the packet and what is wrong; frames before
+    the damage have been yielded.
     """
 
     def __init__(self, file: Any, **kwargs: Any) -> None:
         super().__init__(file, mode="rb")
-        self._name = str(getattr(self.file, "name", file))
-        self._capped = capped = _Capped(self.file, _size(self.file))  # type: ignore[arg-type]
         try:
-            self._pcap: Any = dpkt.pcap.UniversalReader(capped)
+            self._name = Path(str(getattr(self.file, "name", file))).name
+            self._in = _Chunked(self.file)  # type: ignore[arg-type]
+            self.skipped = 0
+            head = self._in.read(4)
+            self._in.seek(0)
+            ng = head == b"\x0a\x0d\x0d\x0a"
+            self._packets: Iterator[tuple[float, bytes, str | None]] = (
+                self._pcapng() if ng else self._pcap()
+            )
+            try:  # the header, the link type: a foreign file is refused here
+                self._first = next(self._packets, None)
+            except (ValueError, dpkt.Error, struct.error) as exc:
+                text = str(exc).removeprefix(f"{self._name}: ") or type(exc).__name__
+                if text.startswith(("link type", "not a pcap")):
+                    raise ValueError(f"{self._name}: {text}") from None
+                raise ValueError(
+                    f"{self._name}: packet 1 is damaged or the file is truncated ({text})"
+                ) from None
+        except BaseException:
+            self.stop()
+            raise
+
+    def _pcap(self) -> Iterator[tuple[float, bytes, str | None]]:
+        try:
+            reader = dpkt.pcap.Reader(self._in)
         except (ValueError, dpkt.Error, struct.error) as exc:
             raise ValueError(f"{self._name}: not a pcap or pcapng file ({exc})") from None
-        linktype = self._pcap.datalink()
+        linktype = reader.datalink()
         if linktype != LINKTYPE_CAN_SOCKETCAN:
-            raise ValueError(
-                f"{self._name}: link type {linktype}, not SocketCAN CAN frames "
-                f"({LINKTYPE_CAN_SOCKETCAN}); capture on the CAN interface itself, "
-                "e.g. tcpdump -i can0 -w trace.pcap"
-            )
+            raise ValueError(self._foreign(linktype))
+        for ts, buf in reader:
+            yield float(ts), bytes(buf), None
+
+    def _foreign(self, linktype: int) -> str:
+        return (
+            f"{self._name}: link type {linktype}, not SocketCAN CAN frames "
+            f"({LINKTYPE_CAN_SOCKETCAN}); capture on the CAN interface itself, "
+            "e.g. tcpdump -i can0 -w trace.pcap"
+        )
+
+    def _pcapng(self) -> Iterator[tuple[float, bytes, str | None]]:
+        """The packets of every section and interface (dpkt reads only the first)."""
+        order = "<"
+        interfaces: list[_Interface] = []
+        seen_can = False
+        while True:
+            head = self._in.read(8)
+            if not head:
+                break
+            if len(head) < 8:
+                raise ValueError("the file ends inside a block header: it is truncated")
+            kind = struct.unpack_from("<I", head)[0]
+            if kind == dpkt.pcapng.PCAPNG_BT_SHB:  # a new section: its own byte order
+                bom = self._in.read(4)
+                if bom == struct.pack("<I", dpkt.pcapng.BYTE_ORDER_MAGIC):
+                    order = "<"
+                elif bom == struct.pack(">I", dpkt.pcapng.BYTE_ORDER_MAGIC):
+                    order = ">"
+                else:
+                    raise ValueError("a section header with no valid byte-order mark")
+                head += bom
+                interfaces = []
+            kind, length = struct.unpack(order + "II", head[:8])
+            if length < 12 or length % 4:
+                raise ValueError(f"a block of length {length}: damaged")
+            body = self._in.read(length - len(head))
+            if self._in.short or len(body) < length - len(head):
+                raise ValueError("the file ends inside a block: it is truncated")
+            block = head + body
+            le = order == "<"
+            if kind == dpkt.pcapng.PCAPNG_BT_IDB:
+                cls = (
+                    dpkt.pcapng.InterfaceDescriptionBlockLE
+                    if le
+                    else dpkt.pcapng.InterfaceDescriptionBlock
+                )
+                interfaces.append(_interface(cls(block), order))
+                seen_can = seen_can or interfaces[-1].linktype == LINKTYPE_CAN_SOCKETCAN
+            elif kind in (dpkt.pcapng.PCAPNG_BT_EPB, dpkt.pcapng.PCAPNG_BT_PB):
+                if kind == dpkt.pcapng.PCAPNG_BT_EPB:
+                    cls = (
+                        dpkt.pcapng.EnhancedPacketBlockLE if le else dpkt.pcapng.EnhancedPacketBlock
+                    )
+                else:
+                    cls = dpkt.pcapng.PacketBlockLE if le else dpkt.pcapng.PacketBlock
+                packet = cls(block)
+                if packet.iface_id >= len(interfaces):
+                    raise ValueError(f"a packet of interface {packet.iface_id}, never described")
+                iface = interfaces[packet.iface_id]
+                if iface.linktype != LINKTYPE_CAN_SOCKETCAN:
+                    self.skipped += 1
+                    continue
+                ts = iface.offset + ((packet.ts_high << 32) | packet.ts_low) / iface.divisor
+                yield ts, bytes(packet.pkt_data), iface.name
+            elif kind == dpkt.pcapng.PCAPNG_BT_SPB:
+                # A simple packet block: no time stamp, interface 0.
+                if interfaces and interfaces[0].linktype == LINKTYPE_CAN_SOCKETCAN:
+                    size = struct.unpack_from(order + "I", block, 8)[0]
+                    yield 0.0, bytes(block[12 : 12 + min(size, length - 16)]), interfaces[0].name
+                else:
+                    self.skipped += 1
+        if not seen_can:
+            kinds = sorted({i.linktype for i in interfaces})
+            raise ValueError(self._foreign(kinds[0] if kinds else -1))
 
     def __iter__(self) -> Iterator[can.Message]:
         number = 0
-        packets = iter(self._pcap)
-        while True:
-            number += 1
-            try:
-                item = next(packets)
-            except StopIteration:
-                break
-            except (ValueError, dpkt.Error, struct.error) as exc:
-                raise ValueError(
-                    f"{self._name}: packet {number} is damaged or the file is truncated ({exc})"
-                ) from None
-            ts, buf = item
-            if self._capped.short:
-                raise ValueError(
-                    f"{self._name}: packet {number} is cut short: the file is truncated"
-                )
-            stamp = float(ts) if isinstance(ts, Decimal | int | float) else 0.0
-            try:
-                yield message_from_bytes(bytes(buf), stamp)
-            except ValueError as exc:
-                raise ValueError(f"{self._name}: packet {number}: {exc}") from None
+        try:
+            pending = [self._first] if self._first is not None else []
+            packets = iter(self._packets)
+            while True:
+                number += 1
+                try:
+                    item = pending.pop() if pending else next(packets)
+                except StopIteration:
+                    break
+                except (ValueError, dpkt.Error, struct.error) as exc:
+                    text = str(exc).removeprefix(f"{self._name}: ") or type(exc).__name__
+                    if text.startswith(("link type", "not a pcap")):
+                        raise ValueError(f"{self._name}: {text}") from None
+                    raise ValueError(
+                        f"{self._name}: packet {number} is damaged or the file is truncated "
+                        f"({text})"
+                    ) from None
+                ts, buf, channel = item
+                if self._in.short or not buf:
+                    raise ValueError(
+                        f"{self._name}: packet {number} is cut short: the file is truncated"
+                    )
+                try:
+                    msg = message_from_bytes(buf, ts)
+                except ValueError as exc:
+                    raise ValueError(f"{self._name}: packet {number}: {exc}") from None
+                if channel is not None:
+                    msg.channel = channel
+                yield msg
+        finally:
+            self.stop()
+
+
+def _interface(idb: Any, order: str) -> _Interface:
+    iface = _Interface(idb.linktype)
+    for opt in idb.opts:
+        if opt.code == dpkt.pcapng.PCAPNG_OPT_IF_TSRESOL and opt.data:
+            value = opt.data[0]
+            base = 2 if value & 0x80 else 10
+            iface.divisor = float(base ** (value & 0x7F))
+        elif opt.code == dpkt.pcapng.PCAPNG_OPT_IF_TSOFFSET and len(opt.data) >= 8:
+            iface.offset = struct.unpack(order + "q", opt.data[:8])[0]
+        elif opt.code == dpkt.pcapng.PCAPNG_OPT_IF_NAME and opt.data:
+            iface.name = bytes(opt.data).rstrip(b"\0").decode("utf-8", "replace")
+    return iface

@@ -27,12 +27,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cobus._args import seconds
+from cobus._args import seconds_or_zero
 from cobus.od import ObjectDictionary
 from cobus.proto import Frame
 from cobus.trace.decoder import Decoder, PdoRecord
 
-__all__ = ["Series", "SignalError", "collect", "pick", "plot", "register"]
+__all__ = ["Series", "SignalError", "collect", "pick", "plot", "register", "window"]
 
 
 class SignalError(ValueError):
@@ -131,41 +131,64 @@ def pick(found: Mapping[tuple[int | None, str], Series], wanted: Sequence[str]) 
     return chosen
 
 
+def window(s: Series, start: float | None = None, end: float | None = None) -> Series:
+    """The part of ``s`` between ``start`` and ``end``: the samples inside, and the value
+    held at ``start`` (the last sample before it) as a first point there."""
+    times: list[float] = []
+    values: list[float] = []
+    before: float | None = None
+    for t, v in zip(s.times, s.values, strict=True):
+        if start is not None and t < start:
+            before = v
+            continue
+        if end is not None and t > end:
+            break
+        times.append(t)
+        values.append(v)
+    if before is not None and start is not None and (not times or times[0] > start):
+        times.insert(0, start)
+        values.insert(0, before)
+    return Series(s.node, s.name, times, values, s.skipped)
+
+
 def plot(
     series: Sequence[Series],
     output: Path,
     title: str = "",
     start: float | None = None,
     end: float | None = None,
-) -> None:
-    """Draw ``series`` (one panel each, shared time axis) into the PNG ``output``."""
+) -> Path:
+    """Draw ``series`` (one panel each, shared time axis from ``start`` to ``end``) into
+    ``output`` (PNG; another suffix matplotlib knows, e.g. .svg or .pdf, picks that format;
+    none gets .png). A PDO holds its value until the next, so each value is drawn as a
+    step to the next sample or to ``end``. Returns the file written; :class:`SignalError`
+    when a signal has no value in the window."""
     try:
         from matplotlib.figure import Figure
     except ImportError:  # pragma: no cover - the plot extra is part of the dev install
         raise SignalError("cobus plot needs matplotlib: pip install 'cobus[plot]'") from None
-    fig = Figure(figsize=(10, 1.0 + 2.2 * len(series)), layout="constrained")
-    axes = fig.subplots(len(series), 1, sharex=True, squeeze=False)[:, 0]
-    for ax, s in zip(axes, series, strict=True):
-        times, values = _window(s, start, end)
-        ax.step(times, values, where="post", linewidth=1.2)
-        ax.plot(times, values, ".", markersize=3)
+    if not output.suffix:
+        output = output.with_suffix(".png")
+    shown = [window(s, start, end) for s in series]
+    left = start if start is not None else min(s.times[0] for s in shown if s.times)
+    right = end if end is not None else max((s.times[-1] for s in shown if s.times), default=left)
+    for s in shown:
+        if not s.times:
+            raise SignalError(f"{s.label} has no value between {left:g} s and {right:g} s")
+    fig = Figure(figsize=(10, 1.0 + 2.2 * len(shown)), layout="constrained")
+    axes = fig.subplots(len(shown), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, s in zip(axes, shown, strict=True):
+        line = ax.step([*s.times, right], [*s.values, s.values[-1]], where="post", linewidth=1.2)[0]
+        ax.plot(s.times, s.values, ".", markersize=3, color=line.get_color())
         ax.set_ylabel(s.label, rotation=0, ha="right", va="center")
         ax.grid(True, alpha=0.3)
     axes[-1].set_xlabel("time (s from the trace's first frame)")
-    if start is not None or end is not None:
-        axes[-1].set_xlim(left=start, right=end)
+    if right > left:
+        axes[-1].set_xlim(left, right)
     if title:
         fig.suptitle(title)
     fig.savefig(output, dpi=100)
-
-
-def _window(s: Series, start: float | None, end: float | None) -> tuple[list[float], list[float]]:
-    pairs = [
-        (t, v)
-        for t, v in zip(s.times, s.values, strict=True)
-        if (start is None or t >= start) and (end is None or t <= end)
-    ]
-    return [t for t, _ in pairs], [v for _, v in pairs]
+    return output
 
 
 # ---------------------------------------------------------------------------- command
@@ -193,8 +216,8 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--network", type=Path, help="a network description: its nodes' EDS files")
     p.add_argument("-o", "--output", type=Path, help="the PNG (default: the trace's name .png)")
-    p.add_argument("--from", dest="start", type=seconds, help="first second shown")
-    p.add_argument("--to", dest="end", type=seconds, help="last second shown")
+    p.add_argument("--from", dest="start", type=seconds_or_zero, help="first second shown")
+    p.add_argument("--to", dest="end", type=seconds_or_zero, help="last second shown")
     p.add_argument("--list", action="store_true", help="list the signals the trace holds")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(handler=_run)
@@ -241,23 +264,30 @@ def _run(args: argparse.Namespace) -> int:
         return _fail(f"{args.file}: no such file")
     try:
         found = collect(frames_of(args.file), dictionaries, network)
-    except (ValueError, OSError, ImportError) as exc:
-        return _fail(f"cannot read {args.file}: {exc}")
+    except Exception as exc:  # python-can's readers raise their own kinds (BLF, zlib...)
+        from cobus.trace._cli import _unreadable
+
+        return _fail(_unreadable(args.file, exc))
     if args.list:
         return _list(found, args.json)
     try:
         chosen = pick(found, args.signal)
     except SignalError as exc:
         return _fail(str(exc))
+    last = max((s.times[-1] for s in found.values() if s.times), default=0.0)
+    if args.start is not None and args.start > last:
+        return _fail(f"--from {args.start:g}: the trace's last PDO came at {last:g} s")
+    end = args.end if args.end is not None else last  # a value holds to the trace's end
     output = args.output or args.file.with_suffix(".png")
     try:
-        plot(chosen, output, title=args.file.name, start=args.start, end=args.end)
+        output = plot(chosen, output, title=args.file.name, start=args.start, end=end)
     except SignalError as exc:
         return _fail(str(exc))
     except (OSError, ValueError) as exc:
         return _fail(f"cannot write {output}: {exc}")
     if args.json:
-        print(json.dumps({"output": str(output), "signals": [_summary(s) for s in chosen]}))
+        shown = [window(s, args.start, args.end) for s in chosen]
+        print(json.dumps({"output": str(output), "signals": [_summary(s) for s in shown]}))
     else:
         print(f"{len(chosen)} signal(s) plotted to {output}", file=sys.stderr)
     return 0
