@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -50,6 +51,15 @@ def test_sdo_nmt_and_sync_from_the_shell(
 
         assert main(["sdo", "read", "10", "0x5555", "0", *bus]) == 1
         assert "object does not exist in the object dictionary" in capsys.readouterr().err
+        assert main(["sdo", "read", "10", "0x1008", "0", "--eds", str(eds), "--json", *bus]) == 0
+        read = json.loads(capsys.readouterr().out)
+        assert read["value"] == "cobus CiA 402 drive" and read["ok"] is True
+        assert read["name"] == "Manufacturer device name" and read["index"] == 0x1008
+        assert main(["sdo", "read", "10", "0x1017", "0", "--json", *bus]) == 0
+        assert isinstance(json.loads(capsys.readouterr().out)["value"], int)  # no EDS: a number
+        assert main(["sdo", "read", "10", "0x5555", "0", "--json", *bus]) == 1
+        failed = json.loads(capsys.readouterr().out)
+        assert failed["ok"] is False and failed["abort_code"] == 0x06020000
         assert main(["sdo", "write", "10", "0x1008", "0", "x", "--type", "string", *bus]) == 1
         assert "read only" in capsys.readouterr().err
         assert main(["sdo", "read", "11", "0x1000", "0", "--timeout", "0.1", *bus]) == 1

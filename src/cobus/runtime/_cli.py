@@ -14,6 +14,7 @@ usage.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -63,7 +64,7 @@ def register(sub: Any) -> None:
         ("upload", "read an object's bytes into a file"),
         ("download", "write a file's bytes to an object"),
     ):
-        p = actions.add_parser(name, help=help_text, description=help_text)
+        p = actions.add_parser(name, help=help_text, description=help_text, epilog=_EXITS)
         p.add_argument("node", type=_node, help="node-ID 1-127")
         p.add_argument("index", type=_number, help="index (0x1008, 1008h)")
         p.add_argument("subindex", type=_number, help="sub-index")
@@ -75,18 +76,33 @@ def register(sub: Any) -> None:
         p.add_argument("--type", help="the data type without an EDS (u8, u16, i32, real32...)")
         p.add_argument("--block", action="store_true", help="a block transfer")
         p.add_argument("--timeout", type=seconds, default=1.0, help="seconds per answer")
+        p.add_argument("--json", action="store_true", help="the result (or the abort) as JSON")
         add_bus_options(p)
         p.set_defaults(handler=_sdo)
-    nmt = sub.add_parser("nmt", help="send an NMT command to a node or to all")
+    nmt = sub.add_parser(
+        "nmt",
+        help="send an NMT command to a node or to all",
+        epilog="Exit codes: 0 sent, 1 the bus cannot be used, 2 bad usage.",
+    )
     nmt.add_argument("command", choices=sorted(_NMT), help="the command")
     nmt.add_argument("target", help="a node-ID 1-127, or all")
     add_bus_options(nmt)
     nmt.set_defaults(handler=_nmt)
-    sync = sub.add_parser("sync", help="produce SYNC")
+    sync = sub.add_parser(
+        "sync",
+        help="produce SYNC",
+        epilog="Exit codes: 0 done (or stopped with Ctrl-C), 1 the bus cannot be used.",
+    )
     sync.add_argument("--period", type=seconds, default=0.01, help="seconds (default 0.01)")
     sync.add_argument("--count", type=int, help="how many (default: until Ctrl-C)")
     add_bus_options(sync)
     sync.set_defaults(handler=_sync)
+
+
+_EXITS = (
+    "Exit codes: 0 done, 1 the node refused (abort code and its text) or did not answer, "
+    "or the bus cannot be used, 2 bad usage."
+)
 
 
 def _fail(message: str, code: int = 1) -> int:
@@ -145,11 +161,45 @@ def _sdo(args: argparse.Namespace) -> int:
             else:
                 data = job()
     except (CobusError, TimeoutError) as exc:
+        if args.json:
+            code = getattr(exc, "code", None)
+            print(
+                json.dumps(
+                    {
+                        "node": args.node,
+                        "index": args.index,
+                        "subindex": args.subindex,
+                        "ok": False,
+                        "error": str(exc),
+                        "abort_code": int(code) if isinstance(code, int) else None,
+                    }
+                )
+            )
         return _fail(f"node {args.node} {where}: {exc}")
     except Exception as exc:
         if type(exc).__module__.startswith("can"):
             return _fail(f"cannot open the bus: {exc}")
         raise
+    if args.json:
+        result: dict[str, Any] = {
+            "node": args.node,
+            "index": args.index,
+            "subindex": args.subindex,
+            "name": var.name if var is not None else None,
+            "ok": True,
+        }
+        if args.action == "read":
+            result["value"] = _plain(_value(data, data_type, decode))
+            result["data"] = data.hex()
+        elif args.action == "upload":
+            args.file.write_bytes(data)
+            result.update(file=str(args.file), size=len(data))
+        elif args.action == "write":
+            result.update(value=args.value, data=payload.hex())
+        else:
+            result.update(file=str(args.file), size=len(payload))
+        print(json.dumps(result))
+        return 0
     if args.action == "read":
         print(f"{where} = {_show(data, data_type, decode)}")
     elif args.action == "upload":
@@ -223,6 +273,25 @@ def _encode(text: str, data_type: Any, encode: Any) -> bytes:
         value = text
     data: bytes = encode(data_type, value)
     return data
+
+
+def _value(data: bytes, data_type: Any, decode: Any) -> Any:
+    """The value of ``data`` by its type; without one, a number for up to 4 bytes."""
+    if data_type is not None:
+        try:
+            size = data_type.size
+            return decode(data_type, data[:size] if size else data)
+        except ValueError:
+            pass
+    return int.from_bytes(data, "little") if 0 < len(data) <= 4 else None
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, bytes | bytearray):
+        return bytes(value).hex()
+    if isinstance(value, int | float | str | bool) or value is None:
+        return value
+    return str(value)
 
 
 def _show(data: bytes, data_type: Any, decode: Any) -> str:
