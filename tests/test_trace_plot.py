@@ -70,6 +70,8 @@ def test_plot_draws_the_named_signals_into_a_png(
     # A window of the trace: --from/--to (seconds from the first frame).
     assert main([*args, "--eds", f"10={eds}", "-o", str(png), "--from", "0.3", "--to", "0.6"]) == 0
     assert "2 signal(s) plotted to" in capsys.readouterr().err
+    # Case, blanks and underscores do not matter, as everywhere in cobus.
+    assert main(["plot", str(trace), "10:position_actual_value", "--eds", f"10={eds}"]) == 0
     # The default output is the trace's name with .png.
     assert main(["plot", str(trace), "Statusword", "--eds", f"10={eds}"]) == 0
     assert trace.with_suffix(".png").is_file()

@@ -29,6 +29,7 @@ from typing import Any
 
 from cobus._args import seconds_or_zero
 from cobus.od import ObjectDictionary
+from cobus.od._lookup import normalize_name
 from cobus.proto import Frame
 from cobus.trace.decoder import Decoder, PdoRecord
 
@@ -59,11 +60,16 @@ def collect(
     frames: Iterable[tuple[float, Frame]],
     dictionaries: Mapping[int, ObjectDictionary] | None = None,
     network: Any = None,
+    wanted: Sequence[str] | None = None,
 ) -> dict[tuple[int | None, str], Series]:
     """Every PDO value of ``frames`` (time, frame), by (node, name), as numbers; a
-    ``network`` (a master's NetworkConfig) names and scales them as its signals."""
+    ``network`` (a master's NetworkConfig) names and scales them as its signals. With
+    ``wanted`` (signal names as :func:`pick` takes them) only those keep their samples;
+    the others are listed without (a long trace, one signal asked for)."""
     decoder = Decoder(dictionaries, network=network)
+    keys = None if wanted is None else [_key(text) for text in wanted]
     out: dict[tuple[int | None, str], Series] = {}
+    keep: dict[tuple[int | None, str], bool] = {}
     for now, frame in frames:
         for rec in decoder.feed(frame, now):
             if not isinstance(rec, PdoRecord):
@@ -72,6 +78,11 @@ def collect(
                 series = out.get((rec.node, name))
                 if series is None:
                     series = out[(rec.node, name)] = Series(rec.node, name)
+                    keep[(rec.node, name)] = keys is None or any(
+                        _matches(series, node, key) for node, key in keys
+                    )
+                if not keep[(rec.node, name)]:
+                    continue
                 number = _number(value)
                 if number is None:
                     series.skipped += 1
@@ -90,28 +101,34 @@ def _number(value: Any) -> float | None:
     return None
 
 
+def _key(text: str) -> tuple[int | None, str]:
+    """("NODE:NAME" or "NAME") -> (node or None, the name with case and separators ignored)."""
+    node: int | None = None
+    name = text
+    head, sep, rest = text.partition(":")
+    if sep and head.strip().isdigit():
+        node, name = int(head), rest
+    return node, normalize_name(name)
+
+
+def _matches(s: Series, node: int | None, key: str) -> bool:
+    return normalize_name(s.name) == key and (node is None or s.node == node)
+
+
 def pick(found: Mapping[tuple[int | None, str], Series], wanted: Sequence[str]) -> list[Series]:
-    """The series named by ``wanted`` ("NAME" or "NODE:NAME", any case)."""
+    """The series named by ``wanted`` ("NAME" or "NODE:NAME"; case, blanks, ``_`` and ``-``
+    do not matter: ``position_actual_value`` finds "Position actual value")."""
     chosen: list[Series] = []
     for text in wanted:
-        node: int | None = None
-        name = text
-        head, sep, rest = text.partition(":")
-        if sep and head.strip().isdigit():
-            node, name = int(head), rest
-        key = name.strip().casefold()
-        hits = [
-            s
-            for s in found.values()
-            if s.name.casefold() == key and (node is None or s.node == node)
-        ]
+        node, key = _key(text)
+        hits = [s for s in found.values() if _matches(s, node, key)]
         if not hits:
             labels = sorted(s.label for s in found.values())
             close = difflib.get_close_matches(text, labels, n=3, cutoff=0.5)
             close += [
                 label
                 for label in labels
-                if key in label.casefold() and label not in close and len(close) < 5
+                if key in normalize_name(label) and label not in close and len(close) < 5
             ]
             hint = f"; did you mean {', '.join(close)}?" if close else ""
             if not labels:
@@ -263,7 +280,8 @@ def _run(args: argparse.Namespace) -> int:
     if not args.file.is_file():
         return _fail(f"{args.file}: no such file")
     try:
-        found = collect(frames_of(args.file), dictionaries, network)
+        wanted = None if args.list else args.signal
+        found = collect(frames_of(args.file), dictionaries, network, wanted)
     except Exception as exc:  # python-can's readers raise their own kinds (BLF, zlib...)
         from cobus.trace._cli import _unreadable
 
