@@ -35,7 +35,13 @@ def test_sdo_nmt_and_sync_from_the_shell(
         bus = ["-i", "virtual", "-c", channel]
 
         assert main(["sdo", "read", "10", "0x1008", "0", *bus]) == 0
-        assert "1008h:00 = " in capsys.readouterr().out
+        # no EDS: CiA 301 still names and types the communication objects
+        assert "1008h:00 Manufacturer device name = 'cobus CiA 402 drive'" in (
+            capsys.readouterr().out
+        )
+        nowhere = tmp_path / "no" / "such" / "folder.eds"
+        assert main(["sdo", "upload", "10", "0x1021", "0", str(nowhere), *bus]) == 2
+        assert "there is no folder" in capsys.readouterr().err
         assert main(["sdo", "read", "10", "1008h", "0", "--eds", str(eds), *bus]) == 0
         assert "1008h:00 Manufacturer device name = 'cobus CiA 402 drive'" in (
             capsys.readouterr().out
@@ -123,4 +129,4 @@ def test_sdo_upload_and_download_show_a_progress_bar_on_a_terminal(
     shown = b"".join(chunks).decode(errors="replace")
     assert "upload 1021h:00" in shown and "/" in shown and "kB" in shown
     assert "download 1021h:00" in shown  # the bar, then the refusal
-    assert "node 10 1021h:00:" in shown
+    assert "node 10 1021h:00 Store EDS:" in shown

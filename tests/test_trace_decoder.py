@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+from pathlib import Path
 from typing import Any
 
 from cobus.device import export_eds
@@ -402,7 +403,7 @@ def test_lss_frames_in_words_and_sessions_as_sentences() -> None:
         "LSS slave answer: node-ID configured",
         "LSS: the slave in configuration state got node-ID 5",
         "LSS master configure node-ID 6",
-        "LSS master cs 99h 01 02",
+        "LSS master cs 99h 01 02 (a short frame: 3 of 8 bytes)",
     ]
     assert d.feed(frame("7E4: 11 00 00 00 00 00 00 00"), 10.0)[1:] == []  # too late
     assert {r.kind for r in d.feed(frame("7E4: 5A 01 00 00 00 00 00 00"), 11.0)} == {"lss"}
@@ -566,3 +567,93 @@ def test_the_cia402_state_goes_on_the_node_time_line() -> None:
         "CiA 402 FAULT",
     ]
     assert stats.drive_state == "FAULT" and stats.summary()["drive_state"] == "FAULT"
+
+
+def test_review_fixes_lss_toggle_and_axes() -> None:
+    d = Decoder()
+    # A master checking bit 0 (BitChecked 0, LSSNext = LSSSub) is scanning, not confirming.
+    out = decoded(
+        d,
+        "7E5: 51 2A 00 00 00 00 03 03",
+        "7E4: 4F 00 00 00 00 00 00 00",
+        "7E5: 51 2A 00 00 00 00 03 00",
+        "7E4: 4F 00 00 00 00 00 00 00",
+    )
+    assert out[0] == "LSS master fastscan: serial 0x0000002A, bits 31..0"
+    assert [x for x in out if x.startswith("LSS: ")] == [
+        "LSS: fastscan found serial 0x0000002A, now in configuration state"
+    ]
+    # Short LSS frames are said to be short and make no sentence.
+    out = decoded(d, "7E5: 11", "7E4: 11")
+    assert out == [
+        "LSS master cs 11h (a short frame: 1 of 8 bytes)",
+        "LSS slave cs 11h (a short frame: 1 of 8 bytes)",
+    ]
+    # An NMT reset starts the guarding toggle again; a late answer (a heartbeat) forgets it.
+    guard = decoded(d, "705: 00", "705: RTR", "705: 7F", "705: RTR", "705: FF", "000: 82 05")
+    assert "ERROR" not in " ".join(guard)
+    assert "ERROR" not in decoded(d, "705: RTR", "705: 7F")[-1]
+    decoded(d, "705: RTR", "705: FF")
+    d.feed(frame("705: RTR"), 10.0)
+    assert str(d.feed(frame("705: 7F"), 12.0)[0]) == "node 5 heartbeat PRE_OPERATIONAL"
+    assert "ERROR" not in str(d.feed(frame("705: RTR"), 13.0)[0]) + str(
+        d.feed(frame("705: FF"), 13.01)[0]
+    )
+    # Two axes: each axis keeps its own state, the time line only changes.
+    od = loads(export_eds(_two_axis_od()), node_id=7)
+    d2 = Decoder({7: od})
+    for _ in range(3):
+        decoded(d2, "187: 37 06", "287: 40 02")
+    entries = [text for _, text in d2.stats[7].timeline]
+    assert entries == ["CiA 402 OPERATION_ENABLED", "CiA 402 axis 2 SWITCH_ON_DISABLED"]
+    assert d2.stats[7].drive_states == {1: "OPERATION_ENABLED", 2: "SWITCH_ON_DISABLED"}
+
+
+def _two_axis_od() -> Any:
+    from cobus.device import DictionaryBuilder
+    from cobus.od import Access, DataType
+
+    b = DictionaryBuilder(device_name="two axes", node_id=7)
+    b.variable(0x6041, "Statusword", DataType.UNSIGNED16, access=Access.RO, mappable=True)
+    b.variable(0x6841, "Statusword axis 2", DataType.UNSIGNED16, access=Access.RO, mappable=True)
+    b.tpdo(1, [(0x6041, 0)])
+    b.tpdo(2, [(0x6841, 0)])
+    return b.build()
+
+
+def test_a_network_file_pdo_moved_or_linked_keeps_the_right_names() -> None:
+    from pathlib import Path
+
+    from cobus.master import load_network
+
+    network = load_network(Path(__file__).parent.parent / "examples/networks/line.yml")
+    d = Decoder(network=network)
+    # drive1's TPDO1 moved from 183h to 193h by SDO: still its signals, scaled.
+    decoded(
+        d,
+        "603: 23 00 18 01 83 01 00 80",
+        "583: 60 00 18 01 00 00 00 00",
+        "603: 23 00 18 01 93 01 00 00",
+        "583: 60 00 18 01 00 00 00 00",
+    )
+    position = (1234).to_bytes(4, "little").hex(" ")
+    assert decoded(d, "193: 37 06 " + position) == [
+        "node 3 TPDO1 drive1.statusword=1591, drive1.position=1.234 mm"
+    ]
+
+
+def test_a_linked_rpdo_of_a_network_file_leaves_the_frame_to_the_tpdo(tmp_path: Path) -> None:
+    """drive1's RPDO1 listens to io1's TPDO1 (PDO linking): the frame is io1's inputs."""
+    from cobus.master import load_network
+
+    folder = Path(__file__).parent.parent / "examples/networks"
+    text = (folder / "line.yml").read_text()
+    text = text.replace("eds: devices/", f"eds: {folder}/devices/")
+    text = text.replace(
+        "      mapping: [controlword, target_position]\n      transmission_type: 1",
+        "      mapping: [controlword]\n      transmission_type: 255\n      cob_id: 0x182",
+    )
+    text = text.replace("      target: {object: target_position, scale: 0.001, unit: mm}\n", "")
+    (tmp_path / "linked.yml").write_text(text)
+    d = Decoder(network=load_network(tmp_path / "linked.yml"))
+    assert decoded(d, "182: 12 34") == ["node 2 TPDO1 io1.inputs_low=18, io1.inputs_high=52"]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -126,7 +127,12 @@ def _sdo(args: argparse.Namespace) -> int:
             od = load(args.eds, node_id=args.node)
         except (OSError, EdsError) as exc:
             return _fail(f"cannot read {args.eds}: {exc}", 2)
-    var = od.get_variable(args.index, args.subindex) if od is not None else None
+    if od is not None:
+        var = od.get_variable(args.index, args.subindex)
+    else:  # CiA 301 still names and types its objects (1000h-1BFFh)
+        from cobus.trace.decoder import standard_variable
+
+        var = standard_variable(args.index, args.subindex)
     data_type: DataType | None = var.data_type if var is not None else None
     if args.type is not None:
         data_type = data_type_named(args.type)
@@ -141,6 +147,8 @@ def _sdo(args: argparse.Namespace) -> int:
             payload = _encode(args.value, data_type, encode)
         except (ValueError, TypeError) as exc:
             return _fail(f"{args.value!r} is not a valid {data_type.name}: {exc}", 2)
+    elif args.action == "upload" and not args.file.parent.is_dir():
+        return _fail(f"cannot write {args.file}: there is no folder {args.file.parent}", 2)
     elif args.action == "download":
         try:
             payload = args.file.read_bytes()
@@ -192,7 +200,8 @@ def _sdo(args: argparse.Namespace) -> int:
             result["value"] = _plain(_value(data, data_type, decode))
             result["data"] = data.hex()
         elif args.action == "upload":
-            args.file.write_bytes(data)
+            if not _save(args.file, data):
+                return 1
             result.update(file=str(args.file), size=len(data))
         elif args.action == "write":
             result.update(value=args.value, data=payload.hex())
@@ -203,7 +212,8 @@ def _sdo(args: argparse.Namespace) -> int:
     if args.action == "read":
         print(f"{where} = {_show(data, data_type, decode)}")
     elif args.action == "upload":
-        args.file.write_bytes(data)
+        if not _save(args.file, data):
+            return 1
         print(f"{where}: {len(data)} bytes written to {args.file}")
     elif args.action == "write":
         print(f"{where} <- {args.value}")
@@ -252,7 +262,11 @@ def _with_progress(job: Any, sdo: Any, what: str) -> Any:
         while worker.is_alive():
             worker.join(0.1)
             done, total = sdo.progress
-            bar.update(task, completed=done, total=total)
+            if worker.is_alive():  # (once done, the channel is idle: (0, None))
+                bar.update(task, completed=done, total=total)
+        if "error" not in outcome:
+            finished = bar.tasks[0].total or bar.tasks[0].completed
+            bar.update(task, completed=finished, total=finished)
     if "error" in outcome:
         raise outcome["error"]
     return outcome.get("value")
@@ -275,6 +289,15 @@ def _encode(text: str, data_type: Any, encode: Any) -> bytes:
     return data
 
 
+def _save(path: Path, data: bytes) -> bool:
+    try:
+        path.write_bytes(data)
+    except OSError as exc:
+        _fail(f"cannot write {path}: {exc.strerror or exc} ({len(data)} bytes read, not kept)")
+        return False
+    return True
+
+
 def _value(data: bytes, data_type: Any, decode: Any) -> Any:
     """The value of ``data`` by its type; without one, a number for up to 4 bytes."""
     if data_type is not None:
@@ -289,6 +312,8 @@ def _value(data: bytes, data_type: Any, decode: Any) -> Any:
 def _plain(value: Any) -> Any:
     if isinstance(value, bytes | bytearray):
         return bytes(value).hex()
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)  # (JSON has no NaN or infinity)
     if isinstance(value, int | float | str | bool) or value is None:
         return value
     return str(value)

@@ -65,6 +65,9 @@ def describe(cob_id: int, data: bytes) -> str:
     if not data:
         return "(no data)"
     cs = data[0]
+    if len(data) < 8:  # CiA 305: always 8 bytes
+        body = f" {data[1:].hex(' ')}" if len(data) > 1 else ""
+        return f"cs {cs:02X}h{body} (a short frame: {len(data)} of 8 bytes)"
     if cob_id == MASTER:
         return _request(cs, data)
     return "answer: " + _answer(cs, data)
@@ -105,7 +108,7 @@ def _request(cs: int, data: bytes) -> str:
         if bit == 0x80:
             return "fastscan: reset, every non-configured slave answer"
         field = _FIELDS[sub] if sub < 4 else f"field {sub}"
-        if bit == 0:
+        if bit == 0 and nxt != sub:
             nxt_name = _FIELDS[nxt] if nxt < 4 else f"field {nxt}"
             return f"fastscan: confirm {field} 0x{_u32(data):08X} (next {nxt_name})"
         return f"fastscan: {field} 0x{_u32(data):08X}, bits 31..{bit}"
@@ -169,13 +172,13 @@ class LssSessions:
 
     def feed(self, cob_id: int, data: bytes, now: float) -> list[str]:
         """The sentences this frame completes (mostly none)."""
-        if not data:
+        if len(data) < 8:  # a short frame: no part of a session
             return []
         cs = data[0]
         if cob_id == MASTER:
             self._request(cs, data)
-            if cs in _ANSWERS:
-                self._asked = _Asked(cs, data, now)
+            # (a request that expects no answer ends the wait for an earlier one's)
+            self._asked = _Asked(cs, data, now) if cs in _ANSWERS else None
             return []
         asked = self._asked
         if asked is None or now - asked.time > _ANSWER_WINDOW or _ANSWERS[asked.command] != cs:
@@ -225,9 +228,10 @@ class LssSessions:
             node = data[1] if len(data) > 1 else 0
             has = "no node-ID (unconfigured)" if node == 0xFF else f"node-ID {node}"
             return [f"{self.who()} has {has}"]
-        if cs == 0x51 and len(req) >= 8 and req[5] == 0 and req[6] < 4:
+        if cs == 0x51 and len(req) >= 8 and req[5] == 0 and req[6] < 4 and req[7] != req[6]:
+            # A confirmation (LSSNext moves on; with LSSNext = LSSSub it is a scan of bit 0).
             self._scanned[req[6]] = _u32(req)
-            if req[6] == 3:  # the serial confirmed: that slave is in configuration state
+            if req[6] == 3 and req[7] < req[6]:  # the serial confirmed, LSSNext wrapped
                 self.identity = dict(self._scanned)
                 return [f"fastscan found {self.who()}, now in configuration state"]
         if cs == 0x4C:

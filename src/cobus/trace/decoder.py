@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from cobus.od import DataType, ObjectDictionary, Variable, decode
+from cobus.profiles.cia402 import PowerState
 from cobus.proto import Frame
 from cobus.proto.emcy import ErrorRegister, describe
 from cobus.proto.sdo import SdoAbortCode, crc16
@@ -387,6 +388,8 @@ class _Pdo:
     named: tuple[tuple[str, Any], ...] = ()
     #: The name of the value that is a CiA 402 statusword (6041h, or 6841h... of axis 2..8).
     statusword: str | None = None
+    axis: int = 1
+    stats: Any = None  # the node's NodeStats, once a statusword came
 
 
 class NodeStats:
@@ -407,8 +410,10 @@ class NodeStats:
         self.toggle_errors = 0  # guarding answers whose toggle bit did not alternate
         self.last_emcy: str | None = None
         self.state: str | None = None
-        #: The CiA 402 power state its statusword (6041h in a PDO or an SDO answer) reports.
-        self.drive_state: str | None = None
+        #: Axis (1..8) -> the CiA 402 power state its statusword (6041h, 6841h... in a PDO
+        #: or an SDO answer) reports.
+        self.drive_states: dict[int, str] = {}
+        self._statuswords: dict[int, int] = {}  # axis -> the last raw statusword
         self.timeline: deque[tuple[float, str]] = deque(maxlen=self.KEEP)
 
     @property
@@ -451,15 +456,22 @@ class NodeStats:
             self.state = state
             self.timeline.append((now, state))
 
-    def _statusword(self, now: float, statusword: Any) -> None:
+    @property
+    def drive_state(self) -> str | None:
+        """The CiA 402 power state of the (first) axis, None before a statusword came."""
+        return self.drive_states.get(1)
+
+    def _statusword(self, now: float, statusword: Any, axis: int = 1) -> None:
+        if self._statuswords.get(axis) == statusword:  # (most frames: nothing new)
+            return
         if isinstance(statusword, bool) or not isinstance(statusword, int):
             return
-        from cobus.profiles.cia402 import PowerState
-
+        self._statuswords[axis] = statusword
         state = PowerState.from_statusword(statusword).name
-        if state != self.drive_state:
-            self.drive_state = state
-            self.timeline.append((now, f"CiA 402 {state}"))
+        if state != self.drive_states.get(axis):
+            self.drive_states[axis] = state
+            where = "" if axis == 1 else f"axis {axis} "
+            self.timeline.append((now, f"CiA 402 {where}{state}"))
 
     def summary(self) -> dict[str, Any]:
         """The figures as plain data (a node table, ``--json``)."""
@@ -468,6 +480,7 @@ class NodeStats:
             "node": self.node,
             "state": self.state,
             "drive_state": self.drive_state,
+            "drive_states": dict(self.drive_states),
             "heartbeats": self.heartbeats,
             "heartbeat_period": self.heartbeat_period,
             "jitter": self.jitter,
@@ -504,7 +517,8 @@ class Decoder:
         #: LSS requests and answers followed into sessions (the slave being configured).
         self.lss = LssSessions()
         self._pdos: dict[int, _Pdo] = {}
-        self._layouts: dict[int, _Pdo] = {}  # COB-ID -> the PDO as a network file has it
+        #: (node, tpdo, number) -> the PDO as a network file has it.
+        self._layouts: dict[tuple[int, bool, int], _Pdo] = {}
         self._params: dict[int, dict[tuple[int, int], int]] = {}
         for node, od in self.dictionaries.items():
             if od.node_id is None:
@@ -517,15 +531,14 @@ class Decoder:
     def _configured(self, cfg: Any) -> None:
         """The PDOs as the network file configures them (the master writes that mapping at
         boot), with its signal names, scales and units: ``drive1 TPDO1 position=12.5 mm``."""
-        alias = {canonical: name for name, canonical in reversed(list(cfg.aliases.items()))}
         for layout in (*cfg.tpdos, *cfg.rpdos):
-            if layout.extended:
+            if layout.extended or layout.linked:  # (a linked RPDO is another node's TPDO)
                 continue
             real = [e for e in layout.codec.entries if not e.is_dummy]
             named = []
             for entry, signal in zip(real, layout.positions, strict=False):
                 if signal is not None:
-                    named.append((alias.get(signal.name, signal.name), signal))
+                    named.append((signal.name, signal))
                 else:
                     var = cfg.od.get_variable(entry.index, entry.subindex)
                     label = _name(var) if var is not None else None
@@ -533,11 +546,20 @@ class Decoder:
             tpdo = layout.direction == "tpdo"
             pdo = _Pdo(cfg.node_id, layout.number, tpdo, [], layout, tuple(named))
             if tpdo:
-                pdo.statusword = next(
-                    (n for (n, _), e in zip(named, real, strict=False) if _is_statusword(e.index)),
-                    None,
-                )
-            self._pdos[layout.cob_id] = self._layouts[layout.cob_id] = pdo
+                for (label, _), entry in zip(named, real, strict=False):
+                    if _is_statusword(entry.index):
+                        pdo.statusword, pdo.axis = label, _axis(entry.index)
+                        break
+            self._layouts[(cfg.node_id, tpdo, layout.number)] = pdo
+            self._place(layout.cob_id, pdo)
+
+    def _place(self, key: int, pdo: _Pdo) -> None:
+        """Let ``pdo`` name frames of COB-ID ``key``, unless another node's TPDO does: a
+        node's TPDO names the frame, not another's RPDO of it (PDO linking)."""
+        other = self._pdos.get(key)
+        if other is not None and other.node != pdo.node and other.tpdo and not pdo.tpdo:
+            return
+        self._pdos[key] = pdo
 
     # ------------------------------------------------------------------ PDO mappings
 
@@ -564,18 +586,19 @@ class Decoder:
                 mapped = [
                     params.get((base + 0x200 + n, k), 0) for k in range(1, min(count, 64) + 1)
                 ]
-                configured = self._layouts.get(cob & 0x7FF)
-                if configured is not None and configured.node == node and configured.tpdo == tpdo:
+                configured = self._layouts.get((node, tpdo, n + 1))
+                if configured is not None:
                     wanted = [
                         (e.index << 16) | (e.subindex << 8) | e.bit_length
                         for e in configured.layout.codec.entries
                     ]
-                    if wanted == mapped:  # the bus set the file's mapping: keep its signals
-                        self._pdos[cob & 0x7FF] = configured
+                    if wanted == mapped:  # the file's mapping (wherever the PDO is moved)
+                        self._place(cob & 0x7FF, configured)
                         continue
                 entries: list[tuple[str | None, DataType, int]] = []
                 names: set[str] = set()
                 statusword: str | None = None
+                axis = 1
                 for sub in range(1, min(count, 64) + 1):
                     raw = params.get((base + 0x200 + n, sub), 0)
                     index, subindex, bits = raw >> 16, (raw >> 8) & 0xFF, raw & 0xFF
@@ -594,12 +617,10 @@ class Decoder:
                     names.add(name)
                     entries.append((name, data_type, bits))
                     if tpdo and statusword is None and _is_statusword(index):
-                        statusword = name
-                key = cob & 0x7FF
-                other = self._pdos.get(key)
-                if other is not None and other.node != node and other.tpdo and not tpdo:
-                    continue  # a node's TPDO names the frame, not another's RPDO of it
-                self._pdos[key] = _Pdo(node, n + 1, tpdo, entries, statusword=statusword)
+                        statusword, axis = name, _axis(index)
+                self._place(
+                    cob & 0x7FF, _Pdo(node, n + 1, tpdo, entries, statusword=statusword, axis=axis)
+                )
 
     # ------------------------------------------------------------------ frames
 
@@ -631,12 +652,15 @@ class Decoder:
                 stats = self.node_stats(rec.node)
                 stats._state(now, "BOOTUP")
                 stats.last_heartbeat = None  # (a reset: the intervals start again)
+            elif isinstance(rec, SdoTransfer) and rec.write and rec.index == 0x1017 and rec.ok:
+                if rec.value:  # the node produces heartbeats now: guarding is over
+                    self._toggle.pop(rec.node, None)
             elif isinstance(rec, SdoTransfer) and _is_statusword(rec.index) and rec.subindex == 0:
                 if not rec.write and rec.ok and rec.mode != "incomplete":
                     value = rec.value
                     if value is None and len(rec.data) == 2:
                         value = int.from_bytes(rec.data, "little")
-                    self.node_stats(rec.node)._statusword(now, value)
+                    self.node_stats(rec.node)._statusword(now, value, _axis(rec.index))
             elif isinstance(rec, Emergency):
                 stats = self.node_stats(rec.node)
                 stats.emcy_count += 1
@@ -676,6 +700,9 @@ class Decoder:
             return [self._pdo(now, cob, data)]
         func, node = cob & 0x780, cob & 0x7F
         if cob == 0x000 and len(data) >= 2:
+            if data[0] in (0x81, 0x82):  # a reset: the next guarding answer carries toggle 0
+                for target in list(self._toggle) if data[1] == 0 else [data[1]]:
+                    self._toggle[target] = 0
             return [NmtCommand(now, cob, _NMT.get(data[0], f"command {data[0]:02X}h"), data[1])]
         if cob == 0x080:
             return [SyncRecord(now, cob, data[0] if data else None)]
@@ -704,6 +731,7 @@ class Decoder:
                     self._toggle[node] = toggle ^ 1
                     wrong = expected is not None and toggle != expected
                     return [GuardResponse(now, cob, node, name, toggle, wrong)]
+                self._toggle.pop(node, None)  # a heartbeat (or a late answer): start afresh
                 return [Heartbeat(now, cob, node, name)]
         if cob in (0x7E4, 0x7E5) and data:
             said = self.lss.feed(cob, data, now)
@@ -742,7 +770,9 @@ class Decoder:
                 values[name] = chunk
             bit += bits
         if pdo.statusword is not None:
-            self.node_stats(pdo.node)._statusword(now, values.get(pdo.statusword))
+            if pdo.stats is None:
+                pdo.stats = self.node_stats(pdo.node)
+            pdo.stats._statusword(now, values.get(pdo.statusword), pdo.axis)
         return PdoRecord(now, cob, pdo.node, pdo.number, pdo.tpdo, data, values)
 
     def _configured_pdo(self, now: float, cob: int, pdo: _Pdo, data: bytes) -> PdoRecord:
@@ -763,7 +793,9 @@ class Decoder:
             if signal.unit:
                 units[name] = signal.unit
         if pdo.statusword is not None:
-            self.node_stats(pdo.node)._statusword(now, values.get(pdo.statusword))
+            if pdo.stats is None:
+                pdo.stats = self.node_stats(pdo.node)
+            pdo.stats._statusword(now, values.get(pdo.statusword), pdo.axis)
         return PdoRecord(now, cob, pdo.node, pdo.number, pdo.tpdo, data, values, units)
 
     # ------------------------------------------------------------------ SDO
@@ -962,6 +994,11 @@ class Decoder:
     def _object_name(self, node: int, index: int, sub: int) -> str | None:
         var = self._variable(node, index, sub)
         return _name(var) if var is not None else None
+
+
+def _axis(index: int) -> int:
+    """The axis (1..8) of a CiA 402 object: 6xxxh is axis 1, 68xxh axis 2, 70xxh axis 3..."""
+    return (index - 0x6000) // 0x800 + 1
 
 
 def _is_statusword(index: int) -> bool:

@@ -52,7 +52,9 @@ def register(sub: Any) -> None:
         metavar="NODE=FILE",
         help="a node's EDS/DCF (repeatable)",
     )
-    p.add_argument("--network", type=Path, help="a network description: its nodes' EDS files")
+    p.add_argument(
+        "--network", type=Path, help="a network description: its nodes' EDS and PDO signals"
+    )
     p.add_argument("--filter", type=_kinds, help="only these kinds (nmt,hb,sync,sdo,pdo,...)")
     p.add_argument("--node", type=int, help="only records of this node-ID")
     p.add_argument("--duration", type=seconds, help="seconds to run (default: until q/Ctrl-C)")
