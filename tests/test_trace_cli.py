@@ -128,7 +128,7 @@ def test_monitor_decodes_the_live_bus_and_ends_with_the_node_table(
         bus = ["-i", "virtual", "-c", channel, "-b", "500000"]
         monitor = threading.Thread(
             target=lambda: result.append(
-                main(["monitor", "--duration", "1.5", "--eds", f"10={eds}", *bus])
+                main(["monitor", "--duration", "1.5", "--eds", f"10={eds}", "--node", "10", *bus])
             )
         )
         monitor.start()
@@ -136,9 +136,13 @@ def test_monitor_decodes_the_live_bus_and_ends_with_the_node_table(
         net.sleep(0.1)
         node.sdo.download(0x1017, 0, (50).to_bytes(2, "little"))
         node.nmt.send("start")
+        net.sleep(0.3)
+        net.send(Frame(0x000, bytes([0x80, 0])))  # to all nodes: --node 10 keeps it
+        net.send(Frame(0x000, bytes([0x01, 11])))  # to another node: not shown
         monitor.join()
     assert result == [0]
     out = capsys.readouterr().out
+    assert "NMT enter pre-operational -> all nodes" in out and "node 11" not in out
     assert "node 10 write 1017h:00 Producer heartbeat time = 50" in out
     assert "NMT start -> node 10" in out and "node 10 heartbeat OPERATIONAL" in out
     assert "frames/s, bus load" in out  # the node table at the end
@@ -152,7 +156,7 @@ def test_monitor_on_a_terminal_fits_its_records_below_the_node_table(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """On a terminal (a pseudo-terminal here) the live view never grows past the screen:
-    the newest records that fit, below the node table; --node keeps NMT commands to it."""
+    the newest records that fit, below the node table."""
     import pty
 
     monkeypatch.setenv("COLUMNS", "100")
@@ -202,7 +206,6 @@ def test_monitor_on_a_terminal_fits_its_records_below_the_node_table(
     last = text.rsplit("nodes —", 1)[1]  # the last picture, from the table's title
     assert last.count("\n") <= 18
     assert "node 10 heartbeat" in last and "..." not in last
-    assert "NMT start -> node 10" in text and "NMT enter pre-operational -> all nodes" in text
 
 
 def test_decode_skips_a_can_fd_frame_and_reports_an_open_transfer(

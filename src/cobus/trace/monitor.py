@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import sys
 import time
 from collections import deque
@@ -226,7 +227,9 @@ def _run(args: argparse.Namespace) -> int:
     except Exception as exc:  # a network file or EDS that cannot be read
         return _fail(str(exc), 2)
     live_view = sys.stdout.isatty() and not args.json
-    console = Console(highlight=False)
+    # Piped (a log, a pager) the table is not cut to 80 columns: states stay readable.
+    wide = None if sys.stdout.isatty() or os.environ.get("COLUMNS") else 160
+    console = Console(highlight=False, width=wide)
     newest: deque[str] = deque(maxlen=500)
     window: deque[tuple[float, int]] = deque()  # (time, bits) of the last second
     first: float | None = None
