@@ -324,3 +324,39 @@ def test_machine_timers_stop_with_the_network():
 
     assert simulate(main()) == pytest.approx(1.0)
     assert errors == []
+
+
+def test_error_frames_of_others_on_a_virtual_bus_do_not_flip_our_state():
+    """python-can's virtual bus is a hub: an error frame there was sent by another
+    participant. It is seen (BusErrorFrame) but our controller stays error-active; on an
+    interface that reports its own controller (RefusingBus here) the same frame counts."""
+    import os
+    import time
+
+    from cobus.runtime import Network
+    from cobus.runtime.bus import error_frames_are_local
+
+    channel = f"errors-{os.getpid()}"
+    passive = error_frame(0x004, bytes([0, 0x20, 0, 0, 0, 0, 0, 0]))
+    with Network(interface="virtual", channel=channel) as net:
+        events: list[object] = []
+        net.add_listener(events.append)
+        other = can.Bus(interface="virtual", channel=channel)
+        try:
+            for _ in range(50):
+                other.send(passive)
+                other.send(error_frame(0x040))  # bus-off, of the other participant
+            deadline = time.monotonic() + 5
+            while sum(isinstance(e, BusErrorFrame) for e in events) < 100:
+                assert time.monotonic() < deadline
+                net.sleep(0.01)
+        finally:
+            other.shutdown()
+        assert net.bus_state is BusState.ACTIVE
+        assert not [e for e in events if isinstance(e, BusStateChanged)]
+    hub = can.Bus(interface="virtual", channel=channel)
+    try:
+        assert not error_frames_are_local(hub)
+    finally:
+        hub.shutdown()
+    assert error_frames_are_local(RefusingBus())

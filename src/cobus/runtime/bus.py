@@ -18,6 +18,7 @@ from cobus.runtime.events import BusErrorFrame, BusState, RxOverflow, TxBufferOv
 __all__ = [
     "BusOpenError",
     "decode_error_frame",
+    "error_frames_are_local",
     "frame_to_message",
     "message_to_frame",
     "open_bus",
@@ -155,6 +156,19 @@ _PYCAN_STATE = {
     can.BusState.PASSIVE: BusState.PASSIVE,
     can.BusState.ERROR: BusState.BUS_OFF,
 }
+
+
+#: Interfaces that are software hubs: an error frame received there was sent by another
+#: participant and says nothing about this side's controller.
+_SHARED_MEDIA = ("can.interfaces.virtual", "can_remote", "can.interfaces.udp_multicast")
+
+
+def error_frames_are_local(bus: can.BusABC) -> bool:
+    """Whether an error frame received on ``bus`` reports this side's own CAN controller
+    (SocketCAN, PCAN, Kvaser... report theirs). On python-can's ``virtual`` bus,
+    python-can-remote and ``udp_multicast`` every participant sees the error frames the
+    others inject: they must not flip this network's bus state."""
+    return not type(bus).__module__.startswith(_SHARED_MEDIA)
 
 
 def readable_fd(bus: can.BusABC) -> int | None:

@@ -250,6 +250,8 @@ class AsyncNetwork:
         self._fd: int | None = None
         self._poll_hook: Callable[[], bool] | None = None
         self._state_poll: asyncio.TimerHandle | None = None
+        #: Whether received error frames report our own controller (see bus.py).
+        self._errors_local = True
         self.frames_received = 0
         self.frames_sent = 0
         self._failures: dict[tuple[object, ...], int] = {}  # by where they were raised
@@ -657,6 +659,8 @@ class AsyncNetwork:
 
     def _on_error_frame(self, msg: can.Message) -> None:
         events, state, tx, rx = _bus.decode_error_frame(msg)
+        if not self._errors_local:  # another participant's frame on a software hub:
+            events, state = events[:1], None  # seen (BusErrorFrame), not our state
         for event in events:
             self.emit(event)
         if state is not None:
@@ -691,6 +695,7 @@ class AsyncNetwork:
             self._reader.start()
         if _bus.interface_reports_state(bus):
             self._state_poll = loop.call_later(0.5, self._poll_state)
+        self._errors_local = _bus.error_frames_are_local(bus)
 
     def _stop_receiving(self, loop: asyncio.AbstractEventLoop) -> None:
         if self._poll_hook is not None and isinstance(loop, SimulatedEventLoop):
