@@ -20,6 +20,7 @@ from cobus.master import (
     NodeEmergency,
     NodeState,
     NodeStateChanged,
+    StateRestored,
     TpdoLengthError,
     TpdoMissing,
     TpdoRestored,
@@ -287,7 +288,7 @@ def test_a_tpdo_too_short_is_diagnostic_20(tmp_path):
 
 
 def test_unexpected_state_changes_block_process_data(tmp_path):
-    cfg = network(tmp_path, net_text(("a", 5, "")))
+    cfg = network(tmp_path, net_text(("a", 5, "    restart: manual\n")))
 
     async def scenario(rig: Rig) -> None:
         await booted(rig, 5)
@@ -301,6 +302,7 @@ def test_unexpected_state_changes_block_process_data(tmp_path):
             UnexpectedState(5, NmtState.OPERATIONAL, NmtState.PRE_OPERATIONAL)
         ]
         assert diagnostic(node) is Diagnostic.REPORTS_PRE_OPERATIONAL
+        assert node.problem == "reports PRE_OPERATIONAL; waiting for a manual restart"
         assert leds(node).run is LedPattern.BLINKING
         assert rig.master.inputs["a.counter"] == 0
         rig.send(0x185, b"\x63\x00")  # a PDO outside operational is not taken
@@ -454,5 +456,52 @@ def test_a_guarded_node_changing_state_is_reported_once(tmp_path):
         assert rig.of(UnexpectedState) == [
             UnexpectedState(5, NmtState.OPERATIONAL, NmtState.PRE_OPERATIONAL)
         ]
+
+    rig_test(cfg, scenario)
+
+
+def problem(node: object) -> str | None:
+    """The node's problem text, read afresh (not narrowed by an earlier assert)."""
+    text = getattr(node, "problem", None)
+    return text if isinstance(text, str) else None
+
+
+def test_a_node_put_out_of_operational_is_brought_back_a_few_times(tmp_path):
+    """restart: auto (the default): a node someone else put into pre-operational gets the
+    start command back and its process data flows again; one that keeps leaving is
+    brought back at most 3 times in 10 s, then left as it is with a problem saying so."""
+    cfg = network(tmp_path, net_text(("a", 5, "")))
+
+    async def scenario(rig: Rig) -> None:
+        await booted(rig, 5)
+        device = rig.devices[5]
+        node = rig.master.nodes[5]
+        device.set(0x2000, 0, 7)
+        await rig.run(0.1)
+        rig.send(0x000, bytes([0x80, 5]))  # another tool's "enter pre-operational"
+        await rig.run(0.15)
+        assert diagnostic(node) is Diagnostic.REPORTS_PRE_OPERATIONAL
+        assert problem(node) == "reports PRE_OPERATIONAL; bringing it back to OPERATIONAL"
+        await rig.run(0.5)
+        assert nmt(device) is NmtState.OPERATIONAL
+        assert diagnostic(node) is Diagnostic.OK and problem(node) is None
+        assert StateRestored(5, NmtState.OPERATIONAL) in rig.of(StateRestored)
+        device.set(0x2000, 0, 8)
+        await rig.run(0.2)
+        assert rig.master.inputs["a.counter"] == 8
+        since = rig.net.time()
+        for _ in range(3):  # it keeps falling back: two more commands, then no more
+            rig.send(0x000, bytes([0x80, 5]))
+            await rig.run(1.0)
+        assert nmt(device) is NmtState.PRE_OPERATIONAL
+        assert "left as it is" in (problem(node) or "")
+        starts = [d for d in rig.data(0x000, since=since) if d == bytes([0x01, 5])]
+        assert len(starts) == 2  # (with the first heal above: 3 in the window)
+        await rig.run(10.0)  # a new window: the next departure is healed again
+        rig.send(0x000, bytes([0x01, 5]))
+        await rig.run(0.3)
+        rig.send(0x000, bytes([0x02, 5]))  # stopped by someone
+        await rig.run(0.6)
+        assert nmt(device) is NmtState.OPERATIONAL
 
     rig_test(cfg, scenario)

@@ -126,6 +126,9 @@ class ManagedNode:
         self._configured_at: float | None = None
         self._last_ec: float | None = None
         self._first_check: asyncio.TimerHandle | None = None
+        #: A pending NMT command bringing the node back to the state the master expects.
+        self._heal: asyncio.TimerHandle | None = None
+        self._heals: list[float] = []  # when the last heals were sent (a limit per window)
         self._guard: _guarding.GuardingMaster | None = None
         self._guard_host: MachineHost | None = None
         self._guard_bad = False
@@ -611,6 +614,9 @@ class ManagedNode:
         if self._first_check is not None:
             self._first_check.cancel()
             self._first_check = None
+        if self._heal is not None:
+            self._heal.cancel()
+            self._heal = None
         monitor = self.master._monitor
         now = self.master.network.time() if self.master.network.connected else 0.0
         monitor.watch(self.node_id, 0.0, now)
@@ -727,6 +733,7 @@ class ManagedNode:
             self._disarm_watchdogs()
             if self.config.zero_inputs:
                 self.master.image.zero_inputs(self.node_id)
+            self._bring_back(expected, state)
         elif (
             state is NmtState.OPERATIONAL
             and expected is NmtState.OPERATIONAL
@@ -736,7 +743,58 @@ class ManagedNode:
             # back in operational: supervise the TPDOs again
             self._started(self.master.network.time())
         if expected is not None and state is expected and old is not None and old is not state:
+            if self.problem is not None and self.problem.startswith("reports "):
+                self.problem = None
             self.master._emit(StateRestored(self.node_id, state))
+
+    #: At most this many NMT commands bring a node back within HEAL_WINDOW seconds; a node
+    #: that keeps leaving the expected state after that is left as it is (and says so).
+    HEAL_LIMIT = 3
+    HEAL_WINDOW = 10.0
+    #: Seconds between noticing the unexpected state and the command (someone else's
+    #: command sequence, or the node's own reset, may still be under way).
+    HEAL_DELAY = 0.2
+
+    def _bring_back(self, expected: NmtState, state: NmtState) -> None:
+        """A node left the state the master expects (someone else's NMT command, a local
+        fault): with ``restart: auto`` it gets the command back, a few times at most; with
+        ``restart: manual`` it waits for the application (``master.restart``)."""
+        if self.config.restart == "manual":
+            self.problem = f"reports {state.name}; waiting for a manual restart"
+            return
+        network = self.master.network
+        now = network.time()
+        self._heals = [t for t in self._heals if now - t < self.HEAL_WINDOW]
+        if len(self._heals) >= self.HEAL_LIMIT:
+            self.problem = (
+                f"reports {state.name} again after {self.HEAL_LIMIT} commands back to "
+                f"{expected.name} within {self.HEAL_WINDOW:g} s: left as it is"
+            )
+            return
+        if self._heal is not None:
+            self._heal.cancel()
+        self.problem = f"reports {state.name}; bringing it back to {expected.name}"
+        self._heal = network.loop.call_later(self.HEAL_DELAY, self._send_back)
+
+    def _send_back(self) -> None:
+        self._heal = None
+        expected = self.expected_nmt
+        if (
+            expected is None
+            or self.nmt_state is expected
+            or self._state is not NodeState.OPERATIONAL
+            or not self.master.network.connected
+        ):
+            return
+        command = {
+            NmtState.OPERATIONAL: "start",
+            NmtState.PRE_OPERATIONAL: "enter_preoperational",
+            NmtState.STOPPED: "stop",
+        }.get(expected)
+        if command is None:
+            return
+        self._heals.append(self.master.network.time())
+        getattr(self.master.network.nmt, command)(self.node_id)
 
     def _on_bootup(self) -> None:
         """The node sent its boot-up message."""
