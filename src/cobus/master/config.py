@@ -493,6 +493,9 @@ class NodeConfig:
     stop_on_abort: bool = False
     set_sync_period: bool = True
     error_reaction: str = "none"  # none | stop_node | stop_all
+    #: auto: a node back after an error-control fault, re-booted, or put out of the state
+    #: the master expects by someone else is brought back; manual: it waits for
+    #: ``master.restart(node)``.
     restart: str = "auto"  # auto | manual
     zero_inputs: bool = True
     #: The start-up SDO list (without the error control writes, see below).
