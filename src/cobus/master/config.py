@@ -286,7 +286,8 @@ class ObjectIndex:
         return found[0]
 
 
-_SUB_NUMBER = re.compile(r"(.*?)\[\s*(0x[0-9a-fA-F]+|[0-9]+)\s*\]\s*\Z")
+# (bounded digits: a sub-index of 5,000 digits is no sub-index, not a crash)
+_SUB_NUMBER = re.compile(r"(.*?)\[\s*(0x[0-9a-fA-F]{1,8}|[0-9]{1,10})\s*\]\s*\Z")
 
 
 def _lookup_forms(text: str) -> list[str]:

@@ -39,8 +39,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from cobus._yaml import read_yaml
 from cobus.proto import Event, Frame
 from cobus.proto.nmt import check_node_id
 from cobus.runtime import open_bus
@@ -244,16 +243,24 @@ class Rig:
             text = path.read_text(encoding="utf-8")
         except OSError as exc:
             raise RigError(f"cannot read the rig file {path}: {exc.strerror}") from None
+        except UnicodeDecodeError as exc:
+            line = exc.object[: exc.start].count(b"\n") + 1
+            raise RigError(
+                f"{path}:{line}: not UTF-8 text (byte 0x{exc.object[exc.start]:02X}); save the "
+                "rig file as UTF-8"
+            ) from None
         return cls.loads(text, path=path)
 
     @classmethod
     def loads(cls, text: str, *, path: str | Path | None = None) -> Rig:
         """Read rig YAML text; relative paths in options are relative to ``path``'s folder."""
         where = str(path or "<rig>")
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            raise RigError(f"{where}: not valid YAML: {exc}") from None
+        data, problems = read_yaml(text)  # (control characters, huge numbers, deep nesting)
+        if problems:
+            first = problems[0]
+            line = "" if first.line is None else f":{first.line}"
+            key = "" if first.key is None else f" {first.key}:"
+            raise RigError(f"{where}{line}:{key} {first.reason}")
         if data is None:
             data = {}
         if not isinstance(data, dict):
