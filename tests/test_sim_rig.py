@@ -164,7 +164,7 @@ def test_bus_faults_on_the_rigs_own_bus_seen_from_a_master_on_another_network(tm
             rig.inject(None, "frame_corruption", rate=0.25, seed=2)
             assert rig.bus is not None and rig.bus.corruption == 0.25
             rig.inject(None, "frame_corruption", rate=0)
-            with pytest.raises(ValueError, match="probability"):
+            with pytest.raises(ValueError, match="rate from 0 to 1"):
                 rig.inject(None, "frame_loss", rate=2)
             # bus-off until restarted by hand
             rig.inject(None, "bus_off")
@@ -316,6 +316,30 @@ def test_a_missing_device_module_is_reported_when_the_rig_starts(tmp_path, monke
         ("devices: [{node: 3, kind: eds}]\nwires: 3", "unknown key.*wires"),
         ("devices: [{node: 3, kind: eds, quirks: {x: maybe}}]", "true or false"),
         ("devices: [{node: 3", "not valid YAML"),
+        # Fault parameters are checked when the file loads, not when the fault fires:
+        (
+            "devices: [{node: 3, kind: cia402_drive}]\n"
+            "faults: [{at: 60, node: 3, fault: overtemperature, temp: 90}]",
+            r"faults\[0\]: overtemperature takes temperature \(number, optional\); not temp",
+        ),
+        (
+            "devices: [{node: 3, kind: cia402_drive}]\n"
+            "faults: [{at: 60, node: 3, fault: drive_fault, code: high}]",
+            r"faults\[0\]: drive_fault: code 'high' must be an integer",
+        ),
+        (
+            "devices: [{node: 3, kind: ec_motor}]\nfaults: [{at: 60, node: 3, fault: supply}]",
+            "supply needs volts",
+        ),
+        (
+            "devices: [{node: 3, kind: eds}]\nfaults: [{at: 9, fault: frame_loss, rate: 2}]",
+            "frame_loss: rate 2 must be a rate from 0 to 1",
+        ),
+        (
+            "devices: [{node: 3, kind: zapi_ace2}]\n"
+            "faults: [{at: 1, node: 3, fault: battery, bdi: 50, colour: red}]",
+            "battery takes bdi .*; not colour",
+        ),
     ],
 )
 def test_rig_file_errors_say_where_and_what(text, message):

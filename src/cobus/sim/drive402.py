@@ -310,6 +310,14 @@ class Drive402(CanopenSimDevice):
             "(default: from the code's class); a fault reset clears it"
         ),
     }
+    #: The parameters each fault takes (kind, "?" when optional): checked when a rig loads.
+    FAULT_PARAMS: ClassVar[Mapping[str, Mapping[str, str]]] = {
+        "blocked_rotor": {},
+        "free_rotor": {},
+        "overtemperature": {"temperature": "number?"},
+        "overcurrent": {},
+        "drive_fault": {"code": "int?", "register": "int?"},
+    }
 
     def __init__(
         self,

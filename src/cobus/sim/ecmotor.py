@@ -188,6 +188,14 @@ class EcMotor(SimulatedDevice):
         "bio": "the BIO input level= (True/False); with m_set.cen, 0 switches the power stage "
         "off (ben)",
     }
+    #: The parameters each fault takes (kind, "?" when optional): checked when a rig loads.
+    FAULT_PARAMS: ClassVar[Mapping[str, Mapping[str, str]]] = {
+        "overload": {"torque": "number?"},
+        "overtemperature": {"celsius": "number?"},
+        "supply": {"volts": "number"},
+        "hw_protection": {"active": "bool?"},
+        "bio": {"level": "bool?"},
+    }
 
     def __init__(
         self,

@@ -17,6 +17,7 @@ faults) belong to each simulated device: see ``FAULTS`` on its class and its ``i
 from __future__ import annotations
 
 import asyncio
+import math
 import random
 from collections import deque
 from collections.abc import Mapping
@@ -30,11 +31,14 @@ from cobus.sim.base import SimulatedDevice, SimulationError
 
 __all__ = [
     "BUS_FAULTS",
+    "BUS_FAULT_PARAMS",
     "COMMON_FAULTS",
     "Babbler",
     "FaultConfigError",
     "FaultyBus",
+    "check_fault_parameters",
     "fault_catalogue",
+    "fault_parameters",
 ]
 
 #: Faults every simulated device has (handled by :class:`~cobus.sim.SimulatedDevice`).
@@ -296,6 +300,81 @@ class Babbler:
         # scheduled on a fixed grid: a late wake-up does not stretch the period
         self._next = max(self._next + self.period, loop.time())
         self._handle = loop.call_at(self._next, self._babble)
+
+
+#: The parameters of the bus faults (see SimulatedDevice.FAULT_PARAMS for the kinds).
+BUS_FAULT_PARAMS: Mapping[str, Mapping[str, str]] = {
+    "bus_off": {"duration": "seconds?"},
+    "bus_restart": {},
+    "frame_loss": {"rate": "rate", "seed": "int?"},
+    "frame_corruption": {"rate": "rate", "seed": "int?"},
+    "babbling": {"cob_id": "int?", "period_us": "number?"},
+    "babbling_stop": {},
+}
+
+
+def _kind_problem(kind: str, value: Any) -> str | None:
+    """Why ``value`` is no ``kind`` (None: it is one)."""
+    number = isinstance(value, int | float) and not isinstance(value, bool)
+    if kind == "int":
+        return None if isinstance(value, int) and not isinstance(value, bool) else "an integer"
+    if kind == "bool":
+        return None if isinstance(value, bool) else "true or false"
+    if kind == "number":
+        return None if number and math.isfinite(value) else "a number"
+    if kind == "seconds":
+        return None if number and math.isfinite(value) and value >= 0 else "seconds, 0 or more"
+    if kind == "rate":
+        return None if number and 0 <= value <= 1 else "a rate from 0 to 1"
+    return None
+
+
+def fault_parameters(
+    device: SimulatedDevice | type[SimulatedDevice] | None, fault: str
+) -> Mapping[str, str] | None:
+    """The parameters ``fault`` takes on ``device`` (None: the bus), None when undeclared."""
+    if device is None:
+        return BUS_FAULT_PARAMS.get(fault)
+    cls = device if isinstance(device, type) else type(device)
+    for klass in cls.__mro__:
+        table = vars(klass).get("FAULT_PARAMS")
+        if table is not None and fault in table:
+            found: Mapping[str, str] = table[fault]
+            return found
+    return None
+
+
+def check_fault_parameters(
+    device: SimulatedDevice | type[SimulatedDevice] | None,
+    fault: str,
+    params: Mapping[str, Any],
+) -> None:
+    """Refuse parameters ``fault`` does not take, is missing, or of the wrong kind, before the
+    fault fires (a rig file's mistake shows when it loads, not minutes later);
+    :class:`~cobus.sim.generic.FaultParameterError` says which and what it takes."""
+    from cobus.sim.generic import FaultParameterError
+
+    spec = fault_parameters(device, fault)
+    if spec is None:
+        return  # (a device's own fault without a declaration: its inject checks)
+    takes = (
+        ", ".join(
+            f"{k} ({v.rstrip('?')}{', optional' if v.endswith('?') else ''})"
+            for k, v in spec.items()
+        )
+        or "no parameters"
+    )
+    unknown = sorted(set(params) - set(spec))
+    if unknown:
+        raise FaultParameterError(f"{fault} takes {takes}; not {', '.join(unknown)}")
+    for name, kind in spec.items():
+        if name not in params:
+            if not kind.endswith("?"):
+                raise FaultParameterError(f"{fault} needs {name}; it takes {takes}")
+            continue
+        problem = _kind_problem(kind.rstrip("?"), params[name])
+        if problem is not None:
+            raise FaultParameterError(f"{fault}: {name} {params[name]!r} must be {problem}")
 
 
 def fault_catalogue(

@@ -156,6 +156,13 @@ class CanopenSimDevice(SimulatedDevice):
             "is shorter gives up"
         ),
     }
+    #: The parameters each fault takes (kind, "?" when optional): checked when a rig loads.
+    FAULT_PARAMS: ClassVar[Mapping[str, Mapping[str, str]]] = {
+        "node_id_change": {"node_id": "int"},
+        "heartbeat_stop": {},
+        "heartbeat_resume": {},
+        "sdo_delay": {"delay": "seconds"},
+    }
 
     def __init__(
         self,

@@ -46,7 +46,14 @@ from cobus.runtime import open_bus
 from cobus.runtime.events import BusState, BusStateChanged, HandlerFailed
 from cobus.runtime.network import AsyncNetwork, Subscription
 from cobus.sim.base import SimulatedDevice, SimulationError
-from cobus.sim.faults import BUS_FAULTS, Babbler, FaultConfigError, FaultyBus, fault_catalogue
+from cobus.sim.faults import (
+    BUS_FAULTS,
+    Babbler,
+    FaultConfigError,
+    FaultyBus,
+    check_fault_parameters,
+    fault_catalogue,
+)
 from cobus.sim.generic import CanopenSimDevice, FaultParameterError, check_fault_params
 
 __all__ = [
@@ -224,6 +231,7 @@ class Rig:
                 )
             if fault.node is not None and fault.node not in seen:
                 raise RigError(f"{where}: faults[{i}]: there is no device with node {fault.node}")
+            self._check_params(i, fault, where)
         #: The running devices by the node-ID their spec gives (empty until started).
         self.devices: dict[int, SimulatedDevice] = {}
         self.network: AsyncNetwork | None = None
@@ -233,6 +241,20 @@ class Rig:
         self._traffic: _Traffic | None = None
         self._opened: FaultyBus | None = None
         self._bitrate: int | None = self.bus_spec.bitrate
+
+    def _check_params(self, i: int, fault: FaultSpec, where: str) -> None:
+        """The fault's parameters, checked now rather than when it fires."""
+        device: type[SimulatedDevice] | None = None
+        if fault.node is not None:
+            spec = next(s for s in self.specs if s.node == fault.node)
+            try:
+                device = resolve_kind(spec.kind)
+            except Exception:  # (an unknown kind is reported when the rig starts)
+                return
+        try:
+            check_fault_parameters(device, fault.fault, fault.params)
+        except FaultParameterError as exc:
+            raise RigError(f"{where}: faults[{i}]: {exc}") from None
 
     # ------------------------------------------------------------------ files
     @classmethod
@@ -464,9 +486,12 @@ class Rig:
                 f"{fault!r} is no bus fault ({', '.join(BUS_FAULTS)}); name the device to inject "
                 "it into"
             )
-        self.device(node).inject(fault, **params)
+        device = self.device(node)
+        check_fault_parameters(device, fault, params)
+        device.inject(fault, **params)
 
     def _bus_fault(self, node: int | str | None, fault: str, params: Mapping[str, Any]) -> None:
+        check_fault_parameters(None, fault, params)
         network = self.network
         if network is None:
             raise RigError("the rig is not running: start it before injecting faults")

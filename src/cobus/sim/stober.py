@@ -291,6 +291,12 @@ class StoberMds5000(SimulatedDevice):
         "overload": "a load= in % of the rated torque; above M-max (C230) the drive reports "
         "event 47",
     }
+    #: The parameters each fault takes (kind, "?" when optional): checked when a rig loads.
+    FAULT_PARAMS: ClassVar[Mapping[str, Mapping[str, str]]] = {
+        "motor_overtemperature": {"active": "bool?"},
+        "event": {"number": "int?", "cause": "int?", "active": "bool?"},
+        "overload": {"load": "number?"},
+    }
 
     def __init__(
         self,

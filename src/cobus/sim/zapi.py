@@ -127,6 +127,14 @@ class ZapiAce2(SimulatedDevice):
         "temperature": "set the controller= and/or motor= temperature (degC)",
         "battery": "set the battery charge bdi= (%)",
     }
+    #: The parameters each fault takes (kind, "?" when optional): checked when a rig loads.
+    FAULT_PARAMS: ClassVar[Mapping[str, Mapping[str, str]]] = {
+        "alarm": {"code": "int?", "active": "bool?"},
+        "contactor_failure": {"active": "bool?"},
+        "emergency_stop": {"active": "bool?"},
+        "temperature": {"controller": "number?", "motor": "number?"},
+        "battery": {"bdi": "int?"},
+    }
 
     def __init__(
         self,
