@@ -505,3 +505,70 @@ def test_a_node_put_out_of_operational_is_brought_back_a_few_times(tmp_path):
         assert nmt(device) is NmtState.OPERATIONAL
 
     rig_test(cfg, scenario)
+
+
+def test_the_applications_own_nmt_commands_are_expected_not_healed(tmp_path):
+    """A stop or pre-operational this process sends (the network's NMT service, a remote
+    node's nmt) is what the master expects from then on: no UnexpectedState, no command
+    back; a start later makes the node supervised again."""
+    cfg = network(tmp_path, net_text(("a", 5, "")))
+
+    async def scenario(rig: Rig) -> None:
+        await booted(rig, 5)
+        device = rig.devices[5]
+        node = rig.master.nodes[5]
+        rig.master.network.nmt.stop(5)
+        await rig.run(1.0)
+        assert nmt(device) is NmtState.STOPPED and node.expected_nmt is NmtState.STOPPED
+        assert rig.of(UnexpectedState) == [] and problem(node) is None
+        remote = rig.master.network.add_remote(5)
+        remote.nmt.enter_preoperational()
+        await rig.run(1.0)
+        assert nmt(device) is NmtState.PRE_OPERATIONAL
+        rig.master.network.nmt.start(5)
+        await rig.run(0.3)
+        device.set(0x2000, 0, 9)
+        await rig.run(0.2)
+        assert rig.master.inputs["a.counter"] == 9
+        assert rig.of(UnexpectedState) == [] and rig.of(StateRestored) == []
+        assert diagnostic(node) is Diagnostic.OK
+
+    rig_test(cfg, scenario)
+
+
+def test_a_command_back_that_does_not_take_is_tried_again_then_given_up(tmp_path):
+    """The node ignores the start sent back (lost, or refused): the master checks, tries
+    again, and after 3 commands says it leaves the node as it is."""
+    cfg = network(tmp_path, net_text(("a", 5, "")))
+
+    async def scenario(rig: Rig) -> None:
+        await booted(rig, 5)
+        device = rig.devices[5]
+        node = rig.master.nodes[5]
+        rig.send(0x000, bytes([0x80, 5]))
+        await rig.run(0.1)
+        host, device._nmt_host = device._nmt_host, None  # deaf to NMT from now on
+        since = rig.net.time()
+        await rig.run(5.0)
+        starts = [d for d in rig.data(0x000, since=since) if d == bytes([0x01, 5])]
+        assert len(starts) == 3
+        assert "left as it is" in (problem(node) or "")
+        device._nmt_host = host
+
+    rig_test(cfg, scenario)
+
+
+def test_the_masters_own_stop_and_start_clear_a_pending_command_back(tmp_path):
+    cfg = network(tmp_path, net_text(("a", 5, "")))
+
+    async def scenario(rig: Rig) -> None:
+        await booted(rig, 5)
+        node = rig.master.nodes[5]
+        rig.send(0x000, bytes([0x80, 5]))
+        await rig.run(0.15)  # noticed; the command back is pending
+        assert problem(node) == "reports PRE_OPERATIONAL; bringing it back to OPERATIONAL"
+        rig.master.network.nmt.start(0)  # the application starts everything itself
+        await rig.run(0.5)
+        assert problem(node) is None and nmt(rig.devices[5]) is NmtState.OPERATIONAL
+
+    rig_test(cfg, scenario)

@@ -360,3 +360,42 @@ def test_error_frames_of_others_on_a_virtual_bus_do_not_flip_our_state():
     finally:
         hub.shutdown()
     assert error_frames_are_local(RefusingBus())
+
+
+def test_others_error_frames_on_the_simulated_clock_and_through_a_faulty_bus():
+    """The same on the simulated clock, and through cobus.sim.FaultyBus wrapping a virtual
+    bus (its own bus-off still counts); python-can's ThreadSafeBus is seen through."""
+    import os
+
+    from cobus.runtime.bus import error_frames_are_local
+    from cobus.sim import FaultyBus
+
+    channel = f"errors-sim-{os.getpid()}"
+    other = can.Bus(interface="virtual", channel=channel)
+
+    async def main():
+        states = []
+        for bus in (
+            can.Bus(interface="virtual", channel=channel),
+            FaultyBus(can.Bus(interface="virtual", channel=channel)),
+        ):
+            async with AsyncNetwork(bus) as net:
+                other.send(error_frame(0x040))
+                await net.sleep(0.05)
+                states.append(net.bus_state)
+                if isinstance(bus, FaultyBus):
+                    bus.bus_off()  # the wrapper's own controller: this one counts
+                    await net.sleep(0.05)
+                    states.append(net.bus_state)
+            bus.shutdown()
+        return states
+
+    try:
+        assert simulate(main()) == [BusState.ACTIVE, BusState.ACTIVE, BusState.BUS_OFF]
+        safe = can.ThreadSafeBus(interface="virtual", channel=channel)
+        try:
+            assert not error_frames_are_local(safe)
+        finally:
+            safe.shutdown()
+    finally:
+        other.shutdown()

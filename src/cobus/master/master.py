@@ -124,6 +124,14 @@ class Master:
             self.nodes[node_id] = ManagedNode(self, node_config)
             for layout in node_config.rpdos:
                 self._rpdos[(node_id, layout.number)] = layout
+        # The NMT commands this process sends (the application's, the master's own) set the
+        # state a node is expected in; a change nobody here asked for is "unexpected".
+        network.nmt.add_observer(self._on_nmt_sent)
+
+    def _on_nmt_sent(self, command: int, node_id: int) -> None:
+        for node in self.nodes.values() if node_id == 0 else [self.nodes.get(node_id)]:
+            if node is not None:
+                node._commanded(command)
 
     # ================================================================== state
 

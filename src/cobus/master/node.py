@@ -128,6 +128,7 @@ class ManagedNode:
         self._first_check: asyncio.TimerHandle | None = None
         #: A pending NMT command bringing the node back to the state the master expects.
         self._heal: asyncio.TimerHandle | None = None
+        self._unexpected = False  # an UnexpectedState not yet followed by StateRestored
         self._heals: list[float] = []  # when the last heals were sent (a limit per window)
         self._guard: _guarding.GuardingMaster | None = None
         self._guard_host: MachineHost | None = None
@@ -323,6 +324,8 @@ class ManagedNode:
         self._stop_supervision()
         self._clear_flags()
         self.expected_nmt = None
+        self._heal_done()
+        self._heals.clear()  # (a new boot: a new count of commands back)
         self.step_results.clear()  # (what the steps say of this boot only)
         self.boot_count += 1
         if cfg.do_not_initialise:
@@ -548,6 +551,7 @@ class ManagedNode:
 
     def _started(self, now: float) -> None:
         """The master sent the NMT start (to this node or to all)."""
+        self._heal_done()
         self.expected_nmt = NmtState.OPERATIONAL
         self.nmt_state = NmtState.OPERATIONAL
         self._rebooted = False
@@ -564,6 +568,7 @@ class ManagedNode:
 
     def _stopped(self) -> None:
         """The master sent an NMT stop to this node (or to all)."""
+        self._heal_done()
         self.expected_nmt = NmtState.STOPPED
         self.nmt_state = NmtState.STOPPED
         self._disarm_watchdogs()
@@ -730,6 +735,7 @@ class ManagedNode:
             and self._state is NodeState.OPERATIONAL
         ):
             self.master._emit(UnexpectedState(self.node_id, expected, state))
+            self._unexpected = True
             self._disarm_watchdogs()
             if self.config.zero_inputs:
                 self.master.image.zero_inputs(self.node_id)
@@ -743,9 +749,10 @@ class ManagedNode:
             # back in operational: supervise the TPDOs again
             self._started(self.master.network.time())
         if expected is not None and state is expected and old is not None and old is not state:
-            if self.problem is not None and self.problem.startswith("reports "):
-                self.problem = None
-            self.master._emit(StateRestored(self.node_id, state))
+            self._heal_done()
+            if self._unexpected:
+                self._unexpected = False
+                self.master._emit(StateRestored(self.node_id, state))
 
     #: At most this many NMT commands bring a node back within HEAL_WINDOW seconds; a node
     #: that keeps leaving the expected state after that is left as it is (and says so).
@@ -760,31 +767,47 @@ class ManagedNode:
         fault): with ``restart: auto`` it gets the command back, a few times at most; with
         ``restart: manual`` it waits for the application (``master.restart``)."""
         if self.config.restart == "manual":
-            self.problem = f"reports {state.name}; waiting for a manual restart"
+            self._say(f"reports {state.name}; waiting for a manual restart")
             return
         network = self.master.network
         now = network.time()
         self._heals = [t for t in self._heals if now - t < self.HEAL_WINDOW]
         if len(self._heals) >= self.HEAL_LIMIT:
-            self.problem = (
+            self._say(
                 f"reports {state.name} again after {self.HEAL_LIMIT} commands back to "
                 f"{expected.name} within {self.HEAL_WINDOW:g} s: left as it is"
             )
             return
         if self._heal is not None:
             self._heal.cancel()
-        self.problem = f"reports {state.name}; bringing it back to {expected.name}"
+        self._say(f"reports {state.name}; bringing it back to {expected.name}")
         self._heal = network.loop.call_later(self.HEAL_DELAY, self._send_back)
+
+    def _say(self, text: str) -> None:
+        """Show ``text`` as the node's problem unless another problem is shown already."""
+        if self.problem is None or self.problem.startswith("reports "):
+            self.problem = text
+
+    def _heal_done(self) -> None:
+        """The node is where the master wants it (or the master took over): no command
+        back is pending and the 'reports ...' text goes."""
+        if self._heal is not None:
+            self._heal.cancel()
+            self._heal = None
+        if self.problem is not None and self.problem.startswith("reports "):
+            self.problem = None
 
     def _send_back(self) -> None:
         self._heal = None
         expected = self.expected_nmt
         if (
             expected is None
-            or self.nmt_state is expected
             or self._state is not NodeState.OPERATIONAL
             or not self.master.network.connected
         ):
+            return
+        if self.nmt_state is expected:
+            self._heal_done()
             return
         command = {
             NmtState.OPERATIONAL: "start",
@@ -793,8 +816,44 @@ class ManagedNode:
         }.get(expected)
         if command is None:
             return
-        self._heals.append(self.master.network.time())
-        getattr(self.master.network.nmt, command)(self.node_id)
+        network = self.master.network
+        self._heals.append(network.time())
+        try:
+            getattr(network.nmt, command)(self.node_id)
+        except Exception as exc:  # (a full transmit backlog, a closed network)
+            network._report_failure(f"master: node {self.node_id} NMT {command}", exc)
+        # Did it take? If the node still reports the old state, count it and try again.
+        check = max(self.HEAL_DELAY, 2 * (self.config.heartbeat_consumer_time or 0.5))
+        self._heal = network.loop.call_later(check, self._check_back)
+
+    def _check_back(self) -> None:
+        self._heal = None
+        expected, state = self.expected_nmt, self.nmt_state
+        if expected is None or state is None or self._state is not NodeState.OPERATIONAL:
+            return
+        if state is expected:
+            self._heal_done()
+        else:
+            self._bring_back(expected, state)
+
+    def _commanded(self, command: int) -> None:
+        """This process sent NMT ``command`` to the node (the application or the master): the
+        state it asks for is the one expected from now on."""
+        wanted = {
+            0x01: NmtState.OPERATIONAL,
+            0x02: NmtState.STOPPED,
+            0x80: NmtState.PRE_OPERATIONAL,
+        }.get(command)
+        if wanted is None or self._state is not NodeState.OPERATIONAL:
+            return  # (a reset: the boot-up that follows is handled; a node not running yet)
+        self._heal_done()
+        if wanted is self.expected_nmt:
+            return
+        self.expected_nmt = wanted
+        if wanted is not NmtState.OPERATIONAL:
+            self._disarm_watchdogs()
+            if self.config.zero_inputs:
+                self.master.image.zero_inputs(self.node_id)
 
     def _on_bootup(self) -> None:
         """The node sent its boot-up message."""

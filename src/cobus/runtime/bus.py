@@ -168,7 +168,16 @@ def error_frames_are_local(bus: can.BusABC) -> bool:
     (SocketCAN, PCAN, Kvaser... report theirs). On python-can's ``virtual`` bus,
     python-can-remote and ``udp_multicast`` every participant sees the error frames the
     others inject: they must not flip this network's bus state."""
-    return not type(bus).__module__.startswith(_SHARED_MEDIA)
+    # (cobus.sim.FaultyBus is local: it drops the error frames of others its inner bus
+    # hears, and its own bus-off frames are its controller's)
+    cls = bus.__class__  # (python-can's ThreadSafeBus is a proxy: this is the wrapped class)
+    modules = [klass.__module__ for klass in cls.__mro__]
+    if any(m.startswith("can_remote") for m in modules):
+        # python-can-remote forwards what its server's bus sees: a real controller's error
+        # frames (socketcan ...) are ours, a virtual bus's are other participants'.
+        info = str(getattr(bus, "channel_info", "")).lower()
+        return not info.startswith(("virtual", "udp"))
+    return not any(m.startswith(_SHARED_MEDIA) for m in modules)
 
 
 def readable_fd(bus: can.BusABC) -> int | None:

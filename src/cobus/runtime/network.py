@@ -676,6 +676,7 @@ class AsyncNetwork:
 
     # -- receivers: a file descriptor on the loop, a thread, or a poll hook (simulated clock)
     def _start_receiving(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
+        self._errors_local = _bus.error_frames_are_local(bus)
         if isinstance(loop, SimulatedEventLoop):
             self._poll_hook = self._poll
             loop.add_poll_hook(self._poll)
@@ -695,7 +696,6 @@ class AsyncNetwork:
             self._reader.start()
         if _bus.interface_reports_state(bus):
             self._state_poll = loop.call_later(0.5, self._poll_state)
-        self._errors_local = _bus.error_frames_are_local(bus)
 
     def _stop_receiving(self, loop: asyncio.AbstractEventLoop) -> None:
         if self._poll_hook is not None and isinstance(loop, SimulatedEventLoop):

@@ -25,7 +25,7 @@ from cobus.proto.heartbeat import (
     HeartbeatResumed,
     RemoteStateChanged,
 )
-from cobus.proto.nmt import NmtCommand, NmtState, nmt_command_frame
+from cobus.proto.nmt import NmtCommand, NmtState
 from cobus.runtime._service import Callbacks, Waiters, removed_error
 
 if TYPE_CHECKING:
@@ -141,7 +141,7 @@ class RemoteNmt:
         from cobus.runtime.remote import parse_nmt_command
 
         parsed = parse_nmt_command(command)
-        self._network.send(nmt_command_frame(parsed, self.node_id))
+        self._network.nmt.send(parsed, self.node_id)  # (observers of the network's NMT see it)
         self.commanded = NmtCommand(parsed)
         self._reset_answered = False
 

@@ -28,7 +28,7 @@ from cobus.runtime._service import removed_error
 from cobus.runtime.network import NetworkClosedError
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator
+    from collections.abc import Callable, Iterator
 
     from cobus.od import Array, Object, ObjectDictionary, Record, Variable
     from cobus.runtime.emcy import RemoteEmcy
@@ -563,6 +563,7 @@ class NmtMaster(NmtCommands):
 
     def __init__(self, network: AsyncNetwork) -> None:
         self._network = network
+        self._observers: list[Callable[[int, int], object]] = []
 
     def send(self, command: NmtCommand | int | str, node_id: int = 0) -> None:
         """Send NMT ``command`` (enum, number or name such as ``"start"``) to ``node_id`` (0: every
@@ -570,6 +571,22 @@ class NmtMaster(NmtCommands):
         command = parse_nmt_command(command)
         check_node_id(node_id, broadcast=True)
         self._network.send(nmt_command_frame(command, node_id))
+        for observer in list(self._observers):
+            try:
+                observer(int(command), node_id)
+            except Exception as exc:
+                self._network._report_failure("NMT command observer", exc)
+
+    def add_observer(self, callback: Callable[[int, int], object]) -> None:
+        """Call ``callback(command, node_id)`` for each NMT command this network sends (here
+        or through a remote node's ``nmt``): a master learns the states its own application
+        asks for, and tells them from someone else's commands on the bus."""
+        self._observers.append(callback)
+
+    def remove_observer(self, callback: Callable[[int, int], object]) -> None:
+        """Stop calling ``callback`` (see :meth:`add_observer`)."""
+        if callback in self._observers:
+            self._observers.remove(callback)
 
 
 class RemoteNode:

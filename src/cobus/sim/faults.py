@@ -121,6 +121,10 @@ class FaultyBus(can.BusABC):
                 f"direction {direction!r} is not one of 'both', 'tx' (sent), 'rx' (received)"
             )
         self.inner = inner
+        from cobus.runtime.bus import error_frames_are_local
+
+        #: Error frames the wrapped bus receives are other participants' (a virtual bus).
+        self._foreign_errors = not error_frames_are_local(inner)
         self._loss = _rate(loss, "frame loss rate")
         self._corruption = _rate(corruption, "frame corruption rate")
         self._rng = random.Random(seed)
@@ -220,8 +224,13 @@ class FaultyBus(can.BusABC):
         wait = timeout
         while True:
             msg = self.inner.recv(wait)
-            if msg is None or msg.is_error_frame:
+            if msg is None:
                 return msg, False
+            if msg.is_error_frame:
+                if not self._foreign_errors:
+                    return msg, False
+                continue  # another participant's error frame on a software hub: not ours
+
             wait = 0.0  # a frame was lost: take the next one that is already waiting
             if self._bus_off:
                 continue
