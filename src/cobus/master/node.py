@@ -720,8 +720,21 @@ class ManagedNode:
         self._ec_lost = False
         self._toggle_fault = False
         self.master._emit(ErrorControlRestored(self.node_id, kind, state))
-        if self._state is NodeState.ERROR_CONTROL:
-            self._spawn("reset")
+        if self._state is not NodeState.ERROR_CONTROL:
+            return
+        if (
+            state is NmtState.OPERATIONAL
+            and self.expected_nmt is NmtState.OPERATIONAL
+            and not self._rebooted
+        ):
+            # The cheap check: its own report says it never re-booted (a re-booted node
+            # comes back pre-operational, with a boot-up) - its configuration is intact,
+            # so it goes on as it is. Only a real re-boot costs a full reconfiguration:
+            # on a lossy bus a node then degrades for a moment instead of collapsing.
+            self.problem = None
+            self._started(self.master.network.time())
+            return
+        self._spawn("reset")
 
     def _reported(self, state: NmtState) -> None:
         """The node reports ``state`` by heartbeat or guarding."""
