@@ -589,7 +589,7 @@ def test_the_masters_own_stop_and_start_clear_a_pending_command_back(tmp_path):
 
 
 def test_half_the_frames_lost_the_nodes_degrade_but_never_collapse(tmp_path):
-    """Issue 17: under 50 % frame loss for 20 s a lost heartbeat used to trigger a full
+    """Issue 17: under 50 % frame loss for 60 s a lost heartbeat used to trigger a full
     re-boot that could not finish, so every node was down the whole time. With the cheap
     check (its own heartbeat says it never re-booted) no node is reset, each stays
     NMT-operational, is seen operational between lost heartbeats, and all are back within
@@ -624,7 +624,7 @@ def test_half_the_frames_lost_the_nodes_degrade_but_never_collapse(tmp_path):
             faulty.reseed(7)
             faulty.loss = 0.5
             up = {5: 0, 6: 0}
-            samples = 200
+            samples = 600  # 60 s
             for _ in range(samples):
                 await controller.sleep(0.1)
                 for n in up:
