@@ -78,6 +78,8 @@ def test_heartbeat_loss_is_99_and_the_node_recovers_when_it_comes_back(tmp_path)
         assert lost[1] == ErrorControlLost(5, "heartbeat")
         assert lost[0] - lost_at <= 0.1 * 1.5 + 0.1 + 1e-9  # within the consumer time
         boots, commands = node.boot_count, len(rig.data(0x000))
+        rig.master.set_output("a.setpoint", 7)  # set while the node is away
+        since = rig.net.time()
         device.set(0x1017, 0, 100)  # it speaks again, still operational: it never re-booted
         device.set(0x2000, 0, 43)
         await rig.run(1.0)
@@ -89,6 +91,7 @@ def test_heartbeat_loss_is_99_and_the_node_recovers_when_it_comes_back(tmp_path)
         assert nmt(device) is NmtState.OPERATIONAL and device.get(0x1017) == 100
         assert diagnostic(node) is Diagnostic.OK
         assert rig.master.inputs["a.counter"] == 43  # its process data flows again
+        assert rig.data(0x205, since=since) != []  # the output set meanwhile reaches it
         # Back pre-operational after a silence (a re-boot whose boot-up was lost): that
         # one is reset and configured again.
         device.set(0x1017, 0, 0)

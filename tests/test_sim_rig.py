@@ -340,11 +340,25 @@ def test_a_missing_device_module_is_reported_when_the_rig_starts(tmp_path, monke
             "faults: [{at: 1, node: 3, fault: battery, bdi: 50, colour: red}]",
             "battery takes bdi .*; not colour",
         ),
+        (
+            "devices: [{node: 3, kind: eds}]\n"
+            "faults: [{at: 1, node: 3, fault: babbling, period_us: fast}]",
+            "babbling: period_us 'fast' must be a number",
+        ),
     ],
 )
 def test_rig_file_errors_say_where_and_what(text, message):
     with pytest.raises(RigError, match=message):
         Rig.loads(text, path="bench.yaml")
+
+
+def test_an_optional_fault_parameter_may_be_null():
+    Rig.loads(
+        "devices: [{node: 3, kind: cia402_drive}]\nfaults:\n"
+        "  - {at: 1, fault: frame_loss, rate: 0.1, seed: null}\n"
+        "  - {at: 2, fault: bus_off, duration: ~}\n"
+        "  - {at: 3, node: 3, fault: drive_fault, register: null}\n"
+    )
 
 
 def test_errors_found_when_the_rig_starts(tmp_path):

@@ -733,6 +733,8 @@ class ManagedNode:
             # on a lossy bus a node then degrades for a moment instead of collapsing.
             self.problem = None
             self._started(self.master.network.time())
+            if self.master.running:  # outputs set while it was away reach it now
+                self.master._send_all_rpdos([self])
             return
         self._spawn("reset")
 

@@ -377,7 +377,7 @@ def check_fault_parameters(
     if unknown:
         raise FaultParameterError(f"{fault} takes {takes}; not {', '.join(unknown)}")
     for name, kind in spec.items():
-        if name not in params:
+        if name not in params or (params[name] is None and kind.endswith("?")):
             if not kind.endswith("?"):
                 raise FaultParameterError(f"{fault} needs {name}; it takes {takes}")
             continue

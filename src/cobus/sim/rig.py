@@ -245,7 +245,7 @@ class Rig:
     def _check_params(self, i: int, fault: FaultSpec, where: str) -> None:
         """The fault's parameters, checked now rather than when it fires."""
         device: type[SimulatedDevice] | None = None
-        if fault.node is not None:
+        if fault.node is not None and fault.fault not in BUS_FAULTS:  # (babbling as a node)
             spec = next(s for s in self.specs if s.node == fault.node)
             try:
                 device = resolve_kind(spec.kind)
