@@ -54,6 +54,9 @@ def test_mutated_yaml_files_give_typed_errors_only(
 @pytest.mark.parametrize("kept", sorted((Path(__file__).parent / "data/fuzz").glob("*")))
 def test_inputs_that_once_broke_a_loader(kept: Path, tmp_path: Path) -> None:
     kind = kept.name.split("-")[0]
+    if kind == "eds":  # (this one: a mapping count of billions looped in render_markdown)
+        try_eds(kept.read_bytes(), kept.name)
+        return
     source = {
         "network": EXAMPLES / "networks/line.yml",
         "rig": Path(__file__).parent.parent / "src/cobus/sim/rigs/thesis.yaml",

@@ -1608,8 +1608,8 @@ def _pdo_steps(
         count = count_var.value if count_var is not None else None
         if count_var is not None and count_var.writable and isinstance(count, int):
             writes.add(count_var, 0, f"{label}: clear mapping")
-            for sub in range(1, count + 1):
-                var = mapping.get(sub)
+            for sub in sorted(k for k in mapping.subindices if 1 <= k <= count):
+                var = mapping.get(sub)  # (the sub-indexes there are: a count may be damaged)
                 if var is not None and isinstance(var.value, int):
                     writes.add(var, var.value, f"{label}: map")
             writes.add(count_var, count, f"{label}: mapped objects")

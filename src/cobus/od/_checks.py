@@ -29,11 +29,11 @@ def mapping_entries(obj: Record | Array) -> list[tuple[Variable, int, int, int]]
     count = count_var.value if count_var is not None else None
     out = []
     subs = obj.subindices
-    wanted = range(1, count + 1) if isinstance(count, int) else range(1, max(subs, default=0) + 1)
-    for sub in wanted:
-        var = subs.get(sub)
-        if var is None:
-            continue
+    # (only the sub-indexes that exist: a damaged count of 4 billion must not loop 4 billion
+    # times - the fuzzer's mapping whose sub 0 became a huge number took 97 s)
+    last = count if isinstance(count, int) else max(subs, default=0)
+    for sub in sorted(k for k in subs if 1 <= k <= last):
+        var = subs[sub]
         value = var.value
         if not isinstance(value, int) or (value == 0 and not isinstance(count, int)):
             continue
