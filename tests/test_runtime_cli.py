@@ -13,6 +13,7 @@ from cobus.device import export_eds
 from cobus.proto import Frame
 from cobus.runtime import Network
 from cobus.sim import Rig, start_rig
+from tests.util import Terminal
 
 RIG = """
 bus: embedded
@@ -88,26 +89,10 @@ def test_sdo_upload_and_download_show_a_progress_bar_on_a_terminal(
 ) -> None:
     """stderr on a (pseudo-)terminal: a rich progress bar with bytes, gone once done;
     segmented (no --block) so the transfer takes many frames."""
-    import pty
-    import threading
 
     monkeypatch.setenv("COLUMNS", "120")
-    leader, follower = pty.openpty()
-    terminal = open(follower, "w", buffering=1)  # noqa: SIM115 - closed below
-    chunks: list[bytes] = []
-
-    def read() -> None:
-        while True:
-            try:
-                got = os.read(leader, 65536)
-            except OSError:
-                return
-            if not got:
-                return
-            chunks.append(got)
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
+    term = Terminal()
+    terminal = term.file
     channel = f"cli-progress-{os.getpid()}"
     out = tmp_path / "stored.eds"
     monkeypatch.setattr("sys.stderr", terminal)
@@ -122,11 +107,9 @@ def test_sdo_upload_and_download_show_a_progress_bar_on_a_terminal(
             assert main(["sdo", "download", "10", "0x1021", "0", str(small), *bus]) == 1
     finally:
         monkeypatch.undo()
-        terminal.close()
-    reader.join(5)
-    os.close(leader)
+        term.close()
     assert out.read_bytes().startswith(b"[FileInfo]")
-    shown = b"".join(chunks).decode(errors="replace")
+    shown = term.text()
     assert "upload 1021h:00" in shown and "/" in shown and "kB" in shown
     assert "download 1021h:00" in shown  # the bar, then the refusal
     assert "node 10 1021h:00 Store EDS:" in shown

@@ -17,6 +17,7 @@ from cobus.device import export_eds
 from cobus.proto import Frame
 from cobus.runtime import Network
 from cobus.sim import Rig, start_rig
+from tests.util import Terminal
 
 RIG = """
 bus: embedded
@@ -157,26 +158,11 @@ def test_monitor_on_a_terminal_fits_its_records_below_the_node_table(
 ) -> None:
     """On a terminal (a pseudo-terminal here) the live view never grows past the screen:
     the newest records that fit, below the node table."""
-    import pty
 
     monkeypatch.setenv("COLUMNS", "100")
     monkeypatch.setenv("LINES", "18")
-    leader, follower = pty.openpty()
-    screen = open(follower, "w", buffering=1)  # noqa: SIM115 - closed below
-    chunks: list[bytes] = []
-
-    def read() -> None:
-        while True:
-            try:
-                got = os.read(leader, 65536)
-            except OSError:
-                return
-            if not got:
-                return
-            chunks.append(got)
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
+    term = Terminal()
+    screen = term.file
     channel = f"monitor-tty-{os.getpid()}"
     rig = RIG.replace("name: servo}", "name: servo, options: {heartbeat_ms: 10}}")
     monkeypatch.setattr("sys.stdout", screen)
@@ -198,11 +184,9 @@ def test_monitor_on_a_terminal_fits_its_records_below_the_node_table(
             monitor.join()
     finally:
         monkeypatch.undo()
-        screen.close()
-    reader.join(5)
-    os.close(leader)
+        term.close()
     assert result == [0]
-    text = b"".join(chunks).decode(errors="replace")
+    text = term.text()
     last = text.rsplit("nodes —", 1)[1]  # the last picture, from the table's title
     assert last.count("\n") <= 18
     assert "node 10 heartbeat" in last and "..." not in last

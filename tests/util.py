@@ -28,3 +28,47 @@ def until(check: Callable[[], object], timeout: float = 2.0) -> None:
         if time.monotonic() > deadline:
             raise AssertionError("condition not reached in time")
         time.sleep(0.005)
+
+
+class Terminal:
+    """A pseudo-terminal for a command's output: ``file`` is what the command writes to (a
+    tty), ``text()`` what the terminal received. Use it as a context manager."""
+
+    def __init__(self) -> None:
+        import os
+        import pty
+        import threading
+
+        self._leader, follower = pty.openpty()
+        self.file = open(follower, "w", buffering=1)  # noqa: SIM115 - closed in close()
+        self._chunks: list[bytes] = []
+
+        def read() -> None:
+            while True:
+                try:
+                    got = os.read(self._leader, 65536)
+                except OSError:
+                    return
+                if not got:
+                    return
+                self._chunks.append(got)
+
+        self._reader = threading.Thread(target=read, daemon=True)
+        self._reader.start()
+
+    def close(self) -> None:
+        import os
+
+        if not self.file.closed:
+            self.file.close()
+            self._reader.join(5)
+            os.close(self._leader)
+
+    def text(self) -> str:
+        return b"".join(self._chunks).decode(errors="replace")
+
+    def __enter__(self) -> Terminal:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -46,6 +46,22 @@ def _kinds(text: str) -> set[str]:
     return kinds
 
 
+def add_decoder_options(parser: argparse.ArgumentParser) -> None:
+    """``--eds NODE=FILE`` (repeatable) and ``--network FILE``: what the decoder names,
+    types and scales by (decode, monitor and plot take the same)."""
+    parser.add_argument(
+        "--eds",
+        type=_eds,
+        action="append",
+        default=[],
+        metavar="NODE=FILE",
+        help="a node's EDS/DCF: names, types, PDO mappings (repeatable)",
+    )
+    parser.add_argument(
+        "--network", type=Path, help="a network description: its nodes' EDS and PDO signals"
+    )
+
+
 def register(sub: Any) -> None:
     """Add ``cobus decode`` and ``cobus record``."""
     decode = sub.add_parser(
@@ -55,17 +71,7 @@ def register(sub: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     decode.add_argument("file", type=Path, help="a trace file python-can reads")
-    decode.add_argument(
-        "--eds",
-        type=_eds,
-        action="append",
-        default=[],
-        metavar="NODE=FILE",
-        help="a node's EDS/DCF: names, types, PDO mappings (repeatable)",
-    )
-    decode.add_argument(
-        "--network", type=Path, help="a network description: its nodes' EDS and PDO signals"
-    )
+    add_decoder_options(decode)
     decode.add_argument("--filter", type=_kinds, help=f"only these kinds ({','.join(_KINDS)})")
     decode.add_argument("--node", type=int, help="only records of this node-ID")
     decode.add_argument("--json", action="store_true", help="one JSON object per line")

@@ -25,7 +25,6 @@ import sys
 import time
 from collections import deque
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 from cobus._args import add_bus_options, bus_options, seconds
@@ -37,7 +36,7 @@ _REOPEN = 1.0  # seconds before a failed bus is opened again
 
 def register(sub: Any) -> None:
     """Add ``cobus monitor``."""
-    from cobus.trace._cli import _eds, _kinds
+    from cobus.trace._cli import _kinds, add_decoder_options
 
     p = sub.add_parser(
         "monitor",
@@ -45,17 +44,7 @@ def register(sub: Any) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument(
-        "--eds",
-        type=_eds,
-        action="append",
-        default=[],
-        metavar="NODE=FILE",
-        help="a node's EDS/DCF (repeatable)",
-    )
-    p.add_argument(
-        "--network", type=Path, help="a network description: its nodes' EDS and PDO signals"
-    )
+    add_decoder_options(p)
     p.add_argument("--filter", type=_kinds, help="only these kinds (nmt,hb,sync,sdo,pdo,...)")
     p.add_argument("--node", type=int, help="only records of this node-ID")
     p.add_argument("--duration", type=seconds, help="seconds to run (default: until q/Ctrl-C)")

@@ -237,15 +237,19 @@ class PcapReader(BinaryIOMessageReader):
             try:  # the header, the link type: a foreign file is refused here
                 self._first = next(self._packets, None)
             except (ValueError, dpkt.Error, struct.error) as exc:
-                text = str(exc).removeprefix(f"{self._name}: ") or type(exc).__name__
-                if text.startswith(("link type", "not a pcap")):
-                    raise ValueError(f"{self._name}: {text}") from None
-                raise ValueError(
-                    f"{self._name}: packet 1 is damaged or the file is truncated ({text})"
-                ) from None
+                raise self._damaged(1, exc) from None
         except BaseException:
             self.stop()
             raise
+
+    def _damaged(self, number: int, exc: BaseException) -> ValueError:
+        """The error for a file the reader cannot go on with at packet ``number``."""
+        text = str(exc).removeprefix(f"{self._name}: ") or type(exc).__name__
+        if text.startswith(("link type", "not a pcap")):
+            return ValueError(f"{self._name}: {text}")
+        return ValueError(
+            f"{self._name}: packet {number} is damaged or the file is truncated ({text})"
+        )
 
     def _pcap(self) -> Iterator[tuple[float, bytes, str | None]]:
         try:
@@ -342,13 +346,7 @@ class PcapReader(BinaryIOMessageReader):
                 except StopIteration:
                     break
                 except (ValueError, dpkt.Error, struct.error) as exc:
-                    text = str(exc).removeprefix(f"{self._name}: ") or type(exc).__name__
-                    if text.startswith(("link type", "not a pcap")):
-                        raise ValueError(f"{self._name}: {text}") from None
-                    raise ValueError(
-                        f"{self._name}: packet {number} is damaged or the file is truncated "
-                        f"({text})"
-                    ) from None
+                    raise self._damaged(number, exc) from None
                 ts, buf, channel = item
                 if self._in.short or not buf:
                     raise ValueError(

@@ -213,7 +213,7 @@ def plot(
 
 def register(sub: Any) -> None:
     """Add ``cobus plot``."""
-    from cobus.trace._cli import _eds
+    from cobus.trace._cli import add_decoder_options
 
     p = sub.add_parser(
         "plot",
@@ -223,15 +223,7 @@ def register(sub: Any) -> None:
     )
     p.add_argument("file", type=Path, help="a trace file (.asc .blf .log .trc .csv .pcap ...)")
     p.add_argument("signal", nargs="*", help="NAME or NODE:NAME of a PDO-mapped object")
-    p.add_argument(
-        "--eds",
-        type=_eds,
-        action="append",
-        default=[],
-        metavar="NODE=FILE",
-        help="a node's EDS/DCF: names, types, PDO mappings (repeatable)",
-    )
-    p.add_argument("--network", type=Path, help="a network description: its nodes' EDS files")
+    add_decoder_options(p)
     p.add_argument("-o", "--output", type=Path, help="the PNG (default: the trace's name .png)")
     p.add_argument("--from", dest="start", type=seconds_or_zero, help="first second shown")
     p.add_argument("--to", dest="end", type=seconds_or_zero, help="last second shown")
