@@ -19,8 +19,9 @@ from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from cobus.device._core import Core
 from cobus.device._entries import Entry, check_value, decode_download, zero_value
-from cobus.device._gates import Knobs, LateSdoServer, MutableHeartbeat
+from cobus.device._gates import LateSdoServer, MutableHeartbeat
 from cobus.device.eds_export import export_eds
 from cobus.device.errors import (
     DeviceConfigError,
@@ -31,7 +32,6 @@ from cobus.device.errors import (
 )
 from cobus.device.events import (
     Booted,
-    ConfigurationProblem,
     DeviceEvent,
     EmergencySent,
     EntryWritten,
@@ -87,7 +87,6 @@ from cobus.proto.pdo import (
     tpdo_default_can_id,
 )
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer, SdoServerBackend
-from cobus.runtime.events import HandlerFailed
 
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, MachineHost, Subscription
@@ -235,7 +234,7 @@ class _SdoBackend:
         self._device._sdo_download(index, subindex, data)
 
     def size_hint(self, index: int, subindex: int) -> int | None:
-        entry = self._device._entry(index, subindex)
+        entry = self._device._core.entry(index, subindex)
         if not entry.var.access.writable:
             raise _abort(_ABORT.WRITE_READ_ONLY, f"{entry.var.name!r} is {entry.var.access}")
         return entry.size
@@ -328,7 +327,7 @@ class Device:
             )
         self.network = network
         self.od = od
-        self._node_id = node_id
+        self._core = Core(network, od, node_id, self.deviations)
         self._sdo_timeout = float(sdo_timeout)
         if storage is None:
             self._storage: ParameterStorage = MemoryStorage()
@@ -337,21 +336,9 @@ class Device:
         else:
             self._storage = storage
         self._storage_failed = False
-        self._entries: dict[int, Entry] = {}
-        self._indices: set[int] = set()
-        for var in od.variables():
-            if var.index < 0x1000:  # data type definitions and dummies
-                continue
-            entry = Entry(var)
-            self._entries[entry.key] = entry
-        self._listeners: list[Listener] = []
         self._backend = _SdoBackend(self)
-        self._knobs = Knobs()
-        self._started = False
         self._closed = False
-        self._operational = False
         # communication state, rebuilt by every reset communication
-        self.nmt = NmtSlave(node_id)
         self._nmt_host: MachineHost | None = None
         self._nmt_sub: Subscription | None = None
         self._emcy = EmcyProducer(node_id, depth=self._history_depth(), queue_size=emcy_queue_size)
@@ -379,7 +366,6 @@ class Device:
         self._rpdos: dict[int, Rpdo] = {}
         self._sync_tpdos: list[Tpdo] = []
         self._sync_rpdos: list[Rpdo] = []
-        self._handlers: dict[int, Callable[[Entry, Any], None]] = {}
         self._install_handlers()
         _SERVED[id(od)] = weakref.ref(self)
 
@@ -388,16 +374,21 @@ class Device:
     @property
     def node_id(self) -> int:
         """The node-ID the device answers to; setting it changes it at run time."""
-        return self._node_id
+        return self._core.node_id
 
     @node_id.setter
     def node_id(self, node_id: int) -> None:
         self.set_node_id(node_id)
 
     @property
+    def nmt(self) -> NmtSlave:
+        """The NMT slave machine of the current communication."""
+        return self._core.nmt
+
+    @property
     def state(self) -> NmtState:
         """The NMT state."""
-        return self.nmt.state
+        return self._core.nmt.state
 
     @property
     def error_register(self) -> ErrorRegister:
@@ -410,7 +401,7 @@ class Device:
         return self._emcy.history
 
     def __repr__(self) -> str:
-        return f"Device({self._node_id}, {self.nmt.state.name})"
+        return f"Device({self._core.node_id}, {self._core.nmt.state.name})"
 
     def __getitem__(self, index: Key) -> _ObjectView:
         obj = self.od.get(index)
@@ -435,7 +426,7 @@ class Device:
         channels the device serves itself, not on those of an owner that serves
         :attr:`sdo_backend` (``Deviations(serve_sdo=False)``).
         """
-        return self._knobs.sdo_delay
+        return self._core.knobs.sdo_delay
 
     @sdo_response_delay.setter
     def sdo_response_delay(self, seconds: float) -> None:
@@ -447,7 +438,7 @@ class Device:
             raise DeviceConfigError(
                 f"SDO response delay {seconds!r} must be a number of seconds >= 0 (0: none)"
             )
-        self._knobs.sdo_delay = float(seconds)
+        self._core.knobs.sdo_delay = float(seconds)
 
     @property
     def heartbeat_muted(self) -> bool:
@@ -458,13 +449,13 @@ class Device:
         start. The node runs on otherwise: boot-up messages, node guarding answers, SDO and
         PDOs are not affected. It holds through resets and node-ID changes.
         """
-        return self._knobs.heartbeat_muted
+        return self._core.knobs.heartbeat_muted
 
     @heartbeat_muted.setter
     def heartbeat_muted(self, muted: bool) -> None:
         if not isinstance(muted, bool):
             raise DeviceConfigError(f"heartbeat_muted takes True or False, not {muted!r}")
-        self._knobs.heartbeat_muted = muted
+        self._core.knobs.heartbeat_muted = muted
 
     @property
     def sdo_backend(self) -> SdoServerBackend:
@@ -480,12 +471,12 @@ class Device:
 
     def add_listener(self, listener: Listener) -> None:
         """Call ``listener(event)`` for every event of this device (on the event loop)."""
-        self._listeners.append(listener)
+        self._core.listeners.append(listener)
 
     def remove_listener(self, listener: Listener) -> None:
         """Stop calling ``listener`` (given to :meth:`add_listener`)."""
-        if listener in self._listeners:
-            self._listeners.remove(listener)
+        if listener in self._core.listeners:
+            self._core.listeners.remove(listener)
 
     def get(self, index: Key, subindex: Key = 0) -> Any:
         """The current value of an entry (through its read callback when one is bound)."""
@@ -503,7 +494,7 @@ class Device:
         entry = self._resolve(index, subindex)
         try:
             value = check_value(entry, value)
-            self._write(entry, value, remote=False)
+            self._core.write(entry, value, remote=False)
         except SdoAbort as refusal:
             raise EntryRefusedError(
                 entry.index, entry.subindex, refusal.code, refusal.reason
@@ -606,7 +597,7 @@ class Device:
         pre-operational).
         """
         _nmt.check_node_id(node_id)
-        old = self._node_id
+        old = self._core.node_id
         if node_id == old:
             return
         devices = self.network.devices
@@ -616,29 +607,29 @@ class Device:
                 f"node-ID {node_id} is used by another device of this network; pick a free one"
             )
         follow = {}
-        for key, entry in self._entries.items():
+        for key, entry in self._core.entries.items():
             if entry.index < 0x2000 or entry.var.relative:
                 offset = self._node_offset(entry, entry.value)
                 if offset is not None:
                     follow[key] = offset
-        self._node_id = node_id
+        self._core.node_id = node_id
         self.od.node_id = node_id
         for key, offset in follow.items():
-            self._entries[key].value = node_id + offset
+            self._core.entries[key].value = node_id + offset
         if devices.get(old) is self:
             del devices[old]
         devices[node_id] = self
-        if not self._started:
-            self.nmt = NmtSlave(node_id)
+        if not self._core.started:
+            self._core.nmt = NmtSlave(node_id)
             self._emcy.node_id = node_id
             return
         self._teardown_comm()
         self._close_nmt()
-        self.nmt = NmtSlave(node_id)
+        self._core.nmt = NmtSlave(node_id)
         self._emcy.node_id = node_id
         self._open_nmt()
         self._boot()
-        self._emit(NodeIdChanged(node_id, old))
+        self._core.emit(NodeIdChanged(node_id, old))
 
     def start(self) -> None:
         """Power on: power-on values, stored parameters, boot-up message, pre-operational.
@@ -646,12 +637,12 @@ class Device:
         A parameter file that cannot be read never keeps the device from starting: it
         starts on its default values, emits :class:`StorageProblem` with the reason and
         sends EMCY 6300h "data set" (active until the application clears it)."""
-        if self._started:
-            raise DeviceConfigError(f"device {self._node_id} is already started")
+        if self._core.started:
+            raise DeviceConfigError(f"device {self._core.node_id} is already started")
         if self._closed:
-            raise DeviceConfigError(f"device {self._node_id} was closed; create a new one")
+            raise DeviceConfigError(f"device {self._core.node_id} was closed; create a new one")
         self._power_on(communication=True, application=True)
-        self._started = True
+        self._core.started = True
         self._open_nmt()
         self._boot()
         self._report_storage()
@@ -672,18 +663,10 @@ class Device:
         holder = _SERVED.get(id(self.od))
         if holder is not None and holder() is self:
             del _SERVED[id(self.od)]
-        if self.network.devices.get(self._node_id) is self:
-            del self.network.devices[self._node_id]
+        if self.network.devices.get(self._core.node_id) is self:
+            del self.network.devices[self._core.node_id]
 
     # ================================================================== lookups
-
-    def _entry(self, index: int, subindex: int) -> Entry:
-        entry = self._entries.get(index << 8 | subindex)
-        if entry is None:
-            if index in self._indices:
-                raise _abort(_ABORT.NO_SUBINDEX, f"0x{index:04X} has no sub-index {subindex}")
-            raise _abort(_ABORT.NO_OBJECT, f"no object 0x{index:04X}")
-        return entry
 
     def _resolve(self, index: Key, subindex: Key) -> Entry:
         obj = self.od.get(index)
@@ -693,7 +676,7 @@ class Device:
                 obj.index if obj is not None else (index if isinstance(index, int) else 0),
                 0,
                 _ABORT.NO_OBJECT,
-                f"no object {shown} in the dictionary of device {self._node_id}",
+                f"no object {shown} in the dictionary of device {self._core.node_id}",
             )
         if isinstance(obj, Variable):
             if subindex not in (0, obj.name):
@@ -713,13 +696,13 @@ class Device:
                     f"0x{obj.index:04X} ({obj.name!r}) has no sub-index {subindex!r}",
                 )
             var = found
-        entry = self._entries.get(var.index << 8 | var.subindex)
+        entry = self._core.entries.get(var.index << 8 | var.subindex)
         if entry is None:
             raise EntryNotFoundError(
                 var.index,
                 var.subindex,
                 _ABORT.NO_OBJECT,
-                f"{var.qualname} was added to the dictionary after device {self._node_id} was "
+                f"{var.qualname} was added to the dictionary after device {self._core.node_id} was "
                 "created; complete the dictionary first",
             )
         return entry
@@ -733,21 +716,6 @@ class Device:
             )
         return entry
 
-    def _cob_id(self, kind: str, number: int, value: int) -> int:
-        """The CiA 301 form of a stored COB-ID parameter (see :attr:`Deviations.cob_id_rule`)."""
-        rule = self.deviations.cob_id_rule
-        if rule is None:
-            return value
-        try:
-            return int(rule(kind, number, value))
-        except Exception as exc:
-            self._failure(f"COB-ID rule for {kind} {number}", exc)
-            raise _abort(_ABORT.INVALID_VALUE, f"the COB-ID rule refused 0x{value:08X}") from None
-
-    def _value(self, index: int, subindex: int, default: int = 0) -> Any:
-        entry = self._entries.get(index << 8 | subindex)
-        return default if entry is None else entry.value
-
     def _history_depth(self) -> int:
         obj = self.od.get(0x1003)
         if isinstance(obj, Record | Array):
@@ -757,7 +725,7 @@ class Device:
     # ================================================================== SDO access
 
     def _sdo_upload(self, index: int, subindex: int) -> bytes:
-        entry = self._entry(index, subindex)
+        entry = self._core.entry(index, subindex)
         var = entry.var
         if not var.access.readable:
             raise _abort(_ABORT.READ_WRITE_ONLY, f"{var.name!r} is write-only")
@@ -770,7 +738,7 @@ class Device:
             except SdoAbort:
                 raise
             except Exception as exc:
-                self._failure(f"read callback of 0x{index:04X}:{subindex:02X}", exc)
+                self._core.failure(f"read callback of 0x{index:04X}:{subindex:02X}", exc)
                 raise _abort(_ABORT.CANNOT_STORE, f"the application failed: {exc!r}") from None
         try:
             return encode(entry.data_type, value)
@@ -781,7 +749,7 @@ class Device:
             ) from None
 
     def _sdo_download(self, index: int, subindex: int, data: bytes) -> None:
-        entry = self._entry(index, subindex)
+        entry = self._core.entry(index, subindex)
         var = entry.var
         deviations = self.deviations
         if deviations.store_on_subindex_0 and index == 0x1010 and subindex == 0:
@@ -804,46 +772,10 @@ class Device:
         ):
             data = data[:size]
         value = decode_download(entry, data)
-        self._write(entry, value, remote=True)
-        self._emit(EntryWritten(self._node_id, index, subindex, value))
-
-    def _write(self, entry: Entry, value: Any, *, remote: bool) -> None:
-        handler = self._handlers.get(entry.index)
-        if handler is not None:
-            handler(entry, value)
-            return
-        if remote and entry.writer is not None:
-            self._call_writer(entry, value)
-        self._store(entry, value)
-
-    def _call_writer(self, entry: Entry, value: Any) -> None:
-        writer = entry.writer
-        assert writer is not None
-        try:
-            writer(value)
-        except SdoAbort:
-            raise
-        except Exception as exc:
-            self._failure(f"write callback of 0x{entry.index:04X}:{entry.subindex:02X}", exc)
-            raise _abort(_ABORT.CANNOT_STORE, f"the application refused: {exc!r}") from None
-
-    def _store(self, entry: Entry, value: Any) -> None:
-        old = entry.value
-        entry.value = value
-        if entry.tpdos and value != old:
-            now = self.network.time()
-            for tpdo in entry.tpdos:
-                self._apply(tpdo, tpdo.on_change(now))
+        self._core.write(entry, value, remote=True)
+        self._core.emit(EntryWritten(self._core.node_id, index, subindex, value))
 
     # ================================================================== events
-
-    def _emit(self, event: DeviceEvent) -> None:
-        for listener in list(self._listeners):
-            try:
-                listener(event)
-            except Exception as exc:
-                self._failure(f"device {self._node_id} listener {listener!r}", exc)
-        self.network.emit(event)
 
     # ================================================================== power-on and resets
 
@@ -852,21 +784,21 @@ class Device:
         return zero_value(entry.data_type) if value is None else value
 
     def _power_on(self, *, communication: bool, application: bool) -> None:
-        self.od.node_id = self._node_id
-        for entry in self._entries.values():
+        self.od.node_id = self._core.node_id
+        for entry in self._core.entries.values():
             index = entry.index
             if index < 0x2000:
                 reset = communication
             elif index < 0xA000:
                 reset = application
             else:  # A000h and above: network variables and reserved, set at power-on only
-                reset = not self._started
+                reset = not self._core.started
             if reset:
                 entry.value = self._default(entry)
         try:
             stored = self._storage.load()
         except StorageError as exc:  # the defaults then; said by event here, by EMCY at boot
-            self._emit(StorageProblem(self._node_id, str(exc)))
+            self._core.emit(StorageProblem(self._core.node_id, str(exc)))
             self._storage_failed = True
             stored = {}
         groups = []
@@ -884,7 +816,7 @@ class Device:
         if application:
             self._errors.clear()
             self._emcy = EmcyProducer(
-                self._node_id, depth=self._history_depth(), queue_size=self._emcy.queue_size
+                self._core.node_id, depth=self._history_depth(), queue_size=self._emcy.queue_size
             )
         self._sync_error_objects()
 
@@ -892,16 +824,18 @@ class Device:
         try:
             index_text, _, sub_text = key.partition(":")
             index, subindex = int(index_text, 16), int(sub_text, 16)
-            entry = self._entries[index << 8 | subindex]
+            entry = self._core.entries[index << 8 | subindex]
             in_group = index < 0x2000 if group == COMMUNICATION else 0x2000 <= index < 0xA000
             if not in_group or not entry.var.access.writable or index in _NOT_STORED:
                 raise ValueError(f"0x{index:04X}:{subindex:02X} is no {group} parameter")
             if "node_id_offset" in item:
-                value = check_value(entry, self._node_id + int(item["node_id_offset"]))
+                value = check_value(entry, self._core.node_id + int(item["node_id_offset"]))
             else:
                 value = decode_download(entry, bytes.fromhex(str(item["data"])))
         except (KeyError, ValueError, TypeError, OverflowError, SdoAbort) as exc:
-            self._emit(StorageProblem(self._node_id, f"stored {group} entry {key}: {exc}"))
+            self._core.emit(
+                StorageProblem(self._core.node_id, f"stored {group} entry {key}: {exc}")
+            )
             return
         entry.value = value
 
@@ -917,16 +851,16 @@ class Device:
         self._nmt_run_out(self._boot_out)
         now = self.network.time()
         if self._hb is not None and self._hb_host is not None:
-            self._hb.set_period(int(self._value(0x1017, 0)), now)
+            self._hb.set_period(int(self._core.value(0x1017, 0)), now)
             self._hb_host.apply(NOTHING)
-        self._emit(Booted(self._node_id))
+        self._core.emit(Booted(self._core.node_id))
 
     def _boot_out(self, now: float) -> Out:
-        out = self.nmt.boot(now)
+        out = self._core.nmt.boot(now)
         return out if self.deviations.send_bootup else Out((), out.events)
 
     def _open_nmt(self) -> None:
-        self._nmt_host = self.network.attach(self.nmt, (), self._on_nmt_event)
+        self._nmt_host = self.network.attach(self._core.nmt, (), self._on_nmt_event)
         self._nmt_sub = self.network.subscribe(_nmt.NMT_COB_ID, self._on_nmt_frame)
 
     def _close_nmt(self) -> None:
@@ -942,7 +876,7 @@ class Device:
             self._nmt_host.run(call)
 
     def _nmt_run(self, command: NmtCommand) -> None:
-        self._nmt_run_out(lambda now: self.nmt.apply(command, now))
+        self._nmt_run_out(lambda now: self._core.nmt.apply(command, now))
 
     def _on_nmt_frame(self, frame: Frame, now: float) -> None:
         data = frame.data
@@ -950,12 +884,12 @@ class Device:
             not frame.rtr
             and not frame.extended
             and len(data) == 2
-            and data[1] in (0, self._node_id)
-            and self.nmt.state is not NmtState.INITIALISING
+            and data[1] in (0, self._core.node_id)
+            and self._core.nmt.state is not NmtState.INITIALISING
         ):
             command = _COMMANDS.get(data[0])
             if command is not None:
-                self._emit(NmtCommandReceived(self._node_id, command))
+                self._core.emit(NmtCommandReceived(self._core.node_id, command))
         if self._nmt_host is not None:
             self._nmt_host.feed(frame, now)
 
@@ -971,13 +905,13 @@ class Device:
         now = self.network.time()
         early = self.deviations.tpdos_outside_operational
         if new is NmtState.OPERATIONAL:
-            self._operational = True
+            self._core.operational = True
             for tpdo in self._tpdos.values():
                 if not tpdo.trigger.active:
                     tpdo.start(now)
                     self._apply(tpdo, NOTHING)
         elif old is NmtState.OPERATIONAL:
-            self._operational = False
+            self._core.operational = False
             for tpdo in self._tpdos.values():
                 tpdo.stop()
                 self._apply(tpdo, NOTHING)
@@ -1000,15 +934,15 @@ class Device:
         producer, host = self._sync_producer, self._sync_producer_host
         if producer is not None and host is not None and NmtState.STOPPED in (old, new):
             # CiA 301: no SYNC in Stopped; on leaving it the counter starts again at 1.
-            period = 0 if new is NmtState.STOPPED else int(self._value(0x1006, 0))
+            period = 0 if new is NmtState.STOPPED else int(self._core.value(0x1006, 0))
             producer.set_period(period, now)
             host.apply(NOTHING)
-        self._emit(StateChanged(self._node_id, old, new))
+        self._core.emit(StateChanged(self._core.node_id, old, new))
 
     def _communication_error(self) -> None:
         """CiA 301 1029h sub 1: 0 pre-operational (if operational), 1 no change, 2 stopped."""
-        mode = self._value(0x1029, 1, 0)
-        state = self.nmt.state
+        mode = self._core.value(0x1029, 1, 0)
+        state = self._core.nmt.state
         if mode == 0 and state is NmtState.OPERATIONAL:
             self._nmt_run(NmtCommand.ENTER_PREOPERATIONAL)
         elif mode == 2 and state is not NmtState.STOPPED:
@@ -1049,54 +983,47 @@ class Device:
         self._sync = self._time = None
         self._sync_producer = None
         self._sync_host = self._time_host = self._sync_producer_host = None
-        self._operational = False
-
-    def _report(self, what: str, exc: Exception) -> None:
-        """A configuration value the device cannot use: reported, that part stays off."""
-        self._emit(ConfigurationProblem(self._node_id, f"{what}: {exc}"))
-
-    def _failure(self, where: str, exc: BaseException) -> None:
-        """An application callback raised: logged and reported, the device goes on."""
-        log.error("device %d: %s failed: %r", self._node_id, where, exc, exc_info=exc)
-        self.network.emit(HandlerFailed(f"device {self._node_id}: {where}", repr(exc)))
+        self._core.operational = False
 
     def _build_comm(self) -> None:
         now = self.network.time()
-        node = self._node_id
+        node = self._core.node_id
         # EMCY
         emcy = self._emcy
         try:
             emcy.set_cob_id(
-                self._cob_id("emcy", 1, int(self._value(0x1014, 0, _emcy.EMCY_BASE + node)))
+                self._core.cob_id(
+                    "emcy", 1, int(self._core.value(0x1014, 0, _emcy.EMCY_BASE + node))
+                )
             )
         except (CobusError, SdoAbort) as exc:
-            self._report("1014h", exc)
+            self._core.report("1014h", exc)
             emcy.set_cob_id(_emcy.EMCY_BASE + node)
-        emcy.set_inhibit_time(int(self._value(0x1015, 0)), now)
+        emcy.set_inhibit_time(int(self._core.value(0x1015, 0)), now)
         self._emcy_host = self._attach(emcy)
         # SDO servers
         self._build_sdo()
         # heartbeat producer and consumer
         if self.deviations.error_control:
-            self._hb = _hb.HeartbeatProducer(node, state_getter=lambda: self.nmt.state)
-            self._hb_host = self._attach(MutableHeartbeat(self._hb, self._knobs))
-        consumer_size = self._value(0x1016, 0, 0)
+            self._hb = _hb.HeartbeatProducer(node, state_getter=lambda: self._core.nmt.state)
+            self._hb_host = self._attach(MutableHeartbeat(self._hb, self._core.knobs))
+        consumer_size = self._core.value(0x1016, 0, 0)
         if consumer_size:
             self._consumer = _hb.HeartbeatConsumer(min(int(consumer_size), 127))
             self._consumer_host = self._attach(self._consumer, self._on_consumer_event)
             for sub in range(1, self._consumer.size + 1):
-                value = self._value(0x1016, sub, 0)
+                value = self._core.value(0x1016, sub, 0)
                 if value:
                     try:
                         self._consumer.set_entry(sub, int(value), now)
                     except CobusError as exc:
-                        self._report(f"1016h sub {sub}", exc)
+                        self._core.report(f"1016h sub {sub}", exc)
             self._sync_consumer_subs()
         # node guarding and life guarding
         if self.deviations.error_control:
-            self._guard = _guarding.GuardingResponder(node, lambda: self.nmt.state)
-            self._guard.set_guard_time(int(self._value(0x100C, 0)), now)
-            self._guard.set_life_time_factor(int(self._value(0x100D, 0)), now)
+            self._guard = _guarding.GuardingResponder(node, lambda: self._core.nmt.state)
+            self._guard.set_guard_time(int(self._core.value(0x100C, 0)), now)
+            self._guard.set_life_time_factor(int(self._core.value(0x100D, 0)), now)
             self._guard_host = self._attach(self._guard, self._on_guarding_event)
             self._subs.append(
                 self.network.subscribe(_nmt.ERROR_CONTROL_BASE + node, self._guard_host.feed)
@@ -1106,9 +1033,9 @@ class Device:
         self._build_time()
         # PDOs
         for n in range(1, 513):
-            if 0x1400 + n - 1 in self._indices:
+            if 0x1400 + n - 1 in self._core.indices:
                 self._build_rpdo(n)
-            if 0x1800 + n - 1 in self._indices:
+            if 0x1800 + n - 1 in self._core.indices:
                 self._build_tpdo(n)
 
     def _build_sdo(self) -> None:
@@ -1119,28 +1046,32 @@ class Device:
             return
         for n in range(128):
             index = 0x1200 + n
-            if n and index not in self._indices:
+            if n and index not in self._core.indices:
                 continue
             if n == 0:
-                rx = int(self._value(index, 1, 0x600 + self._node_id)) & 0x7FF
-                tx = int(self._value(index, 2, 0x580 + self._node_id)) & 0x7FF
+                rx = int(self._core.value(index, 1, 0x600 + self._core.node_id)) & 0x7FF
+                tx = int(self._core.value(index, 2, 0x580 + self._core.node_id)) & 0x7FF
             else:
                 try:
-                    rx_value = self._cob_id("sdo_rx", n + 1, int(self._value(index, 1, _INVALID)))
-                    tx_value = self._cob_id("sdo_tx", n + 1, int(self._value(index, 2, _INVALID)))
+                    rx_value = self._core.cob_id(
+                        "sdo_rx", n + 1, int(self._core.value(index, 1, _INVALID))
+                    )
+                    tx_value = self._core.cob_id(
+                        "sdo_tx", n + 1, int(self._core.value(index, 2, _INVALID))
+                    )
                 except SdoAbort as exc:
-                    self._report(f"SDO server channel {n + 1}", exc)
+                    self._core.report(f"SDO server channel {n + 1}", exc)
                     continue
                 if rx_value & _INVALID or tx_value & _INVALID:
                     continue
                 rx, tx = rx_value & 0x7FF, tx_value & 0x7FF
             server = SdoServer(rx, tx, self._backend, timeout=self._sdo_timeout)
-            host = self.network.attach(LateSdoServer(server, self._knobs))
+            host = self.network.attach(LateSdoServer(server, self._core.knobs))
             sub = self.network.subscribe(rx, partial(self._on_sdo_frame, host))
             self._sdo[n] = _SdoChannel(n, server, host, sub)
 
     def _on_sdo_frame(self, host: MachineHost, frame: Frame, now: float) -> None:
-        if self.nmt.sdo_allowed:
+        if self._core.nmt.sdo_allowed:
             host.feed(frame, now)
 
     def _build_sync(self) -> None:
@@ -1155,13 +1086,13 @@ class Device:
         self._sync_host = self._sync_producer_host = self._sync_sub = None
         now = self.network.time()
         try:
-            cob = _sync.SyncCobId.from_u32(int(self._value(0x1005, 0, _sync.SYNC_COB_ID)))
-            overflow = int(self._value(0x1019, 0))
+            cob = _sync.SyncCobId.from_u32(int(self._core.value(0x1005, 0, _sync.SYNC_COB_ID)))
+            overflow = int(self._core.value(0x1019, 0))
             consumer = _sync.SyncConsumer(cob.can_id, extended=cob.extended, overflow=overflow)
-            consumer.set_period(int(self._value(0x1006, 0)), now)
-            consumer.set_window(int(self._value(0x1007, 0)))
+            consumer.set_period(int(self._core.value(0x1006, 0)), now)
+            consumer.set_window(int(self._core.value(0x1007, 0)))
         except CobusError as exc:
-            self._report("SYNC parameters", exc)
+            self._core.report("SYNC parameters", exc)
             return
         self._sync = consumer
         self._sync_host = self._attach(consumer, self._on_sync_event)
@@ -1171,14 +1102,14 @@ class Device:
         self._subs.append(self._sync_sub)
         if cob.generate:
             producer = _sync.SyncProducer(cob.can_id, extended=cob.extended, overflow=overflow)
-            producer.set_period(int(self._value(0x1006, 0)), now)
+            producer.set_period(int(self._core.value(0x1006, 0)), now)
             self._sync_producer = producer
             self._sync_producer_host = self._attach(producer)
             self._sync_producer_host.apply(NOTHING)
 
     def _on_gated_frame(self, host: MachineHost, frame: Frame, now: float) -> None:
         """SYNC and TIME are received in pre-operational and operational only."""
-        if self.nmt.allowed(_nmt.Service.SYNC):
+        if self._core.nmt.allowed(_nmt.Service.SYNC):
             host.feed(frame, now)
 
     def _build_time(self) -> None:
@@ -1189,12 +1120,12 @@ class Device:
             self._time_sub.cancel()
             self._subs.remove(self._time_sub)
         self._time = self._time_host = self._time_sub = None
-        if 0x1012 not in self._indices:
+        if 0x1012 not in self._core.indices:
             return
         try:
-            cob = _time.TimeCobId.from_u32(int(self._value(0x1012, 0)))
+            cob = _time.TimeCobId.from_u32(int(self._core.value(0x1012, 0)))
         except CobusError as exc:
-            self._report("1012h", exc)
+            self._core.report("1012h", exc)
             return
         if not cob.consume:
             return
@@ -1209,22 +1140,22 @@ class Device:
 
     def _tpdo_active(self, number: int) -> bool:
         """Whether TPDO ``number`` transmits in the current NMT state."""
-        if self._operational:
+        if self._core.operational:
             return True
         return (
             number in self.deviations.tpdos_outside_operational
-            and self.nmt.state is NmtState.PRE_OPERATIONAL
+            and self._core.nmt.state is NmtState.PRE_OPERATIONAL
         )
 
     def _pdo_values(self, index: int) -> list[int]:
         if self.deviations.direct_pdo_mapping:  # every entry counts; zero ones are unused
             return [
-                int(self._value(index, sub, 0))
+                int(self._core.value(index, sub, 0))
                 for sub in range(1, 65)
-                if (index << 8 | sub) in self._entries
+                if (index << 8 | sub) in self._core.entries
             ]
-        count = int(self._value(index, 0, 0))
-        return [int(self._value(index, sub, 0)) for sub in range(1, count + 1)]
+        count = int(self._core.value(index, 0, 0))
+        return [int(self._core.value(index, sub, 0)) for sub in range(1, count + 1)]
 
     def _drop_tpdo(self, number: int) -> None:
         tpdo = self._tpdos.pop(number, None)
@@ -1259,9 +1190,9 @@ class Device:
             cob = PdoCobId.from_u32(self._pdo_cob_id(comm))
             if not cob.valid:
                 return
-            tt = TransmissionType(int(self._value(comm, 2, 255)))
+            tt = TransmissionType(int(self._core.value(comm, 2, 255)))
             pdo_map, sources = compile_mapping(
-                self._entries, self._pdo_values(0x1A00 + number - 1), receive=False
+                self._core.entries, self._pdo_values(0x1A00 + number - 1), receive=False
             )
             tpdo = Tpdo(
                 number,
@@ -1269,12 +1200,12 @@ class Device:
                 tt,
                 pdo_map,
                 sources,
-                inhibit_time_100us=int(self._value(comm, 3, 0)),
-                event_timer_ms=int(self._value(comm, 5, 0)),
-                sync_start_value=int(self._value(comm, 6, 0)),
+                inhibit_time_100us=int(self._core.value(comm, 3, 0)),
+                event_timer_ms=int(self._core.value(comm, 5, 0)),
+                sync_start_value=int(self._core.value(comm, 6, 0)),
             )
         except (CobusError, SdoAbort) as exc:
-            self._report(f"TPDO {number}", exc)
+            self._core.report(f"TPDO {number}", exc)
             return
         tpdo.host = self.network.attach(tpdo)
         if cob.rtr_allowed:
@@ -1303,15 +1234,15 @@ class Device:
             cob = PdoCobId.from_u32(self._pdo_cob_id(comm))
             if not cob.valid:
                 return
-            tt = TransmissionType(int(self._value(comm, 2, 255)))
+            tt = TransmissionType(int(self._core.value(comm, 2, 255)))
             pdo_map, targets = compile_mapping(
-                self._entries, self._pdo_values(0x1600 + number - 1), receive=True
+                self._core.entries, self._pdo_values(0x1600 + number - 1), receive=True
             )
             rpdo = Rpdo(
-                number, cob, tt, pdo_map, targets, event_timer_ms=int(self._value(comm, 5, 0))
+                number, cob, tt, pdo_map, targets, event_timer_ms=int(self._core.value(comm, 5, 0))
             )
         except (CobusError, SdoAbort) as exc:
-            self._report(f"RPDO {number}", exc)
+            self._core.report(f"RPDO {number}", exc)
             return
         if self.deviations.partial_rpdos:
             rpdo.watchdog.length = None  # no RPDO length is an error
@@ -1325,7 +1256,7 @@ class Device:
             self._sync_rpdos.sort(key=lambda r: r.number)
 
     def _on_rpdo_frame(self, rpdo: Rpdo, frame: Frame, now: float) -> None:
-        if not self._operational or frame.rtr:
+        if not self._core.operational or frame.rtr:
             return
         host = rpdo.host
         if host is None:
@@ -1370,34 +1301,36 @@ class Device:
                 if entry.limited:
                     value = check_value(entry, value)
                 if entry.writer is not None:
-                    self._call_writer(entry, value)
+                    self._core.call_writer(entry, value)
             except SdoAbort:
                 continue
-            self._store(entry, value)
+            self._core.store(entry, value)
             written.append((entry.index, entry.subindex))
             applied.append(value)
-        self._emit(RpdoReceived(self._node_id, rpdo.number, tuple(written), tuple(applied)))
+        self._core.emit(
+            RpdoReceived(self._core.node_id, rpdo.number, tuple(written), tuple(applied))
+        )
 
     def _on_rpdo_event(self, rpdo: Rpdo, event: Event) -> None:
-        node = self._node_id
+        node = self._core.node_id
         if isinstance(event, RpdoTooShort):
             self._one_shot(EmcyCode.PDO_LENGTH_ERROR, _COMM_BIT)
-            self._emit(PdoLengthError(node, rpdo.number, event.expected, event.received))
+            self._core.emit(PdoLengthError(node, rpdo.number, event.expected, event.received))
         elif isinstance(event, RpdoTooLong):
             self._one_shot(EmcyCode.PDO_LENGTH_EXCEEDED, _COMM_BIT)
-            self._emit(PdoLengthError(node, rpdo.number, event.expected, event.received))
+            self._core.emit(PdoLengthError(node, rpdo.number, event.expected, event.received))
         elif isinstance(event, RpdoTimeout):
             self._raise_error(("rpdo", rpdo.number), EmcyCode.RPDO_TIMEOUT, _COMM_BIT)
-            self._emit(RpdoLost(node, rpdo.number, event.cob_id))
+            self._core.emit(RpdoLost(node, rpdo.number, event.cob_id))
         elif isinstance(event, RpdoResumed):
             self._clear_errors([("rpdo", rpdo.number)])
-            self._emit(RpdoRestored(node, rpdo.number, event.cob_id))
+            self._core.emit(RpdoRestored(node, rpdo.number, event.cob_id))
 
     # --- SYNC, TIME, heartbeat, guarding events
 
     def _on_sync_event(self, event: Event) -> None:
         if isinstance(event, _sync.SyncReceived):
-            if self._operational:
+            if self._core.operational:
                 for rpdo in self._sync_rpdos:
                     pending = rpdo.pending
                     if pending is not None:
@@ -1413,37 +1346,37 @@ class Device:
                     self._apply(tpdo, tpdo.on_sync(counter, now))
         elif isinstance(event, _sync.SyncLost):
             self._raise_error(("sync",), EmcyCode.COMMUNICATION, _COMM_BIT)
-            self._emit(SyncLost(self._node_id))
+            self._core.emit(SyncLost(self._core.node_id))
         elif isinstance(event, _sync.SyncResumed):
             self._clear_errors([("sync",)])
-            self._emit(SyncRestored(self._node_id))
+            self._core.emit(SyncRestored(self._core.node_id))
         elif isinstance(event, _sync.UnexpectedSyncLength):
             self._one_shot(EmcyCode.UNEXPECTED_SYNC_LENGTH, _COMM_BIT)
 
     def _on_time_event(self, event: Event) -> None:
         if isinstance(event, _time.TimeReceived):
-            self._emit(TimeReceived(self._node_id, event.time))
+            self._core.emit(TimeReceived(self._core.node_id, event.time))
 
     def _on_consumer_event(self, event: Event) -> None:
-        node = self._node_id
+        node = self._core.node_id
         if isinstance(event, _hb.HeartbeatTimeout):
             self._raise_error(("hb", event.node_id), EmcyCode.LIFE_GUARD_OR_HEARTBEAT, _COMM_BIT)
-            self._emit(HeartbeatLost(node, event.node_id))
+            self._core.emit(HeartbeatLost(node, event.node_id))
             self._communication_error()
         elif isinstance(event, _hb.HeartbeatResumed):
             self._clear_errors([("hb", event.node_id)])
-            self._emit(HeartbeatRestored(node, event.node_id, event.state))
+            self._core.emit(HeartbeatRestored(node, event.node_id, event.state))
         elif isinstance(event, _hb.BootupReceived):
             self._clear_errors([("hb", event.node_id)])
 
     def _on_guarding_event(self, event: Event) -> None:
         if isinstance(event, _guarding.LifeGuardingExpired):
             self._raise_error(("guard",), EmcyCode.LIFE_GUARD_OR_HEARTBEAT, _COMM_BIT)
-            self._emit(LifeGuardingLost(self._node_id))
+            self._core.emit(LifeGuardingLost(self._core.node_id))
             self._communication_error()
         elif isinstance(event, _guarding.LifeGuardingResumed):
             self._clear_errors([("guard",)])
-            self._emit(LifeGuardingRestored(self._node_id))
+            self._core.emit(LifeGuardingRestored(self._core.node_id))
 
     def _sync_consumer_subs(self) -> None:
         consumer = self._consumer
@@ -1474,14 +1407,14 @@ class Device:
         return bits
 
     def _emcy_allowed(self) -> bool:
-        if self.nmt.emcy_allowed:
+        if self._core.nmt.emcy_allowed:
             return True
-        return self.deviations.emcy_in_stopped and self.nmt.state is NmtState.STOPPED
+        return self.deviations.emcy_in_stopped and self._core.nmt.state is NmtState.STOPPED
 
     def _sync_error_objects(self) -> None:
-        entry = self._entries.get(0x1001 << 8)
+        entry = self._core.entries.get(0x1001 << 8)
         if entry is not None:
-            self._store(entry, self._register())
+            self._core.store(entry, self._register())
         self._emcy.error_register = ErrorRegister(self._register())
 
     def _emergency(self, code: int, register: int, manufacturer: bytes, info: int) -> None:
@@ -1492,7 +1425,7 @@ class Device:
         else:
             emcy.record(code, info)
         self._sync_error_objects()
-        self._emit(EmergencySent(self._node_id, code, register, manufacturer))
+        self._core.emit(EmergencySent(self._core.node_id, code, register, manufacturer))
 
     def _raise_error(
         self, key: object, code: int, bits: int, manufacturer: bytes = b"", info: int = 0
@@ -1523,7 +1456,7 @@ class Device:
         if host is not None and self._emcy_allowed():
             host.apply(self._emcy.reset(self.network.time(), register, manufacturer))
         self._sync_error_objects()
-        self._emit(EmergencySent(self._node_id, 0, register, manufacturer))
+        self._core.emit(EmergencySent(self._core.node_id, 0, register, manufacturer))
 
     # ================================================================== stored parameters
 
@@ -1531,7 +1464,7 @@ class Device:
         """``value - node_id`` when ``value`` follows ``$NODEID``, else None."""
         if not isinstance(value, int) or isinstance(value, bool):
             return None
-        node = self._node_id
+        node = self._core.node_id
         var = entry.var
         if var.relative:
             return value - node if value == var.value else None
@@ -1551,7 +1484,7 @@ class Device:
 
     def _collect(self, group: str) -> dict[str, StoredValue]:
         out: dict[str, StoredValue] = {}
-        for entry in self._entries.values():
+        for entry in self._core.entries.values():
             index = entry.index
             in_group = index < 0x2000 if group == COMMUNICATION else 0x2000 <= index < 0xA000
             if not in_group or index in _NOT_STORED or not entry.var.access.writable:
@@ -1562,7 +1495,7 @@ class Device:
                 try:
                     value = check_value(entry, entry.reader())
                 except Exception as exc:  # the application's value cannot be read: keep ours
-                    self._failure(f"read callback of {key}", exc)
+                    self._core.failure(f"read callback of {key}", exc)
             offset = self._node_offset(entry, value)
             if offset is not None:
                 out[key] = {"node_id_offset": offset}
@@ -1595,7 +1528,7 @@ class Device:
             self._storage.save(stored)
         except StorageError as exc:
             raise _abort(_ABORT.CANNOT_STORE, str(exc)) from None
-        self._emit(ParametersStored(self._node_id, subindex))
+        self._core.emit(ParametersStored(self._core.node_id, subindex))
 
     def _restore_defaults(self, subindex: int) -> None:
         groups = self._groups(subindex, "1011h")
@@ -1609,13 +1542,12 @@ class Device:
             self._storage.save(stored)
         except StorageError as exc:
             raise _abort(_ABORT.CANNOT_STORE, str(exc)) from None
-        self._emit(ParametersRestored(self._node_id, subindex))
+        self._core.emit(ParametersRestored(self._core.node_id, subindex))
 
     # ================================================================== write handlers
 
     def _install_handlers(self) -> None:
-        h = self._handlers
-        self._indices.update(obj.index for obj in self.od if obj.index >= 0x1000)
+        h = self._core.handlers
         fixed: dict[int, Callable[[Entry, Any], None]] = {
             0x1001: self._w_error_register,
             0x1003: self._w_error_field,
@@ -1635,21 +1567,21 @@ class Device:
             0x1029: self._w_error_behaviour,
         }
         for index, handler in fixed.items():
-            if index in self._indices:
+            if index in self._core.indices:
                 h[index] = handler
-        for index in self._indices:
+        for index in self._core.indices:
             if 0x1200 <= index <= 0x127F:
                 h[index] = self._w_sdo_server
             elif 0x1400 <= index <= 0x15FF or 0x1800 <= index <= 0x19FF:
                 h[index] = self._w_pdo_comm
             elif 0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF:
                 h[index] = self._w_pdo_mapping
-        e1003 = self._entries
+        e1003 = self._core.entries
         for sub in range(0, 255):
             entry = e1003.get(0x1003 << 8 | sub)
             if entry is not None:
                 entry.reader = partial(self._read_error_field, sub)
-        eds = self._entries.get(0x1021 << 8)
+        eds = self._core.entries.get(0x1021 << 8)
         if eds is not None:
             eds.reader = self._read_eds
 
@@ -1669,9 +1601,6 @@ class Device:
         return self.to_eds().replace("\n", "\r\n").encode("utf-8")
 
     # --- simple objects
-
-    def _now(self) -> float:
-        return self.network.time()
 
     def _w_error_register(self, entry: Entry, value: Any) -> None:
         raise _abort(
@@ -1704,13 +1633,13 @@ class Device:
                 "1005h: the SYNC identifier cannot change while this device generates SYNC; "
                 "clear bit 30 first",
             )
-        self._store(entry, value)
-        if self._started:
+        self._core.store(entry, value)
+        if self._core.started:
             self._build_sync()
 
     def _w_sync_period(self, entry: Entry, value: Any) -> None:
-        self._store(entry, value)
-        now = self._now()
+        self._core.store(entry, value)
+        now = self._core.now()
         if self._sync is not None and self._sync_host is not None:
             self._sync.set_period(value, now)
             self._sync_host.apply(NOTHING)
@@ -1719,12 +1648,12 @@ class Device:
             self._sync_producer_host.apply(NOTHING)
 
     def _w_sync_window(self, entry: Entry, value: Any) -> None:
-        self._store(entry, value)
+        self._core.store(entry, value)
         if self._sync is not None:
             self._sync.set_window(value)
 
     def _w_sync_overflow(self, entry: Entry, value: Any) -> None:
-        if self._value(0x1006, 0):
+        if self._core.value(0x1006, 0):
             raise _abort(
                 _ABORT.DEVICE_STATE,
                 "1019h can only change while the communication cycle period 1006h is 0",
@@ -1733,20 +1662,20 @@ class Device:
             _sync.check_overflow(value)
         except CobusError as exc:
             raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
-        self._store(entry, value)
+        self._core.store(entry, value)
         if self._sync is not None:
             self._sync.set_overflow(value)
         if self._sync_producer is not None:
             self._sync_producer.set_overflow(value)
 
     def _w_guarding(self, entry: Entry, value: Any) -> None:
-        self._store(entry, value)
+        self._core.store(entry, value)
         guard, host = self._guard, self._guard_host
         if guard is not None and host is not None:
             if entry.index == 0x100C:
-                guard.set_guard_time(value, self._now())
+                guard.set_guard_time(value, self._core.now())
             else:
-                guard.set_life_time_factor(value, self._now())
+                guard.set_life_time_factor(value, self._core.now())
             host.apply(NOTHING)
 
     def _w_store(self, entry: Entry, value: Any) -> None:
@@ -1779,14 +1708,14 @@ class Device:
                 _ABORT.INVALID_VALUE,
                 "1012h bit 30: this device does not produce TIME (it consumes it, bit 31)",
             )
-        self._store(entry, value)
-        if self._started:
+        self._core.store(entry, value)
+        if self._core.started:
             self._build_time()
 
     def _w_emcy_cob_id(self, entry: Entry, value: Any) -> None:
         try:
-            new = _emcy.EmcyCobId.from_u32(self._cob_id("emcy", 1, value))
-            old = _emcy.EmcyCobId.from_u32(self._cob_id("emcy", 1, int(entry.value)))
+            new = _emcy.EmcyCobId.from_u32(self._core.cob_id("emcy", 1, value))
+            old = _emcy.EmcyCobId.from_u32(self._core.cob_id("emcy", 1, int(entry.value)))
         except CobusError as exc:
             raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
         if old.valid and new.valid and (old.can_id, old.extended) != (new.can_id, new.extended):
@@ -1795,12 +1724,12 @@ class Device:
                 "1014h: the EMCY identifier cannot change while it is valid; write it with "
                 "bit 31 set first",
             )
-        self._store(entry, value)
+        self._core.store(entry, value)
         self._emcy.set_cob_id(new.to_u32())
 
     def _w_emcy_inhibit(self, entry: Entry, value: Any) -> None:
-        self._store(entry, value)
-        self._emcy.set_inhibit_time(value, self._now())
+        self._core.store(entry, value)
+        self._emcy.set_inhibit_time(value, self._core.now())
 
     def _w_consumer(self, entry: Entry, value: Any) -> None:
         sub = entry.subindex
@@ -1816,7 +1745,7 @@ class Device:
             for other in range(1, 128):
                 if other == sub:
                     continue
-                existing = self._entries.get(0x1016 << 8 | other)
+                existing = self._core.entries.get(0x1016 << 8 | other)
                 if existing is None:
                     continue
                 o_node, o_ms = (existing.value >> 16) & 0xFF, existing.value & 0xFFFF
@@ -1826,10 +1755,10 @@ class Device:
                         f"1016h sub {sub} would watch node {node} a second time (sub {other} "
                         "does already); clear that entry first",
                     )
-        self._store(entry, value)
+        self._core.store(entry, value)
         consumer, host = self._consumer, self._consumer_host
         if consumer is not None and host is not None and sub <= consumer.size:
-            consumer.set_entry(sub, value, self._now())
+            consumer.set_entry(sub, value, self._core.now())
             host.apply(NOTHING)
             self._sync_consumer_subs()
             if not (node and ms):
@@ -1851,9 +1780,9 @@ class Device:
         )
 
     def _w_producer(self, entry: Entry, value: Any) -> None:
-        self._store(entry, value)
+        self._core.store(entry, value)
         if self._hb is not None and self._hb_host is not None:
-            self._hb.set_period(value, self._now())
+            self._hb.set_period(value, self._core.now())
             self._hb_host.apply(NOTHING)
 
     def _w_error_behaviour(self, entry: Entry, value: Any) -> None:
@@ -1865,27 +1794,27 @@ class Device:
                 f"1029h sub {entry.subindex}: {value} is reserved (0 pre-operational, "
                 "1 no change, 2 stopped, 80h-FFh manufacturer-specific)",
             )
-        self._store(entry, value)
+        self._core.store(entry, value)
 
     def _w_sdo_server(self, entry: Entry, value: Any) -> None:
         sub = entry.subindex
         if sub in (1, 2):
             kind, number = ("sdo_rx" if sub == 1 else "sdo_tx"), entry.index - 0x1200 + 1
-            new = self._cob_id(kind, number, value)
+            new = self._core.cob_id(kind, number, value)
             if new & _EXTENDED:
                 raise _abort(_ABORT.INVALID_VALUE, "29-bit SDO identifiers are not supported")
             can_id = new & 0x1FFFFFFF
             if can_id > 0x7FF:
                 raise _abort(_ABORT.INVALID_VALUE, f"SDO identifier 0x{can_id:X} is not 11-bit")
-            old = self._cob_id(kind, number, int(entry.value))
+            old = self._core.cob_id(kind, number, int(entry.value))
             if not old & _INVALID and not new & _INVALID and old & 0x7FF != can_id:
                 raise _abort(
                     _ABORT.INVALID_VALUE,
                     f"0x{entry.index:04X} sub {sub}: the identifier cannot change while the "
                     "channel is valid; write it with bit 31 set first",
                 )
-        self._store(entry, value)
-        if self._started and sub in (1, 2):
+        self._core.store(entry, value)
+        if self._core.started and sub in (1, 2):
             self._build_sdo()
 
     def _pdo_cob_id(self, comm_index: int, value: int | None = None) -> int:
@@ -1893,8 +1822,8 @@ class Device:
         tx = comm_index >= 0x1800
         number = comm_index - (0x1800 if tx else 0x1400) + 1
         if value is None:
-            value = int(self._value(comm_index, 1, _INVALID))
-        return self._cob_id("tpdo" if tx else "rpdo", number, value)
+            value = int(self._core.value(comm_index, 1, _INVALID))
+        return self._core.cob_id("tpdo" if tx else "rpdo", number, value)
 
     def _pdo_valid(self, comm_index: int) -> bool:
         return not self._pdo_cob_id(comm_index) & _INVALID
@@ -1928,7 +1857,7 @@ class Device:
                         "NMT, SYNC/EMCY, SDO, error control)",
                     )
                 map_index = (0x1A00 if tx else 0x1600) + number - 1
-                compile_mapping(self._entries, self._pdo_values(map_index), receive=not tx)
+                compile_mapping(self._core.entries, self._pdo_values(map_index), receive=not tx)
         elif sub == 2:
             try:
                 tt = TransmissionType(value)
@@ -1957,8 +1886,8 @@ class Device:
             )
         if sub == 6 and value > 240:
             raise _abort(_ABORT.VALUE_TOO_HIGH, f"SYNC start value {value} is above 240")
-        self._store(entry, value)
-        if self._started and sub in (1, 2, 3, 5, 6):
+        self._core.store(entry, value)
+        if self._core.started and sub in (1, 2, 3, 5, 6):
             if tx:
                 self._build_tpdo(number)
             else:
@@ -1980,25 +1909,25 @@ class Device:
                 "before changing its mapping",
             )
         if sub == 0:
-            slots = sum(1 for s in range(1, 65) if (index << 8 | s) in self._entries)
+            slots = sum(1 for s in range(1, 65) if (index << 8 | s) in self._core.entries)
             if value > slots:
                 raise _abort(
                     _ABORT.VALUE_TOO_HIGH,
                     f"{kind} {number} has {slots} mapping entries; it cannot count {value}",
                 )
-            values = [int(self._value(index, s, 0)) for s in range(1, value + 1)]
-            compile_mapping(self._entries, values, receive=not tx)
+            values = [int(self._core.value(index, s, 0)) for s in range(1, value + 1)]
+            compile_mapping(self._core.entries, values, receive=not tx)
         else:
-            if self._value(index, 0, 0):
+            if self._core.value(index, 0, 0):
                 raise _abort(
                     _ABORT.PARAMETER_INCOMPATIBLE,
                     f"{kind} {number}: write sub-index 0 = 0 before changing mapping entries",
                 )
             try:
-                check_mapping_entry(self._entries, value, receive=not tx)
+                check_mapping_entry(self._core.entries, value, receive=not tx)
             except PdoError as exc:
                 raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
-        self._store(entry, value)
+        self._core.store(entry, value)
 
     def _w_direct_mapping(self, entry: Entry, value: Any, tx: bool, number: int) -> None:
         """A mapping entry written the direct way (:attr:`Deviations.direct_pdo_mapping`)."""
@@ -2015,22 +1944,22 @@ class Device:
             if target.is_dummy:
                 bits = DataType(target.index).bit_length
             else:
-                mapped = self._entries.get(target.index << 8 | target.subindex)
+                mapped = self._core.entries.get(target.index << 8 | target.subindex)
                 bits = mapped.var.bit_length if mapped is not None else None
             if bits:
                 value |= bits
         try:
-            check_mapping_entry(self._entries, value, receive=not tx)
+            check_mapping_entry(self._core.entries, value, receive=not tx)
         except PdoError as exc:
             raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
         values = [
-            value if s == sub else int(self._value(index, s, 0))
+            value if s == sub else int(self._core.value(index, s, 0))
             for s in range(1, 65)
-            if (index << 8 | s) in self._entries
+            if (index << 8 | s) in self._core.entries
         ]
-        compile_mapping(self._entries, values, receive=not tx)
-        self._store(entry, value)
-        if self._started:
+        compile_mapping(self._core.entries, values, receive=not tx)
+        self._core.store(entry, value)
+        if self._core.started:
             if tx:
                 self._build_tpdo(number)
             else:

@@ -1,0 +1,173 @@
+"""What the services of one device share: its network, its entries and the way a value is
+written, events go out and failures are told. Each service (``sdo_server``, ``pdo``, ``sync``,
+``time``, ``emcy``, ``heartbeat``, ``guarding``, ``nmt``, ``storage``) gets this one object as
+its port to the rest of the device, instead of reaching into the :class:`Device` or into a
+sibling; a service registers the write handlers of the objects it owns here (as CANopenNode's
+``CO_SYNC.c`` registers ``OD_write_1005``).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+from cobus.device._entries import Entry
+from cobus.device._gates import Knobs
+from cobus.device.events import ConfigurationProblem, DeviceEvent
+from cobus.od import ObjectDictionary
+from cobus.proto.nmt import NmtSlave
+from cobus.proto.sdo import SdoAbort, SdoAbortCode
+from cobus.runtime.events import HandlerFailed
+
+if TYPE_CHECKING:
+    from cobus.device.device import Deviations
+    from cobus.runtime.network import AsyncNetwork
+
+__all__ = ["INVALID", "Core", "Listener", "WriteHandler", "abort"]
+
+log = logging.getLogger("cobus.device")
+
+Listener = Callable[[DeviceEvent], object]
+#: ``handler(entry, value)``: takes a checked value written to an object the service owns
+#: (by SDO or by the application); stores it and applies it, or raises :class:`SdoAbort`.
+WriteHandler = Callable[[Entry, Any], None]
+
+#: Bit 31 of a COB-ID parameter: not valid.
+INVALID = 1 << 31
+
+
+def abort(code: int, reason: str) -> SdoAbort:
+    """The refusal of a write or read, with its CiA 301 abort code and the reason."""
+    return SdoAbort(code, reason)
+
+
+class Core:
+    """The shared state of one device and the few operations every service needs."""
+
+    __slots__ = (
+        "deviations",
+        "entries",
+        "handlers",
+        "indices",
+        "knobs",
+        "listeners",
+        "network",
+        "nmt",
+        "node_id",
+        "od",
+        "operational",
+        "started",
+    )
+
+    def __init__(
+        self,
+        network: AsyncNetwork,
+        od: ObjectDictionary,
+        node_id: int,
+        deviations: Deviations,
+    ) -> None:
+        self.network = network
+        self.od = od
+        self.node_id = node_id
+        self.deviations = deviations
+        self.knobs = Knobs()
+        self.entries: dict[int, Entry] = {}
+        for var in od.variables():
+            if var.index < 0x1000:  # data type definitions and dummies
+                continue
+            entry = Entry(var)
+            self.entries[entry.key] = entry
+        self.indices: set[int] = {obj.index for obj in od if obj.index >= 0x1000}
+        self.handlers: dict[int, WriteHandler] = {}
+        self.listeners: list[Listener] = []
+        #: The NMT slave of the current communication (a new one after a node-ID change).
+        self.nmt = NmtSlave(node_id)
+        self.started = False
+        self.operational = False
+
+    def now(self) -> float:
+        return self.network.time()
+
+    def handle(self, index: int, handler: WriteHandler) -> None:
+        """Writes to ``index`` go to ``handler`` (when the dictionary has that object)."""
+        if index in self.indices:
+            self.handlers[index] = handler
+
+    def entry(self, index: int, subindex: int) -> Entry:
+        """The entry an SDO request names, or the abort for a missing object or sub-index."""
+        entry = self.entries.get(index << 8 | subindex)
+        if entry is None:
+            if index in self.indices:
+                raise abort(SdoAbortCode.NO_SUBINDEX, f"0x{index:04X} has no sub-index {subindex}")
+            raise abort(SdoAbortCode.NO_OBJECT, f"no object 0x{index:04X}")
+        return entry
+
+    def value(self, index: int, subindex: int, default: int = 0) -> Any:
+        entry = self.entries.get(index << 8 | subindex)
+        return default if entry is None else entry.value
+
+    def store(self, entry: Entry, value: Any) -> None:
+        """Keep ``value``; the TPDOs that map the entry see the change."""
+        old = entry.value
+        entry.value = value
+        if entry.tpdos and value != old:
+            now = self.network.time()
+            for tpdo in entry.tpdos:
+                host = tpdo.host
+                if host is not None:
+                    host.apply(tpdo.on_change(now))
+
+    def write(self, entry: Entry, value: Any, *, remote: bool) -> None:
+        """A checked value for ``entry``: to its service's handler, else (through the
+        application's write callback when a master wrote it) stored."""
+        handler = self.handlers.get(entry.index)
+        if handler is not None:
+            handler(entry, value)
+            return
+        if remote and entry.writer is not None:
+            self.call_writer(entry, value)
+        self.store(entry, value)
+
+    def call_writer(self, entry: Entry, value: Any) -> None:
+        writer = entry.writer
+        assert writer is not None
+        try:
+            writer(value)
+        except SdoAbort:
+            raise
+        except Exception as exc:
+            self.failure(f"write callback of 0x{entry.index:04X}:{entry.subindex:02X}", exc)
+            raise abort(SdoAbortCode.CANNOT_STORE, f"the application refused: {exc!r}") from None
+
+    def cob_id(self, kind: str, number: int, value: int) -> int:
+        """The CiA 301 form of a stored COB-ID parameter (see
+        :attr:`Deviations.cob_id_rule <cobus.device.Deviations.cob_id_rule>`)."""
+        rule = self.deviations.cob_id_rule
+        if rule is None:
+            return value
+        try:
+            return int(rule(kind, number, value))
+        except Exception as exc:
+            self.failure(f"COB-ID rule for {kind} {number}", exc)
+            raise abort(
+                SdoAbortCode.INVALID_VALUE, f"the COB-ID rule refused 0x{value:08X}"
+            ) from None
+
+    def emit(self, event: DeviceEvent) -> None:
+        """To the device's listeners, then to the network's."""
+        for listener in list(self.listeners):
+            try:
+                listener(event)
+            except Exception as exc:
+                self.failure(f"device {self.node_id} listener {listener!r}", exc)
+        self.network.emit(event)
+
+    def report(self, what: str, exc: Exception) -> None:
+        """A configuration value the device cannot use: reported, that part stays off."""
+        self.emit(ConfigurationProblem(self.node_id, f"{what}: {exc}"))
+
+    def failure(self, where: str, exc: BaseException) -> None:
+        """An application callback raised: logged and reported, the device goes on."""
+        log.error("device %d: %s failed: %r", self.node_id, where, exc, exc_info=exc)
+        self.network.emit(HandlerFailed(f"device {self.node_id}: {where}", repr(exc)))
