@@ -87,6 +87,7 @@ class Core:
         self.operational = False
 
     def now(self) -> float:
+        """The network's clock."""
         return self.network.time()
 
     def handle(self, index: int, handler: WriteHandler) -> None:
@@ -104,6 +105,7 @@ class Core:
         return entry
 
     def value(self, index: int, subindex: int, default: int = 0) -> Any:
+        """The stored value of an entry, ``default`` when the dictionary lacks it."""
         entry = self.entries.get(index << 8 | subindex)
         return default if entry is None else entry.value
 
@@ -130,6 +132,7 @@ class Core:
         self.store(entry, value)
 
     def call_writer(self, entry: Entry, value: Any) -> None:
+        """The application's write callback of ``entry``; a failure refuses the write."""
         writer = entry.writer
         assert writer is not None
         try:

@@ -23,6 +23,7 @@ from cobus.device._core import Core
 from cobus.device._entries import Entry, check_value, decode_download, zero_value
 from cobus.device._gates import LateSdoServer, MutableHeartbeat
 from cobus.device.eds_export import export_eds
+from cobus.device.emcy import COMM_BIT, EmcyService, class_bits
 from cobus.device.errors import (
     DeviceConfigError,
     EntryNotFoundError,
@@ -33,7 +34,6 @@ from cobus.device.errors import (
 from cobus.device.events import (
     Booted,
     DeviceEvent,
-    EmergencySent,
     EntryWritten,
     HeartbeatLost,
     HeartbeatRestored,
@@ -63,7 +63,7 @@ from cobus.device.storage import (
     StoredValue,
 )
 from cobus.errors import CobusError
-from cobus.od import Array, DataType, ObjectDictionary, Record, Variable, encode
+from cobus.od import DataType, ObjectDictionary, Variable, encode
 from cobus.proto import NOTHING, Event, Frame, Out
 from cobus.proto import emcy as _emcy
 from cobus.proto import guarding as _guarding
@@ -71,7 +71,7 @@ from cobus.proto import heartbeat as _hb
 from cobus.proto import nmt as _nmt
 from cobus.proto import sync as _sync
 from cobus.proto import timestamp as _time
-from cobus.proto.emcy import EmcyCode, EmcyProducer, ErrorRegister
+from cobus.proto.emcy import EmcyCode, ErrorRegister
 from cobus.proto.nmt import NmtCommand, NmtSlave, NmtState
 from cobus.proto.pdo import (
     MappingEntry,
@@ -109,8 +109,6 @@ _INVALID = 1 << 31
 _EXTENDED = 1 << 29
 _MANDATORY = (0x1000, 0x1001, 0x1018)
 _COMMANDS = {int(c): c for c in NmtCommand}
-_GENERIC = int(ErrorRegister.GENERIC)
-_COMM_BIT = int(ErrorRegister.COMMUNICATION)
 #: Dictionaries served by a running device (by id): a dictionary holds one node's defaults.
 _SERVED: dict[int, weakref.ref[Device]] = {}
 
@@ -197,22 +195,6 @@ class Deviations:
 
 
 _CIA = Deviations()
-
-
-def _class_bits(code: int) -> int:
-    """The error register bits an emergency code stands for (CiA 301 error register)."""
-    high = code >> 12
-    if high == 0x2:
-        return int(ErrorRegister.CURRENT)
-    if high == 0x3:
-        return int(ErrorRegister.VOLTAGE)
-    if high == 0x4:
-        return int(ErrorRegister.TEMPERATURE)
-    if code >> 8 in (0x81, 0x82):
-        return _COMM_BIT
-    if code >> 8 == 0xFF:
-        return int(ErrorRegister.MANUFACTURER)
-    return 0
 
 
 def _abort(code: int, reason: str) -> SdoAbort:
@@ -341,12 +323,10 @@ class Device:
         # communication state, rebuilt by every reset communication
         self._nmt_host: MachineHost | None = None
         self._nmt_sub: Subscription | None = None
-        self._emcy = EmcyProducer(node_id, depth=self._history_depth(), queue_size=emcy_queue_size)
-        self._errors: dict[object, int] = {}
+        self._emcy = EmcyService(self._core, queue_size=emcy_queue_size)
         self._hosts: list[MachineHost] = []
         self._subs: list[Subscription] = []
         self._sdo: dict[int, _SdoChannel] = {}
-        self._emcy_host: MachineHost | None = None
         self._hb: _hb.HeartbeatProducer | None = None
         self._hb_host: MachineHost | None = None
         self._consumer: _hb.HeartbeatConsumer | None = None
@@ -393,7 +373,7 @@ class Device:
     @property
     def error_register(self) -> ErrorRegister:
         """1001h: the error register (generic bit set while any error is active)."""
-        return ErrorRegister(self._register())
+        return ErrorRegister(self._emcy.register())
 
     @property
     def error_history(self) -> tuple[int, ...]:
@@ -534,18 +514,18 @@ class Device:
         if code >> 8 == 0:
             self.clear_emergency()
             return
-        bits = _class_bits(code) if register is None else register
-        self._raise_error(("app", code), code, bits, bytes(manufacturer), info)
+        bits = class_bits(code) if register is None else register
+        self._emcy.raise_error(("app", code), code, bits, bytes(manufacturer), info)
 
     def clear_emergency(self, code: int | None = None, *, manufacturer: bytes = b"") -> None:
         """End application error ``code`` (None: all of them): the error register is updated
         and the 'error reset' emergency (0000h) is sent, with ``manufacturer`` (up to 5
         bytes) as its manufacturer-specific field."""
         _emcy.emcy_frame_data(0, 0, manufacturer)
-        keys = [k for k in self._errors if isinstance(k, tuple) and k[0] == "app"]
+        keys = self._emcy.keys("app")
         if code is not None:
             keys = [k for k in keys if k == ("app", code)]
-        self._clear_errors(keys, bytes(manufacturer))
+        self._emcy.clear(keys, bytes(manufacturer))
 
     def send_tpdo(self, number: int) -> None:
         """An application event for TPDO ``number``: event-driven types send now (or at the
@@ -621,12 +601,12 @@ class Device:
         devices[node_id] = self
         if not self._core.started:
             self._core.nmt = NmtSlave(node_id)
-            self._emcy.node_id = node_id
+            self._emcy.set_node_id(node_id)
             return
         self._teardown_comm()
         self._close_nmt()
         self._core.nmt = NmtSlave(node_id)
-        self._emcy.node_id = node_id
+        self._emcy.set_node_id(node_id)
         self._open_nmt()
         self._boot()
         self._core.emit(NodeIdChanged(node_id, old))
@@ -716,12 +696,6 @@ class Device:
             )
         return entry
 
-    def _history_depth(self) -> int:
-        obj = self.od.get(0x1003)
-        if isinstance(obj, Record | Array):
-            return min(max((s for s in obj.subindices if s), default=0), 254)
-        return 0
-
     # ================================================================== SDO access
 
     def _sdo_upload(self, index: int, subindex: int) -> bytes:
@@ -809,16 +783,7 @@ class Device:
         for group in groups:
             for key, item in stored.get(group, {}).items():
                 self._apply_stored(group, key, item)
-        if communication:
-            self._errors = {
-                k: v for k, v in self._errors.items() if isinstance(k, tuple) and k[0] == "app"
-            }
-        if application:
-            self._errors.clear()
-            self._emcy = EmcyProducer(
-                self._core.node_id, depth=self._history_depth(), queue_size=self._emcy.queue_size
-            )
-        self._sync_error_objects()
+        self._emcy.power_on(communication=communication, application=application)
 
     def _apply_stored(self, group: str, key: str, item: StoredValue) -> None:
         try:
@@ -918,7 +883,7 @@ class Device:
             for rpdo in self._rpdos.values():
                 rpdo.disarm()
                 self._apply(rpdo, NOTHING)
-            self._clear_errors([k for k in self._errors if isinstance(k, tuple) and k[0] == "rpdo"])
+            self._emcy.clear(self._emcy.keys("rpdo"))
         if early:
             for number, tpdo in self._tpdos.items():
                 if number not in early:
@@ -979,7 +944,8 @@ class Device:
         self._hosts.clear()
         self._sync_sub = self._time_sub = None
         self._hb = self._consumer = self._guard = None
-        self._hb_host = self._consumer_host = self._guard_host = self._emcy_host = None
+        self._hb_host = self._consumer_host = self._guard_host = None
+        self._emcy.close()
         self._sync = self._time = None
         self._sync_producer = None
         self._sync_host = self._time_host = self._sync_producer_host = None
@@ -988,19 +954,7 @@ class Device:
     def _build_comm(self) -> None:
         now = self.network.time()
         node = self._core.node_id
-        # EMCY
-        emcy = self._emcy
-        try:
-            emcy.set_cob_id(
-                self._core.cob_id(
-                    "emcy", 1, int(self._core.value(0x1014, 0, _emcy.EMCY_BASE + node))
-                )
-            )
-        except (CobusError, SdoAbort) as exc:
-            self._core.report("1014h", exc)
-            emcy.set_cob_id(_emcy.EMCY_BASE + node)
-        emcy.set_inhibit_time(int(self._core.value(0x1015, 0)), now)
-        self._emcy_host = self._attach(emcy)
+        self._emcy.build(now)
         # SDO servers
         self._build_sdo()
         # heartbeat producer and consumer
@@ -1181,7 +1135,7 @@ class Device:
             rpdo.host.close()
         rpdo.host = None
         self._sync_rpdos = [r for r in self._sync_rpdos if r is not rpdo]
-        self._clear_errors([("rpdo", number)])
+        self._emcy.clear([("rpdo", number)])
 
     def _build_tpdo(self, number: int) -> None:
         self._drop_tpdo(number)
@@ -1314,16 +1268,16 @@ class Device:
     def _on_rpdo_event(self, rpdo: Rpdo, event: Event) -> None:
         node = self._core.node_id
         if isinstance(event, RpdoTooShort):
-            self._one_shot(EmcyCode.PDO_LENGTH_ERROR, _COMM_BIT)
+            self._emcy.one_shot(EmcyCode.PDO_LENGTH_ERROR, COMM_BIT)
             self._core.emit(PdoLengthError(node, rpdo.number, event.expected, event.received))
         elif isinstance(event, RpdoTooLong):
-            self._one_shot(EmcyCode.PDO_LENGTH_EXCEEDED, _COMM_BIT)
+            self._emcy.one_shot(EmcyCode.PDO_LENGTH_EXCEEDED, COMM_BIT)
             self._core.emit(PdoLengthError(node, rpdo.number, event.expected, event.received))
         elif isinstance(event, RpdoTimeout):
-            self._raise_error(("rpdo", rpdo.number), EmcyCode.RPDO_TIMEOUT, _COMM_BIT)
+            self._emcy.raise_error(("rpdo", rpdo.number), EmcyCode.RPDO_TIMEOUT, COMM_BIT)
             self._core.emit(RpdoLost(node, rpdo.number, event.cob_id))
         elif isinstance(event, RpdoResumed):
-            self._clear_errors([("rpdo", rpdo.number)])
+            self._emcy.clear([("rpdo", rpdo.number)])
             self._core.emit(RpdoRestored(node, rpdo.number, event.cob_id))
 
     # --- SYNC, TIME, heartbeat, guarding events
@@ -1345,13 +1299,13 @@ class Device:
                 for tpdo in tpdos:
                     self._apply(tpdo, tpdo.on_sync(counter, now))
         elif isinstance(event, _sync.SyncLost):
-            self._raise_error(("sync",), EmcyCode.COMMUNICATION, _COMM_BIT)
+            self._emcy.raise_error(("sync",), EmcyCode.COMMUNICATION, COMM_BIT)
             self._core.emit(SyncLost(self._core.node_id))
         elif isinstance(event, _sync.SyncResumed):
-            self._clear_errors([("sync",)])
+            self._emcy.clear([("sync",)])
             self._core.emit(SyncRestored(self._core.node_id))
         elif isinstance(event, _sync.UnexpectedSyncLength):
-            self._one_shot(EmcyCode.UNEXPECTED_SYNC_LENGTH, _COMM_BIT)
+            self._emcy.one_shot(EmcyCode.UNEXPECTED_SYNC_LENGTH, COMM_BIT)
 
     def _on_time_event(self, event: Event) -> None:
         if isinstance(event, _time.TimeReceived):
@@ -1360,22 +1314,24 @@ class Device:
     def _on_consumer_event(self, event: Event) -> None:
         node = self._core.node_id
         if isinstance(event, _hb.HeartbeatTimeout):
-            self._raise_error(("hb", event.node_id), EmcyCode.LIFE_GUARD_OR_HEARTBEAT, _COMM_BIT)
+            self._emcy.raise_error(
+                ("hb", event.node_id), EmcyCode.LIFE_GUARD_OR_HEARTBEAT, COMM_BIT
+            )
             self._core.emit(HeartbeatLost(node, event.node_id))
             self._communication_error()
         elif isinstance(event, _hb.HeartbeatResumed):
-            self._clear_errors([("hb", event.node_id)])
+            self._emcy.clear([("hb", event.node_id)])
             self._core.emit(HeartbeatRestored(node, event.node_id, event.state))
         elif isinstance(event, _hb.BootupReceived):
-            self._clear_errors([("hb", event.node_id)])
+            self._emcy.clear([("hb", event.node_id)])
 
     def _on_guarding_event(self, event: Event) -> None:
         if isinstance(event, _guarding.LifeGuardingExpired):
-            self._raise_error(("guard",), EmcyCode.LIFE_GUARD_OR_HEARTBEAT, _COMM_BIT)
+            self._emcy.raise_error(("guard",), EmcyCode.LIFE_GUARD_OR_HEARTBEAT, COMM_BIT)
             self._core.emit(LifeGuardingLost(self._core.node_id))
             self._communication_error()
         elif isinstance(event, _guarding.LifeGuardingResumed):
-            self._clear_errors([("guard",)])
+            self._emcy.clear([("guard",)])
             self._core.emit(LifeGuardingRestored(self._core.node_id))
 
     def _sync_consumer_subs(self) -> None:
@@ -1397,66 +1353,6 @@ class Device:
                 )
 
     # ================================================================== emergencies
-
-    def _register(self) -> int:
-        bits = 0
-        for value in self._errors.values():
-            bits |= value
-        if self._errors and self.deviations.generic_error_bit:
-            bits |= _GENERIC
-        return bits
-
-    def _emcy_allowed(self) -> bool:
-        if self._core.nmt.emcy_allowed:
-            return True
-        return self.deviations.emcy_in_stopped and self._core.nmt.state is NmtState.STOPPED
-
-    def _sync_error_objects(self) -> None:
-        entry = self._core.entries.get(0x1001 << 8)
-        if entry is not None:
-            self._core.store(entry, self._register())
-        self._emcy.error_register = ErrorRegister(self._register())
-
-    def _emergency(self, code: int, register: int, manufacturer: bytes, info: int) -> None:
-        emcy = self._emcy
-        host = self._emcy_host
-        if host is not None and self._emcy_allowed():
-            host.apply(emcy.send(code, register, manufacturer, self.network.time(), info=info))
-        else:
-            emcy.record(code, info)
-        self._sync_error_objects()
-        self._core.emit(EmergencySent(self._core.node_id, code, register, manufacturer))
-
-    def _raise_error(
-        self, key: object, code: int, bits: int, manufacturer: bytes = b"", info: int = 0
-    ) -> None:
-        """Raise an error; keys other than ("app", code) are the device's own communication
-        errors, left to the application when the deviations say so."""
-        if not self.deviations.comm_error_emcy and not (isinstance(key, tuple) and key[0] == "app"):
-            return
-        self._errors[key] = bits
-        self._emergency(code, self._register(), manufacturer, info)
-
-    def _one_shot(self, code: int, bits: int) -> None:
-        """A communication error that is over as it happens (PDO and SYNC lengths)."""
-        if not self.deviations.comm_error_emcy:
-            return
-        generic = _GENERIC if self.deviations.generic_error_bit else 0
-        self._emergency(code, self._register() | bits | generic, b"", 0)
-
-    def _clear_errors(self, keys: list[Any], manufacturer: bytes = b"") -> None:
-        removed = False
-        for key in keys:
-            if self._errors.pop(key, None) is not None:
-                removed = True
-        if not removed:
-            return
-        register = self._register()
-        host = self._emcy_host
-        if host is not None and self._emcy_allowed():
-            host.apply(self._emcy.reset(self.network.time(), register, manufacturer))
-        self._sync_error_objects()
-        self._core.emit(EmergencySent(self._core.node_id, 0, register, manufacturer))
 
     # ================================================================== stored parameters
 
@@ -1549,8 +1445,6 @@ class Device:
     def _install_handlers(self) -> None:
         h = self._core.handlers
         fixed: dict[int, Callable[[Entry, Any], None]] = {
-            0x1001: self._w_error_register,
-            0x1003: self._w_error_field,
             0x1005: self._w_sync_cob_id,
             0x1006: self._w_sync_period,
             0x1007: self._w_sync_window,
@@ -1559,8 +1453,6 @@ class Device:
             0x1010: self._w_store,
             0x1011: self._w_restore,
             0x1012: self._w_time_cob_id,
-            0x1014: self._w_emcy_cob_id,
-            0x1015: self._w_emcy_inhibit,
             0x1016: self._w_consumer,
             0x1017: self._w_producer,
             0x1019: self._w_sync_overflow,
@@ -1576,46 +1468,16 @@ class Device:
                 h[index] = self._w_pdo_comm
             elif 0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF:
                 h[index] = self._w_pdo_mapping
-        e1003 = self._core.entries
-        for sub in range(0, 255):
-            entry = e1003.get(0x1003 << 8 | sub)
-            if entry is not None:
-                entry.reader = partial(self._read_error_field, sub)
         eds = self._core.entries.get(0x1021 << 8)
         if eds is not None:
             eds.reader = self._read_eds
 
     # --- readers
 
-    def _read_error_field(self, sub: int) -> int:
-        history = self._emcy.history
-        if sub == 0:
-            return len(history)
-        if sub > len(history):
-            raise _abort(
-                _ABORT.NO_DATA, f"1003h sub {sub} holds no error ({len(history)} recorded)"
-            )
-        return history[sub - 1]
-
     def _read_eds(self) -> bytes:
         return self.to_eds().replace("\n", "\r\n").encode("utf-8")
 
     # --- simple objects
-
-    def _w_error_register(self, entry: Entry, value: Any) -> None:
-        raise _abort(
-            _ABORT.UNSUPPORTED_ACCESS,
-            "the error register follows the active errors: use send_emergency() and "
-            "clear_emergency()",
-        )
-
-    def _w_error_field(self, entry: Entry, value: Any) -> None:
-        if entry.subindex != 0:
-            raise _abort(_ABORT.UNSUPPORTED_ACCESS, "1003h entries are recorded by the device")
-        if value != 0:
-            raise _abort(_ABORT.INVALID_VALUE, "1003h sub 0 accepts only 0 (clear the history)")
-        self._emcy.write_error_count(0)
-        entry.value = 0
 
     def _w_sync_cob_id(self, entry: Entry, value: Any) -> None:
         try:
@@ -1712,25 +1574,6 @@ class Device:
         if self._core.started:
             self._build_time()
 
-    def _w_emcy_cob_id(self, entry: Entry, value: Any) -> None:
-        try:
-            new = _emcy.EmcyCobId.from_u32(self._core.cob_id("emcy", 1, value))
-            old = _emcy.EmcyCobId.from_u32(self._core.cob_id("emcy", 1, int(entry.value)))
-        except CobusError as exc:
-            raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
-        if old.valid and new.valid and (old.can_id, old.extended) != (new.can_id, new.extended):
-            raise _abort(
-                _ABORT.INVALID_VALUE,
-                "1014h: the EMCY identifier cannot change while it is valid; write it with "
-                "bit 31 set first",
-            )
-        self._core.store(entry, value)
-        self._emcy.set_cob_id(new.to_u32())
-
-    def _w_emcy_inhibit(self, entry: Entry, value: Any) -> None:
-        self._core.store(entry, value)
-        self._emcy.set_inhibit_time(value, self._core.now())
-
     def _w_consumer(self, entry: Entry, value: Any) -> None:
         sub = entry.subindex
         if sub == 0:
@@ -1762,13 +1605,7 @@ class Device:
             host.apply(NOTHING)
             self._sync_consumer_subs()
             if not (node and ms):
-                self._clear_errors(
-                    [
-                        k
-                        for k in self._errors
-                        if isinstance(k, tuple) and k[0] == "hb" and not self._watched(k[1])
-                    ]
-                )
+                self._emcy.clear([k for k in self._emcy.keys("hb") if not self._watched(k[1])])
 
     def _watched(self, node: int) -> bool:
         consumer = self._consumer
