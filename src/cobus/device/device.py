@@ -49,9 +49,6 @@ from cobus.device.events import (
     RpdoRestored,
     StateChanged,
     StorageProblem,
-    SyncLost,
-    SyncRestored,
-    TimeReceived,
 )
 from cobus.device.pdo import Rpdo, Tpdo, check_mapping_entry, compile_mapping
 from cobus.device.storage import (
@@ -62,6 +59,8 @@ from cobus.device.storage import (
     ParameterStorage,
     StoredValue,
 )
+from cobus.device.sync import SyncService
+from cobus.device.timestamp import TimeService
 from cobus.errors import CobusError
 from cobus.od import DataType, ObjectDictionary, Variable, encode
 from cobus.proto import NOTHING, Event, Frame, Out
@@ -69,8 +68,6 @@ from cobus.proto import emcy as _emcy
 from cobus.proto import guarding as _guarding
 from cobus.proto import heartbeat as _hb
 from cobus.proto import nmt as _nmt
-from cobus.proto import sync as _sync
-from cobus.proto import timestamp as _time
 from cobus.proto.emcy import EmcyCode, ErrorRegister
 from cobus.proto.nmt import NmtCommand, NmtSlave, NmtState
 from cobus.proto.pdo import (
@@ -334,14 +331,8 @@ class Device:
         self._consumer_subs: dict[int, Subscription] = {}
         self._guard: _guarding.GuardingResponder | None = None
         self._guard_host: MachineHost | None = None
-        self._sync: _sync.SyncConsumer | None = None
-        self._sync_host: MachineHost | None = None
-        self._sync_sub: Subscription | None = None
-        self._sync_producer: _sync.SyncProducer | None = None
-        self._sync_producer_host: MachineHost | None = None
-        self._time: _time.TimeConsumer | None = None
-        self._time_host: MachineHost | None = None
-        self._time_sub: Subscription | None = None
+        self._sync = SyncService(self._core, self._emcy, self._on_sync)
+        self._time = TimeService(self._core)
         self._tpdos: dict[int, Tpdo] = {}
         self._rpdos: dict[int, Rpdo] = {}
         self._sync_tpdos: list[Tpdo] = []
@@ -896,12 +887,7 @@ class Device:
                     self._apply(tpdo, NOTHING)
         if new is NmtState.STOPPED:
             self._build_sdo()  # transfers in progress end silently: SDO is not available
-        producer, host = self._sync_producer, self._sync_producer_host
-        if producer is not None and host is not None and NmtState.STOPPED in (old, new):
-            # CiA 301: no SYNC in Stopped; on leaving it the counter starts again at 1.
-            period = 0 if new is NmtState.STOPPED else int(self._core.value(0x1006, 0))
-            producer.set_period(period, now)
-            host.apply(NOTHING)
+        self._sync.state_changed(old, new, now)
         self._core.emit(StateChanged(self._core.node_id, old, new))
 
     def _communication_error(self) -> None:
@@ -942,13 +928,11 @@ class Device:
         for host in self._hosts:
             host.close()
         self._hosts.clear()
-        self._sync_sub = self._time_sub = None
         self._hb = self._consumer = self._guard = None
         self._hb_host = self._consumer_host = self._guard_host = None
         self._emcy.close()
-        self._sync = self._time = None
-        self._sync_producer = None
-        self._sync_host = self._time_host = self._sync_producer_host = None
+        self._sync.close()
+        self._time.close()
         self._core.operational = False
 
     def _build_comm(self) -> None:
@@ -983,8 +967,8 @@ class Device:
                 self.network.subscribe(_nmt.ERROR_CONTROL_BASE + node, self._guard_host.feed)
             )
         # SYNC and TIME
-        self._build_sync()
-        self._build_time()
+        self._sync.build()
+        self._time.build()
         # PDOs
         for n in range(1, 513):
             if 0x1400 + n - 1 in self._core.indices:
@@ -1027,68 +1011,6 @@ class Device:
     def _on_sdo_frame(self, host: MachineHost, frame: Frame, now: float) -> None:
         if self._core.nmt.sdo_allowed:
             host.feed(frame, now)
-
-    def _build_sync(self) -> None:
-        for host in (self._sync_host, self._sync_producer_host):
-            if host is not None:
-                host.close()
-                self._hosts.remove(host)
-        if self._sync_sub is not None:
-            self._sync_sub.cancel()
-            self._subs.remove(self._sync_sub)
-        self._sync = self._sync_producer = None
-        self._sync_host = self._sync_producer_host = self._sync_sub = None
-        now = self.network.time()
-        try:
-            cob = _sync.SyncCobId.from_u32(int(self._core.value(0x1005, 0, _sync.SYNC_COB_ID)))
-            overflow = int(self._core.value(0x1019, 0))
-            consumer = _sync.SyncConsumer(cob.can_id, extended=cob.extended, overflow=overflow)
-            consumer.set_period(int(self._core.value(0x1006, 0)), now)
-            consumer.set_window(int(self._core.value(0x1007, 0)))
-        except CobusError as exc:
-            self._core.report("SYNC parameters", exc)
-            return
-        self._sync = consumer
-        self._sync_host = self._attach(consumer, self._on_sync_event)
-        self._sync_sub = self.network.subscribe(
-            cob.can_id, partial(self._on_gated_frame, self._sync_host), extended=cob.extended
-        )
-        self._subs.append(self._sync_sub)
-        if cob.generate:
-            producer = _sync.SyncProducer(cob.can_id, extended=cob.extended, overflow=overflow)
-            producer.set_period(int(self._core.value(0x1006, 0)), now)
-            self._sync_producer = producer
-            self._sync_producer_host = self._attach(producer)
-            self._sync_producer_host.apply(NOTHING)
-
-    def _on_gated_frame(self, host: MachineHost, frame: Frame, now: float) -> None:
-        """SYNC and TIME are received in pre-operational and operational only."""
-        if self._core.nmt.allowed(_nmt.Service.SYNC):
-            host.feed(frame, now)
-
-    def _build_time(self) -> None:
-        if self._time_host is not None:
-            self._time_host.close()
-            self._hosts.remove(self._time_host)
-        if self._time_sub is not None:
-            self._time_sub.cancel()
-            self._subs.remove(self._time_sub)
-        self._time = self._time_host = self._time_sub = None
-        if 0x1012 not in self._core.indices:
-            return
-        try:
-            cob = _time.TimeCobId.from_u32(int(self._core.value(0x1012, 0)))
-        except CobusError as exc:
-            self._core.report("1012h", exc)
-            return
-        if not cob.consume:
-            return
-        self._time = _time.TimeConsumer(cob.can_id, extended=cob.extended)
-        self._time_host = self._attach(self._time, self._on_time_event)
-        self._time_sub = self.network.subscribe(
-            cob.can_id, partial(self._on_gated_frame, self._time_host), extended=cob.extended
-        )
-        self._subs.append(self._time_sub)
 
     # --- PDOs
 
@@ -1224,8 +1146,7 @@ class Device:
         else:
             values = rpdo.map.unpack(data)
         if rpdo.synchronous:
-            sync = self._sync
-            if sync is not None and sync.window_us and not sync.in_window(now):
+            if not self._sync.in_window(now):
                 return  # after the synchronous window (1007h): discarded until the next SYNC
             rpdo.pending = values
         else:
@@ -1282,34 +1203,20 @@ class Device:
 
     # --- SYNC, TIME, heartbeat, guarding events
 
-    def _on_sync_event(self, event: Event) -> None:
-        if isinstance(event, _sync.SyncReceived):
-            if self._core.operational:
-                for rpdo in self._sync_rpdos:
-                    pending = rpdo.pending
-                    if pending is not None:
-                        rpdo.pending = None
-                        self._apply_rpdo(rpdo, pending)
-                tpdos = self._sync_tpdos
-            else:
-                tpdos = [t for t in self._sync_tpdos if self._tpdo_active(t.number)]
-            if tpdos:
-                now = self.network.time()
-                counter = event.counter
-                for tpdo in tpdos:
-                    self._apply(tpdo, tpdo.on_sync(counter, now))
-        elif isinstance(event, _sync.SyncLost):
-            self._emcy.raise_error(("sync",), EmcyCode.COMMUNICATION, COMM_BIT)
-            self._core.emit(SyncLost(self._core.node_id))
-        elif isinstance(event, _sync.SyncResumed):
-            self._emcy.clear([("sync",)])
-            self._core.emit(SyncRestored(self._core.node_id))
-        elif isinstance(event, _sync.UnexpectedSyncLength):
-            self._emcy.one_shot(EmcyCode.UNEXPECTED_SYNC_LENGTH, COMM_BIT)
-
-    def _on_time_event(self, event: Event) -> None:
-        if isinstance(event, _time.TimeReceived):
-            self._core.emit(TimeReceived(self._core.node_id, event.time))
+    def _on_sync(self, counter: int | None, now: float) -> None:
+        """A SYNC: the synchronous RPDOs received since the last one take effect, the
+        synchronous TPDOs count it and send when due."""
+        if self._core.operational:
+            for rpdo in self._sync_rpdos:
+                pending = rpdo.pending
+                if pending is not None:
+                    rpdo.pending = None
+                    self._apply_rpdo(rpdo, pending)
+            tpdos = self._sync_tpdos
+        else:
+            tpdos = [t for t in self._sync_tpdos if self._tpdo_active(t.number)]
+        for tpdo in tpdos:
+            self._apply(tpdo, tpdo.on_sync(counter, now))
 
     def _on_consumer_event(self, event: Event) -> None:
         node = self._core.node_id
@@ -1445,17 +1352,12 @@ class Device:
     def _install_handlers(self) -> None:
         h = self._core.handlers
         fixed: dict[int, Callable[[Entry, Any], None]] = {
-            0x1005: self._w_sync_cob_id,
-            0x1006: self._w_sync_period,
-            0x1007: self._w_sync_window,
             0x100C: self._w_guarding,
             0x100D: self._w_guarding,
             0x1010: self._w_store,
             0x1011: self._w_restore,
-            0x1012: self._w_time_cob_id,
             0x1016: self._w_consumer,
             0x1017: self._w_producer,
-            0x1019: self._w_sync_overflow,
             0x1029: self._w_error_behaviour,
         }
         for index, handler in fixed.items():
@@ -1478,57 +1380,6 @@ class Device:
         return self.to_eds().replace("\n", "\r\n").encode("utf-8")
 
     # --- simple objects
-
-    def _w_sync_cob_id(self, entry: Entry, value: Any) -> None:
-        try:
-            new = _sync.SyncCobId.from_u32(value)
-        except CobusError as exc:
-            raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
-        producer = self._sync_producer
-        if (
-            producer is not None
-            and new.generate
-            and (new.can_id, new.extended) != (producer.can_id, producer.extended)
-        ):
-            raise _abort(
-                _ABORT.INVALID_VALUE,
-                "1005h: the SYNC identifier cannot change while this device generates SYNC; "
-                "clear bit 30 first",
-            )
-        self._core.store(entry, value)
-        if self._core.started:
-            self._build_sync()
-
-    def _w_sync_period(self, entry: Entry, value: Any) -> None:
-        self._core.store(entry, value)
-        now = self._core.now()
-        if self._sync is not None and self._sync_host is not None:
-            self._sync.set_period(value, now)
-            self._sync_host.apply(NOTHING)
-        if self._sync_producer is not None and self._sync_producer_host is not None:
-            self._sync_producer.set_period(value, now)
-            self._sync_producer_host.apply(NOTHING)
-
-    def _w_sync_window(self, entry: Entry, value: Any) -> None:
-        self._core.store(entry, value)
-        if self._sync is not None:
-            self._sync.set_window(value)
-
-    def _w_sync_overflow(self, entry: Entry, value: Any) -> None:
-        if self._core.value(0x1006, 0):
-            raise _abort(
-                _ABORT.DEVICE_STATE,
-                "1019h can only change while the communication cycle period 1006h is 0",
-            )
-        try:
-            _sync.check_overflow(value)
-        except CobusError as exc:
-            raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
-        self._core.store(entry, value)
-        if self._sync is not None:
-            self._sync.set_overflow(value)
-        if self._sync_producer is not None:
-            self._sync_producer.set_overflow(value)
 
     def _w_guarding(self, entry: Entry, value: Any) -> None:
         self._core.store(entry, value)
@@ -1559,20 +1410,6 @@ class Device:
                 f"1011h expects the signature 'load' (0x{LOAD_SIGNATURE:08X}), got 0x{value:08X}",
             )
         self._restore_defaults(entry.subindex)
-
-    def _w_time_cob_id(self, entry: Entry, value: Any) -> None:
-        try:
-            new = _time.TimeCobId.from_u32(value)
-        except CobusError as exc:
-            raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
-        if new.produce:
-            raise _abort(
-                _ABORT.INVALID_VALUE,
-                "1012h bit 30: this device does not produce TIME (it consumes it, bit 31)",
-            )
-        self._core.store(entry, value)
-        if self._core.started:
-            self._build_time()
 
     def _w_consumer(self, entry: Entry, value: Any) -> None:
         sub = entry.subindex
