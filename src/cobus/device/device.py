@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 from cobus.device._core import Core
 from cobus.device._entries import Entry, check_value, decode_download, zero_value
-from cobus.device._gates import LateSdoServer, MutableHeartbeat
+from cobus.device._gates import LateSdoServer
 from cobus.device.eds_export import export_eds
 from cobus.device.emcy import COMM_BIT, EmcyService, class_bits
 from cobus.device.errors import (
@@ -35,10 +35,6 @@ from cobus.device.events import (
     Booted,
     DeviceEvent,
     EntryWritten,
-    HeartbeatLost,
-    HeartbeatRestored,
-    LifeGuardingLost,
-    LifeGuardingRestored,
     NmtCommandReceived,
     NodeIdChanged,
     ParametersRestored,
@@ -50,6 +46,8 @@ from cobus.device.events import (
     StateChanged,
     StorageProblem,
 )
+from cobus.device.guarding import GuardingService
+from cobus.device.heartbeat import HeartbeatService
 from cobus.device.pdo import Rpdo, Tpdo, check_mapping_entry, compile_mapping
 from cobus.device.storage import (
     APPLICATION,
@@ -65,8 +63,6 @@ from cobus.errors import CobusError
 from cobus.od import DataType, ObjectDictionary, Variable, encode
 from cobus.proto import NOTHING, Event, Frame, Out
 from cobus.proto import emcy as _emcy
-from cobus.proto import guarding as _guarding
-from cobus.proto import heartbeat as _hb
 from cobus.proto import nmt as _nmt
 from cobus.proto.emcy import EmcyCode, ErrorRegister
 from cobus.proto.nmt import NmtCommand, NmtSlave, NmtState
@@ -324,13 +320,8 @@ class Device:
         self._hosts: list[MachineHost] = []
         self._subs: list[Subscription] = []
         self._sdo: dict[int, _SdoChannel] = {}
-        self._hb: _hb.HeartbeatProducer | None = None
-        self._hb_host: MachineHost | None = None
-        self._consumer: _hb.HeartbeatConsumer | None = None
-        self._consumer_host: MachineHost | None = None
-        self._consumer_subs: dict[int, Subscription] = {}
-        self._guard: _guarding.GuardingResponder | None = None
-        self._guard_host: MachineHost | None = None
+        self._heartbeat = HeartbeatService(self._core, self._emcy, self._communication_error)
+        self._guarding = GuardingService(self._core, self._emcy, self._communication_error)
         self._sync = SyncService(self._core, self._emcy, self._on_sync)
         self._time = TimeService(self._core)
         self._tpdos: dict[int, Tpdo] = {}
@@ -805,10 +796,7 @@ class Device:
     def _boot(self) -> None:
         self._build_comm()
         self._nmt_run_out(self._boot_out)
-        now = self.network.time()
-        if self._hb is not None and self._hb_host is not None:
-            self._hb.set_period(int(self._core.value(0x1017, 0)), now)
-            self._hb_host.apply(NOTHING)
+        self._heartbeat.boot(self.network.time())
         self._core.emit(Booted(self._core.node_id))
 
     def _boot_out(self, now: float) -> Out:
@@ -922,14 +910,11 @@ class Device:
         for sub in self._subs:
             sub.cancel()
         self._subs.clear()
-        for sub in self._consumer_subs.values():
-            sub.cancel()
-        self._consumer_subs.clear()
         for host in self._hosts:
             host.close()
         self._hosts.clear()
-        self._hb = self._consumer = self._guard = None
-        self._hb_host = self._consumer_host = self._guard_host = None
+        self._heartbeat.close()
+        self._guarding.close()
         self._emcy.close()
         self._sync.close()
         self._time.close()
@@ -937,35 +922,12 @@ class Device:
 
     def _build_comm(self) -> None:
         now = self.network.time()
-        node = self._core.node_id
         self._emcy.build(now)
         # SDO servers
         self._build_sdo()
-        # heartbeat producer and consumer
-        if self.deviations.error_control:
-            self._hb = _hb.HeartbeatProducer(node, state_getter=lambda: self._core.nmt.state)
-            self._hb_host = self._attach(MutableHeartbeat(self._hb, self._core.knobs))
-        consumer_size = self._core.value(0x1016, 0, 0)
-        if consumer_size:
-            self._consumer = _hb.HeartbeatConsumer(min(int(consumer_size), 127))
-            self._consumer_host = self._attach(self._consumer, self._on_consumer_event)
-            for sub in range(1, self._consumer.size + 1):
-                value = self._core.value(0x1016, sub, 0)
-                if value:
-                    try:
-                        self._consumer.set_entry(sub, int(value), now)
-                    except CobusError as exc:
-                        self._core.report(f"1016h sub {sub}", exc)
-            self._sync_consumer_subs()
-        # node guarding and life guarding
-        if self.deviations.error_control:
-            self._guard = _guarding.GuardingResponder(node, lambda: self._core.nmt.state)
-            self._guard.set_guard_time(int(self._core.value(0x100C, 0)), now)
-            self._guard.set_life_time_factor(int(self._core.value(0x100D, 0)), now)
-            self._guard_host = self._attach(self._guard, self._on_guarding_event)
-            self._subs.append(
-                self.network.subscribe(_nmt.ERROR_CONTROL_BASE + node, self._guard_host.feed)
-            )
+        # heartbeat producer and consumer, node guarding and life guarding
+        self._heartbeat.build(now)
+        self._guarding.build(now)
         # SYNC and TIME
         self._sync.build()
         self._time.build()
@@ -1218,47 +1180,6 @@ class Device:
         for tpdo in tpdos:
             self._apply(tpdo, tpdo.on_sync(counter, now))
 
-    def _on_consumer_event(self, event: Event) -> None:
-        node = self._core.node_id
-        if isinstance(event, _hb.HeartbeatTimeout):
-            self._emcy.raise_error(
-                ("hb", event.node_id), EmcyCode.LIFE_GUARD_OR_HEARTBEAT, COMM_BIT
-            )
-            self._core.emit(HeartbeatLost(node, event.node_id))
-            self._communication_error()
-        elif isinstance(event, _hb.HeartbeatResumed):
-            self._emcy.clear([("hb", event.node_id)])
-            self._core.emit(HeartbeatRestored(node, event.node_id, event.state))
-        elif isinstance(event, _hb.BootupReceived):
-            self._emcy.clear([("hb", event.node_id)])
-
-    def _on_guarding_event(self, event: Event) -> None:
-        if isinstance(event, _guarding.LifeGuardingExpired):
-            self._emcy.raise_error(("guard",), EmcyCode.LIFE_GUARD_OR_HEARTBEAT, COMM_BIT)
-            self._core.emit(LifeGuardingLost(self._core.node_id))
-            self._communication_error()
-        elif isinstance(event, _guarding.LifeGuardingResumed):
-            self._emcy.clear([("guard",)])
-            self._core.emit(LifeGuardingRestored(self._core.node_id))
-
-    def _sync_consumer_subs(self) -> None:
-        consumer = self._consumer
-        host = self._consumer_host
-        wanted: set[int] = set()
-        if consumer is not None:
-            for sub in range(1, consumer.size + 1):
-                node, ms = _hb.decode_consumer_entry(consumer.entry(sub))
-                if node and ms:
-                    wanted.add(node)
-        for node in list(self._consumer_subs):
-            if node not in wanted:
-                self._consumer_subs.pop(node).cancel()
-        if host is not None:
-            for node in wanted - set(self._consumer_subs):
-                self._consumer_subs[node] = self.network.subscribe(
-                    _nmt.ERROR_CONTROL_BASE + node, host.feed
-                )
-
     # ================================================================== emergencies
 
     # ================================================================== stored parameters
@@ -1352,12 +1273,8 @@ class Device:
     def _install_handlers(self) -> None:
         h = self._core.handlers
         fixed: dict[int, Callable[[Entry, Any], None]] = {
-            0x100C: self._w_guarding,
-            0x100D: self._w_guarding,
             0x1010: self._w_store,
             0x1011: self._w_restore,
-            0x1016: self._w_consumer,
-            0x1017: self._w_producer,
             0x1029: self._w_error_behaviour,
         }
         for index, handler in fixed.items():
@@ -1381,16 +1298,6 @@ class Device:
 
     # --- simple objects
 
-    def _w_guarding(self, entry: Entry, value: Any) -> None:
-        self._core.store(entry, value)
-        guard, host = self._guard, self._guard_host
-        if guard is not None and host is not None:
-            if entry.index == 0x100C:
-                guard.set_guard_time(value, self._core.now())
-            else:
-                guard.set_life_time_factor(value, self._core.now())
-            host.apply(NOTHING)
-
     def _w_store(self, entry: Entry, value: Any) -> None:
         if entry.subindex == 0 and not self.deviations.store_on_subindex_0:
             raise _abort(_ABORT.WRITE_READ_ONLY, "1010h sub 0 is read-only")
@@ -1410,54 +1317,6 @@ class Device:
                 f"1011h expects the signature 'load' (0x{LOAD_SIGNATURE:08X}), got 0x{value:08X}",
             )
         self._restore_defaults(entry.subindex)
-
-    def _w_consumer(self, entry: Entry, value: Any) -> None:
-        sub = entry.subindex
-        if sub == 0:
-            raise _abort(_ABORT.WRITE_READ_ONLY, "1016h sub 0 is read-only")
-        try:
-            node, ms = _hb.decode_consumer_entry(value)
-        except CobusError as exc:
-            raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
-        if node > 127:
-            raise _abort(_ABORT.INVALID_VALUE, f"1016h sub {sub}: node-ID {node} is not 1..127")
-        if node and ms:
-            for other in range(1, 128):
-                if other == sub:
-                    continue
-                existing = self._core.entries.get(0x1016 << 8 | other)
-                if existing is None:
-                    continue
-                o_node, o_ms = (existing.value >> 16) & 0xFF, existing.value & 0xFFFF
-                if o_node == node and o_ms:
-                    raise _abort(
-                        _ABORT.PARAMETER_INCOMPATIBLE,
-                        f"1016h sub {sub} would watch node {node} a second time (sub {other} "
-                        "does already); clear that entry first",
-                    )
-        self._core.store(entry, value)
-        consumer, host = self._consumer, self._consumer_host
-        if consumer is not None and host is not None and sub <= consumer.size:
-            consumer.set_entry(sub, value, self._core.now())
-            host.apply(NOTHING)
-            self._sync_consumer_subs()
-            if not (node and ms):
-                self._emcy.clear([k for k in self._emcy.keys("hb") if not self._watched(k[1])])
-
-    def _watched(self, node: int) -> bool:
-        consumer = self._consumer
-        if consumer is None:
-            return False
-        return any(
-            (consumer.entry(s) >> 16) & 0xFF == node and consumer.entry(s) & 0xFFFF
-            for s in range(1, consumer.size + 1)
-        )
-
-    def _w_producer(self, entry: Entry, value: Any) -> None:
-        self._core.store(entry, value)
-        if self._hb is not None and self._hb_host is not None:
-            self._hb.set_period(value, self._core.now())
-            self._hb_host.apply(NOTHING)
 
     def _w_error_behaviour(self, entry: Entry, value: Any) -> None:
         if entry.subindex == 0:
