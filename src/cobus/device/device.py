@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from cobus.device._core import Core
-from cobus.device._entries import Entry, check_value, decode_download, zero_value
+from cobus.device._entries import Entry, check_value, decode_download
 from cobus.device._gates import LateSdoServer
 from cobus.device.eds_export import export_eds
 from cobus.device.emcy import COMM_BIT, EmcyService, class_bits
@@ -29,7 +29,6 @@ from cobus.device.errors import (
     EntryNotFoundError,
     EntryRefusedError,
     NodeIdInUseError,
-    StorageError,
 )
 from cobus.device.events import (
     Booted,
@@ -37,25 +36,21 @@ from cobus.device.events import (
     EntryWritten,
     NmtCommandReceived,
     NodeIdChanged,
-    ParametersRestored,
-    ParametersStored,
     PdoLengthError,
     RpdoLost,
     RpdoReceived,
     RpdoRestored,
     StateChanged,
-    StorageProblem,
 )
 from cobus.device.guarding import GuardingService
 from cobus.device.heartbeat import HeartbeatService
 from cobus.device.pdo import Rpdo, Tpdo, check_mapping_entry, compile_mapping
 from cobus.device.storage import (
-    APPLICATION,
-    COMMUNICATION,
-    FileStorage,
-    MemoryStorage,
+    LOAD_SIGNATURE,
+    SAVE_SIGNATURE,
     ParameterStorage,
-    StoredValue,
+    StorageService,
+    node_offset,
 )
 from cobus.device.sync import SyncService
 from cobus.device.timestamp import TimeService
@@ -76,8 +71,6 @@ from cobus.proto.pdo import (
     RpdoTooShort,
     TransmissionType,
     is_restricted_can_id,
-    rpdo_default_can_id,
-    tpdo_default_can_id,
 )
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer, SdoServerBackend
 
@@ -88,16 +81,11 @@ __all__ = ["LOAD_SIGNATURE", "SAVE_SIGNATURE", "CobIdRule", "Deviations", "Devic
 
 log = logging.getLogger(__name__)
 
-#: 1010h: "save" as a little-endian UNSIGNED32.
-SAVE_SIGNATURE = 0x65766173
-#: 1011h: "load" as a little-endian UNSIGNED32.
-LOAD_SIGNATURE = 0x64616F6C
 
 Listener = Callable[[DeviceEvent], object]
 Key = int | str
 
 _ABORT = SdoAbortCode
-_NOT_STORED = frozenset((0x1003, 0x1010, 0x1011))
 _INVALID = 1 << 31
 _EXTENDED = 1 << 29
 _MANDATORY = (0x1000, 0x1001, 0x1018)
@@ -304,13 +292,7 @@ class Device:
         self.od = od
         self._core = Core(network, od, node_id, self.deviations)
         self._sdo_timeout = float(sdo_timeout)
-        if storage is None:
-            self._storage: ParameterStorage = MemoryStorage()
-        elif isinstance(storage, str | Path):
-            self._storage = FileStorage(storage)
-        else:
-            self._storage = storage
-        self._storage_failed = False
+        self._storage = StorageService(self._core, storage)
         self._backend = _SdoBackend(self)
         self._closed = False
         # communication state, rebuilt by every reset communication
@@ -538,14 +520,14 @@ class Device:
         """Store parameters as a master does with 1010h: 1 all, 2 communication,
         3 application."""
         try:
-            self._store_parameters(subindex)
+            self._storage.store(subindex)
         except SdoAbort as refusal:
             raise EntryRefusedError(0x1010, subindex, refusal.code, refusal.reason) from None
 
     def restore_defaults(self, subindex: int = 1) -> None:
         """Drop stored parameters as a master does with 1011h (effective at the next reset)."""
         try:
-            self._restore_defaults(subindex)
+            self._storage.restore(subindex)
         except SdoAbort as refusal:
             raise EntryRefusedError(0x1011, subindex, refusal.code, refusal.reason) from None
 
@@ -571,7 +553,7 @@ class Device:
         follow = {}
         for key, entry in self._core.entries.items():
             if entry.index < 0x2000 or entry.var.relative:
-                offset = self._node_offset(entry, entry.value)
+                offset = node_offset(entry, entry.value, old)
                 if offset is not None:
                     follow[key] = offset
         self._core.node_id = node_id
@@ -611,8 +593,7 @@ class Device:
 
     def _report_storage(self) -> None:
         """After a boot on a parameter file that could not be read: EMCY 6300h."""
-        if self._storage_failed:
-            self._storage_failed = False
+        if self._storage.take_failure():
             self.send_emergency(0x6300)
 
     def close(self) -> None:
@@ -715,7 +696,7 @@ class Device:
                     _ABORT.LENGTH_MISMATCH,
                     f"1010h sub 0 takes the 4-byte signature 'save', got {len(data)} bytes",
                 )
-            self._w_store(entry, int.from_bytes(data, "little"))
+            self._core.write(entry, int.from_bytes(data, "little"), remote=True)
             return
         if not var.access.writable:
             raise _abort(_ABORT.WRITE_READ_ONLY, f"{var.name!r} is {var.access}")
@@ -735,56 +716,10 @@ class Device:
 
     # ================================================================== power-on and resets
 
-    def _default(self, entry: Entry) -> Any:
-        value = entry.var.value
-        return zero_value(entry.data_type) if value is None else value
-
     def _power_on(self, *, communication: bool, application: bool) -> None:
         self.od.node_id = self._core.node_id
-        for entry in self._core.entries.values():
-            index = entry.index
-            if index < 0x2000:
-                reset = communication
-            elif index < 0xA000:
-                reset = application
-            else:  # A000h and above: network variables and reserved, set at power-on only
-                reset = not self._core.started
-            if reset:
-                entry.value = self._default(entry)
-        try:
-            stored = self._storage.load()
-        except StorageError as exc:  # the defaults then; said by event here, by EMCY at boot
-            self._core.emit(StorageProblem(self._core.node_id, str(exc)))
-            self._storage_failed = True
-            stored = {}
-        groups = []
-        if communication:
-            groups.append(COMMUNICATION)
-        if application:
-            groups.append(APPLICATION)
-        for group in groups:
-            for key, item in stored.get(group, {}).items():
-                self._apply_stored(group, key, item)
+        self._storage.power_on(communication=communication, application=application)
         self._emcy.power_on(communication=communication, application=application)
-
-    def _apply_stored(self, group: str, key: str, item: StoredValue) -> None:
-        try:
-            index_text, _, sub_text = key.partition(":")
-            index, subindex = int(index_text, 16), int(sub_text, 16)
-            entry = self._core.entries[index << 8 | subindex]
-            in_group = index < 0x2000 if group == COMMUNICATION else 0x2000 <= index < 0xA000
-            if not in_group or not entry.var.access.writable or index in _NOT_STORED:
-                raise ValueError(f"0x{index:04X}:{subindex:02X} is no {group} parameter")
-            if "node_id_offset" in item:
-                value = check_value(entry, self._core.node_id + int(item["node_id_offset"]))
-            else:
-                value = decode_download(entry, bytes.fromhex(str(item["data"])))
-        except (KeyError, ValueError, TypeError, OverflowError, SdoAbort) as exc:
-            self._core.emit(
-                StorageProblem(self._core.node_id, f"stored {group} entry {key}: {exc}")
-            )
-            return
-        entry.value = value
 
     def _reset(self, *, application: bool) -> None:
         self._teardown_comm()
@@ -1184,97 +1119,11 @@ class Device:
 
     # ================================================================== stored parameters
 
-    def _node_offset(self, entry: Entry, value: Any) -> int | None:
-        """``value - node_id`` when ``value`` follows ``$NODEID``, else None."""
-        if not isinstance(value, int) or isinstance(value, bool):
-            return None
-        node = self._core.node_id
-        var = entry.var
-        if var.relative:
-            return value - node if value == var.value else None
-        index, sub = entry.index, entry.subindex
-        base: int | None = None
-        if index == 0x1014 and sub == 0:
-            base = _emcy.EMCY_BASE
-        elif index == 0x1200 and sub in (1, 2):
-            base = 0x600 if sub == 1 else 0x580
-        elif sub == 1 and 0x1400 <= index <= 0x1403:
-            base = rpdo_default_can_id(index - 0x1400 + 1, node) - node
-        elif sub == 1 and 0x1800 <= index <= 0x1803:
-            base = tpdo_default_can_id(index - 0x1800 + 1, node) - node
-        if base is None or value & _EXTENDED or value & 0x1FFFFFFF != base + node:
-            return None
-        return value - node
-
-    def _collect(self, group: str) -> dict[str, StoredValue]:
-        out: dict[str, StoredValue] = {}
-        for entry in self._core.entries.values():
-            index = entry.index
-            in_group = index < 0x2000 if group == COMMUNICATION else 0x2000 <= index < 0xA000
-            if not in_group or index in _NOT_STORED or not entry.var.access.writable:
-                continue
-            key = f"{index:04X}:{entry.subindex:02X}"
-            value = entry.value
-            if entry.reader is not None:
-                try:
-                    value = check_value(entry, entry.reader())
-                except Exception as exc:  # the application's value cannot be read: keep ours
-                    self._core.failure(f"read callback of {key}", exc)
-            offset = self._node_offset(entry, value)
-            if offset is not None:
-                out[key] = {"node_id_offset": offset}
-            else:
-                out[key] = {"data": encode(entry.data_type, value).hex()}
-        return out
-
-    def _groups(self, subindex: int, what: str) -> tuple[str, ...]:
-        groups = {1: (COMMUNICATION, APPLICATION), 2: (COMMUNICATION,), 3: (APPLICATION,)}
-        chosen = groups.get(subindex)
-        if chosen is None:
-            raise _abort(
-                _ABORT.CANNOT_STORE,
-                f"{what} sub-index {subindex} names no parameter group (1 all, "
-                "2 communication, 3 application)",
-            )
-        return chosen
-
-    def _store_parameters(self, subindex: int) -> None:
-        groups = self._groups(subindex, "1010h")
-        try:
-            stored = self._storage.load()
-        except StorageError as exc:
-            if subindex != 1:
-                raise _abort(_ABORT.CANNOT_STORE, str(exc)) from None
-            stored = {}
-        for group in groups:
-            stored[group] = self._collect(group)
-        try:
-            self._storage.save(stored)
-        except StorageError as exc:
-            raise _abort(_ABORT.CANNOT_STORE, str(exc)) from None
-        self._core.emit(ParametersStored(self._core.node_id, subindex))
-
-    def _restore_defaults(self, subindex: int) -> None:
-        groups = self._groups(subindex, "1011h")
-        try:
-            stored = self._storage.load()
-        except StorageError:
-            stored = {}
-        for group in groups:
-            stored[group] = {}
-        try:
-            self._storage.save(stored)
-        except StorageError as exc:
-            raise _abort(_ABORT.CANNOT_STORE, str(exc)) from None
-        self._core.emit(ParametersRestored(self._core.node_id, subindex))
-
     # ================================================================== write handlers
 
     def _install_handlers(self) -> None:
         h = self._core.handlers
         fixed: dict[int, Callable[[Entry, Any], None]] = {
-            0x1010: self._w_store,
-            0x1011: self._w_restore,
             0x1029: self._w_error_behaviour,
         }
         for index, handler in fixed.items():
@@ -1297,26 +1146,6 @@ class Device:
         return self.to_eds().replace("\n", "\r\n").encode("utf-8")
 
     # --- simple objects
-
-    def _w_store(self, entry: Entry, value: Any) -> None:
-        if entry.subindex == 0 and not self.deviations.store_on_subindex_0:
-            raise _abort(_ABORT.WRITE_READ_ONLY, "1010h sub 0 is read-only")
-        if value != SAVE_SIGNATURE:
-            raise _abort(
-                _ABORT.CANNOT_STORE,
-                f"1010h expects the signature 'save' (0x{SAVE_SIGNATURE:08X}), got 0x{value:08X}",
-            )
-        self._store_parameters(entry.subindex or 1)
-
-    def _w_restore(self, entry: Entry, value: Any) -> None:
-        if entry.subindex == 0:
-            raise _abort(_ABORT.WRITE_READ_ONLY, "1011h sub 0 is read-only")
-        if value != LOAD_SIGNATURE:
-            raise _abort(
-                _ABORT.CANNOT_STORE,
-                f"1011h expects the signature 'load' (0x{LOAD_SIGNATURE:08X}), got 0x{value:08X}",
-            )
-        self._restore_defaults(entry.subindex)
 
     def _w_error_behaviour(self, entry: Entry, value: Any) -> None:
         if entry.subindex == 0:

@@ -24,15 +24,26 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Protocol
 
+from cobus.device._core import Core, abort
+from cobus.device._entries import Entry, check_value, decode_download, zero_value
 from cobus.device.errors import StorageError
+from cobus.device.events import ParametersRestored, ParametersStored, StorageProblem
+from cobus.od import encode
+from cobus.proto.emcy import EMCY_BASE
+from cobus.proto.pdo import rpdo_default_can_id, tpdo_default_can_id
+from cobus.proto.sdo import SdoAbort, SdoAbortCode
 
 __all__ = [
     "APPLICATION",
     "COMMUNICATION",
+    "LOAD_SIGNATURE",
+    "SAVE_SIGNATURE",
     "FileStorage",
     "MemoryStorage",
     "ParameterStorage",
+    "StorageService",
     "StoredValue",
+    "node_offset",
 ]
 
 COMMUNICATION = "communication"
@@ -189,3 +200,197 @@ def _sync_directory(directory: Path) -> None:
         pass
     finally:
         os.close(dir_fd)
+
+
+# ====================================================================== the service
+
+#: 1010h: "save" as a little-endian UNSIGNED32.
+SAVE_SIGNATURE = 0x65766173
+#: 1011h: "load" as a little-endian UNSIGNED32.
+LOAD_SIGNATURE = 0x64616F6C
+
+_ABORT = SdoAbortCode
+_NOT_STORED = frozenset((0x1003, 0x1010, 0x1011))
+_EXTENDED = 1 << 29
+_SUBINDEX_GROUPS = {1: (COMMUNICATION, APPLICATION), 2: (COMMUNICATION,), 3: (APPLICATION,)}
+
+
+def _in_group(group: str, index: int) -> bool:
+    return index < 0x2000 if group == COMMUNICATION else 0x2000 <= index < 0xA000
+
+
+def node_offset(entry: Entry, value: Any, node_id: int) -> int | None:
+    """``value - node_id`` when ``value`` follows ``$NODEID`` (an entry whose default is a
+    ``$NODEID`` expression and holds it, or a pre-defined COB-ID), else None."""
+    if not isinstance(value, int) or isinstance(value, bool):
+        return None
+    var = entry.var
+    if var.relative:
+        return value - node_id if value == var.value else None
+    index, sub = entry.index, entry.subindex
+    base: int | None = None
+    if index == 0x1014 and sub == 0:
+        base = EMCY_BASE
+    elif index == 0x1200 and sub in (1, 2):
+        base = 0x600 if sub == 1 else 0x580
+    elif sub == 1 and 0x1400 <= index <= 0x1403:
+        base = rpdo_default_can_id(index - 0x1400 + 1, node_id) - node_id
+    elif sub == 1 and 0x1800 <= index <= 0x1803:
+        base = tpdo_default_can_id(index - 0x1800 + 1, node_id) - node_id
+    if base is None or value & _EXTENDED or value & 0x1FFFFFFF != base + node_id:
+        return None
+    return value - node_id
+
+
+class StorageService:
+    """Parameters of one device: power-on values, 1010h store and 1011h restore."""
+
+    def __init__(self, core: Core, storage: str | Path | ParameterStorage | None) -> None:
+        self._core = core
+        if storage is None:
+            self._storage: ParameterStorage = MemoryStorage()
+        elif isinstance(storage, str | Path):
+            self._storage = FileStorage(storage)
+        else:
+            self._storage = storage
+        self._failed = False
+        core.handle(0x1010, self._w_store)
+        core.handle(0x1011, self._w_restore)
+
+    def power_on(self, *, communication: bool, application: bool) -> None:
+        """The values of a reset: the defaults, then what is stored, of the communication
+        area (reset communication), the application area (reset node) or both (power-on).
+        A store that cannot be read leaves the defaults: :class:`StorageProblem` now, and
+        :meth:`take_failure` True once for the EMCY at boot."""
+        core = self._core
+        for entry in core.entries.values():
+            index = entry.index
+            if index < 0x2000:
+                reset = communication
+            elif index < 0xA000:
+                reset = application
+            else:  # A000h and above: network variables and reserved, set at power-on only
+                reset = not core.started
+            if reset:
+                default = entry.var.value
+                entry.value = zero_value(entry.data_type) if default is None else default
+        try:
+            stored = self._storage.load()
+        except StorageError as exc:  # the defaults then; said by event here, by EMCY at boot
+            core.emit(StorageProblem(core.node_id, str(exc)))
+            self._failed = True
+            stored = {}
+        groups = []
+        if communication:
+            groups.append(COMMUNICATION)
+        if application:
+            groups.append(APPLICATION)
+        for group in groups:
+            for key, item in stored.get(group, {}).items():
+                self._apply_stored(group, key, item)
+
+    def take_failure(self) -> bool:
+        """Whether the last power-on could not read the store (True once)."""
+        failed, self._failed = self._failed, False
+        return failed
+
+    def store(self, subindex: int) -> None:
+        """Store a parameter group as 1010h does: 1 all, 2 communication, 3 application."""
+        groups = self._groups(subindex, "1010h")
+        try:
+            stored = self._storage.load()
+        except StorageError as exc:
+            if subindex != 1:
+                raise abort(_ABORT.CANNOT_STORE, str(exc)) from None
+            stored = {}
+        for group in groups:
+            stored[group] = self._collect(group)
+        try:
+            self._storage.save(stored)
+        except StorageError as exc:
+            raise abort(_ABORT.CANNOT_STORE, str(exc)) from None
+        self._core.emit(ParametersStored(self._core.node_id, subindex))
+
+    def restore(self, subindex: int) -> None:
+        """Drop a stored parameter group as 1011h does (effective at the next reset)."""
+        groups = self._groups(subindex, "1011h")
+        try:
+            stored = self._storage.load()
+        except StorageError:
+            stored = {}
+        for group in groups:
+            stored[group] = {}
+        try:
+            self._storage.save(stored)
+        except StorageError as exc:
+            raise abort(_ABORT.CANNOT_STORE, str(exc)) from None
+        self._core.emit(ParametersRestored(self._core.node_id, subindex))
+
+    def _apply_stored(self, group: str, key: str, item: StoredValue) -> None:
+        core = self._core
+        try:
+            index_text, _, sub_text = key.partition(":")
+            index, subindex = int(index_text, 16), int(sub_text, 16)
+            entry = core.entries[index << 8 | subindex]
+            if not _in_group(group, index) or not entry.var.access.writable or index in _NOT_STORED:
+                raise ValueError(f"0x{index:04X}:{subindex:02X} is no {group} parameter")
+            if "node_id_offset" in item:
+                value = check_value(entry, core.node_id + int(item["node_id_offset"]))
+            else:
+                value = decode_download(entry, bytes.fromhex(str(item["data"])))
+        except (KeyError, ValueError, TypeError, OverflowError, SdoAbort) as exc:
+            core.emit(StorageProblem(core.node_id, f"stored {group} entry {key}: {exc}"))
+            return
+        entry.value = value
+
+    def _collect(self, group: str) -> dict[str, StoredValue]:
+        core = self._core
+        out: dict[str, StoredValue] = {}
+        for entry in core.entries.values():
+            index = entry.index
+            if not _in_group(group, index) or index in _NOT_STORED or not entry.var.access.writable:
+                continue
+            key = f"{index:04X}:{entry.subindex:02X}"
+            value = entry.value
+            if entry.reader is not None:
+                try:
+                    value = check_value(entry, entry.reader())
+                except Exception as exc:  # the application's value cannot be read: keep ours
+                    core.failure(f"read callback of {key}", exc)
+            offset = node_offset(entry, value, core.node_id)
+            if offset is not None:
+                out[key] = {"node_id_offset": offset}
+            else:
+                out[key] = {"data": encode(entry.data_type, value).hex()}
+        return out
+
+    @staticmethod
+    def _groups(subindex: int, what: str) -> tuple[str, ...]:
+        chosen = _SUBINDEX_GROUPS.get(subindex)
+        if chosen is None:
+            raise abort(
+                _ABORT.CANNOT_STORE,
+                f"{what} sub-index {subindex} names no parameter group (1 all, "
+                "2 communication, 3 application)",
+            )
+        return chosen
+
+    def _w_store(self, entry: Entry, value: Any) -> None:
+        if entry.subindex == 0 and not self._core.deviations.store_on_subindex_0:
+            raise abort(_ABORT.WRITE_READ_ONLY, "1010h sub 0 is read-only")
+        if value != SAVE_SIGNATURE:
+            raise abort(
+                _ABORT.CANNOT_STORE,
+                f"1010h expects the signature 'save' (0x{SAVE_SIGNATURE:08X}), got 0x{value:08X}",
+            )
+        self.store(entry.subindex or 1)
+
+    def _w_restore(self, entry: Entry, value: Any) -> None:
+        if entry.subindex == 0:
+            raise abort(_ABORT.WRITE_READ_ONLY, "1011h sub 0 is read-only")
+        if value != LOAD_SIGNATURE:
+            raise abort(
+                _ABORT.CANNOT_STORE,
+                f"1011h expects the signature 'load' (0x{LOAD_SIGNATURE:08X}), got 0x{value:08X}",
+            )
+        self.restore(entry.subindex)
