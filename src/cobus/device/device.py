@@ -20,8 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from cobus.device._core import Core
-from cobus.device._entries import Entry, check_value, decode_download
-from cobus.device._gates import LateSdoServer
+from cobus.device._entries import Entry, check_value
 from cobus.device.eds_export import export_eds
 from cobus.device.emcy import COMM_BIT, EmcyService, class_bits
 from cobus.device.errors import (
@@ -33,7 +32,6 @@ from cobus.device.errors import (
 from cobus.device.events import (
     Booted,
     DeviceEvent,
-    EntryWritten,
     NmtCommandReceived,
     NodeIdChanged,
     PdoLengthError,
@@ -45,6 +43,7 @@ from cobus.device.events import (
 from cobus.device.guarding import GuardingService
 from cobus.device.heartbeat import HeartbeatService
 from cobus.device.pdo import Rpdo, Tpdo, check_mapping_entry, compile_mapping
+from cobus.device.sdo_server import SdoServerService
 from cobus.device.storage import (
     LOAD_SIGNATURE,
     SAVE_SIGNATURE,
@@ -55,7 +54,7 @@ from cobus.device.storage import (
 from cobus.device.sync import SyncService
 from cobus.device.timestamp import TimeService
 from cobus.errors import CobusError
-from cobus.od import DataType, ObjectDictionary, Variable, encode
+from cobus.od import DataType, ObjectDictionary, Variable
 from cobus.proto import NOTHING, Event, Frame, Out
 from cobus.proto import emcy as _emcy
 from cobus.proto import nmt as _nmt
@@ -72,7 +71,7 @@ from cobus.proto.pdo import (
     TransmissionType,
     is_restricted_can_id,
 )
-from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer, SdoServerBackend
+from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServerBackend
 
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, MachineHost, Subscription
@@ -182,43 +181,6 @@ def _abort(code: int, reason: str) -> SdoAbort:
     return SdoAbort(code, reason)
 
 
-class _SdoBackend:
-    """What the SDO servers of a device serve: its entries, with every check."""
-
-    __slots__ = ("_device",)
-
-    def __init__(self, device: Device) -> None:
-        self._device = device
-
-    def upload(self, index: int, subindex: int) -> bytes:
-        return self._device._sdo_upload(index, subindex)
-
-    def download(self, index: int, subindex: int, data: bytes) -> None:
-        self._device._sdo_download(index, subindex, data)
-
-    def size_hint(self, index: int, subindex: int) -> int | None:
-        entry = self._device._core.entry(index, subindex)
-        if not entry.var.access.writable:
-            raise _abort(_ABORT.WRITE_READ_ONLY, f"{entry.var.name!r} is {entry.var.access}")
-        return entry.size
-
-
-class _SdoChannel:
-    __slots__ = ("host", "number", "server", "subscription")
-
-    def __init__(
-        self, number: int, server: SdoServer, host: MachineHost, sub: Subscription
-    ) -> None:
-        self.number = number
-        self.server = server
-        self.host = host
-        self.subscription = sub
-
-    def close(self) -> None:
-        self.subscription.cancel()
-        self.host.close()
-
-
 class _ObjectView:
     """``device[index]``: the sub-entries of one object, by sub-index or name."""
 
@@ -291,9 +253,8 @@ class Device:
         self.network = network
         self.od = od
         self._core = Core(network, od, node_id, self.deviations)
-        self._sdo_timeout = float(sdo_timeout)
+        self._sdo = SdoServerService(self._core, timeout=float(sdo_timeout))
         self._storage = StorageService(self._core, storage)
-        self._backend = _SdoBackend(self)
         self._closed = False
         # communication state, rebuilt by every reset communication
         self._nmt_host: MachineHost | None = None
@@ -301,7 +262,6 @@ class Device:
         self._emcy = EmcyService(self._core, queue_size=emcy_queue_size)
         self._hosts: list[MachineHost] = []
         self._subs: list[Subscription] = []
-        self._sdo: dict[int, _SdoChannel] = {}
         self._heartbeat = HeartbeatService(self._core, self._emcy, self._communication_error)
         self._guarding = GuardingService(self._core, self._emcy, self._communication_error)
         self._sync = SyncService(self._core, self._emcy, self._on_sync)
@@ -405,7 +365,7 @@ class Device:
     def sdo_backend(self) -> SdoServerBackend:
         """What the device's SDO server channels serve (its entries, with every check), for
         an owner that serves SDO on channels of its own (``Deviations(serve_sdo=False)``)."""
-        return self._backend
+        return self._sdo.backend
 
     def serves(self, od: ObjectDictionary) -> bool:
         """Whether this device runs (not closed) on the dictionary ``od``."""
@@ -661,57 +621,6 @@ class Device:
 
     # ================================================================== SDO access
 
-    def _sdo_upload(self, index: int, subindex: int) -> bytes:
-        entry = self._core.entry(index, subindex)
-        var = entry.var
-        if not var.access.readable:
-            raise _abort(_ABORT.READ_WRITE_ONLY, f"{var.name!r} is write-only")
-        reader = entry.reader
-        if reader is None:
-            value = entry.value
-        else:
-            try:
-                value = reader()
-            except SdoAbort:
-                raise
-            except Exception as exc:
-                self._core.failure(f"read callback of 0x{index:04X}:{subindex:02X}", exc)
-                raise _abort(_ABORT.CANNOT_STORE, f"the application failed: {exc!r}") from None
-        try:
-            return encode(entry.data_type, value)
-        except CobusError as exc:
-            raise _abort(
-                _ABORT.GENERAL_ERROR,
-                f"the application's value {value!r} does not fit {var.data_type.name}: {exc}",
-            ) from None
-
-    def _sdo_download(self, index: int, subindex: int, data: bytes) -> None:
-        entry = self._core.entry(index, subindex)
-        var = entry.var
-        deviations = self.deviations
-        if deviations.store_on_subindex_0 and index == 0x1010 and subindex == 0:
-            # sub 0 is the UNSIGNED8 count; the signature written there is an UNSIGNED32
-            if len(data) != 4:
-                raise _abort(
-                    _ABORT.LENGTH_MISMATCH,
-                    f"1010h sub 0 takes the 4-byte signature 'save', got {len(data)} bytes",
-                )
-            self._core.write(entry, int.from_bytes(data, "little"), remote=True)
-            return
-        if not var.access.writable:
-            raise _abort(_ABORT.WRITE_READ_ONLY, f"{var.name!r} is {var.access}")
-        size = entry.size
-        if (
-            deviations.padded_writes
-            and size is not None
-            and size < len(data) <= 4
-            and not any(data[size:])
-        ):
-            data = data[:size]
-        value = decode_download(entry, data)
-        self._core.write(entry, value, remote=True)
-        self._core.emit(EntryWritten(self._core.node_id, index, subindex, value))
-
     # ================================================================== events
 
     # ================================================================== power-on and resets
@@ -809,7 +718,7 @@ class Device:
                     tpdo.stop()
                     self._apply(tpdo, NOTHING)
         if new is NmtState.STOPPED:
-            self._build_sdo()  # transfers in progress end silently: SDO is not available
+            self._sdo.build()  # transfers in progress end silently: SDO is not available
         self._sync.state_changed(old, new, now)
         self._core.emit(StateChanged(self._core.node_id, old, new))
 
@@ -835,9 +744,7 @@ class Device:
             host.apply(out)
 
     def _teardown_comm(self) -> None:
-        for channel in self._sdo.values():
-            channel.close()
-        self._sdo.clear()
+        self._sdo.close()
         for number in list(self._tpdos):
             self._drop_tpdo(number)
         for number in list(self._rpdos):
@@ -859,7 +766,7 @@ class Device:
         now = self.network.time()
         self._emcy.build(now)
         # SDO servers
-        self._build_sdo()
+        self._sdo.build()
         # heartbeat producer and consumer, node guarding and life guarding
         self._heartbeat.build(now)
         self._guarding.build(now)
@@ -872,42 +779,6 @@ class Device:
                 self._build_rpdo(n)
             if 0x1800 + n - 1 in self._core.indices:
                 self._build_tpdo(n)
-
-    def _build_sdo(self) -> None:
-        for channel in self._sdo.values():
-            channel.close()
-        self._sdo.clear()
-        if not self.deviations.serve_sdo:
-            return
-        for n in range(128):
-            index = 0x1200 + n
-            if n and index not in self._core.indices:
-                continue
-            if n == 0:
-                rx = int(self._core.value(index, 1, 0x600 + self._core.node_id)) & 0x7FF
-                tx = int(self._core.value(index, 2, 0x580 + self._core.node_id)) & 0x7FF
-            else:
-                try:
-                    rx_value = self._core.cob_id(
-                        "sdo_rx", n + 1, int(self._core.value(index, 1, _INVALID))
-                    )
-                    tx_value = self._core.cob_id(
-                        "sdo_tx", n + 1, int(self._core.value(index, 2, _INVALID))
-                    )
-                except SdoAbort as exc:
-                    self._core.report(f"SDO server channel {n + 1}", exc)
-                    continue
-                if rx_value & _INVALID or tx_value & _INVALID:
-                    continue
-                rx, tx = rx_value & 0x7FF, tx_value & 0x7FF
-            server = SdoServer(rx, tx, self._backend, timeout=self._sdo_timeout)
-            host = self.network.attach(LateSdoServer(server, self._core.knobs))
-            sub = self.network.subscribe(rx, partial(self._on_sdo_frame, host))
-            self._sdo[n] = _SdoChannel(n, server, host, sub)
-
-    def _on_sdo_frame(self, host: MachineHost, frame: Frame, now: float) -> None:
-        if self._core.nmt.sdo_allowed:
-            host.feed(frame, now)
 
     # --- PDOs
 
@@ -1130,9 +1001,7 @@ class Device:
             if index in self._core.indices:
                 h[index] = handler
         for index in self._core.indices:
-            if 0x1200 <= index <= 0x127F:
-                h[index] = self._w_sdo_server
-            elif 0x1400 <= index <= 0x15FF or 0x1800 <= index <= 0x19FF:
+            if 0x1400 <= index <= 0x15FF or 0x1800 <= index <= 0x19FF:
                 h[index] = self._w_pdo_comm
             elif 0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF:
                 h[index] = self._w_pdo_mapping
@@ -1157,27 +1026,6 @@ class Device:
                 "1 no change, 2 stopped, 80h-FFh manufacturer-specific)",
             )
         self._core.store(entry, value)
-
-    def _w_sdo_server(self, entry: Entry, value: Any) -> None:
-        sub = entry.subindex
-        if sub in (1, 2):
-            kind, number = ("sdo_rx" if sub == 1 else "sdo_tx"), entry.index - 0x1200 + 1
-            new = self._core.cob_id(kind, number, value)
-            if new & _EXTENDED:
-                raise _abort(_ABORT.INVALID_VALUE, "29-bit SDO identifiers are not supported")
-            can_id = new & 0x1FFFFFFF
-            if can_id > 0x7FF:
-                raise _abort(_ABORT.INVALID_VALUE, f"SDO identifier 0x{can_id:X} is not 11-bit")
-            old = self._core.cob_id(kind, number, int(entry.value))
-            if not old & _INVALID and not new & _INVALID and old & 0x7FF != can_id:
-                raise _abort(
-                    _ABORT.INVALID_VALUE,
-                    f"0x{entry.index:04X} sub {sub}: the identifier cannot change while the "
-                    "channel is valid; write it with bit 31 set first",
-                )
-        self._core.store(entry, value)
-        if self._core.started and sub in (1, 2):
-            self._build_sdo()
 
     def _pdo_cob_id(self, comm_index: int, value: int | None = None) -> int:
         """The CiA 301 form of the COB-ID of the PDO with this communication index."""

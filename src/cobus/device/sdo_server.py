@@ -1,0 +1,195 @@
+"""The device's SDO servers: one channel per SDO server parameter object (1200h, the default
+channel on 600h/580h + node-ID, and 1201h-127Fh where the dictionary has them), each a
+:class:`~cobus.proto.sdo.SdoServer` serving the device's entries with every check.
+
+What the servers serve is :class:`SdoBackend`: an upload reads the entry (through the
+application's read callback when one is bound), a download decodes and checks the value and
+hands it to the service that owns the object (or stores it, through the application's write
+callback), then emits :class:`~cobus.device.EntryWritten`.
+
+Choices where CiA 301 leaves one: SDO identifiers are 11-bit; the identifier of a valid
+channel cannot change (write it with bit 31 set first); in stopped the channels are rebuilt,
+so transfers in progress end silently.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import TYPE_CHECKING, Any
+
+from cobus.device._core import INVALID, Core, abort
+from cobus.device._entries import Entry, decode_download
+from cobus.device._gates import LateSdoServer
+from cobus.device.events import EntryWritten
+from cobus.errors import CobusError
+from cobus.od import encode
+from cobus.proto import Frame
+from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer
+
+if TYPE_CHECKING:
+    from cobus.runtime.network import MachineHost, Subscription
+
+__all__ = ["SdoBackend", "SdoServerService"]
+
+_ABORT = SdoAbortCode
+_EXTENDED = 1 << 29
+
+
+class SdoBackend:
+    """What the SDO servers of a device serve: its entries, with every check (an
+    :class:`~cobus.proto.sdo.SdoServerBackend`)."""
+
+    __slots__ = ("_core",)
+
+    def __init__(self, core: Core) -> None:
+        self._core = core
+
+    def upload(self, index: int, subindex: int) -> bytes:
+        """The encoded value of an entry, or the abort that refuses it."""
+        core = self._core
+        entry = core.entry(index, subindex)
+        var = entry.var
+        if not var.access.readable:
+            raise abort(_ABORT.READ_WRITE_ONLY, f"{var.name!r} is write-only")
+        reader = entry.reader
+        if reader is None:
+            value = entry.value
+        else:
+            try:
+                value = reader()
+            except SdoAbort:
+                raise
+            except Exception as exc:
+                core.failure(f"read callback of 0x{index:04X}:{subindex:02X}", exc)
+                raise abort(_ABORT.CANNOT_STORE, f"the application failed: {exc!r}") from None
+        try:
+            return encode(entry.data_type, value)
+        except CobusError as exc:
+            raise abort(
+                _ABORT.GENERAL_ERROR,
+                f"the application's value {value!r} does not fit {var.data_type.name}: {exc}",
+            ) from None
+
+    def download(self, index: int, subindex: int, data: bytes) -> None:
+        """Write an entry from its encoded value, or raise the abort that refuses it."""
+        core = self._core
+        entry = core.entry(index, subindex)
+        var = entry.var
+        deviations = core.deviations
+        if deviations.store_on_subindex_0 and index == 0x1010 and subindex == 0:
+            # sub 0 is the UNSIGNED8 count; the signature written there is an UNSIGNED32
+            if len(data) != 4:
+                raise abort(
+                    _ABORT.LENGTH_MISMATCH,
+                    f"1010h sub 0 takes the 4-byte signature 'save', got {len(data)} bytes",
+                )
+            core.write(entry, int.from_bytes(data, "little"), remote=True)
+            return
+        if not var.access.writable:
+            raise abort(_ABORT.WRITE_READ_ONLY, f"{var.name!r} is {var.access}")
+        size = entry.size
+        if (
+            deviations.padded_writes
+            and size is not None
+            and size < len(data) <= 4
+            and not any(data[size:])
+        ):
+            data = data[:size]
+        value = decode_download(entry, data)
+        core.write(entry, value, remote=True)
+        core.emit(EntryWritten(core.node_id, index, subindex, value))
+
+    def size_hint(self, index: int, subindex: int) -> int | None:
+        """The size a download to the entry must have (None: any), or the abort."""
+        entry = self._core.entry(index, subindex)
+        if not entry.var.access.writable:
+            raise abort(_ABORT.WRITE_READ_ONLY, f"{entry.var.name!r} is {entry.var.access}")
+        return entry.size
+
+
+class _Channel:
+    __slots__ = ("host", "number", "server", "subscription")
+
+    def __init__(
+        self, number: int, server: SdoServer, host: MachineHost, sub: Subscription
+    ) -> None:
+        self.number = number
+        self.server = server
+        self.host = host
+        self.subscription = sub
+
+    def close(self) -> None:
+        self.subscription.cancel()
+        self.host.close()
+
+
+class SdoServerService:
+    """The SDO server channels of one device and their parameters 1200h-127Fh."""
+
+    def __init__(self, core: Core, *, timeout: float) -> None:
+        self._core = core
+        self._timeout = timeout
+        self.backend = SdoBackend(core)
+        self._channels: dict[int, _Channel] = {}
+        for index in range(0x1200, 0x1280):
+            core.handle(index, self._w_server)
+
+    def build(self) -> None:
+        """(Re)build every valid channel; transfers in progress end silently."""
+        self.close()
+        core = self._core
+        if not core.deviations.serve_sdo:
+            return
+        for n in range(128):
+            index = 0x1200 + n
+            if n and index not in core.indices:
+                continue
+            if n == 0:
+                rx = int(core.value(index, 1, 0x600 + core.node_id)) & 0x7FF
+                tx = int(core.value(index, 2, 0x580 + core.node_id)) & 0x7FF
+            else:
+                try:
+                    rx_value = core.cob_id("sdo_rx", n + 1, int(core.value(index, 1, INVALID)))
+                    tx_value = core.cob_id("sdo_tx", n + 1, int(core.value(index, 2, INVALID)))
+                except SdoAbort as exc:
+                    core.report(f"SDO server channel {n + 1}", exc)
+                    continue
+                if rx_value & INVALID or tx_value & INVALID:
+                    continue
+                rx, tx = rx_value & 0x7FF, tx_value & 0x7FF
+            server = SdoServer(rx, tx, self.backend, timeout=self._timeout)
+            host = core.network.attach(LateSdoServer(server, core.knobs))
+            sub = core.network.subscribe(rx, partial(self._on_frame, host))
+            self._channels[n] = _Channel(n, server, host, sub)
+
+    def close(self) -> None:
+        """Close every channel."""
+        for channel in self._channels.values():
+            channel.close()
+        self._channels.clear()
+
+    def _on_frame(self, host: MachineHost, frame: Frame, now: float) -> None:
+        if self._core.nmt.sdo_allowed:
+            host.feed(frame, now)
+
+    def _w_server(self, entry: Entry, value: Any) -> None:
+        core = self._core
+        sub = entry.subindex
+        if sub in (1, 2):
+            kind, number = ("sdo_rx" if sub == 1 else "sdo_tx"), entry.index - 0x1200 + 1
+            new = core.cob_id(kind, number, value)
+            if new & _EXTENDED:
+                raise abort(_ABORT.INVALID_VALUE, "29-bit SDO identifiers are not supported")
+            can_id = new & 0x1FFFFFFF
+            if can_id > 0x7FF:
+                raise abort(_ABORT.INVALID_VALUE, f"SDO identifier 0x{can_id:X} is not 11-bit")
+            old = core.cob_id(kind, number, int(entry.value))
+            if not old & INVALID and not new & INVALID and old & 0x7FF != can_id:
+                raise abort(
+                    _ABORT.INVALID_VALUE,
+                    f"0x{entry.index:04X} sub {sub}: the identifier cannot change while the "
+                    "channel is valid; write it with bit 31 set first",
+                )
+        core.store(entry, value)
+        if core.started and sub in (1, 2):
+            self.build()
