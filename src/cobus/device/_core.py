@@ -56,7 +56,6 @@ class Core:
         "nmt",
         "node_id",
         "od",
-        "operational",
         "started",
     )
 
@@ -84,7 +83,6 @@ class Core:
         #: The NMT slave of the current communication (a new one after a node-ID change).
         self.nmt = NmtSlave(node_id)
         self.started = False
-        self.operational = False
 
     def now(self) -> float:
         """The network's clock."""

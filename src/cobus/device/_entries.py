@@ -20,7 +20,7 @@ from cobus.od import (
 from cobus.proto.sdo import SdoAbort, SdoAbortCode
 
 if TYPE_CHECKING:
-    from cobus.device.pdo import Tpdo
+    from cobus.device._pdo_machines import Tpdo
 
 __all__ = ["Entry", "check_value", "decode_download", "zero_value"]
 

@@ -15,14 +15,13 @@ import logging
 import weakref
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
-from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from cobus.device._core import Core
 from cobus.device._entries import Entry, check_value
 from cobus.device.eds_export import export_eds
-from cobus.device.emcy import COMM_BIT, EmcyService, class_bits
+from cobus.device.emcy import EmcyService, class_bits
 from cobus.device.errors import (
     DeviceConfigError,
     EntryNotFoundError,
@@ -34,15 +33,11 @@ from cobus.device.events import (
     DeviceEvent,
     NmtCommandReceived,
     NodeIdChanged,
-    PdoLengthError,
-    RpdoLost,
-    RpdoReceived,
-    RpdoRestored,
     StateChanged,
 )
 from cobus.device.guarding import GuardingService
 from cobus.device.heartbeat import HeartbeatService
-from cobus.device.pdo import Rpdo, Tpdo, check_mapping_entry, compile_mapping
+from cobus.device.pdo import PdoService
 from cobus.device.sdo_server import SdoServerService
 from cobus.device.storage import (
     LOAD_SIGNATURE,
@@ -53,24 +48,12 @@ from cobus.device.storage import (
 )
 from cobus.device.sync import SyncService
 from cobus.device.timestamp import TimeService
-from cobus.errors import CobusError
-from cobus.od import DataType, ObjectDictionary, Variable
-from cobus.proto import NOTHING, Event, Frame, Out
+from cobus.od import ObjectDictionary, Variable
+from cobus.proto import Event, Frame, Out
 from cobus.proto import emcy as _emcy
 from cobus.proto import nmt as _nmt
-from cobus.proto.emcy import EmcyCode, ErrorRegister
+from cobus.proto.emcy import ErrorRegister
 from cobus.proto.nmt import NmtCommand, NmtSlave, NmtState
-from cobus.proto.pdo import (
-    MappingEntry,
-    PdoCobId,
-    PdoError,
-    RpdoResumed,
-    RpdoTimeout,
-    RpdoTooLong,
-    RpdoTooShort,
-    TransmissionType,
-    is_restricted_can_id,
-)
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServerBackend
 
 if TYPE_CHECKING:
@@ -264,12 +247,9 @@ class Device:
         self._subs: list[Subscription] = []
         self._heartbeat = HeartbeatService(self._core, self._emcy, self._communication_error)
         self._guarding = GuardingService(self._core, self._emcy, self._communication_error)
-        self._sync = SyncService(self._core, self._emcy, self._on_sync)
+        self._pdo = PdoService(self._core, self._emcy, in_sync_window=self._in_sync_window)
+        self._sync = SyncService(self._core, self._emcy, self._pdo.on_sync)
         self._time = TimeService(self._core)
-        self._tpdos: dict[int, Tpdo] = {}
-        self._rpdos: dict[int, Rpdo] = {}
-        self._sync_tpdos: list[Tpdo] = []
-        self._sync_rpdos: list[Rpdo] = []
         self._install_handlers()
         _SERVED[id(od)] = weakref.ref(self)
 
@@ -454,10 +434,8 @@ class Device:
     def send_tpdo(self, number: int) -> None:
         """An application event for TPDO ``number``: event-driven types send now (or at the
         end of the inhibit time), acyclic synchronous ones at the next SYNC."""
-        tpdo = self._tpdos.get(number)
-        if tpdo is None:
+        if not self._pdo.send_tpdo(number):
             raise DeviceConfigError(f"TPDO {number} is not configured (or not valid)")
-        self._apply(tpdo, tpdo.on_change(self.network.time()))
 
     def apply_nmt(self, command: NmtCommand | int) -> None:
         """Apply an NMT command locally, as if the master had sent it (e.g. a device that
@@ -691,36 +669,14 @@ class Device:
 
     def _state_changed(self, old: NmtState, new: NmtState) -> None:
         now = self.network.time()
-        early = self.deviations.tpdos_outside_operational
-        if new is NmtState.OPERATIONAL:
-            self._core.operational = True
-            for tpdo in self._tpdos.values():
-                if not tpdo.trigger.active:
-                    tpdo.start(now)
-                    self._apply(tpdo, NOTHING)
-        elif old is NmtState.OPERATIONAL:
-            self._core.operational = False
-            for tpdo in self._tpdos.values():
-                tpdo.stop()
-                self._apply(tpdo, NOTHING)
-            for rpdo in self._rpdos.values():
-                rpdo.disarm()
-                self._apply(rpdo, NOTHING)
-            self._emcy.clear(self._emcy.keys("rpdo"))
-        if early:
-            for number, tpdo in self._tpdos.items():
-                if number not in early:
-                    continue
-                if new is NmtState.PRE_OPERATIONAL and not tpdo.trigger.active:
-                    tpdo.start(now)
-                    self._apply(tpdo, NOTHING)
-                elif new is not NmtState.OPERATIONAL and new is not NmtState.PRE_OPERATIONAL:
-                    tpdo.stop()
-                    self._apply(tpdo, NOTHING)
+        self._pdo.state_changed(old, new, now)
         if new is NmtState.STOPPED:
             self._sdo.build()  # transfers in progress end silently: SDO is not available
         self._sync.state_changed(old, new, now)
         self._core.emit(StateChanged(self._core.node_id, old, new))
+
+    def _in_sync_window(self, now: float) -> bool:
+        return self._sync.in_window(now)
 
     def _communication_error(self) -> None:
         """CiA 301 1029h sub 1: 0 pre-operational (if operational), 1 no change, 2 stopped."""
@@ -738,17 +694,9 @@ class Device:
         self._hosts.append(host)
         return host
 
-    def _apply(self, pdo: Tpdo | Rpdo, out: Any) -> None:
-        host = pdo.host
-        if host is not None:
-            host.apply(out)
-
     def _teardown_comm(self) -> None:
         self._sdo.close()
-        for number in list(self._tpdos):
-            self._drop_tpdo(number)
-        for number in list(self._rpdos):
-            self._drop_rpdo(number)
+        self._pdo.close()
         for sub in self._subs:
             sub.cancel()
         self._subs.clear()
@@ -760,7 +708,6 @@ class Device:
         self._emcy.close()
         self._sync.close()
         self._time.close()
-        self._core.operational = False
 
     def _build_comm(self) -> None:
         now = self.network.time()
@@ -773,218 +720,9 @@ class Device:
         # SYNC and TIME
         self._sync.build()
         self._time.build()
-        # PDOs
-        for n in range(1, 513):
-            if 0x1400 + n - 1 in self._core.indices:
-                self._build_rpdo(n)
-            if 0x1800 + n - 1 in self._core.indices:
-                self._build_tpdo(n)
-
-    # --- PDOs
-
-    def _tpdo_active(self, number: int) -> bool:
-        """Whether TPDO ``number`` transmits in the current NMT state."""
-        if self._core.operational:
-            return True
-        return (
-            number in self.deviations.tpdos_outside_operational
-            and self._core.nmt.state is NmtState.PRE_OPERATIONAL
-        )
-
-    def _pdo_values(self, index: int) -> list[int]:
-        if self.deviations.direct_pdo_mapping:  # every entry counts; zero ones are unused
-            return [
-                int(self._core.value(index, sub, 0))
-                for sub in range(1, 65)
-                if (index << 8 | sub) in self._core.entries
-            ]
-        count = int(self._core.value(index, 0, 0))
-        return [int(self._core.value(index, sub, 0)) for sub in range(1, count + 1)]
-
-    def _drop_tpdo(self, number: int) -> None:
-        tpdo = self._tpdos.pop(number, None)
-        if tpdo is None:
-            return
-        for entry in tpdo.sources:
-            if tpdo in entry.tpdos:
-                entry.tpdos.remove(tpdo)
-        if tpdo.subscription is not None:
-            tpdo.subscription.cancel()
-        if tpdo.host is not None:
-            tpdo.host.close()
-        tpdo.host = None
-        self._sync_tpdos = [t for t in self._sync_tpdos if t is not tpdo]
-
-    def _drop_rpdo(self, number: int) -> None:
-        rpdo = self._rpdos.pop(number, None)
-        if rpdo is None:
-            return
-        if rpdo.subscription is not None:
-            rpdo.subscription.cancel()
-        if rpdo.host is not None:
-            rpdo.host.close()
-        rpdo.host = None
-        self._sync_rpdos = [r for r in self._sync_rpdos if r is not rpdo]
-        self._emcy.clear([("rpdo", number)])
-
-    def _build_tpdo(self, number: int) -> None:
-        self._drop_tpdo(number)
-        comm = 0x1800 + number - 1
-        try:
-            cob = PdoCobId.from_u32(self._pdo_cob_id(comm))
-            if not cob.valid:
-                return
-            tt = TransmissionType(int(self._core.value(comm, 2, 255)))
-            pdo_map, sources = compile_mapping(
-                self._core.entries, self._pdo_values(0x1A00 + number - 1), receive=False
-            )
-            tpdo = Tpdo(
-                number,
-                cob,
-                tt,
-                pdo_map,
-                sources,
-                inhibit_time_100us=int(self._core.value(comm, 3, 0)),
-                event_timer_ms=int(self._core.value(comm, 5, 0)),
-                sync_start_value=int(self._core.value(comm, 6, 0)),
-            )
-        except (CobusError, SdoAbort) as exc:
-            self._core.report(f"TPDO {number}", exc)
-            return
-        tpdo.host = self.network.attach(tpdo)
-        if cob.rtr_allowed:
-            tpdo.subscription = self.network.subscribe(
-                cob.can_id, partial(self._on_tpdo_rtr, tpdo), extended=cob.extended
-            )
-        for entry in sources:
-            if tpdo not in entry.tpdos:
-                entry.tpdos.append(tpdo)
-        self._tpdos[number] = tpdo
-        if tt.synchronous:
-            self._sync_tpdos.append(tpdo)
-            self._sync_tpdos.sort(key=lambda t: t.number)
-        if self._tpdo_active(number):
-            tpdo.start(self.network.time())
-            tpdo.host.apply(NOTHING)
-
-    def _on_tpdo_rtr(self, tpdo: Tpdo, frame: Frame, now: float) -> None:
-        if frame.rtr and self._tpdo_active(tpdo.number) and tpdo.host is not None:
-            tpdo.host.feed(frame, now)
-
-    def _build_rpdo(self, number: int) -> None:
-        self._drop_rpdo(number)
-        comm = 0x1400 + number - 1
-        try:
-            cob = PdoCobId.from_u32(self._pdo_cob_id(comm))
-            if not cob.valid:
-                return
-            tt = TransmissionType(int(self._core.value(comm, 2, 255)))
-            pdo_map, targets = compile_mapping(
-                self._core.entries, self._pdo_values(0x1600 + number - 1), receive=True
-            )
-            rpdo = Rpdo(
-                number, cob, tt, pdo_map, targets, event_timer_ms=int(self._core.value(comm, 5, 0))
-            )
-        except (CobusError, SdoAbort) as exc:
-            self._core.report(f"RPDO {number}", exc)
-            return
-        if self.deviations.partial_rpdos:
-            rpdo.watchdog.length = None  # no RPDO length is an error
-        rpdo.host = self.network.attach(rpdo, (), partial(self._on_rpdo_event, rpdo))
-        rpdo.subscription = self.network.subscribe(
-            cob.can_id, partial(self._on_rpdo_frame, rpdo), extended=cob.extended
-        )
-        self._rpdos[number] = rpdo
-        if rpdo.synchronous:
-            self._sync_rpdos.append(rpdo)
-            self._sync_rpdos.sort(key=lambda r: r.number)
-
-    def _on_rpdo_frame(self, rpdo: Rpdo, frame: Frame, now: float) -> None:
-        if not self._core.operational or frame.rtr:
-            return
-        host = rpdo.host
-        if host is None:
-            return
-        host.apply(rpdo.watchdog.on_frame(frame, now))
-        data = frame.data
-        if len(data) < rpdo.map.length:
-            if not self.deviations.partial_rpdos:
-                return
-            values = self._covered_values(rpdo, data)
-        else:
-            values = rpdo.map.unpack(data)
-        if rpdo.synchronous:
-            if not self._sync.in_window(now):
-                return  # after the synchronous window (1007h): discarded until the next SYNC
-            rpdo.pending = values
-        else:
-            self._apply_rpdo(rpdo, values)
-
-    @staticmethod
-    def _covered_values(rpdo: Rpdo, data: bytes) -> tuple[Any, ...]:
-        """The values of the objects a short RPDO covers completely, in mapping order."""
-        available = len(data) * 8
-        covered = 0
-        end = 0
-        for mapped in rpdo.map.entries:
-            end += mapped.bit_length
-            if end > available:
-                break
-            if not mapped.is_dummy:
-                covered += 1
-        padded = data + bytes(rpdo.map.length - len(data))
-        return rpdo.map.unpack(padded)[:covered]
-
-    def _apply_rpdo(self, rpdo: Rpdo, values: tuple[Any, ...]) -> None:
-        """Write ``values`` to the RPDO's targets (the first ``len(values)`` of them)."""
-        written: list[tuple[int, int]] = []
-        applied: list[Any] = []
-        for entry, value in zip(rpdo.targets[: len(values)], values, strict=True):
-            try:
-                if entry.limited:
-                    value = check_value(entry, value)
-                if entry.writer is not None:
-                    self._core.call_writer(entry, value)
-            except SdoAbort:
-                continue
-            self._core.store(entry, value)
-            written.append((entry.index, entry.subindex))
-            applied.append(value)
-        self._core.emit(
-            RpdoReceived(self._core.node_id, rpdo.number, tuple(written), tuple(applied))
-        )
-
-    def _on_rpdo_event(self, rpdo: Rpdo, event: Event) -> None:
-        node = self._core.node_id
-        if isinstance(event, RpdoTooShort):
-            self._emcy.one_shot(EmcyCode.PDO_LENGTH_ERROR, COMM_BIT)
-            self._core.emit(PdoLengthError(node, rpdo.number, event.expected, event.received))
-        elif isinstance(event, RpdoTooLong):
-            self._emcy.one_shot(EmcyCode.PDO_LENGTH_EXCEEDED, COMM_BIT)
-            self._core.emit(PdoLengthError(node, rpdo.number, event.expected, event.received))
-        elif isinstance(event, RpdoTimeout):
-            self._emcy.raise_error(("rpdo", rpdo.number), EmcyCode.RPDO_TIMEOUT, COMM_BIT)
-            self._core.emit(RpdoLost(node, rpdo.number, event.cob_id))
-        elif isinstance(event, RpdoResumed):
-            self._emcy.clear([("rpdo", rpdo.number)])
-            self._core.emit(RpdoRestored(node, rpdo.number, event.cob_id))
+        self._pdo.build()
 
     # --- SYNC, TIME, heartbeat, guarding events
-
-    def _on_sync(self, counter: int | None, now: float) -> None:
-        """A SYNC: the synchronous RPDOs received since the last one take effect, the
-        synchronous TPDOs count it and send when due."""
-        if self._core.operational:
-            for rpdo in self._sync_rpdos:
-                pending = rpdo.pending
-                if pending is not None:
-                    rpdo.pending = None
-                    self._apply_rpdo(rpdo, pending)
-            tpdos = self._sync_tpdos
-        else:
-            tpdos = [t for t in self._sync_tpdos if self._tpdo_active(t.number)]
-        for tpdo in tpdos:
-            self._apply(tpdo, tpdo.on_sync(counter, now))
 
     # ================================================================== emergencies
 
@@ -1000,11 +738,6 @@ class Device:
         for index, handler in fixed.items():
             if index in self._core.indices:
                 h[index] = handler
-        for index in self._core.indices:
-            if 0x1400 <= index <= 0x15FF or 0x1800 <= index <= 0x19FF:
-                h[index] = self._w_pdo_comm
-            elif 0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF:
-                h[index] = self._w_pdo_mapping
         eds = self._core.entries.get(0x1021 << 8)
         if eds is not None:
             eds.reader = self._read_eds
@@ -1026,151 +759,3 @@ class Device:
                 "1 no change, 2 stopped, 80h-FFh manufacturer-specific)",
             )
         self._core.store(entry, value)
-
-    def _pdo_cob_id(self, comm_index: int, value: int | None = None) -> int:
-        """The CiA 301 form of the COB-ID of the PDO with this communication index."""
-        tx = comm_index >= 0x1800
-        number = comm_index - (0x1800 if tx else 0x1400) + 1
-        if value is None:
-            value = int(self._core.value(comm_index, 1, _INVALID))
-        return self._core.cob_id("tpdo" if tx else "rpdo", number, value)
-
-    def _pdo_valid(self, comm_index: int) -> bool:
-        return not self._pdo_cob_id(comm_index) & _INVALID
-
-    def _w_pdo_comm(self, entry: Entry, value: Any) -> None:
-        index, sub = entry.index, entry.subindex
-        tx = index >= 0x1800
-        number = index - (0x1800 if tx else 0x1400) + 1
-        kind = "TPDO" if tx else "RPDO"
-        deviations = self.deviations
-        valid = self._pdo_valid(index) and not deviations.pdo_params_while_valid
-        if sub == 0:
-            raise _abort(_ABORT.WRITE_READ_ONLY, f"0x{index:04X} sub 0 is read-only")
-        if sub == 1:
-            try:
-                new = PdoCobId.from_u32(self._pdo_cob_id(index, value))
-                old = PdoCobId.from_u32(self._pdo_cob_id(index, int(entry.value)))
-            except PdoError as exc:
-                raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
-            if valid and new.valid and (new.can_id, new.extended) != (old.can_id, old.extended):
-                raise _abort(
-                    _ABORT.INVALID_VALUE,
-                    f"{kind} {number}: the identifier cannot change while the PDO is valid; "
-                    "write the COB-ID with bit 31 set first",
-                )
-            if new.valid:
-                if not new.extended and is_restricted_can_id(new.can_id):
-                    raise _abort(
-                        _ABORT.INVALID_VALUE,
-                        f"{kind} {number}: identifier 0x{new.can_id:X} is restricted (CiA 301: "
-                        "NMT, SYNC/EMCY, SDO, error control)",
-                    )
-                map_index = (0x1A00 if tx else 0x1600) + number - 1
-                compile_mapping(self._core.entries, self._pdo_values(map_index), receive=not tx)
-        elif sub == 2:
-            try:
-                tt = TransmissionType(value)
-            except PdoError as exc:
-                raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
-            if not tx and not tt.valid_for_rpdo:
-                raise _abort(
-                    _ABORT.INVALID_VALUE,
-                    f"RPDO {number}: transmission type {value} is for TPDOs only (RPDOs use "
-                    "0-240, 254, 255)",
-                )
-            allowed = deviations.transmission_types
-            if allowed is not None and value not in allowed:
-                listing = ", ".join(str(t) for t in sorted(allowed))
-                raise _abort(
-                    _ABORT.INVALID_VALUE,
-                    f"{kind} {number}: this device does not support transmission type {value} "
-                    f"(it accepts {listing})",
-                )
-        elif sub in (3, 6) and valid:
-            what = "inhibit time" if sub == 3 else "SYNC start value"
-            raise _abort(
-                _ABORT.INVALID_VALUE,
-                f"{kind} {number}: the {what} cannot change while the PDO is valid; set bit 31 "
-                "of its COB-ID first",
-            )
-        if sub == 6 and value > 240:
-            raise _abort(_ABORT.VALUE_TOO_HIGH, f"SYNC start value {value} is above 240")
-        self._core.store(entry, value)
-        if self._core.started and sub in (1, 2, 3, 5, 6):
-            if tx:
-                self._build_tpdo(number)
-            else:
-                self._build_rpdo(number)
-
-    def _w_pdo_mapping(self, entry: Entry, value: Any) -> None:
-        index, sub = entry.index, entry.subindex
-        tx = index >= 0x1A00
-        number = index - (0x1A00 if tx else 0x1600) + 1
-        comm = (0x1800 if tx else 0x1400) + number - 1
-        kind = "TPDO" if tx else "RPDO"
-        if self.deviations.direct_pdo_mapping:
-            self._w_direct_mapping(entry, value, tx, number)
-            return
-        if self._pdo_valid(comm):
-            raise _abort(
-                _ABORT.PARAMETER_INCOMPATIBLE,
-                f"{kind} {number} is valid: set bit 31 of its COB-ID (0x{comm:04X} sub 1) "
-                "before changing its mapping",
-            )
-        if sub == 0:
-            slots = sum(1 for s in range(1, 65) if (index << 8 | s) in self._core.entries)
-            if value > slots:
-                raise _abort(
-                    _ABORT.VALUE_TOO_HIGH,
-                    f"{kind} {number} has {slots} mapping entries; it cannot count {value}",
-                )
-            values = [int(self._core.value(index, s, 0)) for s in range(1, value + 1)]
-            compile_mapping(self._core.entries, values, receive=not tx)
-        else:
-            if self._core.value(index, 0, 0):
-                raise _abort(
-                    _ABORT.PARAMETER_INCOMPATIBLE,
-                    f"{kind} {number}: write sub-index 0 = 0 before changing mapping entries",
-                )
-            try:
-                check_mapping_entry(self._core.entries, value, receive=not tx)
-            except PdoError as exc:
-                raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
-        self._core.store(entry, value)
-
-    def _w_direct_mapping(self, entry: Entry, value: Any, tx: bool, number: int) -> None:
-        """A mapping entry written the direct way (:attr:`Deviations.direct_pdo_mapping`)."""
-        index, sub = entry.index, entry.subindex
-        kind = "TPDO" if tx else "RPDO"
-        if sub == 0:
-            raise _abort(
-                _ABORT.WRITE_READ_ONLY,
-                f"{kind} {number}: sub-index 0 counts the mapping entries; write the entries "
-                "themselves (0 = unused)",
-            )
-        if value and not value & 0xFF:  # no bit length given: the device fills it in
-            target = MappingEntry.from_u32(value)
-            if target.is_dummy:
-                bits = DataType(target.index).bit_length
-            else:
-                mapped = self._core.entries.get(target.index << 8 | target.subindex)
-                bits = mapped.var.bit_length if mapped is not None else None
-            if bits:
-                value |= bits
-        try:
-            check_mapping_entry(self._core.entries, value, receive=not tx)
-        except PdoError as exc:
-            raise _abort(_ABORT.INVALID_VALUE, str(exc)) from None
-        values = [
-            value if s == sub else int(self._core.value(index, s, 0))
-            for s in range(1, 65)
-            if (index << 8 | s) in self._core.entries
-        ]
-        compile_mapping(self._core.entries, values, receive=not tx)
-        self._core.store(entry, value)
-        if self._core.started:
-            if tx:
-                self._build_tpdo(number)
-            else:
-                self._build_rpdo(number)
