@@ -564,13 +564,13 @@ def test_a_command_back_that_does_not_take_is_tried_again_then_given_up(tmp_path
         node = rig.master.nodes[5]
         rig.send(0x000, bytes([0x80, 5]))
         await rig.run(0.1)
-        host, device._nmt_host = device._nmt_host, None  # deaf to NMT from now on
+        host, device._nmt._host = device._nmt._host, None  # deaf to NMT from now on
         since = rig.net.time()
         await rig.run(5.0)
         starts = [d for d in rig.data(0x000, since=since) if d == bytes([0x01, 5])]
         assert len(starts) == 3
         assert "left as it is" in (problem(node) or "")
-        device._nmt_host = host
+        device._nmt._host = host
 
     rig_test(cfg, scenario)
 

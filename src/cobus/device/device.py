@@ -31,12 +31,12 @@ from cobus.device.errors import (
 from cobus.device.events import (
     Booted,
     DeviceEvent,
-    NmtCommandReceived,
     NodeIdChanged,
     StateChanged,
 )
 from cobus.device.guarding import GuardingService
 from cobus.device.heartbeat import HeartbeatService
+from cobus.device.nmt import NmtService
 from cobus.device.pdo import PdoService
 from cobus.device.sdo_server import SdoServerService
 from cobus.device.storage import (
@@ -49,7 +49,6 @@ from cobus.device.storage import (
 from cobus.device.sync import SyncService
 from cobus.device.timestamp import TimeService
 from cobus.od import ObjectDictionary, Variable
-from cobus.proto import Event, Frame, Out
 from cobus.proto import emcy as _emcy
 from cobus.proto import nmt as _nmt
 from cobus.proto.emcy import ErrorRegister
@@ -57,7 +56,7 @@ from cobus.proto.nmt import NmtCommand, NmtSlave, NmtState
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServerBackend
 
 if TYPE_CHECKING:
-    from cobus.runtime.network import AsyncNetwork, MachineHost, Subscription
+    from cobus.runtime.network import AsyncNetwork
 
 __all__ = ["LOAD_SIGNATURE", "SAVE_SIGNATURE", "CobIdRule", "Deviations", "Device", "Listener"]
 
@@ -240,13 +239,12 @@ class Device:
         self._storage = StorageService(self._core, storage)
         self._closed = False
         # communication state, rebuilt by every reset communication
-        self._nmt_host: MachineHost | None = None
-        self._nmt_sub: Subscription | None = None
+        self._nmt = NmtService(
+            self._core, on_state_changed=self._state_changed, on_reset=self._on_reset
+        )
         self._emcy = EmcyService(self._core, queue_size=emcy_queue_size)
-        self._hosts: list[MachineHost] = []
-        self._subs: list[Subscription] = []
-        self._heartbeat = HeartbeatService(self._core, self._emcy, self._communication_error)
-        self._guarding = GuardingService(self._core, self._emcy, self._communication_error)
+        self._heartbeat = HeartbeatService(self._core, self._emcy, self._nmt.communication_error)
+        self._guarding = GuardingService(self._core, self._emcy, self._nmt.communication_error)
         self._pdo = PdoService(self._core, self._emcy, in_sync_window=self._in_sync_window)
         self._sync = SyncService(self._core, self._emcy, self._pdo.on_sync)
         self._time = TimeService(self._core)
@@ -443,7 +441,7 @@ class Device:
         cmd = _COMMANDS.get(int(command))
         if cmd is None:
             raise _nmt.NmtError(f"unknown NMT command {command!r}: use an NmtCommand member")
-        self._nmt_run(cmd)
+        self._nmt.apply(cmd)
 
     def to_eds(self) -> str:
         """The device's EDS (CiA 306): its dictionary, with complete DeviceInfo."""
@@ -502,14 +500,14 @@ class Device:
             del devices[old]
         devices[node_id] = self
         if not self._core.started:
-            self._core.nmt = NmtSlave(node_id)
+            self._nmt.renew(node_id)
             self._emcy.set_node_id(node_id)
             return
         self._teardown_comm()
-        self._close_nmt()
-        self._core.nmt = NmtSlave(node_id)
+        self._nmt.close()
+        self._nmt.renew(node_id)
         self._emcy.set_node_id(node_id)
-        self._open_nmt()
+        self._nmt.open()
         self._boot()
         self._core.emit(NodeIdChanged(node_id, old))
 
@@ -525,7 +523,7 @@ class Device:
             raise DeviceConfigError(f"device {self._core.node_id} was closed; create a new one")
         self._power_on(communication=True, application=True)
         self._core.started = True
-        self._open_nmt()
+        self._nmt.open()
         self._boot()
         self._report_storage()
 
@@ -540,7 +538,7 @@ class Device:
             return
         self._closed = True
         self._teardown_comm()
-        self._close_nmt()
+        self._nmt.close()
         holder = _SERVED.get(id(self.od))
         if holder is not None and holder() is self:
             del _SERVED[id(self.od)]
@@ -597,10 +595,6 @@ class Device:
             )
         return entry
 
-    # ================================================================== SDO access
-
-    # ================================================================== events
-
     # ================================================================== power-on and resets
 
     def _power_on(self, *, communication: bool, application: bool) -> None:
@@ -617,55 +611,9 @@ class Device:
 
     def _boot(self) -> None:
         self._build_comm()
-        self._nmt_run_out(self._boot_out)
+        self._nmt.boot()
         self._heartbeat.boot(self.network.time())
         self._core.emit(Booted(self._core.node_id))
-
-    def _boot_out(self, now: float) -> Out:
-        out = self._core.nmt.boot(now)
-        return out if self.deviations.send_bootup else Out((), out.events)
-
-    def _open_nmt(self) -> None:
-        self._nmt_host = self.network.attach(self._core.nmt, (), self._on_nmt_event)
-        self._nmt_sub = self.network.subscribe(_nmt.NMT_COB_ID, self._on_nmt_frame)
-
-    def _close_nmt(self) -> None:
-        if self._nmt_sub is not None:
-            self._nmt_sub.cancel()
-            self._nmt_sub = None
-        if self._nmt_host is not None:
-            self._nmt_host.close()
-            self._nmt_host = None
-
-    def _nmt_run_out(self, call: Callable[[float], Any]) -> None:
-        if self._nmt_host is not None:
-            self._nmt_host.run(call)
-
-    def _nmt_run(self, command: NmtCommand) -> None:
-        self._nmt_run_out(lambda now: self._core.nmt.apply(command, now))
-
-    def _on_nmt_frame(self, frame: Frame, now: float) -> None:
-        data = frame.data
-        if (
-            not frame.rtr
-            and not frame.extended
-            and len(data) == 2
-            and data[1] in (0, self._core.node_id)
-            and self._core.nmt.state is not NmtState.INITIALISING
-        ):
-            command = _COMMANDS.get(data[0])
-            if command is not None:
-                self._core.emit(NmtCommandReceived(self._core.node_id, command))
-        if self._nmt_host is not None:
-            self._nmt_host.feed(frame, now)
-
-    def _on_nmt_event(self, event: Event) -> None:
-        if isinstance(event, _nmt.StateChanged):
-            self._state_changed(event.old, event.new)
-        elif isinstance(event, _nmt.ResetNode):
-            self._reset(application=True)
-        elif isinstance(event, _nmt.ResetCommunication):
-            self._reset(application=False)
 
     def _state_changed(self, old: NmtState, new: NmtState) -> None:
         now = self.network.time()
@@ -675,34 +623,17 @@ class Device:
         self._sync.state_changed(old, new, now)
         self._core.emit(StateChanged(self._core.node_id, old, new))
 
+    def _on_reset(self, application: bool) -> None:
+        self._reset(application=application)
+
     def _in_sync_window(self, now: float) -> bool:
         return self._sync.in_window(now)
 
-    def _communication_error(self) -> None:
-        """CiA 301 1029h sub 1: 0 pre-operational (if operational), 1 no change, 2 stopped."""
-        mode = self._core.value(0x1029, 1, 0)
-        state = self._core.nmt.state
-        if mode == 0 and state is NmtState.OPERATIONAL:
-            self._nmt_run(NmtCommand.ENTER_PREOPERATIONAL)
-        elif mode == 2 and state is not NmtState.STOPPED:
-            self._nmt_run(NmtCommand.STOP)
-
     # ================================================================== building
-
-    def _attach(self, machine: Any, on_event: Callable[[Event], None] | None = None) -> MachineHost:
-        host = self.network.attach(machine, (), on_event)
-        self._hosts.append(host)
-        return host
 
     def _teardown_comm(self) -> None:
         self._sdo.close()
         self._pdo.close()
-        for sub in self._subs:
-            sub.cancel()
-        self._subs.clear()
-        for host in self._hosts:
-            host.close()
-        self._hosts.clear()
         self._heartbeat.close()
         self._guarding.close()
         self._emcy.close()
@@ -712,50 +643,20 @@ class Device:
     def _build_comm(self) -> None:
         now = self.network.time()
         self._emcy.build(now)
-        # SDO servers
         self._sdo.build()
-        # heartbeat producer and consumer, node guarding and life guarding
         self._heartbeat.build(now)
         self._guarding.build(now)
-        # SYNC and TIME
         self._sync.build()
         self._time.build()
         self._pdo.build()
 
-    # --- SYNC, TIME, heartbeat, guarding events
-
-    # ================================================================== emergencies
-
-    # ================================================================== stored parameters
-
-    # ================================================================== write handlers
+    # ================================================================== 1021h
 
     def _install_handlers(self) -> None:
-        h = self._core.handlers
-        fixed: dict[int, Callable[[Entry, Any], None]] = {
-            0x1029: self._w_error_behaviour,
-        }
-        for index, handler in fixed.items():
-            if index in self._core.indices:
-                h[index] = handler
+        """1021h (store EDS) reads the device's own EDS."""
         eds = self._core.entries.get(0x1021 << 8)
         if eds is not None:
             eds.reader = self._read_eds
 
-    # --- readers
-
     def _read_eds(self) -> bytes:
         return self.to_eds().replace("\n", "\r\n").encode("utf-8")
-
-    # --- simple objects
-
-    def _w_error_behaviour(self, entry: Entry, value: Any) -> None:
-        if entry.subindex == 0:
-            raise _abort(_ABORT.WRITE_READ_ONLY, "1029h sub 0 is read-only")
-        if 2 < value < 0x80:
-            raise _abort(
-                _ABORT.INVALID_VALUE,
-                f"1029h sub {entry.subindex}: {value} is reserved (0 pre-operational, "
-                "1 no change, 2 stopped, 80h-FFh manufacturer-specific)",
-            )
-        self._core.store(entry, value)
