@@ -26,7 +26,8 @@ if TYPE_CHECKING:
 
 __all__ = ["INVALID", "Core", "Listener", "WriteHandler", "abort"]
 
-log = logging.getLogger("cobus.device")
+#: The logger the device has always used for failing callbacks.
+log = logging.getLogger("cobus.device.device")
 
 Listener = Callable[[DeviceEvent], object]
 #: ``handler(entry, value)``: takes a checked value written to an object the service owns

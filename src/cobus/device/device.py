@@ -11,7 +11,6 @@ the network's event loop: call the device's methods from there (or through
 
 from __future__ import annotations
 
-import logging
 import weakref
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
@@ -59,8 +58,6 @@ if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork
 
 __all__ = ["LOAD_SIGNATURE", "SAVE_SIGNATURE", "CobIdRule", "Deviations", "Device", "Listener"]
-
-log = logging.getLogger(__name__)
 
 
 Listener = Callable[[DeviceEvent], object]

@@ -310,7 +310,7 @@ class PdoService:
             self._emcy.clear([("rpdo", rpdo.number)])
             self._core.emit(RpdoRestored(node, rpdo.number, event.cob_id))
 
-    def on_sync(self, counter: int | None, now: float) -> None:
+    def on_sync(self, counter: int | None) -> None:
         """A SYNC: the synchronous RPDOs received since the last one take effect, the
         synchronous TPDOs count it and send when due."""
         if self._operational:
@@ -322,8 +322,10 @@ class PdoService:
             tpdos = self._sync_tpdos
         else:
             tpdos = [t for t in self._sync_tpdos if self._tpdo_active(t.number)]
-        for tpdo in tpdos:
-            self._apply(tpdo, tpdo.on_sync(counter, now))
+        if tpdos:
+            now = self._core.now()  # after the RPDOs' callbacks, as the TPDOs sample then
+            for tpdo in tpdos:
+                self._apply(tpdo, tpdo.on_sync(counter, now))
 
     def _cob_id(self, comm_index: int, value: int | None = None) -> int:
         """The CiA 301 form of the COB-ID of the PDO with this communication index."""

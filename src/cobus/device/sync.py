@@ -2,8 +2,8 @@
 synchronous window 1007h and the counter overflow 1019h) and, when bit 30 of 1005h says so,
 the producer.
 
-Every SYNC received in pre-operational or operational goes to the PDOs (``on_sync(counter,
-now)``); a SYNC missing for longer than the cycle period is the communication error
+Every SYNC received in pre-operational or operational goes to the PDOs (``on_sync(counter)``);
+a SYNC missing for longer than the cycle period is the communication error
 ``("sync",)`` (EMCY 8100h) until the next one, a SYNC of the wrong length the one-shot EMCY
 8240h.
 
@@ -37,8 +37,8 @@ __all__ = ["OnSync", "SyncService"]
 
 _ABORT = SdoAbortCode
 
-#: ``on_sync(counter, now)``: a SYNC received (``counter`` None without a counter byte).
-OnSync = Callable[[int | None, float], None]
+#: ``on_sync(counter)``: a SYNC received (``counter`` None without a counter byte).
+OnSync = Callable[[int | None], None]
 
 
 class SyncService:
@@ -116,7 +116,7 @@ class SyncService:
     def _on_event(self, event: Event) -> None:
         core = self._core
         if isinstance(event, _sync.SyncReceived):
-            self._on_sync(event.counter, core.now())
+            self._on_sync(event.counter)
         elif isinstance(event, _sync.SyncLost):
             self._emcy.raise_error(("sync",), EmcyCode.COMMUNICATION, COMM_BIT)
             core.emit(SyncLost(core.node_id))
