@@ -24,7 +24,7 @@ from typing import Any
 from cobus.blocks.netvar_lists import NetVarDefinition, VarList
 from cobus.proto import Event, Frame
 from cobus.runtime._twin import BlockingTwin
-from cobus.runtime.network import NetworkClosedError
+from cobus.runtime.errors import NetworkClosedError
 
 __all__ = [
     "AsyncNetworkVariables",

@@ -1,14 +1,17 @@
-"""What the services of a remote node share: user callbacks, and the error of a removed node."""
+"""What the services of a remote node share: user callbacks, the error of a removed node,
+and the checks of values and commands given by the user."""
 
 from __future__ import annotations
 
 import asyncio
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
-from cobus.runtime.network import NetworkClosedError
+from cobus.proto.nmt import NmtCommand
+from cobus.runtime.errors import NetworkClosedError
 
 if TYPE_CHECKING:
+    from cobus.od import Variable
     from cobus.runtime.network import AsyncNetwork
 
 E = TypeVar("E")
@@ -91,3 +94,25 @@ def removed_error(node_id: int) -> NetworkClosedError:
         f"node {node_id} was removed from the network (remove_remote): add it again with "
         "add_remote()"
     )
+
+
+def check_not_bool(var: Variable, value: Any) -> None:
+    """Refuse True/False for an integer object: Python counts them as 1 and 0, a user who
+    writes ``True`` into a mode of operation has most likely mistaken the object."""
+    from cobus.od import ValueRangeError
+
+    if isinstance(value, bool) and var.data_type.is_integer:
+        raise ValueRangeError(
+            f"{value!r} is a bool but the object is {var.data_type.name}: give a number"
+        )
+
+
+def parse_nmt_command(command: NmtCommand | int | str) -> NmtCommand | int:
+    """An NMT command from its enum, number or name (``"start"``, ``"reset-node"``...)."""
+    if not isinstance(command, str):
+        return command
+    try:
+        return NmtCommand[command.upper().replace("-", "_").replace(" ", "_")]
+    except KeyError:
+        names = ", ".join(c.name.lower() for c in NmtCommand)
+        raise ValueError(f"unknown NMT command {command!r}; use one of {names}") from None

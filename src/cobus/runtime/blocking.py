@@ -23,13 +23,13 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import can
 
-from cobus.errors import CobusError
 from cobus.proto import Event, Frame
 from cobus.runtime import emcy as _emcy
 from cobus.runtime import nmt as _nmt
 from cobus.runtime import pdo as _pdo
 from cobus.runtime import remote as _remote
 from cobus.runtime._twin import BlockingTwin, twin_of
+from cobus.runtime.errors import ReentrantCallError
 from cobus.runtime.events import BusState
 from cobus.runtime.loop import SimulatedEventLoop, new_event_loop
 from cobus.runtime.network import AsyncNetwork, FrameHandler, NetworkClosedError, Subscription
@@ -62,10 +62,6 @@ __all__ = [
 
 T = TypeVar("T")
 log = logging.getLogger(__name__)
-
-
-class ReentrantCallError(CobusError, RuntimeError):
-    """A blocking call was made where it would deadlock or re-enter the event loop."""
 
 
 class Runner:

@@ -11,8 +11,8 @@ from typing import Any
 
 import can
 
-from cobus.errors import CobusError
 from cobus.proto import Event, Frame
+from cobus.runtime.errors import BusOpenError
 from cobus.runtime.events import BusErrorFrame, BusState, RxOverflow, TxBufferOverflow
 
 __all__ = [
@@ -23,10 +23,6 @@ __all__ = [
     "message_to_frame",
     "open_bus",
 ]
-
-
-class BusOpenError(CobusError):
-    """The CAN interface could not be opened; the message says which and why."""
 
 
 def open_bus(

@@ -12,19 +12,15 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from cobus.errors import CobusError
 from cobus.proto import Frame
 from cobus.proto.emcy import EMCY_BASE, ErrorRegister, MalformedEmcy, parse_emcy
 from cobus.runtime._service import Callbacks, Waiters, removed_error
+from cobus.runtime.errors import EmcyTimeoutError
 
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, Subscription
 
 __all__ = ["EmcyTimeoutError", "Emergency", "RemoteEmcy", "error_still_shown"]
-
-
-class EmcyTimeoutError(CobusError, TimeoutError):
-    """No emergency arrived within the time waited for one."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -18,20 +18,12 @@ import selectors
 from collections.abc import Callable, Coroutine, Mapping
 from typing import Any, TypeVar
 
-from cobus.errors import CobusError
+from cobus.runtime.errors import SimulationStalledError
 
 __all__ = ["SimulatedEventLoop", "SimulationStalledError", "new_event_loop"]
 
 PollHook = Callable[[], bool]
 T = TypeVar("T")
-
-
-class SimulationStalledError(CobusError, RuntimeError):
-    """The simulated loop has nothing scheduled and nothing to poll: it would wait forever.
-
-    This means an awaited operation can never complete (e.g. a future nobody resolves and no
-    timeout armed). Add a timeout to the operation, or check that the peer is on the network.
-    """
 
 
 class _VirtualSelector(selectors.BaseSelector):

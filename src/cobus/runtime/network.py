@@ -21,6 +21,7 @@ import can
 from cobus.errors import CobusError
 from cobus.proto import NOTHING, Event, Frame, Machine, Out
 from cobus.runtime import bus as _bus
+from cobus.runtime.errors import NetworkClosedError, TxOverflowError
 from cobus.runtime.events import (
     BusState,
     BusStateChanged,
@@ -30,11 +31,11 @@ from cobus.runtime.events import (
     TxResumed,
 )
 from cobus.runtime.loop import SimulatedEventLoop
+from cobus.runtime.remote import NmtMaster, RemoteNode, SyncService, load_od
 
 if TYPE_CHECKING:
     from cobus.device import Device
     from cobus.od import ObjectDictionary
-    from cobus.runtime.remote import NmtMaster, RemoteNode, SyncService
 
 __all__ = [
     "AsyncNetwork",
@@ -54,18 +55,6 @@ _EXT = 1 << 31  # dispatch key flag for 29-bit identifiers
 _BATCH = 256  # frames taken from the interface per wake-up
 _RETRY = 0.001  # seconds between attempts to flush the transmit backlog
 _DRAIN_LIMIT = 1024  # frames dispatched per loop callback before yielding
-
-
-class NetworkClosedError(CobusError, RuntimeError):
-    """The network is not connected (never connected, or already disconnected)."""
-
-
-class TxOverflowError(CobusError):
-    """The transmit backlog is full: the interface has refused frames for too long.
-
-    Raised by :meth:`AsyncNetwork.send` instead of dropping the frame silently. The bus is
-    probably off or disconnected; see the :class:`~cobus.runtime.events.TxQueueFull` event.
-    """
 
 
 def _key(cob_id: int, extended: bool) -> int:
@@ -440,8 +429,6 @@ class AsyncNetwork:
         sdo_timeout: float = 1.0,
     ) -> RemoteNode:
         """A node this network talks to as a client; ``od`` may be an EDS/DCF path."""
-        from cobus.runtime.remote import RemoteNode, load_od
-
         if node_id in self.remotes:
             raise ValueError(
                 f"node {node_id} is already on this network: use network.remotes[{node_id}], "
@@ -463,7 +450,6 @@ class AsyncNetwork:
         """A CANopen device (slave) that this network runs, from an object dictionary or an
         EDS/DCF path; see :class:`cobus.device.Device` for the options. It boots at once."""
         from cobus.device import Device
-        from cobus.runtime.remote import load_od
 
         if node_id in self.devices:
             raise ValueError(f"a device with node-ID {node_id} already runs on this network")
@@ -478,8 +464,6 @@ class AsyncNetwork:
     def nmt(self) -> NmtMaster:
         """The NMT master service: ``net.nmt.send(command, node_id)``."""
         if self._nmt is None:
-            from cobus.runtime.remote import NmtMaster
-
             self._nmt = NmtMaster(self)
         return self._nmt
 
@@ -487,8 +471,6 @@ class AsyncNetwork:
     def sync(self) -> SyncService:
         """The SYNC producer: ``net.sync.start(period)``, ``net.sync.stop()``."""
         if self._sync is None:
-            from cobus.runtime.remote import SyncService
-
             self._sync = SyncService(self)
         return self._sync
 

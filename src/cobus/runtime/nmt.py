@@ -17,7 +17,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from cobus.errors import CobusError
 from cobus.proto import NOTHING, Event, Frame
 from cobus.proto.heartbeat import (
     BootupReceived,
@@ -26,7 +25,8 @@ from cobus.proto.heartbeat import (
     RemoteStateChanged,
 )
 from cobus.proto.nmt import NmtCommand, NmtState
-from cobus.runtime._service import Callbacks, Waiters, removed_error
+from cobus.runtime._service import Callbacks, Waiters, parse_nmt_command, removed_error
+from cobus.runtime.errors import NmtTimeoutError
 
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, MachineHost, Subscription
@@ -41,10 +41,6 @@ _COMMAND_FOR = {
     NmtState.STOPPED: NmtCommand.STOP,
     NmtState.PRE_OPERATIONAL: NmtCommand.ENTER_PREOPERATIONAL,
 }
-
-
-class NmtTimeoutError(CobusError, TimeoutError):
-    """A node did not report the awaited NMT state (or boot-up, or heartbeat) in time."""
 
 
 def _parse_state(state: NmtState | int | str) -> NmtState:
@@ -138,8 +134,6 @@ class RemoteNmt:
     # ------------------------------------------------------------------ commands
     def send(self, command: NmtCommand | int | str) -> None:
         """Send an NMT command to this node (``"start"``, ``NmtCommand.STOP``, 0x81...)."""
-        from cobus.runtime.remote import parse_nmt_command
-
         parsed = parse_nmt_command(command)
         self._network.nmt.send(parsed, self.node_id)  # (observers of the network's NMT see it)
         self.commanded = NmtCommand(parsed)

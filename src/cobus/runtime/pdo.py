@@ -49,8 +49,8 @@ from cobus.proto.pdo import (
     tpdo_default_can_id,
 )
 from cobus.proto.sdo import SdoAbortCode, SdoAbortedError, SdoError
-from cobus.runtime._service import Callbacks, Waiters, removed_error
-from cobus.runtime.remote import check_not_bool
+from cobus.runtime._service import Callbacks, Waiters, check_not_bool, removed_error
+from cobus.runtime.errors import PdoConfigurationError, PdoTimeoutError
 
 if TYPE_CHECKING:
     from cobus.od import ObjectDictionary
@@ -71,15 +71,6 @@ __all__ = [
 MAX_PDOS = 512
 _COMM = {True: 0x1800, False: 0x1400}  # by "the node transmits it"
 _MAP = {True: 0x1A00, False: 0x1600}
-
-
-class PdoConfigurationError(CobusError):
-    """A PDO configuration that could not be read from, or written to, the node: which PDO,
-    which step, and the node's answer."""
-
-
-class PdoTimeoutError(CobusError, TimeoutError):
-    """A PDO expected from the node did not arrive in time."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -11,7 +11,6 @@ import contextlib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from cobus.errors import CobusError
 from cobus.od import did_you_mean, match_name
 from cobus.proto import NOTHING, Event
 from cobus.proto.nmt import NmtCommand, check_node_id, nmt_command_frame
@@ -24,17 +23,17 @@ from cobus.proto.sdo import (
     UploadDone,
 )
 from cobus.proto.sync import SyncProducer
-from cobus.runtime._service import removed_error
-from cobus.runtime.network import NetworkClosedError
+from cobus.runtime._service import check_not_bool, parse_nmt_command, removed_error
+from cobus.runtime.emcy import RemoteEmcy
+from cobus.runtime.errors import NetworkClosedError, ObjectAccessError, ObjectNotFoundError
+from cobus.runtime.nmt import RemoteNmt
+from cobus.runtime.pdo import PdoSet
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
 
     from cobus.od import Array, Object, ObjectDictionary, Record, Variable
-    from cobus.runtime.emcy import RemoteEmcy
     from cobus.runtime.network import AsyncNetwork, MachineHost
-    from cobus.runtime.nmt import RemoteNmt
-    from cobus.runtime.pdo import PdoSet
 
 __all__ = [
     "NmtCommands",
@@ -57,13 +56,6 @@ class _NoValue:
 
 
 _NO_VALUE: Any = _NoValue()
-
-
-class ObjectNotFoundError(CobusError, KeyError):
-    """An object named by index or name is not in the node's object dictionary."""
-
-    def __str__(self) -> str:
-        return str(self.args[0])
 
 
 def load_od(od: ObjectDictionary | str | Path | None, node_id: int) -> ObjectDictionary | None:
@@ -361,25 +353,6 @@ class SdoChannel:
         await self.download(var.index, var.subindex, encode_for(var, value, self.node_id))
 
 
-class ObjectAccessError(SdoAbortedError):
-    """Refused before anything was sent: the EDS says the object cannot be read (or written).
-
-    An :class:`SdoAbortedError` with the code the node would have answered, so code that
-    handles aborts handles this too."""
-
-    def __init__(self, var: Variable, node_id: int, *, write: bool) -> None:
-        code = SdoAbortCode.WRITE_READ_ONLY if write else SdoAbortCode.READ_WRITE_ONLY
-        super().__init__(code, index=var.index, subindex=var.subindex, node=node_id, by_peer=False)
-        what = "written" if write else "read"
-        raw = "download" if write else "upload"
-        self.args = (
-            f"node {node_id}: {var.name!r} (0x{var.index:04X}:{var.subindex:02X}) is "
-            f"{var.access} in its EDS and cannot be {what}; nothing was sent (the node would "
-            f"abort 0x{int(code):08X}). If the device allows more than its EDS says, use "
-            f"sdo.{raw}() for raw bytes",
-        )
-
-
 def _check_access(var: Variable, node_id: int, *, write: bool) -> None:
     """Refuse before anything is sent what the EDS says the object does not allow."""
     if not (var.writable if write else var.readable):
@@ -396,17 +369,6 @@ def encode_for(var: Variable, value: Any, node_id: int) -> bytes:
     except ValueRangeError as exc:
         where = f"0x{var.index:04X}:{var.subindex:02X}"
         raise ValueRangeError(f"node {node_id}, {var.name!r} ({where}): {exc}") from None
-
-
-def check_not_bool(var: Variable, value: Any) -> None:
-    """Refuse True/False for an integer object: Python counts them as 1 and 0, a user who
-    writes ``True`` into a mode of operation has most likely mistaken the object."""
-    from cobus.od import ValueRangeError
-
-    if isinstance(value, bool) and var.data_type.is_integer:
-        raise ValueRangeError(
-            f"{value!r} is a bool but the object is {var.data_type.name}: give a number"
-        )
 
 
 class SdoVariable:
@@ -547,17 +509,6 @@ class NmtCommands:
         self.send(NmtCommand.RESET_COMMUNICATION, node_id)
 
 
-def parse_nmt_command(command: NmtCommand | int | str) -> NmtCommand | int:
-    """An NMT command from its enum, number or name (``"start"``, ``"reset-node"``...)."""
-    if not isinstance(command, str):
-        return command
-    try:
-        return NmtCommand[command.upper().replace("-", "_").replace(" ", "_")]
-    except KeyError:
-        names = ", ".join(c.name.lower() for c in NmtCommand)
-        raise ValueError(f"unknown NMT command {command!r}; use one of {names}") from None
-
-
 class NmtMaster(NmtCommands):
     """Sends NMT commands (``net.nmt.send(NmtCommand.START, 0)`` starts every node)."""
 
@@ -622,9 +573,6 @@ class RemoteNode:
         *,
         sdo_timeout: float = 1.0,
     ) -> None:
-        from cobus.runtime.emcy import RemoteEmcy
-        from cobus.runtime.nmt import RemoteNmt
-        from cobus.runtime.pdo import PdoSet
 
         check_node_id(node_id)
         self.node_id = node_id
