@@ -26,7 +26,7 @@ _COMMAND_MODULES = (
     "cobus.trace.monitor",
     "cobus.trace.plot",
     "cobus.trace.scan",
-    "cobus.runtime._cli",
+    "cobus.apps._node_cli",
     "cobus.apps.demo",
 )
 

@@ -1,4 +1,4 @@
-"""cobus sdo / nmt / sync: talk to nodes from the shell.
+"""cobus sdo / nmt / sync: talk to nodes from the shell (a program on the runtime's public API).
 
     cobus sdo read 10 0x1008 0                  # value, with the EDS's name and type (--eds)
     cobus sdo write 10 0x6081 0 20000 --type u32
