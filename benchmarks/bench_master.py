@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 from benchmarks.common import header, row
-from cobus.device import DictionaryBuilder, export_eds
+from cobus.device import DictionaryBuilder, add_device, export_eds
 from cobus.master import Master, NetworkConfig, NodeState, loads_network
 from cobus.od import DataType, ObjectDictionary
 from cobus.proto.nmt import NmtState
@@ -51,7 +51,7 @@ def _config(folder: Path) -> NetworkConfig:
 
 
 async def _boot(net: AsyncNetwork, config: NetworkConfig) -> tuple[float, float, int]:
-    devices = [net.add_device(n, _od()) for n in range(1, NODES + 1)]
+    devices = [add_device(net, n, _od()) for n in range(1, NODES + 1)]
     master = Master(net, config)
     wall = time.perf_counter()
     start = net.time()

@@ -16,7 +16,7 @@ import math
 import sys
 
 from _bench import add_bus_arguments, open_network
-from cobus.device import DictionaryBuilder
+from cobus.device import DictionaryBuilder, add_device
 from cobus.od import DataType, loads
 
 
@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--storage", default="valve.json", help="where 1010h 'save' writes")
     args = parser.parse_args(argv)
     with open_network(args) as net:
-        dev = net.add_device(args.node, valve_block().build(), storage=args.storage)
+        dev = add_device(net, args.node, valve_block().build(), storage=args.storage)
         dev.on_write(0x2000, 0, lambda value: print(f"set-point written: {value}"))
         print(f"valve block on node {args.node}, {dev.state}")
         master = None

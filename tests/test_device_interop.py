@@ -10,7 +10,7 @@ import canopen
 import pytest
 from canopen.objectdictionary.eds import import_from_node
 
-from cobus.device import DictionaryBuilder
+from cobus.device import DictionaryBuilder, add_device
 from cobus.od import DataType
 from cobus.proto.nmt import NmtState
 from cobus.runtime import Network
@@ -34,7 +34,7 @@ def _od():
 def test_python_canopen_configures_and_runs_a_cobus_device():
     channel = f"interop-device-{os.getpid()}"
     with Network(interface="virtual", channel=channel) as net:
-        device = net.add_device(NODE, _od())
+        device = add_device(net, NODE, _od())
         master = canopen.Network()
         master.connect(interface="virtual", channel=channel)
         try:

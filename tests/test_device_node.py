@@ -14,6 +14,7 @@ from cobus.device import (
     HeartbeatLost,
     NodeIdChanged,
     NodeIdInUseError,
+    add_device,
     export_eds,
     minimal_od,
 )
@@ -73,8 +74,8 @@ def test_node_id_change_moves_what_follows_the_node_id():
 def test_node_id_in_use_is_refused():
     async def main():
         async with AsyncNetwork() as net:
-            a = net.add_device(5, test_od())
-            net.add_device(6, test_od())
+            a = add_device(net, 5, test_od())
+            add_device(net, 6, test_od())
             with pytest.raises(NodeIdInUseError):
                 a.node_id = 6
             with pytest.raises(ValueError):
@@ -88,11 +89,11 @@ def test_a_dictionary_serves_one_device_at_a_time():
     async def main():
         async with AsyncNetwork() as net:
             od = test_od()
-            first = net.add_device(5, od)
+            first = add_device(net, 5, od)
             with pytest.raises(DeviceConfigError, match="already served by device 5"):
-                net.add_device(6, od)
+                add_device(net, 6, od)
             first.close()
-            assert net.add_device(6, od).node_id == 6
+            assert add_device(net, 6, od).node_id == 6
 
     simulate(main())
 
@@ -222,7 +223,7 @@ def test_device_from_an_eds_file_and_its_export(tmp_path):
 
     async def main():
         async with AsyncNetwork() as net:
-            device = net.add_device(NODE, path)
+            device = add_device(net, NODE, path)
             device.save_eds(tmp_path / "exported.eds")
             assert (tmp_path / "exported.eds").read_bytes().startswith(b"[FileInfo]\r\n")
             assert isinstance(device.od, ObjectDictionary)
@@ -267,7 +268,7 @@ def test_dictionaries_the_device_cannot_run_are_refused():
     async def main():
         async with AsyncNetwork() as net:
             with pytest.raises(DeviceConfigError, match="1018h"):
-                net.add_device(NODE, od)
+                add_device(net, NODE, od)
 
     simulate(main())
     builder = DictionaryBuilder()
@@ -293,7 +294,7 @@ def test_dictionaries_the_device_cannot_run_are_refused():
 
 def test_blocking_device_on_the_simulated_clock():
     with Network(simulated=True) as net:
-        device = net.add_device(NODE, test_od())
+        device = add_device(net, NODE, test_od())
         remote = net.add_remote(NODE, loads(export_eds(test_od()), NODE))
         seen: list[object] = []
         device.add_listener(seen.append)

@@ -18,6 +18,7 @@ from cobus.device import (
     ParametersStored,
     StorageError,
     StorageProblem,
+    add_device,
 )
 from cobus.device import storage as storage_module
 from cobus.proto.sdo import SdoAbortCode, SdoAbortedError
@@ -200,7 +201,7 @@ def test_unreadable_parameter_files(tmp_path):
             net.add_listener(events.append)
             emcys = []
             net.subscribe(0x80 + NODE, lambda frame, now: emcys.append(bytes(frame.data)))
-            device = net.add_device(NODE, test_od(), storage=broken)  # it starts all the same
+            device = add_device(net, NODE, test_od(), storage=broken)  # it starts all the same
             await net.sleep(0.01)
             assert any(isinstance(e, StorageProblem) and "delete it" in e.reason for e in events)
             assert emcys and emcys[0][:2] == b"\x00\x63"  # EMCY 6300h "data set"

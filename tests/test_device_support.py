@@ -7,7 +7,7 @@ import asyncio
 from collections.abc import Callable, Coroutine
 from typing import Any, TypeVar
 
-from cobus.device import Device, DeviceEvent, DictionaryBuilder, export_eds
+from cobus.device import Device, DeviceEvent, DictionaryBuilder, add_device, export_eds
 from cobus.od import DataType, ObjectDictionary, loads
 from cobus.proto import Event, Frame
 from cobus.proto.nmt import NmtState
@@ -117,7 +117,7 @@ def bench(
     events: list[Event] = []
     net.subscribe_all(lambda frame, now: frames.append((now, frame)))
     net.add_listener(events.append)
-    device = net.add_device(node_id, dictionary, **options)
+    device = add_device(net, node_id, dictionary, **options)
     return Bench(net, device, master, frames, events)
 
 

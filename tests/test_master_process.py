@@ -9,6 +9,7 @@ import time
 
 import pytest
 
+from cobus.device import add_device
 from cobus.master import (
     BlockingMaster,
     Diagnostic,
@@ -199,7 +200,7 @@ def test_process_data_is_blocked_while_the_node_is_not_operational(tmp_path):
 def test_blocking_master_for_scripts(tmp_path):
     cfg = config(tmp_path)
     with Network(simulated=True) as net:
-        device = net.add_device(5, io_od())
+        device = add_device(net, 5, io_od())
         master = BlockingMaster(net, cfg)
         seen: list[object] = []
         master.add_listener(seen.append)
@@ -230,7 +231,7 @@ def test_blocking_master_in_real_time_on_a_virtual_bus(tmp_path):
     text = TEXT.format(rpdo1="255").replace("sync_period: 10}", "sync_period: 10, bootup_delay: 0}")
     cfg = network(tmp_path, text)
     with Network(interface="virtual", channel=f"master-rt-{id(cfg)}") as net:
-        device = net.add_device(5, io_od())
+        device = add_device(net, 5, io_od())
         master = BlockingMaster(net, cfg)
         master.boot(timeout=10)
         assert master_state(master) is MasterState.RUNNING

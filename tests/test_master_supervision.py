@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import pytest
 
+from cobus.device import add_device
 from cobus.master import (
     BusLoadMeter,
     Diagnostic,
@@ -616,7 +617,7 @@ def test_half_the_frames_lost_the_nodes_degrade_but_never_collapse(tmp_path):
             AsyncNetwork(faulty) as controller,
             AsyncNetwork(interface="virtual", channel=channel) as field,
         ):
-            devices = [field.add_device(n, io_od()) for n in (5, 6)]
+            devices = [add_device(field, n, io_od()) for n in (5, 6)]
             master = Master(controller, cfg)
             await master.boot(timeout=5)
             await controller.sleep(0.5)

@@ -8,7 +8,7 @@ from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any, TypeVar
 
-from cobus.device import BlockingDevice, Device, DictionaryBuilder, export_eds
+from cobus.device import BlockingDevice, Device, DictionaryBuilder, add_device, export_eds
 from cobus.master import (
     BlockingMaster,
     Diagnostic,
@@ -118,7 +118,7 @@ class Rig:
 
     def add(self, node_id: int, od: ObjectDictionary | None = None, **options: Any) -> Device:
         """Power on a device (each gets a dictionary of its own)."""
-        device = self.net.add_device(node_id, od if od is not None else io_od(), **options)
+        device = add_device(self.net, node_id, od if od is not None else io_od(), **options)
         self.devices[node_id] = device
         return device
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from cobus.device import DictionaryBuilder
+from cobus.device import DictionaryBuilder, add_device
 from cobus.od import DataType, ValueRangeError
 from cobus.proto import Frame
 from cobus.proto.heartbeat import (
@@ -222,7 +222,7 @@ def _valve() -> DictionaryBuilder:
 
 def test_blocking_node_on_a_device_with_names_as_people_type_them():
     with Network(simulated=True) as net:
-        dev = net.add_device(5, _valve().build())
+        dev = add_device(net, 5, _valve().build())
         from cobus.od import loads
 
         node = net.add_remote(5, loads(dev.to_eds(), node_id=5))
@@ -540,7 +540,7 @@ def test_blocking_handles_are_not_kept_and_callbacks_come_back():
     import gc
 
     with Network(simulated=True) as net:
-        dev = net.add_device(5, _valve().build())
+        dev = add_device(net, 5, _valve().build())
         from cobus.od import loads
 
         node = net.add_remote(5, loads(dev.to_eds(), node_id=5))
@@ -561,7 +561,7 @@ def test_blocking_handles_are_not_kept_and_callbacks_come_back():
 
 def test_sdo_objects_as_a_container_and_names_as_pdos_write_them():
     with Network(simulated=True) as net:
-        dev = net.add_device(5, _valve().build())
+        dev = add_device(net, 5, _valve().build())
         from cobus.od import loads
 
         node = net.add_remote(5, loads(dev.to_eds(), node_id=5))
@@ -613,7 +613,7 @@ def test_pdo_values_are_checked_when_set_and_a_removed_node_fails_at_once():
 
 def test_the_blocking_network_lists_its_nodes_and_takes_listeners_back():
     with Network(simulated=True) as net:
-        dev = net.add_device(5, _valve().build())
+        dev = add_device(net, 5, _valve().build())
         node = net.add_remote(5)
         assert net.remotes == {5: node} and net.remotes[5] is node
         assert list(net.devices) == [5] and net.devices[5].aio is dev.aio

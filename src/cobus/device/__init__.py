@@ -1,15 +1,17 @@
 """A complete CANopen device (slave) in Python.
 
 - :class:`Device` — a node on an :class:`~cobus.runtime.AsyncNetwork`
-  (``net.add_device(node_id, od)``): SDO server on every configured channel, NMT slave,
+  (``add_device(net, node_id, od)``): SDO server on every configured channel, NMT slave,
   heartbeat, node and life guarding, EMCY, SYNC and TIME consumer, PDOs of every transmission
   type, store/restore of parameters, runtime node-ID change, EDS export.
-- :class:`BlockingDevice` — the same for blocking code (``Network.add_device``).
+- :class:`BlockingDevice` — the same for blocking code (``add_device(net, ...)`` on a
+  :class:`~cobus.runtime.Network`).
 - :func:`minimal_od` / :class:`DictionaryBuilder` — dictionaries built in code with every
   CiA 301 communication object.
 - Events (:mod:`cobus.device.events`) go to the device's listeners and the network's.
 """
 
+from cobus.device.add import add_device
 from cobus.device.blocking import BlockingDevice
 from cobus.device.device import (
     LOAD_SIGNATURE,
@@ -98,6 +100,7 @@ __all__ = [
     "SyncLost",
     "SyncRestored",
     "TimeReceived",
+    "add_device",
     "export_eds",
     "minimal_od",
 ]

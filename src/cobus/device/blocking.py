@@ -1,4 +1,4 @@
-"""The blocking face of a :class:`~cobus.device.Device` (``Network.add_device``).
+"""The blocking face of a :class:`~cobus.device.Device` (``add_device(network, ...)``).
 
 It is generated from :class:`~cobus.device.Device` (see :mod:`cobus.runtime._twin`): every
 method runs on the network's event loop and returns its result. Read and write callbacks

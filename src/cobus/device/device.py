@@ -195,8 +195,9 @@ class Device:
     ``deviations`` — a :class:`Deviations` for a model of a device that departs from
     CiA 301.
 
-    ``network.add_device(node_id, od, **options)`` creates and starts one; :meth:`start` boots
-    it (boot-up message, pre-operational). Each device needs a dictionary of its own.
+    The device attaches itself to ``network`` (it holds ``node_id`` in ``network.devices``
+    until :meth:`close`); :meth:`start` boots it (boot-up message, pre-operational).
+    :func:`~cobus.device.add_device` does both. Each device needs a dictionary of its own.
     """
 
     def __init__(
@@ -246,6 +247,8 @@ class Device:
         self._sync = SyncService(self._core, self._emcy, self._pdo.on_sync)
         self._time = TimeService(self._core)
         self._install_handlers()
+        self._check_free(node_id)
+        network.devices.claim(node_id, self)
         _SERVED[id(od)] = weakref.ref(self)
 
     # ================================================================== public API
@@ -477,12 +480,7 @@ class Device:
         old = self._core.node_id
         if node_id == old:
             return
-        devices = self.network.devices
-        other = devices.get(node_id)
-        if other is not None and other is not self:
-            raise NodeIdInUseError(
-                f"node-ID {node_id} is used by another device of this network; pick a free one"
-            )
+        self._check_free(node_id)
         follow = {}
         for key, entry in self._core.entries.items():
             if entry.index < 0x2000 or entry.var.relative:
@@ -493,9 +491,7 @@ class Device:
         self.od.node_id = node_id
         for key, offset in follow.items():
             self._core.entries[key].value = node_id + offset
-        if devices.get(old) is self:
-            del devices[old]
-        devices[node_id] = self
+        self.network.devices.move(old, node_id, self)
         if not self._core.started:
             self._nmt.renew(node_id)
             self._emcy.set_node_id(node_id)
@@ -524,6 +520,14 @@ class Device:
         self._boot()
         self._report_storage()
 
+    def _check_free(self, node_id: int) -> None:
+        other = self.network.devices.get(node_id)
+        if other is not None and other is not self:
+            raise NodeIdInUseError(
+                f"node-ID {node_id} is used by another device of this network ({other!r}); "
+                "pick a free one"
+            )
+
     def _report_storage(self) -> None:
         """After a boot on a parameter file that could not be read: EMCY 6300h."""
         if self._storage.take_failure():
@@ -539,8 +543,7 @@ class Device:
         holder = _SERVED.get(id(self.od))
         if holder is not None and holder() is self:
             del _SERVED[id(self.od)]
-        if self.network.devices.get(self._core.node_id) is self:
-            del self.network.devices[self._core.node_id]
+        self.network.devices.release(self._core.node_id, self)
 
     # ================================================================== lookups
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from cobus.errors import CobusError
 from cobus.proto.sdo import SdoAbortCode, describe
+from cobus.runtime import errors as _runtime
 
 __all__ = [
     "DeviceConfigError",
@@ -24,7 +25,7 @@ class DeviceConfigError(DeviceError, ValueError):
     """The object dictionary or an option cannot run as a device (says what to add or fix)."""
 
 
-class NodeIdInUseError(DeviceError, ValueError):
+class NodeIdInUseError(DeviceError, _runtime.NodeIdInUseError):
     """Another device of the same network already has this node-ID."""
 
 

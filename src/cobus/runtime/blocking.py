@@ -40,7 +40,6 @@ if TYPE_CHECKING:
     from collections.abc import Iterator
     from pathlib import Path
 
-    from cobus.device import BlockingDevice
     from cobus.od import ObjectDictionary
 
 __all__ = [
@@ -333,11 +332,16 @@ class Network:
         return {n: self._remote(node) for n, node in self.aio.remotes.items()}
 
     @property
-    def devices(self) -> dict[int, BlockingDevice]:
-        """The devices added with :meth:`add_device`, by node-ID."""
-        from cobus.device import BlockingDevice
+    def devices(self) -> dict[int, Any]:
+        """The local devices by node-ID (see :attr:`AsyncNetwork.devices`), each in its
+        blocking form when it has one (a :class:`cobus.device.BlockingDevice`)."""
+        runner = self._runner
 
-        return {n: BlockingDevice(device, self._runner) for n, device in self.aio.devices.items()}
+        def blocking(device: Any) -> Any:
+            twin = twin_of(type(device))
+            return device if twin is None else twin(device, runner)
+
+        return {n: blocking(device) for n, device in self.aio.devices.items()}
 
     def _remote(self, node: AsyncRemoteNode) -> RemoteNode:
         twin = self._remote_twins.get(node.node_id)
@@ -371,15 +375,6 @@ class Network:
         """Forget a node added with :meth:`add_remote` (it can be added again)."""
         self._runner.call(self.aio.remove_remote, node_id)
         self._remote_twins.pop(node_id, None)
-
-    def add_device(
-        self, node_id: int, od: ObjectDictionary | str | Path, **options: Any
-    ) -> BlockingDevice:
-        """A CANopen device (slave) run by this network; see :class:`cobus.device.Device`."""
-        from cobus.device import BlockingDevice
-
-        device = self._runner.call(lambda: self.aio.add_device(node_id, od, **options))
-        return BlockingDevice(device, self._runner)
 
     @property
     def nmt(self) -> BlockingNmt:

@@ -16,6 +16,7 @@ __all__ = [
     "EmcyTimeoutError",
     "NetworkClosedError",
     "NmtTimeoutError",
+    "NodeIdInUseError",
     "ObjectAccessError",
     "ObjectNotFoundError",
     "PdoConfigurationError",
@@ -95,3 +96,8 @@ class PdoConfigurationError(CobusError):
 
 class PdoTimeoutError(CobusError, TimeoutError):
     """A PDO expected from the node did not arrive in time."""
+
+
+class NodeIdInUseError(CobusError, ValueError):
+    """A node-ID this process already answers to on the network (another local device holds
+    it); give each local device a node-ID of its own."""

@@ -30,11 +30,11 @@ from cobus.runtime.events import (
     TxQueueFull,
     TxResumed,
 )
+from cobus.runtime.local_nodes import LocalNodes
 from cobus.runtime.loop import SimulatedEventLoop
 from cobus.runtime.remote import NmtMaster, RemoteNode, SyncService, load_od
 
 if TYPE_CHECKING:
-    from cobus.device import Device
     from cobus.od import ObjectDictionary
 
 __all__ = [
@@ -196,8 +196,10 @@ class AsyncNetwork:
     frames_sent: int
     #: The nodes added with :meth:`add_remote`, by node-ID.
     remotes: dict[int, RemoteNode]
-    #: The devices added with :meth:`add_device`, by node-ID.
-    devices: dict[int, Device]
+    #: The local devices (:class:`cobus.device.Device`, simulated devices) by node-ID: the
+    #: node-IDs this process answers to on this network. Devices claim and release their
+    #: node-ID here; read it as a mapping.
+    devices: LocalNodes
 
     def __init__(
         self,
@@ -245,7 +247,7 @@ class AsyncNetwork:
         self.frames_sent = 0
         self._failures: dict[tuple[object, ...], int] = {}  # by where they were raised
         self.remotes: dict[int, RemoteNode] = {}
-        self.devices: dict[int, Device] = {}
+        self.devices = LocalNodes()
         self._nmt: NmtMaster | None = None
         self._sync: SyncService | None = None
 
@@ -445,20 +447,6 @@ class AsyncNetwork:
         if node is None:
             raise KeyError(f"node {node_id} was not added to this network")
         node._close()
-
-    def add_device(self, node_id: int, od: ObjectDictionary | str | Path, **options: Any) -> Device:
-        """A CANopen device (slave) that this network runs, from an object dictionary or an
-        EDS/DCF path; see :class:`cobus.device.Device` for the options. It boots at once."""
-        from cobus.device import Device
-
-        if node_id in self.devices:
-            raise ValueError(f"a device with node-ID {node_id} already runs on this network")
-        dictionary = load_od(od, node_id)
-        assert dictionary is not None
-        device = Device(self, node_id, dictionary, **options)
-        self.devices[node_id] = device
-        device.start()
-        return device
 
     @property
     def nmt(self) -> NmtMaster:

@@ -272,7 +272,6 @@ class CanopenSimDevice(SimulatedDevice):
         device.sdo_response_delay = self.sdo_delay
         self.problems = []
         self._device = device
-        self.network.devices[self.node_id] = device
         device.add_listener(self._on_device_event)
         self.bind(device)
         try:

@@ -512,7 +512,6 @@ class StoberMds5000(SimulatedDevice):
             deviations=self._deviations(),
         )
         self.device = device
-        self.network.devices[self.node_id] = device
         for index, reader in (
             (E08, lambda: round(self.speed)),
             (E39, lambda: self.cause),

@@ -300,7 +300,6 @@ class ZapiAce2(SimulatedDevice):
             self.network, self.node_id, self.od, storage=self.storage, deviations=self._deviations()
         )
         self.device = device
-        self.network.devices[self.node_id] = device
         for index, reader in (
             (ACTUAL_SPEED, lambda: round(self.speed * 100)),
             (STATUSWORD, self.statusword),
