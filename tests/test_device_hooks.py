@@ -1,5 +1,6 @@
-"""The device's public fault hooks, on the simulated clock: SDO answers that come late
-(``sdo_response_delay``) and a heartbeat producer that falls silent (``heartbeat_muted``)."""
+"""The device's public fault hooks (``device.simulation``), on the simulated clock: SDO answers
+that come late (``sdo_response_delay``) and a heartbeat producer that falls silent
+(``heartbeat_muted``)."""
 
 from __future__ import annotations
 
@@ -21,11 +22,11 @@ def upload_request(index: int, sub: int = 0) -> bytes:
 
 def test_sdo_answers_come_late_by_the_delay():
     async def scenario(b: Bench):
-        assert b.device.sdo_response_delay == 0.0
+        assert b.device.simulation.sdo_response_delay == 0.0
         t0 = b.net.time()
         assert await b.sdo.read(0x1000) == 0x191
         assert b.net.time() == t0  # no delay: answered at once
-        b.device.sdo_response_delay = 0.2
+        b.device.simulation.sdo_response_delay = 0.2
         t0 = b.net.time()
         assert await b.sdo.read(0x1000) == 0x191
         assert b.net.time() - t0 == pytest.approx(0.2)
@@ -35,7 +36,7 @@ def test_sdo_answers_come_late_by_the_delay():
         assert b.net.time() - t0 == pytest.approx(0.2 * 3)
         await b.sdo.write(0x2002, 0, 7)  # writes too
         assert b.device.get(0x2002) == 7
-        b.device.sdo_response_delay = 0
+        b.device.simulation.sdo_response_delay = 0
         t0 = b.net.time()
         assert await b.sdo.read(0x2002) == 7
         assert b.net.time() == t0
@@ -45,11 +46,11 @@ def test_sdo_answers_come_late_by_the_delay():
 
 def test_requests_keep_their_order_when_the_delay_shrinks():
     async def scenario(b: Bench):
-        b.device.sdo_response_delay = 0.3
+        b.device.simulation.sdo_response_delay = 0.3
         t0 = b.net.time()
         b.send(RX, upload_request(0x1000))
         await b.net.sleep(0.01)
-        b.device.sdo_response_delay = 0.05  # the next request would be due first
+        b.device.simulation.sdo_response_delay = 0.05  # the next request would be due first
         b.send(RX, upload_request(0x1017))
         await b.net.sleep(0.1)
         assert b.on(TX) == []
@@ -68,7 +69,7 @@ def test_requests_keep_their_order_when_the_delay_shrinks():
 
 def test_the_server_timeout_counts_from_when_the_request_is_taken_up():
     async def scenario(b: Bench):
-        b.device.sdo_response_delay = 0.4
+        b.device.simulation.sdo_response_delay = 0.4
         t0 = b.net.time()
         b.send(RX, upload_request(0x1008))  # segmented: the server waits for segments
         await b.net.sleep(1.0)
@@ -83,7 +84,7 @@ def test_the_server_timeout_counts_from_when_the_request_is_taken_up():
 
 def test_the_delay_holds_through_resets_and_waiting_requests_end_with_the_channels():
     async def scenario(b: Bench):
-        b.device.sdo_response_delay = 0.2
+        b.device.simulation.sdo_response_delay = 0.2
         b.send(RX, upload_request(0x1000))
         await b.net.sleep(0.1)
         b.net.nmt.reset_communication(NODE)
@@ -106,8 +107,8 @@ def test_the_delay_holds_through_resets_and_waiting_requests_end_with_the_channe
 def test_a_delay_that_is_not_seconds_is_refused(bad):
     async def scenario(b: Bench):
         with pytest.raises(DeviceConfigError, match="seconds >= 0"):
-            b.device.sdo_response_delay = bad
-        assert b.device.sdo_response_delay == 0.0
+            b.device.simulation.sdo_response_delay = bad
+        assert b.device.simulation.sdo_response_delay == 0.0
 
     run_bench(scenario)
 
@@ -119,12 +120,14 @@ def test_a_muted_heartbeat_keeps_its_period_and_resumes_on_it():
         t0 = b.net.time()  # beats fall due at t0 + 0.1 k
         await b.net.sleep(0.25)
         assert b.times(HB, since=t0) == [round(t0 + 0.1, 6), round(t0 + 0.2, 6)]
-        assert b.device.heartbeat_muted is False
-        b.device.heartbeat_muted = True
+        assert b.device.simulation.heartbeat_muted is False
+        b.device.simulation.heartbeat_muted = True
         await b.net.sleep(0.3)
         assert b.times(HB, since=t0 + 0.25) == []
         assert await b.sdo.read(0x1017) == 100  # 1017h keeps its value, the node answers
-        b.device.heartbeat_muted = False  # at t0 + 0.55: the next beat is due at t0 + 0.6
+        b.device.simulation.heartbeat_muted = (
+            False  # at t0 + 0.55: the next beat is due at t0 + 0.6
+        )
         await b.net.sleep(0.16)
         assert b.times(HB, since=t0 + 0.25) == [round(t0 + 0.6, 6), round(t0 + 0.7, 6)]
 
@@ -134,7 +137,7 @@ def test_a_muted_heartbeat_keeps_its_period_and_resumes_on_it():
 def test_a_muted_heartbeat_stays_silent_through_writes_of_1017h_and_resets():
     async def scenario(b: Bench):
         await b.net.sleep(0.01)  # after the boot-up
-        b.device.heartbeat_muted = True
+        b.device.simulation.heartbeat_muted = True
         await b.sdo.write(0x1017, 0, 50)
         t0 = b.net.time()
         await b.net.sleep(0.2)
@@ -145,11 +148,11 @@ def test_a_muted_heartbeat_stays_silent_through_writes_of_1017h_and_resets():
         t1 = b.net.time()
         await b.net.sleep(0.2)
         assert b.data(HB, since=t0) == [b"\x00"]  # the boot-up only
-        assert b.device.heartbeat_muted is True
-        b.device.heartbeat_muted = False
+        assert b.device.simulation.heartbeat_muted is True
+        b.device.simulation.heartbeat_muted = False
         await b.net.sleep(0.06)
         assert b.times(HB, since=t0 + 0.001)[-1] == round(t1 + 0.25, 6)
         with pytest.raises(DeviceConfigError, match="True or False"):
-            b.device.heartbeat_muted = 1  # type: ignore[assignment]
+            b.device.simulation.heartbeat_muted = 1  # type: ignore[assignment]
 
     run_bench(scenario)

@@ -9,7 +9,17 @@ from pathlib import Path
 
 import pytest
 
-from cobus.device import BlockingDevice, Device, NodeIdInUseError, add_device, minimal_od
+from cobus.device import (
+    BlockingDevice,
+    Deviations,
+    Device,
+    DeviceConfigError,
+    NodeIdInUseError,
+    Simulation,
+    add_device,
+    minimal_od,
+)
+from cobus.device.blocking import BlockingSimulation
 from cobus.runtime import AsyncNetwork, Network
 from cobus.runtime.errors import NodeIdInUseError as RuntimeNodeIdInUseError
 from cobus.runtime.local_nodes import LocalNodes
@@ -184,3 +194,24 @@ def test_add_device_on_a_blocking_network_gives_a_blocking_device(tmp_path):
         assert isinstance(net.devices[5], BlockingDevice) and net.devices[5].aio is device.aio
         with pytest.raises(NodeIdInUseError):
             add_device(net, 5, test_od())
+
+
+def test_the_simulation_settings_sit_behind_one_object():
+    with Network(simulated=True) as net:
+        device = add_device(net, 5, test_od(), deviations=Deviations(send_bootup=False))
+        simulation = device.simulation
+        assert isinstance(simulation, BlockingSimulation)
+        assert isinstance(simulation.aio, Simulation) and simulation.aio is device.aio.simulation
+        assert simulation.deviations == Deviations(send_bootup=False)
+        assert (simulation.sdo_response_delay, simulation.heartbeat_muted) == (0.0, False)
+        simulation.sdo_response_delay = 0.25
+        simulation.heartbeat_muted = True
+        assert device.aio.simulation.sdo_response_delay == 0.25
+        assert device.aio.simulation.heartbeat_muted is True
+        with pytest.raises(DeviceConfigError, match="SDO response delay"):
+            simulation.sdo_response_delay = -1
+        with pytest.raises(DeviceConfigError, match="True or False"):
+            simulation.heartbeat_muted = 1  # type: ignore[assignment]
+        assert "sdo_response_delay=0.25" in repr(device.aio.simulation)
+    with pytest.raises(DeviceConfigError, match=r"not a cobus\.device\.Deviations"):
+        Simulation({"send_bootup": False})  # type: ignore[arg-type]

@@ -356,7 +356,8 @@ def test_every_async_operation_has_its_blocking_twin():
         NetworkVariables,
         ParameterManager,
     )
-    from cobus.device import BlockingDevice, Device
+    from cobus.device import BlockingDevice, Device, Simulation
+    from cobus.device.blocking import BlockingSimulation
     from cobus.master import BlockingMaster, Master
     from cobus.profiles import AsyncDrive402, Drive402
     from cobus.profiles.axes import AsyncAxes, Axes
@@ -380,6 +381,7 @@ def test_every_async_operation_has_its_blocking_twin():
         SimulatedDevice: cobus.sim.blocking.BlockingSimulatedDevice,
         Master: BlockingMaster,
         Device: BlockingDevice,
+        Simulation: BlockingSimulation,
         AsyncDrive402: Drive402,
         AsyncZapiDrive: ZapiDrive,
         AsyncStoberDrive: StoberDrive,

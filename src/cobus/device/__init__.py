@@ -56,6 +56,7 @@ from cobus.device.events import (
     SyncRestored,
     TimeReceived,
 )
+from cobus.device.simulation import Simulation
 from cobus.device.storage import FileStorage, MemoryStorage, ParameterStorage
 
 __all__ = [
@@ -94,6 +95,7 @@ __all__ = [
     "RpdoLost",
     "RpdoReceived",
     "RpdoRestored",
+    "Simulation",
     "StateChanged",
     "StorageError",
     "StorageProblem",

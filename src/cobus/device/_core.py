@@ -13,7 +13,6 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from cobus.device._entries import Entry
-from cobus.device._gates import Knobs
 from cobus.device.events import ConfigurationProblem, DeviceEvent
 from cobus.od import ObjectDictionary
 from cobus.proto.nmt import NmtSlave
@@ -21,7 +20,7 @@ from cobus.proto.sdo import SdoAbort, SdoAbortCode
 from cobus.runtime.events import HandlerFailed
 
 if TYPE_CHECKING:
-    from cobus.device.device import Deviations
+    from cobus.device.simulation import Simulation
     from cobus.runtime.network import AsyncNetwork
 
 __all__ = ["INVALID", "Core", "Listener", "WriteHandler", "abort"]
@@ -51,12 +50,12 @@ class Core:
         "entries",
         "handlers",
         "indices",
-        "knobs",
         "listeners",
         "network",
         "nmt",
         "node_id",
         "od",
+        "simulation",
         "started",
     )
 
@@ -65,13 +64,15 @@ class Core:
         network: AsyncNetwork,
         od: ObjectDictionary,
         node_id: int,
-        deviations: Deviations,
+        simulation: Simulation,
     ) -> None:
         self.network = network
         self.od = od
         self.node_id = node_id
-        self.deviations = deviations
-        self.knobs = Knobs()
+        #: The device's simulation settings, which its SDO servers and heartbeat read.
+        self.simulation = simulation
+        #: How the device departs from CiA 301.
+        self.deviations = simulation.deviations
         self.entries: dict[int, Entry] = {}
         for var in od.variables():
             if var.index < 0x1000:  # data type definitions and dummies

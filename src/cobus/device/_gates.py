@@ -1,48 +1,42 @@
 """The machines a device's hosts drive around its SDO servers and heartbeat producer, so that
-:attr:`Device.sdo_response_delay <cobus.device.Device.sdo_response_delay>` and
-:attr:`Device.heartbeat_muted <cobus.device.Device.heartbeat_muted>` act on them without
-changing the protocol machines themselves.
+:attr:`Simulation.sdo_response_delay <cobus.device.Simulation.sdo_response_delay>` and
+:attr:`Simulation.heartbeat_muted <cobus.device.Simulation.heartbeat_muted>` act on them
+without changing the protocol machines themselves.
 
-Both read a :class:`Knobs` the device owns, so a change applies at once to the channels and
-the producer in place, and holds through every rebuild of the communication (resets,
-node-ID changes, new COB-IDs).
+Both read the device's :class:`~cobus.device.Simulation`, so a change applies at once to the
+channels and the producer in place, and holds through every rebuild of the communication
+(resets, node-ID changes, new COB-IDs).
 """
 
 from __future__ import annotations
 
 from collections import deque
+from typing import TYPE_CHECKING
 
 from cobus.proto import NOTHING, Frame, Out
 from cobus.proto.heartbeat import HeartbeatProducer
 from cobus.proto.sdo import SdoServer
 
-__all__ = ["Knobs", "LateSdoServer", "MutableHeartbeat"]
+if TYPE_CHECKING:
+    from cobus.device.simulation import Simulation
 
-
-class Knobs:
-    """The device's settings the gates read (see :class:`~cobus.device.Device`)."""
-
-    __slots__ = ("heartbeat_muted", "sdo_delay")
-
-    def __init__(self) -> None:
-        self.sdo_delay = 0.0
-        self.heartbeat_muted = False
+__all__ = ["LateSdoServer", "MutableHeartbeat"]
 
 
 class LateSdoServer:
-    """An SDO server channel that takes each request up ``knobs.sdo_delay`` seconds after it
-    arrived, as a slow device does: its answers come that much later, and its own transfer
-    timeout counts from when it took the request up.
+    """An SDO server channel that takes each request up ``simulation.sdo_response_delay``
+    seconds after it arrived, as a slow device does: its answers come that much later, and its
+    own transfer timeout counts from when it took the request up.
 
     Requests keep their order: while any wait, a new one waits behind them (a shorter delay set
     later does not overtake). With no delay and nothing waiting, a request goes straight in.
     """
 
-    __slots__ = ("_knobs", "_waiting", "server")
+    __slots__ = ("_simulation", "_waiting", "server")
 
-    def __init__(self, server: SdoServer, knobs: Knobs) -> None:
+    def __init__(self, server: SdoServer, simulation: Simulation) -> None:
         self.server = server
-        self._knobs = knobs
+        self._simulation = simulation
         self._waiting: deque[tuple[float, Frame]] = deque()
 
     @property
@@ -59,7 +53,7 @@ class LateSdoServer:
         return len(self._waiting)
 
     def on_frame(self, frame: Frame, now: float) -> Out:
-        delay = self._knobs.sdo_delay
+        delay = self._simulation.sdo_response_delay
         if delay <= 0 and not self._waiting:
             return self.server.on_frame(frame, now)
         self._waiting.append((now + delay, frame))
@@ -82,14 +76,14 @@ class LateSdoServer:
 
 
 class MutableHeartbeat:
-    """A heartbeat producer that keeps its period while ``knobs.heartbeat_muted`` silences it:
+    """A heartbeat producer that keeps its period while ``simulation.heartbeat_muted`` silences it:
     the beats fall due as before and are not sent, so un-muting resumes on the same period."""
 
-    __slots__ = ("_knobs", "producer")
+    __slots__ = ("_simulation", "producer")
 
-    def __init__(self, producer: HeartbeatProducer, knobs: Knobs) -> None:
+    def __init__(self, producer: HeartbeatProducer, simulation: Simulation) -> None:
         self.producer = producer
-        self._knobs = knobs
+        self._simulation = simulation
 
     @property
     def deadline(self) -> float | None:
@@ -100,6 +94,6 @@ class MutableHeartbeat:
 
     def on_timer(self, now: float) -> Out:
         out = self.producer.on_timer(now)
-        if out.frames and self._knobs.heartbeat_muted:
+        if out.frames and self._simulation.heartbeat_muted:
             return Out((), out.events)
         return out

@@ -13,6 +13,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from cobus.device.device import Device
+from cobus.device.simulation import Simulation
 from cobus.runtime._twin import BlockingTwin
 
 if TYPE_CHECKING:
@@ -21,7 +22,7 @@ if TYPE_CHECKING:
     from cobus.proto.emcy import ErrorRegister
     from cobus.proto.nmt import NmtState
 
-__all__ = ["BlockingDevice"]
+__all__ = ["BlockingDevice", "BlockingSimulation"]
 
 
 class BlockingDevice(BlockingTwin, twin_of=Device):
@@ -33,6 +34,7 @@ class BlockingDevice(BlockingTwin, twin_of=Device):
         od: ObjectDictionary
         state: NmtState
         error_register: ErrorRegister
+        simulation: BlockingSimulation
 
         def get(self, index: Key, subindex: Key = 0) -> Any: ...
         def set(self, index: Key, subindex: Key, value: Any) -> None: ...
@@ -41,3 +43,13 @@ class BlockingDevice(BlockingTwin, twin_of=Device):
             self, index: Key, subindex: Key, fn: Callable[[Any], object] | None
         ) -> None: ...
         def to_eds(self) -> str: ...
+
+
+class BlockingSimulation(BlockingTwin, twin_of=Simulation):
+    """``device.simulation`` of a :class:`BlockingDevice`: its settings are read and changed
+    on the network's loop."""
+
+    if TYPE_CHECKING:
+        aio: Simulation
+        sdo_response_delay: float
+        heartbeat_muted: bool

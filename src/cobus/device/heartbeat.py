@@ -1,7 +1,7 @@
 """The device's heartbeat: the producer of 1017h and the consumer of 1016h.
 
 The producer starts with the period of 1017h after the boot-up message; a period of 0 stops
-it. :attr:`Device.heartbeat_muted <cobus.device.Device.heartbeat_muted>` silences it without
+it. :attr:`Simulation.heartbeat_muted <cobus.device.Simulation.heartbeat_muted>` silences it without
 changing its period. The consumer watches every node 1016h names with a non-zero time; a node
 whose heartbeat stops is the communication error ``("hb", node)`` (EMCY 8130h) until it is
 heard again, reboots, or is no longer watched, and triggers the error behaviour 1029h.
@@ -58,7 +58,9 @@ class HeartbeatService:
             self._producer = _hb.HeartbeatProducer(
                 core.node_id, state_getter=lambda: core.nmt.state
             )
-            self._producer_host = network.attach(MutableHeartbeat(self._producer, core.knobs), ())
+            self._producer_host = network.attach(
+                MutableHeartbeat(self._producer, core.simulation), ()
+            )
         size = core.value(0x1016, 0, 0)
         if size:
             consumer = _hb.HeartbeatConsumer(min(int(size), 127))

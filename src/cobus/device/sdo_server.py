@@ -158,7 +158,7 @@ class SdoServerService:
                     continue
                 rx, tx = rx_value & 0x7FF, tx_value & 0x7FF
             server = SdoServer(rx, tx, self.backend, timeout=self._timeout)
-            host = core.network.attach(LateSdoServer(server, core.knobs))
+            host = core.network.attach(LateSdoServer(server, core.simulation))
             sub = core.network.subscribe(rx, partial(self._on_frame, host))
             self._channels[n] = _Channel(n, server, host, sub)
 

@@ -269,7 +269,7 @@ class CanopenSimDevice(SimulatedDevice):
             storage=self._storage,
             sdo_timeout=self._sdo_timeout,
         )
-        device.sdo_response_delay = self.sdo_delay
+        device.simulation.sdo_response_delay = self.sdo_delay
         self.problems = []
         self._device = device
         device.add_listener(self._on_device_event)
@@ -316,7 +316,7 @@ class CanopenSimDevice(SimulatedDevice):
         if not self.powered:
             active.append("power_loss")
         device = self._device
-        if device is not None and device.heartbeat_muted:
+        if device is not None and device.simulation.heartbeat_muted:
             active.append("heartbeat_stop")
         if self.sdo_delay > 0:
             active.append(f"sdo_delay={self.sdo_delay:g}s")
@@ -340,7 +340,7 @@ class CanopenSimDevice(SimulatedDevice):
                 self._device.set_node_id(new)
         elif fault in ("heartbeat_stop", "heartbeat_resume"):
             check_fault_params(self.kind, fault, params, {})
-            self._running().heartbeat_muted = fault == "heartbeat_stop"
+            self._running().simulation.heartbeat_muted = fault == "heartbeat_stop"
         elif fault == "sdo_delay":
             p = check_fault_params(self.kind, fault, params, {"delay": ...})
             delay = p["delay"]
@@ -348,7 +348,7 @@ class CanopenSimDevice(SimulatedDevice):
                 raise FaultParameterError(f"sdo_delay: delay {delay!r} must be seconds >= 0")
             self.sdo_delay = float(delay)
             if self._device is not None:
-                self._device.sdo_response_delay = self.sdo_delay
+                self._device.simulation.sdo_response_delay = self.sdo_delay
         else:
             super().inject(fault, **params)
 
