@@ -18,6 +18,13 @@ import datetime as _dt
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+from cobus.device import emcy, guarding, heartbeat, nmt, pdo, sdo_server, storage, sync, timestamp
+from cobus.device._objects import CONST as _CONST
+from cobus.device._objects import RO as _RO
+from cobus.device._objects import U8 as _U8
+from cobus.device._objects import U16 as _U16
+from cobus.device._objects import U32 as _U32
+from cobus.device._objects import var as _var
 from cobus.device.errors import DeviceConfigError
 from cobus.od import (
     Access,
@@ -25,7 +32,6 @@ from cobus.od import (
     DataType,
     DeviceInfo,
     FileInfo,
-    NodeRelative,
     ObjectDictionary,
     Record,
     Variable,
@@ -39,41 +45,9 @@ DEFAULT_DEVICE_TYPE = 0x191
 
 _MAX_PDOS = 512
 _MAX_MAP_ENTRIES = 64
-_INVALID = 0x80000000
 
 
-_U8, _U16, _U32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
-_RO, _RW, _CONST = Access.RO, Access.RW, Access.CONST
 _BIT_RATES = {10, 20, 50, 125, 250, 500, 800, 1000}
-
-
-def _var(
-    index: int,
-    sub: int,
-    name: str,
-    dt: DataType,
-    access: Access,
-    default: Any,
-    *,
-    mappable: bool = False,
-) -> Variable:
-    return Variable(index, sub, name, dt, access, mappable, default=default)
-
-
-def _composite(
-    od: ObjectDictionary,
-    obj: Record | Array,
-    subs: Iterable[tuple[int, str, DataType, Any]],
-    *,
-    first: Access = _RO,
-    rest: Access = _RW,
-) -> None:
-    """Fill ``obj`` with sub 0 (the first item, access ``first``) and its entries (``rest``)
-    and add it to ``od``."""
-    index = obj.index
-    for n, (sub, name, dt, default) in enumerate(subs):
-        obj.add(Variable(index, sub, name, dt, rest if n else first, default=default))
-    od.add(obj)
 
 
 def _check_count(what: str, value: int, low: int, high: int) -> int:
@@ -198,119 +172,30 @@ def _profile(
     )
     for code in range(1, 8):  # the device maps a dummy of every basic type 0001h..0007h
         od.set_dummy_usage(code)
+    # the device's own objects; each service defines the objects it serves (CiA 301 order)
     add = od.add
     add(_var(0x1000, 0, "Device type", _U32, _RO, device_type))
-    add(_var(0x1001, 0, "Error register", _U8, _RO, 0, mappable=True))
-    if error_history:
-        _composite(
-            od,
-            Array(0x1003, "Pre-defined error field"),
-            [
-                (0, "Number of errors", _U8, 0),
-                *((n, f"Standard error field {n}", _U32, 0) for n in range(1, error_history + 1)),
-            ],
-            first=_RW,  # a master writes 0 to clear the history
-            rest=_RO,
-        )
-    add(_var(0x1005, 0, "COB-ID SYNC", _U32, _RW, 0x80))
-    add(_var(0x1006, 0, "Communication cycle period", _U32, _RW, 0))
-    add(_var(0x1007, 0, "Synchronous window length", _U32, _RW, 0))
+    emcy.define_objects(od, history=error_history)  # 1001h, 1003h, 1014h, 1015h
+    sync.define_objects(od)  # 1005h, 1006h, 1007h, 1019h
     vs = DataType.VISIBLE_STRING
     add(_var(0x1008, 0, "Manufacturer device name", vs, _CONST, device_name))
     add(_var(0x1009, 0, "Manufacturer hardware version", vs, _CONST, hardware_version or None))
     add(_var(0x100A, 0, "Manufacturer software version", vs, _CONST, software_version or None))
-    add(_var(0x100C, 0, "Guard time", _U16, _RW, 0))
-    add(_var(0x100D, 0, "Life time factor", _U8, _RW, 0))
-    for index, name, verb in (
-        (0x1010, "Store parameters", "Save"),
-        (0x1011, "Restore default parameters", "Restore"),
-    ):
-        _composite(
-            od,
-            Array(index, name),
-            [
-                (0, "Highest sub-index supported", _U8, 3),
-                (1, f"{verb} all parameters", _U32, 1),
-                (2, f"{verb} communication parameters", _U32, 1),
-                (3, f"{verb} application parameters", _U32, 1),
-            ],
-        )
-    add(_var(0x1012, 0, "COB-ID time stamp", _U32, _RW, 0x80000100))
-    add(_var(0x1014, 0, "COB-ID EMCY", _U32, _RW, NodeRelative(0x80)))
-    add(_var(0x1015, 0, "Inhibit time EMCY", _U16, _RW, 0))
-    _composite(
-        od,
-        Array(0x1016, "Consumer heartbeat time"),
-        [
-            (0, "Highest sub-index supported", _U8, heartbeat_consumers),
-            *(
-                (n, f"Consumer heartbeat time {n}", _U32, 0)
-                for n in range(1, heartbeat_consumers + 1)
-            ),
-        ],
-    )
-    add(_var(0x1017, 0, "Producer heartbeat time", _U16, _RW, 0))
+    guarding.define_objects(od)  # 100Ch, 100Dh
+    storage.define_objects(od)  # 1010h, 1011h
+    timestamp.define_objects(od)  # 1012h
+    heartbeat.define_objects(od, consumers=heartbeat_consumers)  # 1016h, 1017h
     identity_names = ("Vendor-ID", "Product code", "Revision number", "Serial number")
     identity_obj = Record(0x1018, "Identity object")
     identity_obj.add(_var(0x1018, 0, "Highest sub-index supported", _U8, _RO, 4))
     for sub, name in enumerate(identity_names, 1):
         identity_obj.add(_var(0x1018, sub, name, _U32, _RO, identity[sub - 1]))
     add(identity_obj)
-    add(_var(0x1019, 0, "Synchronous counter overflow value", _U8, _RW, 0))
     add(_var(0x1021, 0, "Store EDS", DataType.DOMAIN, _RO, None))
     add(_var(0x1022, 0, "Store format", _U16, _RO, 0))
-    _composite(
-        od,
-        Array(0x1029, "Error behavior object"),
-        [(0, "Highest sub-index supported", _U8, 1), (1, "Communication error", _U8, 0)],
-    )
-    for n in range(sdo_servers):
-        index = 0x1200 + n
-        if n == 0:
-            server = Record(index, "SDO server parameter")
-            server.add(_var(index, 0, "Highest sub-index supported", _U8, _RO, 2))
-            for sub, name, base in ((1, "client to server", 0x600), (2, "server to client", 0x580)):
-                server.add(_var(index, sub, f"COB-ID {name}", _U32, _RO, NodeRelative(base)))
-            add(server)
-            continue
-        _composite(
-            od,
-            Record(index, f"SDO server parameter {n + 1}"),
-            [
-                (0, "Highest sub-index supported", _U8, 3),
-                (1, "COB-ID client to server", _U32, _INVALID),
-                (2, "COB-ID server to client", _U32, _INVALID),
-                (3, "Node-ID of the SDO client", _U8, 0),
-            ],
-        )
-    for kind, count, comm_base, map_base, id_base in (
-        ("RPDO", rpdos, 0x1400, 0x1600, 0x200),
-        ("TPDO", tpdos, 0x1800, 0x1A00, 0x180),
-    ):
-        tx = kind == "TPDO"
-        for n in range(count):
-            cob: int | NodeRelative = NodeRelative(id_base + 0x100 * n) if n < 4 else _INVALID
-            _composite(
-                od,
-                Record(comm_base + n, f"{kind} communication parameter {n + 1}"),
-                [
-                    (0, "Highest sub-index supported", _U8, 6 if tx else 5),
-                    (1, f"COB-ID used by {kind}", _U32, cob),
-                    (2, "Transmission type", _U8, 255),
-                    (3, "Inhibit time", _U16, 0),
-                    (5, "Event timer", _U16, 0),
-                    *([(6, "SYNC start value", _U8, 0)] if tx else []),
-                ],
-            )
-            _composite(
-                od,
-                Record(map_base + n, f"{kind} mapping parameter {n + 1}"),
-                [
-                    (0, "Number of mapped objects", _U8, 0),
-                    *((e, f"Mapped object {e}", _U32, 0) for e in range(1, mapping_entries + 1)),
-                ],
-                first=_RW,  # a master writes the count
-            )
+    nmt.define_objects(od)  # 1029h
+    sdo_server.define_objects(od, servers=sdo_servers)  # 1200h...
+    pdo.define_objects(od, rpdos=rpdos, tpdos=tpdos, entries=mapping_entries)  # 1400h-1BFFh
 
 
 _ACCESS = {a.value: a for a in Access}

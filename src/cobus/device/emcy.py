@@ -21,9 +21,10 @@ from typing import TYPE_CHECKING, Any
 
 from cobus.device._core import Core, abort
 from cobus.device._entries import Entry
+from cobus.device._objects import RO, RW, U8, U16, U32, composite, var
 from cobus.device.events import EmergencySent
 from cobus.errors import CobusError
-from cobus.od import Array, ObjectDictionary, Record
+from cobus.od import Array, NodeRelative, ObjectDictionary, Record
 from cobus.proto import emcy as _emcy
 from cobus.proto.emcy import EmcyProducer, ErrorRegister
 from cobus.proto.nmt import NmtState
@@ -32,7 +33,7 @@ from cobus.proto.sdo import SdoAbort, SdoAbortCode
 if TYPE_CHECKING:
     from cobus.runtime.network import MachineHost
 
-__all__ = ["COMM_BIT", "EmcyService", "class_bits"]
+__all__ = ["COMM_BIT", "EmcyService", "class_bits", "define_objects"]
 
 _ABORT = SdoAbortCode
 _GENERIC = int(ErrorRegister.GENERIC)
@@ -61,6 +62,25 @@ def _history_depth(od: ObjectDictionary) -> int:
     if isinstance(obj, Record | Array):
         return min(max((s for s in obj.subindices if s), default=0), 254)
     return 0
+
+
+def define_objects(od: ObjectDictionary, *, history: int) -> None:
+    """1001h, 1003h with ``history`` entries (none: no 1003h), 1014h on 80h + node-ID and
+    1015h (no inhibit time)."""
+    od.add(var(0x1001, 0, "Error register", U8, RO, 0, mappable=True))
+    if history:
+        composite(
+            od,
+            Array(0x1003, "Pre-defined error field"),
+            [
+                (0, "Number of errors", U8, 0),
+                *((n, f"Standard error field {n}", U32, 0) for n in range(1, history + 1)),
+            ],
+            first=RW,  # a master writes 0 to clear the history
+            rest=RO,
+        )
+    od.add(var(0x1014, 0, "COB-ID EMCY", U32, RW, NodeRelative(0x80)))
+    od.add(var(0x1015, 0, "Inhibit time EMCY", U16, RW, 0))
 
 
 class EmcyService:

@@ -14,8 +14,10 @@ from typing import TYPE_CHECKING, Any
 
 from cobus.device._core import Core
 from cobus.device._entries import Entry
+from cobus.device._objects import RW, U8, U16, var
 from cobus.device.emcy import COMM_BIT, EmcyService
 from cobus.device.events import LifeGuardingLost, LifeGuardingRestored
+from cobus.od import ObjectDictionary
 from cobus.proto import NOTHING, Event
 from cobus.proto import guarding as _guarding
 from cobus.proto import nmt as _nmt
@@ -24,7 +26,13 @@ from cobus.proto.emcy import EmcyCode
 if TYPE_CHECKING:
     from cobus.runtime.network import MachineHost, Subscription
 
-__all__ = ["GuardingService"]
+__all__ = ["GuardingService", "define_objects"]
+
+
+def define_objects(od: ObjectDictionary) -> None:
+    """100Ch guard time and 100Dh life time factor (0: no life guarding)."""
+    od.add(var(0x100C, 0, "Guard time", U16, RW, 0))
+    od.add(var(0x100D, 0, "Life time factor", U8, RW, 0))
 
 
 class GuardingService:

@@ -18,9 +18,11 @@ from typing import TYPE_CHECKING, Any
 from cobus.device._core import Core, abort
 from cobus.device._entries import Entry
 from cobus.device._gates import MutableHeartbeat
+from cobus.device._objects import RW, U8, U16, U32, composite, var
 from cobus.device.emcy import COMM_BIT, EmcyService
 from cobus.device.events import HeartbeatLost, HeartbeatRestored
 from cobus.errors import CobusError
+from cobus.od import Array, ObjectDictionary
 from cobus.proto import NOTHING, Event
 from cobus.proto import heartbeat as _hb
 from cobus.proto import nmt as _nmt
@@ -30,9 +32,22 @@ from cobus.proto.sdo import SdoAbortCode
 if TYPE_CHECKING:
     from cobus.runtime.network import MachineHost, Subscription
 
-__all__ = ["HeartbeatService"]
+__all__ = ["HeartbeatService", "define_objects"]
 
 _ABORT = SdoAbortCode
+
+
+def define_objects(od: ObjectDictionary, *, consumers: int) -> None:
+    """1016h with ``consumers`` entries (all unused) and 1017h (no heartbeat produced)."""
+    composite(
+        od,
+        Array(0x1016, "Consumer heartbeat time"),
+        [
+            (0, "Highest sub-index supported", U8, consumers),
+            *((n, f"Consumer heartbeat time {n}", U32, 0) for n in range(1, consumers + 1)),
+        ],
+    )
+    od.add(var(0x1017, 0, "Producer heartbeat time", U16, RW, 0))
 
 
 class HeartbeatService:

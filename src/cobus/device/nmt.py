@@ -18,7 +18,9 @@ from typing import TYPE_CHECKING, Any
 
 from cobus.device._core import Core, abort
 from cobus.device._entries import Entry
+from cobus.device._objects import U8, composite
 from cobus.device.events import NmtCommandReceived
+from cobus.od import Array, ObjectDictionary
 from cobus.proto import Event, Frame, Out
 from cobus.proto import nmt as _nmt
 from cobus.proto.nmt import NmtCommand, NmtSlave, NmtState
@@ -27,7 +29,7 @@ from cobus.proto.sdo import SdoAbortCode
 if TYPE_CHECKING:
     from cobus.runtime.network import MachineHost, Subscription
 
-__all__ = ["NmtService", "OnReset", "OnStateChanged"]
+__all__ = ["NmtService", "OnReset", "OnStateChanged", "define_objects"]
 
 _ABORT = SdoAbortCode
 _COMMANDS = {int(c): c for c in NmtCommand}
@@ -36,6 +38,15 @@ _COMMANDS = {int(c): c for c in NmtCommand}
 OnStateChanged = Callable[[NmtState, NmtState], None]
 #: ``on_reset(application)``: True for reset node, False for reset communication.
 OnReset = Callable[[bool], None]
+
+
+def define_objects(od: ObjectDictionary) -> None:
+    """1029h: on a communication error, enter pre-operational (the CiA 301 default)."""
+    composite(
+        od,
+        Array(0x1029, "Error behavior object"),
+        [(0, "Highest sub-index supported", U8, 1), (1, "Communication error", U8, 0)],
+    )
 
 
 class NmtService:

@@ -23,11 +23,12 @@ from typing import Any
 
 from cobus.device._core import INVALID, Core, abort
 from cobus.device._entries import Entry, check_value
+from cobus.device._objects import RW, U8, U16, U32, composite
 from cobus.device._pdo_machines import Rpdo, Tpdo, check_mapping_entry, compile_mapping
 from cobus.device.emcy import COMM_BIT, EmcyService
 from cobus.device.events import PdoLengthError, RpdoLost, RpdoReceived, RpdoRestored
 from cobus.errors import CobusError
-from cobus.od import DataType
+from cobus.od import DataType, NodeRelative, ObjectDictionary, Record
 from cobus.proto import NOTHING, Event, Frame
 from cobus.proto.emcy import EmcyCode
 from cobus.proto.nmt import NmtState
@@ -44,9 +45,43 @@ from cobus.proto.pdo import (
 )
 from cobus.proto.sdo import SdoAbort, SdoAbortCode
 
-__all__ = ["PdoService"]
+__all__ = ["PdoService", "define_objects"]
 
 _ABORT = SdoAbortCode
+
+
+def define_objects(od: ObjectDictionary, *, rpdos: int, tpdos: int, entries: int) -> None:
+    """The communication and mapping parameters of ``rpdos`` RPDOs and ``tpdos`` TPDOs: PDO
+    1-4 on their pre-defined COB-IDs (``$NODEID`` + 180h ...), the others not valid;
+    transmission type 255 and an empty mapping of ``entries`` entries each."""
+    for kind, count, comm_base, map_base, id_base in (
+        ("RPDO", rpdos, 0x1400, 0x1600, 0x200),
+        ("TPDO", tpdos, 0x1800, 0x1A00, 0x180),
+    ):
+        tx = kind == "TPDO"
+        for n in range(count):
+            cob: int | NodeRelative = NodeRelative(id_base + 0x100 * n) if n < 4 else INVALID
+            composite(
+                od,
+                Record(comm_base + n, f"{kind} communication parameter {n + 1}"),
+                [
+                    (0, "Highest sub-index supported", U8, 6 if tx else 5),
+                    (1, f"COB-ID used by {kind}", U32, cob),
+                    (2, "Transmission type", U8, 255),
+                    (3, "Inhibit time", U16, 0),
+                    (5, "Event timer", U16, 0),
+                    *([(6, "SYNC start value", U8, 0)] if tx else []),
+                ],
+            )
+            composite(
+                od,
+                Record(map_base + n, f"{kind} mapping parameter {n + 1}"),
+                [
+                    (0, "Number of mapped objects", U8, 0),
+                    *((e, f"Mapped object {e}", U32, 0) for e in range(1, entries + 1)),
+                ],
+                first=RW,  # a master writes the count
+            )
 
 
 class PdoService:

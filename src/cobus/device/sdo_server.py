@@ -20,16 +20,17 @@ from typing import TYPE_CHECKING, Any
 from cobus.device._core import INVALID, Core, abort
 from cobus.device._entries import Entry, decode_download
 from cobus.device._gates import LateSdoServer
+from cobus.device._objects import RO, U8, U32, composite, var
 from cobus.device.events import EntryWritten
 from cobus.errors import CobusError
-from cobus.od import encode
+from cobus.od import NodeRelative, ObjectDictionary, Record, encode
 from cobus.proto import Frame
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer
 
 if TYPE_CHECKING:
     from cobus.runtime.network import MachineHost, Subscription
 
-__all__ = ["SdoBackend", "SdoServerService"]
+__all__ = ["SdoBackend", "SdoServerService", "define_objects"]
 
 _ABORT = SdoAbortCode
 _EXTENDED = 1 << 29
@@ -121,6 +122,30 @@ class _Channel:
     def close(self) -> None:
         self.subscription.cancel()
         self.host.close()
+
+
+def define_objects(od: ObjectDictionary, *, servers: int) -> None:
+    """1200h (the default channel on 600h/580h + node-ID) and ``servers - 1`` more server
+    channels 1201h..., not valid until a master configures them."""
+    for n in range(servers):
+        index = 0x1200 + n
+        if n == 0:
+            server = Record(index, "SDO server parameter")
+            server.add(var(index, 0, "Highest sub-index supported", U8, RO, 2))
+            for sub, name, base in ((1, "client to server", 0x600), (2, "server to client", 0x580)):
+                server.add(var(index, sub, f"COB-ID {name}", U32, RO, NodeRelative(base)))
+            od.add(server)
+            continue
+        composite(
+            od,
+            Record(index, f"SDO server parameter {n + 1}"),
+            [
+                (0, "Highest sub-index supported", U8, 3),
+                (1, "COB-ID client to server", U32, INVALID),
+                (2, "COB-ID server to client", U32, INVALID),
+                (3, "Node-ID of the SDO client", U8, 0),
+            ],
+        )
 
 
 class SdoServerService:

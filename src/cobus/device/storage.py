@@ -26,9 +26,10 @@ from typing import Any, Protocol
 
 from cobus.device._core import Core, abort
 from cobus.device._entries import Entry, check_value, decode_download, zero_value
+from cobus.device._objects import U8, U32, composite
 from cobus.device.errors import StorageError
 from cobus.device.events import ParametersRestored, ParametersStored, StorageProblem
-from cobus.od import encode
+from cobus.od import Array, ObjectDictionary, encode
 from cobus.proto.emcy import EMCY_BASE
 from cobus.proto.pdo import rpdo_default_can_id, tpdo_default_can_id
 from cobus.proto.sdo import SdoAbort, SdoAbortCode
@@ -43,6 +44,7 @@ __all__ = [
     "ParameterStorage",
     "StorageService",
     "StoredValue",
+    "define_objects",
     "node_offset",
 ]
 
@@ -240,6 +242,25 @@ def node_offset(entry: Entry, value: Any, node_id: int) -> int | None:
     if base is None or value & _EXTENDED or value & 0x1FFFFFFF != base + node_id:
         return None
     return value - node_id
+
+
+def define_objects(od: ObjectDictionary) -> None:
+    """1010h and 1011h, each with all, communication and application parameters (sub 1-3),
+    stored on command."""
+    for index, name, verb in (
+        (0x1010, "Store parameters", "Save"),
+        (0x1011, "Restore default parameters", "Restore"),
+    ):
+        composite(
+            od,
+            Array(index, name),
+            [
+                (0, "Highest sub-index supported", U8, 3),
+                (1, f"{verb} all parameters", U32, 1),
+                (2, f"{verb} communication parameters", U32, 1),
+                (3, f"{verb} application parameters", U32, 1),
+            ],
+        )
 
 
 class StorageService:

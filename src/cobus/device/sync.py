@@ -20,9 +20,11 @@ from typing import TYPE_CHECKING, Any
 
 from cobus.device._core import Core, abort
 from cobus.device._entries import Entry
+from cobus.device._objects import RW, U8, U32, var
 from cobus.device.emcy import COMM_BIT, EmcyService
 from cobus.device.events import SyncLost, SyncRestored
 from cobus.errors import CobusError
+from cobus.od import ObjectDictionary
 from cobus.proto import NOTHING, Event, Frame
 from cobus.proto import nmt as _nmt
 from cobus.proto import sync as _sync
@@ -33,12 +35,21 @@ from cobus.proto.sdo import SdoAbortCode
 if TYPE_CHECKING:
     from cobus.runtime.network import MachineHost, Subscription
 
-__all__ = ["OnSync", "SyncService"]
+__all__ = ["OnSync", "SyncService", "define_objects"]
 
 _ABORT = SdoAbortCode
 
 #: ``on_sync(counter)``: a SYNC received (``counter`` None without a counter byte).
 OnSync = Callable[[int | None], None]
+
+
+def define_objects(od: ObjectDictionary) -> None:
+    """1005h, 1006h, 1007h and 1019h with their CiA 301 defaults (SYNC on 80h, consumed)."""
+    add = od.add
+    add(var(0x1005, 0, "COB-ID SYNC", U32, RW, 0x80))
+    add(var(0x1006, 0, "Communication cycle period", U32, RW, 0))
+    add(var(0x1007, 0, "Synchronous window length", U32, RW, 0))
+    add(var(0x1019, 0, "Synchronous counter overflow value", U8, RW, 0))
 
 
 class SyncService:

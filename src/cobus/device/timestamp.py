@@ -12,8 +12,10 @@ from typing import TYPE_CHECKING, Any
 
 from cobus.device._core import Core, abort
 from cobus.device._entries import Entry
+from cobus.device._objects import RW, U32, var
 from cobus.device.events import TimeReceived
 from cobus.errors import CobusError
+from cobus.od import ObjectDictionary
 from cobus.proto import Event, Frame
 from cobus.proto import nmt as _nmt
 from cobus.proto import timestamp as _time
@@ -22,7 +24,12 @@ from cobus.proto.sdo import SdoAbortCode
 if TYPE_CHECKING:
     from cobus.runtime.network import MachineHost, Subscription
 
-__all__ = ["TimeService"]
+__all__ = ["TimeService", "define_objects"]
+
+
+def define_objects(od: ObjectDictionary) -> None:
+    """1012h: TIME consumed on 100h."""
+    od.add(var(0x1012, 0, "COB-ID time stamp", U32, RW, 0x80000100))
 
 
 class TimeService:
