@@ -8,7 +8,26 @@
   :class:`~cobus.runtime.Network`).
 - :func:`minimal_od` / :class:`DictionaryBuilder` — dictionaries built in code with every
   CiA 301 communication object.
+- :class:`Simulation` — ``device.simulation``: late SDO answers, a muted heartbeat, the
+  :class:`Deviations` from CiA 301 of a model of a real device.
 - Events (:mod:`cobus.device.events`) go to the device's listeners and the network's.
+
+Where each service lives (one module per service, named like its twin in :mod:`cobus.proto`;
+each owns its protocol machines, timers, subscriptions, the objects it serves and their
+write handlers, and defines those objects for :func:`minimal_od`):
+
+- :mod:`~cobus.device.sdo_server` — SDO server channels, 1200h-127Fh;
+- :mod:`~cobus.device.pdo` — TPDOs and RPDOs, 1400h-1BFFh (machines in ``_pdo_machines``);
+- :mod:`~cobus.device.sync` — SYNC consumer and producer, 1005h-1007h, 1019h;
+- :mod:`~cobus.device.timestamp` — TIME consumer, 1012h;
+- :mod:`~cobus.device.emcy` — emergencies and errors, 1001h, 1003h, 1014h, 1015h;
+- :mod:`~cobus.device.heartbeat` — producer and consumer, 1016h, 1017h;
+- :mod:`~cobus.device.guarding` — node and life guarding, 100Ch, 100Dh;
+- :mod:`~cobus.device.nmt` — the NMT slave, boot-up, error behaviour 1029h;
+- :mod:`~cobus.device.storage` — power-on values, 1010h store, 1011h restore, the stores.
+
+They share one port, ``_core.Core`` (the entries, how a value is written, the events out);
+:class:`Device` (``device.py``) assembles them and routes the NMT state to them.
 """
 
 from cobus.device.add import add_device

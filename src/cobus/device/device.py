@@ -1,5 +1,7 @@
-"""A CANopen device (slave) run by a network: the protocol machines of ``cobus.proto``
-composed around the device's object dictionary.
+"""A CANopen device (slave) run by a network: the public face that assembles the device's
+services (one module each: ``sdo_server``, ``pdo``, ``sync``, ``timestamp``, ``emcy``,
+``heartbeat``, ``guarding``, ``nmt``, ``storage``) around the device's object dictionary and
+routes the NMT state to them.
 
 The device serves its dictionary on every configured SDO channel, follows NMT, produces
 heartbeat and answers node guarding, sends emergencies, consumes SYNC and TIME, and sends and
