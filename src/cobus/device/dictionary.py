@@ -175,16 +175,16 @@ def _profile(
     # the device's own objects; each service defines the objects it serves (CiA 301 order)
     add = od.add
     add(_var(0x1000, 0, "Device type", _U32, _RO, device_type))
-    emcy.define_objects(od, history=error_history)  # 1001h, 1003h, 1014h, 1015h
-    sync.define_objects(od)  # 1005h, 1006h, 1007h, 1019h
+    emcy.define_objects(od, history=error_history)
+    sync.define_objects(od)
     vs = DataType.VISIBLE_STRING
     add(_var(0x1008, 0, "Manufacturer device name", vs, _CONST, device_name))
     add(_var(0x1009, 0, "Manufacturer hardware version", vs, _CONST, hardware_version or None))
     add(_var(0x100A, 0, "Manufacturer software version", vs, _CONST, software_version or None))
-    guarding.define_objects(od)  # 100Ch, 100Dh
-    storage.define_objects(od)  # 1010h, 1011h
-    timestamp.define_objects(od)  # 1012h
-    heartbeat.define_objects(od, consumers=heartbeat_consumers)  # 1016h, 1017h
+    guarding.define_objects(od)
+    storage.define_objects(od)
+    timestamp.define_objects(od)
+    heartbeat.define_objects(od, consumers=heartbeat_consumers)
     identity_names = ("Vendor-ID", "Product code", "Revision number", "Serial number")
     identity_obj = Record(0x1018, "Identity object")
     identity_obj.add(_var(0x1018, 0, "Highest sub-index supported", _U8, _RO, 4))
@@ -193,9 +193,9 @@ def _profile(
     add(identity_obj)
     add(_var(0x1021, 0, "Store EDS", DataType.DOMAIN, _RO, None))
     add(_var(0x1022, 0, "Store format", _U16, _RO, 0))
-    nmt.define_objects(od)  # 1029h
-    sdo_server.define_objects(od, servers=sdo_servers)  # 1200h...
-    pdo.define_objects(od, rpdos=rpdos, tpdos=tpdos, entries=mapping_entries)  # 1400h-1BFFh
+    nmt.define_objects(od)
+    sdo_server.define_objects(od, servers=sdo_servers)
+    pdo.define_objects(od, rpdos=rpdos, tpdos=tpdos, entries=mapping_entries)
 
 
 _ACCESS = {a.value: a for a in Access}
