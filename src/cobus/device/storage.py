@@ -46,6 +46,7 @@ __all__ = [
     "StoredValue",
     "define_objects",
     "node_offset",
+    "open_storage",
 ]
 
 COMMUNICATION = "communication"
@@ -263,17 +264,22 @@ def define_objects(od: ObjectDictionary) -> None:
         )
 
 
+def open_storage(storage: str | Path | ParameterStorage | None) -> ParameterStorage:
+    """The store a device's ``storage=`` option names: None kept in memory, a path a
+    :class:`FileStorage`, anything else used as it is."""
+    if storage is None:
+        return MemoryStorage()
+    if isinstance(storage, str | Path):
+        return FileStorage(storage)
+    return storage
+
+
 class StorageService:
     """Parameters of one device: power-on values, 1010h store and 1011h restore."""
 
     def __init__(self, core: Core, storage: str | Path | ParameterStorage | None) -> None:
         self._core = core
-        if storage is None:
-            self._storage: ParameterStorage = MemoryStorage()
-        elif isinstance(storage, str | Path):
-            self._storage = FileStorage(storage)
-        else:
-            self._storage = storage
+        self._storage = open_storage(storage)
         self._failed = False
         core.handle(0x1010, self._w_store)
         core.handle(0x1011, self._w_restore)

@@ -29,12 +29,11 @@ from cobus.device import (
     ConfigurationProblem,
     Device,
     DeviceEvent,
-    FileStorage,
-    MemoryStorage,
     NodeIdChanged,
     ParameterStorage,
     minimal_od,
 )
+from cobus.device.storage import open_storage
 from cobus.errors import CobusError
 from cobus.od import ObjectDictionary, Variable, load
 from cobus.proto.emcy import EmcyCode
@@ -181,12 +180,7 @@ class CanopenSimDevice(SimulatedDevice):
         except CobusError as exc:
             raise SimulationError(f"{self.kind}: {exc}") from None
         super().__init__(network, node_id, quirks=quirks, name=name)
-        if storage is None:
-            self._storage: ParameterStorage = MemoryStorage()
-        elif isinstance(storage, str | Path):
-            self._storage = FileStorage(storage)
-        else:
-            self._storage = storage
+        self._storage = open_storage(storage)
         self._sdo_timeout = sdo_timeout
         self.od = self.build_od()
         settings: dict[int | str, Any] = {}
