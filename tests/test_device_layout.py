@@ -215,3 +215,75 @@ def test_the_simulation_settings_sit_behind_one_object():
         assert "sdo_response_delay=0.25" in repr(device.aio.simulation)
     with pytest.raises(DeviceConfigError, match=r"not a cobus\.device\.Deviations"):
         Simulation({"send_bootup": False})  # type: ignore[arg-type]
+
+
+def test_moved_names_say_where_they_went():
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            with pytest.raises(AttributeError, match=r"cobus\.device\.add_device\(network"):
+                net.add_device(5, test_od())
+            device = add_device(net, 5, test_od())
+            for name in ("sdo_response_delay", "heartbeat_muted", "deviations"):
+                with pytest.raises(AttributeError, match=rf"use device\.simulation\.{name}"):
+                    getattr(device, name)
+                with pytest.raises(AttributeError, match=rf"Device\.{name} has moved"):
+                    setattr(device, name, 1)
+            assert device.simulation.sdo_response_delay == 0.0  # nothing was set on the side
+
+    simulate(main())
+    with Network(simulated=True) as net:
+        with pytest.raises(AttributeError, match=r"Network\.add_device has moved"):
+            net.add_device(5, test_od())
+        device = add_device(net, 5, test_od())
+        with pytest.raises(AttributeError, match=r"use device\.simulation\.heartbeat_muted"):
+            device.heartbeat_muted = True
+
+
+def test_add_device_names_what_is_wrong_with_its_arguments():
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            with pytest.raises(TypeError, match=r"not a cobus\.runtime\.Network or"):
+                add_device(5, net, test_od())  # type: ignore[call-overload]
+            with pytest.raises(DeviceConfigError, match="needs an object dictionary"):
+                add_device(net, 5, None)  # type: ignore[call-overload]
+            assert net.devices == {}
+
+    simulate(main())
+
+
+def test_a_closed_device_takes_no_new_node_id():
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            device = add_device(net, 5, test_od())
+            device.close()
+            with pytest.raises(DeviceConfigError, match="was closed"):
+                device.node_id = 9
+            assert net.devices == {} and device.node_id == 5
+
+    simulate(main())
+
+
+def test_every_simulated_device_holds_its_node_id():
+    from cobus.sim.ecmotor import EcMotor
+
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            motor = EcMotor(net, 3)
+            motor.start()
+            assert net.devices == {3: motor}
+            with pytest.raises(NodeIdInUseError):
+                add_device(net, 3, test_od())  # it would answer on 603h/583h too
+            motor.power_off()
+            assert net.devices == {}
+            add_device(net, 3, test_od())
+
+    simulate(main())
+
+
+def test_the_blocking_devices_are_the_same_twins_each_time():
+    with Network(simulated=True) as net:
+        device = add_device(net, 5, test_od())
+        first = net.devices[5]
+        assert net.devices[5] is first and first.aio is device.aio
+        device.close()
+        assert net.devices == {}

@@ -1,9 +1,9 @@
 """``add_device(network, node_id, od)``: a device attached to a network and started, in one
 call, for the blocking :class:`~cobus.runtime.Network` and the :class:`~cobus.runtime.AsyncNetwork`.
 
-The runtime knows no device: a device attaches itself to a network (claiming its node-ID in
-``network.devices``), as the master does. This is the convenience that used to be the
-network's own ``add_device`` method::
+The runtime knows no device: a device attaches itself to a network, claiming its node-ID in
+``network.devices``. This is the convenience that used to be the network's own
+``add_device`` method::
 
     dev = add_device(net, 5, od)         # was: dev = net.add_device(5, od)
 """
@@ -15,6 +15,7 @@ from typing import Any, overload
 
 from cobus.device.blocking import BlockingDevice
 from cobus.device.device import Device
+from cobus.device.errors import DeviceConfigError
 from cobus.od import ObjectDictionary
 from cobus.runtime import AsyncNetwork, Network
 from cobus.runtime.remote import load_od
@@ -45,6 +46,15 @@ def add_device(
     pre-operational). On a blocking :class:`~cobus.runtime.Network` it is a
     :class:`BlockingDevice`. ``options`` are those of :class:`Device`; a node-ID another
     local device holds is a :class:`~cobus.device.NodeIdInUseError`."""
+    if not isinstance(network, Network | AsyncNetwork):
+        raise TypeError(
+            f"add_device(network, node_id, od): {network!r} is not a cobus.runtime.Network or "
+            "AsyncNetwork"
+        )
+    if od is None:
+        raise DeviceConfigError(
+            f"add_device: device {node_id} needs an object dictionary or an EDS/DCF path"
+        )
     if isinstance(network, Network):
         blocking = network
 
@@ -53,7 +63,8 @@ def add_device(
 
         return BlockingDevice(network.run(create()), network._runner)
     dictionary = load_od(od, node_id)
-    assert dictionary is not None
+    if dictionary is None:  # pragma: no cover - od was checked above
+        raise DeviceConfigError(f"add_device: no object dictionary for device {node_id}")
     device = Device(network, node_id, dictionary, **options)
     try:
         device.start()

@@ -18,6 +18,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from cobus._moved import Moved
 from cobus.device._core import Core
 from cobus.device._entries import Entry, check_value
 from cobus.device.eds_export import export_eds
@@ -117,6 +118,11 @@ class Device:
     until :meth:`close`); :meth:`start` boots it (boot-up message, pre-operational).
     :func:`~cobus.device.add_device` does both. Each device needs a dictionary of its own.
     """
+
+    # moved to device.simulation (issue 19): say so instead of growing a useless attribute
+    sdo_response_delay = Moved("device.simulation.sdo_response_delay")
+    heartbeat_muted = Moved("device.simulation.heartbeat_muted")
+    deviations = Moved("device.simulation.deviations")
 
     def __init__(
         self,
@@ -350,6 +356,10 @@ class Device:
         pre-operational).
         """
         _nmt.check_node_id(node_id)
+        if self._closed:
+            raise DeviceConfigError(
+                f"device {self._core.node_id} was closed: it takes no new node-ID; create a new one"
+            )
         old = self._core.node_id
         if node_id == old:
             return

@@ -16,6 +16,7 @@ from cobus.proto.sdo import SdoAbortCode, SdoAbortedError, SdoError, SdoTimeoutE
 from cobus.runtime.blocking import Network, ReentrantCallError, RemoteNode
 from cobus.runtime.bus import BusOpenError, open_bus
 from cobus.runtime.emcy import EmcyTimeoutError, Emergency
+from cobus.runtime.errors import NodeIdInUseError
 from cobus.runtime.events import (
     BusErrorFrame,
     BusState,
@@ -27,6 +28,7 @@ from cobus.runtime.events import (
     TxQueueFull,
     TxResumed,
 )
+from cobus.runtime.local_nodes import LocalNodes
 from cobus.runtime.loop import SimulatedEventLoop, SimulationStalledError, new_event_loop
 from cobus.runtime.network import (
     AsyncNetwork,
@@ -61,11 +63,13 @@ __all__ = [
     "EmcyTimeoutError",
     "Emergency",
     "HandlerFailed",
+    "LocalNodes",
     "MachineHost",
     "Network",
     "NetworkClosedError",
     "NmtMaster",
     "NmtTimeoutError",
+    "NodeIdInUseError",
     "ObjectAccessError",
     "ObjectNotFoundError",
     "PdoConfigurationError",

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import can
 
+from cobus._moved import Moved
 from cobus.proto import Event, Frame
 from cobus.runtime import emcy as _emcy
 from cobus.runtime import nmt as _nmt
@@ -218,6 +219,9 @@ class Network:
     #: Given to a blocking twin's method, the :class:`AsyncNetwork` behind it is passed on.
     _twin_unwrap = True
 
+    #: Moved above the runtime (it knows no device): ``cobus.device.add_device``.
+    add_device = Moved("cobus.device.add_device(network, node_id, od)")
+
     def __init__(
         self,
         bus: can.BusABC | None = None,
@@ -231,6 +235,7 @@ class Network:
         self._runner = Runner(simulated=simulated)
         self._listeners: dict[Callable[[Event], object], Callable[..., None]] = {}
         self._remote_twins: dict[int, RemoteNode] = {}
+        self._device_twins: dict[int, Any] = {}
         self._services: dict[int, BlockingTwin] = {}  # nmt and sync: one each, for good
         self.aio = AsyncNetwork(
             bus, interface=interface, channel=channel, bitrate=bitrate, **bus_kwargs
@@ -333,15 +338,24 @@ class Network:
 
     @property
     def devices(self) -> dict[int, Any]:
-        """The local devices by node-ID (see :attr:`AsyncNetwork.devices`), each in its
-        blocking form when it has one (a :class:`cobus.device.BlockingDevice`)."""
-        runner = self._runner
-
-        def blocking(device: Any) -> Any:
-            twin = twin_of(type(device))
-            return device if twin is None else twin(device, runner)
-
-        return {n: blocking(device) for n, device in self.aio.devices.items()}
+        """The local devices by node-ID, now (see :attr:`AsyncNetwork.devices`), each in its
+        blocking form when it has one (a :class:`cobus.device.BlockingDevice`): the same
+        object each time for the same device."""
+        current = self._runner.call(lambda: dict(self.aio.devices))
+        twins = self._device_twins
+        out: dict[int, Any] = {}
+        for node_id, device in current.items():
+            twin = twins.get(node_id)
+            if twin is None or twin.aio is not device:
+                made = twin_of(type(device))
+                if made is None:
+                    out[node_id] = device
+                    continue
+                twin = twins[node_id] = made(device, self._runner)
+            out[node_id] = twin
+        for node_id in set(twins) - set(out):
+            del twins[node_id]
+        return out
 
     def _remote(self, node: AsyncRemoteNode) -> RemoteNode:
         twin = self._remote_twins.get(node.node_id)

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import can
 
+from cobus._moved import Moved
 from cobus.errors import CobusError
 from cobus.proto import NOTHING, Event, Frame, Machine, Out
 from cobus.runtime import bus as _bus
@@ -200,6 +201,9 @@ class AsyncNetwork:
     #: node-IDs this process answers to on this network. Devices claim and release their
     #: node-ID here; read it as a mapping.
     devices: LocalNodes
+
+    #: Moved above the runtime (it knows no device): ``cobus.device.add_device``.
+    add_device = Moved("cobus.device.add_device(network, node_id, od)")
 
     def __init__(
         self,

@@ -240,7 +240,14 @@ class EcMotor(SimulatedDevice):
     def start(self) -> None:
         if self.powered:
             return
+        other = self.network.devices.get(self.node_id)
+        if other is not None and other is not self:
+            raise SimulationError(
+                f"{self.name}: node-ID {self.node_id} is taken by {other!r} on this network; "
+                "give each simulated device its own node-ID"
+            )
         super().start()
+        self.network.devices.claim(self.node_id, self)
         self._reset_state()
         q = self.quirks
         dialect = EcDialect(
@@ -264,6 +271,7 @@ class EcMotor(SimulatedDevice):
         if self._host is not None:
             self._host.close()
             self._host = None
+        self.network.devices.release(self.node_id, self)
         super().power_off()
 
     def _reset_state(self) -> None:

@@ -1,0 +1,32 @@
+"""A name of the public API that moved: reading or setting it says where it went, instead of
+an unhelpful AttributeError (or, for an attribute, a silent new attribute that does nothing)."""
+
+from __future__ import annotations
+
+from typing import Any, NoReturn
+
+__all__ = ["Moved"]
+
+
+class Moved:
+    """``add_device = Moved("cobus.device.add_device(net, node_id, od)")`` on a class."""
+
+    def __init__(self, instead: str) -> None:
+        self._instead = instead
+        self._name = "?"
+        self._owner = "?"
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self._name = name
+        self._owner = owner.__name__
+
+    def _error(self) -> AttributeError:
+        return AttributeError(f"{self._owner}.{self._name} has moved: use {self._instead}")
+
+    def __get__(self, obj: object, owner: type | None = None) -> Any:
+        if obj is None:
+            return self
+        raise self._error()
+
+    def __set__(self, obj: object, value: object) -> NoReturn:
+        raise self._error()
