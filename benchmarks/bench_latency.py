@@ -1,0 +1,199 @@
+"""Round-trip latency of one expedited SDO upload, and how many times a thread sleeps and is
+woken for it, in every arrangement of client and server (issue 20: the real-time path).
+
+All peers run in this process on python-can's ``virtual`` bus in real time. Each arrangement
+is timed over the same number of trips in interleaved rounds (so a noisy moment hits all of
+them alike); the figures are medians of the rounds, the ratios paired per round against
+python-canopen at both ends. "Wake-ups" are the process's voluntary context switches per trip
+(``getrusage``): each is a thread that blocked and was woken — the hand-overs between the
+user's thread, the loop, the bus's reader threads and back.
+
+- bare python-can: a thread answers each frame at once — the floor any stack stands on;
+- python-canopen at both ends: its client (``RemoteNode``) against its server (``LocalNode``);
+- cobus blocking client against a cobus device, each on its own ``Network``;
+- cobus asyncio client against a cobus device, both ``AsyncNetwork`` on one loop;
+- the two mixed pairs;
+- the blocking facade alone: a call from the user's thread run on the loop and back, no bus.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import resource
+import statistics
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import can
+import canopen
+
+from cobus.device import add_device, minimal_od
+from cobus.runtime import AsyncNetwork, Network
+
+NODE = 5
+TRIPS = 400
+ROUNDS = 7
+REQUEST = can.Message(arbitration_id=0x600 + NODE, data=bytes([0x40, 0, 0x10, 0, 0, 0, 0, 0]))
+
+
+def _switches() -> int:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_nvcsw
+
+
+def _measure(trip: Callable[[], object]) -> tuple[float, float]:
+    """Microseconds and voluntary context switches per trip, over TRIPS trips."""
+    trip()  # warm
+    s0, t0 = _switches(), time.perf_counter()
+    for _ in range(TRIPS):
+        trip()
+    elapsed = time.perf_counter() - t0
+    return elapsed / TRIPS * 1e6, (_switches() - s0) / TRIPS
+
+
+class _PingPong:
+    """Bare python-can: a thread answers every request frame at once."""
+
+    def __init__(self, channel: str) -> None:
+        self.client = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+        self.server = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread.start()
+        self._reply = can.Message(arbitration_id=0x580 + NODE, data=bytes(8))
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            if self.server.recv(0.1) is not None:
+                self.server.send(self._reply)
+
+    def trip(self) -> None:
+        self.client.send(REQUEST)
+        assert self.client.recv(1.0) is not None
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        self.client.shutdown()
+        self.server.shutdown()
+
+
+def _canopen_od() -> canopen.ObjectDictionary:
+    od = canopen.ObjectDictionary()
+    var = canopen.objectdictionary.ODVariable("Device type", 0x1000, 0)
+    var.data_type = canopen.objectdictionary.datatypes.UNSIGNED32
+    var.access_type = "ro"
+    var.default = 0x191
+    od.add_object(var)
+    return od
+
+
+def _canopen_server(channel: str) -> canopen.Network:
+    net = canopen.Network()
+    net.connect(interface="virtual", channel=channel)
+    net.add_node(canopen.LocalNode(NODE, _canopen_od()))
+    return net
+
+
+def _canopen_client(channel: str) -> tuple[canopen.Network, Any]:
+    net = canopen.Network()
+    net.connect(interface="virtual", channel=channel)
+    node: Any = canopen.RemoteNode(NODE, canopen.ObjectDictionary())
+    net.add_node(node)
+    return net, node
+
+
+def _asyncio_round() -> tuple[float, float]:
+    """cobus asyncio client against a cobus device, one loop (set up outside the timing)."""
+
+    async def main() -> tuple[float, float]:
+        channel = f"lat-aio-{os.getpid()}"
+        async with (
+            AsyncNetwork(interface="virtual", channel=channel) as a,
+            AsyncNetwork(interface="virtual", channel=channel) as b,
+        ):
+            add_device(b, NODE, minimal_od())
+            sdo = a.add_remote(NODE).sdo
+            await sdo.upload(0x1000)
+            s0, t0 = _switches(), time.perf_counter()
+            for _ in range(TRIPS):
+                await sdo.upload(0x1000)
+            elapsed = time.perf_counter() - t0
+            return elapsed / TRIPS * 1e6, (_switches() - s0) / TRIPS
+
+    return asyncio.run(main())
+
+
+def figures() -> dict[str, list[tuple[float, float]]]:
+    """Per arrangement, the (µs, wake-ups) of each round."""
+    pid = os.getpid()
+    ping = _PingPong(f"lat-ping-{pid}")
+    co_server = _canopen_server(f"lat-co-{pid}")
+    co_net, co_node = _canopen_client(f"lat-co-{pid}")
+    cob_client = Network(interface="virtual", channel=f"lat-cob-{pid}")
+    cob_server = Network(interface="virtual", channel=f"lat-cob-{pid}")
+    add_device(cob_server, NODE, minimal_od())
+    cob_sdo = cob_client.add_remote(NODE).sdo
+    mixed_co_server = _canopen_server(f"lat-m1-{pid}")
+    mixed_cob_client = Network(interface="virtual", channel=f"lat-m1-{pid}")
+    mixed_sdo = mixed_cob_client.add_remote(NODE).sdo
+    mixed_cob_server = Network(interface="virtual", channel=f"lat-m2-{pid}")
+    add_device(mixed_cob_server, NODE, minimal_od())
+    mixed_co_net, mixed_co_node = _canopen_client(f"lat-m2-{pid}")
+
+    async def nothing() -> None:
+        return None
+
+    runner = cob_client._runner  # what every blocking property and plain method goes through
+
+    trips: dict[str, Callable[[], object]] = {
+        "bare python-can ping-pong": ping.trip,
+        "python-canopen at both ends": lambda: co_node.sdo.upload(0x1000, 0),
+        "cobus blocking client, cobus device": lambda: cob_sdo.upload(0x1000),
+        "cobus blocking client, canopen server": lambda: mixed_sdo.upload(0x1000),
+        "canopen client, cobus device": lambda: mixed_co_node.sdo.upload(0x1000, 0),
+        "facade: coroutine on the loop and back": lambda: cob_client.run(nothing()),
+        "facade: plain call on the loop and back": lambda: runner.call(int),
+    }
+    out: dict[str, list[tuple[float, float]]] = {name: [] for name in trips}
+    out["cobus asyncio client, cobus device"] = []
+    try:
+        for _ in range(ROUNDS):
+            for name, trip in trips.items():
+                out[name].append(_measure(trip))
+            out["cobus asyncio client, cobus device"].append(_asyncio_round())
+    finally:
+        ping.close()
+        for net in (co_net, co_server, mixed_co_server, mixed_co_net):
+            net.disconnect()
+        for cob in (cob_client, cob_server, mixed_cob_client, mixed_cob_server):
+            cob.close()
+    return out
+
+
+def main() -> None:
+    results = figures()
+    base = results["python-canopen at both ends"]
+    print(
+        f"\nSDO expedited round trip, one process, virtual bus, real time "
+        f"({ROUNDS} interleaved rounds of {TRIPS} trips; medians)"
+    )
+    print(f"  {'':<44} {'µs/trip':>9} {'wake-ups':>9} {'vs python-canopen':>18}")
+    for name, rounds in results.items():
+        us = statistics.median(r[0] for r in rounds)
+        wakes = statistics.median(r[1] for r in rounds)
+        if name.startswith("facade"):
+            ratio = ""
+        else:
+            paired = [b[0] / r[0] for r, b in zip(rounds, base, strict=True)]
+            ratio = f"x{statistics.median(paired):.2f}"
+        print(f"  {name:<44} {us:>9.1f} {wakes:>9.1f} {ratio:>18}")
+    print("  (x > 1: faster than python-canopen at both ends, paired per round)")
+    print("  (wake-ups: voluntary context switches of the process per trip)")
+
+
+if __name__ == "__main__":
+    main()
