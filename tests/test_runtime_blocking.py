@@ -61,3 +61,63 @@ def test_listener_sees_runtime_events_simulated():
         net.send(Frame(0x1))
         net.sleep(0.01)
         assert any(isinstance(e, TxQueueFull) and "bus-off" in e.reason for e in events)
+
+
+def test_the_blocking_facade_hands_results_errors_and_timeouts_back():
+    import asyncio
+    import concurrent.futures
+
+    from cobus.runtime import NetworkClosedError, ReentrantCallError
+
+    with Network(interface="virtual", channel="t-handoff") as net:
+        runner = net._runner
+
+        async def answer(value):
+            await asyncio.sleep(0)
+            return value
+
+        async def fails():
+            raise ValueError("refused on the loop")
+
+        cancelled = threading.Event()
+
+        async def slow():
+            try:
+                await asyncio.sleep(10)
+            except asyncio.CancelledError:
+                cancelled.set()
+                raise
+
+        async def gives_up():
+            me = asyncio.current_task()
+            assert me is not None
+            me.cancel()
+            await asyncio.sleep(1)
+
+        assert net.run(answer(42)) == 42
+        with pytest.raises(ValueError, match="refused on the loop"):
+            net.run(fails())
+        with pytest.raises(TimeoutError):
+            net.run(slow(), timeout=0.05)
+        assert cancelled.wait(2.0)  # the caller gave up: the coroutine is cancelled
+        with pytest.raises(concurrent.futures.CancelledError):
+            net.run(gives_up())
+        loop_thread = runner.call(threading.current_thread)
+        assert loop_thread.name == "cobus-loop"
+        with pytest.raises(ZeroDivisionError):
+            runner.call(lambda: 1 / 0)
+
+        def from_the_loop():
+            coro = answer(1)
+            try:
+                runner.run(coro)
+            except ReentrantCallError as exc:
+                return str(exc)
+            return "ran"
+
+        assert "would deadlock" in runner.call(from_the_loop)
+        assert net.run(answer("still serving")) == "still serving"
+    with pytest.raises(NetworkClosedError):
+        runner.call(int)
+    with pytest.raises(NetworkClosedError):
+        net.run(answer(1))

@@ -19,7 +19,7 @@ import logging
 import queue
 import threading
 from collections.abc import Callable, Coroutine
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import can
 
@@ -104,22 +104,44 @@ class Runner:
             raise ReentrantCallError(
                 "a blocking call from the event loop thread would deadlock: use the async API"
             )
-        future = asyncio.run_coroutine_threadsafe(coro, self.loop)
-        try:
-            return future.result(timeout)
-        except concurrent.futures.TimeoutError:
-            future.cancel()
-            raise
+        handoff: _Handoff[T] = _Handoff()
+        loop = self.loop
+
+        def start() -> None:
+            try:
+                task = loop.create_task(coro)
+            except BaseException as exc:  # pragma: no cover - the loop is closing
+                coro.close()
+                handoff.fail(exc)
+                return
+            handoff.task = task
+            task.add_done_callback(handoff.finish)
+
+        loop.call_soon_threadsafe(start)
+        if not handoff.wait(timeout):
+            loop.call_soon_threadsafe(handoff.cancel)
+            raise TimeoutError(f"the operation did not complete within {timeout} s")
+        return handoff.outcome()
 
     def call(self, fn: Callable[..., T], *args: Any) -> T:
         """Run a plain function on the loop thread and return its result."""
         if self.simulated or threading.current_thread() is self._thread:
             return fn(*args)
+        if self._closed:
+            raise NetworkClosedError("the network is closed")
+        handoff: _Handoff[T] = _Handoff()
 
-        async def wrapper() -> T:
-            return fn(*args)
+        def job() -> None:
+            try:
+                result = fn(*args)
+            except BaseException as exc:
+                handoff.fail(exc)
+            else:
+                handoff.succeed(result)
 
-        return self.run(wrapper())
+        self.loop.call_soon_threadsafe(job)
+        handoff.wait(None)
+        return handoff.outcome()
 
     def callback(self, fn: Callable[..., object]) -> Callable[..., None]:
         """Wrap a user callback so that, in real time, it runs in the callback thread.
@@ -187,6 +209,54 @@ class Runner:
             self.loop.run_until_complete(_cancel_tasks())
         if not self.loop.is_running():
             self.loop.close()
+
+
+class _Handoff(Generic[T]):
+    """One result handed from the loop thread to a waiting caller: one wake-up each way (the
+    loop's self-pipe in, a plain lock out), where ``run_coroutine_threadsafe`` chains an
+    asyncio future to a ``concurrent.futures.Future`` and its condition variable."""
+
+    __slots__ = ("_error", "_lock", "_result", "task")
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._lock.acquire()  # released once, by the loop thread, when the outcome is there
+        self._result: T | None = None
+        self._error: BaseException | None = None
+        self.task: asyncio.Task[T] | None = None
+
+    def succeed(self, result: T) -> None:
+        self._result = result
+        self._lock.release()
+
+    def fail(self, error: BaseException) -> None:
+        self._error = error
+        self._lock.release()
+
+    def finish(self, task: asyncio.Task[T]) -> None:
+        if task.cancelled():
+            self.fail(concurrent.futures.CancelledError())
+            return
+        error = task.exception()
+        if error is not None:
+            self.fail(error)
+        else:
+            self.succeed(task.result())
+
+    def cancel(self) -> None:
+        """On the loop thread, after the caller gave up waiting."""
+        if self.task is not None:
+            self.task.cancel()
+
+    def wait(self, timeout: float | None) -> bool:
+        return self._lock.acquire(timeout=-1 if timeout is None else timeout)
+
+    def outcome(self) -> T:
+        error = self._error
+        if error is not None:
+            self._error = None  # no reference cycle through the traceback
+            raise error
+        return self._result  # type: ignore[return-value]
 
 
 async def _cancel_tasks() -> None:
