@@ -34,6 +34,32 @@ def test_local_echo_delivers_own_frames_to_own_handlers():
     assert sent == 2
 
 
+def test_a_frame_nobody_here_listens_to_is_not_echoed_and_the_order_holds():
+    async def main():
+        async with AsyncNetwork() as net:
+            got = []
+            net.subscribe(0x181, lambda f, now: got.append(f.data))
+            net.send(Frame(0x181, b"\x01"))
+            net.send(Frame(0x700, b"\x05"))  # no handler, no monitor: no echo scheduled
+            net.send(Frame(0x181, b"\x02"))
+            assert list(net._inbound) == [Frame(0x181, b"\x01"), Frame(0x181, b"\x02")]
+            await net.sleep(0.01)
+            alone = []
+            async with AsyncNetwork() as quiet:
+                quiet.send(Frame(0x700, b"\x05"))
+                alone.append((len(quiet._inbound), quiet._drain_pending))
+                seen = []
+                quiet.subscribe_all(lambda f, now: seen.append(f.cob_id))
+                quiet.send(Frame(0x700, b"\x05"))  # a monitor hears everything: echoed
+                await quiet.sleep(0.01)
+            return got, alone, seen
+
+    got, alone, seen = simulate(main())
+    assert got == [b"\x01", b"\x02"]
+    assert alone == [(0, False)]
+    assert seen == [0x700]
+
+
 def test_two_networks_on_one_virtual_channel_in_simulated_time():
     async def main():
         a = await AsyncNetwork(interface="virtual", channel="t-two").connect()

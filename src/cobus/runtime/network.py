@@ -552,6 +552,14 @@ class AsyncNetwork:
 
     # ------------------------------------------------------------------ receive path
     def _deliver(self, frame: Frame) -> None:
+        """The local echo of a frame this network sent: to its own handlers, in order with
+        what it receives. A frame no handler or monitor of this network listens to is not
+        echoed at all (no loop callback for nothing)."""
+        if (
+            not self._monitors
+            and (frame.cob_id | _EXT if frame.extended else frame.cob_id) not in self._handlers
+        ):
+            return
         self._inbound.append(frame)
         if not self._drain_pending and self._loop is not None:
             self._drain_pending = True
