@@ -14,14 +14,23 @@ user's thread, the loop, the bus's reader threads and back.
 - cobus asyncio client against a cobus device, both ``AsyncNetwork`` on one loop;
 - the two mixed pairs;
 - the blocking facade alone: a call from the user's thread run on the loop and back, no bus.
+
+Then the same over python-can-remote on 127.0.0.1 between two processes (a cobus device on
+node 5 and a python-canopen ``LocalNode`` on node 6 in a child process, the clients here):
+where the bus has a file descriptor, cobus reads it on the loop with no reader thread.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 import resource
+import socket
 import statistics
+import subprocess
+import sys
+import textwrap
 import threading
 import time
 from collections.abc import Callable
@@ -174,13 +183,110 @@ def figures() -> dict[str, list[tuple[float, float]]]:
     return out
 
 
-def main() -> None:
-    results = figures()
-    base = results["python-canopen at both ends"]
-    print(
-        f"\nSDO expedited round trip, one process, virtual bus, real time "
-        f"({ROUNDS} interleaved rounds of {TRIPS} trips; medians)"
+_SERVERS = textwrap.dedent(
+    """
+    import sys
+    import canopen
+    from cobus.device import add_device, minimal_od
+    from cobus.runtime import Network
+    from benchmarks.bench_latency import _canopen_od
+
+    with Network(interface="remote", channel=sys.argv[1]) as net:
+        add_device(net, 5, minimal_od())
+        co = canopen.Network()
+        co.connect(interface="remote", channel=sys.argv[1])
+        co.add_node(canopen.LocalNode(6, _canopen_od()))
+        print("ready", flush=True)
+        sys.stdin.read()
+        co.disconnect()
+    """
+)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def remote_figures() -> dict[str, list[tuple[float, float]]] | None:
+    """The clients here, the servers in a child process, over python-can-remote."""
+    port = _free_port()
+    where = ["-H", "127.0.0.1", "-p", str(port)]
+    hub = subprocess.Popen(
+        [sys.executable, "-m", "can_remote", "-i", "virtual", "-c", f"lat{port}", *where],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
     )
+    url = f"ws://127.0.0.1:{port}/"
+    servers = None
+    try:
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), 0.2):
+                break
+            time.sleep(0.05)
+        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        servers = subprocess.Popen(
+            [sys.executable, "-c", _SERVERS, url],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            cwd=root,
+        )
+        assert servers.stdout is not None
+        if servers.stdout.readline().strip() != "ready":
+            return None
+        co_net = canopen.Network()
+        co_net.connect(interface="remote", channel=url)
+        co_own: Any = canopen.RemoteNode(6, canopen.ObjectDictionary())
+        co_cob: Any = canopen.RemoteNode(NODE, canopen.ObjectDictionary())
+        co_net.add_node(co_own)
+        co_net.add_node(co_cob)
+        cob = Network(interface="remote", channel=url)
+        sdo = cob.add_remote(NODE).sdo
+
+        def asyncio_round() -> tuple[float, float]:
+            async def main() -> tuple[float, float]:
+                async with AsyncNetwork(interface="remote", channel=url) as net:
+                    aio = net.add_remote(NODE).sdo
+                    await aio.upload(0x1000)
+                    s0, t0 = _switches(), time.perf_counter()
+                    for _ in range(TRIPS):
+                        await aio.upload(0x1000)
+                    elapsed = time.perf_counter() - t0
+                    return elapsed / TRIPS * 1e6, (_switches() - s0) / TRIPS
+
+            return asyncio.run(main())
+
+        trips: dict[str, Callable[[], object]] = {
+            "python-canopen at both ends": lambda: co_own.sdo.upload(0x1000, 0),
+            "cobus blocking client, cobus device": lambda: sdo.upload(0x1000),
+            "canopen client, cobus device": lambda: co_cob.sdo.upload(0x1000, 0),
+        }
+        out: dict[str, list[tuple[float, float]]] = {name: [] for name in trips}
+        out["cobus asyncio client, cobus device"] = []
+        try:
+            for _ in range(ROUNDS):
+                for name, trip in trips.items():
+                    out[name].append(_measure(trip))
+                out["cobus asyncio client, cobus device"].append(asyncio_round())
+        finally:
+            cob.close()
+            co_net.disconnect()
+        return out
+    finally:
+        if servers is not None:
+            if servers.stdin is not None:
+                servers.stdin.close()
+            servers.wait(15)
+        hub.terminate()
+        hub.wait(15)
+
+
+def _table(title: str, results: dict[str, list[tuple[float, float]]]) -> None:
+    base = results["python-canopen at both ends"]
+    print(f"\n{title} ({ROUNDS} interleaved rounds of {TRIPS} trips; medians)")
     print(f"  {'':<44} {'µs/trip':>9} {'wake-ups':>9} {'vs python-canopen':>18}")
     for name, rounds in results.items():
         us = statistics.median(r[0] for r in rounds)
@@ -191,8 +297,16 @@ def main() -> None:
             paired = [b[0] / r[0] for r, b in zip(rounds, base, strict=True)]
             ratio = f"x{statistics.median(paired):.2f}"
         print(f"  {name:<44} {us:>9.1f} {wakes:>9.1f} {ratio:>18}")
+
+
+def main() -> None:
+    _table("SDO expedited round trip, one process, virtual bus, real time", figures())
+    remote = remote_figures()
+    if remote is not None:
+        _table("The same between two processes through python-can-remote (127.0.0.1)", remote)
     print("  (x > 1: faster than python-canopen at both ends, paired per round)")
-    print("  (wake-ups: voluntary context switches of the process per trip)")
+    print("  (wake-ups: voluntary context switches of this process per trip; over")
+    print("   python-can-remote every client here hears every frame, and their wake-ups count)")
 
 
 if __name__ == "__main__":

@@ -179,17 +179,25 @@ def error_frames_are_local(bus: can.BusABC) -> bool:
 def readable_fd(bus: can.BusABC) -> int | None:
     """A file descriptor that is readable exactly when ``bus.recv(0)`` has a frame, or None.
 
-    Only SocketCAN guarantees that: its kernel socket hands over one frame per read. Other
-    interfaces with a descriptor (python-can-remote's websocket, serial ports) buffer frames
-    behind it, so they are read by a thread instead.
+    Two interfaces guarantee that, and are read on the loop with no reader thread:
+    SocketCAN, whose kernel socket hands over one frame per read, and python-can-remote,
+    whose client reads exactly the bytes of one websocket frame per ``recv`` and keeps
+    nothing buffered behind its socket. (A websocket frame split over two TCP segments makes
+    that ``recv`` wait on the loop for the rest: on 127.0.0.1, where cobus shares a bus between
+    processes, frames arrive whole.) Other interfaces with a descriptor (serial ports, most
+    vendor drivers) buffer frames behind it, so they are read by a thread instead.
     """
-    if type(bus).__name__ != "SocketcanBus":
+    if type(bus).__name__ not in _FD_EXACT:
         return None
     try:
         fd = bus.fileno()
     except (NotImplementedError, OSError, ValueError):
         return None
     return fd if isinstance(fd, int) and fd >= 0 else None
+
+
+#: The bus classes whose descriptor is readable exactly when a frame waits.
+_FD_EXACT = frozenset(("SocketcanBus", "RemoteBus"))
 
 
 def interface_reports_state(bus: can.BusABC) -> bool:
