@@ -16,8 +16,7 @@ user's thread, the loop, the bus's reader threads and back.
 - the blocking facade alone: a call from the user's thread run on the loop and back, no bus.
 
 Then the same over python-can-remote on 127.0.0.1 between two processes (a cobus device on
-node 5 and a python-canopen ``LocalNode`` on node 6 in a child process, the clients here):
-where the bus has a file descriptor, cobus reads it on the loop with no reader thread.
+node 5 and a python-canopen ``LocalNode`` on node 6 in a child process, the clients here).
 """
 
 from __future__ import annotations

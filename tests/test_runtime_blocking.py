@@ -100,6 +100,19 @@ def test_the_blocking_facade_hands_results_errors_and_timeouts_back():
         with pytest.raises(TimeoutError):
             net.run(slow(), timeout=0.05)
         assert cancelled.wait(2.0)  # the caller gave up: the coroutine is cancelled
+        finished = []
+
+        async def short():
+            await asyncio.sleep(0.1)
+            finished.append(True)
+
+        for at_once in (0, -0.5):  # no time to wait: only a result already there counts
+            with pytest.raises(TimeoutError):
+                net.run(short(), timeout=at_once)
+        time.sleep(0.3)
+        assert finished == []  # given up at once: cancelled, never ran to its end
+        with pytest.raises(TypeError, match="takes a coroutine"):
+            net.run(slow)  # type: ignore[arg-type]  # the function, not a call: refused
         with pytest.raises(concurrent.futures.CancelledError):
             net.run(gives_up())
         loop_thread = runner.call(threading.current_thread)

@@ -1,7 +1,7 @@
 """The runtime across processes and on descriptor-driven interfaces.
 
 - Two processes share one bus through python-can-remote on 127.0.0.1: a cobus SDO server in a
-  child process, the cobus client here; both read the websocket on their loop, no thread.
+  child process, the cobus client here.
 - The SocketCAN read path (the loop watches the socket's descriptor) with a stand-in bus
   whose class has SocketCAN's name: this machine's kernel has no SocketCAN.
 """
@@ -96,8 +96,6 @@ def test_sdo_between_two_processes_over_python_can_remote(remote_bus_url):
     try:
         assert child.stdout is not None and child.stdout.readline().strip() == "ready"
         with Network(interface="remote", channel=remote_bus_url) as net:
-            # the websocket is watched by the loop: no reader thread between it and the loop
-            assert net.aio._reader is None and net.aio._fd is not None
             node = net.add_remote(5, sdo_timeout=2.0)
             assert node.sdo.upload(0x1000) == b"\x91\x01\x00\x00"
             assert node.sdo.upload(0x2000) == DATA

@@ -104,6 +104,8 @@ class Runner:
             raise ReentrantCallError(
                 "a blocking call from the event loop thread would deadlock: use the async API"
             )
+        if not asyncio.iscoroutine(coro):
+            raise TypeError(f"run() takes a coroutine (call the async function), not {coro!r}")
         handoff: _Handoff[T] = _Handoff()
         loop = self.loop
 
@@ -111,7 +113,8 @@ class Runner:
             try:
                 task = loop.create_task(coro)
             except BaseException as exc:  # pragma: no cover - the loop is closing
-                coro.close()
+                with contextlib.suppress(Exception):
+                    coro.close()
                 handoff.fail(exc)
                 return
             handoff.task = task
@@ -119,7 +122,8 @@ class Runner:
 
         loop.call_soon_threadsafe(start)
         if not handoff.wait(timeout):
-            loop.call_soon_threadsafe(handoff.cancel)
+            with contextlib.suppress(RuntimeError):  # the loop closed meanwhile: nothing runs
+                loop.call_soon_threadsafe(handoff.cancel)
             raise TimeoutError(f"the operation did not complete within {timeout} s")
         return handoff.outcome()
 
@@ -249,14 +253,23 @@ class _Handoff(Generic[T]):
             self.task.cancel()
 
     def wait(self, timeout: float | None) -> bool:
-        return self._lock.acquire(timeout=-1 if timeout is None else timeout)
+        """Whether the outcome came within ``timeout`` seconds (None: as long as it takes;
+        0 or less: only if it is there already)."""
+        if timeout is None:
+            return self._lock.acquire()
+        if timeout <= 0:
+            return self._lock.acquire(False)
+        return self._lock.acquire(timeout=timeout)
 
     def outcome(self) -> T:
         error = self._error
-        if error is not None:
-            self._error = None  # no reference cycle through the traceback
+        if error is None:
+            return self._result  # type: ignore[return-value]
+        self._error = None
+        try:
             raise error
-        return self._result  # type: ignore[return-value]
+        finally:
+            del error  # the traceback would hold this frame and the error in a cycle
 
 
 async def _cancel_tasks() -> None:

@@ -179,13 +179,12 @@ def error_frames_are_local(bus: can.BusABC) -> bool:
 def readable_fd(bus: can.BusABC) -> int | None:
     """A file descriptor that is readable exactly when ``bus.recv(0)`` has a frame, or None.
 
-    Two interfaces guarantee that, and are read on the loop with no reader thread:
-    SocketCAN, whose kernel socket hands over one frame per read, and python-can-remote,
-    whose client reads exactly the bytes of one websocket frame per ``recv`` and keeps
-    nothing buffered behind its socket. (A websocket frame split over two TCP segments makes
-    that ``recv`` wait on the loop for the rest: on 127.0.0.1, where cobus shares a bus between
-    processes, frames arrive whole.) Other interfaces with a descriptor (serial ports, most
-    vendor drivers) buffer frames behind it, so they are read by a thread instead.
+    Only SocketCAN guarantees that: its kernel socket hands over one frame per read, and a
+    read never blocks once it is readable. Other interfaces with a descriptor are read by a
+    thread: serial ports and most vendor drivers buffer frames behind it, and
+    python-can-remote's client, although it reads one websocket frame per ``recv``, reads it
+    with blocking calls (a frame split over TCP segments, or a ping, would stall the loop) and
+    raises on a dropped connection while its socket stays readable.
     """
     if type(bus).__name__ not in _FD_EXACT:
         return None
@@ -197,7 +196,7 @@ def readable_fd(bus: can.BusABC) -> int | None:
 
 
 #: The bus classes whose descriptor is readable exactly when a frame waits.
-_FD_EXACT = frozenset(("SocketcanBus", "RemoteBus"))
+_FD_EXACT = frozenset(("SocketcanBus",))
 
 
 def interface_reports_state(bus: can.BusABC) -> bool:

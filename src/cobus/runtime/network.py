@@ -392,7 +392,9 @@ class AsyncNetwork:
 
         If the interface refuses it (buffer full, bus-off) the frame waits in a backlog and goes
         out when the interface takes frames again; :class:`TxOverflowError` if that backlog is
-        full. Handlers of this network receive the frame once it is on the bus.
+        full. The handlers and monitors of this network that listen to its identifier when it
+        is sent receive it once it is on the bus (a handler subscribed after the send does
+        not: the frame is only echoed when someone here listens).
         """
         if self._bus is None or self._loop is None:
             raise NetworkClosedError("cannot send: the network is not connected")
