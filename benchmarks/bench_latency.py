@@ -114,17 +114,21 @@ def _canopen_client(channel: str) -> tuple[canopen.Network, Any]:
     return net, node
 
 
-def _asyncio_round() -> tuple[float, float]:
-    """cobus asyncio client against a cobus device, one loop (set up outside the timing)."""
+def _asyncio_round(interface: str, channel: str, *, device_here: bool) -> tuple[float, float]:
+    """cobus asyncio client against a cobus device (on a second network of the same loop when
+    ``device_here``), set up outside the timing."""
 
     async def main() -> tuple[float, float]:
-        channel = f"lat-aio-{os.getpid()}"
-        async with (
-            AsyncNetwork(interface="virtual", channel=channel) as a,
-            AsyncNetwork(interface="virtual", channel=channel) as b,
-        ):
-            add_device(b, NODE, minimal_od())
-            sdo = a.add_remote(NODE).sdo
+        async with contextlib.AsyncExitStack() as stack:
+            net = await stack.enter_async_context(
+                AsyncNetwork(interface=interface, channel=channel)
+            )
+            if device_here:
+                field = await stack.enter_async_context(
+                    AsyncNetwork(interface=interface, channel=channel)
+                )
+                add_device(field, NODE, minimal_od())
+            sdo = net.add_remote(NODE).sdo
             await sdo.upload(0x1000)
             s0, t0 = _switches(), time.perf_counter()
             for _ in range(TRIPS):
@@ -172,7 +176,8 @@ def figures() -> dict[str, list[tuple[float, float]]]:
         for _ in range(ROUNDS):
             for name, trip in trips.items():
                 out[name].append(_measure(trip))
-            out["cobus asyncio client, cobus device"].append(_asyncio_round())
+            aio = _asyncio_round("virtual", f"lat-aio-{pid}", device_here=True)
+            out["cobus asyncio client, cobus device"].append(aio)
     finally:
         ping.close()
         for net in (co_net, co_server, mixed_co_server, mixed_co_net):
@@ -245,19 +250,6 @@ def remote_figures() -> dict[str, list[tuple[float, float]]] | None:
         cob = Network(interface="remote", channel=url)
         sdo = cob.add_remote(NODE).sdo
 
-        def asyncio_round() -> tuple[float, float]:
-            async def main() -> tuple[float, float]:
-                async with AsyncNetwork(interface="remote", channel=url) as net:
-                    aio = net.add_remote(NODE).sdo
-                    await aio.upload(0x1000)
-                    s0, t0 = _switches(), time.perf_counter()
-                    for _ in range(TRIPS):
-                        await aio.upload(0x1000)
-                    elapsed = time.perf_counter() - t0
-                    return elapsed / TRIPS * 1e6, (_switches() - s0) / TRIPS
-
-            return asyncio.run(main())
-
         trips: dict[str, Callable[[], object]] = {
             "python-canopen at both ends": lambda: co_own.sdo.upload(0x1000, 0),
             "cobus blocking client, cobus device": lambda: sdo.upload(0x1000),
@@ -269,7 +261,8 @@ def remote_figures() -> dict[str, list[tuple[float, float]]] | None:
             for _ in range(ROUNDS):
                 for name, trip in trips.items():
                     out[name].append(_measure(trip))
-                out["cobus asyncio client, cobus device"].append(asyncio_round())
+                aio = _asyncio_round("remote", url, device_here=False)
+                out["cobus asyncio client, cobus device"].append(aio)
         finally:
             cob.close()
             co_net.disconnect()
