@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from cobus._moved import Moved
-from cobus.device._core import Core
+from cobus.device._core import Core, Listener
 from cobus.device._entries import Entry, check_value
 from cobus.device.eds_export import export_eds
 from cobus.device.emcy import EmcyService, class_bits
@@ -31,7 +31,6 @@ from cobus.device.errors import (
 )
 from cobus.device.events import (
     Booted,
-    DeviceEvent,
     NodeIdChanged,
     StateChanged,
 )
@@ -63,20 +62,13 @@ if TYPE_CHECKING:
 __all__ = ["LOAD_SIGNATURE", "SAVE_SIGNATURE", "CobIdRule", "Deviations", "Device", "Listener"]
 
 
-Listener = Callable[[DeviceEvent], object]
 Key = int | str
 
 _ABORT = SdoAbortCode
-_INVALID = 1 << 31
-_EXTENDED = 1 << 29
 _MANDATORY = (0x1000, 0x1001, 0x1018)
 _COMMANDS = {int(c): c for c in NmtCommand}
 #: Dictionaries served by a running device (by id): a dictionary holds one node's defaults.
 _SERVED: dict[int, weakref.ref[Device]] = {}
-
-
-def _abort(code: int, reason: str) -> SdoAbort:
-    return SdoAbort(code, reason)
 
 
 class _ObjectView:
