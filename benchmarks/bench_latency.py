@@ -296,7 +296,9 @@ def main() -> None:
     remote = remote_figures()
     if remote is not None:
         _table("The same between two processes through python-can-remote (127.0.0.1)", remote)
-    print("  (x > 1: faster than python-canopen at both ends, paired per round)")
+    print("  (x > 1: faster than python-canopen at both ends, paired per round; the targets:")
+    print("   x1.0 for every cobus arrangement, x1.15 for the asyncio client where the bus has a")
+    print("   file descriptor)")
     print("  (wake-ups: voluntary context switches of this process per trip; over")
     print("   python-can-remote every client here hears every frame, and their wake-ups count)")
 
