@@ -139,6 +139,19 @@ def _asyncio_round(interface: str, channel: str, *, device_here: bool) -> tuple[
     return asyncio.run(main())
 
 
+def _interleave(
+    trips: dict[str, Callable[[], object]], asyncio_round: Callable[[], tuple[float, float]]
+) -> dict[str, list[tuple[float, float]]]:
+    """ROUNDS rounds, each timing every blocking arrangement, then the asyncio one."""
+    out: dict[str, list[tuple[float, float]]] = {name: [] for name in trips}
+    out["cobus asyncio client, cobus device"] = []
+    for _ in range(ROUNDS):
+        for name, trip in trips.items():
+            out[name].append(_measure(trip))
+        out["cobus asyncio client, cobus device"].append(asyncio_round())
+    return out
+
+
 def figures() -> dict[str, list[tuple[float, float]]]:
     """Per arrangement, the (µs, wake-ups) of each round."""
     pid = os.getpid()
@@ -170,21 +183,16 @@ def figures() -> dict[str, list[tuple[float, float]]]:
         "facade: coroutine on the loop and back": lambda: cob_client.run(nothing()),
         "facade: plain call on the loop and back": lambda: runner.call(int),
     }
-    out: dict[str, list[tuple[float, float]]] = {name: [] for name in trips}
-    out["cobus asyncio client, cobus device"] = []
     try:
-        for _ in range(ROUNDS):
-            for name, trip in trips.items():
-                out[name].append(_measure(trip))
-            aio = _asyncio_round("virtual", f"lat-aio-{pid}", device_here=True)
-            out["cobus asyncio client, cobus device"].append(aio)
+        return _interleave(
+            trips, lambda: _asyncio_round("virtual", f"lat-aio-{pid}", device_here=True)
+        )
     finally:
         ping.close()
         for net in (co_net, co_server, mixed_co_server, mixed_co_net):
             net.disconnect()
         for cob in (cob_client, cob_server, mixed_cob_client, mixed_cob_server):
             cob.close()
-    return out
 
 
 _SERVERS = textwrap.dedent(
@@ -255,18 +263,11 @@ def remote_figures() -> dict[str, list[tuple[float, float]]] | None:
             "cobus blocking client, cobus device": lambda: sdo.upload(0x1000),
             "canopen client, cobus device": lambda: co_cob.sdo.upload(0x1000, 0),
         }
-        out: dict[str, list[tuple[float, float]]] = {name: [] for name in trips}
-        out["cobus asyncio client, cobus device"] = []
         try:
-            for _ in range(ROUNDS):
-                for name, trip in trips.items():
-                    out[name].append(_measure(trip))
-                aio = _asyncio_round("remote", url, device_here=False)
-                out["cobus asyncio client, cobus device"].append(aio)
+            return _interleave(trips, lambda: _asyncio_round("remote", url, device_here=False))
         finally:
             cob.close()
             co_net.disconnect()
-        return out
     finally:
         if servers is not None:
             if servers.stdin is not None:
