@@ -32,7 +32,7 @@ from cobus.runtime import remote as _remote
 from cobus.runtime._twin import BlockingTwin, twin_of
 from cobus.runtime.errors import ReentrantCallError
 from cobus.runtime.events import BusState
-from cobus.runtime.loop import SimulatedEventLoop, new_event_loop
+from cobus.runtime.loop import RealTimeLoop, SimulatedEventLoop, new_event_loop
 from cobus.runtime.network import AsyncNetwork, FrameHandler, NetworkClosedError, Subscription
 from cobus.runtime.remote import NmtMaster, SdoChannel, SyncService
 from cobus.runtime.remote import RemoteNode as AsyncRemoteNode
@@ -99,7 +99,7 @@ class Runner:
             if timeout is not None:
                 return self.loop.run_until_complete(asyncio.wait_for(task, timeout))
             return self.loop.run_until_complete(task)
-        if threading.current_thread() is self._thread:
+        if self._on_loop():
             coro.close()
             raise ReentrantCallError(
                 "a blocking call from the event loop thread would deadlock: use the async API"
@@ -129,7 +129,7 @@ class Runner:
 
     def call(self, fn: Callable[..., T], *args: Any) -> T:
         """Run a plain function on the loop thread and return its result."""
-        if self.simulated or threading.current_thread() is self._thread:
+        if self.simulated or self._on_loop():
             return fn(*args)
         if self._closed:
             raise NetworkClosedError("the network is closed")
@@ -146,6 +146,14 @@ class Runner:
         self.loop.call_soon_threadsafe(job)
         handoff.wait(None)
         return handoff.outcome()
+
+    def _on_loop(self) -> bool:
+        """Whether the caller runs protocol code: on the loop thread, or a reader thread
+        dispatching under the loop's protocol lock."""
+        loop = self.loop
+        return threading.current_thread() is self._thread or (
+            isinstance(loop, RealTimeLoop) and loop.protocol_lock.held()
+        )
 
     def callback(self, fn: Callable[..., object]) -> Callable[..., None]:
         """Wrap a user callback so that, in real time, it runs in the callback thread.

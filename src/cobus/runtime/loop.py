@@ -9,18 +9,33 @@ clock. Real I/O (the loop's self-pipe, sockets) is still polled, without waiting
 Sources of input that are not file descriptors — python-can's virtual bus keeps its frames in a
 queue — register a *poll hook*: before the clock moves, every hook is called; if any reports
 that it delivered something, the loop runs that first and the clock stays where it is.
+
+:class:`RealTimeLoop` is the blocking facade's real-time loop. It holds a :class:`ProtocolLock`
+whenever it runs, and lets go of it only while it sleeps in ``select``. A bus's reader thread
+(and a blocking caller starting an SDO transfer) may take the lock and run protocol code
+directly — the same code the loop would run, never at the same time as the loop — which saves
+a hand-over between threads on every frame (issue 20, ``docs/realtime.md``). Under the lock,
+``call_soon``/``call_at`` work from that thread too and wake the loop when they must.
 """
 
 from __future__ import annotations
 
 import asyncio
+import math
 import selectors
+import threading
 from collections.abc import Callable, Coroutine, Mapping
 from typing import Any, TypeVar
 
 from cobus.runtime.errors import SimulationStalledError
 
-__all__ = ["SimulatedEventLoop", "SimulationStalledError", "new_event_loop"]
+__all__ = [
+    "ProtocolLock",
+    "RealTimeLoop",
+    "SimulatedEventLoop",
+    "SimulationStalledError",
+    "new_event_loop",
+]
 
 PollHook = Callable[[], bool]
 T = TypeVar("T")
@@ -110,8 +125,147 @@ class SimulatedEventLoop(asyncio.SelectorEventLoop):
             self._virtual_now += seconds
 
 
+class ProtocolLock:
+    """The lock under which protocol code of a :class:`RealTimeLoop` runs: held by the loop
+    thread except while it sleeps, taken by a reader thread to dispatch frames directly.
+
+    Re-entrant; :meth:`held` tells whether the calling thread holds it.
+    """
+
+    __slots__ = ("_depth", "_lock", "_wake", "owner", "wake_pending")
+
+    def __init__(self, wake: Callable[[], object] = lambda: None) -> None:
+        self._lock = threading.Lock()
+        self._depth = 0
+        self._wake = wake
+        #: The ``threading.get_ident()`` of the holder, or None.
+        self.owner: int | None = None
+        #: Set by the holder when the sleeping loop has work: ``wake`` is called when the
+        #: lock is let go (not before, or the woken loop would only wait for the lock).
+        self.wake_pending = False
+
+    def acquire(self, timeout: float = -1) -> bool:
+        """Take the lock (``timeout`` seconds at most; -1: as long as it takes)."""
+        me = threading.get_ident()
+        if self.owner == me:
+            self._depth += 1
+            return True
+        if not self._lock.acquire(True, timeout):
+            return False
+        self.owner = me
+        self._depth = 1
+        return True
+
+    def release(self) -> None:
+        """Give the lock back (once per :meth:`acquire`)."""
+        if self.owner != threading.get_ident():
+            raise RuntimeError("the protocol lock is released by a thread that does not hold it")
+        self._depth -= 1
+        if self._depth == 0:
+            self.owner = None
+            wake, self.wake_pending = self.wake_pending, False
+            self._lock.release()
+            if wake:
+                self._wake()
+
+    def held(self) -> bool:
+        """Whether the calling thread holds the lock."""
+        return self.owner == threading.get_ident()
+
+    def __enter__(self) -> ProtocolLock:
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+    def _release_all(self) -> int:
+        depth, self._depth, self.owner = self._depth, 0, None
+        self._lock.release()
+        return depth
+
+    def _restore(self, depth: int) -> None:
+        self._lock.acquire()
+        self.owner = threading.get_ident()
+        self._depth = depth
+
+
+class _SleepingSelector(selectors.BaseSelector):
+    """The platform selector, with the owning loop's protocol lock let go while it waits."""
+
+    def __init__(self, owner: RealTimeLoop) -> None:
+        self._real = selectors.DefaultSelector()
+        self._owner = owner
+
+    def register(self, fileobj: Any, events: int, data: Any = None) -> selectors.SelectorKey:
+        return self._real.register(fileobj, events, data)
+
+    def unregister(self, fileobj: Any) -> selectors.SelectorKey:
+        return self._real.unregister(fileobj)
+
+    def modify(self, fileobj: Any, events: int, data: Any = None) -> selectors.SelectorKey:
+        return self._real.modify(fileobj, events, data)
+
+    def get_map(self) -> Mapping[Any, selectors.SelectorKey]:
+        return self._real.get_map()
+
+    def close(self) -> None:
+        self._real.close()
+
+    def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
+        owner = self._owner
+        lock = owner.protocol_lock
+        if timeout == 0 or not lock.held():
+            return self._real.select(timeout)
+        # Until when the loop sleeps: a timer set meanwhile from another thread wakes it only
+        # if it is due earlier (see RealTimeLoop.call_at).
+        owner._sleeping_until = math.inf if timeout is None else owner.time() + timeout
+        depth = lock._release_all()
+        try:
+            return self._real.select(timeout)
+        finally:
+            lock._restore(depth)
+            owner._sleeping_until = None
+
+
+class RealTimeLoop(asyncio.SelectorEventLoop):
+    """A real-time selector loop that runs under a :class:`ProtocolLock` (see the module
+    docstring): another thread holding the lock may run protocol code and schedule
+    callbacks and timers as if it were the loop."""
+
+    def __init__(self) -> None:
+        self._sleeping_until: float | None = None
+        super().__init__(selector=_SleepingSelector(self))
+        self.protocol_lock = ProtocolLock(self._write_to_self)  # type: ignore[attr-defined]
+
+    def run_forever(self) -> None:
+        with self.protocol_lock:
+            super().run_forever()
+
+    def call_soon(  # type: ignore[override]  # asyncio's stubs type the arguments variadically
+        self, callback: Callable[..., object], *args: Any, context: Any = None
+    ) -> asyncio.Handle:
+        handle = super().call_soon(callback, *args, context=context)
+        if self._sleeping_until is not None and self.protocol_lock.held():
+            self.protocol_lock.wake_pending = True  # asyncio's self-pipe, once the lock is free
+        return handle
+
+    def call_at(  # type: ignore[override]
+        self, when: float, callback: Callable[..., object], *args: Any, context: Any = None
+    ) -> asyncio.TimerHandle:
+        timer = super().call_at(when, callback, *args, context=context)
+        sleeping_until = self._sleeping_until
+        if sleeping_until is not None and when < sleeping_until and self.protocol_lock.held():
+            self.protocol_lock.wake_pending = True
+        return timer
+
+    def _check_thread(self) -> None:  # asyncio's debug-mode check: the lock's holder may call
+        if not self.protocol_lock.held():
+            super()._check_thread()  # type: ignore[misc]
+
+
 def new_event_loop(*, simulated: bool = False, start: float = 0.0) -> asyncio.AbstractEventLoop:
-    """A new loop: the platform's default, or a :class:`SimulatedEventLoop`."""
+    """A new loop: a :class:`RealTimeLoop`, or a :class:`SimulatedEventLoop`."""
     if simulated:
         return SimulatedEventLoop(start)
-    return asyncio.new_event_loop()
+    return RealTimeLoop()

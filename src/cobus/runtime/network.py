@@ -32,7 +32,7 @@ from cobus.runtime.events import (
     TxResumed,
 )
 from cobus.runtime.local_nodes import LocalNodes
-from cobus.runtime.loop import SimulatedEventLoop
+from cobus.runtime.loop import RealTimeLoop, SimulatedEventLoop
 from cobus.runtime.remote import NmtMaster, RemoteNode, SyncService, load_od
 
 if TYPE_CHECKING:
@@ -54,6 +54,7 @@ EventListener = Callable[[Event], Any]
 
 _EXT = 1 << 31  # dispatch key flag for 29-bit identifiers
 _BATCH = 256  # frames taken from the interface per wake-up
+_DIRECT_WAIT = 0.002  # s a reader thread waits for a busy loop before it hands frames over
 _RETRY = 0.001  # seconds between attempts to flush the transmit backlog
 _DRAIN_LIMIT = 1024  # frames dispatched per loop callback before yielding
 
@@ -731,33 +732,58 @@ class AsyncNetwork:
                 self.loop.call_soon(self._read_ready)
 
     def _reader_thread(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
+        lock = loop.protocol_lock if isinstance(loop, RealTimeLoop) else None
         backoff = 0.05
         pending = self._rx_pending
-        while not self._reader_stop.is_set():
+        stop = self._reader_stop
+        while not stop.is_set():
             try:
                 msg = bus.recv(0.05)
             except Exception as exc:  # any driver failure: report, back off, read on
-                if self._reader_stop.is_set():
+                if stop.is_set():
                     return
                 try:
                     loop.call_soon_threadsafe(self.emit, ReceiveFailed(str(exc)))
                 except RuntimeError:
                     return
-                self._reader_stop.wait(backoff)
+                stop.wait(backoff)
                 backoff = min(backoff * 2, 1.0)
                 continue
             if msg is None:
                 continue
             backoff = 0.05
-            # One wake-up of the loop per batch: while a wake-up is pending, frames that
-            # arrive only join the queue (deque appends are atomic).
             pending.append(msg)
+            if lock is not None and lock.acquire(_DIRECT_WAIT):
+                # Direct dispatch: this thread runs the frames' handlers itself, under the
+                # loop's protocol lock (never while the loop runs), saving a hand-over.
+                try:
+                    if stop.is_set():
+                        return
+                    self._dispatch_pending()
+                finally:
+                    lock.release()
+                continue
+            # Hand-over: one wake-up of the loop per batch; while a wake-up is pending, frames
+            # that arrive only join the queue (deque appends are atomic). Also the way out
+            # when the loop is busy, so a reader is never starved by it; the queue keeps the
+            # order, as the direct path empties it first.
             if not self._rx_posted:
                 self._rx_posted = True
                 try:
                     loop.call_soon_threadsafe(self._drain_rx)
                 except RuntimeError:  # the loop is closed
                     return
+
+    def _dispatch_pending(self) -> None:
+        """Dispatch what the reader thread queued, holding the protocol lock."""
+        if self._bus is None or self._loop is None:
+            return
+        pending = self._rx_pending
+        batch = [pending.popleft() for _ in range(len(pending))]
+        try:
+            self._on_messages(batch)
+        except Exception as exc:  # a bug here must not end the reader thread
+            self._report_failure("dispatch of received frames", exc)
 
     def _drain_rx(self) -> None:
         self._rx_posted = False

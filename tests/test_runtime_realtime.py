@@ -1,0 +1,181 @@
+"""The real-time path (issue 20): the loop's protocol lock, and reader threads that dispatch
+frames directly under it instead of handing every frame over to the loop."""
+
+import threading
+import time
+
+import can
+import pytest
+
+from cobus.proto import Frame
+from cobus.runtime import Network
+from cobus.runtime.errors import ReentrantCallError
+from cobus.runtime.loop import ProtocolLock, RealTimeLoop, new_event_loop
+
+
+def test_the_real_time_loop_of_the_blocking_facade_is_a_real_time_loop():
+    loop = new_event_loop()
+    try:
+        assert isinstance(loop, RealTimeLoop)
+    finally:
+        loop.close()
+
+
+def test_protocol_lock_is_reentrant_and_knows_its_holder():
+    lock = ProtocolLock()
+    assert not lock.held()
+    with lock:
+        with lock:
+            assert lock.held()
+        assert lock.held()
+        other: list[bool] = []
+        t = threading.Thread(target=lambda: other.extend([lock.held(), lock.acquire(0.01)]))
+        t.start()
+        t.join()
+        assert other == [False, False]  # another thread neither holds it nor gets it
+    assert not lock.held()
+    with pytest.raises(RuntimeError, match="does not hold it"):
+        lock.release()
+
+
+class _LoopThread:
+    def __init__(self) -> None:
+        self.loop = RealTimeLoop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        self.wait_asleep()
+
+    def wait_asleep(self, until: float = float("inf")) -> None:
+        """Until the loop sleeps, at most until ``until`` on its clock."""
+        deadline = time.monotonic() + 2
+        while self.loop._sleeping_until is None or self.loop._sleeping_until > until:
+            assert time.monotonic() < deadline, "the loop never went to sleep"
+            time.sleep(0.001)
+
+    def close(self) -> None:
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(2)
+        self.loop.close()
+
+
+@pytest.fixture
+def looping():
+    lt = _LoopThread()
+    yield lt
+    lt.close()
+
+
+def test_the_loop_holds_the_lock_except_while_it_sleeps(looping):
+    loop = looping.loop
+    seen: list[bool] = []
+    loop.call_soon_threadsafe(lambda: seen.append(loop.protocol_lock.held()))
+    deadline = time.monotonic() + 2
+    while not seen and time.monotonic() < deadline:
+        time.sleep(0.001)
+    assert seen == [True]
+    looping.wait_asleep()
+    assert loop.protocol_lock.acquire(1.0)  # free while it sleeps
+    loop.protocol_lock.release()
+
+
+def test_call_soon_under_the_lock_wakes_the_sleeping_loop_once_the_lock_is_let_go(looping):
+    loop = looping.loop
+    ran = threading.Event()
+    with loop.protocol_lock:
+        loop.call_soon(ran.set)
+        assert loop.protocol_lock.wake_pending
+        assert not ran.wait(0.05)  # the loop cannot run it while this thread holds the lock
+    assert ran.wait(2.0)  # and does at once after, although it slept with no timer
+
+
+def test_a_timer_set_under_the_lock_wakes_the_loop_only_when_due_before_it_would_wake(looping):
+    loop = looping.loop
+    fired = threading.Event()
+    with loop.protocol_lock:
+        loop.call_at(loop.time() + 0.01, fired.set)
+        assert loop.protocol_lock.wake_pending  # it slept without a timer: woken
+    assert fired.wait(2.0)
+    looping.wait_asleep()
+    with loop.protocol_lock:
+        loop.call_at(loop.time() + 30, lambda: None)
+    looping.wait_asleep(until=loop.time() + 31)
+    with loop.protocol_lock:
+        loop.call_at(loop.time() + 60, lambda: None)  # later than it will wake anyway
+        assert not loop.protocol_lock.wake_pending
+
+
+def test_a_reader_thread_dispatches_frames_itself_under_the_lock():
+    with Network(interface="virtual", channel="rt-direct") as net:
+        raw = can.Bus(interface="virtual", channel="rt-direct")
+        seen: list[tuple[str, bool]] = []
+        done = threading.Event()
+        loop = net.aio.loop
+        assert isinstance(loop, RealTimeLoop)
+
+        def handler(frame: Frame, now: float) -> None:
+            seen.append((threading.current_thread().name, loop.protocol_lock.held()))
+            done.set()
+
+        net._runner.call(net.aio.subscribe, 0x123, handler)
+        raw.send(can.Message(arbitration_id=0x123, data=b"\x01", is_extended_id=False))
+        assert done.wait(2.0)
+        raw.shutdown()
+    assert seen == [("cobus-rx", True)]
+
+
+def test_frames_keep_their_order_when_a_busy_loop_makes_the_reader_hand_them_over():
+    with Network(interface="virtual", channel="rt-busy") as net:
+        raw = can.Bus(interface="virtual", channel="rt-busy")
+        got: list[int] = []
+        threads: set[str] = set()
+        loop = net.aio.loop
+
+        def handler(frame: Frame, now: float) -> None:
+            got.append(frame.data[0] | frame.data[1] << 8)
+            threads.add(threading.current_thread().name)
+
+        def busy() -> None:  # the loop holds the lock 10 ms at a time, for the first half
+            time.sleep(0.01)
+            if len(got) < 1000:
+                loop.call_soon(busy)
+
+        net._runner.call(net.aio.subscribe, 0x124, handler)
+        loop.call_soon_threadsafe(busy)
+        for n in range(2000):
+            raw.send(
+                can.Message(
+                    arbitration_id=0x124, data=n.to_bytes(2, "little"), is_extended_id=False
+                )
+            )
+            if n % 100 == 99:
+                time.sleep(0.02)
+        deadline = time.monotonic() + 10
+        while len(got) < 2000 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        raw.shutdown()
+    assert got == list(range(2000))
+    assert threads == {"cobus-rx", "cobus-loop"}  # both ways were taken, in one order
+
+
+def test_blocking_calls_from_a_dispatching_reader_thread_do_not_deadlock():
+    with Network(interface="virtual", channel="rt-reentrant") as net:
+        raw = can.Bus(interface="virtual", channel="rt-reentrant")
+        outcome: list[object] = []
+        done = threading.Event()
+
+        async def nothing() -> None:
+            return None
+
+        def handler(frame: Frame, now: float) -> None:
+            outcome.append(net._runner.call(lambda: threading.current_thread().name))
+            try:
+                net._runner.run(nothing())
+            except ReentrantCallError as exc:
+                outcome.append(type(exc))
+            done.set()
+
+        net._runner.call(net.aio.subscribe, 0x125, handler)
+        raw.send(can.Message(arbitration_id=0x125, data=b"", is_extended_id=False))
+        assert done.wait(2.0)
+        raw.shutdown()
+    assert outcome == ["cobus-rx", ReentrantCallError]
