@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 import can
 
 from cobus._moved import Moved
-from cobus.proto import Event, Frame
+from cobus.proto import Event, Frame, Out
 from cobus.runtime import emcy as _emcy
 from cobus.runtime import nmt as _nmt
 from cobus.runtime import pdo as _pdo
@@ -125,6 +125,38 @@ class Runner:
             with contextlib.suppress(RuntimeError):  # the loop closed meanwhile: nothing runs
                 loop.call_soon_threadsafe(handoff.cancel)
             raise TimeoutError(f"the operation did not complete within {timeout} s")
+        return handoff.outcome()
+
+    def run_direct(
+        self,
+        begin: Callable[[Callable[[Any], None]], Callable[[], None] | None],
+        fallback: Callable[[], Coroutine[Any, Any, T]],
+    ) -> T:
+        """Begin an operation from the caller's thread and wait for it here, with no hop
+        through the loop (real time, see ``docs/realtime.md``).
+
+        ``begin(finish)`` runs under the loop's protocol lock: it starts the operation and
+        returns a function that cancels it, or returns None when it cannot start now; the
+        protocol code that ends the operation calls ``finish(outcome)`` once (an exception is
+        raised here). When it cannot start now — and on the simulated clock, or from protocol
+        code — ``fallback()`` is run on the loop as :meth:`run` does.
+        """
+        loop = self.loop
+        if self.simulated or self._closed or not isinstance(loop, RealTimeLoop):
+            return self.run(fallback())
+        if self._on_loop():
+            return self.run(fallback())  # raises ReentrantCallError
+        handoff: _Handoff[T] = _Handoff()
+        with loop.protocol_lock:
+            cancel = begin(handoff.settle)
+        if cancel is None:
+            return self.run(fallback())
+        try:
+            handoff.wait(None)  # the operation's own timeout ends it (an SDO timeout)
+        except BaseException:  # Ctrl-C while waiting: the operation ends with it
+            with loop.protocol_lock:
+                cancel()
+            raise
         return handoff.outcome()
 
     def call(self, fn: Callable[..., T], *args: Any) -> T:
@@ -244,6 +276,13 @@ class _Handoff(Generic[T]):
     def fail(self, error: BaseException) -> None:
         self._error = error
         self._lock.release()
+
+    def settle(self, outcome: Any) -> None:
+        """A result, or an exception to raise in the waiting caller."""
+        if isinstance(outcome, BaseException):
+            self.fail(outcome)
+        else:
+            self.succeed(outcome)
 
     def finish(self, task: asyncio.Task[T]) -> None:
         if task.cancelled():
@@ -502,14 +541,94 @@ class Network:
         return twin
 
 
+def _transfer(runner: Runner, channel: SdoChannel, start: Callable[[float], Out]) -> Event:
+    """One SDO transfer from blocking code, begun in the caller's thread when the channel is
+    free (the answer wakes the caller directly), else awaited on the loop in its turn."""
+    return runner.run_direct(
+        lambda finish: channel._begin(start, finish), lambda: channel._transfer(start)
+    )
+
+
+def _upload(runner: Runner, channel: SdoChannel, index: int, subindex: int, block: bool) -> bytes:
+    event = _transfer(runner, channel, channel._upload_start(index, subindex, block))
+    if block and _remote._refused_block(event):
+        return _upload(runner, channel, index, subindex, False)
+    return _remote._uploaded(event)
+
+
+def _download(
+    runner: Runner,
+    channel: SdoChannel,
+    index: int,
+    subindex: int,
+    data: bytes,
+    block: bool,
+    size_indicated: bool,
+) -> None:
+    start = channel._download_start(index, subindex, data, block, size_indicated)
+    event = _transfer(runner, channel, start)
+    if block and _remote._refused_block(event):
+        _download(runner, channel, index, subindex, data, False, size_indicated)
+        return
+    _remote._downloaded(event)
+
+
 class BlockingSdo(BlockingTwin, twin_of=SdoChannel):
     """The blocking face of an :class:`~cobus.runtime.remote.SdoChannel`: the same methods,
-    each waiting for its transfer."""
+    each waiting for its transfer.
+
+    A transfer begins in the calling thread and the answer wakes it directly, as in
+    python-canopen; dictionary look-ups (``sdo["Device type"]``) run in the calling thread.
+    """
+
+    if TYPE_CHECKING:
+        aio: SdoChannel
+
+    def upload(self, index: int, subindex: int = 0, *, block: bool = False) -> bytes:
+        """Read the raw bytes of ``index:subindex`` from the server (``block=True``: block
+        upload, segmented if the server refuses it)."""
+        return _upload(self._runner, self.aio, index, subindex, block)
+
+    def download(
+        self,
+        index: int,
+        subindex: int,
+        data: bytes,
+        *,
+        block: bool = False,
+        size_indicated: bool = True,
+    ) -> None:
+        """Write raw bytes to ``index:subindex`` on the server."""
+        _download(self._runner, self.aio, index, subindex, data, block, size_indicated)
+
+    def read(self, index: Any, subindex: Any = 0) -> Any:
+        """Read an entry and decode it with its data type (see
+        :meth:`cobus.runtime.remote.SdoChannel.read`)."""
+        var = self.aio._readable(index, subindex)
+        return var.decode(self.upload(var.index, var.subindex))
+
+    def write(
+        self, index: Any, subindex: Any = _remote._NO_VALUE, value: Any = _remote._NO_VALUE
+    ) -> None:
+        """Encode ``value`` with the entry's data type and write it (see
+        :meth:`cobus.runtime.remote.SdoChannel.write`)."""
+        var, data = self.aio._encoded(index, subindex, value)
+        self.download(var.index, var.subindex, data)
+
+    def variable(self, index: Any, subindex: Any = 0) -> Any:
+        """The dictionary entry named by index or name, and subindex or name."""
+        return self.aio.variable(index, subindex)
+
+    def __getitem__(self, key: Any) -> Any:
+        return self._wrap(self.aio[key])
 
 
 class SdoVariable(BlockingTwin, twin_of=_remote.SdoVariable):
     """One object of a remote node over SDO, for blocking code: ``node.sdo["Device
     type"].read()``."""
+
+    if TYPE_CHECKING:
+        aio: _remote.SdoVariable
 
     @property
     def raw(self) -> Any:
@@ -520,6 +639,28 @@ class SdoVariable(BlockingTwin, twin_of=_remote.SdoVariable):
     @raw.setter
     def raw(self, value: Any) -> None:
         self.write(value)
+
+    def read(self) -> Any:
+        """Read the value from the node and decode it."""
+        var = self.aio.od
+        _remote._check_access(var, self.aio._channel.node_id, write=False)
+        return var.decode(self.upload())
+
+    def write(self, value: Any) -> None:
+        """Check ``value`` against the type, access and limits and write it to the node."""
+        var, channel = self.aio.od, self.aio._channel
+        _remote._check_access(var, channel.node_id, write=True)
+        self.download(_remote.encode_for(var, value, channel.node_id))
+
+    def upload(self, *, block: bool = False) -> bytes:
+        """The raw bytes of the object."""
+        var = self.aio.od
+        return _upload(self._runner, self.aio._channel, var.index, var.subindex, block)
+
+    def download(self, data: bytes, *, block: bool = False) -> None:
+        """Write raw bytes to the object."""
+        var = self.aio.od
+        _download(self._runner, self.aio._channel, var.index, var.subindex, data, block, True)
 
 
 class SdoRecord(BlockingTwin, twin_of=_remote.SdoRecord):

@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+from collections import deque
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from cobus.od import did_you_mean, match_name
-from cobus.proto import NOTHING, Event
+from cobus.proto import NOTHING, Event, Out
 from cobus.proto.nmt import NmtCommand, check_node_id, nmt_command_frame
 from cobus.proto.sdo import (
     DownloadDone,
@@ -104,8 +105,10 @@ class SdoChannel:
             on_event=self._on_event,
             extended=self.client.tx_cob_id > 0x7FF,
         )
-        self._lock = asyncio.Lock()
-        self._pending: asyncio.Future[Event] | None = None
+        # The channel is held by one transfer at a time; the others wait here, in order.
+        self._busy = False
+        self._waiters: deque[asyncio.Future[None]] = deque()
+        self._finish: Callable[[Event | BaseException], None] | None = None
         self._removed = False
         network.on_disconnect(self._on_disconnect)
 
@@ -134,51 +137,138 @@ class SdoChannel:
 
     def _on_event(self, event: Event) -> None:
         if isinstance(event, UploadDone | DownloadDone | TransferFailed):
-            pending = self._pending
-            if pending is not None and not pending.done():
-                pending.set_result(event)
+            self._end(event)
         self._network.emit(event)
+
+    def _end(self, outcome: Event | BaseException) -> None:
+        finish = self._finish
+        if finish is not None:
+            self._finish = None
+            finish(outcome)
 
     def _close(self) -> None:
         self._removed = True
+        self._end(NetworkClosedError(f"node {self.node_id} was removed during an SDO transfer"))
+        self._cancel()  # after: the abort's own event must not end the transfer first
         self._host.close()
         with contextlib.suppress(ValueError):
             self._network._on_disconnect.remove(self._on_disconnect)
-        pending = self._pending
-        if pending is not None and not pending.done():
-            pending.set_exception(
-                NetworkClosedError(f"node {self.node_id} was removed during an SDO transfer")
-            )
 
     def _on_disconnect(self) -> None:
-        pending = self._pending
-        if pending is not None and not pending.done():
-            pending.set_exception(
-                NetworkClosedError(
-                    f"the network was disconnected during an SDO transfer with node {self.node_id}"
-                )
+        self._end(
+            NetworkClosedError(
+                f"the network was disconnected during an SDO transfer with node {self.node_id}"
             )
+        )
+        self._cancel()
 
-    async def _transfer(self, start: Any) -> Event:
+    # -- one transfer at a time: awaited in order, or begun at once by blocking code
+    async def _acquire(self) -> None:
+        if not self._busy and not self._waiters:
+            self._busy = True
+            return
+        turn: asyncio.Future[None] = self._network.loop.create_future()
+        self._waiters.append(turn)
+        try:
+            await turn  # _release hands the channel over by resolving it
+        except BaseException:
+            if turn.done() and not turn.cancelled():
+                self._release()  # handed over, but cancelled before it could run: pass on
+            else:
+                with contextlib.suppress(ValueError):
+                    self._waiters.remove(turn)
+            raise
+
+    def _release(self) -> None:
+        while self._waiters:
+            turn = self._waiters.popleft()
+            if not turn.done():
+                turn.set_result(None)  # the channel stays busy: it is that waiter's now
+                return
+        self._busy = False
+
+    def _check_open(self) -> None:
         if self._removed:
             raise removed_error(self.node_id)
-        async with self._lock:
-            if self._removed:  # removed while this transfer waited for the channel
-                raise removed_error(self.node_id)
-            self._pending = self._network.loop.create_future()
+        if not self._network.connected:
+            raise NetworkClosedError(f"the network is closed: no SDO with node {self.node_id}")
+
+    def _start(self, start: Any, finish: Callable[[Event | BaseException], None]) -> None:
+        """Start a transfer on the held channel; ``finish`` gets its final event or error."""
+        self._finish = finish
+        try:
+            self._host.run(start)
+        except BaseException:
+            self._finish = None
+            self._cancel()
+            raise
+
+    def _cancel(self) -> None:
+        """End the transfer under way (cancelled, failed to start): the channel is free, and
+        the server is told where it still can be."""
+        if self.client.busy:
+            out = self.client.abort(SdoAbortCode.GENERAL_ERROR, self._now())
+            if self._network.connected:
+                self._host.apply(out)
+
+    def _begin(
+        self, start: Any, finish: Callable[[Event | BaseException], None]
+    ) -> Callable[[], None] | None:
+        """Start a transfer now if the channel is free, for blocking code that holds the
+        loop's protocol lock (it then waits in its own thread, with no hop through the loop).
+
+        ``start(now)`` is the client machine's call; ``finish`` is called once, under the lock,
+        with the final event or the error that ended the transfer. Returns a function that
+        cancels the transfer (to call under the lock), or None when the channel is busy and
+        nothing was started (await the transfer instead).
+        """
+        self._check_open()
+        if self._busy or self._waiters:
+            return None
+        self._busy = True
+
+        def finished(outcome: Event | BaseException) -> None:
+            self._release()
+            finish(outcome)
+
+        try:
+            self._start(start, finished)
+        except BaseException:
+            self._release()
+            raise
+
+        def cancel() -> None:
+            if self._finish is finished:
+                self._cancel()
+                self._end(asyncio.CancelledError())
+
+        return cancel
+
+    async def _transfer(self, start: Any) -> Event:
+        self._check_open()
+        await self._acquire()
+        try:
+            self._check_open()  # removed while this transfer waited for the channel
+            done: asyncio.Future[Event] = self._network.loop.create_future()
+
+            def finished(outcome: Event | BaseException) -> None:
+                if done.done():
+                    return
+                if isinstance(outcome, BaseException):
+                    done.set_exception(outcome)
+                else:
+                    done.set_result(outcome)
+
+            self._start(start, finished)
             try:
-                self._host.run(start)
-                return await self._pending
+                return await done
             except BaseException:
-                # Cancelled (wait_for, Ctrl-C), disconnected or failed to start: end the
-                # transfer so the channel is free, telling the server where we still can.
-                if self.client.busy:
-                    out = self.client.abort(SdoAbortCode.GENERAL_ERROR, self._now())
-                    if self._network.connected:
-                        self._host.apply(out)
+                if self._finish is finished:  # cancelled (wait_for, Ctrl-C): end the transfer
+                    self._finish = None
+                    self._cancel()
                 raise
-            finally:
-                self._pending = None
+        finally:
+            self._release()
 
     def _now(self) -> float:
         return self._network.time() if self._network.connected else 0.0
@@ -188,15 +278,10 @@ class SdoChannel:
 
         ``block=True`` uses block upload and falls back to segmented if the server refuses it.
         """
-        event = await self._transfer(
-            lambda now: self.client.start_upload(index, subindex, now, block=block)
-        )
+        event = await self._transfer(self._upload_start(index, subindex, block))
         if block and _refused_block(event):
             return await self.upload(index, subindex)
-        if isinstance(event, TransferFailed):
-            raise event.error
-        assert isinstance(event, UploadDone)
-        return event.data
+        return _uploaded(event)
 
     async def download(
         self,
@@ -209,15 +294,23 @@ class SdoChannel:
     ) -> None:
         """Write raw bytes to ``index:subindex`` on the server."""
         event = await self._transfer(
-            lambda now: self.client.start_download(
-                index, subindex, bytes(data), now, block=block, size_indicated=size_indicated
-            )
+            self._download_start(index, subindex, data, block, size_indicated)
         )
         if block and _refused_block(event):
             await self.download(index, subindex, data, size_indicated=size_indicated)
             return
-        if isinstance(event, TransferFailed):
-            raise event.error
+        _downloaded(event)
+
+    def _upload_start(self, index: int, subindex: int, block: bool) -> Callable[[float], Out]:
+        return lambda now: self.client.start_upload(index, subindex, now, block=block)
+
+    def _download_start(
+        self, index: int, subindex: int, data: bytes, block: bool, size_indicated: bool
+    ) -> Callable[[float], Out]:
+        data = bytes(data)
+        return lambda now: self.client.start_download(
+            index, subindex, data, now, block=block, size_indicated=size_indicated
+        )
 
     # -- typed access through the object dictionary
     def variable(self, index: Key | tuple[Key, Key], subindex: Key = 0) -> Variable:
@@ -330,10 +423,8 @@ class SdoChannel:
     async def read(self, index: Key | tuple[Key, Key], subindex: Key = 0) -> Any:
         """Read an entry and decode it with its data type (refused at once when the EDS
         says it cannot be read; ``upload()`` reads the raw bytes regardless)."""
-        var = self.variable(index, subindex)
-        _check_access(var, self.node_id, write=False)
-        data = await self.upload(var.index, var.subindex)
-        return var.decode(data)
+        var = self._readable(index, subindex)
+        return var.decode(await self.upload(var.index, var.subindex))
 
     async def write(
         self, index: Key | tuple[Key, Key], subindex: Any = _NO_VALUE, value: Any = _NO_VALUE
@@ -342,6 +433,18 @@ class SdoChannel:
         it: ``write(index, subindex, value)``, or ``write(index, value)`` /
         ``write(index, value=v)`` for sub-index 0 (or a ``(index, sub)`` / ``"Record.Sub"``
         index)."""
+        var, data = self._encoded(index, subindex, value)
+        await self.download(var.index, var.subindex, data)
+
+    def _readable(self, index: Key | tuple[Key, Key], subindex: Key) -> Variable:
+        var = self.variable(index, subindex)
+        _check_access(var, self.node_id, write=False)
+        return var
+
+    def _encoded(
+        self, index: Key | tuple[Key, Key], subindex: Any, value: Any
+    ) -> tuple[Variable, bytes]:
+        """The entry ``write()`` names and ``value`` encoded for it (see :meth:`write`)."""
         if value is _NO_VALUE:
             if subindex is _NO_VALUE:
                 raise TypeError("write() needs the value to write")
@@ -350,7 +453,7 @@ class SdoChannel:
             subindex = 0
         var = self.variable(index, subindex)
         _check_access(var, self.node_id, write=True)
-        await self.download(var.index, var.subindex, encode_for(var, value, self.node_id))
+        return var, encode_for(var, value, self.node_id)
 
 
 def _check_access(var: Variable, node_id: int, *, write: bool) -> None:
@@ -455,6 +558,20 @@ class SdoRecord:
         if isinstance(subindex, str):
             return match_name(subindex, [v.name for v in self.od]) is not None
         return subindex in self.od
+
+
+def _uploaded(event: Event) -> bytes:
+    """The bytes of a finished upload, or its error raised."""
+    if isinstance(event, TransferFailed):
+        raise event.error
+    assert isinstance(event, UploadDone)
+    return event.data
+
+
+def _downloaded(event: Event) -> None:
+    """Nothing for a finished download, or its error raised."""
+    if isinstance(event, TransferFailed):
+        raise event.error
 
 
 def _refused_block(event: Event) -> bool:
