@@ -1,15 +1,20 @@
 """The real-time path (issue 20): the loop's protocol lock, and reader threads that dispatch
 frames directly under it instead of handing every frame over to the loop."""
 
+import os
+import signal
 import threading
 import time
 
 import can
 import pytest
 
+from cobus.device import DictionaryBuilder, add_device
+from cobus.od import DataType, ObjectDictionary
 from cobus.proto import Frame
+from cobus.proto.sdo import SdoTimeoutError
 from cobus.runtime import Network
-from cobus.runtime.errors import ReentrantCallError
+from cobus.runtime.errors import NetworkClosedError, ReentrantCallError
 from cobus.runtime.loop import ProtocolLock, RealTimeLoop, new_event_loop
 
 
@@ -179,3 +184,117 @@ def test_blocking_calls_from_a_dispatching_reader_thread_do_not_deadlock():
         assert done.wait(2.0)
         raw.shutdown()
     assert outcome == ["cobus-rx", ReentrantCallError]
+
+
+# -- blocking SDO transfers begun in the caller's thread
+
+
+def _device_od() -> ObjectDictionary:
+    b = DictionaryBuilder(device_name="rt")
+    b.variable(0x2000, "Blob", DataType.DOMAIN)
+    for n in range(8):
+        b.variable(0x2100 + n, f"Value {n}", DataType.UNSIGNED32, default=n * 1000)
+    return b.build()
+
+
+@pytest.fixture
+def pair():
+    """A blocking client and a cobus device on node 5, in real time on a virtual bus."""
+    channel = f"rt-sdo-{threading.get_ident()}-{time.monotonic_ns()}"
+    client = Network(interface="virtual", channel=channel)
+    field = Network(interface="virtual", channel=channel)
+    add_device(field, 5, _device_od())
+    yield client, client.add_remote(5, _device_od())
+    client.close()
+    field.close()
+
+
+def test_a_blocking_transfer_sends_from_the_callers_thread(pair):
+    client, node = pair
+    senders: list[str] = []
+    bus = client.aio._bus
+    send = bus.send
+
+    def recording_send(msg: can.Message, timeout: float | None = None) -> None:
+        senders.append(threading.current_thread().name)
+        send(msg, timeout)
+
+    bus.send = recording_send
+    try:
+        assert node.sdo.upload(0x2101) == (1000).to_bytes(4, "little")
+        assert node.sdo["Value 2"].raw == 2000
+        node.sdo.write("Value 3", 7)
+        assert node.sdo.read(0x2103) == 7
+    finally:
+        bus.send = send
+    assert set(senders) == {threading.current_thread().name}  # no hop through the loop
+
+
+def test_segmented_and_block_transfers_take_the_direct_path_too(pair):
+    _, node = pair
+    blob = bytes(range(256)) * 16
+    node.sdo.download(0x2000, 0, blob)
+    assert node.sdo.upload(0x2000) == blob
+    node.sdo["Blob"].download(blob[::-1], block=True)
+    assert node.sdo["Blob"].upload(block=True) == blob[::-1]
+
+
+def test_threads_sharing_a_channel_each_get_their_own_answers(pair):
+    _, node = pair
+    errors: list[BaseException] = []
+
+    def reader(n: int) -> None:
+        try:
+            for _ in range(60):
+                assert node.sdo.read(0x2100 + n) == n * 1000
+        except BaseException as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=reader, args=(n,)) for n in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    assert errors == []
+
+
+def test_a_silent_node_times_out_and_leaves_the_channel_free():
+    with Network(interface="virtual", channel="rt-silent") as net:
+        node = net.add_remote(9, sdo_timeout=0.05)
+        for _ in range(2):
+            t0 = time.monotonic()
+            with pytest.raises(SdoTimeoutError):
+                node.sdo.upload(0x1000)
+            assert time.monotonic() - t0 < 2.0
+
+
+def test_closing_the_network_ends_a_waiting_transfer():
+    net = Network(interface="virtual", channel="rt-close")
+    node = net.add_remote(9, sdo_timeout=30)
+    timer = threading.Timer(0.1, net.close)
+    timer.start()
+    try:
+        with pytest.raises(NetworkClosedError):
+            node.sdo.upload(0x1000)
+    finally:
+        timer.join()
+        net.close()
+
+
+def test_ctrl_c_while_waiting_aborts_the_transfer_and_frees_the_channel():
+    with Network(interface="virtual", channel="rt-ctrl-c") as net:
+        raw = can.Bus(interface="virtual", channel="rt-ctrl-c")
+        node = net.add_remote(9, sdo_timeout=30)
+        timer = threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGINT))
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            node.sdo.upload(0x1000)
+        timer.join()
+        frames = []
+        while (msg := raw.recv(0.5)) is not None:
+            frames.append((msg.arbitration_id, msg.data[0]))
+        raw.shutdown()
+        assert frames == [(0x609, 0x40), (0x609, 0x80)]  # the request, then its abort
+        node.sdo.timeout = 0.05
+        with pytest.raises(SdoTimeoutError):  # free: the next transfer runs (and times out)
+            node.sdo.upload(0x1000)
