@@ -39,7 +39,7 @@ import can
 import canopen
 
 from cobus.device import add_device, minimal_od
-from cobus.runtime import AsyncNetwork, Network
+from cobus.runtime import AsyncNetwork, Network, run
 
 NODE = 5
 TRIPS = 400
@@ -114,9 +114,12 @@ def _canopen_client(channel: str) -> tuple[canopen.Network, Any]:
     return net, node
 
 
-def _asyncio_round(interface: str, channel: str, *, device_here: bool) -> tuple[float, float]:
+def _asyncio_round(
+    interface: str, channel: str, *, device_here: bool, cobus_loop: bool
+) -> tuple[float, float]:
     """cobus asyncio client against a cobus device (on a second network of the same loop when
-    ``device_here``), set up outside the timing."""
+    ``device_here``), set up outside the timing; on asyncio's own loop (``asyncio.run``), or
+    on cobus's ``RealTimeLoop`` (``cobus.runtime.run``) with its reader threads dispatching."""
 
     async def main() -> tuple[float, float]:
         async with contextlib.AsyncExitStack() as stack:
@@ -136,19 +139,26 @@ def _asyncio_round(interface: str, channel: str, *, device_here: bool) -> tuple[
             elapsed = time.perf_counter() - t0
             return elapsed / TRIPS * 1e6, (_switches() - s0) / TRIPS
 
-    return asyncio.run(main())
+    return run(main()) if cobus_loop else asyncio.run(main())
+
+
+ASYNCIO_ROUNDS = {
+    "cobus asyncio client, cobus device (asyncio.run)": False,
+    "the same on cobus.runtime.run (RealTimeLoop)": True,
+}
 
 
 def _interleave(
-    trips: dict[str, Callable[[], object]], asyncio_round: Callable[[], tuple[float, float]]
+    trips: dict[str, Callable[[], object]], asyncio_round: Callable[[bool], tuple[float, float]]
 ) -> dict[str, list[tuple[float, float]]]:
-    """ROUNDS rounds, each timing every blocking arrangement, then the asyncio one."""
+    """ROUNDS rounds, each timing every blocking arrangement, then the asyncio ones."""
     out: dict[str, list[tuple[float, float]]] = {name: [] for name in trips}
-    out["cobus asyncio client, cobus device"] = []
+    out.update({name: [] for name in ASYNCIO_ROUNDS})
     for _ in range(ROUNDS):
         for name, trip in trips.items():
             out[name].append(_measure(trip))
-        out["cobus asyncio client, cobus device"].append(asyncio_round())
+        for name, cobus_loop in ASYNCIO_ROUNDS.items():
+            out[name].append(asyncio_round(cobus_loop))
     return out
 
 
@@ -185,7 +195,10 @@ def figures() -> dict[str, list[tuple[float, float]]]:
     }
     try:
         return _interleave(
-            trips, lambda: _asyncio_round("virtual", f"lat-aio-{pid}", device_here=True)
+            trips,
+            lambda cobus_loop: _asyncio_round(
+                "virtual", f"lat-aio-{pid}", device_here=True, cobus_loop=cobus_loop
+            ),
         )
     finally:
         ping.close()
@@ -264,7 +277,12 @@ def remote_figures() -> dict[str, list[tuple[float, float]]] | None:
             "canopen client, cobus device": lambda: co_cob.sdo.upload(0x1000, 0),
         }
         try:
-            return _interleave(trips, lambda: _asyncio_round("remote", url, device_here=False))
+            return _interleave(
+                trips,
+                lambda cobus_loop: _asyncio_round(
+                    "remote", url, device_here=False, cobus_loop=cobus_loop
+                ),
+            )
         finally:
             cob.close()
             co_net.disconnect()
@@ -280,7 +298,7 @@ def remote_figures() -> dict[str, list[tuple[float, float]]] | None:
 def _table(title: str, results: dict[str, list[tuple[float, float]]]) -> None:
     base = results["python-canopen at both ends"]
     print(f"\n{title} ({ROUNDS} interleaved rounds of {TRIPS} trips; medians)")
-    print(f"  {'':<44} {'µs/trip':>9} {'wake-ups':>9} {'vs python-canopen':>18}")
+    print(f"  {'':<50} {'µs/trip':>9} {'wake-ups':>9} {'vs python-canopen':>18}")
     for name, rounds in results.items():
         us = statistics.median(r[0] for r in rounds)
         wakes = statistics.median(r[1] for r in rounds)
@@ -289,7 +307,7 @@ def _table(title: str, results: dict[str, list[tuple[float, float]]]) -> None:
         else:
             paired = [b[0] / r[0] for r, b in zip(rounds, base, strict=True)]
             ratio = f"x{statistics.median(paired):.2f}"
-        print(f"  {name:<44} {us:>9.1f} {wakes:>9.1f} {ratio:>18}")
+        print(f"  {name:<50} {us:>9.1f} {wakes:>9.1f} {ratio:>18}")
 
 
 def main() -> None:

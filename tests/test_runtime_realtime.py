@@ -1,6 +1,7 @@
 """The real-time path (issue 20): the loop's protocol lock, and reader threads that dispatch
 frames directly under it instead of handing every frame over to the loop."""
 
+import asyncio
 import os
 import signal
 import threading
@@ -13,7 +14,7 @@ from cobus.device import DictionaryBuilder, add_device
 from cobus.od import DataType, ObjectDictionary
 from cobus.proto import Frame
 from cobus.proto.sdo import SdoTimeoutError
-from cobus.runtime import Network
+from cobus.runtime import AsyncNetwork, Network, run
 from cobus.runtime.errors import NetworkClosedError, ReentrantCallError
 from cobus.runtime.loop import ProtocolLock, RealTimeLoop, new_event_loop
 
@@ -298,3 +299,37 @@ def test_ctrl_c_while_waiting_aborts_the_transfer_and_frees_the_channel():
         node.sdo.timeout = 0.05
         with pytest.raises(SdoTimeoutError):  # free: the next transfer runs (and times out)
             node.sdo.upload(0x1000)
+
+
+# -- the asyncio API on a RealTimeLoop (cobus.runtime.run)
+
+
+def test_async_programs_get_the_direct_path_with_cobus_run():
+    async def main() -> tuple[list[tuple[str, bool]], bytes, str]:
+        loop = asyncio.get_running_loop()
+        assert isinstance(loop, RealTimeLoop)
+        async with (
+            AsyncNetwork(interface="virtual", channel="rt-run") as net,
+            AsyncNetwork(interface="virtual", channel="rt-run") as field,
+        ):
+            add_device(field, 5, _device_od())
+            seen: list[tuple[str, bool]] = []
+            tasks: list[asyncio.Task[None]] = []
+            task_ran = loop.create_future()
+
+            async def later() -> None:
+                task_ran.set_result(threading.current_thread().name)
+
+            def handler(frame: Frame, now: float) -> None:
+                seen.append((threading.current_thread().name, asyncio.get_running_loop() is loop))
+                tasks.append(asyncio.create_task(later()))  # as on the loop
+
+            net.subscribe(0x585, handler)
+            data = await net.add_remote(5).sdo.upload(0x2101)
+            where = await asyncio.wait_for(task_ran, 2.0)
+            return seen, data, where
+
+    seen, data, where = run(main())
+    assert seen == [("cobus-rx", True)]
+    assert data == (1000).to_bytes(4, "little")
+    assert where == threading.current_thread().name  # the task ran on the loop

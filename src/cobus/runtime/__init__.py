@@ -3,7 +3,8 @@
 - :class:`AsyncNetwork` — the asyncio API.
 - :class:`Network` — the same operations for blocking code (loop in a background thread, or
   inline on the simulated clock).
-- :class:`SimulatedEventLoop` — the virtual clock.
+- :class:`SimulatedEventLoop` — the virtual clock; :class:`RealTimeLoop` and :func:`run` —
+  real time with reader threads dispatching frames directly (``docs/realtime.md``).
 - ``net.add_remote(node_id, eds)`` — a node this side is the client of: ``sdo``
   (:mod:`~cobus.runtime.remote`), ``nmt`` (:mod:`~cobus.runtime.nmt`), ``emcy``
   (:mod:`~cobus.runtime.emcy`), ``tpdo``/``rpdo`` (:mod:`~cobus.runtime.pdo`).
@@ -29,7 +30,13 @@ from cobus.runtime.events import (
     TxResumed,
 )
 from cobus.runtime.local_nodes import LocalNodes
-from cobus.runtime.loop import SimulatedEventLoop, SimulationStalledError, new_event_loop
+from cobus.runtime.loop import (
+    RealTimeLoop,
+    SimulatedEventLoop,
+    SimulationStalledError,
+    new_event_loop,
+    run,
+)
 from cobus.runtime.network import (
     AsyncNetwork,
     MachineHost,
@@ -76,6 +83,7 @@ __all__ = [
     "PdoReceived",
     "PdoRejected",
     "PdoTimeoutError",
+    "RealTimeLoop",
     "ReceiveFailed",
     "ReentrantCallError",
     "RemoteNode",
@@ -96,4 +104,5 @@ __all__ = [
     "ValueRangeError",
     "new_event_loop",
     "open_bus",
+    "run",
 ]

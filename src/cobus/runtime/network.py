@@ -733,6 +733,8 @@ class AsyncNetwork:
 
     def _reader_thread(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
         lock = loop.protocol_lock if isinstance(loop, RealTimeLoop) else None
+        if lock is not None:  # handlers run here: asyncio.get_running_loop() is the loop
+            asyncio.events._set_running_loop(loop)
         backoff = 0.05
         pending = self._rx_pending
         stop = self._reader_stop
