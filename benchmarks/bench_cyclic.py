@@ -22,7 +22,7 @@ import canopen
 
 from cobus.device import DictionaryBuilder, add_device
 from cobus.od import DataType
-from cobus.runtime import AsyncNetwork
+from cobus.runtime import AsyncNetwork, run
 
 PERIOD = 0.001
 SECONDS = float(os.environ.get("COBUS_BENCH_CYCLIC_SECONDS", "5"))
@@ -105,7 +105,7 @@ def cobus_figures() -> dict[str, float]:
             await asyncio.sleep(0.01)
             return trips
 
-    trips = asyncio.run(main())
+    trips = run(main())
     out = _stats(observer.close())
     out["sdo_trips"] = trips
     return out
