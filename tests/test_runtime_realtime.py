@@ -16,7 +16,7 @@ from cobus.proto import Frame
 from cobus.proto.sdo import SdoTimeoutError
 from cobus.runtime import AsyncNetwork, Network, run
 from cobus.runtime.errors import NetworkClosedError, ReentrantCallError
-from cobus.runtime.loop import ProtocolLock, RealTimeLoop, new_event_loop
+from cobus.runtime.loop import RealTimeLoop, new_event_loop
 
 
 def test_the_real_time_loop_of_the_blocking_facade_is_a_real_time_loop():
@@ -27,21 +27,26 @@ def test_the_real_time_loop_of_the_blocking_facade_is_a_real_time_loop():
         loop.close()
 
 
-def test_protocol_lock_is_reentrant_and_knows_its_holder():
-    lock = ProtocolLock()
-    assert not lock.held()
-    with lock:
-        with lock:
-            assert lock.held()
-        assert lock.held()
-        other: list[bool] = []
-        t = threading.Thread(target=lambda: other.extend([lock.held(), lock.acquire(0.01)]))
-        t.start()
-        t.join()
-        assert other == [False, False]  # another thread neither holds it nor gets it
-    assert not lock.held()
-    with pytest.raises(RuntimeError, match="does not hold it"):
-        lock.release()
+def test_the_protocol_lock_is_reentrant_and_the_loop_knows_who_holds_it():
+    loop = RealTimeLoop()
+    try:
+        assert not loop.lock_held()
+        with loop.protocol_lock:
+            with loop.protocol_lock:
+                assert loop.lock_held()
+            assert loop.lock_held()
+            other: list[bool] = []
+            t = threading.Thread(
+                target=lambda: other.extend(
+                    [loop.lock_held(), loop.protocol_lock.acquire(True, 0.01)]
+                )
+            )
+            t.start()
+            t.join()
+            assert other == [False, False]  # another thread neither holds it nor gets it
+        assert not loop.lock_held()
+    finally:
+        loop.close()
 
 
 class _LoopThread:
@@ -74,13 +79,13 @@ def looping():
 def test_the_loop_holds_the_lock_except_while_it_sleeps(looping):
     loop = looping.loop
     seen: list[bool] = []
-    loop.call_soon_threadsafe(lambda: seen.append(loop.protocol_lock.held()))
+    loop.call_soon_threadsafe(lambda: seen.append(loop.lock_held()))
     deadline = time.monotonic() + 2
     while not seen and time.monotonic() < deadline:
         time.sleep(0.001)
     assert seen == [True]
     looping.wait_asleep()
-    assert loop.protocol_lock.acquire(1.0)  # free while it sleeps
+    assert loop.protocol_lock.acquire(True, 1.0)  # free while it sleeps
     loop.protocol_lock.release()
 
 
@@ -89,9 +94,12 @@ def test_call_soon_under_the_lock_wakes_the_sleeping_loop_once_the_lock_is_let_g
     ran = threading.Event()
     with loop.protocol_lock:
         loop.call_soon(ran.set)
-        assert loop.protocol_lock.wake_pending
+        assert loop.wake_pending
         assert not ran.wait(0.05)  # the loop cannot run it while this thread holds the lock
-    assert ran.wait(2.0)  # and does at once after, although it slept with no timer
+    assert not ran.wait(0.05)  # asleep without a timer until woken:
+    loop.wake_if_pending()
+    assert ran.wait(2.0)  # then it runs at once
+    assert not loop.wake_pending
 
 
 def test_a_timer_set_under_the_lock_wakes_the_loop_only_when_due_before_it_would_wake(looping):
@@ -99,15 +107,17 @@ def test_a_timer_set_under_the_lock_wakes_the_loop_only_when_due_before_it_would
     fired = threading.Event()
     with loop.protocol_lock:
         loop.call_at(loop.time() + 0.01, fired.set)
-        assert loop.protocol_lock.wake_pending  # it slept without a timer: woken
+        assert loop.wake_pending  # it slept without a timer: woken
+    loop.wake_if_pending()
     assert fired.wait(2.0)
     looping.wait_asleep()
     with loop.protocol_lock:
         loop.call_at(loop.time() + 30, lambda: None)
+    loop.wake_if_pending()
     looping.wait_asleep(until=loop.time() + 31)
     with loop.protocol_lock:
         loop.call_at(loop.time() + 60, lambda: None)  # later than it will wake anyway
-        assert not loop.protocol_lock.wake_pending
+        assert not loop.wake_pending
 
 
 def test_a_reader_thread_dispatches_frames_itself_under_the_lock():
@@ -119,7 +129,7 @@ def test_a_reader_thread_dispatches_frames_itself_under_the_lock():
         assert isinstance(loop, RealTimeLoop)
 
         def handler(frame: Frame, now: float) -> None:
-            seen.append((threading.current_thread().name, loop.protocol_lock.held()))
+            seen.append((threading.current_thread().name, loop.lock_held()))
             done.set()
 
         net._runner.call(net.aio.subscribe, 0x123, handler)
@@ -333,3 +343,77 @@ def test_async_programs_get_the_direct_path_with_cobus_run():
     assert seen == [("cobus-rx", True)]
     assert data == (1000).to_bytes(4, "little")
     assert where == threading.current_thread().name  # the task ran on the loop
+
+
+# -- found in review: Ctrl-C at any moment, close() from a reader, a reader outliving its loop
+
+
+def test_ctrl_c_at_any_moment_of_blocking_transfers_leaves_the_network_alive():
+    """SIGINT lands anywhere in a tight loop of transfers (also inside the lock's acquire or
+    release, which is why the protocol lock is one C call per operation)."""
+    for trial in range(12):
+        channel = f"rt-sigint-{trial}"
+        with (
+            Network(interface="virtual", channel=channel) as client,
+            Network(interface="virtual", channel=channel) as field,
+        ):
+            add_device(field, 5, _device_od())
+            node = client.add_remote(5, _device_od())
+            timer = threading.Timer(0.01 + trial * 0.005, os.kill, (os.getpid(), signal.SIGINT))
+            timer.start()
+            with pytest.raises(KeyboardInterrupt):
+                while True:
+                    node.sdo.upload(0x2101)
+            timer.join()
+            alive = threading.Event()
+            threading.Thread(
+                target=lambda ev=alive: (client._runner.call(int), ev.set()), daemon=True
+            ).start()
+            assert alive.wait(2.0), "the loop no longer runs"
+            assert node.sdo.read(0x2101) == 1000
+
+
+def test_close_from_a_handler_on_a_reader_thread_returns_at_once():
+    net = Network(interface="virtual", channel="rt-close-rx")
+    raw = can.Bus(interface="virtual", channel="rt-close-rx")
+    took: list[tuple[str, float]] = []
+
+    def handler(frame: Frame, now: float) -> None:
+        t0 = time.monotonic()
+        net.close()
+        took.append((threading.current_thread().name, time.monotonic() - t0))
+
+    net._runner.call(net.aio.subscribe, 0x123, handler)
+    raw.send(can.Message(arbitration_id=0x123, data=b"", is_extended_id=False))
+    deadline = time.monotonic() + 5
+    while not net._runner.loop.is_closed() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    raw.shutdown()
+    assert [name for name, _ in took] == ["cobus-rx"]
+    assert took[0][1] < 1.0
+    assert net._runner.loop.is_closed()
+
+
+def test_a_reader_thread_ends_with_its_closed_loop():
+    channel = "rt-orphan"
+
+    async def main() -> None:  # leaves its network connected
+        field = AsyncNetwork(interface="virtual", channel=channel)
+        await field.connect()
+        add_device(field, 5, _device_od())
+
+    before = set(threading.enumerate())
+    run(main())
+    readers = [t for t in set(threading.enumerate()) - before if t.name == "cobus-rx"]
+    assert len(readers) == 1
+    raw = can.Bus(interface="virtual", channel=channel)
+    answers = 0
+    request = bytes([0x40, 1, 0x21, 0, 0, 0, 0, 0])
+    for _ in range(3):
+        raw.send(can.Message(arbitration_id=0x605, data=request, is_extended_id=False))
+        while (msg := raw.recv(0.1)) is not None:
+            answers += msg.arbitration_id == 0x585
+    raw.shutdown()
+    assert answers == 0  # no protocol code runs without its loop
+    readers[0].join(2.0)
+    assert not readers[0].is_alive(), "the reader thread outlived its loop"

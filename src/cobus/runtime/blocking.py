@@ -76,10 +76,13 @@ class Runner:
         self._callback_lock = threading.Lock()
         self._closed = False
         if not simulated:
-            self._thread = threading.Thread(
-                target=self.loop.run_forever, name="cobus-loop", daemon=True
-            )
+            self._thread = threading.Thread(target=self._run_loop, name="cobus-loop", daemon=True)
             self._thread.start()
+
+    def _run_loop(self) -> None:
+        self.loop.run_forever()
+        if self._closed and not self.loop.is_closed():  # close() came from protocol code
+            self.loop.close()
 
     def run(self, coro: Coroutine[Any, Any, T], timeout: float | None = None) -> T:
         """Run ``coro`` on the loop and return its result; ``TimeoutError`` after ``timeout``
@@ -149,6 +152,7 @@ class Runner:
         handoff: _Handoff[T] = _Handoff()
         with loop.protocol_lock:
             cancel = begin(handoff.settle)
+        loop.wake_if_pending()
         if cancel is None:
             return self.run(fallback())
         try:
@@ -156,6 +160,7 @@ class Runner:
         except BaseException:  # Ctrl-C while waiting: the operation ends with it
             with loop.protocol_lock:
                 cancel()
+            loop.wake_if_pending()
             raise
         return handoff.outcome()
 
@@ -184,7 +189,7 @@ class Runner:
         dispatching under the loop's protocol lock."""
         loop = self.loop
         return threading.current_thread() is self._thread or (
-            isinstance(loop, RealTimeLoop) and loop.protocol_lock.held()
+            isinstance(loop, RealTimeLoop) and loop.lock_held()
         )
 
     def callback(self, fn: Callable[..., object]) -> Callable[..., None]:
@@ -238,16 +243,17 @@ class Runner:
             return
         self._closed = True
         current = threading.current_thread()
+        on_loop = self._on_loop()  # protocol code (loop or dispatching reader): cannot wait
         if self._callbacks is not None:
             self._callbacks.put(None)
             if self._callback_thread is not None and self._callback_thread is not current:
                 self._callback_thread.join(timeout=2.0)
         if self._thread is not None:
-            if current is not self._thread:
+            if not on_loop:
                 with contextlib.suppress(concurrent.futures.TimeoutError, RuntimeError):
                     asyncio.run_coroutine_threadsafe(_cancel_tasks(), self.loop).result(5.0)
             self.loop.call_soon_threadsafe(self.loop.stop)
-            if current is not self._thread:
+            if not on_loop:
                 self._thread.join(timeout=5.0)
         elif not self.loop.is_running():
             self.loop.run_until_complete(_cancel_tasks())

@@ -10,12 +10,13 @@ Sources of input that are not file descriptors — python-can's virtual bus keep
 queue — register a *poll hook*: before the clock moves, every hook is called; if any reports
 that it delivered something, the loop runs that first and the clock stays where it is.
 
-:class:`RealTimeLoop` is the blocking facade's real-time loop. It holds a :class:`ProtocolLock`
+:class:`RealTimeLoop` is the blocking facade's real-time loop. It holds its protocol lock
 whenever it runs, and lets go of it only while it sleeps in ``select``. A bus's reader thread
 (and a blocking caller starting an SDO transfer) may take the lock and run protocol code
 directly — the same code the loop would run, never at the same time as the loop — which saves
 a hand-over between threads on every frame (issue 20, ``docs/realtime.md``). Under the lock,
-``call_soon``/``call_at`` work from that thread too and wake the loop when they must.
+``call_soon``/``call_at`` work from that thread too; the holder wakes the loop, when it must,
+after letting go of the lock (:meth:`RealTimeLoop.wake_if_pending`).
 """
 
 from __future__ import annotations
@@ -30,7 +31,6 @@ from typing import Any, TypeVar
 from cobus.runtime.errors import SimulationStalledError
 
 __all__ = [
-    "ProtocolLock",
     "RealTimeLoop",
     "SimulatedEventLoop",
     "SimulationStalledError",
@@ -126,71 +126,6 @@ class SimulatedEventLoop(asyncio.SelectorEventLoop):
             self._virtual_now += seconds
 
 
-class ProtocolLock:
-    """The lock under which protocol code of a :class:`RealTimeLoop` runs: held by the loop
-    thread except while it sleeps, taken by a reader thread to dispatch frames directly.
-
-    Re-entrant; :meth:`held` tells whether the calling thread holds it.
-    """
-
-    __slots__ = ("_depth", "_lock", "_wake", "owner", "wake_pending")
-
-    def __init__(self, wake: Callable[[], object] = lambda: None) -> None:
-        self._lock = threading.Lock()
-        self._depth = 0
-        self._wake = wake
-        #: The ``threading.get_ident()`` of the holder, or None.
-        self.owner: int | None = None
-        #: Set by the holder when the sleeping loop has work: ``wake`` is called when the
-        #: lock is let go (not before, or the woken loop would only wait for the lock).
-        self.wake_pending = False
-
-    def acquire(self, timeout: float = -1) -> bool:
-        """Take the lock (``timeout`` seconds at most; -1: as long as it takes)."""
-        me = threading.get_ident()
-        if self.owner == me:
-            self._depth += 1
-            return True
-        if not self._lock.acquire(True, timeout):
-            return False
-        self.owner = me
-        self._depth = 1
-        return True
-
-    def release(self) -> None:
-        """Give the lock back (once per :meth:`acquire`)."""
-        if self.owner != threading.get_ident():
-            raise RuntimeError("the protocol lock is released by a thread that does not hold it")
-        self._depth -= 1
-        if self._depth == 0:
-            self.owner = None
-            wake, self.wake_pending = self.wake_pending, False
-            self._lock.release()
-            if wake:
-                self._wake()
-
-    def held(self) -> bool:
-        """Whether the calling thread holds the lock."""
-        return self.owner == threading.get_ident()
-
-    def __enter__(self) -> ProtocolLock:
-        self.acquire()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.release()
-
-    def _release_all(self) -> int:
-        depth, self._depth, self.owner = self._depth, 0, None
-        self._lock.release()
-        return depth
-
-    def _restore(self, depth: int) -> None:
-        self._lock.acquire()
-        self.owner = threading.get_ident()
-        self._depth = depth
-
-
 class _SleepingSelector(selectors.BaseSelector):
     """The platform selector, with the owning loop's protocol lock let go while it waits."""
 
@@ -216,28 +151,45 @@ class _SleepingSelector(selectors.BaseSelector):
     def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
         owner = self._owner
         lock = owner.protocol_lock
-        if timeout == 0 or not lock.held():
+        if timeout == 0 or not owner.lock_held():
             return self._real.select(timeout)
         # Until when the loop sleeps: a timer set meanwhile from another thread wakes it only
         # if it is due earlier (see RealTimeLoop.call_at).
         owner._sleeping_until = math.inf if timeout is None else owner.time() + timeout
-        depth = lock._release_all()
+        state = lock._release_save()  # type: ignore[attr-defined]
         try:
             return self._real.select(timeout)
         finally:
-            lock._restore(depth)
+            lock._acquire_restore(state)  # type: ignore[attr-defined]
             owner._sleeping_until = None
+            owner.wake_pending = False  # awake: what was scheduled runs in this iteration
 
 
 class RealTimeLoop(asyncio.SelectorEventLoop):
-    """A real-time selector loop that runs under a :class:`ProtocolLock` (see the module
+    """A real-time selector loop that runs under its protocol lock (see the module
     docstring): another thread holding the lock may run protocol code and schedule
     callbacks and timers as if it were the loop."""
 
     def __init__(self) -> None:
         self._sleeping_until: float | None = None
+        #: Set when a holder of the lock scheduled work the sleeping loop must wake for:
+        #: the holder calls :meth:`wake_if_pending` once it has let go of the lock (waking the
+        #: loop before would only make it wait for the lock).
+        self.wake_pending = False
+        #: The protocol lock: re-entrant, and every operation on it one call into C, so that
+        #: Ctrl-C cannot leave it half taken.
+        self.protocol_lock = threading.RLock()
         super().__init__(selector=_SleepingSelector(self))
-        self.protocol_lock = ProtocolLock(self._write_to_self)  # type: ignore[attr-defined]
+
+    def lock_held(self) -> bool:
+        """Whether the calling thread holds the protocol lock."""
+        return bool(self.protocol_lock._is_owned())  # type: ignore[attr-defined]
+
+    def wake_if_pending(self) -> None:
+        """Wake the loop if work scheduled under the lock needs it; call after releasing."""
+        if self.wake_pending:
+            self.wake_pending = False
+            self._write_to_self()  # type: ignore[attr-defined]  # asyncio's self-pipe
 
     def run_forever(self) -> None:
         with self.protocol_lock:
@@ -247,8 +199,8 @@ class RealTimeLoop(asyncio.SelectorEventLoop):
         self, callback: Callable[..., object], *args: Any, context: Any = None
     ) -> asyncio.Handle:
         handle = super().call_soon(callback, *args, context=context)
-        if self._sleeping_until is not None and self.protocol_lock.held():
-            self.protocol_lock.wake_pending = True  # asyncio's self-pipe, once the lock is free
+        if self._sleeping_until is not None and self.lock_held():
+            self.wake_pending = True
         return handle
 
     def call_at(  # type: ignore[override]
@@ -256,12 +208,12 @@ class RealTimeLoop(asyncio.SelectorEventLoop):
     ) -> asyncio.TimerHandle:
         timer = super().call_at(when, callback, *args, context=context)
         sleeping_until = self._sleeping_until
-        if sleeping_until is not None and when < sleeping_until and self.protocol_lock.held():
-            self.protocol_lock.wake_pending = True
+        if sleeping_until is not None and when < sleeping_until and self.lock_held():
+            self.wake_pending = True
         return timer
 
     def _check_thread(self) -> None:  # asyncio's debug-mode check: the lock's holder may call
-        if not self.protocol_lock.held():
+        if not self.lock_held():
             super()._check_thread()  # type: ignore[misc]
 
 

@@ -732,9 +732,10 @@ class AsyncNetwork:
                 self.loop.call_soon(self._read_ready)
 
     def _reader_thread(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
-        lock = loop.protocol_lock if isinstance(loop, RealTimeLoop) else None
-        if lock is not None:  # handlers run here: asyncio.get_running_loop() is the loop
-            asyncio.events._set_running_loop(loop)
+        direct = loop if isinstance(loop, RealTimeLoop) else None
+        lock = direct.protocol_lock if direct is not None else None
+        if direct is not None:  # handlers run here: asyncio.get_running_loop() is the loop
+            asyncio.events._set_running_loop(direct)
         backoff = 0.05
         pending = self._rx_pending
         stop = self._reader_stop
@@ -755,15 +756,16 @@ class AsyncNetwork:
                 continue
             backoff = 0.05
             pending.append(msg)
-            if lock is not None and lock.acquire(_DIRECT_WAIT):
+            if direct is not None and lock is not None and lock.acquire(True, _DIRECT_WAIT):
                 # Direct dispatch: this thread runs the frames' handlers itself, under the
                 # loop's protocol lock (never while the loop runs), saving a hand-over.
                 try:
-                    if stop.is_set():
+                    if stop.is_set() or loop.is_closed():
                         return
                     self._dispatch_pending()
                 finally:
                     lock.release()
+                direct.wake_if_pending()
                 continue
             # Hand-over: one wake-up of the loop per batch; while a wake-up is pending, frames
             # that arrive only join the queue (deque appends are atomic). Also the way out

@@ -227,14 +227,19 @@ class SdoChannel:
             return None
         self._busy = True
 
+        ended = False
+
         def finished(outcome: Event | BaseException) -> None:
+            nonlocal ended
+            ended = True
             self._release()
             finish(outcome)
 
         try:
             self._start(start, finished)
         except BaseException:
-            self._release()
+            if not ended:  # (a transfer that ended as it started has freed the channel)
+                self._release()
             raise
 
         def cancel() -> None:
