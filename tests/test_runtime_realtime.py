@@ -417,3 +417,39 @@ def test_a_reader_thread_ends_with_its_closed_loop():
     assert answers == 0  # no protocol code runs without its loop
     readers[0].join(2.0)
     assert not readers[0].is_alive(), "the reader thread outlived its loop"
+
+
+def test_file_descriptors_wake_the_loop_during_its_sub_millisecond_waits():
+    """Waits under 2 ms use select() (epoll rounds up to whole milliseconds): readers added
+    to the loop are watched there too, and removed from both."""
+    import socket
+
+    async def main() -> list[bytes]:
+        loop = asyncio.get_running_loop()
+        a, b = socket.socketpair()
+        a.setblocking(False)
+        got: list[bytes] = []
+        done = loop.create_future()
+
+        def readable() -> None:
+            got.append(a.recv(16))
+            if len(got) == 3 and not done.done():
+                done.set_result(None)
+
+        def tick() -> None:  # keeps the loop in waits of about 1 ms
+            if not done.done():
+                loop.call_later(0.001, tick)
+
+        loop.add_reader(a.fileno(), readable)
+        tick()
+        for n in range(3):
+            await asyncio.sleep(0.0015)
+            threading.Thread(target=b.send, args=(bytes([n]),)).start()
+            await asyncio.sleep(0.0015)
+        await asyncio.wait_for(done, 2.0)
+        assert loop.remove_reader(a.fileno())
+        a.close()
+        b.close()
+        return got
+
+    assert run(main()) == [b"\x00", b"\x01", b"\x02"]

@@ -126,39 +126,70 @@ class SimulatedEventLoop(asyncio.SelectorEventLoop):
             self._virtual_now += seconds
 
 
+_FINE = 0.002  # s: shorter waits use select(), whose timeout is not rounded to milliseconds
+
+
 class _SleepingSelector(selectors.BaseSelector):
-    """The platform selector, with the owning loop's protocol lock let go while it waits."""
+    """The platform selector, with the owning loop's protocol lock let go while it waits, and
+    timers kept to the microsecond: epoll and poll round a wait up to whole milliseconds (a
+    1 ms SYNC would be up to 1 ms late), so a longer wait ends up to 1 ms early and the rest,
+    under 2 ms, is waited with ``select()``."""
 
     def __init__(self, owner: RealTimeLoop) -> None:
         self._real = selectors.DefaultSelector()
+        self._fine: selectors.BaseSelector | None = (
+            None if isinstance(self._real, selectors.SelectSelector) else selectors.SelectSelector()
+        )
         self._owner = owner
 
     def register(self, fileobj: Any, events: int, data: Any = None) -> selectors.SelectorKey:
-        return self._real.register(fileobj, events, data)
+        key = self._real.register(fileobj, events, data)
+        if self._fine is not None:
+            self._fine.register(fileobj, events, data)
+        return key
 
     def unregister(self, fileobj: Any) -> selectors.SelectorKey:
-        return self._real.unregister(fileobj)
+        key = self._real.unregister(fileobj)
+        if self._fine is not None:
+            self._fine.unregister(fileobj)
+        return key
 
     def modify(self, fileobj: Any, events: int, data: Any = None) -> selectors.SelectorKey:
-        return self._real.modify(fileobj, events, data)
+        key = self._real.modify(fileobj, events, data)
+        if self._fine is not None:
+            self._fine.modify(fileobj, events, data)
+        return key
 
     def get_map(self) -> Mapping[Any, selectors.SelectorKey]:
         return self._real.get_map()
 
     def close(self) -> None:
         self._real.close()
+        if self._fine is not None:
+            self._fine.close()
+
+    def _wait(self, timeout: float | None) -> list[tuple[selectors.SelectorKey, int]]:
+        fine = self._fine
+        if fine is None or timeout is None or timeout <= 0:
+            return self._real.select(timeout)
+        if timeout >= _FINE:
+            return self._real.select(timeout - 0.001)  # rounded up: at most 1 ms early
+        try:
+            return fine.select(timeout)
+        except (ValueError, OSError):  # a descriptor select() cannot take (FD_SETSIZE)
+            return self._real.select(timeout)
 
     def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
         owner = self._owner
         lock = owner.protocol_lock
         if timeout == 0 or not owner.lock_held():
-            return self._real.select(timeout)
+            return self._wait(timeout)
         # Until when the loop sleeps: a timer set meanwhile from another thread wakes it only
         # if it is due earlier (see RealTimeLoop.call_at).
         owner._sleeping_until = math.inf if timeout is None else owner.time() + timeout
         state = lock._release_save()  # type: ignore[attr-defined]
         try:
-            return self._real.select(timeout)
+            return self._wait(timeout)
         finally:
             lock._acquire_restore(state)  # type: ignore[attr-defined]
             owner._sleeping_until = None
