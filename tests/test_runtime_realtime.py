@@ -453,3 +453,27 @@ def test_file_descriptors_wake_the_loop_during_its_sub_millisecond_waits():
         return got
 
     assert run(main()) == [b"\x00", b"\x01", b"\x02"]
+
+
+def test_supervision_keeps_working_when_real_time_timers_only_move_later():
+    """In real time a deadline that moves later (each heartbeat) keeps the armed timer, which
+    re-arms when it fires: no false loss while heartbeats come, a loss once they stop."""
+    with Network(interface="virtual", channel="rt-lazy") as net:
+        raw = can.Bus(interface="virtual", channel="rt-lazy")
+        node = net.add_remote(9)
+        node.nmt.watch_heartbeat(0.15)
+        beat = can.Message(arbitration_id=0x709, data=b"\x05", is_extended_id=False)
+        for _ in range(25):  # 0.5 s of heartbeats, 20 ms apart
+            raw.send(beat)
+            time.sleep(0.02)
+            assert not node.nmt.lost
+        deadline = time.monotonic() + 3
+        while not node.nmt.lost:
+            assert time.monotonic() < deadline, "the loss was never reported"
+            time.sleep(0.01)
+        raw.send(beat)  # heard again
+        deadline = time.monotonic() + 3
+        while node.nmt.lost:
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        raw.shutdown()

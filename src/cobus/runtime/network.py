@@ -147,8 +147,20 @@ class MachineHost:
                         )
         finally:
             deadline = self.machine.deadline
-            if deadline != self._armed and network.connected:
+            armed = self._armed
+            if deadline != armed and network.connected and self._must_rearm(deadline, armed):
                 self._rearm(deadline)
+
+    def _must_rearm(self, deadline: float | None, armed: float | None) -> bool:
+        """In real time, a deadline that only moved later (each segment of a transfer, each
+        heartbeat) keeps the armed timer, which re-arms when it fires. On the simulated
+        clock every move re-arms, so that timers due at one instant keep their order."""
+        return (
+            deadline is None
+            or armed is None
+            or deadline < armed
+            or not isinstance(self._network.loop, RealTimeLoop)
+        )
 
     def _rearm(self, deadline: float | None) -> None:
         if self._handle is not None:
@@ -164,6 +176,10 @@ class MachineHost:
         if not self._network.connected:
             return
         now = max(self._network.time(), deadline)
+        later = self.machine.deadline
+        if later is not None and later > now:  # moved later since armed (real time only)
+            self._rearm(later)
+            return
         try:
             out = self.machine.on_timer(now)
         except Exception as exc:  # a machine bug must not stop the network
