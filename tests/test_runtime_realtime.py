@@ -236,6 +236,7 @@ def test_a_blocking_transfer_sends_from_the_callers_thread(pair):
         assert node.sdo["Value 2"].raw == 2000
         node.sdo.write("Value 3", 7)
         assert node.sdo.read(0x2103) == 7
+        assert node.sdo[0x1018][1].raw == 0  # a record's sub-object: vendor-ID
     finally:
         bus.send = send
     assert set(senders) == {threading.current_thread().name}  # no hop through the loop

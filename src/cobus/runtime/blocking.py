@@ -671,7 +671,10 @@ class SdoVariable(BlockingTwin, twin_of=_remote.SdoVariable):
 
 class SdoRecord(BlockingTwin, twin_of=_remote.SdoRecord):
     """A record or array of a remote node over SDO, for blocking code: ``[sub]`` gives its
-    sub-objects."""
+    sub-objects (looked up in the calling thread: the dictionary is not protocol state)."""
+
+    def __getitem__(self, subindex: Any) -> Any:
+        return self._wrap(self.aio[subindex])
 
 
 class RemoteNmt(BlockingTwin, twin_of=_nmt.RemoteNmt):
