@@ -478,3 +478,18 @@ def test_supervision_keeps_working_when_real_time_timers_only_move_later():
             assert time.monotonic() < deadline
             time.sleep(0.01)
         raw.shutdown()
+
+
+def test_ctrl_c_while_a_blocking_call_waits_cancels_it_on_the_loop():
+    with Network(interface="virtual", channel="rt-ctrl-c-run") as net:
+        node = net.add_remote(9)
+        tasks_before = net._runner.call(lambda: len(asyncio.all_tasks(net.aio.loop)))
+        timer = threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGINT))
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            node.nmt.wait_for_bootup(timeout=30)
+        timer.join()
+        deadline = time.monotonic() + 2
+        while net._runner.call(lambda: len(asyncio.all_tasks(net.aio.loop))) > tasks_before:
+            assert time.monotonic() < deadline, "the wait still runs on the loop"
+            time.sleep(0.01)

@@ -124,9 +124,14 @@ class Runner:
             task.add_done_callback(handoff.finish)
 
         loop.call_soon_threadsafe(start)
-        if not handoff.wait(timeout):
-            with contextlib.suppress(RuntimeError):  # the loop closed meanwhile: nothing runs
-                loop.call_soon_threadsafe(handoff.cancel)
+        done = False
+        try:
+            done = handoff.wait(timeout)
+        finally:  # timed out, or Ctrl-C while waiting: the operation ends with it
+            if not done:
+                with contextlib.suppress(RuntimeError):  # the loop closed: nothing runs
+                    loop.call_soon_threadsafe(handoff.cancel)
+        if not done:
             raise TimeoutError(f"the operation did not complete within {timeout} s")
         return handoff.outcome()
 
