@@ -215,6 +215,23 @@ def test_node_guarding_replies_toggle_and_life_guarding_expiry():
     run_bench(scenario)
 
 
+def test_a_shorter_inhibit_time_releases_a_queued_emergency_sooner():
+    async def scenario(b: Bench):
+        device = b.device
+        await b.sdo.write(0x1015, 0, 10_000)  # 1 s
+        t0 = b.net.time()
+        device.send_emergency(0x3110)
+        device.send_emergency(0xFF01)  # queued behind the inhibit time
+        await b.net.sleep(0.01)
+        await b.sdo.write(0x1015, 0, 200)  # 20 ms, counted from the first EMCY
+        await b.net.sleep(0.1)
+        times = [round(t - t0, 6) for t in b.times(EMCY, since=t0)]
+        assert times[0] == 0.0 and len(times) == 2
+        assert times[1] <= 0.02 + 0.001  # not the old 1 s
+
+    run_bench(scenario)
+
+
 def test_emergencies_history_register_and_inhibit_time():
     async def scenario(b: Bench):
         device = b.device

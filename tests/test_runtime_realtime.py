@@ -493,3 +493,26 @@ def test_ctrl_c_while_a_blocking_call_waits_cancels_it_on_the_loop():
         while net._runner.call(lambda: len(asyncio.all_tasks(net.aio.loop))) > tasks_before:
             assert time.monotonic() < deadline, "the wait still runs on the loop"
             time.sleep(0.01)
+
+
+def test_a_refused_selector_change_leaves_both_selectors_in_step():
+    """A descriptor closed while watched: the refused modify unregisters it from the
+    select() copy too, so that its number can be watched again once reused."""
+    import socket
+
+    loop = RealTimeLoop()
+    try:
+        a, b = socket.socketpair()
+        fd = a.fileno()
+        loop.add_reader(fd, lambda: None)
+        a.detach()
+        os.close(fd)
+        with pytest.raises(OSError):
+            loop.add_writer(fd, lambda: None)  # a modify of the closed descriptor
+        c, d = socket.socketpair()  # may reuse the number
+        loop.add_reader(c.fileno(), lambda: None)
+        assert loop.remove_reader(c.fileno())
+        for s in (b, c, d):
+            s.close()
+    finally:
+        loop.close()

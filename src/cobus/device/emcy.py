@@ -25,6 +25,7 @@ from cobus.device._objects import RO, RW, U8, U16, U32, composite, var
 from cobus.device.events import EmergencySent
 from cobus.errors import CobusError
 from cobus.od import Array, NodeRelative, ObjectDictionary, Record
+from cobus.proto import NOTHING
 from cobus.proto import emcy as _emcy
 from cobus.proto.emcy import EmcyProducer, ErrorRegister
 from cobus.proto.nmt import NmtState
@@ -270,3 +271,5 @@ class EmcyService:
     def _w_inhibit(self, entry: Entry, value: Any) -> None:
         self._core.store(entry, value)
         self.producer.set_inhibit_time(value, self._core.now())
+        if self._host is not None:  # a queued EMCY's time moved: its timer follows
+            self._host.apply(NOTHING)

@@ -22,6 +22,7 @@ after letting go of the lock (:meth:`RealTimeLoop.wake_if_pending`).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 import selectors
 import threading
@@ -127,6 +128,7 @@ class SimulatedEventLoop(asyncio.SelectorEventLoop):
 
 
 _FINE = 0.002  # s: shorter waits use select(), whose timeout is not rounded to milliseconds
+_COARSE = frozenset(("EpollSelector", "PollSelector", "DevpollSelector"))  # whole ms only
 
 
 class _SleepingSelector(selectors.BaseSelector):
@@ -138,14 +140,18 @@ class _SleepingSelector(selectors.BaseSelector):
     def __init__(self, owner: RealTimeLoop) -> None:
         self._real = selectors.DefaultSelector()
         self._fine: selectors.BaseSelector | None = (
-            None if isinstance(self._real, selectors.SelectSelector) else selectors.SelectSelector()
+            selectors.SelectSelector() if type(self._real).__name__ in _COARSE else None
         )
         self._owner = owner
 
     def register(self, fileobj: Any, events: int, data: Any = None) -> selectors.SelectorKey:
         key = self._real.register(fileobj, events, data)
         if self._fine is not None:
-            self._fine.register(fileobj, events, data)
+            try:
+                self._fine.register(fileobj, events, data)
+            except BaseException:
+                self._real.unregister(fileobj)  # both or neither
+                raise
         return key
 
     def unregister(self, fileobj: Any) -> selectors.SelectorKey:
@@ -155,7 +161,14 @@ class _SleepingSelector(selectors.BaseSelector):
         return key
 
     def modify(self, fileobj: Any, events: int, data: Any = None) -> selectors.SelectorKey:
-        key = self._real.modify(fileobj, events, data)
+        try:
+            key = self._real.modify(fileobj, events, data)
+        except BaseException:
+            # A refused change (a closed descriptor) leaves it unregistered there: here too.
+            if self._fine is not None and fileobj not in self._real.get_map():
+                with contextlib.suppress(KeyError, ValueError):
+                    self._fine.unregister(fileobj)
+            raise
         if self._fine is not None:
             self._fine.modify(fileobj, events, data)
         return key

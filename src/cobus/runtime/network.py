@@ -177,8 +177,8 @@ class MachineHost:
             return
         now = max(self._network.time(), deadline)
         later = self.machine.deadline
-        if later is not None and later > now:  # moved later since armed (real time only)
-            self._rearm(later)
+        if later is not None and later > now and isinstance(self._network.loop, RealTimeLoop):
+            self._rearm(later)  # it moved later since armed (see _must_rearm)
             return
         try:
             out = self.machine.on_timer(now)
