@@ -3,7 +3,9 @@
 cobus is measured three ways:
 - in-process: client and server on one network (local echo), in real time — how a rig or a
   test bench runs master and simulated devices in one process;
-- two networks on a python-can virtual channel in real time, each with its reader thread;
+- two networks on a python-can virtual channel in real time, each with its reader thread,
+  with the asyncio client on ``cobus.runtime.run`` (readers dispatch directly; the blocking
+  clients are measured in bench_latency.py);
 - two networks on a python-can virtual channel on one simulated-clock loop (polled, no threads).
 python-canopen runs its client against its own server (LocalNode) on the virtual bus, its only
 way to run both peers in one process; its server has no block transfer, so its block figure is
@@ -12,7 +14,6 @@ its client against a cobus server.
 
 from __future__ import annotations
 
-import asyncio
 import os
 import time
 from typing import Any
@@ -21,7 +22,7 @@ import canopen
 
 from benchmarks.common import header, row
 from cobus.proto.sdo import DictBackend, SdoServer
-from cobus.runtime import AsyncNetwork, Network, SimulatedEventLoop
+from cobus.runtime import AsyncNetwork, Network, SimulatedEventLoop, run
 
 NODE = 5
 EXPEDITED = 2000
@@ -77,7 +78,7 @@ def cobus_real_time() -> dict[str, float]:
         ):
             return await _cobus_figures(a, b)
 
-    return asyncio.run(main())
+    return run(main())
 
 
 def cobus_in_process() -> dict[str, float]:
@@ -85,7 +86,7 @@ def cobus_in_process() -> dict[str, float]:
         async with AsyncNetwork(interface="virtual", channel=f"bs-one-{os.getpid()}") as net:
             return await _cobus_figures(net, net)
 
-    return asyncio.run(main())
+    return run(main())
 
 
 def _canopen_od() -> canopen.ObjectDictionary:
@@ -164,8 +165,8 @@ def main() -> None:
     for key, unit in (("expedited", "trips/s"), ("segmented", "kB/s"), ("block", "kB/s")):
         print(row(f"{key}, simulated clock (one loop)", sim[key], other[key], unit, True))
     print("  (python-canopen block: its client against a cobus server; its server has none)")
-    print("  (two networks in real time: each frame crosses a reader thread and the loop;")
-    print("   python-canopen answers inside its reader thread, one hand-over fewer)")
+    print("  (two networks in real time: the asyncio client on cobus.runtime.run; its reader")
+    print("   threads dispatch directly, and the answer wakes the loop for the client's task)")
     print("  (the 1 Mbit/s wire carries at most ~62 kB/s of SDO payload)")
 
 
