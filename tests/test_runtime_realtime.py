@@ -516,3 +516,45 @@ def test_a_refused_selector_change_leaves_both_selectors_in_step():
             s.close()
     finally:
         loop.close()
+
+
+# -- plain calls of the blocking facade
+
+
+def test_a_plain_call_runs_in_the_callers_thread_while_the_loop_sleeps():
+    with Network(interface="virtual", channel="rt-call") as net:
+        loop = net.aio.loop
+        assert isinstance(loop, RealTimeLoop)
+        deadline = time.monotonic() + 2
+        while not loop.sleeping:
+            assert time.monotonic() < deadline
+            time.sleep(0.001)
+
+        def where() -> tuple[str, bool, bool]:
+            return (
+                threading.current_thread().name,
+                loop.lock_held(),
+                asyncio.get_running_loop() is loop,
+            )
+
+        assert net._runner.call(where) == (threading.current_thread().name, True, True)
+        with pytest.raises(RuntimeError):  # and the thread has no running loop after it
+            asyncio.get_running_loop()
+
+
+def test_a_tight_loop_of_plain_calls_does_not_keep_the_loop_from_its_timers():
+    with Network(interface="virtual", channel="rt-tight") as net:
+        raw = can.Bus(interface="virtual", channel="rt-tight")
+        net.sync.start(0.01)
+        t0 = time.monotonic()
+        calls = 0
+        while time.monotonic() - t0 < 0.5:
+            net._runner.call(int)
+            calls += 1
+        net.sync.stop()
+        syncs = 0
+        while (msg := raw.recv(0.05)) is not None:
+            syncs += msg.arbitration_id == 0x80
+        raw.shutdown()
+    assert calls > 100
+    assert syncs >= 20  # about 50 in 0.5 s; a starved loop would send next to none
