@@ -558,20 +558,3 @@ def test_a_tight_loop_of_plain_calls_does_not_keep_the_loop_from_its_timers():
         raw.shutdown()
     assert calls > 100
     assert syncs >= 20  # about 50 in 0.5 s; a starved loop would send next to none
-
-
-def test_ctrl_c_in_a_tight_loop_of_plain_calls_leaves_the_network_alive():
-    with Network(interface="virtual", channel="rt-sigint-calls") as net:
-        for trial in range(12):
-            timer = threading.Timer(0.01 + trial * 0.003, os.kill, (os.getpid(), signal.SIGINT))
-            timer.start()
-            with pytest.raises(KeyboardInterrupt):
-                while True:
-                    net._runner.call(int)
-            timer.join()
-            alive = threading.Event()
-            threading.Thread(
-                target=lambda ev=alive: (net._runner.call(int), ev.set()), daemon=True
-            ).start()
-            assert alive.wait(2.0), "the loop no longer runs"
-            assert asyncio.events._get_running_loop() is None  # none left set in this thread

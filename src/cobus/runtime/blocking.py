@@ -180,17 +180,14 @@ class Runner:
         loop = self.loop
         # Only while the loop sleeps: once it woke it wants the lock, and a caller taking it
         # again and again (a tight loop of calls) must not keep it from its timers.
-        # (``with``: Ctrl-C cannot land between taking the lock and the block that lets go.)
-        if isinstance(loop, RealTimeLoop) and loop.sleeping:
+        if isinstance(loop, RealTimeLoop) and loop.sleeping and loop.protocol_lock.acquire(False):
+            outer = asyncio.events._get_running_loop()
+            asyncio.events._set_running_loop(loop)  # as on the loop: get_running_loop() works
             try:
-                with loop.protocol_lock:
-                    outer = asyncio.events._get_running_loop()
-                    try:
-                        asyncio.events._set_running_loop(loop)  # get_running_loop() works
-                        return fn(*args)
-                    finally:
-                        asyncio.events._set_running_loop(outer)
+                return fn(*args)
             finally:
+                asyncio.events._set_running_loop(outer)
+                loop.protocol_lock.release()
                 loop.wake_if_pending()
         handoff: _Handoff[T] = _Handoff()
 
