@@ -13,9 +13,7 @@ user's thread, the loop, the bus's reader threads and back.
 - cobus blocking client against a cobus device, each on its own ``Network``;
 - cobus asyncio client against a cobus device, both ``AsyncNetwork`` on one loop;
 - the two mixed pairs;
-- the blocking facade alone, no bus: a coroutine run on the loop and back, and a plain call
-  (a property or method of a blocking object), run in the caller's thread under the loop's
-  lock while the loop sleeps.
+- the blocking facade alone: a call from the user's thread run on the loop and back, no bus.
 
 Then the same over python-can-remote on 127.0.0.1 between two processes (a cobus device on
 node 5 and a python-canopen ``LocalNode`` on node 6 in a child process, the clients here).
@@ -197,7 +195,7 @@ def figures() -> dict[str, list[tuple[float, float]]]:
         "cobus blocking client, canopen server": lambda: mixed_sdo.upload(0x1000),
         "canopen client, cobus device": lambda: mixed_co_node.sdo.upload(0x1000, 0),
         "facade: coroutine on the loop and back": lambda: cob_client.run(nothing()),
-        "facade: plain call (under the loop's lock)": lambda: runner.call(int),
+        "facade: plain call on the loop and back": lambda: runner.call(int),
     }
     try:
         return _interleave(

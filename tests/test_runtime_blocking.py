@@ -67,7 +67,7 @@ def test_the_blocking_facade_hands_results_errors_and_timeouts_back():
     import asyncio
     import concurrent.futures
 
-    from cobus.runtime import NetworkClosedError, RealTimeLoop, ReentrantCallError
+    from cobus.runtime import NetworkClosedError, ReentrantCallError
 
     with Network(interface="virtual", channel="t-handoff") as net:
         runner = net._runner
@@ -115,11 +115,8 @@ def test_the_blocking_facade_hands_results_errors_and_timeouts_back():
             net.run(slow)  # type: ignore[arg-type]  # the function, not a call: refused
         with pytest.raises(concurrent.futures.CancelledError):
             net.run(gives_up())
-        # a plain call runs as protocol code: under the loop's lock (in this thread while the
-        # loop sleeps, else on the loop thread; see test_runtime_realtime.py)
-        rt_loop = net.aio.loop
-        assert isinstance(rt_loop, RealTimeLoop)
-        assert runner.call(rt_loop.lock_held)
+        loop_thread = runner.call(threading.current_thread)
+        assert loop_thread.name == "cobus-loop"
         with pytest.raises(ZeroDivisionError):
             runner.call(lambda: 1 / 0)
 

@@ -170,25 +170,11 @@ class Runner:
         return handoff.outcome()
 
     def call(self, fn: Callable[..., T], *args: Any) -> T:
-        """Run a plain function as protocol code and return its result: in the caller's
-        thread under the loop's protocol lock while the loop sleeps (no hand-over), else on
-        the loop thread."""
+        """Run a plain function on the loop thread and return its result."""
         if self.simulated or self._on_loop():
             return fn(*args)
         if self._closed:
             raise NetworkClosedError("the network is closed")
-        loop = self.loop
-        # Only while the loop sleeps: once it woke it wants the lock, and a caller taking it
-        # again and again (a tight loop of calls) must not keep it from its timers.
-        if isinstance(loop, RealTimeLoop) and loop.sleeping and loop.protocol_lock.acquire(False):
-            outer = asyncio.events._get_running_loop()
-            asyncio.events._set_running_loop(loop)  # as on the loop: get_running_loop() works
-            try:
-                return fn(*args)
-            finally:
-                asyncio.events._set_running_loop(outer)
-                loop.protocol_lock.release()
-                loop.wake_if_pending()
         handoff: _Handoff[T] = _Handoff()
 
         def job() -> None:

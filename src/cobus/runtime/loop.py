@@ -204,12 +204,9 @@ class _SleepingSelector(selectors.BaseSelector):
         try:
             return self._wait(timeout)
         finally:
-            # Awake, and wanting the lock back: said before waiting for it, so that blocking
-            # callers leave it to the loop (Runner.call); what holders schedule meanwhile runs
-            # in this iteration without a wake-up.
-            owner._sleeping_until = None
             lock._acquire_restore(state)  # type: ignore[attr-defined]
-            owner.wake_pending = False
+            owner._sleeping_until = None
+            owner.wake_pending = False  # awake: what was scheduled runs in this iteration
 
 
 class RealTimeLoop(asyncio.SelectorEventLoop):
@@ -227,11 +224,6 @@ class RealTimeLoop(asyncio.SelectorEventLoop):
         #: Ctrl-C cannot leave it half taken.
         self.protocol_lock = threading.RLock()
         super().__init__(selector=_SleepingSelector(self))
-
-    @property
-    def sleeping(self) -> bool:
-        """Whether the loop sleeps in ``select`` (and does not want its lock back yet)."""
-        return self._sleeping_until is not None
 
     def lock_held(self) -> bool:
         """Whether the calling thread holds the protocol lock."""
