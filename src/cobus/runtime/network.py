@@ -581,8 +581,10 @@ class AsyncNetwork:
             return
         self._inbound.append(frame)
         if not self._drain_pending and self._loop is not None:
-            self._drain_pending = True
+            # scheduled, then marked: an interrupt in between (Ctrl-C in the main thread, which
+            # begins blocking SDO transfers) costs a second drain, never a lost one
             self._loop.call_soon(self._drain)
+            self._drain_pending = True
 
     def _drain(self) -> None:
         self._drain_pending = False
@@ -597,8 +599,8 @@ class AsyncNetwork:
                 return
             dispatch(inbound.popleft(), now)
         if inbound and not self._drain_pending:
-            self._drain_pending = True
             self._loop.call_soon(self._drain)
+            self._drain_pending = True
 
     def _dispatch(self, frame: Frame, now: float) -> None:
         """Hand ``frame`` to the monitors and to the handlers of its identifier."""
