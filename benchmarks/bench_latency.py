@@ -166,16 +166,22 @@ def _interleave(
     return out
 
 
+def _cobus_pair(channel: str, od: ObjectDictionary) -> tuple[Network, Network, Any]:
+    """A blocking client and a cobus device on node NODE, each on its own network; the
+    client's SDO channel to it."""
+    client = Network(interface="virtual", channel=channel)
+    server = Network(interface="virtual", channel=channel)
+    add_device(server, NODE, od)
+    return client, server, client.add_remote(NODE).sdo
+
+
 def figures() -> dict[str, list[tuple[float, float]]]:
     """Per arrangement, the (µs, wake-ups) of each round."""
     pid = os.getpid()
     ping = _PingPong(f"lat-ping-{pid}")
     co_server = _canopen_server(f"lat-co-{pid}")
     co_net, co_node = _canopen_client(f"lat-co-{pid}")
-    cob_client = Network(interface="virtual", channel=f"lat-cob-{pid}")
-    cob_server = Network(interface="virtual", channel=f"lat-cob-{pid}")
-    add_device(cob_server, NODE, minimal_od())
-    cob_sdo = cob_client.add_remote(NODE).sdo
+    cob_client, cob_server, cob_sdo = _cobus_pair(f"lat-cob-{pid}", minimal_od())
     mixed_co_server = _canopen_server(f"lat-m1-{pid}")
     mixed_cob_client = Network(interface="virtual", channel=f"lat-m1-{pid}")
     mixed_sdo = mixed_cob_client.add_remote(NODE).sdo
@@ -242,10 +248,7 @@ def blob_figures() -> dict[str, list[tuple[float, float]]]:
     pid = os.getpid()
     co_server = _canopen_blob_server(f"blob-co-{pid}")
     co_net, co_node = _canopen_client(f"blob-co-{pid}")
-    cob_client = Network(interface="virtual", channel=f"blob-cob-{pid}")
-    cob_server = Network(interface="virtual", channel=f"blob-cob-{pid}")
-    add_device(cob_server, NODE, _blob_od())
-    cob_sdo = cob_client.add_remote(NODE).sdo
+    cob_client, cob_server, cob_sdo = _cobus_pair(f"blob-cob-{pid}", _blob_od())
     block_server = Network(interface="virtual", channel=f"blob-blk-{pid}")
     add_device(block_server, NODE, _blob_od())
     block_net, block_node = _canopen_client(f"blob-blk-{pid}")
