@@ -96,6 +96,8 @@ def test_sdo_between_two_processes_over_python_can_remote(remote_bus_url):
     try:
         assert child.stdout is not None and child.stdout.readline().strip() == "ready"
         with Network(interface="remote", channel=remote_bus_url) as net:
+            # the loop reads the websocket itself: no reader thread (tests/test_runtime_fd_read)
+            assert net.aio._fd is not None and net.aio._reader is None
             node = net.add_remote(5, sdo_timeout=2.0)
             assert node.sdo.upload(0x1000) == b"\x91\x01\x00\x00"
             assert node.sdo.upload(0x2000) == DATA

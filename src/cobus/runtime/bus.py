@@ -7,7 +7,11 @@ from :class:`~cobus.proto.Frame`, and decodes error frames into bus-state events
 
 from __future__ import annotations
 
-from typing import Any
+import enum
+import functools
+import socket
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import can
 
@@ -17,11 +21,15 @@ from cobus.runtime.events import BusErrorFrame, BusState, RxOverflow, TxBufferOv
 
 __all__ = [
     "BusOpenError",
+    "LoopSource",
+    "Readiness",
     "decode_error_frame",
     "error_frames_are_local",
     "frame_to_message",
+    "loop_source",
     "message_to_frame",
     "open_bus",
+    "websocket_readiness",
 ]
 
 
@@ -176,18 +184,55 @@ def error_frames_are_local(bus: can.BusABC) -> bool:
     return not any(m.startswith(_SHARED_MEDIA) for m in modules)
 
 
-def readable_fd(bus: can.BusABC) -> int | None:
-    """A file descriptor that is readable exactly when ``bus.recv(0)`` has a frame, or None.
+class Readiness(enum.Enum):
+    """What a bus's descriptor holds when the loop finds it readable."""
 
-    Only SocketCAN guarantees that: its kernel socket hands over one frame per read, and a
-    read never blocks once it is readable. Other interfaces with a descriptor are read by a
-    thread: serial ports and most vendor drivers buffer frames behind it, and
-    python-can-remote's client, although it reads one websocket frame per ``recv``, reads it
-    with blocking calls (a frame split over TCP segments, or a ping, would stall the loop) and
-    raises on a dropped connection while its socket stays readable.
+    NOTHING = 0  #: no data (a spurious wake-up): nothing to read
+    WHOLE = 1  #: a whole frame, or an error or end of stream ``recv`` will report at once
+    PART = 2  #: the start of a frame only: reading now would block until the rest arrives
+
+
+class LoopSource(NamedTuple):
+    """How the event loop reads a bus itself, without a reader thread.
+
+    ``fd`` is watched with ``add_reader``; once it is readable, ``ready()`` (when given) tells
+    whether ``bus.recv(0)`` returns without blocking. Without ``ready``, readable means a whole
+    frame waits.
     """
-    if type(bus).__name__ not in _FD_EXACT:
-        return None
+
+    fd: int
+    ready: Callable[[], Readiness] | None
+
+
+def loop_source(bus: can.BusABC) -> LoopSource | None:
+    """How the loop can read ``bus`` through its file descriptor, or None (a thread reads it).
+
+    - SocketCAN: the kernel hands over one frame per read and a readable socket never blocks.
+    - python-can-remote over plain ``ws://``: its client reads one websocket frame per
+      ``recv``, with blocking socket calls. The loop peeks at the socket first
+      (:func:`websocket_readiness`) and reads only when a whole frame is in the kernel's
+      buffer, so a frame split over TCP segments never stalls the loop. (``wss://`` is read by
+      a thread: TLS records cannot be peeked at.)
+
+    Serial ports and most vendor drivers buffer frames behind their descriptor: a thread
+    reads them.
+    """
+    cls = type(bus)
+    if cls.__name__ == "SocketcanBus":
+        fd = _fileno(bus)
+        return LoopSource(fd, None) if fd is not None else None
+    if cls.__name__ == "RemoteBus" and cls.__module__.startswith("can_remote"):
+        sock = getattr(bus, "socket", None)
+        if type(sock) is not socket.socket or _MSG_DONTWAIT is None:
+            return None
+        fd = _fileno(bus)
+        if fd is None or fd != sock.fileno():
+            return None
+        return LoopSource(fd, functools.partial(websocket_readiness, sock))
+    return None
+
+
+def _fileno(bus: can.BusABC) -> int | None:
     try:
         fd = bus.fileno()
     except (NotImplementedError, OSError, ValueError):
@@ -195,8 +240,62 @@ def readable_fd(bus: can.BusABC) -> int | None:
     return fd if isinstance(fd, int) and fd >= 0 else None
 
 
-#: The bus classes whose descriptor is readable exactly when a frame waits.
-_FD_EXACT = frozenset(("SocketcanBus",))
+_MSG_DONTWAIT: int | None = getattr(socket, "MSG_DONTWAIT", None)
+_PEEK_FIRST = 512  # bytes peeked at first: a CAN frame's websocket frame is 20-250 bytes
+_PEEK_MAX = 1 << 20
+# websocket opcodes (RFC 6455) after which python-can-remote's read() returns or raises;
+# it answers a ping, skips a pong or continuation, and reads on
+_WS_FINAL_OPCODES = frozenset((0x1, 0x2, 0x8))  # text, binary, close
+
+
+def websocket_readiness(sock: socket.socket) -> Readiness:
+    """Whether the websocket frames waiting in ``sock``'s receive buffer let python-can-remote's
+    ``recv`` return without blocking: a whole data or close frame, after any whole control
+    frames. The bytes stay in the buffer (``MSG_PEEK``)."""
+    assert _MSG_DONTWAIT is not None
+    size = _PEEK_FIRST
+    while True:
+        try:
+            data = sock.recv(size, socket.MSG_PEEK | _MSG_DONTWAIT)
+        except (BlockingIOError, InterruptedError):
+            return Readiness.NOTHING
+        except OSError:
+            return Readiness.WHOLE  # recv() raises it, at once
+        if not data:
+            return Readiness.WHOLE  # end of stream: recv() raises WebsocketClosed at once
+        verdict, needed = _scan_websocket(data)
+        if verdict is not Readiness.PART or len(data) < size:
+            return verdict
+        if needed > _PEEK_MAX:  # no CAN frame is this long: let recv() read it
+            return Readiness.WHOLE
+        size = max(needed, 2 * size)
+
+
+def _scan_websocket(data: bytes) -> tuple[Readiness, int]:
+    """The readiness of peeked bytes, and how many bytes a verdict of PART would need."""
+    pos, end = 0, len(data)
+    while True:
+        head = pos + 2
+        if head > end:
+            return Readiness.PART, head
+        opcode, length = data[pos] & 0x0F, data[pos + 1] & 0x7F
+        masked = data[pos + 1] & 0x80
+        if length == 126:
+            head += 2
+            if head > end:
+                return Readiness.PART, head
+            length = int.from_bytes(data[head - 2 : head], "big")
+        elif length == 127:
+            head += 8
+            if head > end:
+                return Readiness.PART, head
+            length = int.from_bytes(data[head - 8 : head], "big")
+        frame_end = head + (4 if masked else 0) + length
+        if frame_end > end:
+            return Readiness.PART, frame_end
+        if opcode in _WS_FINAL_OPCODES:
+            return Readiness.WHOLE, frame_end
+        pos = frame_end
 
 
 def interface_reports_state(bus: can.BusABC) -> bool:

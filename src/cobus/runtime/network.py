@@ -55,6 +55,8 @@ EventListener = Callable[[Event], Any]
 _EXT = 1 << 31  # dispatch key flag for 29-bit identifiers
 _BATCH = 256  # frames taken from the interface per wake-up
 _DIRECT_WAIT = 0.002  # s a reader thread waits for a busy loop before it hands frames over
+_PART_WAIT = 0.0005  # s the loop waits for the rest of a frame split over network segments
+_FD_BACKOFF = 0.05  # s the loop first waits after a failed read of a bus's descriptor
 _RETRY = 0.001  # seconds between attempts to flush the transmit backlog
 _DRAIN_LIMIT = 1024  # frames dispatched per loop callback before yielding
 
@@ -260,6 +262,9 @@ class AsyncNetwork:
         self._rx_pending: deque[can.Message] = deque()
         self._rx_posted = False
         self._fd: int | None = None
+        self._fd_ready: Callable[[], _bus.Readiness] | None = None
+        self._fd_resume: asyncio.TimerHandle | None = None
+        self._fd_backoff = _FD_BACKOFF
         self._poll_hook: Callable[[], bool] | None = None
         self._state_poll: asyncio.TimerHandle | None = None
         #: Whether received error frames report our own controller (see bus.py).
@@ -684,19 +689,15 @@ class AsyncNetwork:
             self._poll_hook = self._poll
             loop.add_poll_hook(self._poll)
             return
-        fd = _bus.readable_fd(bus)
-        if fd is not None:
+        source = _bus.loop_source(bus)
+        if source is not None:
             try:
-                loop.add_reader(fd, self._read_ready)
-                self._fd = fd
+                loop.add_reader(source.fd, self._read_ready)
+                self._fd, self._fd_ready = source
             except (NotImplementedError, RuntimeError):
                 self._fd = None
         if self._fd is None:
-            self._reader_stop.clear()
-            self._reader = threading.Thread(
-                target=self._reader_thread, args=(loop, bus), name="cobus-rx", daemon=True
-            )
-            self._reader.start()
+            self._start_reader_thread(loop, bus)
         if _bus.interface_reports_state(bus):
             self._state_poll = loop.call_later(0.5, self._poll_state)
 
@@ -704,9 +705,12 @@ class AsyncNetwork:
         if self._poll_hook is not None and isinstance(loop, SimulatedEventLoop):
             loop.remove_poll_hook(self._poll_hook)
             self._poll_hook = None
+        if self._fd_resume is not None:
+            self._fd_resume.cancel()
+            self._fd_resume = None
         if self._fd is not None:
             loop.remove_reader(self._fd)
-            self._fd = None
+            self._fd = self._fd_ready = None
         if self._reader is not None:
             self._reader_stop.set()
             self._reader.join(timeout=2.0)
@@ -735,19 +739,71 @@ class AsyncNetwork:
             return True
         return False
 
+    def _start_reader_thread(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
+        self._reader_stop.clear()
+        self._reader = threading.Thread(
+            target=self._reader_thread, args=(loop, bus), name="cobus-rx", daemon=True
+        )
+        self._reader.start()
+
     def _read_ready(self) -> None:
-        bus = self._bus
+        """The bus's descriptor is readable: read what waits, on the loop."""
+        bus, ready = self._bus, self._fd_ready
         if bus is None:
             return
+        batch: list[can.Message] = []
         try:
-            batch = self._take(bus)
-        except (can.CanError, OSError) as exc:
+            while len(batch) < _BATCH:
+                if ready is not None:
+                    readiness = ready()
+                    if readiness is not _bus.Readiness.WHOLE:
+                        if readiness is _bus.Readiness.PART and not batch:
+                            # the rest of a frame is still on its way: wait for it off the
+                            # descriptor (it stays readable, and the loop would spin)
+                            self._pause_reader(_PART_WAIT)
+                        break
+                msg = bus.recv(0)
+                if msg is None:
+                    break
+                batch.append(msg)
+        except Exception as exc:  # any driver failure: report, back off, read on
+            if batch:
+                self._on_messages(batch)
             self.emit(ReceiveFailed(str(exc)))
+            self._pause_reader(self._fd_backoff)
+            self._fd_backoff = min(self._fd_backoff * 2, 1.0)
             return
         if batch:
+            self._fd_backoff = _FD_BACKOFF
             self._on_messages(batch)
-            if len(batch) == _BATCH:  # more may be waiting in the socket: read on
+            if len(batch) == _BATCH and self._fd_resume is None:  # more may wait: read on
                 self.loop.call_soon(self._read_ready)
+
+    def _pause_reader(self, delay: float) -> None:
+        """Stop watching the descriptor for ``delay`` seconds (a partial frame, a failing
+        interface: a descriptor that stays readable would keep the loop spinning)."""
+        loop, fd = self._loop, self._fd
+        if loop is None or fd is None or self._fd_resume is not None:
+            return
+        loop.remove_reader(fd)
+        self._fd_resume = loop.call_later(delay, self._resume_reader)
+
+    def _resume_reader(self) -> None:
+        self._fd_resume = None
+        loop, bus, fd = self._loop, self._bus, self._fd
+        if loop is None or bus is None or fd is None:
+            return
+        source = _bus.loop_source(bus)
+        if source is not None and source.fd == fd:
+            try:
+                loop.add_reader(fd, self._read_ready)
+                return
+            except (OSError, ValueError):
+                pass
+        # The descriptor is gone (a python-can-remote connection closed its socket): a
+        # thread reads on, reports what fails and backs off.
+        self._fd = self._fd_ready = None
+        self._start_reader_thread(loop, bus)
 
     def _reader_thread(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
         direct = loop if isinstance(loop, RealTimeLoop) else None

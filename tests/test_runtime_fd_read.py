@@ -1,0 +1,358 @@
+"""The loop reads python-can-remote's socket itself (issue 20): no reader thread, one wake-up.
+
+python-can-remote's client reads a websocket frame with blocking socket calls. The loop peeks
+at the socket first and reads only when a whole frame waits, so a frame split over TCP
+segments, a ping between frames or a closed connection never stalls or spins the loop. The
+peer here is a hand-driven websocket server on 127.0.0.1 that speaks python-can-remote's
+protocol, so each byte the client sees is chosen by the test; the client is python-can's real
+``remote`` interface.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import contextlib
+import hashlib
+import json
+import socket
+import struct
+import threading
+import time
+
+import can
+import pytest
+
+from cobus.proto import Frame
+from cobus.runtime import AsyncNetwork, RealTimeLoop
+from cobus.runtime.bus import Readiness, loop_source, websocket_readiness
+from cobus.runtime.events import ReceiveFailed
+
+_GUID = b"258EAFA5-E914-47DA-95CA-C5AB0DC85B11"
+
+
+def ws_frame(opcode: int, payload: bytes, *, mask: bool = False) -> bytes:
+    """One unfragmented websocket frame (RFC 6455)."""
+    head = bytearray([0x80 | opcode])
+    flag = 0x80 if mask else 0
+    if len(payload) < 126:
+        head.append(flag | len(payload))
+    elif len(payload) < 1 << 16:
+        head.append(flag | 126)
+        head += struct.pack(">H", len(payload))
+    else:
+        head.append(flag | 127)
+        head += struct.pack(">Q", len(payload))
+    if mask:
+        key = b"\x01\x02\x03\x04"
+        payload = bytes(b ^ key[i % 4] for i, b in enumerate(payload))
+        head += key
+    return bytes(head) + payload
+
+
+def can_frame(cob_id: int, data: bytes) -> bytes:
+    """python-can-remote's binary message of a CAN frame, in a websocket frame."""
+    body = b"\x01" + struct.pack(">dIBB", 0.0, cob_id, len(data), 0) + data
+    return ws_frame(0x2, body)
+
+
+class Peer:
+    """A python-can-remote server stand-in: accepts one client, answers its bus request,
+    then sends exactly the bytes the test gives it."""
+
+    def __init__(self) -> None:
+        self._listener = socket.create_server(("127.0.0.1", 0))
+        self.url = f"ws://127.0.0.1:{self._listener.getsockname()[1]}/"
+        self.conn: socket.socket | None = None
+        self._thread = threading.Thread(target=self._accept, daemon=True)
+        self._thread.start()
+
+    def _accept(self) -> None:
+        conn, _ = self._listener.accept()
+        request = b""
+        while b"\r\n\r\n" not in request:
+            request += conn.recv(4096)
+        headers = dict(
+            line.split(": ", 1) for line in request.decode().split("\r\n")[1:] if ": " in line
+        )
+        key = headers["Sec-WebSocket-Key"].encode()
+        accept = base64.b64encode(hashlib.sha1(key + _GUID).digest()).decode()
+        conn.sendall(
+            (
+                "HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\n"
+                f"Connection: Upgrade\r\nSec-WebSocket-Accept: {accept}\r\n"
+                "Sec-WebSocket-Protocol: can.binary+json.v1\r\n\r\n"
+            ).encode()
+        )
+        self._read_frame(conn)  # the bus request
+        reply = {"type": "bus_response", "payload": {"channel_info": "virtual channel 0"}}
+        conn.sendall(ws_frame(0x1, json.dumps(reply).encode()))
+        self.conn = conn
+
+    @staticmethod
+    def _read_frame(conn: socket.socket) -> tuple[int, bytes]:
+        def exactly(n: int) -> bytes:
+            data = b""
+            while len(data) < n:
+                chunk = conn.recv(n - len(data))
+                assert chunk, "client closed"
+                data += chunk
+            return data
+
+        b1, b2 = exactly(2)
+        length = b2 & 0x7F
+        if length == 126:
+            (length,) = struct.unpack(">H", exactly(2))
+        elif length == 127:
+            (length,) = struct.unpack(">Q", exactly(8))
+        key = exactly(4) if b2 & 0x80 else b"\0\0\0\0"
+        data = exactly(length)
+        return b1 & 0x0F, bytes(b ^ key[i % 4] for i, b in enumerate(data))
+
+    def read_frame(self) -> tuple[int, bytes]:
+        assert self.conn is not None
+        return self._read_frame(self.conn)
+
+    def send(self, data: bytes) -> None:
+        assert self.conn is not None
+        self.conn.sendall(data)
+
+    def answer_close(self) -> None:
+        """Read on until the client's close frame, answer it and hang up (in a thread: the
+        client's ``shutdown`` waits for that)."""
+        conn = self.conn
+        if conn is None or conn.fileno() < 0:
+            return
+
+        def run() -> None:
+            with contextlib.suppress(AssertionError, OSError):
+                while self._read_frame(conn)[0] != 0x8:
+                    pass
+                conn.sendall(ws_frame(0x8, b""))
+            conn.close()
+
+        threading.Thread(target=run, daemon=True).start()
+
+    def close(self) -> None:
+        if self.conn is not None:
+            self.conn.close()
+        self._listener.close()
+
+
+@pytest.fixture
+def peer():
+    p = Peer()
+    yield p
+    p.close()
+
+
+def open_remote(peer: Peer) -> can.BusABC:
+    bus = can.Bus(interface="remote", channel=peer.url)
+    deadline = time.monotonic() + 5
+    while peer.conn is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return bus
+
+
+def close_remote(bus: can.BusABC, peer: Peer) -> None:
+    peer.answer_close()
+    try:
+        bus.shutdown()
+    except ValueError:
+        # python-can-remote's shutdown selects on its socket, which it already closed if the
+        # server closed the connection first: nothing is left to close but python-can's part
+        can.BusABC.shutdown(bus)
+
+
+# ---------------------------------------------------------------------------- the peek
+@pytest.fixture
+def pair():
+    a, b = socket.socketpair()
+    yield a, b
+    a.close()
+    b.close()
+
+
+def test_readiness_of_an_empty_socket_is_nothing(pair):
+    assert websocket_readiness(pair[0]) is Readiness.NOTHING
+
+
+@pytest.mark.parametrize("cut", [1, 2, 10, -1])
+def test_a_frame_cut_anywhere_is_partial_until_its_last_byte(pair, cut):
+    a, b = pair
+    frame = can_frame(0x181, b"\x01\x02\x03")
+    b.sendall(frame[:cut])
+    assert websocket_readiness(a) is Readiness.PART
+    b.sendall(frame[cut:])
+    assert websocket_readiness(a) is Readiness.WHOLE
+    assert a.recv(100) == frame  # peeking took nothing
+
+
+def test_control_frames_before_the_data_frame_need_the_data_frame_too(pair):
+    a, b = pair
+    b.sendall(ws_frame(0x9, b"ping") + ws_frame(0xA, b"") + can_frame(0x181, b"")[:5])
+    assert websocket_readiness(a) is Readiness.PART
+    b.sendall(can_frame(0x181, b"")[5:])
+    assert websocket_readiness(a) is Readiness.WHOLE
+
+
+def test_long_and_masked_frames_are_measured_whole(pair):
+    a, b = pair
+    long_text = ws_frame(0x1, b"x" * 70_000, mask=True)  # 64-bit length, beyond one peek
+    b.sendall(long_text[:-1])
+    assert websocket_readiness(a) is Readiness.PART
+    b.sendall(long_text[-1:])
+    assert websocket_readiness(a) is Readiness.WHOLE
+    medium = ws_frame(0x2, b"y" * 600)  # 16-bit length
+    assert websocket_readiness(a) is Readiness.WHOLE  # the first frame decides
+    a.recv(len(long_text), socket.MSG_WAITALL)
+    b.sendall(medium[:3])
+    assert websocket_readiness(a) is Readiness.PART
+    b.sendall(medium[3:])
+    assert websocket_readiness(a) is Readiness.WHOLE
+
+
+def test_a_close_frame_or_end_of_stream_reads_at_once(pair):
+    a, b = pair
+    b.sendall(ws_frame(0x8, b"\x03\xe8"))
+    assert websocket_readiness(a) is Readiness.WHOLE
+    a.recv(100)
+    b.close()
+    assert websocket_readiness(a) is Readiness.WHOLE  # recv() raises WebsocketClosed
+
+
+def test_which_buses_the_loop_reads(peer):
+    bus = open_remote(peer)
+    try:
+        source = loop_source(bus)
+        assert source is not None and source.fd == bus.fileno() and source.ready is not None
+    finally:
+        close_remote(bus, peer)
+    virtual = can.Bus(interface="virtual", channel="fd-read-which")
+    try:
+        assert loop_source(virtual) is None  # a thread reads it
+    finally:
+        virtual.shutdown()
+
+
+# ---------------------------------------------------------------------------- on the loop
+def _on_real_time_loop(coro_fn):
+    loop = RealTimeLoop()
+    try:
+        return loop.run_until_complete(coro_fn())
+    finally:
+        loop.close()
+
+
+async def _until(predicate, seconds: float = 3.0) -> None:
+    deadline = time.monotonic() + seconds
+    while not predicate():
+        assert time.monotonic() < deadline, "timed out"
+        await asyncio.sleep(0.002)
+
+
+@pytest.mark.parametrize("loop_kind", ["asyncio", "realtime"])
+def test_frames_are_read_on_the_loop_without_a_thread(peer, loop_kind):
+    bus = open_remote(peer)
+
+    async def main():
+        async with AsyncNetwork(bus) as net:
+            assert net._reader is None and net._fd == bus.fileno()
+            got: list[Frame] = []
+            net.subscribe(0x181, lambda f, now: got.append(f))
+            peer.send(b"".join(can_frame(0x181, bytes([i & 0xFF])) for i in range(600)))
+            await _until(lambda: len(got) == 600)
+            assert [f.data[0] for f in got] == [i & 0xFF for i in range(600)]
+            # what the network sends reaches the peer, as python-can-remote sends it
+            net.send(Frame(0x601, b"\x40\x00\x10\x00\x00\x00\x00\x00"))
+            opcode, body = await asyncio.to_thread(peer.read_frame)
+            assert opcode == 0x2 and struct.unpack_from(">I", body, 9)[0] == 0x601
+
+    try:
+        if loop_kind == "asyncio":
+            asyncio.run(main())
+        else:
+            _on_real_time_loop(main)
+    finally:
+        close_remote(bus, peer)
+
+
+def test_a_frame_split_over_segments_does_not_stall_the_loop(peer):
+    bus = open_remote(peer)
+
+    async def main():
+        async with AsyncNetwork(bus) as net:
+            got: list[Frame] = []
+            net.subscribe(0x181, lambda f, now: got.append(f))
+            frame = can_frame(0x181, b"\xaa\xbb")
+            peer.send(frame[:7])
+            ticks = 0
+            start = time.monotonic()
+            while time.monotonic() - start < 0.1:  # the loop goes on running other work
+                await asyncio.sleep(0.005)
+                ticks += 1
+            assert ticks >= 10 and got == []
+            peer.send(frame[7:] + ws_frame(0x9, b"are you there") + can_frame(0x181, b"\xcc"))
+            await _until(lambda: len(got) == 2)
+            assert [f.data for f in got] == [b"\xaa\xbb", b"\xcc"]
+            # python-can-remote answered the ping from the loop, as its own reader would
+            opcode, body = await asyncio.to_thread(peer.read_frame)
+            assert (opcode, body) == (0xA, b"are you there")
+
+    try:
+        _on_real_time_loop(main)
+    finally:
+        close_remote(bus, peer)
+
+
+def test_a_partial_frame_does_not_spin_the_loop(peer):
+    bus = open_remote(peer)
+
+    async def main():
+        async with AsyncNetwork(bus) as net:
+            calls = 0
+            read = net._read_ready
+
+            def counted() -> None:
+                nonlocal calls
+                calls += 1
+                read()
+
+            net._read_ready = counted  # type: ignore[method-assign]
+            fd = net._fd
+            assert fd is not None
+            net.loop.remove_reader(fd)
+            net.loop.add_reader(fd, counted)
+            peer.send(can_frame(0x181, b"")[:3])
+            await asyncio.sleep(0.2)
+            # paused off the descriptor between looks: hundreds, not a spin of millions
+            assert 1 <= calls <= 0.2 / 0.0005 + 10
+
+    try:
+        _on_real_time_loop(main)
+    finally:
+        close_remote(bus, peer)
+
+
+def test_a_closed_connection_is_reported_with_back_off_then_read_by_a_thread(peer):
+    bus = open_remote(peer)
+
+    async def main():
+        async with AsyncNetwork(bus) as net:
+            failures: list[ReceiveFailed] = []
+            net.add_listener(lambda e: failures.append(e) if isinstance(e, ReceiveFailed) else None)
+            got: list[Frame] = []
+            net.subscribe(0x181, lambda f, now: got.append(f))
+            peer.send(can_frame(0x181, b"\x01") + ws_frame(0x8, b"\x03\xe8"))
+            await _until(lambda: got and failures)
+            assert got[0].data == b"\x01"  # read before the close
+            await asyncio.sleep(0.3)
+            # python-can-remote closed its socket on the close frame: no descriptor to
+            # watch any more; a thread reads on and reports with back-off, no spin
+            assert net._fd is None and net._reader is not None
+            assert 1 <= len(failures) <= 10
+
+    try:
+        _on_real_time_loop(main)
+    finally:
+        close_remote(bus, peer)
