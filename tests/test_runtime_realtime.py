@@ -17,6 +17,7 @@ from cobus.proto.sdo import SdoTimeoutError
 from cobus.runtime import AsyncNetwork, Network, run
 from cobus.runtime.errors import NetworkClosedError, ReentrantCallError
 from cobus.runtime.loop import RealTimeLoop, new_event_loop
+from cobus.runtime.network import MachineHost
 
 
 def test_the_real_time_loop_of_the_blocking_facade_is_a_real_time_loop():
@@ -478,6 +479,45 @@ def test_supervision_keeps_working_when_real_time_timers_only_move_later():
             assert time.monotonic() < deadline
             time.sleep(0.01)
         raw.shutdown()
+
+
+def _armed(host: MachineHost) -> float | None:
+    return host._armed  # (a call, read afresh: mypy would narrow the attribute)
+
+
+def test_a_finished_transfer_leaves_its_timeout_armed_so_the_next_does_not_wake_the_loop():
+    """In real time a transfer that ends keeps its machine's armed timer: the next transfer's
+    later timeout needs no wake-up of the sleeping loop. The stale timer fires and does
+    nothing; a real timeout still comes on time."""
+    with Network(interface="virtual", channel="rt-lazy-sdo") as client:
+        server = Network(interface="virtual", channel="rt-lazy-sdo")
+        add_device(server, 5, _device_od())
+        sdo = client.add_remote(5, sdo_timeout=0.1).sdo
+        host = sdo.aio._host
+        assert sdo.upload(0x1000)
+        assert host.machine.deadline is None and _armed(host) is not None  # kept
+        loop = client.aio.loop
+        assert isinstance(loop, RealTimeLoop)
+        wake = loop._write_to_self  # type: ignore[attr-defined]
+        wakes = 0
+
+        def counted() -> None:
+            nonlocal wakes
+            wakes += 1
+            wake()
+
+        loop._write_to_self = counted  # type: ignore[attr-defined]
+        for _ in range(20):
+            assert sdo.upload(0x1000)
+        assert wakes == 0
+        time.sleep(0.25)  # the kept timers fire: nothing happens
+        assert _armed(host) is None and host._handle is None
+        assert sdo.upload(0x1000)
+        server.close()
+        start = time.monotonic()
+        with pytest.raises(SdoTimeoutError):
+            sdo.upload(0x1000)
+        assert 0.09 < time.monotonic() - start < 1.0
 
 
 def test_ctrl_c_while_a_blocking_call_waits_cancels_it_on_the_loop():

@@ -155,12 +155,14 @@ class MachineHost:
 
     def _must_rearm(self, deadline: float | None, armed: float | None) -> bool:
         """In real time, a deadline that only moved later (each segment of a transfer, each
-        heartbeat) keeps the armed timer, which re-arms when it fires. On the simulated
-        clock every move re-arms, so that timers due at one instant keep their order."""
+        heartbeat) or went away (a transfer done) keeps the armed timer, which re-arms or
+        does nothing when it fires: a sleeping loop is woken only for a timer due before it
+        would wake anyway, so a blocking SDO trip that armed a fresh timeout each time cost
+        a wake-up of the loop. On the simulated clock every move re-arms, so that timers due
+        at one instant keep their order."""
         return (
-            deadline is None
-            or armed is None
-            or deadline < armed
+            armed is None
+            or (deadline is not None and deadline < armed)
             or not isinstance(self._network.loop, RealTimeLoop)
         )
 
@@ -179,9 +181,10 @@ class MachineHost:
             return
         now = max(self._network.time(), deadline)
         later = self.machine.deadline
-        if later is not None and later > now and isinstance(self._network.loop, RealTimeLoop):
-            self._rearm(later)  # it moved later since armed (see _must_rearm)
-            return
+        if isinstance(self._network.loop, RealTimeLoop) and (later is None or later > now):
+            if later is not None:
+                self._rearm(later)  # it moved later since armed (see _must_rearm)
+            return  # (or went away)
         try:
             out = self.machine.on_timer(now)
         except Exception as exc:  # a machine bug must not stop the network
