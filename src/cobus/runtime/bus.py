@@ -10,10 +10,17 @@ from __future__ import annotations
 import enum
 import functools
 import socket
+import sys
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import can
+
+try:  # POSIX only: elsewhere python-can-remote is read by a thread
+    import fcntl
+    import termios
+except ImportError:  # pragma: no cover
+    fcntl = termios = None  # type: ignore[assignment]
 
 from cobus.proto import Event, Frame
 from cobus.runtime.errors import BusOpenError
@@ -187,7 +194,9 @@ def error_frames_are_local(bus: can.BusABC) -> bool:
 class Readiness(enum.Enum):
     """What a bus's descriptor holds when the loop finds it readable."""
 
-    NOTHING = 0  #: no data (a spurious wake-up): nothing to read
+    #: no bytes wait: ``recv(0)`` returns at once — None, or it raises the error or end of
+    #: stream that made the descriptor readable
+    NOTHING = 0
     WHOLE = 1  #: a whole frame, or an error or end of stream ``recv`` will report at once
     PART = 2  #: the start of a frame only: reading now would block until the rest arrives
 
@@ -223,7 +232,7 @@ def loop_source(bus: can.BusABC) -> LoopSource | None:
         return LoopSource(fd, None) if fd is not None else None
     if cls.__name__ == "RemoteBus" and cls.__module__.startswith("can_remote"):
         sock = getattr(bus, "socket", None)
-        if type(sock) is not socket.socket or _MSG_DONTWAIT is None:
+        if type(sock) is not socket.socket or _MSG_DONTWAIT is None or _FIONREAD is None:
             return None
         fd = _fileno(bus)
         if fd is None or fd != sock.fileno():
@@ -241,6 +250,7 @@ def _fileno(bus: can.BusABC) -> int | None:
 
 
 _MSG_DONTWAIT: int | None = getattr(socket, "MSG_DONTWAIT", None)
+_FIONREAD: int | None = getattr(termios, "FIONREAD", None) if termios is not None else None
 _PEEK_FIRST = 512  # bytes peeked at first: a CAN frame's websocket frame is 20-250 bytes
 _PEEK_MAX = 1 << 20
 # websocket opcodes (RFC 6455) after which python-can-remote's read() returns or raises;
@@ -252,8 +262,15 @@ def websocket_readiness(sock: socket.socket) -> Readiness:
     """Whether the websocket frames waiting in ``sock``'s receive buffer let python-can-remote's
     ``recv`` return without blocking: a whole data or close frame, after any whole control
     frames. The bytes stay in the buffer (``MSG_PEEK``)."""
-    assert _MSG_DONTWAIT is not None
-    size = _PEEK_FIRST
+    assert _MSG_DONTWAIT is not None and _FIONREAD is not None
+    count = bytearray(4)
+    # how many bytes wait (no exception when none do: that is the common answer, once the
+    # frames of a wake-up are read)
+    fcntl.ioctl(sock.fileno(), _FIONREAD, count, True)
+    waiting = int.from_bytes(count, sys.byteorder)
+    if waiting <= 0:
+        return Readiness.NOTHING
+    size = min(waiting, _PEEK_FIRST)
     while True:
         try:
             data = sock.recv(size, socket.MSG_PEEK | _MSG_DONTWAIT)
@@ -264,11 +281,11 @@ def websocket_readiness(sock: socket.socket) -> Readiness:
         if not data:
             return Readiness.WHOLE  # end of stream: recv() raises WebsocketClosed at once
         verdict, needed = _scan_websocket(data)
-        if verdict is not Readiness.PART or len(data) < size:
+        if verdict is not Readiness.PART or needed > waiting:
             return verdict
         if needed > _PEEK_MAX:  # no CAN frame is this long: let recv() read it
             return Readiness.WHOLE
-        size = max(needed, 2 * size)
+        size = min(waiting, max(needed, 2 * size))  # it is all there: look further
 
 
 def _scan_websocket(data: bytes) -> tuple[Readiness, int]:

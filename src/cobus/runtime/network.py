@@ -759,12 +759,16 @@ class AsyncNetwork:
             while len(batch) < _BATCH:
                 if ready is not None:
                     readiness = ready()
-                    if readiness is not _bus.Readiness.WHOLE:
-                        if readiness is _bus.Readiness.PART and not batch:
+                    if readiness is _bus.Readiness.PART:
+                        if not batch:
                             # the rest of a frame is still on its way: wait for it off the
                             # descriptor (it stays readable, and the loop would spin)
                             self._pause_reader(_PART_WAIT)
                         break
+                    if readiness is _bus.Readiness.NOTHING and batch:
+                        break
+                    # (NOTHING at the first look: recv(0) returns at once, with None or the
+                    # error or end of stream that woke us, reported below)
                 msg = bus.recv(0)
                 if msg is None:
                     break
