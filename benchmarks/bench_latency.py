@@ -16,7 +16,9 @@ user's thread, the loop, the bus's reader threads and back.
 - the blocking facade alone: a call from the user's thread run on the loop and back, no bus.
 
 Then the same over python-can-remote on 127.0.0.1 between two processes (a cobus device on
-node 5 and a python-canopen ``LocalNode`` on node 6 in a child process, the clients here).
+node 5, a python-canopen ``LocalNode`` on node 6 and a bare python-can thread answering
+node 7 in a child process; the clients here, each on its own connection opened for its
+measurement, so that no other client of this process wakes for its frames).
 Last, 4 KiB uploads by blocking clients in one process: segmented at both ends, and block
 transfer against a cobus device (python-canopen's server has none).
 """
@@ -279,22 +281,58 @@ def blob_figures() -> dict[str, list[tuple[float, float]]]:
 
 _SERVERS = textwrap.dedent(
     """
-    import sys
+    import sys, threading
+    import can
     import canopen
     from cobus.device import add_device, minimal_od
     from cobus.runtime import Network
-    from benchmarks.bench_latency import _canopen_od
+    from benchmarks.bench_latency import _canopen_od, PONG_NODE
+
+    stop = threading.Event()
+
+    def pong(bus):  # bare python-can: answer node PONG_NODE's requests at once
+        reply = can.Message(arbitration_id=0x580 + PONG_NODE, data=bytes(8))
+        while not stop.is_set():
+            msg = bus.recv(0.1)
+            if msg is not None and msg.arbitration_id == 0x600 + PONG_NODE:
+                bus.send(reply)
 
     with Network(interface="remote", channel=sys.argv[1]) as net:
         add_device(net, 5, minimal_od())
         co = canopen.Network()
         co.connect(interface="remote", channel=sys.argv[1])
         co.add_node(canopen.LocalNode(6, _canopen_od()))
+        bare = can.Bus(interface="remote", channel=sys.argv[1])
+        ponger = threading.Thread(target=pong, args=(bare,))
+        ponger.start()
         print("ready", flush=True)
         sys.stdin.read()
+        stop.set()
+        ponger.join()
+        bare.shutdown()
         co.disconnect()
     """
 )
+PONG_NODE = 7
+
+
+class _RemotePing:
+    """Bare python-can over python-can-remote: the child process's thread answers."""
+
+    def __init__(self, url: str) -> None:
+        self.bus = can.Bus(interface="remote", channel=url)
+        self._request = can.Message(arbitration_id=0x600 + PONG_NODE, data=bytes(8))
+
+    def trip(self) -> None:
+        self.bus.send(self._request)
+        while True:
+            msg = self.bus.recv(1.0)
+            assert msg is not None, "no pong"
+            if msg.arbitration_id == 0x580 + PONG_NODE:
+                return
+
+    def close(self) -> None:
+        self.bus.shutdown()
 
 
 def _free_port() -> int:
@@ -331,30 +369,7 @@ def remote_figures() -> dict[str, list[tuple[float, float]]] | None:
         assert servers.stdout is not None
         if servers.stdout.readline().strip() != "ready":
             return None
-        co_net = canopen.Network()
-        co_net.connect(interface="remote", channel=url)
-        co_own: Any = canopen.RemoteNode(6, canopen.ObjectDictionary())
-        co_cob: Any = canopen.RemoteNode(NODE, canopen.ObjectDictionary())
-        co_net.add_node(co_own)
-        co_net.add_node(co_cob)
-        cob = Network(interface="remote", channel=url)
-        sdo = cob.add_remote(NODE).sdo
-
-        trips: dict[str, Callable[[], object]] = {
-            "python-canopen at both ends": lambda: co_own.sdo.upload(0x1000, 0),
-            "cobus blocking client, cobus device": lambda: sdo.upload(0x1000),
-            "canopen client, cobus device": lambda: co_cob.sdo.upload(0x1000, 0),
-        }
-        try:
-            return _interleave(
-                trips,
-                lambda cobus_loop: _asyncio_round(
-                    "remote", url, device_here=False, cobus_loop=cobus_loop
-                ),
-            )
-        finally:
-            cob.close()
-            co_net.disconnect()
+        return _interleave_connected(_remote_arrangements(url), url)
     finally:
         if servers is not None:
             if servers.stdin is not None:
@@ -362,6 +377,61 @@ def remote_figures() -> dict[str, list[tuple[float, float]]] | None:
             servers.wait(15)
         hub.terminate()
         hub.wait(15)
+
+
+Arrangement = Callable[[], tuple[Callable[[], object], Callable[[], object]]]
+
+
+def _remote_arrangements(url: str) -> dict[str, Arrangement]:
+    """Each arrangement opens its own connection to the hub for its measurement and closes
+    it after, so that no other client of this process hears (and wakes for) its frames."""
+
+    def bare() -> tuple[Callable[[], object], Callable[[], object]]:
+        ping = _RemotePing(url)
+        return ping.trip, ping.close
+
+    def canopen_to(node_id: int) -> Arrangement:
+        def open_() -> tuple[Callable[[], object], Callable[[], object]]:
+            net = canopen.Network()
+            net.connect(interface="remote", channel=url)
+            node: Any = canopen.RemoteNode(node_id, canopen.ObjectDictionary())
+            net.add_node(node)
+            return (lambda: node.sdo.upload(0x1000, 0)), net.disconnect
+
+        return open_
+
+    def cobus_to(node_id: int) -> Arrangement:
+        def open_() -> tuple[Callable[[], object], Callable[[], object]]:
+            net = Network(interface="remote", channel=url)
+            sdo = net.add_remote(node_id).sdo
+            return (lambda: sdo.upload(0x1000)), net.close
+
+        return open_
+
+    return {
+        "bare python-can ping-pong": bare,
+        "python-canopen at both ends": canopen_to(6),
+        "cobus blocking client, cobus device": cobus_to(NODE),
+        "cobus blocking client, canopen server": cobus_to(6),
+        "canopen client, cobus device": canopen_to(NODE),
+    }
+
+
+def _interleave_connected(
+    arrangements: dict[str, Arrangement], url: str
+) -> dict[str, list[tuple[float, float]]]:
+    out: dict[str, list[tuple[float, float]]] = {name: [] for name in arrangements}
+    out.update({name: [] for name in ASYNCIO_ROUNDS})
+    for _ in range(ROUNDS):
+        for name, open_ in arrangements.items():
+            trip, close = open_()
+            try:
+                out[name].append(_measure(trip))
+            finally:
+                close()
+        for name, cobus_loop in ASYNCIO_ROUNDS.items():
+            out[name].append(_asyncio_round("remote", url, device_here=False, cobus_loop=cobus_loop))
+    return out
 
 
 def _table(title: str, results: dict[str, list[tuple[float, float]]], trips: int = TRIPS) -> None:
@@ -396,7 +466,7 @@ def main() -> None:
     print("   x1.0 for every cobus arrangement, x1.15 for the asyncio client where the bus has a")
     print("   file descriptor, x1.5 for block upload)")
     print("  (wake-ups: voluntary context switches of this process per trip; over")
-    print("   python-can-remote every client here hears every frame, and their wake-ups count)")
+    print("   python-can-remote each client here is alone in this process while measured)")
 
 
 if __name__ == "__main__":

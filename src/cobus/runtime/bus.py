@@ -250,6 +250,7 @@ def _fileno(bus: can.BusABC) -> int | None:
 
 
 _MSG_DONTWAIT: int | None = getattr(socket, "MSG_DONTWAIT", None)
+_PEEK_FLAGS = int(socket.MSG_PEEK) | (_MSG_DONTWAIT or 0)  # (plain ints: IntFlag's | is slow)
 _FIONREAD: int | None = getattr(termios, "FIONREAD", None) if termios is not None else None
 _PEEK_FIRST = 512  # bytes peeked at first: a CAN frame's websocket frame is 20-250 bytes
 _PEEK_MAX = 1 << 20
@@ -273,7 +274,7 @@ def websocket_readiness(sock: socket.socket) -> Readiness:
     size = min(waiting, _PEEK_FIRST)
     while True:
         try:
-            data = sock.recv(size, socket.MSG_PEEK | _MSG_DONTWAIT)
+            data = sock.recv(size, _PEEK_FLAGS)
         except (BlockingIOError, InterruptedError):
             return Readiness.NOTHING
         except OSError:
