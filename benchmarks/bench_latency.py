@@ -430,7 +430,9 @@ def _interleave_connected(
             finally:
                 close()
         for name, cobus_loop in ASYNCIO_ROUNDS.items():
-            out[name].append(_asyncio_round("remote", url, device_here=False, cobus_loop=cobus_loop))
+            out[name].append(
+                _asyncio_round("remote", url, device_here=False, cobus_loop=cobus_loop)
+            )
     return out
 
 
