@@ -219,9 +219,29 @@ def test_a_close_frame_or_end_of_stream_reads_at_once(pair):
     assert websocket_readiness(a) is Readiness.WHOLE
     a.recv(100)
     b.close()
-    # no bytes wait: recv(0) returns at once (here it raises WebsocketClosed; see the test
-    # of a closed connection below)
-    assert websocket_readiness(a) is Readiness.NOTHING
+    assert websocket_readiness(a) is Readiness.WHOLE  # recv() raises WebsocketClosed at once
+
+
+def test_control_frames_alone_wait_for_a_data_frame_unless_the_stream_ended(pair):
+    a, b = pair
+    b.sendall(ws_frame(0x9, b"ping"))
+    assert websocket_readiness(a) is Readiness.PART  # read() would wait for a data frame
+    b.shutdown(socket.SHUT_WR)
+    assert websocket_readiness(a) is Readiness.WHOLE  # it will not: recv() reads and raises
+
+
+def test_a_frame_cut_by_the_end_of_stream_reads_at_once(pair):
+    a, b = pair
+    b.sendall(can_frame(0x181, b"\x01")[:5])
+    assert websocket_readiness(a) is Readiness.PART
+    b.shutdown(socket.SHUT_WR)
+    assert websocket_readiness(a) is Readiness.WHOLE
+
+
+def test_a_frame_longer_than_any_can_frame_is_read_as_it_comes(pair):
+    a, b = pair
+    b.sendall(b"\x81\x7f" + (16 << 20).to_bytes(8, "big") + b"x" * 100)  # 16 MiB announced
+    assert websocket_readiness(a) is Readiness.WHOLE
 
 
 def test_which_buses_the_loop_reads(peer):
@@ -294,7 +314,7 @@ def test_a_frame_split_over_segments_does_not_stall_the_loop(peer):
             while time.monotonic() - start < 0.1:  # the loop goes on running other work
                 await asyncio.sleep(0.005)
                 ticks += 1
-            assert ticks >= 10 and got == []
+            assert ticks >= 3 and got == []  # (the loop was not stuck in the read)
             peer.send(frame[7:] + ws_frame(0x9, b"are you there") + can_frame(0x181, b"\xcc"))
             await _until(lambda: len(got) == 2)
             assert [f.data for f in got] == [b"\xaa\xbb", b"\xcc"]
@@ -375,6 +395,151 @@ def test_a_connection_dropped_without_a_close_frame_is_reported_with_back_off(pe
             assert net._fd is not None  # still watched, between pauses: 50, 100, 200 ms...
             assert 1 <= len(failures) <= 5
             assert failures[0].reason  # python-can-remote's words for it
+
+    try:
+        _on_real_time_loop(main)
+    finally:
+        close_remote(bus, peer)
+
+
+def test_a_ping_that_no_frame_follows_does_not_spin_the_loop(peer):
+    bus = open_remote(peer)
+
+    async def main():
+        async with AsyncNetwork(bus) as net:
+            calls = 0
+            read = net._read_ready
+
+            def counted() -> None:
+                nonlocal calls
+                calls += 1
+                read()
+
+            net._read_ready = counted  # type: ignore[method-assign]
+            fd = net._fd
+            assert fd is not None
+            net.loop.remove_reader(fd)
+            net.loop.add_reader(fd, counted)
+            got: list[Frame] = []
+            net.subscribe(0x181, lambda f, now: got.append(f))
+            peer.send(ws_frame(0x9, b"hello?"))
+            await asyncio.sleep(0.5)
+            # pauses of 0.5 ms doubling to 50 ms between looks: about 17, not a spin
+            assert 1 <= calls <= 40 and got == []
+            peer.send(can_frame(0x181, b"\x07"))
+            await _until(lambda: got)
+            assert got[0].data == b"\x07"
+            opcode, body = await asyncio.to_thread(peer.read_frame)
+            assert (opcode, body) == (0xA, b"hello?")  # answered once the frame came
+
+    try:
+        _on_real_time_loop(main)
+    finally:
+        close_remote(bus, peer)
+
+
+def test_a_frame_cut_by_a_dropped_connection_is_reported(peer):
+    bus = open_remote(peer)
+
+    async def main():
+        async with AsyncNetwork(bus) as net:
+            failures: list[ReceiveFailed] = []
+            net.add_listener(lambda e: failures.append(e) if isinstance(e, ReceiveFailed) else None)
+            assert peer.conn is not None
+            peer.send(can_frame(0x181, b"\x01\x02")[:6])
+            await asyncio.sleep(0.05)
+            peer.conn.shutdown(socket.SHUT_WR)
+            await _until(lambda: failures)
+
+    try:
+        _on_real_time_loop(main)
+    finally:
+        close_remote(bus, peer)
+
+
+def test_disconnect_while_paused_leaves_the_descriptor_number_alone(peer):
+    """While paused the loop does not watch the descriptor; by then its number may belong to
+    another component (python-can-remote closes its socket on a close frame)."""
+    bus = open_remote(peer)
+
+    async def main():
+        net = AsyncNetwork(bus)
+        await net.connect()
+        fd = net._fd
+        assert fd is not None
+        peer.send(can_frame(0x181, b"")[:3])  # a partial frame: the watch pauses
+        await _until(lambda: net._fd_resume is not None)
+        loop = asyncio.get_running_loop()
+        loop.add_reader(fd, lambda: None)  # someone else's reader now
+        await net.disconnect()
+        assert loop.remove_reader(fd)  # still registered: disconnect left it alone
+
+    try:
+        _on_real_time_loop(main)
+    finally:
+        close_remote(bus, peer)
+
+
+def test_no_read_and_no_lost_frame_after_disconnect_from_a_handler_in_a_burst(peer):
+    bus = open_remote(peer)
+    errors: list[dict[str, object]] = []
+
+    async def main():
+        loop = asyncio.get_running_loop()
+        loop.set_exception_handler(lambda _loop, context: errors.append(context))
+        net = AsyncNetwork(bus)
+        await net.connect()
+        got: list[Frame] = []
+        closing: list[asyncio.Task[None]] = []
+
+        def handler(frame: Frame, now: float) -> None:
+            got.append(frame)
+            if len(got) == 10:
+                closing.append(asyncio.ensure_future(net.disconnect()))
+
+        net.subscribe(0x181, handler)
+        recv, late = bus.recv, []
+
+        def watched(timeout=None):
+            if net._loop is None:
+                late.append(1)  # a read after the disconnect
+            return recv(timeout)
+
+        bus.recv = watched  # type: ignore[method-assign]
+        peer.send(b"".join(can_frame(0x181, bytes([i & 0xFF])) for i in range(600)))
+        await _until(lambda: closing and closing[0].done())
+        await asyncio.sleep(0.05)
+        # the batch read before the disconnect is dispatched; nothing is read after it...
+        assert 10 <= len(got) <= 256 and net._fd is None and net._fd_more is None
+        assert late == []
+        await net.connect()  # ...so that nothing is lost: the rest waits in the socket
+        await _until(lambda: len(got) == 600)
+        assert [f.data[0] for f in got] == [i & 0xFF for i in range(600)]
+        await net.disconnect()
+
+    try:
+        _on_real_time_loop(main)
+    finally:
+        close_remote(bus, peer)
+    assert errors == []
+
+
+def test_the_back_off_starts_again_after_each_good_frame(peer):
+    bus = open_remote(peer)
+    error = ws_frame(0x1, json.dumps({"type": "error", "payload": "boom"}).encode())
+
+    async def main():
+        async with AsyncNetwork(bus) as net:
+            failures: list[ReceiveFailed] = []
+            net.add_listener(lambda e: failures.append(e) if isinstance(e, ReceiveFailed) else None)
+            got: list[Frame] = []
+            net.subscribe(0x181, lambda f, now: got.append(f))
+            for round_ in range(1, 5):
+                peer.send(can_frame(0x181, bytes([round_])) + error)
+                await _until(lambda n=round_: len(failures) == n and len(got) == n)
+                assert net._fd_backoff <= 0.1  # 50 ms, doubled once: never 1 s
+                await _until(lambda: net._fd_resume is None)
+            assert "boom" in failures[0].reason
 
     try:
         _on_real_time_loop(main)

@@ -9,18 +9,12 @@ from __future__ import annotations
 
 import enum
 import functools
+import select
 import socket
-import sys
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import can
-
-try:  # POSIX only: elsewhere python-can-remote is read by a thread
-    import fcntl
-    import termios
-except ImportError:  # pragma: no cover
-    fcntl = termios = None  # type: ignore[assignment]
 
 from cobus.proto import Event, Frame
 from cobus.runtime.errors import BusOpenError
@@ -194,11 +188,11 @@ def error_frames_are_local(bus: can.BusABC) -> bool:
 class Readiness(enum.Enum):
     """What a bus's descriptor holds when the loop finds it readable."""
 
-    #: no bytes wait: ``recv(0)`` returns at once — None, or it raises the error or end of
-    #: stream that made the descriptor readable
-    NOTHING = 0
+    NOTHING = 0  #: no bytes wait (a spurious wake-up, or all was read): nothing to read
     WHOLE = 1  #: a whole frame, or an error or end of stream ``recv`` will report at once
-    PART = 2  #: the start of a frame only: reading now would block until the rest arrives
+    #: the start of a frame only, or control frames only (a ping): reading now would block
+    #: until more arrives
+    PART = 2
 
 
 class LoopSource(NamedTuple):
@@ -232,7 +226,7 @@ def loop_source(bus: can.BusABC) -> LoopSource | None:
         return LoopSource(fd, None) if fd is not None else None
     if cls.__name__ == "RemoteBus" and cls.__module__.startswith("can_remote"):
         sock = getattr(bus, "socket", None)
-        if type(sock) is not socket.socket or _MSG_DONTWAIT is None or _FIONREAD is None:
+        if type(sock) is not socket.socket or _MSG_DONTWAIT is None or _POLLRDHUP is None:
             return None
         fd = _fileno(bus)
         if fd is None or fd != sock.fileno():
@@ -250,8 +244,8 @@ def _fileno(bus: can.BusABC) -> int | None:
 
 
 _MSG_DONTWAIT: int | None = getattr(socket, "MSG_DONTWAIT", None)
+_POLLRDHUP: int | None = getattr(select, "POLLRDHUP", None)  # Linux: the peer closed its side
 _PEEK_FLAGS = int(socket.MSG_PEEK) | (_MSG_DONTWAIT or 0)  # (plain ints: IntFlag's | is slow)
-_FIONREAD: int | None = getattr(termios, "FIONREAD", None) if termios is not None else None
 _PEEK_FIRST = 512  # bytes peeked at first: a CAN frame's websocket frame is 20-250 bytes
 _PEEK_MAX = 1 << 20
 # websocket opcodes (RFC 6455) after which python-can-remote's read() returns or raises;
@@ -262,16 +256,9 @@ _WS_FINAL_OPCODES = frozenset((0x1, 0x2, 0x8))  # text, binary, close
 def websocket_readiness(sock: socket.socket) -> Readiness:
     """Whether the websocket frames waiting in ``sock``'s receive buffer let python-can-remote's
     ``recv`` return without blocking: a whole data or close frame, after any whole control
-    frames. The bytes stay in the buffer (``MSG_PEEK``)."""
-    assert _MSG_DONTWAIT is not None and _FIONREAD is not None
-    count = bytearray(4)
-    # how many bytes wait (no exception when none do: that is the common answer, once the
-    # frames of a wake-up are read)
-    fcntl.ioctl(sock.fileno(), _FIONREAD, count, True)
-    waiting = int.from_bytes(count, sys.byteorder)
-    if waiting <= 0:
-        return Readiness.NOTHING
-    size = min(waiting, _PEEK_FIRST)
+    frames; or an end of stream or error, which ``recv`` reports at once. The bytes stay in
+    the buffer (``MSG_PEEK``)."""
+    size = _PEEK_FIRST
     while True:
         try:
             data = sock.recv(size, _PEEK_FLAGS)
@@ -282,11 +269,24 @@ def websocket_readiness(sock: socket.socket) -> Readiness:
         if not data:
             return Readiness.WHOLE  # end of stream: recv() raises WebsocketClosed at once
         verdict, needed = _scan_websocket(data)
-        if verdict is not Readiness.PART or needed > waiting:
+        if verdict is Readiness.WHOLE:
             return verdict
-        if needed > _PEEK_MAX:  # no CAN frame is this long: let recv() read it
+        if needed > _PEEK_MAX:
+            # no CAN frame is this long (python-can-remote's are 20-250 bytes): let recv()
+            # read it as it comes rather than wait for all of it in the kernel's buffer
             return Readiness.WHOLE
-        size = min(waiting, max(needed, 2 * size))  # it is all there: look further
+        if len(data) < size:  # all that waits was seen, and it is not enough
+            # unless nothing more can come: then recv() reads up to the end and raises
+            return Readiness.WHOLE if _stream_ended(sock) else Readiness.PART
+        size = max(needed, 2 * size)
+
+
+def _stream_ended(sock: socket.socket) -> bool:
+    """Whether the peer closed its side (or the socket failed): no more bytes will come."""
+    assert _POLLRDHUP is not None  # (loop_source offers the peek only where it is known)
+    poller = select.poll()
+    poller.register(sock, _POLLRDHUP)
+    return bool(poller.poll(0))
 
 
 def _scan_websocket(data: bytes) -> tuple[Readiness, int]:

@@ -55,7 +55,8 @@ EventListener = Callable[[Event], Any]
 _EXT = 1 << 31  # dispatch key flag for 29-bit identifiers
 _BATCH = 256  # frames taken from the interface per wake-up
 _DIRECT_WAIT = 0.002  # s a reader thread waits for a busy loop before it hands frames over
-_PART_WAIT = 0.0005  # s the loop waits for the rest of a frame split over network segments
+_PART_WAIT = 0.0005  # s the loop first waits for the rest of a frame split over segments
+_PART_WAIT_MAX = 0.05  # s at most, while no more comes (a ping that no frame follows)
 _FD_BACKOFF = 0.05  # s the loop first waits after a failed read of a bus's descriptor
 _RETRY = 0.001  # seconds between attempts to flush the transmit backlog
 _DRAIN_LIMIT = 1024  # frames dispatched per loop callback before yielding
@@ -268,6 +269,8 @@ class AsyncNetwork:
         self._fd_ready: Callable[[], _bus.Readiness] | None = None
         self._fd_resume: asyncio.TimerHandle | None = None
         self._fd_backoff = _FD_BACKOFF
+        self._part_wait = _PART_WAIT
+        self._fd_more: asyncio.Handle | None = None
         self._poll_hook: Callable[[], bool] | None = None
         self._state_poll: asyncio.TimerHandle | None = None
         #: Whether received error frames report our own controller (see bus.py).
@@ -708,12 +711,18 @@ class AsyncNetwork:
         if self._poll_hook is not None and isinstance(loop, SimulatedEventLoop):
             loop.remove_poll_hook(self._poll_hook)
             self._poll_hook = None
+        if self._fd_more is not None:
+            self._fd_more.cancel()
+            self._fd_more = None
+        paused = self._fd_resume is not None
         if self._fd_resume is not None:
             self._fd_resume.cancel()
             self._fd_resume = None
         if self._fd is not None:
-            loop.remove_reader(self._fd)
+            if not paused:  # (while paused it is not watched, and may be another's by now)
+                loop.remove_reader(self._fd)
             self._fd = self._fd_ready = None
+        self._fd_backoff, self._part_wait = _FD_BACKOFF, _PART_WAIT
         if self._reader is not None:
             self._reader_stop.set()
             self._reader.join(timeout=2.0)
@@ -751,40 +760,41 @@ class AsyncNetwork:
 
     def _read_ready(self) -> None:
         """The bus's descriptor is readable: read what waits, on the loop."""
+        self._fd_more = None
         bus, ready = self._bus, self._fd_ready
-        if bus is None:
-            return
+        if bus is None or self._fd is None or self._fd_resume is not None:
+            return  # (disconnected, or paused, since this was scheduled)
         batch: list[can.Message] = []
+        failure: Exception | None = None
+        part = False
         try:
             while len(batch) < _BATCH:
                 if ready is not None:
                     readiness = ready()
-                    if readiness is _bus.Readiness.PART:
-                        if not batch:
-                            # the rest of a frame is still on its way: wait for it off the
-                            # descriptor (it stays readable, and the loop would spin)
-                            self._pause_reader(_PART_WAIT)
+                    if readiness is not _bus.Readiness.WHOLE:
+                        part = readiness is _bus.Readiness.PART and not batch
                         break
-                    if readiness is _bus.Readiness.NOTHING and batch:
-                        break
-                    # (NOTHING at the first look: recv(0) returns at once, with None or the
-                    # error or end of stream that woke us, reported below)
                 msg = bus.recv(0)
                 if msg is None:
                     break
                 batch.append(msg)
         except Exception as exc:  # any driver failure: report, back off, read on
-            if batch:
-                self._on_messages(batch)
-            self.emit(ReceiveFailed(str(exc)))
+            failure = exc
+        if batch:
+            self._fd_backoff, self._part_wait = _FD_BACKOFF, _PART_WAIT
+            self._on_messages(batch)
+        if failure is not None:
+            self.emit(ReceiveFailed(str(failure)))
             self._pause_reader(self._fd_backoff)
             self._fd_backoff = min(self._fd_backoff * 2, 1.0)
-            return
-        if batch:
-            self._fd_backoff = _FD_BACKOFF
-            self._on_messages(batch)
-            if len(batch) == _BATCH and self._fd_resume is None:  # more may wait: read on
-                self.loop.call_soon(self._read_ready)
+        elif part:
+            # The rest of a frame (or the data frame after a ping) is still on its way: wait
+            # for it off the descriptor, which stays readable and would spin the loop; longer
+            # each time nothing comes (a ping that no frame follows).
+            self._pause_reader(self._part_wait)
+            self._part_wait = min(self._part_wait * 2, _PART_WAIT_MAX)
+        elif len(batch) == _BATCH and self._fd is not None and self._loop is not None:
+            self._fd_more = self._loop.call_soon(self._read_ready)  # more may wait: read on
 
     def _pause_reader(self, delay: float) -> None:
         """Stop watching the descriptor for ``delay`` seconds (a partial frame, a failing
