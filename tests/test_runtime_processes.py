@@ -20,6 +20,7 @@ import pytest
 
 from cobus.proto import Frame
 from cobus.runtime import AsyncNetwork, Network
+from cobus.runtime.events import ReceiveFailed
 
 pytestmark = pytest.mark.interop
 
@@ -130,7 +131,11 @@ class SocketcanBus(can.BusABC):
     def fileno(self):
         return self._r.fileno()
 
+    down = False  # the interface is down: reads fail (ENETDOWN), the socket stays readable
+
     def _recv_internal(self, timeout):
+        if self.down:
+            raise can.CanOperationError("Network is down [Error Code 100]")
         if not self._frames:
             return None, False
         msg = self._frames.popleft()
@@ -167,3 +172,32 @@ def test_socketcan_descriptor_is_watched_by_the_loop_without_a_thread():
     bus.shutdown()
     assert [f.data[0] for f in got] == [i & 0xFF for i in range(600)]
     assert got[0] == Frame(0x181, b"\x00")
+
+
+def test_a_failing_socketcan_read_is_reported_with_back_off_and_reading_resumes():
+    """An interface taken down (ENETDOWN) keeps its socket readable: the loop must not spin
+    on it; once the interface is back, frames flow again."""
+
+    bus = SocketcanBus()
+
+    async def main():
+        async with AsyncNetwork(bus) as net:
+            failures: list[ReceiveFailed] = []
+            net.add_listener(lambda e: failures.append(e) if isinstance(e, ReceiveFailed) else None)
+            got = []
+            net.subscribe(0x181, lambda f, now: got.append(f))
+            bus.down = True
+            bus.inject(can.Message(arbitration_id=0x181, data=b"\x01", is_extended_id=False))
+            await asyncio.sleep(0.4)
+            assert 2 <= len(failures) <= 6  # 50, 100, 200 ms apart: no spin
+            assert "Network is down" in failures[0].reason
+            bus.down = False
+            for _ in range(200):
+                if got:
+                    break
+                await asyncio.sleep(0.01)
+            assert [f.data for f in got] == [b"\x01"]  # the waiting frame, once it is back up
+            assert net._fd == bus.fileno() and net._reader is None
+
+    asyncio.run(main())
+    bus.shutdown()
