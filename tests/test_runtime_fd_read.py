@@ -6,6 +6,9 @@ segments, a ping between frames or a closed connection never stalls or spins the
 peer here is a hand-driven websocket server on 127.0.0.1 that speaks python-can-remote's
 protocol, so each byte the client sees is chosen by the test; the client is python-can's real
 ``remote`` interface.
+
+Also here: python-can's ``udp_multicast`` (read on the loop too), and buses that hand a
+network's own messages back, which it must not deliver twice.
 """
 
 from __future__ import annotations
@@ -545,3 +548,60 @@ def test_the_back_off_starts_again_after_each_good_frame(peer):
         _on_real_time_loop(main)
     finally:
         close_remote(bus, peer)
+
+
+# ---------------------------------------------------------------------------- own messages
+def test_a_bus_that_hands_our_messages_back_delivers_each_once():
+    """python-can's virtual bus with receive_own_messages marks them (is_rx False): the
+    network has echoed them locally already."""
+    bus = can.Bus(interface="virtual", channel="fd-own", receive_own_messages=True)
+
+    async def main():
+        async with AsyncNetwork(bus) as net:
+            got: list[Frame] = []
+            net.subscribe(0x123, lambda f, now: got.append(f))
+            net.send(Frame(0x123, b"\x01"))
+            await asyncio.sleep(0.2)
+            assert got == [Frame(0x123, b"\x01")]
+
+    try:
+        _on_real_time_loop(main)
+    finally:
+        bus.shutdown()
+
+
+def _multicast_or_skip(group: str) -> None:
+    pytest.importorskip("msgpack", reason="python-can's udp_multicast needs msgpack")
+    try:
+        a = can.Bus(interface="udp_multicast", channel=group)
+    except (can.CanError, OSError) as exc:
+        pytest.skip(f"no multicast on this host: {exc}")
+    try:
+        a.send(can.Message(arbitration_id=0x7F0, data=b"", is_extended_id=False))
+        if a.recv(1.0) is None:
+            pytest.skip("multicast loopback delivers nothing on this host")
+    finally:
+        a.shutdown()
+
+
+def test_udp_multicast_is_read_on_the_loop_and_our_own_messages_come_once():
+    from can.interfaces.udp_multicast import UdpMulticastBus
+
+    from cobus.device import add_device, minimal_od
+    from cobus.runtime import Network
+
+    group = UdpMulticastBus.DEFAULT_GROUP_IPv6
+    _multicast_or_skip(group)
+    with (
+        Network(interface="udp_multicast", channel=group) as master,
+        Network(interface="udp_multicast", channel=group) as field,
+    ):
+        assert master.aio._reader is None and master.aio._fd is not None  # no thread
+        got: list[Frame] = []
+        master.subscribe(0x123, lambda f, now: got.append(f))
+        master.send(Frame(0x123, b"\x02"))
+        add_device(field, 5, minimal_od())
+        # the two networks of this process hear each other (different tags)...
+        assert master.add_remote(5, sdo_timeout=2.0).sdo.upload(0x1000)
+        time.sleep(0.1)
+        assert got == [Frame(0x123, b"\x02")]  # ...and each its own frames once

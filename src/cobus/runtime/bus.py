@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import enum
 import functools
+import os
 import select
 import socket
 from collections.abc import Callable
@@ -30,6 +31,7 @@ __all__ = [
     "loop_source",
     "message_to_frame",
     "open_bus",
+    "own_echo_tag",
     "websocket_readiness",
 ]
 
@@ -211,6 +213,7 @@ def loop_source(bus: can.BusABC) -> LoopSource | None:
     """How the loop can read ``bus`` through its file descriptor, or None (a thread reads it).
 
     - SocketCAN: the kernel hands over one frame per read and a readable socket never blocks.
+    - python-can's ``udp_multicast``: one datagram is one message, whole once readable.
     - python-can-remote over plain ``ws://``: its client reads one websocket frame per
       ``recv``, with blocking socket calls. The loop peeks at the socket first
       (:func:`websocket_readiness`) and reads only when a whole frame is in the kernel's
@@ -221,7 +224,7 @@ def loop_source(bus: can.BusABC) -> LoopSource | None:
     reads them.
     """
     cls = type(bus)
-    if cls.__name__ == "SocketcanBus":
+    if cls.__name__ == "SocketcanBus" or _is_udp_multicast(bus):
         fd = _fileno(bus)
         return LoopSource(fd, None) if fd is not None else None
     if cls.__name__ == "RemoteBus" and cls.__module__.startswith("can_remote"):
@@ -232,6 +235,29 @@ def loop_source(bus: can.BusABC) -> LoopSource | None:
         if fd is None or fd != sock.fileno():
             return None
         return LoopSource(fd, functools.partial(websocket_readiness, sock))
+    return None
+
+
+def _is_udp_multicast(bus: can.BusABC) -> bool:
+    cls = type(bus)
+    return cls.__name__ == "UdpMulticastBus" and cls.__module__.startswith(
+        "can.interfaces.udp_multicast"
+    )
+
+
+def own_echo_tag(bus: can.BusABC) -> str | None:
+    """A tag to put in the ``channel`` of every message sent on ``bus``, when the bus hands
+    this side's own messages back as received ones and nothing else tells them apart.
+
+    python-can's ``udp_multicast`` does (multicast loopback, so that processes on one host
+    hear each other): a network already delivers what it sends to its own handlers (local
+    echo), and the copy that comes back must be dropped. Its messages carry their
+    ``channel``, which is how the copy is recognised. Interfaces that mark their own
+    messages (``is_rx`` False: SocketCAN or ``virtual`` with ``receive_own_messages``) need
+    no tag.
+    """
+    if _is_udp_multicast(bus):
+        return f"cobus-{os.getpid()}-{id(bus):x}"
     return None
 
 

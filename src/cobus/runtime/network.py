@@ -275,6 +275,8 @@ class AsyncNetwork:
         self._state_poll: asyncio.TimerHandle | None = None
         #: Whether received error frames report our own controller (see bus.py).
         self._errors_local = True
+        #: Put in the channel of sent messages where the bus hands them back (see bus.py).
+        self._echo_tag: str | None = None
         self.frames_received = 0
         self.frames_sent = 0
         self._failures: dict[tuple[object, ...], int] = {}  # by where they were raised
@@ -429,8 +431,11 @@ class AsyncNetwork:
         if self._backlog:
             self._enqueue(frame)
             return
+        msg = _bus.frame_to_message(frame)
+        if self._echo_tag is not None:
+            msg.channel = self._echo_tag  # to know its copy when the bus hands it back
         try:
-            self._bus.send(_bus.frame_to_message(frame), timeout=0)
+            self._bus.send(msg, timeout=0)
         except (can.CanError, OSError) as exc:
             self._enqueue(frame)
             self._blocked(str(exc))
@@ -568,8 +573,11 @@ class AsyncNetwork:
             return
         while self._backlog:
             frame = self._backlog[0]
+            msg = _bus.frame_to_message(frame)
+            if self._echo_tag is not None:
+                msg.channel = self._echo_tag  # to know its copy when the bus hands it back
             try:
-                bus.send(_bus.frame_to_message(frame), timeout=0)
+                bus.send(msg, timeout=0)
             except (can.CanError, OSError) as exc:
                 self._blocked(str(exc))
                 return
@@ -643,8 +651,11 @@ class AsyncNetwork:
         now = self._loop.time()
         convert = _bus.message_to_frame
         dispatch = self._dispatch
+        tag = self._echo_tag
         received = 0
         for msg in messages:
+            if not msg.is_rx or (tag is not None and msg.channel == tag):
+                continue  # our own message handed back: delivered already (local echo)
             if msg.is_error_frame:
                 self._on_error_frame(msg)
                 continue
@@ -659,7 +670,10 @@ class AsyncNetwork:
             self._drain()
 
     def _queue_messages(self, messages: Iterable[can.Message]) -> None:
+        tag = self._echo_tag
         for msg in messages:
+            if not msg.is_rx or (tag is not None and msg.channel == tag):
+                continue  # our own message handed back (see _on_messages)
             if msg.is_error_frame:
                 self._on_error_frame(msg)
                 continue
@@ -691,6 +705,7 @@ class AsyncNetwork:
     # -- receivers: a file descriptor on the loop, a thread, or a poll hook (simulated clock)
     def _start_receiving(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
         self._errors_local = _bus.error_frames_are_local(bus)
+        self._echo_tag = _bus.own_echo_tag(bus)
         if isinstance(loop, SimulatedEventLoop):
             self._poll_hook = self._poll
             loop.add_poll_hook(self._poll)
