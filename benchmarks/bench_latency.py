@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import importlib.util
 import os
 import resource
 import socket
@@ -297,12 +298,13 @@ _SERVERS = textwrap.dedent(
             if msg is not None and msg.arbitration_id == 0x600 + PONG_NODE:
                 bus.send(reply)
 
-    with Network(interface="remote", channel=sys.argv[1]) as net:
+    interface, channel = sys.argv[1], sys.argv[2]
+    with Network(interface=interface, channel=channel) as net:
         add_device(net, 5, minimal_od())
         co = canopen.Network()
-        co.connect(interface="remote", channel=sys.argv[1])
+        co.connect(interface=interface, channel=channel)
         co.add_node(canopen.LocalNode(6, _canopen_od()))
-        bare = can.Bus(interface="remote", channel=sys.argv[1])
+        bare = can.Bus(interface=interface, channel=channel)
         ponger = threading.Thread(target=pong, args=(bare,))
         ponger.start()
         print("ready", flush=True)
@@ -317,10 +319,10 @@ PONG_NODE = 7
 
 
 class _RemotePing:
-    """Bare python-can over python-can-remote: the child process's thread answers."""
+    """Bare python-can between processes: the child process's thread answers."""
 
-    def __init__(self, url: str) -> None:
-        self.bus = can.Bus(interface="remote", channel=url)
+    def __init__(self, interface: str, channel: str) -> None:
+        self.bus = can.Bus(interface=interface, channel=channel)
         self._request = can.Message(arbitration_id=0x600 + PONG_NODE, data=bytes(8))
 
     def trip(self) -> None:
@@ -360,7 +362,7 @@ def remote_figures() -> dict[str, list[tuple[float, float]]] | None:
             time.sleep(0.05)
         root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
         servers = subprocess.Popen(
-            [sys.executable, "-c", _SERVERS, url],
+            [sys.executable, "-c", _SERVERS, "remote", url],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             text=True,
@@ -369,7 +371,7 @@ def remote_figures() -> dict[str, list[tuple[float, float]]] | None:
         assert servers.stdout is not None
         if servers.stdout.readline().strip() != "ready":
             return None
-        return _interleave_connected(_remote_arrangements(url), url)
+        return _interleave_connected(_remote_arrangements("remote", url), "remote", url)
     finally:
         if servers is not None:
             if servers.stdin is not None:
@@ -379,21 +381,49 @@ def remote_figures() -> dict[str, list[tuple[float, float]]] | None:
         hub.wait(15)
 
 
+def multicast_figures() -> dict[str, list[tuple[float, float]]] | None:
+    """The clients here, the servers in a child process, over python-can's udp_multicast
+    (no hub: each process's socket hears the others; cobus reads it on the loop)."""
+    if importlib.util.find_spec("msgpack") is None:  # python-can's udp_multicast packs with it
+        return None
+    from can.interfaces.udp_multicast import UdpMulticastBus
+
+    group = UdpMulticastBus.DEFAULT_GROUP_IPv6
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    servers = subprocess.Popen(
+        [sys.executable, "-c", _SERVERS, "udp_multicast", group],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=root,
+    )
+    try:
+        assert servers.stdout is not None
+        if servers.stdout.readline().strip() != "ready":
+            return None
+        arrangements = _remote_arrangements("udp_multicast", group)
+        return _interleave_connected(arrangements, "udp_multicast", group)
+    finally:
+        if servers.stdin is not None:
+            servers.stdin.close()
+        servers.wait(15)
+
+
 Arrangement = Callable[[], tuple[Callable[[], object], Callable[[], object]]]
 
 
-def _remote_arrangements(url: str) -> dict[str, Arrangement]:
+def _remote_arrangements(interface: str, url: str) -> dict[str, Arrangement]:
     """Each arrangement opens its own connection to the hub for its measurement and closes
     it after, so that no other client of this process hears (and wakes for) its frames."""
 
     def bare() -> tuple[Callable[[], object], Callable[[], object]]:
-        ping = _RemotePing(url)
+        ping = _RemotePing(interface, url)
         return ping.trip, ping.close
 
     def canopen_to(node_id: int) -> Arrangement:
         def open_() -> tuple[Callable[[], object], Callable[[], object]]:
             net = canopen.Network()
-            net.connect(interface="remote", channel=url)
+            net.connect(interface=interface, channel=url)
             node: Any = canopen.RemoteNode(node_id, canopen.ObjectDictionary())
             net.add_node(node)
             return (lambda: node.sdo.upload(0x1000, 0)), net.disconnect
@@ -402,7 +432,7 @@ def _remote_arrangements(url: str) -> dict[str, Arrangement]:
 
     def cobus_to(node_id: int) -> Arrangement:
         def open_() -> tuple[Callable[[], object], Callable[[], object]]:
-            net = Network(interface="remote", channel=url)
+            net = Network(interface=interface, channel=url)
             sdo = net.add_remote(node_id).sdo
             return (lambda: sdo.upload(0x1000)), net.close
 
@@ -418,7 +448,7 @@ def _remote_arrangements(url: str) -> dict[str, Arrangement]:
 
 
 def _interleave_connected(
-    arrangements: dict[str, Arrangement], url: str
+    arrangements: dict[str, Arrangement], interface: str, url: str
 ) -> dict[str, list[tuple[float, float]]]:
     out: dict[str, list[tuple[float, float]]] = {name: [] for name in arrangements}
     out.update({name: [] for name in ASYNCIO_ROUNDS})
@@ -431,7 +461,7 @@ def _interleave_connected(
                 close()
         for name, cobus_loop in ASYNCIO_ROUNDS.items():
             out[name].append(
-                _asyncio_round("remote", url, device_here=False, cobus_loop=cobus_loop)
+                _asyncio_round(interface, url, device_here=False, cobus_loop=cobus_loop)
             )
     return out
 
@@ -456,6 +486,9 @@ def main() -> None:
     remote = remote_figures()
     if remote is not None:
         _table("The same between two processes through python-can-remote (127.0.0.1)", remote)
+    multicast = multicast_figures()
+    if multicast is not None:
+        _table("The same through python-can's udp_multicast (no hub; msgpack)", multicast)
     blobs = blob_figures()
     _table("4 KiB upload, blocking clients, one process (per upload)", blobs, BLOB_TRIPS)
     theirs, ours = (
