@@ -360,25 +360,38 @@ def remote_figures() -> dict[str, list[tuple[float, float]]] | None:
             with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), 0.2):
                 break
             time.sleep(0.05)
-        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-        servers = subprocess.Popen(
-            [sys.executable, "-c", _SERVERS, "remote", url],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            text=True,
-            cwd=root,
-        )
-        assert servers.stdout is not None
-        if servers.stdout.readline().strip() != "ready":
+        servers = _start_servers("remote", url)
+        if servers is None:
             return None
         return _interleave_connected(_remote_arrangements("remote", url), "remote", url)
     finally:
         if servers is not None:
-            if servers.stdin is not None:
-                servers.stdin.close()
-            servers.wait(15)
+            _stop_servers(servers)
         hub.terminate()
         hub.wait(15)
+
+
+def _start_servers(interface: str, channel: str) -> subprocess.Popen[str] | None:
+    """The servers' child process (_SERVERS) on ``channel``, once it says it is ready."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    servers = subprocess.Popen(
+        [sys.executable, "-c", _SERVERS, interface, channel],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=root,
+    )
+    assert servers.stdout is not None
+    if servers.stdout.readline().strip() != "ready":
+        _stop_servers(servers)
+        return None
+    return servers
+
+
+def _stop_servers(servers: subprocess.Popen[str]) -> None:
+    if servers.stdin is not None:
+        servers.stdin.close()  # the child's cue to stop
+    servers.wait(15)
 
 
 def multicast_figures() -> dict[str, list[tuple[float, float]]] | None:
@@ -389,24 +402,14 @@ def multicast_figures() -> dict[str, list[tuple[float, float]]] | None:
     from can.interfaces.udp_multicast import UdpMulticastBus
 
     group = UdpMulticastBus.DEFAULT_GROUP_IPv6
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    servers = subprocess.Popen(
-        [sys.executable, "-c", _SERVERS, "udp_multicast", group],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
-        cwd=root,
-    )
+    servers = _start_servers("udp_multicast", group)
+    if servers is None:
+        return None
     try:
-        assert servers.stdout is not None
-        if servers.stdout.readline().strip() != "ready":
-            return None
         arrangements = _remote_arrangements("udp_multicast", group)
         return _interleave_connected(arrangements, "udp_multicast", group)
     finally:
-        if servers.stdin is not None:
-            servers.stdin.close()
-        servers.wait(15)
+        _stop_servers(servers)
 
 
 Arrangement = Callable[[], tuple[Callable[[], object], Callable[[], object]]]

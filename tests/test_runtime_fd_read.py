@@ -22,6 +22,7 @@ import socket
 import struct
 import threading
 import time
+from collections.abc import Awaitable, Callable
 
 import can
 import pytest
@@ -277,11 +278,42 @@ async def _until(predicate, seconds: float = 3.0) -> None:
         await asyncio.sleep(0.002)
 
 
+def _count_reads(net: AsyncNetwork) -> list[int]:
+    """Count the loop's looks at the descriptor: ``[n]``, updated as they happen."""
+    calls = [0]
+    read = net._read_ready
+
+    def counted() -> None:
+        calls[0] += 1
+        read()
+
+    net._read_ready = counted  # type: ignore[method-assign]
+    fd = net._fd
+    assert fd is not None
+    net.loop.remove_reader(fd)
+    net.loop.add_reader(fd, counted)
+    return calls
+
+
+def _failures(net: AsyncNetwork) -> list[ReceiveFailed]:
+    """The ReceiveFailed events of ``net``, as they come."""
+    failures: list[ReceiveFailed] = []
+    net.add_listener(lambda e: failures.append(e) if isinstance(e, ReceiveFailed) else None)
+    return failures
+
+
+def _with_remote(peer: Peer, main: Callable[[can.BusABC], Awaitable[None]]) -> None:
+    """Run ``main(bus)`` on a RealTimeLoop with a python-can-remote bus to ``peer``."""
+    bus = open_remote(peer)
+    try:
+        _on_real_time_loop(lambda: main(bus))
+    finally:
+        close_remote(bus, peer)
+
+
 @pytest.mark.parametrize("loop_kind", ["asyncio", "realtime"])
 def test_frames_are_read_on_the_loop_without_a_thread(peer, loop_kind):
-    bus = open_remote(peer)
-
-    async def main():
+    async def main(bus: can.BusABC) -> None:
         async with AsyncNetwork(bus) as net:
             assert net._reader is None and net._fd == bus.fileno()
             got: list[Frame] = []
@@ -294,19 +326,18 @@ def test_frames_are_read_on_the_loop_without_a_thread(peer, loop_kind):
             opcode, body = await asyncio.to_thread(peer.read_frame)
             assert opcode == 0x2 and struct.unpack_from(">I", body, 9)[0] == 0x601
 
+    if loop_kind == "realtime":
+        _with_remote(peer, main)
+        return
+    bus = open_remote(peer)
     try:
-        if loop_kind == "asyncio":
-            asyncio.run(main())
-        else:
-            _on_real_time_loop(main)
+        asyncio.run(main(bus))
     finally:
         close_remote(bus, peer)
 
 
 def test_a_frame_split_over_segments_does_not_stall_the_loop(peer):
-    bus = open_remote(peer)
-
-    async def main():
+    async def main(bus: can.BusABC) -> None:
         async with AsyncNetwork(bus) as net:
             got: list[Frame] = []
             net.subscribe(0x181, lambda f, now: got.append(f))
@@ -325,48 +356,25 @@ def test_a_frame_split_over_segments_does_not_stall_the_loop(peer):
             opcode, body = await asyncio.to_thread(peer.read_frame)
             assert (opcode, body) == (0xA, b"are you there")
 
-    try:
-        _on_real_time_loop(main)
-    finally:
-        close_remote(bus, peer)
+    _with_remote(peer, main)
 
 
 def test_a_partial_frame_does_not_spin_the_loop(peer):
-    bus = open_remote(peer)
-
-    async def main():
+    async def main(bus: can.BusABC) -> None:
         async with AsyncNetwork(bus) as net:
-            calls = 0
-            read = net._read_ready
-
-            def counted() -> None:
-                nonlocal calls
-                calls += 1
-                read()
-
-            net._read_ready = counted  # type: ignore[method-assign]
-            fd = net._fd
-            assert fd is not None
-            net.loop.remove_reader(fd)
-            net.loop.add_reader(fd, counted)
+            calls = _count_reads(net)
             peer.send(can_frame(0x181, b"")[:3])
             await asyncio.sleep(0.2)
             # paused off the descriptor between looks: hundreds, not a spin of millions
-            assert 1 <= calls <= 0.2 / 0.0005 + 10
+            assert 1 <= calls[0] <= 0.2 / 0.0005 + 10
 
-    try:
-        _on_real_time_loop(main)
-    finally:
-        close_remote(bus, peer)
+    _with_remote(peer, main)
 
 
 def test_a_closed_connection_is_reported_with_back_off_then_read_by_a_thread(peer):
-    bus = open_remote(peer)
-
-    async def main():
+    async def main(bus: can.BusABC) -> None:
         async with AsyncNetwork(bus) as net:
-            failures: list[ReceiveFailed] = []
-            net.add_listener(lambda e: failures.append(e) if isinstance(e, ReceiveFailed) else None)
+            failures = _failures(net)
             got: list[Frame] = []
             net.subscribe(0x181, lambda f, now: got.append(f))
             peer.send(can_frame(0x181, b"\x01") + ws_frame(0x8, b"\x03\xe8"))
@@ -378,19 +386,13 @@ def test_a_closed_connection_is_reported_with_back_off_then_read_by_a_thread(pee
             assert net._fd is None and net._reader is not None
             assert 1 <= len(failures) <= 10
 
-    try:
-        _on_real_time_loop(main)
-    finally:
-        close_remote(bus, peer)
+    _with_remote(peer, main)
 
 
 def test_a_connection_dropped_without_a_close_frame_is_reported_with_back_off(peer):
-    bus = open_remote(peer)
-
-    async def main():
+    async def main(bus: can.BusABC) -> None:
         async with AsyncNetwork(bus) as net:
-            failures: list[ReceiveFailed] = []
-            net.add_listener(lambda e: failures.append(e) if isinstance(e, ReceiveFailed) else None)
+            failures = _failures(net)
             assert peer.conn is not None
             peer.conn.close()  # end of stream: the socket stays readable, with nothing in it
             await _until(lambda: failures)
@@ -399,73 +401,46 @@ def test_a_connection_dropped_without_a_close_frame_is_reported_with_back_off(pe
             assert 1 <= len(failures) <= 5
             assert failures[0].reason  # python-can-remote's words for it
 
-    try:
-        _on_real_time_loop(main)
-    finally:
-        close_remote(bus, peer)
+    _with_remote(peer, main)
 
 
 def test_a_ping_that_no_frame_follows_does_not_spin_the_loop(peer):
-    bus = open_remote(peer)
-
-    async def main():
+    async def main(bus: can.BusABC) -> None:
         async with AsyncNetwork(bus) as net:
-            calls = 0
-            read = net._read_ready
-
-            def counted() -> None:
-                nonlocal calls
-                calls += 1
-                read()
-
-            net._read_ready = counted  # type: ignore[method-assign]
-            fd = net._fd
-            assert fd is not None
-            net.loop.remove_reader(fd)
-            net.loop.add_reader(fd, counted)
+            calls = _count_reads(net)
             got: list[Frame] = []
             net.subscribe(0x181, lambda f, now: got.append(f))
             peer.send(ws_frame(0x9, b"hello?"))
             await asyncio.sleep(0.5)
             # pauses of 0.5 ms doubling to 50 ms between looks: about 17, not a spin
-            assert 1 <= calls <= 40 and got == []
+            assert 1 <= calls[0] <= 40 and got == []
             peer.send(can_frame(0x181, b"\x07"))
             await _until(lambda: got)
             assert got[0].data == b"\x07"
             opcode, body = await asyncio.to_thread(peer.read_frame)
             assert (opcode, body) == (0xA, b"hello?")  # answered once the frame came
 
-    try:
-        _on_real_time_loop(main)
-    finally:
-        close_remote(bus, peer)
+    _with_remote(peer, main)
 
 
 def test_a_frame_cut_by_a_dropped_connection_is_reported(peer):
-    bus = open_remote(peer)
-
-    async def main():
+    async def main(bus: can.BusABC) -> None:
         async with AsyncNetwork(bus) as net:
-            failures: list[ReceiveFailed] = []
-            net.add_listener(lambda e: failures.append(e) if isinstance(e, ReceiveFailed) else None)
+            failures = _failures(net)
             assert peer.conn is not None
             peer.send(can_frame(0x181, b"\x01\x02")[:6])
             await asyncio.sleep(0.05)
             peer.conn.shutdown(socket.SHUT_WR)
             await _until(lambda: failures)
 
-    try:
-        _on_real_time_loop(main)
-    finally:
-        close_remote(bus, peer)
+    _with_remote(peer, main)
 
 
 def test_disconnect_while_paused_leaves_the_descriptor_number_alone(peer):
     """While paused the loop does not watch the descriptor; by then its number may belong to
     another component (python-can-remote closes its socket on a close frame)."""
-    bus = open_remote(peer)
 
-    async def main():
+    async def main(bus: can.BusABC) -> None:
         net = AsyncNetwork(bus)
         await net.connect()
         fd = net._fd
@@ -477,17 +452,13 @@ def test_disconnect_while_paused_leaves_the_descriptor_number_alone(peer):
         await net.disconnect()
         assert loop.remove_reader(fd)  # still registered: disconnect left it alone
 
-    try:
-        _on_real_time_loop(main)
-    finally:
-        close_remote(bus, peer)
+    _with_remote(peer, main)
 
 
 def test_no_read_and_no_lost_frame_after_disconnect_from_a_handler_in_a_burst(peer):
-    bus = open_remote(peer)
     errors: list[dict[str, object]] = []
 
-    async def main():
+    async def main(bus: can.BusABC) -> None:
         loop = asyncio.get_running_loop()
         loop.set_exception_handler(lambda _loop, context: errors.append(context))
         net = AsyncNetwork(bus)
@@ -520,21 +491,16 @@ def test_no_read_and_no_lost_frame_after_disconnect_from_a_handler_in_a_burst(pe
         assert [f.data[0] for f in got] == [i & 0xFF for i in range(600)]
         await net.disconnect()
 
-    try:
-        _on_real_time_loop(main)
-    finally:
-        close_remote(bus, peer)
+    _with_remote(peer, main)
     assert errors == []
 
 
 def test_the_back_off_starts_again_after_each_good_frame(peer):
-    bus = open_remote(peer)
     error = ws_frame(0x1, json.dumps({"type": "error", "payload": "boom"}).encode())
 
-    async def main():
+    async def main(bus: can.BusABC) -> None:
         async with AsyncNetwork(bus) as net:
-            failures: list[ReceiveFailed] = []
-            net.add_listener(lambda e: failures.append(e) if isinstance(e, ReceiveFailed) else None)
+            failures = _failures(net)
             got: list[Frame] = []
             net.subscribe(0x181, lambda f, now: got.append(f))
             for round_ in range(1, 5):
@@ -544,10 +510,7 @@ def test_the_back_off_starts_again_after_each_good_frame(peer):
                 await _until(lambda: net._fd_resume is None)
             assert "boom" in failures[0].reason
 
-    try:
-        _on_real_time_loop(main)
-    finally:
-        close_remote(bus, peer)
+    _with_remote(peer, main)
 
 
 # ---------------------------------------------------------------------------- own messages
