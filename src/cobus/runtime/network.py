@@ -431,11 +431,8 @@ class AsyncNetwork:
         if self._backlog:
             self._enqueue(frame)
             return
-        msg = _bus.frame_to_message(frame)
-        if self._echo_tag is not None:
-            msg.channel = self._echo_tag  # to know its copy when the bus hands it back
         try:
-            self._bus.send(msg, timeout=0)
+            self._bus.send(self._message(frame), timeout=0)
         except (can.CanError, OSError) as exc:
             self._enqueue(frame)
             self._blocked(str(exc))
@@ -566,6 +563,13 @@ class AsyncNetwork:
         if self._retry_handle is None and self._loop is not None:
             self._retry_handle = self._loop.call_later(_RETRY, self._flush)
 
+    def _message(self, frame: Frame) -> can.Message:
+        """The python-can message that sends ``frame``."""
+        msg = _bus.frame_to_message(frame)
+        if self._echo_tag is not None:
+            msg.channel = self._echo_tag  # to know its copy when the bus hands it back
+        return msg
+
     def _flush(self) -> None:
         self._retry_handle = None
         bus = self._bus
@@ -573,11 +577,8 @@ class AsyncNetwork:
             return
         while self._backlog:
             frame = self._backlog[0]
-            msg = _bus.frame_to_message(frame)
-            if self._echo_tag is not None:
-                msg.channel = self._echo_tag  # to know its copy when the bus hands it back
             try:
-                bus.send(msg, timeout=0)
+                bus.send(self._message(frame), timeout=0)
             except (can.CanError, OSError) as exc:
                 self._blocked(str(exc))
                 return
