@@ -18,6 +18,7 @@ import base64
 import contextlib
 import hashlib
 import json
+import random
 import socket
 import struct
 import threading
@@ -242,10 +243,10 @@ def test_a_frame_cut_by_the_end_of_stream_reads_at_once(pair):
     assert websocket_readiness(a) is Readiness.WHOLE
 
 
-def test_a_frame_longer_than_any_can_frame_is_read_as_it_comes(pair):
+def test_a_frame_longer_than_any_can_frame_is_left_to_a_thread(pair):
     a, b = pair
     b.sendall(b"\x81\x7f" + (16 << 20).to_bytes(8, "big") + b"x" * 100)  # 16 MiB announced
-    assert websocket_readiness(a) is Readiness.WHOLE
+    assert websocket_readiness(a) is Readiness.HUGE  # more than the kernel's buffer may hold
 
 
 def test_which_buses_the_loop_reads(peer):
@@ -533,10 +534,10 @@ def test_a_bus_that_hands_our_messages_back_delivers_each_once():
         bus.shutdown()
 
 
-def _multicast_or_skip(group: str) -> None:
+def _multicast_or_skip(group: str, port: int) -> None:
     pytest.importorskip("msgpack", reason="python-can's udp_multicast needs msgpack")
     try:
-        a = can.Bus(interface="udp_multicast", channel=group)
+        a = can.Bus(interface="udp_multicast", channel=group, port=port)
     except (can.CanError, OSError) as exc:
         pytest.skip(f"no multicast on this host: {exc}")
     try:
@@ -554,10 +555,11 @@ def test_udp_multicast_is_read_on_the_loop_and_our_own_messages_come_once():
     from cobus.runtime import Network
 
     group = UdpMulticastBus.DEFAULT_GROUP_IPv6
-    _multicast_or_skip(group)
+    port = random.randrange(20000, 60000)  # (not the default port the benchmarks use)
+    _multicast_or_skip(group, port)
     with (
-        Network(interface="udp_multicast", channel=group) as master,
-        Network(interface="udp_multicast", channel=group) as field,
+        Network(interface="udp_multicast", channel=group, port=port) as master,
+        Network(interface="udp_multicast", channel=group, port=port) as field,
     ):
         assert master.aio._reader is None and master.aio._fd is not None  # no thread
         got: list[Frame] = []
@@ -568,3 +570,57 @@ def test_udp_multicast_is_read_on_the_loop_and_our_own_messages_come_once():
         assert master.add_remote(5, sdo_timeout=2.0).sdo.upload(0x1000)
         time.sleep(0.1)
         assert got == [Frame(0x123, b"\x02")]  # ...and each its own frames once
+
+
+def test_own_messages_are_recognised_through_a_fault_injecting_wrapper():
+    from can.interfaces.udp_multicast import UdpMulticastBus
+
+    from cobus.runtime.bus import own_echo
+    from cobus.sim import FaultyBus
+
+    group = UdpMulticastBus.DEFAULT_GROUP_IPv6
+    port = random.randrange(20000, 60000)
+    _multicast_or_skip(group, port)
+    inner = can.Bus(interface="udp_multicast", channel=group, port=port)
+    try:
+        wrapped = FaultyBus(inner)
+        assert own_echo(wrapped).tag is not None  # udp_multicast's, seen through the wrapper
+        assert own_echo(wrapped).tag != own_echo(inner).tag  # (a fresh one each time)
+        assert loop_source(wrapped) is None  # faults are injected in recv: a thread reads
+    finally:
+        inner.shutdown()
+
+
+def test_only_the_virtual_bus_is_trusted_to_mark_our_own_messages():
+    """SocketCAN marks every frame sent from the same host as not received (is_rx False),
+    whichever program sent it (python-can issue 1274): those frames must be delivered."""
+    from cobus.runtime.bus import own_echo
+
+    own = can.Bus(interface="virtual", channel="fd-mark", receive_own_messages=True)
+    plain = can.Bus(interface="virtual", channel="fd-mark")
+    try:
+        assert own_echo(own).marked and not own_echo(plain).marked
+    finally:
+        own.shutdown()
+        plain.shutdown()
+
+
+def test_a_huge_frame_hands_the_connection_to_a_thread_without_stalling_the_loop(peer):
+    async def main(bus: can.BusABC) -> None:
+        async with AsyncNetwork(bus) as net:
+            got: list[Frame] = []
+            net.subscribe(0x181, lambda f, now: got.append(f))
+            size = 2 << 20  # 2 MiB, a binary message python-can-remote does not know
+            huge = ws_frame(0x2, b"\x00" * size)
+            peer.send(huge[:1000])
+            ticks, start = 0, time.monotonic()
+            while time.monotonic() - start < 0.1:
+                await asyncio.sleep(0.005)
+                ticks += 1
+            assert ticks >= 3  # the loop runs on
+            assert net._fd is None and net._reader is not None  # a thread reads now
+            await asyncio.to_thread(peer.send, huge[1000:] + can_frame(0x181, b"\x09"))
+            await _until(lambda: got, 10.0)
+            assert got[0].data == b"\x09"
+
+    _with_remote(peer, main)

@@ -201,3 +201,25 @@ def test_a_failing_socketcan_read_is_reported_with_back_off_and_reading_resumes(
 
     asyncio.run(main())
     bus.shutdown()
+
+
+def test_socketcan_frames_of_other_programs_on_the_host_are_delivered():
+    """python-can marks a SocketCAN frame sent by any program of the same host is_rx False
+    (the kernel's MSG_DONTROUTE; python-can issue 1274): it is not this network's own."""
+    bus = SocketcanBus()
+
+    async def main():
+        async with AsyncNetwork(bus) as net:
+            got = []
+            net.subscribe(0x181, lambda f, now: got.append(f))
+            local = can.Message(arbitration_id=0x181, data=b"\x05", is_extended_id=False)
+            local.is_rx = False  # as python-can reads another local program's frame
+            bus.inject(local)
+            for _ in range(100):
+                if got:
+                    break
+                await asyncio.sleep(0.01)
+            assert [f.data for f in got] == [b"\x05"]
+
+    asyncio.run(main())
+    bus.shutdown()

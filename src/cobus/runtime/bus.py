@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import enum
 import functools
-import os
 import select
 import socket
+import uuid
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -24,6 +24,7 @@ from cobus.runtime.events import BusErrorFrame, BusState, RxOverflow, TxBufferOv
 __all__ = [
     "BusOpenError",
     "LoopSource",
+    "OwnEcho",
     "Readiness",
     "decode_error_frame",
     "error_frames_are_local",
@@ -31,7 +32,7 @@ __all__ = [
     "loop_source",
     "message_to_frame",
     "open_bus",
-    "own_echo_tag",
+    "own_echo",
     "websocket_readiness",
 ]
 
@@ -195,6 +196,9 @@ class Readiness(enum.Enum):
     #: the start of a frame only, or control frames only (a ping): reading now would block
     #: until more arrives
     PART = 2
+    #: the start of a frame longer than any CAN frame, maybe longer than the kernel's buffer:
+    #: it cannot be waited for there, so a thread must read this connection
+    HUGE = 3
 
 
 class LoopSource(NamedTuple):
@@ -245,20 +249,38 @@ def _is_udp_multicast(bus: can.BusABC) -> bool:
     )
 
 
-def own_echo_tag(bus: can.BusABC) -> str | None:
-    """A tag to put in the ``channel`` of every message sent on ``bus``, when the bus hands
-    this side's own messages back as received ones and nothing else tells them apart.
+class OwnEcho(NamedTuple):
+    """How this side's own messages come back from a bus, to be dropped: a network has
+    delivered them to its own handlers when it sent them (local echo)."""
 
-    python-can's ``udp_multicast`` does (multicast loopback, so that processes on one host
-    hear each other): a network already delivers what it sends to its own handlers (local
-    echo), and the copy that comes back must be dropped. Its messages carry their
-    ``channel``, which is how the copy is recognised. Interfaces that mark their own
-    messages (``is_rx`` False: SocketCAN or ``virtual`` with ``receive_own_messages``) need
-    no tag.
+    #: they come back marked ``is_rx`` False, and only they do
+    marked: bool
+    #: they come back unmarked: put this in the ``channel`` of each message sent, and drop
+    #: what comes back with it
+    tag: str | None
+
+
+def own_echo(bus: can.BusABC) -> OwnEcho:
+    """Whether and how ``bus`` hands this side's own messages back (see :class:`OwnEcho`).
+
+    - python-can's ``udp_multicast`` always does (multicast loopback, so that processes on
+      one host hear each other), unmarked: a tag in ``channel``, which it carries.
+    - ``virtual`` with ``receive_own_messages=True`` marks exactly its own (``is_rx`` False).
+    - Elsewhere ``is_rx`` cannot be trusted to mean "ours": SocketCAN marks every frame sent
+      from the same host, by any program, as not received (python-can issue 1274), and
+      cobus never asks it for its own messages.
+
+    A bus that wraps another (``cobus.sim.FaultyBus``) names it in ``inner``.
     """
+    inner = getattr(bus, "inner", None)
+    if isinstance(inner, can.BusABC):
+        return own_echo(inner)
     if _is_udp_multicast(bus):
-        return f"cobus-{os.getpid()}-{id(bus):x}"
-    return None
+        return OwnEcho(False, f"cobus-{uuid.uuid4().hex}")
+    cls = type(bus)
+    if cls.__name__ == "VirtualBus" and cls.__module__.startswith("can.interfaces.virtual"):
+        return OwnEcho(bool(getattr(bus, "receive_own_messages", False)), None)
+    return OwnEcho(False, None)
 
 
 def _fileno(bus: can.BusABC) -> int | None:
@@ -297,10 +319,8 @@ def websocket_readiness(sock: socket.socket) -> Readiness:
         verdict, needed = _scan_websocket(data)
         if verdict is Readiness.WHOLE:
             return verdict
-        if needed > _PEEK_MAX:
-            # no CAN frame is this long (python-can-remote's are 20-250 bytes): let recv()
-            # read it as it comes rather than wait for all of it in the kernel's buffer
-            return Readiness.WHOLE
+        if needed > _PEEK_MAX:  # python-can-remote's CAN frames are 20-250 bytes
+            return Readiness.HUGE
         if len(data) < size:  # all that waits was seen, and it is not enough
             # unless nothing more can come: then recv() reads up to the end and raises
             return Readiness.WHOLE if _stream_ended(sock) else Readiness.PART

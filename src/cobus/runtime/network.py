@@ -275,7 +275,8 @@ class AsyncNetwork:
         self._state_poll: asyncio.TimerHandle | None = None
         #: Whether received error frames report our own controller (see bus.py).
         self._errors_local = True
-        #: Put in the channel of sent messages where the bus hands them back (see bus.py).
+        #: How the bus hands our own messages back, to drop them (see bus.py: OwnEcho).
+        self._own_marked = False
         self._echo_tag: str | None = None
         self.frames_received = 0
         self.frames_sent = 0
@@ -652,10 +653,10 @@ class AsyncNetwork:
         now = self._loop.time()
         convert = _bus.message_to_frame
         dispatch = self._dispatch
-        tag = self._echo_tag
+        marked, tag = self._own_marked, self._echo_tag
         received = 0
         for msg in messages:
-            if not msg.is_rx or (tag is not None and msg.channel == tag):
+            if (marked and not msg.is_rx) or (tag is not None and msg.channel == tag):
                 continue  # our own message handed back: delivered already (local echo)
             if msg.is_error_frame:
                 self._on_error_frame(msg)
@@ -671,9 +672,9 @@ class AsyncNetwork:
             self._drain()
 
     def _queue_messages(self, messages: Iterable[can.Message]) -> None:
-        tag = self._echo_tag
+        marked, tag = self._own_marked, self._echo_tag
         for msg in messages:
-            if not msg.is_rx or (tag is not None and msg.channel == tag):
+            if (marked and not msg.is_rx) or (tag is not None and msg.channel == tag):
                 continue  # our own message handed back (see _on_messages)
             if msg.is_error_frame:
                 self._on_error_frame(msg)
@@ -706,7 +707,7 @@ class AsyncNetwork:
     # -- receivers: a file descriptor on the loop, a thread, or a poll hook (simulated clock)
     def _start_receiving(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
         self._errors_local = _bus.error_frames_are_local(bus)
-        self._echo_tag = _bus.own_echo_tag(bus)
+        self._own_marked, self._echo_tag = _bus.own_echo(bus)
         if isinstance(loop, SimulatedEventLoop):
             self._poll_hook = self._poll
             loop.add_poll_hook(self._poll)
@@ -782,13 +783,14 @@ class AsyncNetwork:
             return  # (disconnected, or paused, since this was scheduled)
         batch: list[can.Message] = []
         failure: Exception | None = None
-        part = False
+        part = huge = False
         try:
             while len(batch) < _BATCH:
                 if ready is not None:
                     readiness = ready()
                     if readiness is not _bus.Readiness.WHOLE:
                         part = readiness is _bus.Readiness.PART and not batch
+                        huge = readiness is _bus.Readiness.HUGE
                         break
                 msg = bus.recv(0)
                 if msg is None:
@@ -803,6 +805,8 @@ class AsyncNetwork:
             self.emit(ReceiveFailed(str(failure)))
             self._pause_reader(self._fd_backoff)
             self._fd_backoff = min(self._fd_backoff * 2, 1.0)
+        elif huge:  # a frame too long to wait for in the kernel's buffer: a thread reads on
+            self._hand_to_thread()
         elif part:
             # The rest of a frame (or the data frame after a ping) is still on its way: wait
             # for it off the descriptor, which stays readable and would spin the loop; longer
@@ -835,6 +839,15 @@ class AsyncNetwork:
                 pass
         # The descriptor is gone (a python-can-remote connection closed its socket): a
         # thread reads on, reports what fails and backs off.
+        self._fd = self._fd_ready = None
+        self._start_reader_thread(loop, bus)
+
+    def _hand_to_thread(self) -> None:
+        """From now on a reader thread reads this bus, not the loop."""
+        loop, bus, fd = self._loop, self._bus, self._fd
+        if loop is None or bus is None or fd is None:
+            return
+        loop.remove_reader(fd)
         self._fd = self._fd_ready = None
         self._start_reader_thread(loop, bus)
 
