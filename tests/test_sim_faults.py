@@ -281,6 +281,22 @@ def test_frame_corruption_flips_one_bit_at_the_rate():
     assert abs(bad - 100) <= 3 * (2000 * 0.05 * 0.95) ** 0.5
 
 
+def test_a_corrupted_copy_keeps_what_tells_a_networks_own_messages():
+    """The runtime drops its own messages handed back by the bus by their channel tag
+    (udp_multicast) or is_rx mark (virtual with receive_own_messages): a corrupted copy
+    keeps both, or its own frame would come back to a network as someone else's."""
+    inner = can.Bus(interface="virtual", channel="faults-own-marks")
+    try:
+        faulty = FaultyBus(inner, corruption=1.0, seed=1)
+        msg = can.Message(arbitration_id=0x181, data=b"\x01", is_extended_id=False)
+        msg.channel, msg.is_rx = "cobus-tag", False
+        copy = faulty._fate(msg)
+        assert copy is not None and copy.data != msg.data
+        assert (copy.channel, copy.is_rx) == ("cobus-tag", False)
+    finally:
+        inner.shutdown()
+
+
 def test_babbling_node_raises_the_bus_traffic():
     async def scenario(b: SimBench):
         counts: dict[int, int] = {}

@@ -200,6 +200,8 @@ class FaultyBus(can.BusABC):
                 is_remote_frame=msg.is_remote_frame,
                 dlc=msg.dlc,
                 data=bytes(data),
+                channel=msg.channel,  # (the runtime tells its own messages by these two)
+                is_rx=msg.is_rx,
                 check=False,
             )
         return msg
