@@ -2,8 +2,10 @@
 written, events go out and failures are told. Each service (``sdo_server``, ``pdo``, ``sync``,
 ``time``, ``emcy``, ``heartbeat``, ``guarding``, ``nmt``, ``storage``) gets this one object as
 its port to the rest of the device, instead of reaching into the :class:`Device` or into a
-sibling; a service registers the write handlers of the objects it owns here (as CANopenNode's
-``CO_SYNC.c`` registers ``OD_write_1005``).
+sibling. A service registers here what the others must know of the objects it owns: their
+write handlers (as CANopenNode's ``CO_SYNC.c`` registers ``OD_write_1005``), the COB-IDs of
+the pre-defined connection set that follow the node-ID, the objects never stored, and a
+download it decodes itself.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ if TYPE_CHECKING:
     from cobus.device.simulation import Simulation
     from cobus.runtime.network import AsyncNetwork
 
-__all__ = ["INVALID", "Core", "Listener", "WriteHandler", "abort"]
+__all__ = ["INVALID", "Core", "DownloadHandler", "Listener", "WriteHandler", "abort"]
 
 #: The logger the device has always used for failing callbacks.
 log = logging.getLogger("cobus.device.device")
@@ -32,9 +34,14 @@ Listener = Callable[[DeviceEvent], object]
 #: ``handler(entry, value)``: takes a checked value written to an object the service owns
 #: (by SDO or by the application); stores it and applies it, or raises :class:`SdoAbort`.
 WriteHandler = Callable[[Entry, Any], None]
+#: ``handler(entry, data)``: takes the raw bytes of an SDO download to an entry whose bytes
+#: its service decodes itself (instead of by the entry's data type and access).
+DownloadHandler = Callable[[Entry, bytes], None]
 
 #: Bit 31 of a COB-ID parameter: not valid.
 INVALID = 1 << 31
+#: Bit 29 of a COB-ID parameter: a 29-bit identifier.
+EXTENDED = 1 << 29
 
 
 def abort(code: int, reason: str) -> SdoAbort:
@@ -47,13 +54,16 @@ class Core:
 
     __slots__ = (
         "deviations",
+        "downloads",
         "entries",
         "handlers",
         "indices",
         "listeners",
         "network",
         "nmt",
+        "node_bases",
         "node_id",
+        "not_stored",
         "od",
         "simulation",
         "started",
@@ -81,6 +91,12 @@ class Core:
             self.entries[entry.key] = entry
         self.indices: set[int] = {obj.index for obj in od if obj.index >= 0x1000}
         self.handlers: dict[int, WriteHandler] = {}
+        #: Entry key -> the base its pre-defined COB-ID adds the node-ID to (CiA 301).
+        self.node_bases: dict[int, int] = {}
+        #: Objects the storage never stores (command objects, the error history).
+        self.not_stored: set[int] = set()
+        #: Entry key -> the service's decoder of an SDO download to that entry.
+        self.downloads: dict[int, DownloadHandler] = {}
         self.listeners: list[Listener] = []
         #: The NMT slave of the current communication (a new one after a node-ID change).
         self.nmt = NmtSlave(node_id)
@@ -94,6 +110,25 @@ class Core:
         """Writes to ``index`` go to ``handler`` (when the dictionary has that object)."""
         if index in self.indices:
             self.handlers[index] = handler
+
+    def follows_node_id(self, index: int, subindex: int, base: int) -> None:
+        """The entry is a COB-ID of the pre-defined connection set: ``base`` + node-ID."""
+        self.node_bases[index << 8 | subindex] = base
+
+    def node_offset(self, entry: Entry, value: Any) -> int | None:
+        """``value - node_id`` when ``value`` follows ``$NODEID`` (an entry whose default is a
+        ``$NODEID`` expression and holds it, or a pre-defined COB-ID that holds its CiA 301
+        value), else None: such a value moves with a node-ID change and is stored relative."""
+        if not isinstance(value, int) or isinstance(value, bool):
+            return None
+        node_id = self.node_id
+        var = entry.var
+        if var.relative:
+            return value - node_id if value == var.value else None
+        base = self.node_bases.get(entry.key)
+        if base is None or value & EXTENDED or value & 0x1FFFFFFF != base + node_id:
+            return None
+        return value - node_id
 
     def entry(self, index: int, subindex: int) -> Entry:
         """The entry an SDO request names, or the abort for a missing object or sub-index."""

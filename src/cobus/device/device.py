@@ -45,7 +45,6 @@ from cobus.device.storage import (
     SAVE_SIGNATURE,
     ParameterStorage,
     StorageService,
-    node_offset,
 )
 from cobus.device.sync import SyncService
 from cobus.device.timestamp import TimeService
@@ -359,7 +358,7 @@ class Device:
         follow = {}
         for key, entry in self._core.entries.items():
             if entry.index < 0x2000 or entry.var.relative:
-                offset = node_offset(entry, entry.value, old)
+                offset = self._core.node_offset(entry, entry.value)
                 if offset is not None:
                     follow[key] = offset
         self._core.node_id = node_id

@@ -98,6 +98,8 @@ class EmcyService:
         core.handle(0x1003, self._w_error_field)
         core.handle(0x1014, self._w_cob_id)
         core.handle(0x1015, self._w_inhibit)
+        core.follows_node_id(0x1014, 0, _emcy.EMCY_BASE)
+        core.not_stored.add(0x1003)  # the history is the device's record, not a parameter
         for sub in range(0, 255):
             entry = core.entries.get(0x1003 << 8 | sub)
             if entry is not None:

@@ -42,6 +42,8 @@ from cobus.proto.pdo import (
     RpdoTooShort,
     TransmissionType,
     is_restricted_can_id,
+    rpdo_default_can_id,
+    tpdo_default_can_id,
 )
 from cobus.proto.sdo import SdoAbort, SdoAbortCode
 
@@ -103,6 +105,9 @@ class PdoService:
                 core.handle(index, self._w_comm)
             elif 0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF:
                 core.handle(index, self._w_mapping)
+        for n in range(1, 5):  # PDO 1-4 of the pre-defined connection set
+            core.follows_node_id(0x1400 + n - 1, 1, rpdo_default_can_id(n, 1) - 1)
+            core.follows_node_id(0x1800 + n - 1, 1, tpdo_default_can_id(n, 1) - 1)
 
     def build(self) -> None:
         """Build every PDO the dictionary has (after a reset communication)."""

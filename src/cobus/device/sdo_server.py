@@ -17,7 +17,7 @@ from __future__ import annotations
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
-from cobus.device._core import INVALID, Core, abort
+from cobus.device._core import EXTENDED, INVALID, Core, abort
 from cobus.device._entries import Entry, decode_download
 from cobus.device._gates import LateSdoServer
 from cobus.device._objects import RO, U8, U32, composite, var
@@ -33,7 +33,6 @@ if TYPE_CHECKING:
 __all__ = ["SdoBackend", "SdoServerService", "define_objects"]
 
 _ABORT = SdoAbortCode
-_EXTENDED = 1 << 29
 
 
 class SdoBackend:
@@ -158,6 +157,8 @@ class SdoServerService:
         self._channels: dict[int, _Channel] = {}
         for index in range(0x1200, 0x1280):
             core.handle(index, self._w_server)
+        core.follows_node_id(0x1200, 1, 0x600)  # the default channel of the connection set
+        core.follows_node_id(0x1200, 2, 0x580)
 
     def build(self) -> None:
         """(Re)build every valid channel; transfers in progress end silently."""
@@ -203,7 +204,7 @@ class SdoServerService:
         if sub in (1, 2):
             kind, number = ("sdo_rx" if sub == 1 else "sdo_tx"), entry.index - 0x1200 + 1
             new = core.cob_id(kind, number, value)
-            if new & _EXTENDED:
+            if new & EXTENDED:
                 raise abort(_ABORT.INVALID_VALUE, "29-bit SDO identifiers are not supported")
             can_id = new & 0x1FFFFFFF
             if can_id > 0x7FF:

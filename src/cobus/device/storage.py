@@ -30,8 +30,6 @@ from cobus.device._objects import U8, U32, composite
 from cobus.device.errors import StorageError
 from cobus.device.events import ParametersRestored, ParametersStored, StorageProblem
 from cobus.od import Array, ObjectDictionary, encode
-from cobus.proto.emcy import EMCY_BASE
-from cobus.proto.pdo import rpdo_default_can_id, tpdo_default_can_id
 from cobus.proto.sdo import SdoAbort, SdoAbortCode
 
 __all__ = [
@@ -45,7 +43,6 @@ __all__ = [
     "StorageService",
     "StoredValue",
     "define_objects",
-    "node_offset",
     "open_storage",
 ]
 
@@ -213,36 +210,11 @@ SAVE_SIGNATURE = 0x65766173
 LOAD_SIGNATURE = 0x64616F6C
 
 _ABORT = SdoAbortCode
-_NOT_STORED = frozenset((0x1003, 0x1010, 0x1011))
-_EXTENDED = 1 << 29
 _SUBINDEX_GROUPS = {1: (COMMUNICATION, APPLICATION), 2: (COMMUNICATION,), 3: (APPLICATION,)}
 
 
 def _in_group(group: str, index: int) -> bool:
     return index < 0x2000 if group == COMMUNICATION else 0x2000 <= index < 0xA000
-
-
-def node_offset(entry: Entry, value: Any, node_id: int) -> int | None:
-    """``value - node_id`` when ``value`` follows ``$NODEID`` (an entry whose default is a
-    ``$NODEID`` expression and holds it, or a pre-defined COB-ID), else None."""
-    if not isinstance(value, int) or isinstance(value, bool):
-        return None
-    var = entry.var
-    if var.relative:
-        return value - node_id if value == var.value else None
-    index, sub = entry.index, entry.subindex
-    base: int | None = None
-    if index == 0x1014 and sub == 0:
-        base = EMCY_BASE
-    elif index == 0x1200 and sub in (1, 2):
-        base = 0x600 if sub == 1 else 0x580
-    elif sub == 1 and 0x1400 <= index <= 0x1403:
-        base = rpdo_default_can_id(index - 0x1400 + 1, node_id) - node_id
-    elif sub == 1 and 0x1800 <= index <= 0x1803:
-        base = tpdo_default_can_id(index - 0x1800 + 1, node_id) - node_id
-    if base is None or value & _EXTENDED or value & 0x1FFFFFFF != base + node_id:
-        return None
-    return value - node_id
 
 
 def define_objects(od: ObjectDictionary) -> None:
@@ -283,6 +255,7 @@ class StorageService:
         self._failed = False
         core.handle(0x1010, self._w_store)
         core.handle(0x1011, self._w_restore)
+        core.not_stored.update((0x1010, 0x1011))
 
     def power_on(self, *, communication: bool, application: bool) -> None:
         """The values of a reset: the defaults, then what is stored, of the communication
@@ -359,7 +332,11 @@ class StorageService:
             index_text, _, sub_text = key.partition(":")
             index, subindex = int(index_text, 16), int(sub_text, 16)
             entry = core.entries[index << 8 | subindex]
-            if not _in_group(group, index) or not entry.var.access.writable or index in _NOT_STORED:
+            if (
+                not _in_group(group, index)
+                or not entry.var.access.writable
+                or index in core.not_stored
+            ):
                 raise ValueError(f"0x{index:04X}:{subindex:02X} is no {group} parameter")
             if "node_id_offset" in item:
                 value = check_value(entry, core.node_id + int(item["node_id_offset"]))
@@ -375,7 +352,11 @@ class StorageService:
         out: dict[str, StoredValue] = {}
         for entry in core.entries.values():
             index = entry.index
-            if not _in_group(group, index) or index in _NOT_STORED or not entry.var.access.writable:
+            if (
+                not _in_group(group, index)
+                or index in core.not_stored
+                or not entry.var.access.writable
+            ):
                 continue
             key = f"{index:04X}:{entry.subindex:02X}"
             value = entry.value
@@ -384,7 +365,7 @@ class StorageService:
                     value = check_value(entry, entry.reader())
                 except Exception as exc:  # the application's value cannot be read: keep ours
                     core.failure(f"read callback of {key}", exc)
-            offset = node_offset(entry, value, core.node_id)
+            offset = core.node_offset(entry, value)
             if offset is not None:
                 out[key] = {"node_id_offset": offset}
             else:
