@@ -75,16 +75,12 @@ class SdoBackend:
         core = self._core
         entry = core.entry(index, subindex)
         var = entry.var
+        if core.downloads:
+            own = core.downloads.get(entry.key)
+            if own is not None:  # a service decodes these bytes itself
+                own(entry, data)
+                return
         deviations = core.deviations
-        if deviations.store_on_subindex_0 and index == 0x1010 and subindex == 0:
-            # sub 0 is the UNSIGNED8 count; the signature written there is an UNSIGNED32
-            if len(data) != 4:
-                raise abort(
-                    _ABORT.LENGTH_MISMATCH,
-                    f"1010h sub 0 takes the 4-byte signature 'save', got {len(data)} bytes",
-                )
-            core.write(entry, int.from_bytes(data, "little"), remote=True)
-            return
         if not var.access.writable:
             raise abort(_ABORT.WRITE_READ_ONLY, f"{var.name!r} is {var.access}")
         size = entry.size

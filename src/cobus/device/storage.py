@@ -256,6 +256,18 @@ class StorageService:
         core.handle(0x1010, self._w_store)
         core.handle(0x1011, self._w_restore)
         core.not_stored.update((0x1010, 0x1011))
+        if core.deviations.store_on_subindex_0 and 0x1010 in core.indices:
+            core.downloads[0x1010 << 8] = self._download_store_0
+
+    def _download_store_0(self, entry: Entry, data: bytes) -> None:
+        """1010h sub 0 of a device that saves there: the UNSIGNED8 count takes the
+        UNSIGNED32 signature."""
+        if len(data) != 4:
+            raise abort(
+                _ABORT.LENGTH_MISMATCH,
+                f"1010h sub 0 takes the 4-byte signature 'save', got {len(data)} bytes",
+            )
+        self._core.write(entry, int.from_bytes(data, "little"), remote=True)
 
     def power_on(self, *, communication: bool, application: bool) -> None:
         """The values of a reset: the defaults, then what is stored, of the communication
