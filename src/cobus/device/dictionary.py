@@ -15,7 +15,7 @@ back: the objects are the same, five times faster to make).
 from __future__ import annotations
 
 import datetime as _dt
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 from cobus.device import emcy, guarding, heartbeat, nmt, pdo, sdo_server, storage, sync, timestamp
@@ -346,7 +346,7 @@ class DictionaryBuilder:
         sync_start_value: int = 0,
     ) -> None:
         """Set the default mapping and transmission of TPDO ``number`` (1-based)."""
-        comm = self._pdo(0x1800, 0x1A00, number, entries, transmission_type)
+        comm = pdo.define_default(self.od, "TPDO", number, entries, transmission_type)
         comm[3].default = inhibit_time_100us
         comm[5].default = event_timer_ms
         comm[6].default = sync_start_value
@@ -360,49 +360,8 @@ class DictionaryBuilder:
         event_timer_ms: int = 0,
     ) -> None:
         """Set the default mapping and transmission of RPDO ``number`` (1-based)."""
-        comm = self._pdo(0x1400, 0x1600, number, entries, transmission_type)
+        comm = pdo.define_default(self.od, "RPDO", number, entries, transmission_type)
         comm[5].default = event_timer_ms
-
-    def _pdo(
-        self,
-        comm_base: int,
-        map_base: int,
-        number: int,
-        entries: Iterable[tuple[int, int]],
-        transmission_type: int,
-    ) -> Record | Array:
-        kind = "TPDO" if comm_base == 0x1800 else "RPDO"
-        comm = self.od.get(comm_base + number - 1) if isinstance(number, int) else None
-        mapping = self.od.get(map_base + number - 1) if isinstance(number, int) else None
-        if not isinstance(comm, Record | Array) or not isinstance(mapping, Record | Array):
-            raise DeviceConfigError(
-                f"the dictionary has no {kind} {number}: ask minimal_od() for more PDOs"
-            )
-        values = []
-        for index, sub in entries:
-            var = self.od.get_variable(index, sub)
-            if var is None:
-                raise DeviceConfigError(
-                    f"{kind} {number} maps 0x{index:04X}:{sub:02X}, which is not in the "
-                    "dictionary yet: add the variable first"
-                )
-            if var.bit_length is None:
-                raise DeviceConfigError(
-                    f"{kind} {number} maps 0x{index:04X}:{sub:02X} ({var.data_type.name}), "
-                    "which has no fixed bit length"
-                )
-            values.append(index << 16 | sub << 8 | var.bit_length)
-        slots = len(mapping.subindices) - 1
-        if len(values) > slots:
-            raise DeviceConfigError(
-                f"{kind} {number} maps {len(values)} objects but its mapping has {slots} "
-                "entries: ask minimal_od(mapping_entries=...) for more"
-            )
-        for sub in range(1, slots + 1):
-            mapping[sub].default = values[sub - 1] if sub <= len(values) else 0
-        mapping[0].default = len(values)
-        comm[2].default = transmission_type
-        return comm
 
     def build(self) -> ObjectDictionary:
         """The dictionary; raises :class:`DeviceConfigError` listing what is inconsistent

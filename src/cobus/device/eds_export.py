@@ -12,15 +12,12 @@ from __future__ import annotations
 import datetime as _dt
 from dataclasses import replace
 
+from cobus.device.pdo import count_pdos
 from cobus.od import ObjectDictionary
 
 __all__ = ["export_eds"]
 
 _BIT_RATES = {10, 20, 50, 125, 250, 500, 800, 1000}
-
-
-def _count(od: ObjectDictionary, base: int) -> int:
-    return sum(1 for n in range(512) if base + n in od)
 
 
 def export_eds(od: ObjectDictionary, *, description: str | None = None) -> str:
@@ -73,8 +70,7 @@ def export_eds(od: ObjectDictionary, *, description: str | None = None) -> str:
         info.granularity = 8
     info.dynamic_channels_supported = 0
     info.group_messaging = False
-    info.nr_of_rx_pdo = _count(od, 0x1400)
-    info.nr_of_tx_pdo = _count(od, 0x1800)
+    info.nr_of_rx_pdo, info.nr_of_tx_pdo = count_pdos(od)
     info.lss_supported = False
     dummies = dict(od.dummy_usage)
     dummies.update(dict.fromkeys(range(1, 8), True))  # the device maps a dummy of 0001h..0007h

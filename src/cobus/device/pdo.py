@@ -17,7 +17,7 @@ not valid and its sub 0 is 0; an RPDO that times out (event timer) is the commun
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from functools import partial
 from typing import Any
 
@@ -26,9 +26,10 @@ from cobus.device._entries import Entry, check_value
 from cobus.device._objects import RW, U8, U16, U32, composite
 from cobus.device._pdo_machines import Rpdo, Tpdo, check_mapping_entry, compile_mapping
 from cobus.device.emcy import COMM_BIT, EmcyService
+from cobus.device.errors import DeviceConfigError
 from cobus.device.events import PdoLengthError, RpdoLost, RpdoReceived, RpdoRestored
 from cobus.errors import CobusError
-from cobus.od import DataType, NodeRelative, ObjectDictionary, Record
+from cobus.od import Array, DataType, NodeRelative, ObjectDictionary, Record
 from cobus.proto import NOTHING, Event, Frame
 from cobus.proto.emcy import EmcyCode
 from cobus.proto.nmt import NmtState
@@ -47,7 +48,7 @@ from cobus.proto.pdo import (
 )
 from cobus.proto.sdo import SdoAbort, SdoAbortCode
 
-__all__ = ["PdoService", "define_objects"]
+__all__ = ["PdoService", "count_pdos", "define_default", "define_objects"]
 
 _ABORT = SdoAbortCode
 
@@ -84,6 +85,62 @@ def define_objects(od: ObjectDictionary, *, rpdos: int, tpdos: int, entries: int
                 ],
                 first=RW,  # a master writes the count
             )
+
+
+_BASES = {"RPDO": (0x1400, 0x1600), "TPDO": (0x1800, 0x1A00)}
+
+
+def count_pdos(od: ObjectDictionary) -> tuple[int, int]:
+    """How many RPDOs and TPDOs ``od`` has communication parameters for."""
+    return (
+        sum(1 for n in range(512) if 0x1400 + n in od),
+        sum(1 for n in range(512) if 0x1800 + n in od),
+    )
+
+
+def define_default(
+    od: ObjectDictionary,
+    kind: str,
+    number: int,
+    entries: Iterable[tuple[int, int]],
+    transmission_type: int,
+) -> Record | Array:
+    """Set the default mapping (``(index, sub)`` of each mapped variable, in order) and
+    transmission type of ``kind`` (``"RPDO"``/``"TPDO"``) ``number`` (1-based) in ``od``;
+    the communication parameter, for the caller's other defaults.
+    Raises :class:`~cobus.device.DeviceConfigError` naming what does not fit."""
+    comm_base, map_base = _BASES[kind]
+    comm = od.get(comm_base + number - 1) if isinstance(number, int) else None
+    mapping = od.get(map_base + number - 1) if isinstance(number, int) else None
+    if not isinstance(comm, Record | Array) or not isinstance(mapping, Record | Array):
+        raise DeviceConfigError(
+            f"the dictionary has no {kind} {number}: ask minimal_od() for more PDOs"
+        )
+    values = []
+    for index, sub in entries:
+        var = od.get_variable(index, sub)
+        if var is None:
+            raise DeviceConfigError(
+                f"{kind} {number} maps 0x{index:04X}:{sub:02X}, which is not in the "
+                "dictionary yet: add the variable first"
+            )
+        if var.bit_length is None:
+            raise DeviceConfigError(
+                f"{kind} {number} maps 0x{index:04X}:{sub:02X} ({var.data_type.name}), "
+                "which has no fixed bit length"
+            )
+        values.append(index << 16 | sub << 8 | var.bit_length)
+    slots = len(mapping.subindices) - 1
+    if len(values) > slots:
+        raise DeviceConfigError(
+            f"{kind} {number} maps {len(values)} objects but its mapping has {slots} "
+            "entries: ask minimal_od(mapping_entries=...) for more"
+        )
+    for sub in range(1, slots + 1):
+        mapping[sub].default = values[sub - 1] if sub <= len(values) else 0
+    mapping[0].default = len(values)
+    comm[2].default = transmission_type
+    return comm
 
 
 class PdoService:
