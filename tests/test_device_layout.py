@@ -91,6 +91,38 @@ def test_each_object_is_served_by_its_service():
     simulate(main())
 
 
+#: The objects a service owns as ranges (SDO server and PDO parameters come in series).
+_SERIES = {
+    0x1200: (0x1200, 0x127F),
+    0x1400: (0x1400, 0x15FF),
+    0x1600: (0x1600, 0x17FF),
+    0x1800: (0x1800, 0x19FF),
+    0x1A00: (0x1A00, 0x1BFF),
+}
+
+
+def _owner(value: int) -> str | None:
+    for first, (low, high) in _SERIES.items():
+        if low <= value <= high:
+            return OWNERS[first]
+    return OWNERS.get(value)
+
+
+def test_each_object_index_is_written_in_its_service_only():
+    """As ``grep 0x1005 src/cobus/device/`` finds SYNC's objects in sync.py only: no module
+    of the device package but the owner's (``pdo.py`` and its ``_pdo_machines.py``) names an
+    index the owner serves as a number in its code."""
+    strays = []
+    for path in sorted((SRC / "device").glob("*.py")):
+        module = path.stem.lstrip("_").split("_")[0] if path.stem.startswith("_pdo") else path.stem
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Constant) and type(node.value) is int:
+                owner = _owner(node.value)
+                if owner is not None and owner != module:
+                    strays.append(f"{path.name}:{node.lineno} 0x{node.value:04X} ({owner})")
+    assert strays == []
+
+
 def test_the_runtime_imports_nothing_above_it():
     offenders = []
     for path in sorted((SRC / "runtime").glob("*.py")):

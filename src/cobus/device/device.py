@@ -22,7 +22,7 @@ from cobus._moved import Moved
 from cobus.device._core import Core, Listener
 from cobus.device._entries import Entry, check_value
 from cobus.device.eds_export import export_eds
-from cobus.device.emcy import EmcyService, class_bits
+from cobus.device.emcy import ERROR_REGISTER, EmcyService, class_bits
 from cobus.device.errors import (
     DeviceConfigError,
     EntryNotFoundError,
@@ -42,7 +42,9 @@ from cobus.device.sdo_server import SdoServerService
 from cobus.device.simulation import CobIdRule, Deviations, Simulation
 from cobus.device.storage import (
     LOAD_SIGNATURE,
+    RESTORE,
     SAVE_SIGNATURE,
+    STORE,
     ParameterStorage,
     StorageService,
 )
@@ -64,7 +66,7 @@ __all__ = ["LOAD_SIGNATURE", "SAVE_SIGNATURE", "CobIdRule", "Deviations", "Devic
 Key = int | str
 
 _ABORT = SdoAbortCode
-_MANDATORY = (0x1000, 0x1001, 0x1018)
+_MANDATORY = (0x1000, ERROR_REGISTER, 0x1018)
 _COMMANDS = {int(c): c for c in NmtCommand}
 #: Dictionaries served by a running device (by id): a dictionary holds one node's defaults.
 _SERVED: dict[int, weakref.ref[Device]] = {}
@@ -328,14 +330,14 @@ class Device:
         try:
             self._storage.store(subindex)
         except SdoAbort as refusal:
-            raise EntryRefusedError(0x1010, subindex, refusal.code, refusal.reason) from None
+            raise EntryRefusedError(STORE, subindex, refusal.code, refusal.reason) from None
 
     def restore_defaults(self, subindex: int = 1) -> None:
         """Drop stored parameters as a master does with 1011h (effective at the next reset)."""
         try:
             self._storage.restore(subindex)
         except SdoAbort as refusal:
-            raise EntryRefusedError(0x1011, subindex, refusal.code, refusal.reason) from None
+            raise EntryRefusedError(RESTORE, subindex, refusal.code, refusal.reason) from None
 
     def set_node_id(self, node_id: int) -> None:
         """Change the node-ID at run time.

@@ -34,10 +34,12 @@ from cobus.proto.sdo import SdoAbort, SdoAbortCode
 if TYPE_CHECKING:
     from cobus.runtime.network import MachineHost
 
-__all__ = ["COMM_BIT", "EmcyService", "class_bits", "define_objects"]
+__all__ = ["COMM_BIT", "ERROR_REGISTER", "EmcyService", "class_bits", "define_objects"]
 
 _ABORT = SdoAbortCode
 _GENERIC = int(ErrorRegister.GENERIC)
+#: The error register object (mandatory in every CiA 301 device).
+ERROR_REGISTER = 0x1001
 #: The error register's communication bit, set by the device's own communication errors.
 COMM_BIT = int(ErrorRegister.COMMUNICATION)
 
@@ -68,7 +70,7 @@ def _history_depth(od: ObjectDictionary) -> int:
 def define_objects(od: ObjectDictionary, *, history: int) -> None:
     """1001h, 1003h with ``history`` entries (none: no 1003h), 1014h on 80h + node-ID and
     1015h (no inhibit time)."""
-    od.add(var(0x1001, 0, "Error register", U8, RO, 0, mappable=True))
+    od.add(var(ERROR_REGISTER, 0, "Error register", U8, RO, 0, mappable=True))
     if history:
         composite(
             od,
@@ -94,7 +96,7 @@ class EmcyService:
         )
         self._errors: dict[object, int] = {}
         self._host: MachineHost | None = None
-        core.handle(0x1001, self._w_error_register)
+        core.handle(ERROR_REGISTER, self._w_error_register)
         core.handle(0x1003, self._w_error_field)
         core.handle(0x1014, self._w_cob_id)
         core.handle(0x1015, self._w_inhibit)
@@ -214,7 +216,7 @@ class EmcyService:
 
     def _sync_error_objects(self) -> None:
         core = self._core
-        entry = core.entries.get(0x1001 << 8)
+        entry = core.entries.get(ERROR_REGISTER << 8)
         if entry is not None:
             core.store(entry, self.register())
         self.producer.error_register = ErrorRegister(self.register())

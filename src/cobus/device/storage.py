@@ -36,7 +36,9 @@ __all__ = [
     "APPLICATION",
     "COMMUNICATION",
     "LOAD_SIGNATURE",
+    "RESTORE",
     "SAVE_SIGNATURE",
+    "STORE",
     "FileStorage",
     "MemoryStorage",
     "ParameterStorage",
@@ -204,6 +206,8 @@ def _sync_directory(directory: Path) -> None:
 
 # ====================================================================== the service
 
+#: The command objects: store parameters (1010h) and restore default parameters (1011h).
+STORE, RESTORE = 0x1010, 0x1011
 #: 1010h: "save" as a little-endian UNSIGNED32.
 SAVE_SIGNATURE = 0x65766173
 #: 1011h: "load" as a little-endian UNSIGNED32.
@@ -221,8 +225,8 @@ def define_objects(od: ObjectDictionary) -> None:
     """1010h and 1011h, each with all, communication and application parameters (sub 1-3),
     stored on command."""
     for index, name, verb in (
-        (0x1010, "Store parameters", "Save"),
-        (0x1011, "Restore default parameters", "Restore"),
+        (STORE, "Store parameters", "Save"),
+        (RESTORE, "Restore default parameters", "Restore"),
     ):
         composite(
             od,
@@ -253,11 +257,11 @@ class StorageService:
         self._core = core
         self._storage = open_storage(storage)
         self._failed = False
-        core.handle(0x1010, self._w_store)
-        core.handle(0x1011, self._w_restore)
-        core.not_stored.update((0x1010, 0x1011))
-        if core.deviations.store_on_subindex_0 and 0x1010 in core.indices:
-            core.downloads[0x1010 << 8] = self._download_store_0
+        core.handle(STORE, self._w_store)
+        core.handle(RESTORE, self._w_restore)
+        core.not_stored.update((STORE, RESTORE))
+        if core.deviations.store_on_subindex_0 and STORE in core.indices:
+            core.downloads[STORE << 8] = self._download_store_0
 
     def _download_store_0(self, entry: Entry, data: bytes) -> None:
         """1010h sub 0 of a device that saves there: the UNSIGNED8 count takes the
