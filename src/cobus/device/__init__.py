@@ -26,8 +26,11 @@ write handlers, and defines those objects for :func:`minimal_od`):
 - :mod:`~cobus.device.nmt` — the NMT slave, boot-up, error behaviour 1029h;
 - :mod:`~cobus.device.storage` — power-on values, 1010h store, 1011h restore, the stores.
 
-They share one port, ``_core.Core`` (the entries, how a value is written, the events out);
-:class:`Device` (``device.py``) assembles them and routes the NMT state to them.
+They share one port, ``_core.Core``: the entries, how a value is written, the events out, and
+what each service declares there of the objects it owns (write handlers, the pre-defined
+COB-IDs that follow the node-ID, objects never stored, downloads it decodes itself), so that
+no service names another's objects. :class:`Device` (``device.py``) assembles them and
+routes the NMT state to them; ``test_device_layout.py`` keeps each index in its service.
 """
 
 from cobus.device.add import add_device
