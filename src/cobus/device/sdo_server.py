@@ -14,7 +14,6 @@ so transfers in progress end silently.
 
 from __future__ import annotations
 
-from functools import partial
 from typing import TYPE_CHECKING, Any
 
 from cobus.device._core import EXTENDED, INVALID, Core, abort
@@ -28,7 +27,7 @@ from cobus.proto import Frame
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer
 
 if TYPE_CHECKING:
-    from cobus.runtime.network import MachineHost, Subscription
+    pass
 
 __all__ = ["SdoBackend", "SdoServerService", "define_objects"]
 
@@ -47,9 +46,11 @@ class SdoBackend:
     def upload(self, index: int, subindex: int) -> bytes:
         """The encoded value of an entry, or the abort that refuses it."""
         core = self._core
-        entry = core.entry(index, subindex)
+        entry = core.entries.get(index << 8 | subindex)
+        if entry is None:
+            entry = core.entry(index, subindex)  # raises the abort that names what is missing
         var = entry.var
-        if not var.access.readable:
+        if not entry.readable:
             raise abort(_ABORT.READ_WRITE_ONLY, f"{var.name!r} is write-only")
         reader = entry.reader
         if reader is None:
@@ -81,7 +82,7 @@ class SdoBackend:
                 own(entry, data)
                 return
         deviations = core.deviations
-        if not var.access.writable:
+        if not entry.writable:
             raise abort(_ABORT.WRITE_READ_ONLY, f"{var.name!r} is {var.access}")
         size = entry.size
         if (
@@ -98,21 +99,29 @@ class SdoBackend:
     def size_hint(self, index: int, subindex: int) -> int | None:
         """The size a download to the entry must have (None: any), or the abort."""
         entry = self._core.entry(index, subindex)
-        if not entry.var.access.writable:
+        if not entry.writable:
             raise abort(_ABORT.WRITE_READ_ONLY, f"{entry.var.name!r} is {entry.var.access}")
         return entry.size
 
 
 class _Channel:
-    __slots__ = ("host", "number", "server", "subscription")
+    """One server channel: its machine (behind the gate of a late answer), the host that
+    drives it, and the subscription to its requests, taken only while NMT allows SDO."""
 
-    def __init__(
-        self, number: int, server: SdoServer, host: MachineHost, sub: Subscription
-    ) -> None:
+    __slots__ = ("core", "host", "number", "server", "subscription")
+
+    def __init__(self, core: Core, number: int, server: SdoServer, rx: int) -> None:
+        self.core = core
         self.number = number
         self.server = server
-        self.host = host
-        self.subscription = sub
+        self.host = core.network.attach(LateSdoServer(server, core.simulation))
+        self.subscription = core.network.subscribe(rx, self.on_frame)
+
+    def on_frame(self, frame: Frame, now: float) -> None:
+        """A request: to the machine (what ``host.feed`` does, one call less per request)."""
+        if self.core.nmt.sdo_allowed:
+            host = self.host
+            host.apply(host.machine.on_frame(frame, now))
 
     def close(self) -> None:
         self.subscription.cancel()
@@ -180,19 +189,13 @@ class SdoServerService:
                     continue
                 rx, tx = rx_value & 0x7FF, tx_value & 0x7FF
             server = SdoServer(rx, tx, self.backend, timeout=self._timeout)
-            host = core.network.attach(LateSdoServer(server, core.simulation))
-            sub = core.network.subscribe(rx, partial(self._on_frame, host))
-            self._channels[n] = _Channel(n, server, host, sub)
+            self._channels[n] = _Channel(core, n, server, rx)
 
     def close(self) -> None:
         """Close every channel."""
         for channel in self._channels.values():
             channel.close()
         self._channels.clear()
-
-    def _on_frame(self, host: MachineHost, frame: Frame, now: float) -> None:
-        if self._core.nmt.sdo_allowed:
-            host.feed(frame, now)
 
     def _w_server(self, entry: Entry, value: Any) -> None:
         core = self._core

@@ -207,12 +207,19 @@ class NmtSlave:
     boot-up message — so the owner decides when the boot-up goes out.
     """
 
-    __slots__ = ("_services", "_state", "node_id")
+    __slots__ = ("_emcy", "_pdo", "_sdo", "_services", "_state", "node_id")
 
     def __init__(self, node_id: int) -> None:
         self.node_id = check_node_id(node_id)
         self._state = NmtState.INITIALISING
-        self._services = _SERVICES[NmtState.INITIALISING]
+        self._set_services(NmtState.INITIALISING)
+
+    def _set_services(self, state: NmtState) -> None:
+        # the flags asked per frame are kept as plain bools: an Enum's hash is Python code
+        services = self._services = _SERVICES[state]
+        self._sdo = Service.SDO in services
+        self._pdo = Service.PDO in services
+        self._emcy = Service.EMCY in services
 
     @property
     def state(self) -> NmtState:
@@ -235,17 +242,17 @@ class NmtSlave:
     @property
     def pdo_allowed(self) -> bool:
         """Whether PDOs may be sent and received (OPERATIONAL only)."""
-        return Service.PDO in self._services
+        return self._pdo
 
     @property
     def sdo_allowed(self) -> bool:
         """Whether SDO is served (PRE-OPERATIONAL and OPERATIONAL)."""
-        return Service.SDO in self._services
+        return self._sdo
 
     @property
     def emcy_allowed(self) -> bool:
         """Whether emergencies may be sent (PRE-OPERATIONAL and OPERATIONAL)."""
-        return Service.EMCY in self._services
+        return self._emcy
 
     def boot(self, now: float) -> Out:
         """Leave initialisation: send the boot-up message and enter pre-operational."""
@@ -301,5 +308,5 @@ class NmtSlave:
     def _move(self, new: NmtState) -> tuple[Event, ...]:
         old = self._state
         self._state = new
-        self._services = _SERVICES[new]
+        self._set_services(new)
         return (StateChanged(old, new),)

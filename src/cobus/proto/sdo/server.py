@@ -237,8 +237,12 @@ class SdoServer(ep.Endpoint):
             return Out((), (event,))
         service = cmd & w.SERVICE_MASK
         if service == w.CCS_INITIATE_UPLOAD:
+            if state == _IDLE:  # the common case, without an empty Out to add
+                return self._initiate_upload(data, now)
             return self._superseding(state) + self._initiate_upload(data, now)
         if service == w.CCS_INITIATE_DOWNLOAD:
+            if state == _IDLE:
+                return self._initiate_download(data, now)
             return self._superseding(state) + self._initiate_download(data, now)
         if service == w.CCS_BLOCK_UPLOAD and cmd & 0x03 == 0:
             return self._superseding(state) + self._initiate_block_upload(data, now)
@@ -276,10 +280,14 @@ class SdoServer(ep.Endpoint):
         return True
 
     def _initiate_upload(self, data: bytes, now: float) -> Out:
-        if not self._take_mux(data):
+        if len(data) < 4:
+            self._take_mux(data)  # the object the abort names, as far as the frame tells
             return self._abort(SdoAbortCode.INVALID_COMMAND)
+        _, index, subindex = w.MUX.unpack_from(data)  # _take_mux, inline on every read's path
+        self._index = index
+        self._subindex = subindex
         try:
-            value = bytes(self._backend.upload(self._index, self._subindex))
+            value = bytes(self._backend.upload(index, subindex))
         except SdoAbort as refusal:
             return self._abort(refusal.code)
         return self._upload_response(value, now)
@@ -288,7 +296,8 @@ class SdoServer(ep.Endpoint):
         size = len(value)
         if 1 <= size <= 4:
             cmd = w.SCS_INITIATE_UPLOAD | ((4 - size) << 2) | w.EXPEDITED | w.SIZE
-            frame = self._frame(w.WITH_4S.pack(cmd, self._index, self._subindex, value))
+            payload = w.WITH_4S.pack(cmd, self._index, self._subindex, value)
+            frame = Frame(self._out, payload, extended=self._ext)
             event = ServerUploaded(self._index, self._subindex, size)
             self._reset()
             return Out((frame,), (event,))
