@@ -1,11 +1,15 @@
 """Frames per second through the receive path: python-can message in, handler called.
 
-Two figures, each side by side with python-canopen in the same run:
+Three figures, each side by side with python-canopen in the same run:
 - dispatch only: messages already read from the interface, through each stack's receive path
   to a subscribed handler (cobus: message -> Frame -> dispatch table; python-canopen: its
   python-can listener -> Network.notify);
 - end to end on python-can's virtual bus: frames waiting in the interface's queue, read by each
-  stack's own reader and dispatched, until the handler has seen them all.
+  stack's own reader and dispatched, until the handler has seen them all;
+- a device serving expedited reads: an upload request already read, through each stack's
+  receive path to its SDO server (cobus ``Device``, python-canopen ``LocalNode``) and the
+  answer handed to the interface (python-can's virtual bus, nobody else on it) — a device's
+  own share of every SDO round trip (issue 20).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import can
 import canopen
 
 from benchmarks.common import best_of, cobus_receive_rate, header, row
+from cobus.device import Device, minimal_od
 from cobus.runtime import AsyncNetwork
 
 N = 20_000
@@ -61,6 +66,41 @@ def dispatch_canopen(msgs: list[can.Message]) -> float:
             listener.on_message_received(msg)
 
     return N / best_of(run)
+
+
+_NODE = 5
+_READ = can.Message(
+    arbitration_id=0x600 + _NODE, data=bytes([0x40, 0, 0x10, 0, 0, 0, 0, 0]), is_extended_id=False
+)
+
+
+def serve_cobus() -> float:
+    def setup(net: AsyncNetwork) -> None:
+        Device(net, _NODE, minimal_od()).start()
+
+    return cobus_receive_rate(setup, [_READ] * N)
+
+
+def serve_canopen() -> float:
+    network = canopen.Network()
+    network.connect(interface="virtual", channel="bench-serve-canopen")
+    od = canopen.ObjectDictionary()
+    var = canopen.objectdictionary.ODVariable("Device type", 0x1000, 0)
+    var.data_type = canopen.objectdictionary.datatypes.UNSIGNED32
+    var.access_type = "ro"
+    var.default = 0x191
+    od.add_object(var)
+    network.add_node(canopen.LocalNode(_NODE, od))
+    listener = network.listeners[0]
+
+    def run() -> None:
+        for _ in range(N):
+            listener.on_message_received(_READ)
+
+    try:
+        return N / best_of(run)
+    finally:
+        network.disconnect()
 
 
 def _fill(channel: str, msgs: list[can.Message]) -> None:
@@ -131,6 +171,7 @@ def main() -> None:
             True,
         )
     )
+    print(row("a device serving expedited reads", serve_cobus(), serve_canopen(), "req/s", True))
 
 
 if __name__ == "__main__":

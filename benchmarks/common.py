@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import time
 from collections.abc import Callable, Sequence
 
@@ -42,6 +43,7 @@ def cobus_receive_rate(
     async def connect() -> AsyncNetwork:
         net = await AsyncNetwork().connect()
         setup(net)
+        await asyncio.sleep(0)  # what setup sent is delivered before the timing starts
         return net
 
     net = loop.run_until_complete(connect())
