@@ -22,6 +22,9 @@ if TYPE_CHECKING:
 
 __all__ = ["SdoLink"]
 
+#: The events that end a transfer (one union, not one made for each event).
+_FINAL = UploadDone | DownloadDone | TransferFailed
+
 
 class SdoLink:
     """SDO client of the master to node ``node_id`` (600h+id / 580h+id)."""
@@ -41,7 +44,7 @@ class SdoLink:
         self.failures = 0
 
     def _on_event(self, event: Event) -> None:
-        if isinstance(event, UploadDone | DownloadDone | TransferFailed):
+        if isinstance(event, _FINAL):
             pending = self._pending
             if pending is not None and not pending.done():
                 pending.set_result(event)

@@ -515,6 +515,8 @@ class AsyncNetwork:
 
     def emit(self, event: Event) -> None:
         """Give ``event`` to every listener of the network."""
+        if not self._listeners:  # the common case: every SDO event comes through here
+            return
         for listener in list(self._listeners):
             try:
                 result = listener(event)

@@ -57,6 +57,8 @@ class _NoValue:
 
 
 _NO_VALUE: Any = _NoValue()
+#: The events that end a transfer (one union, not one made for each event).
+_FINAL = UploadDone | DownloadDone | TransferFailed
 
 
 def load_od(od: ObjectDictionary | str | Path | None, node_id: int) -> ObjectDictionary | None:
@@ -136,7 +138,7 @@ class SdoChannel:
         )
 
     def _on_event(self, event: Event) -> None:
-        if isinstance(event, UploadDone | DownloadDone | TransferFailed):
+        if isinstance(event, _FINAL):
             self._end(event)
         self._network.emit(event)
 
