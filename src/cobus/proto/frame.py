@@ -42,6 +42,19 @@ class Frame:
         extended: bool = False,
         dlc: int | None = None,
     ) -> None:
+        if (  # the common case, every frame a machine sends: a data frame of bytes, checked
+            type(data) is bytes
+            and len(data) <= 8
+            and not rtr
+            and dlc is None
+            and 0 <= cob_id <= (_MAX_EXT if extended else _MAX_STD)
+        ):
+            self.cob_id = cob_id
+            self.data = data
+            self.rtr = rtr
+            self.extended = extended
+            self.dlc = len(data)
+            return
         limit = _MAX_EXT if extended else _MAX_STD
         if not 0 <= cob_id <= limit:
             kind = "29-bit" if extended else "11-bit"

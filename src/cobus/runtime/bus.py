@@ -67,8 +67,8 @@ def open_bus(
         raise BusOpenError(f"cannot open CAN interface {iface} channel {chan}: {exc}") from exc
 
 
-def frame_to_message(frame: Frame) -> can.Message:
-    """The python-can message of ``frame``."""
+def _message_by_init(frame: Frame) -> can.Message:
+    """The python-can message of ``frame``, made by its constructor."""
     return can.Message(
         arbitration_id=frame.cob_id,
         data=frame.data,
@@ -77,6 +77,56 @@ def frame_to_message(frame: Frame) -> can.Message:
         dlc=frame.dlc,
         check=False,
     )
+
+
+#: The fields of a python-can message this module knows how to fill.
+_MESSAGE_FIELDS = frozenset(
+    (
+        "arbitration_id",
+        "bitrate_switch",
+        "channel",
+        "data",
+        "dlc",
+        "error_state_indicator",
+        "is_error_frame",
+        "is_extended_id",
+        "is_fd",
+        "is_remote_frame",
+        "is_rx",
+        "timestamp",
+    )
+)
+_new_message = object.__new__
+
+
+def _message_by_fields(frame: Frame) -> can.Message:
+    """What ``can.Message(..., check=False)`` makes of ``frame``, in half the time (every
+    frame sent is one)."""
+    msg: can.Message = _new_message(can.Message)
+    msg.timestamp = 0.0
+    msg.arbitration_id = frame.cob_id
+    msg.is_extended_id = frame.extended
+    msg.is_remote_frame = frame.rtr
+    msg.is_error_frame = False
+    msg.channel = None
+    msg.dlc = frame.dlc
+    msg.data = bytearray(frame.data)
+    msg.is_fd = False
+    msg.is_rx = True
+    msg.bitrate_switch = False
+    msg.error_state_indicator = False
+    return msg
+
+
+def _message_maker(message_class: type) -> Callable[[Frame], can.Message]:
+    """Fill the fields directly while python-can's Message has exactly the fields above; a
+    version that adds or renames one gets its own constructor."""
+    fields = set(getattr(message_class, "__slots__", ())) - {"__weakref__"}
+    return _message_by_fields if fields == _MESSAGE_FIELDS else _message_by_init
+
+
+#: The python-can message of a frame.
+frame_to_message: Callable[[Frame], can.Message] = _message_maker(can.Message)
 
 
 _new_frame = object.__new__
