@@ -149,23 +149,24 @@ class MachineHost:
                             f"event callback of {type(self.machine).__name__}", exc
                         )
         finally:
+            # In real time, a deadline that only moved later (each segment of a transfer,
+            # each heartbeat) or went away (a transfer done) keeps the armed timer, which
+            # re-arms or does nothing when it fires: a sleeping loop is woken only for a timer
+            # due before it would wake anyway, so a blocking SDO trip that armed a fresh
+            # timeout each time cost a wake-up of the loop. On the simulated clock every move
+            # re-arms, so that timers due at one instant keep their order.
             deadline = self.machine.deadline
             armed = self._armed
-            if deadline != armed and network.connected and self._must_rearm(deadline, armed):
+            if (
+                deadline != armed
+                and network._loop is not None  # connected
+                and (
+                    armed is None
+                    or (deadline is not None and deadline < armed)
+                    or not network._realtime
+                )
+            ):
                 self._rearm(deadline)
-
-    def _must_rearm(self, deadline: float | None, armed: float | None) -> bool:
-        """In real time, a deadline that only moved later (each segment of a transfer, each
-        heartbeat) or went away (a transfer done) keeps the armed timer, which re-arms or
-        does nothing when it fires: a sleeping loop is woken only for a timer due before it
-        would wake anyway, so a blocking SDO trip that armed a fresh timeout each time cost
-        a wake-up of the loop. On the simulated clock every move re-arms, so that timers due
-        at one instant keep their order."""
-        return (
-            armed is None
-            or (deadline is not None and deadline < armed)
-            or not isinstance(self._network.loop, RealTimeLoop)
-        )
 
     def _rearm(self, deadline: float | None) -> None:
         if self._handle is not None:
@@ -182,9 +183,9 @@ class MachineHost:
             return
         now = max(self._network.time(), deadline)
         later = self.machine.deadline
-        if isinstance(self._network.loop, RealTimeLoop) and (later is None or later > now):
+        if self._network._realtime and (later is None or later > now):
             if later is not None:
-                self._rearm(later)  # it moved later since armed (see _must_rearm)
+                self._rearm(later)  # it moved later since armed (see apply)
             return  # (or went away)
         try:
             out = self.machine.on_timer(now)
@@ -248,6 +249,8 @@ class AsyncNetwork:
         self._bus_args: dict[str, Any] = dict(bus_kwargs)
         self._bus_args.update(interface=interface, channel=channel, bitrate=bitrate)
         self._loop: asyncio.AbstractEventLoop | None = None
+        #: Connected to a RealTimeLoop (see MachineHost.apply: kept timers).
+        self._realtime = False
         self._handlers: dict[int, list[FrameHandler]] = {}
         self._monitors: list[FrameHandler] = []
         self._listeners: list[EventListener] = []
@@ -304,10 +307,12 @@ class AsyncNetwork:
             self._bus = _bus.open_bus(**args)
             opened = True
         self._loop = loop
+        self._realtime = isinstance(loop, RealTimeLoop)
         try:
             self._start_receiving(loop, self._bus)
         except BaseException:
             self._loop = None
+            self._realtime = False
             if opened:
                 self._bus.shutdown()
                 self._bus = None
@@ -333,6 +338,7 @@ class AsyncNetwork:
                 handle.cancel()
         self._retry_handle = self._state_poll = None
         self._loop = None
+        self._realtime = False
         self._inbound.clear()
         self._drain_pending = False
         for callback in list(self._on_disconnect):
