@@ -11,6 +11,7 @@ from cobus.device import (
     EntryRefusedError,
     EntryWritten,
 )
+from cobus.od import Access
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoAbortedError, SdoTimeoutError
 from cobus.runtime.remote import SdoChannel
 from tests.test_device_support import NODE, Bench, run_bench, test_od
@@ -202,5 +203,21 @@ def test_store_eds_is_readable_by_block_upload():
         assert "DefaultValue=$NODEID+0x80" in text
         assert await b.sdo.upload(0x1021, 0) == data  # segmented gives the same
         assert await _abort(b.sdo.download(0x1021, 0, b"x")) == SdoAbortCode.WRITE_READ_ONLY
+
+    run_bench(scenario)
+
+
+def test_an_access_changed_while_the_device_runs_applies_to_the_next_request():
+    async def scenario(b: Bench):
+        await b.sdo.write(0x2002, 0, 7)
+        var = b.device.od.get_variable(0x2002, 0)
+        assert var is not None
+        var.access = Access.RO  # the application locks the parameter
+        assert await _abort(b.sdo.write(0x2002, 0, 8)) == SdoAbortCode.WRITE_READ_ONLY
+        var.access = Access.WO
+        assert await _abort(b.sdo.read(0x2002)) == SdoAbortCode.READ_WRITE_ONLY
+        var.access = Access.RW
+        await b.sdo.write(0x2002, 0, 9)
+        assert await b.sdo.read(0x2002) == 9
 
     run_bench(scenario)

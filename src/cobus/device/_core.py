@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from cobus.device.simulation import Simulation
     from cobus.runtime.network import AsyncNetwork
 
-__all__ = ["INVALID", "Core", "DownloadHandler", "Listener", "WriteHandler", "abort"]
+__all__ = ["EXTENDED", "INVALID", "Core", "DownloadHandler", "Listener", "WriteHandler", "abort"]
 
 #: The logger the device has always used for failing callbacks.
 log = logging.getLogger("cobus.device.device")

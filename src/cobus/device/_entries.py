@@ -38,14 +38,12 @@ class Entry:
         "key",
         "limited",
         "low",
-        "readable",
         "reader",
         "size",
         "subindex",
         "tpdos",
         "value",
         "var",
-        "writable",
         "writer",
     )
 
@@ -59,10 +57,6 @@ class Entry:
         self.low = var.low_limit
         self.high = var.high_limit
         self.limited = self.low is not None or self.high is not None
-        #: The access of the variable, asked by every SDO request (as bools: a property of
-        #: an Enum is a call).
-        self.readable = var.access.readable
-        self.writable = var.access.writable
         self.value: Any = None
         #: Where reads get the value from instead of ``value`` (application binding or a
         #: value the device computes).

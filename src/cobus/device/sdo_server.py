@@ -14,7 +14,7 @@ so transfers in progress end silently.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from cobus.device._core import EXTENDED, INVALID, Core, abort
 from cobus.device._entries import Entry, decode_download
@@ -25,9 +25,6 @@ from cobus.errors import CobusError
 from cobus.od import NodeRelative, ObjectDictionary, Record, encode
 from cobus.proto import Frame
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer
-
-if TYPE_CHECKING:
-    pass
 
 __all__ = ["SdoBackend", "SdoServerService", "define_objects"]
 
@@ -50,7 +47,7 @@ class SdoBackend:
         if entry is None:
             entry = core.entry(index, subindex)  # raises the abort that names what is missing
         var = entry.var
-        if not entry.readable:
+        if not var.access.readable:  # asked each time: the application may change it
             raise abort(_ABORT.READ_WRITE_ONLY, f"{var.name!r} is write-only")
         reader = entry.reader
         if reader is None:
@@ -82,7 +79,7 @@ class SdoBackend:
                 own(entry, data)
                 return
         deviations = core.deviations
-        if not entry.writable:
+        if not var.access.writable:
             raise abort(_ABORT.WRITE_READ_ONLY, f"{var.name!r} is {var.access}")
         size = entry.size
         if (
@@ -99,7 +96,7 @@ class SdoBackend:
     def size_hint(self, index: int, subindex: int) -> int | None:
         """The size a download to the entry must have (None: any), or the abort."""
         entry = self._core.entry(index, subindex)
-        if not entry.writable:
+        if not entry.var.access.writable:
             raise abort(_ABORT.WRITE_READ_ONLY, f"{entry.var.name!r} is {entry.var.access}")
         return entry.size
 

@@ -1,7 +1,8 @@
 """Non-volatile parameters of a device (1010h store / 1011h restore, CiA 301).
 
 What is stored: the writable entries of the communication area (1000h-1FFFh, without the
-command objects 1003h, 1010h, 1011h) and of the application area (2000h-9FFFh), each as its
+objects a service declares never stored: the store and restore commands, the error history)
+and of the application area (2000h-9FFFh), each as its
 encoded bytes; an entry that holds its ``$NODEID`` default is stored relative to the node-ID
 so that it follows a node-ID change.
 
