@@ -21,7 +21,13 @@ import time
 import can
 import canopen
 
-from benchmarks.common import best_of, cobus_receive_rate, header, row
+from benchmarks.common import (
+    best_of,
+    canopen_device_type_od,
+    cobus_receive_rate,
+    header,
+    row,
+)
 from cobus.device import Device, minimal_od
 from cobus.runtime import AsyncNetwork
 
@@ -84,13 +90,7 @@ def serve_cobus() -> float:
 def serve_canopen() -> float:
     network = canopen.Network()
     network.connect(interface="virtual", channel="bench-serve-canopen")
-    od = canopen.ObjectDictionary()
-    var = canopen.objectdictionary.ODVariable("Device type", 0x1000, 0)
-    var.data_type = canopen.objectdictionary.datatypes.UNSIGNED32
-    var.access_type = "ro"
-    var.default = 0x191
-    od.add_object(var)
-    network.add_node(canopen.LocalNode(_NODE, od))
+    network.add_node(canopen.LocalNode(_NODE, canopen_device_type_od()))
     listener = network.listeners[0]
 
     def run() -> None:

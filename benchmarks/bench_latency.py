@@ -44,6 +44,7 @@ import can
 import canopen
 from canopen.sdo.client import BlockUploadStream
 
+from benchmarks.common import canopen_device_type_od
 from cobus.device import DictionaryBuilder, add_device, minimal_od
 from cobus.od import DataType, ObjectDictionary
 from cobus.runtime import AsyncNetwork, Network, run
@@ -96,20 +97,10 @@ class _PingPong:
         self.server.shutdown()
 
 
-def _canopen_od() -> canopen.ObjectDictionary:
-    od = canopen.ObjectDictionary()
-    var = canopen.objectdictionary.ODVariable("Device type", 0x1000, 0)
-    var.data_type = canopen.objectdictionary.datatypes.UNSIGNED32
-    var.access_type = "ro"
-    var.default = 0x191
-    od.add_object(var)
-    return od
-
-
 def _canopen_server(channel: str) -> canopen.Network:
     net = canopen.Network()
     net.connect(interface="virtual", channel=channel)
-    net.add_node(canopen.LocalNode(NODE, _canopen_od()))
+    net.add_node(canopen.LocalNode(NODE, canopen_device_type_od()))
     return net
 
 
@@ -287,7 +278,8 @@ _SERVERS = textwrap.dedent(
     import canopen
     from cobus.device import add_device, minimal_od
     from cobus.runtime import Network
-    from benchmarks.bench_latency import _canopen_od, PONG_NODE
+    from benchmarks.bench_latency import PONG_NODE
+    from benchmarks.common import canopen_device_type_od
 
     stop = threading.Event()
 
@@ -303,7 +295,7 @@ _SERVERS = textwrap.dedent(
         add_device(net, 5, minimal_od())
         co = canopen.Network()
         co.connect(interface=interface, channel=channel)
-        co.add_node(canopen.LocalNode(6, _canopen_od()))
+        co.add_node(canopen.LocalNode(6, canopen_device_type_od()))
         bare = can.Bus(interface=interface, channel=channel)
         ponger = threading.Thread(target=pong, args=(bare,))
         ponger.start()

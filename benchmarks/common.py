@@ -7,6 +7,7 @@ import time
 from collections.abc import Callable, Sequence
 
 import can
+import canopen
 
 from cobus.runtime import AsyncNetwork, SimulatedEventLoop
 
@@ -57,3 +58,15 @@ def cobus_receive_rate(
     loop.run_until_complete(net.disconnect())
     loop.close()
     return len(msgs) / elapsed
+
+
+def canopen_device_type_od() -> canopen.ObjectDictionary:
+    """A python-canopen dictionary holding only 1000h (device type 191h), for a LocalNode
+    that answers expedited reads."""
+    od = canopen.ObjectDictionary()
+    var = canopen.objectdictionary.ODVariable("Device type", 0x1000, 0)
+    var.data_type = canopen.objectdictionary.datatypes.UNSIGNED32
+    var.access_type = "ro"
+    var.default = 0x191
+    od.add_object(var)
+    return od
