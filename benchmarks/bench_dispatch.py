@@ -1,6 +1,6 @@
 """Frames per second through the receive path: python-can message in, handler called.
 
-Three figures, each side by side with python-canopen in the same run:
+Four figures, each side by side with python-canopen in the same run:
 - dispatch only: messages already read from the interface, through each stack's receive path
   to a subscribed handler (cobus: message -> Frame -> dispatch table; python-canopen: its
   python-can listener -> Network.notify);
@@ -9,7 +9,12 @@ Three figures, each side by side with python-canopen in the same run:
 - a device serving expedited reads: an upload request already read, through each stack's
   receive path to its SDO server (cobus ``Device``, python-canopen ``LocalNode``) and the
   answer handed to the interface (python-can's virtual bus, nobody else on it) — a device's
-  own share of every SDO round trip (issue 20).
+  own share of every SDO round trip (issue 20);
+- a blocking client's own work per expedited read: the request made and handed to the
+  interface (whose send is a no-op here), the answer dispatched to the client and the result
+  handed over, all in one thread (cobus: the transfer begun as a blocking call begins it,
+  the answer dispatched as the reader thread does; python-canopen: ``sdo.upload`` with the
+  answer fed through its ``MessageListener`` when the request is sent) — the client's share.
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ from benchmarks.common import (
     row,
 )
 from cobus.device import Device, minimal_od
-from cobus.runtime import AsyncNetwork
+from cobus.runtime import AsyncNetwork, RealTimeLoop
 
 N = 20_000
 
@@ -103,6 +108,66 @@ def serve_canopen() -> float:
         network.disconnect()
 
 
+_ANSWER = can.Message(
+    arbitration_id=0x580 + _NODE,
+    data=bytes([0x43, 0, 0x10, 0, 0x91, 1, 0, 0]),
+    is_extended_id=False,
+)
+_READS = 5_000
+
+
+def client_cobus() -> float:
+    loop = RealTimeLoop()
+
+    async def connect() -> AsyncNetwork:
+        net = await AsyncNetwork(interface="virtual", channel="bench-client-cobus").connect()
+        net.bus.send = lambda msg, timeout=None: None  # type: ignore[method-assign]
+        return net
+
+    net = loop.run_until_complete(connect())
+    channel = net.add_remote(_NODE).sdo
+    start = channel._upload_start(0x1000, 0, False)
+    results: list[object] = []
+    lock, answer = loop.protocol_lock, [_ANSWER]
+
+    def run() -> None:
+        for _ in range(_READS):
+            with lock:  # as a blocking upload begins it, in the caller's thread
+                channel._begin(start, results.append)
+            loop.wake_if_pending()
+            with lock:  # as the reader thread dispatches the answer
+                net._on_messages(answer)
+
+    try:
+        return _READS / best_of(run)
+    finally:
+        loop.run_until_complete(net.disconnect())
+        loop.close()
+
+
+def client_canopen() -> float:
+    network = canopen.Network()
+    network.connect(interface="virtual", channel="bench-client-canopen")
+    node = canopen.RemoteNode(_NODE, canopen.ObjectDictionary())
+    network.add_node(node)
+    listener = canopen.network.MessageListener(network)
+
+    def send(msg: can.Message, timeout: float | None = None) -> None:
+        listener.on_message_received(_ANSWER)  # the server's answer, at once
+
+    assert network.bus is not None
+    network.bus.send = send  # type: ignore[method-assign]
+
+    def run() -> None:
+        for _ in range(_READS):
+            node.sdo.upload(0x1000, 0)
+
+    try:
+        return _READS / best_of(run)
+    finally:
+        network.disconnect()
+
+
 def _fill(channel: str, msgs: list[can.Message]) -> None:
     sender = can.Bus(interface="virtual", channel=channel)
     for msg in msgs:
@@ -172,6 +237,15 @@ def main() -> None:
         )
     )
     print(row("a device serving expedited reads", serve_cobus(), serve_canopen(), "req/s", True))
+    print(
+        row(
+            "a blocking client's own work per read",
+            client_cobus(),
+            client_canopen(),
+            "reads/s",
+            True,
+        )
+    )
 
 
 if __name__ == "__main__":
