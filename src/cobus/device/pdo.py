@@ -92,10 +92,8 @@ _BASES = {"RPDO": (0x1400, 0x1600), "TPDO": (0x1800, 0x1A00)}
 
 def count_pdos(od: ObjectDictionary) -> tuple[int, int]:
     """How many RPDOs and TPDOs ``od`` has communication parameters for."""
-    return (
-        sum(1 for n in range(512) if 0x1400 + n in od),
-        sum(1 for n in range(512) if 0x1800 + n in od),
-    )
+    rx, tx = _BASES["RPDO"][0], _BASES["TPDO"][0]
+    return sum(1 for n in range(512) if rx + n in od), sum(1 for n in range(512) if tx + n in od)
 
 
 def define_default(
