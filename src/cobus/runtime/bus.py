@@ -119,11 +119,12 @@ def _message_by_fields(frame: Frame) -> can.Message:
 
 
 def _message_maker(message_class: type) -> Callable[[Frame], can.Message]:
-    """Fill the fields directly while python-can's Message has exactly the fields above and
-    the constructor makes the same message of a probe frame; a version that adds, renames
-    or defaults a field otherwise gets its own constructor."""
+    """Fill the fields directly while python-can's Message (``message_class``: the fields
+    are read from it) has exactly the fields above and the constructor makes the same
+    message of a probe frame; a version that adds, renames or defaults a field otherwise
+    gets its own constructor."""
     fields = set(getattr(message_class, "__slots__", ())) - {"__weakref__"}
-    if fields != _MESSAGE_FIELDS or message_class is not can.Message:
+    if fields != _MESSAGE_FIELDS:
         return _message_by_init
     probe = Frame(0x123, b"\x01\x02")
     fast, slow = _message_by_fields(probe), _message_by_init(probe)
