@@ -82,6 +82,36 @@ def test_the_server_timeout_counts_from_when_the_request_is_taken_up():
     run_bench(scenario, sdo_timeout=0.5)
 
 
+def test_a_delay_set_during_a_transfer_makes_its_next_answers_late():
+    """With no delay the channel serves without the gate; set mid-transfer, the delay puts it
+    behind one: the transfer goes on, its answers late, and a stall still times out."""
+
+    async def scenario(b: Bench):
+        t0 = b.net.time()
+        b.send(RX, upload_request(0x1008))  # segmented ("test device", 11 bytes)
+        await b.net.sleep(0.01)
+        assert [(round(t - t0, 6), f.data[0]) for t, f in b.on(TX)] == [(0.0, 0x41)]
+        b.device.simulation.sdo_response_delay = 0.3
+        t1 = b.net.time()
+        b.send(RX, bytes([0x60]) + bytes(7))  # the first segment, asked for
+        await b.net.sleep(0.2)
+        assert b.on(TX, since=t1) == []
+        await b.net.sleep(0.2)
+        ((t, segment),) = b.on(TX, since=t1)
+        assert t - t1 == pytest.approx(0.3) and segment.data[0] == 0x00
+        assert segment.data[1:8] == b"test de"
+        await b.net.sleep(1.0)  # no second segment asked for: the transfer times out
+        ((t, abort),) = b.on(TX, since=t1 + 0.31)
+        assert abort.data[0] == 0x80 and t - t1 == pytest.approx(0.3 + 0.5)
+        assert struct.unpack_from("<I", abort.data, 4)[0] == SdoAbortCode.TIMEOUT
+        b.device.simulation.sdo_response_delay = 0  # and back: at once again
+        t2 = b.net.time()
+        assert await b.sdo.read(0x1000) == 0x191
+        assert b.net.time() == t2
+
+    run_bench(scenario, sdo_timeout=0.5)
+
+
 def test_the_delay_holds_through_resets_and_waiting_requests_end_with_the_channels():
     async def scenario(b: Bench):
         b.device.simulation.sdo_response_delay = 0.2

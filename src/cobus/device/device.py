@@ -131,7 +131,7 @@ class Device:
         _nmt.check_node_id(node_id)
         #: What a simulation changes in this device (late answers, a muted heartbeat, the
         #: deviations from CiA 301): see :class:`~cobus.device.Simulation`.
-        self.simulation = Simulation(deviations)
+        self.simulation = Simulation(deviations, on_delay=self._sdo_delay_changed)
         missing = [f"{i:04X}h" for i in _MANDATORY if i not in od]
         if missing:
             raise DeviceConfigError(
@@ -506,6 +506,9 @@ class Device:
 
     def _in_sync_window(self, now: float) -> bool:
         return self._sync.in_window(now)
+
+    def _sdo_delay_changed(self) -> None:
+        self._sdo.delay_changed()
 
     # ================================================================== building
 

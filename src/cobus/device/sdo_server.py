@@ -102,8 +102,13 @@ class SdoBackend:
 
 
 class _Channel:
-    """One server channel: its machine (behind the gate of a late answer), the host that
-    drives it, and the subscription to its requests, taken only while NMT allows SDO."""
+    """One server channel: its machine, the host that drives it, and the subscription to its
+    requests, taken only while NMT allows SDO.
+
+    The machine goes behind the gate of a late answer (:class:`LateSdoServer`) once the
+    simulation sets a response delay, and stays there until the channel is rebuilt; with no
+    delay the host drives the server itself, a gate's two calls per request less.
+    """
 
     __slots__ = ("core", "host", "number", "server", "subscription")
 
@@ -111,8 +116,16 @@ class _Channel:
         self.core = core
         self.number = number
         self.server = server
-        self.host = core.network.attach(LateSdoServer(server, core.simulation))
+        late = core.simulation.sdo_response_delay > 0
+        self.host = core.network.attach(LateSdoServer(server, core.simulation) if late else server)
         self.subscription = core.network.subscribe(rx, self.on_frame)
+
+    def gate(self) -> None:
+        """Put the gate of a late answer in front of the server, if it is not there yet. A
+        transfer in progress goes on; its timer is armed again by the new host."""
+        if self.host.machine is self.server:
+            self.host.close()
+            self.host = self.core.network.attach(LateSdoServer(self.server, self.core.simulation))
 
     def on_frame(self, frame: Frame, now: float) -> None:
         """A request: to the machine (what ``host.feed`` does, one call less per request)."""
@@ -185,8 +198,16 @@ class SdoServerService:
                 if rx_value & INVALID or tx_value & INVALID:
                     continue
                 rx, tx = rx_value & 0x7FF, tx_value & 0x7FF
-            server = SdoServer(rx, tx, self.backend, timeout=self._timeout)
+            server = SdoServer(rx, tx, self.backend, timeout=self._timeout, reports=False)
             self._channels[n] = _Channel(core, n, server, rx)
+
+    def delay_changed(self) -> None:
+        """The simulation's SDO response delay changed: a delay puts every channel behind
+        its gate (a delay set back to 0 leaves them there: requests still waiting keep their
+        order, and the gate lets the next ones straight through)."""
+        if self._core.simulation.sdo_response_delay > 0:
+            for channel in self._channels.values():
+                channel.gate()
 
     def close(self) -> None:
         """Close every channel."""

@@ -109,14 +109,22 @@ _CIA = Deviations()
 class Simulation:
     """The simulation settings of one device (``device.simulation``)."""
 
-    __slots__ = ("_deviations", "_heartbeat_muted", "_sdo_delay")
+    __slots__ = ("_deviations", "_heartbeat_muted", "_on_delay", "_sdo_delay")
 
-    def __init__(self, deviations: Deviations | None = None) -> None:
+    def __init__(
+        self,
+        deviations: Deviations | None = None,
+        *,
+        on_delay: Callable[[], None] | None = None,
+    ) -> None:
+        """``on_delay`` is called after each change of :attr:`sdo_response_delay` (the
+        device's SDO servers put their channels behind a gate only once a delay is set)."""
         if deviations is not None and not isinstance(deviations, Deviations):
             raise DeviceConfigError(f"deviations {deviations!r} is not a cobus.device.Deviations")
         self._deviations = deviations or _CIA
         self._sdo_delay = 0.0
         self._heartbeat_muted = False
+        self._on_delay = on_delay
 
     def __repr__(self) -> str:
         return (
@@ -157,6 +165,8 @@ class Simulation:
                 f"SDO response delay {seconds!r} must be a number of seconds >= 0 (0: none)"
             )
         self._sdo_delay = float(seconds)
+        if self._on_delay is not None:
+            self._on_delay()
 
     @property
     def heartbeat_muted(self) -> bool:

@@ -565,7 +565,9 @@ class StoberMds5000(SimulatedDevice):
                 if (rx_value | tx_value) & _INVALID:
                     continue
                 rx, tx = rx_value & 0x7FF, tx_value & 0x7FF
-            server = SdoServer(rx, tx, _Channel(self, number), timeout=self.sdo_timeout)
+            server = SdoServer(
+                rx, tx, _Channel(self, number), timeout=self.sdo_timeout, reports=False
+            )
             host = self.network.attach(server)
             sub = self.network.subscribe(rx, partial(self._on_sdo_frame, host))
             self._channels[number] = (server, host, sub)

@@ -178,10 +178,11 @@ class SdoServer(ep.Endpoint):
 
     ``block_size`` (1..127) is the sub-block size the server asks for in block downloads;
     ``crc`` whether it offers the block CRC; ``timeout`` (seconds) how long it waits for the
-    next frame of a segmented or block transfer before aborting with 05040000.
+    next frame of a segmented or block transfer before aborting with 05040000;
+    ``reports=False`` builds no events (see :attr:`reports`).
     """
 
-    __slots__ = ("_backend", "_hint", "_size_hint", "max_download", "node")
+    __slots__ = ("_backend", "_hint", "_size_hint", "max_download", "node", "reports")
 
     _ROLE = "server"
     _PEER = "the client"
@@ -204,9 +205,15 @@ class SdoServer(ep.Endpoint):
         block_size: int = w.MAX_BLOCK_SIZE,
         crc: bool = True,
         max_download: int = 1 << 20,
+        reports: bool = True,
     ) -> None:
         super().__init__(rx_cob_id, tx_cob_id, timeout=timeout, block_size=block_size, crc=crc)
         self._backend = backend
+        #: Whether transfers are reported as events (:class:`ServerUploaded`,
+        #: :class:`ServerDownloaded`, :class:`ServerAborted`). A host that drops them anyway
+        #: (a device, whose back end sees every read and write) passes ``reports=False``: no
+        #: event is built, one per request saved. The frames are the same either way.
+        self.reports = reports
         #: The most bytes a download without size indication may bring into an object of no
         #: fixed size (a domain); objects of a fixed size take at most that size.
         self.max_download = max_download
@@ -229,6 +236,9 @@ class SdoServer(ep.Endpoint):
         state = self._state
         if cmd == w.ABORT:
             if state == _IDLE:
+                return NOTHING
+            if not self.reports:
+                self._reset()
                 return NOTHING
             event = ServerAborted(
                 self._index, self._subindex, as_code(self._peer_code(data)), by_peer=True
@@ -254,6 +264,9 @@ class SdoServer(ep.Endpoint):
             self._state = _BUL_ACK
             return self._send_subblock(now)
         if state == _BUL_END and cmd & w.BLOCK5_MASK == w.BLOCK5_END:
+            if not self.reports:
+                self._reset()
+                return NOTHING
             done = ServerUploaded(self._index, self._subindex, len(self._data))
             self._reset()
             return Out((), (done,))
@@ -266,6 +279,9 @@ class SdoServer(ep.Endpoint):
 
     def _superseding(self, state: int) -> Out:
         if state == _IDLE:
+            return NOTHING
+        if not self.reports:
+            self._reset()
             return NOTHING
         event = ServerAborted(self._index, self._subindex, _SUPERSEDED, by_peer=True)
         self._reset()
@@ -298,8 +314,13 @@ class SdoServer(ep.Endpoint):
             cmd = w.SCS_INITIATE_UPLOAD | ((4 - size) << 2) | w.EXPEDITED | w.SIZE
             payload = w.WITH_4S.pack(cmd, self._index, self._subindex, value)
             frame = Frame(self._out, payload, extended=self._ext)
+            if not self.reports:
+                # Idle before and after (an expedited upload sets nothing else of a transfer,
+                # and the superseded one was reset): only the object named goes.
+                self._index = self._subindex = -1
+                return Out((frame,))
             event = ServerUploaded(self._index, self._subindex, size)
-            self._reset()
+            self._index = self._subindex = -1
             return Out((frame,), (event,))
         self._data = value
         self._pos = 0
@@ -412,6 +433,9 @@ class SdoServer(ep.Endpoint):
         pos += 7
         if pos >= len(value):
             frame = self._frame(w.SEGMENT.pack(toggle | ((7 - len(chunk)) << 1) | w.LAST, chunk))
+            if not self.reports:
+                self._reset()
+                return Out((frame,))
             event = ServerUploaded(self._index, self._subindex, len(value))
             self._reset()
             return Out((frame,), (event,))
@@ -430,6 +454,9 @@ class SdoServer(ep.Endpoint):
             self._backend.download(self._index, self._subindex, value)
         except SdoAbort as refusal:
             return self._abort(refusal.code)
+        if not self.reports:
+            self._reset()
+            return Out(reply)
         event = ServerDownloaded(self._index, self._subindex, len(value))
         self._reset()
         return Out(reply, (event,))
@@ -442,6 +469,9 @@ class SdoServer(ep.Endpoint):
         if self._index < 0:  # outside a transfer: name no object
             self._index = self._subindex = 0
         frame = self._frame(w.WITH_U32.pack(w.ABORT, self._index, self._subindex, code))
+        if not self.reports:
+            self._reset()
+            return Out((frame,))
         event = ServerAborted(self._index, self._subindex, as_code(code), by_peer=False)
         self._reset()
         return Out((frame,), (event,))
