@@ -221,3 +221,31 @@ def test_an_access_changed_while_the_device_runs_applies_to_the_next_request():
         assert await b.sdo.read(0x2002) == 9
 
     run_bench(scenario)
+
+
+def _listened(b: Bench) -> bool:
+    return b.net.listened  # through a call, so that mypy does not narrow it across steps
+
+
+def test_entry_written_reaches_whoever_listens_when_the_write_comes():
+    """The event is built only when somebody would see it: nobody, the device's listeners,
+    the network's, added and removed while the device runs."""
+
+    async def scenario(b: Bench):
+        b.net.remove_listener(b.events.append)
+        assert not _listened(b)
+        await b.sdo.write(0x2001, 0, 1)  # heard by nobody
+        mine: list[object] = []
+        b.device.add_listener(mine.append)
+        await b.sdo.write(0x2001, 0, 2)
+        b.device.remove_listener(mine.append)
+        b.net.add_listener(b.events.append)
+        assert _listened(b)
+        await b.sdo.write(0x2001, 0, 3)
+        assert [e for e in mine if isinstance(e, EntryWritten)] == [
+            EntryWritten(NODE, 0x2001, 0, 2)
+        ]
+        assert b.of(EntryWritten) == [EntryWritten(NODE, 0x2001, 0, 3)]
+        assert b.device.get(0x2001) == 3
+
+    run_bench(scenario)

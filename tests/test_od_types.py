@@ -16,6 +16,7 @@ from cobus.od import (
     TimeDifference,
     TimeOfDay,
     ValueRangeError,
+    codec,
     decode,
     encode,
 )
@@ -273,3 +274,26 @@ def test_unknown_data_type():
 def test_errors_are_typed():
     for cls in (ValueRangeError, DataLengthError, DataTypeError):
         assert issubclass(cls, CobusError) and issubclass(cls, ValueError)
+
+
+@pytest.mark.parametrize("data_type", list(D))
+def test_codec_gives_what_encode_and_decode_call(data_type):
+    enc, dec = codec(data_type)
+    for value in (0, 1, True, 1.5, "ab", b"ab", TimeOfDay(1, 2), TimeDifference(3, 4)):
+        try:
+            expected = encode(data_type, value)
+        except CobusError as exc:
+            with pytest.raises(type(exc)):
+                enc(value)
+            continue
+        assert enc(value) == expected
+        assert dec(expected) == decode(data_type, expected)
+
+
+@pytest.mark.parametrize("unknown", [0x0020, 0x1234, -1])
+def test_codec_of_an_unknown_type_is_refused_as_encode_refuses_it(unknown):
+    with pytest.raises(DataTypeError) as by_codec:
+        codec(unknown)
+    with pytest.raises(DataTypeError) as by_encode:
+        encode(unknown, 0)
+    assert str(by_codec.value) == str(by_encode.value)

@@ -192,6 +192,11 @@ class Core:
                 SdoAbortCode.INVALID_VALUE, f"the COB-ID rule refused 0x{value:08X}"
             ) from None
 
+    def heard(self) -> bool:
+        """Whether an event emitted now reaches anybody (the device's listeners or the
+        network's): an event built for every request is skipped when not."""
+        return bool(self.listeners) or self.network.listened
+
     def emit(self, event: DeviceEvent) -> None:
         """To the device's listeners, then to the network's."""
         for listener in list(self.listeners):

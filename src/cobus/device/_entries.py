@@ -14,7 +14,7 @@ from cobus.od import (
     TimeOfDay,
     ValueRangeError,
     Variable,
-    decode,
+    codec,
     encode,
 )
 from cobus.proto.sdo import SdoAbort, SdoAbortCode
@@ -33,6 +33,8 @@ class Entry:
 
     __slots__ = (
         "data_type",
+        "decoder",
+        "encoder",
         "high",
         "index",
         "key",
@@ -53,6 +55,10 @@ class Entry:
         self.subindex = var.subindex
         self.key = var.index << 8 | var.subindex
         self.data_type = var.data_type
+        #: The codec of the data type, asked once (an SDO request saves a lookup).
+        self.encoder: Callable[[Any], bytes]
+        self.decoder: Callable[[bytes], Any]
+        self.encoder, self.decoder = codec(var.data_type)
         self.size = var.data_type.size
         self.low = var.low_limit
         self.high = var.high_limit
@@ -138,6 +144,9 @@ def check_value(entry: Entry, value: Any) -> Any:
     return value
 
 
+_VISIBLE_STRING = DataType.VISIBLE_STRING  # a global: an Enum class attribute costs ~0.5 us
+
+
 def decode_download(entry: Entry, data: bytes) -> Any:
     """The value of downloaded bytes; :class:`SdoAbort` 0607xxxx for a wrong length and
     0609003x for a value the type or the limits do not allow."""
@@ -150,8 +159,8 @@ def decode_download(entry: Entry, data: bytes) -> Any:
         )
     dt = entry.data_type
     try:
-        value = decode(dt, data)
-        if dt is DataType.VISIBLE_STRING:
+        value = entry.decoder(data)
+        if dt is _VISIBLE_STRING:
             encode(dt, value)
     except DataLengthError as exc:
         raise SdoAbort(SdoAbortCode.LENGTH_MISMATCH, str(exc)) from None

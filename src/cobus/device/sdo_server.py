@@ -22,7 +22,7 @@ from cobus.device._gates import LateSdoServer
 from cobus.device._objects import RO, U8, U32, composite, var
 from cobus.device.events import EntryWritten
 from cobus.errors import CobusError
-from cobus.od import NodeRelative, ObjectDictionary, Record, encode
+from cobus.od import NodeRelative, ObjectDictionary, Record
 from cobus.proto import Frame
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer
 
@@ -61,7 +61,7 @@ class SdoBackend:
                 core.failure(f"read callback of 0x{index:04X}:{subindex:02X}", exc)
                 raise abort(_ABORT.CANNOT_STORE, f"the application failed: {exc!r}") from None
         try:
-            return encode(entry.data_type, value)
+            return entry.encoder(value)
         except CobusError as exc:
             raise abort(
                 _ABORT.GENERAL_ERROR,
@@ -71,7 +71,9 @@ class SdoBackend:
     def download(self, index: int, subindex: int, data: bytes) -> None:
         """Write an entry from its encoded value, or raise the abort that refuses it."""
         core = self._core
-        entry = core.entry(index, subindex)
+        entry = core.entries.get(index << 8 | subindex)
+        if entry is None:
+            entry = core.entry(index, subindex)  # raises the abort that names what is missing
         var = entry.var
         if core.downloads:
             own = core.downloads.get(entry.key)
@@ -91,7 +93,8 @@ class SdoBackend:
             data = data[:size]
         value = decode_download(entry, data)
         core.write(entry, value, remote=True)
-        core.emit(EntryWritten(core.node_id, index, subindex, value))
+        if core.heard():
+            core.emit(EntryWritten(core.node_id, index, subindex, value))
 
     def size_hint(self, index: int, subindex: int) -> int | None:
         """The size a download to the entry must have (None: any), or the abort."""

@@ -461,6 +461,15 @@ def encode(data_type: DataType | int, value: Any) -> bytes:
     return f(value)
 
 
+def codec(data_type: DataType | int) -> tuple[_Encoder, _Decoder]:
+    """The encoder and decoder :func:`encode` and :func:`decode` call for ``data_type``, for
+    code that converts values of one type many times (:class:`DataTypeError` if unknown)."""
+    enc, dec = ENCODERS.get(data_type), DECODERS.get(data_type)
+    if enc is None or dec is None:
+        raise _unknown(data_type)
+    return enc, dec
+
+
 def decode(data_type: DataType | int, data: bytes | bytearray | memoryview) -> Any:
     """Decode bytes of ``data_type``; the length must be exactly the type's size."""
     f = DECODERS.get(data_type)

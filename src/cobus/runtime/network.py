@@ -519,6 +519,12 @@ class AsyncNetwork:
         if listener in self._listeners:
             self._listeners.remove(listener)
 
+    @property
+    def listened(self) -> bool:
+        """Whether any listener is registered: code that emits an event on every request
+        may skip building it when nobody would see it."""
+        return bool(self._listeners)
+
     def emit(self, event: Event) -> None:
         """Give ``event`` to every listener of the network."""
         if not self._listeners:  # the common case: every SDO event comes through here

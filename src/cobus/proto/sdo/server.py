@@ -330,11 +330,15 @@ class SdoServer(ep.Endpoint):
         return self._send(w.WITH_U32.pack(cmd, self._index, self._subindex, size), now)
 
     def _initiate_download(self, data: bytes, now: float) -> Out:
-        if not self._take_mux(data):
+        if len(data) < 4:
+            self._take_mux(data)  # the object the abort names, as far as the frame tells
             return self._abort(SdoAbortCode.INVALID_COMMAND)
-        cmd = data[0]
+        cmd, index, subindex = w.MUX.unpack_from(data)  # _take_mux, inline on every write's path
+        self._index = index
+        self._subindex = subindex
         if cmd & w.EXPEDITED:
-            reply = (self._frame(self._mux_frame(w.SCS_INITIATE_DOWNLOAD)),)
+            payload = w.WITH_U32.pack(w.SCS_INITIATE_DOWNLOAD, index, subindex, 0)
+            reply = (Frame(self._out, payload, extended=self._ext),)
             return self._expedited_in(data, reply, "an expedited download request")
         refused = self._take_size(data, w.SIZE)
         if refused is not None:
@@ -454,12 +458,14 @@ class SdoServer(ep.Endpoint):
             self._backend.download(self._index, self._subindex, value)
         except SdoAbort as refusal:
             return self._abort(refusal.code)
-        if not self.reports:
+        events: tuple[Event, ...] = ()
+        if self.reports:
+            events = (ServerDownloaded(self._index, self._subindex, len(value)),)
+        if self._state == _IDLE:  # expedited: nothing else of a transfer was set
+            self._index = self._subindex = -1
+        else:
             self._reset()
-            return Out(reply)
-        event = ServerDownloaded(self._index, self._subindex, len(value))
-        self._reset()
-        return Out(reply, (event,))
+        return Out(reply, events)
 
     def _violation(self, code: int, reason: str) -> Out:
         return self._abort(code)  # the server reports the code only (ServerAborted)
