@@ -1,0 +1,137 @@
+"""CPU instructions a device spends on one expedited SDO request, beside python-canopen's.
+
+Wall-clock figures on a shared 2-core machine vary by ±30 % from run to run; instruction
+counts under ``valgrind --tool=callgrind`` repeat exactly (with ``PYTHONHASHSEED`` fixed), so
+a change of a few percent in the device's path shows here when no timing can show it.
+
+Each figure is the difference between a run serving 3,000 requests and one serving 1,000,
+divided by 2,000: start-up, imports and the dictionary's set-up cancel out. A request is a
+python-can message already read, through each stack's receive path to its SDO server (cobus
+``Device`` on a ``RealTimeLoop``, under the protocol lock as a reader thread dispatches;
+python-canopen ``LocalNode`` through its ``MessageListener``) and the answer handed to the
+interface (python-can's virtual bus, nobody else on it).
+
+Needs valgrind (``apt install valgrind``); without it the table says so and nothing runs.
+Run alone: ``python -m benchmarks.bench_instructions``.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from benchmarks.common import header, row
+
+NODE = 5
+_REQUESTS = {
+    # upload 1000h:00 (device type)
+    "read": bytes([0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0]),
+    # expedited download of 4 bytes to 2000h:00 (an UNSIGNED32 the application owns)
+    "write": bytes([0x23, 0x00, 0x20, 0x00, 1, 2, 3, 4]),
+}
+_WARM_UP = 200
+_ROOT = Path(__file__).resolve().parent.parent
+
+
+def _serve_cobus(data: bytes, count: int) -> None:
+    import can
+
+    from cobus.device import Device, minimal_od
+    from cobus.od import DataType, Variable
+    from cobus.runtime import AsyncNetwork, RealTimeLoop
+
+    loop = RealTimeLoop()
+    od = minimal_od()
+    od.add(Variable(0x2000, 0, "Setpoint", DataType.UNSIGNED32, default=0))
+
+    async def connect() -> AsyncNetwork:
+        net = await AsyncNetwork(interface="virtual", channel="bench-instr-cobus").connect()
+        Device(net, NODE, od).start()
+        return net
+
+    net = loop.run_until_complete(connect())
+    batch = [can.Message(arbitration_id=0x600 + NODE, data=data, is_extended_id=False)]
+    lock, dispatch = loop.protocol_lock, net._on_messages
+    for _ in range(_WARM_UP + count):
+        with lock:
+            dispatch(batch)
+
+
+def _serve_canopen(data: bytes, count: int) -> None:
+    import can
+    import canopen
+
+    from benchmarks.common import canopen_device_type_od
+
+    od = canopen_device_type_od()
+    var = canopen.objectdictionary.ODVariable("Setpoint", 0x2000, 0)
+    var.data_type = canopen.objectdictionary.datatypes.UNSIGNED32
+    var.access_type = "rw"
+    var.default = 0
+    od.add_object(var)
+    network = canopen.Network()
+    network.connect(interface="virtual", channel="bench-instr-canopen")
+    network.add_node(canopen.LocalNode(NODE, od))
+    listener = network.listeners[0]
+    msg = can.Message(arbitration_id=0x600 + NODE, data=data, is_extended_id=False)
+    for _ in range(_WARM_UP + count):
+        listener.on_message_received(msg)
+
+
+def _count(stack: str, request: str, count: int) -> int:
+    """Instructions of one whole run under callgrind."""
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, PYTHONHASHSEED="0")
+        result = subprocess.run(
+            [
+                "valgrind",
+                "--tool=callgrind",
+                f"--callgrind-out-file={tmp}/out",
+                sys.executable,
+                "-m",
+                "benchmarks.bench_instructions",
+                "--serve",
+                stack,
+                request,
+                str(count),
+            ],
+            cwd=_ROOT,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=600,
+            check=True,
+        )
+    found = re.search(r"Collected : (\d+)", result.stderr)
+    if found is None:
+        raise RuntimeError(f"callgrind printed no count:\n{result.stderr[-2000:]}")
+    return int(found.group(1))
+
+
+def per_request(stack: str, request: str) -> float:
+    return (_count(stack, request, 3000) - _count(stack, request, 1000)) / 2000
+
+
+def main() -> None:
+    print(header("Instructions a device spends per expedited SDO request (callgrind)"))
+    if shutil.which("valgrind") is None:
+        print("  valgrind is not installed: nothing counted")
+        return
+    for request in _REQUESTS:
+        ours, theirs = per_request("cobus", request), per_request("canopen", request)
+        print(row(f"expedited {request}", ours, theirs, "instr", False))
+
+
+if __name__ == "__main__":
+    if len(sys.argv) == 5 and sys.argv[1] == "--serve":
+        _, _, stack, request, count = sys.argv
+        serve = _serve_cobus if stack == "cobus" else _serve_canopen
+        serve(_REQUESTS[request], int(count))
+        sys.stdout.flush()
+        os._exit(0)  # no shutdown work in the count
+    main()
