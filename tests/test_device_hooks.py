@@ -112,6 +112,29 @@ def test_a_delay_set_during_a_transfer_makes_its_next_answers_late():
     run_bench(scenario, sdo_timeout=0.5)
 
 
+def test_a_delay_set_by_the_application_while_it_serves_a_request():
+    """The read callback sets the delay while its request is served: that answer goes at
+    once, the next comes late, and the transfer's timeout counts from when the gate took that
+    request up (a request due at the same instant as the timeout goes first)."""
+
+    async def scenario(b: Bench):
+        def reader() -> str:
+            b.device.simulation.sdo_response_delay = 0.25
+            return "a string longer than four"
+
+        b.device.on_read(0x2003, 0, reader)
+        t0 = b.net.time()
+        b.send(RX, upload_request(0x2003))  # segmented
+        await b.net.sleep(0.25)
+        b.send(RX, bytes([0x60]) + bytes(7))  # due at 0.5, as the timeout of the initiate
+        await b.net.sleep(1.5)
+        sent = [(round(t - t0, 6), f.data[0]) for t, f in b.on(TX)]
+        assert sent == [(0.0, 0x41), (0.5, 0x00), (1.0, 0x80)]  # the last: timeout, 05040000
+        assert struct.unpack_from("<I", b.on(TX)[-1][1].data, 4)[0] == SdoAbortCode.TIMEOUT
+
+    run_bench(scenario, sdo_timeout=0.5)
+
+
 def test_the_delay_holds_through_resets_and_waiting_requests_end_with_the_channels():
     async def scenario(b: Bench):
         b.device.simulation.sdo_response_delay = 0.2

@@ -236,8 +236,16 @@ def test_the_simulation_settings_sit_behind_one_object():
         assert isinstance(simulation.aio, Simulation) and simulation.aio is device.aio.simulation
         assert simulation.deviations == Deviations(send_bootup=False)
         assert (simulation.sdo_response_delay, simulation.heartbeat_muted) == (0.0, False)
-        simulation.sdo_response_delay = 0.25
+        node = net.add_remote(5)
+        node.nmt.start()  # (no boot-up) the channels are built, without a gate
+        t0 = net.time()
+        assert node.sdo.upload(0x1000) == bytes.fromhex("91010000")
+        assert net.time() == t0
+        simulation.sdo_response_delay = 0.25  # on the loop: the channels go behind their gates
         simulation.heartbeat_muted = True
+        t0 = net.time()
+        assert node.sdo.upload(0x1000) == bytes.fromhex("91010000")
+        assert net.time() - t0 == pytest.approx(0.25)
         assert device.aio.simulation.sdo_response_delay == 0.25
         assert device.aio.simulation.heartbeat_muted is True
         with pytest.raises(DeviceConfigError, match="SDO response delay"):

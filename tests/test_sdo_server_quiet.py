@@ -21,6 +21,12 @@ from tests.test_sdo_server import _server_in as server_in
 ENTRIES = {(IDX, 0): bytes(range(40)) * 3, (IDX, 1): b"\x11\x22", (IDX, 2): b""}
 
 
+def _assert_reset(server: SdoServer) -> None:
+    assert server._deadline is None and server._limit is None
+    assert server._data == b"" and server._buf == bytearray()
+    assert (server._index, server._subindex) == (-1, -1)
+
+
 class Twins:
     """Both servers behind one machine's face: each input goes to both, their outputs and
     states are compared, and the reporting one's output is returned."""
@@ -36,6 +42,9 @@ class Twins:
         assert self.quiet.busy == self.loud.busy
         assert self.quiet.deadline == self.loud.deadline
         assert self.quiet.progress == self.loud.progress
+        for server in (self.loud, self.quiet):
+            if not server.busy:  # idle as a full reset leaves it (expedited transfers skip it)
+                _assert_reset(server)
         self.events += len(loud.events)
         return loud
 

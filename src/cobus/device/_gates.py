@@ -5,7 +5,9 @@ without changing the protocol machines themselves.
 
 Both read the device's :class:`~cobus.device.Simulation`, so a change applies at once to the
 channels and the producer in place, and holds through every rebuild of the communication
-(resets, node-ID changes, new COB-IDs).
+(resets, node-ID changes, new COB-IDs). A channel goes behind its :class:`LateSdoServer`
+only once a delay is set (the device's SDO service puts it there); until then its requests
+skip the gate's calls.
 """
 
 from __future__ import annotations

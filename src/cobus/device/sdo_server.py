@@ -23,7 +23,7 @@ from cobus.device._objects import RO, U8, U32, composite, var
 from cobus.device.events import EntryWritten
 from cobus.errors import CobusError
 from cobus.od import NodeRelative, ObjectDictionary, Record
-from cobus.proto import Frame
+from cobus.proto import NOTHING, Frame
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer
 
 __all__ = ["SdoBackend", "SdoServerService", "define_objects"]
@@ -124,11 +124,14 @@ class _Channel:
         self.subscription = core.network.subscribe(rx, self.on_frame)
 
     def gate(self) -> None:
-        """Put the gate of a late answer in front of the server, if it is not there yet. A
-        transfer in progress goes on; its timer is armed again by the new host."""
-        if self.host.machine is self.server:
-            self.host.close()
-            self.host = self.core.network.attach(LateSdoServer(self.server, self.core.simulation))
+        """Put the gate of a late answer in front of the server, if it is not there yet, in
+        the same host: a transfer in progress goes on with its timer as armed (the gate's
+        deadline is the server's while nothing waits), and a request being served when the
+        delay is set (from the application's read or write callback) ends in the same host."""
+        host = self.host
+        if host.machine is self.server:
+            host.machine = LateSdoServer(self.server, self.core.simulation)
+            host.apply(NOTHING)  # (arms nothing new: the deadline is the same)
 
     def on_frame(self, frame: Frame, now: float) -> None:
         """A request: to the machine (what ``host.feed`` does, one call less per request)."""

@@ -6,10 +6,11 @@
 - :attr:`Simulation.deviations` — the ways the device departs from CiA 301
   (:class:`Deviations`, given when the device is created).
 
-A plain device follows CiA 301 and answers at once: nothing here is on by default. The SDO
-server channels and the heartbeat producer read the two settings through the gates of
-:mod:`cobus.device._gates`, so a change applies at once and holds through every rebuild of
-the communication (resets, node-ID changes, new COB-IDs).
+A plain device follows CiA 301 and answers at once: nothing here is on by default. The
+heartbeat producer reads its setting through a gate of :mod:`cobus.device._gates`; the SDO
+server channels go behind theirs once a response delay is set (before, a request skips the
+gate's calls). A change applies at once and holds through every rebuild of the
+communication (resets, node-ID changes, new COB-IDs).
 """
 
 from __future__ import annotations
@@ -156,6 +157,8 @@ class Simulation:
 
     @sdo_response_delay.setter
     def sdo_response_delay(self, seconds: float) -> None:
+        # On the network's loop only, like every change of a device (the blocking twin runs
+        # it there): a delay puts the SDO channels behind their gates.
         if (
             not isinstance(seconds, int | float)
             or isinstance(seconds, bool)

@@ -314,14 +314,13 @@ class SdoServer(ep.Endpoint):
             cmd = w.SCS_INITIATE_UPLOAD | ((4 - size) << 2) | w.EXPEDITED | w.SIZE
             payload = w.WITH_4S.pack(cmd, self._index, self._subindex, value)
             frame = Frame(self._out, payload, extended=self._ext)
-            if not self.reports:
-                # Idle before and after (an expedited upload sets nothing else of a transfer,
-                # and the superseded one was reset): only the object named goes.
-                self._index = self._subindex = -1
-                return Out((frame,))
-            event = ServerUploaded(self._index, self._subindex, size)
+            index, subindex = self._index, self._subindex
+            # Idle before and after (an expedited upload sets nothing else of a transfer, and
+            # a superseded one was reset): only the object named goes, no full _reset.
             self._index = self._subindex = -1
-            return Out((frame,), (event,))
+            if not self.reports:
+                return Out((frame,))
+            return Out((frame,), (ServerUploaded(index, subindex, size),))
         self._data = value
         self._pos = 0
         self._toggle = 0
