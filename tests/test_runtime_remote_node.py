@@ -770,3 +770,52 @@ def test_a_callback_failing_on_every_frame_does_not_flood_the_log(caplog):
     lines = [r.getMessage() for r in caplog.records]
     assert len(lines) == 2, lines  # the first with its traceback, then the 10th
     assert "a bug in the application" in lines[0] and "10 times so far" in lines[1]
+
+
+def test_a_received_tpdo_keeps_its_values_and_is_told_to_whoever_listens_then():
+    """The event is built only when a callback, a waiter or a network listener is there;
+    the values, the time and the count are kept either way, by the mapping's current names."""
+    from tests.test_device_support import simulate
+
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            tpdo = net.add_remote(5).tpdo[1]
+            tpdo.add(0x6041, 0, 16)
+            tpdo.add(0x0005, 0, 8)  # a dummy: takes a byte, has no name
+            tpdo.add(0x6061, 0, 8)
+            tpdo.cob_id = 0x185
+            tpdo.enabled = True
+            names = tpdo.names
+            assert [f.name for f in tpdo.fields if not f.dummy] == names and len(names) == 2
+
+            async def receive(data: bytes) -> None:
+                net.send(Frame(0x185, data))  # handed to the network's own handlers
+                await asyncio.sleep(0)
+
+            await receive(bytes([1, 0, 0xEE, 7]))  # nobody listens
+            assert list(tpdo.values.values()) == [1, 7] and tpdo.count == 1
+            assert tpdo.timestamp == net.time()
+            seen: list[PdoReceived] = []
+            tpdo.add_callback(seen.append)
+            await receive(bytes([2, 0, 0, 8]))
+            tpdo.remove_callback(seen.append)
+            heard: list[object] = []
+            net.add_listener(heard.append)
+            await receive(bytes([3, 0, 0, 9]))
+            net.remove_listener(heard.append)
+            waiting = asyncio.ensure_future(tpdo.wait_for_reception())
+            await asyncio.sleep(0)
+            await receive(bytes([4, 0, 0, 10]))
+            assert list((await waiting).values()) == [4, 10]
+            assert [list(e.values.values()) for e in seen] == [[2, 8]]
+            assert [list(e.values.values()) for e in heard if isinstance(e, PdoReceived)] == [
+                [3, 9]
+            ]
+            assert tpdo.count == 4 and len(tpdo.names) == 2
+            tpdo.clear()
+            tpdo.add(0x6061, 0, 8)
+            tpdo.enabled = True
+            await receive(bytes([11]))
+            assert tpdo.names == names[1:] and tpdo.values == {names[1]: 11}
+
+    simulate(main())

@@ -39,6 +39,9 @@ class Callbacks(Generic[E]):
     def __len__(self) -> int:
         return len(self._callbacks)
 
+    def __bool__(self) -> bool:
+        return bool(self._callbacks)
+
     def __call__(self, event: E) -> None:
         for callback in list(self._callbacks):
             try:
@@ -57,6 +60,10 @@ class Waiters(Generic[E]):
     def __init__(self, network: AsyncNetwork) -> None:
         self._network = network
         self._items: list[tuple[Callable[[E], bool], asyncio.Future[E]]] = []
+
+    def __bool__(self) -> bool:
+        """Whether any operation waits."""
+        return bool(self._items)
 
     async def wait(
         self,

@@ -203,6 +203,7 @@ class RemotePdo:
         self.count = 0
         self.configured = False
         self._fields: list[PdoField] = []
+        self._names: list[str] = []  # of the fields that are not dummies, kept with them
         self._codec = PdoMap([])
         self._values: dict[str, Any] = {}
         self._callbacks: Callbacks[PdoReceived] = Callbacks(
@@ -264,7 +265,7 @@ class RemotePdo:
     @property
     def names(self) -> list[str]:
         """The names of the mapped values (dummies excluded), in mapping order."""
-        return [f.name for f in self._fields if not f.dummy]
+        return list(self._names)
 
     @property
     def length(self) -> int:
@@ -326,6 +327,7 @@ class RemotePdo:
         codec = PdoMap([(f.entry, _kind(f)) for f in fields])  # raises for > 64 bits
         self.configured = True
         self._fields = fields
+        self._names = [f.name for f in fields if not f.dummy]
         self._codec = codec
         zeros = codec.unpack(bytes(codec.length)) if codec.value_count else ()
         self._values = dict(zip(self.names, zeros, strict=True))
@@ -427,10 +429,12 @@ class RemotePdo:
         except PdoLengthError as exc:
             self._network.emit(PdoRejected(self.node_id, self.number, frame.data, str(exc)))
             return
-        values = dict(zip(self.names, decoded, strict=True))
+        values = dict(zip(self._names, decoded, strict=True))
         self._values = values
         self.timestamp = now
         self.count += 1
+        if not (self._waiters or self._callbacks or self._network.listened):
+            return  # nobody to tell: the event is not built (the values are kept above)
         event = PdoReceived(self.node_id, self.number, values, now)
         self._waiters.resolve(event)
         self._callbacks(event)
