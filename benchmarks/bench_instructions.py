@@ -1,4 +1,5 @@
-"""CPU instructions a device spends on one expedited SDO request, beside python-canopen's.
+"""CPU instructions a device spends on one expedited SDO request, and a master on one
+received TPDO, beside python-canopen's.
 
 Wall-clock figures on a shared 2-core machine vary by ±30 % from run to run; instruction
 counts under ``valgrind --tool=callgrind`` repeat exactly (with ``PYTHONHASHSEED`` fixed), so
@@ -9,7 +10,10 @@ divided by 2,000: start-up, imports and the dictionary's set-up cancel out. A re
 python-can message already read, through each stack's receive path to its SDO server (cobus
 ``Device`` on a ``RealTimeLoop``, under the protocol lock as a reader thread dispatches;
 python-canopen ``LocalNode`` through its ``MessageListener``) and the answer handed to the
-interface (python-can's virtual bus, nobody else on it).
+interface (python-can's virtual bus, nobody else on it). A TPDO is a frame of two mapped
+16-bit values, decoded by a master's remote node (cobus ``tpdo[1]`` of a remote node with its
+heartbeat watched, as ``bench_load`` sets up 64 of them; python-canopen ``RemoteNode.tpdo[1]``
+subscribed), with nobody waiting for it.
 
 Needs valgrind (``apt install valgrind``); without it the table says so and nothing runs.
 Run alone: ``python -m benchmarks.bench_instructions``.
@@ -83,6 +87,58 @@ def _serve_canopen(data: bytes, count: int) -> None:
         listener.on_message_received(msg)
 
 
+_TPDO = bytes([5, 0, 0, 1])
+
+
+def _receive_cobus(count: int) -> None:
+    import can
+
+    from cobus.runtime import AsyncNetwork, RealTimeLoop
+
+    loop = RealTimeLoop()
+
+    async def connect() -> AsyncNetwork:
+        net = await AsyncNetwork(interface="virtual", channel="bench-instr-tpdo").connect()
+        node = net.add_remote(NODE)
+        node.nmt.watch_heartbeat(0.3)
+        tpdo = node.tpdo[1]
+        tpdo.add(0x6041, 0, 16)
+        tpdo.add(0x6061, 0, 16)
+        tpdo.cob_id = 0x180 + NODE
+        tpdo.enabled = True
+        return net
+
+    net = loop.run_until_complete(connect())
+    batch = [can.Message(arbitration_id=0x180 + NODE, data=_TPDO, is_extended_id=False)]
+    lock, dispatch = loop.protocol_lock, net._on_messages
+    for _ in range(_WARM_UP + count):
+        with lock:
+            dispatch(batch)
+
+
+def _receive_canopen(count: int) -> None:
+    import can
+    import canopen
+
+    from benchmarks.bench_load import _canopen_od
+
+    network = canopen.Network()
+    network.connect(interface="virtual", channel="bench-instr-tpdo-canopen")
+    node = canopen.RemoteNode(NODE, _canopen_od())
+    network.add_node(node)
+    tpdo = node.tpdo[1]
+    tpdo.clear()
+    tpdo.add_variable(0x6041)
+    tpdo.add_variable(0x6061)
+    tpdo.cob_id = 0x180 + NODE
+    tpdo.enabled = True
+    tpdo.subscribe()
+    listener = network.listeners[0]
+    msg = can.Message(arbitration_id=0x180 + NODE, data=_TPDO, is_extended_id=False)
+    for _ in range(_WARM_UP + count):
+        listener.on_message_received(msg)
+
+
 def _count(stack: str, request: str, count: int) -> int:
     """Instructions of one whole run under callgrind."""
     with tempfile.TemporaryDirectory() as tmp:
@@ -118,20 +174,25 @@ def per_request(stack: str, request: str) -> float:
 
 
 def main() -> None:
-    print(header("Instructions a device spends per expedited SDO request (callgrind)"))
+    print(header("Instructions per request or frame (callgrind)"))
     if shutil.which("valgrind") is None:
         print("  valgrind is not installed: nothing counted")
         return
     for request in _REQUESTS:
         ours, theirs = per_request("cobus", request), per_request("canopen", request)
-        print(row(f"expedited {request}", ours, theirs, "instr", False))
+        print(row(f"a device: expedited {request}", ours, theirs, "instr", False))
+    ours, theirs = per_request("cobus", "tpdo"), per_request("canopen", "tpdo")
+    print(row("a master: a TPDO received", ours, theirs, "instr", False))
 
 
 if __name__ == "__main__":
     if len(sys.argv) == 5 and sys.argv[1] == "--serve":
         _, _, stack, request, count = sys.argv
-        serve = _serve_cobus if stack == "cobus" else _serve_canopen
-        serve(_REQUESTS[request], int(count))
+        if request == "tpdo":
+            (_receive_cobus if stack == "cobus" else _receive_canopen)(int(count))
+        else:
+            serve = _serve_cobus if stack == "cobus" else _serve_canopen
+            serve(_REQUESTS[request], int(count))
         sys.stdout.flush()
         os._exit(0)  # no shutdown work in the count
     main()
