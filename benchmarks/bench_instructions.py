@@ -27,9 +27,16 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from benchmarks.common import header, row
+
+if TYPE_CHECKING:
+    import canopen
+
+    from cobus.runtime import AsyncNetwork
 
 NODE = 5
 _REQUESTS = {
@@ -42,32 +49,50 @@ _WARM_UP = 200
 _ROOT = Path(__file__).resolve().parent.parent
 
 
-def _serve_cobus(data: bytes, count: int) -> None:
+def _feed_cobus(
+    setup: Callable[[AsyncNetwork], object], cob_id: int, data: bytes, count: int
+) -> None:
+    """A network on a ``RealTimeLoop`` set up by ``setup``, fed ``count`` frames (after the
+    warm-up) as its reader thread dispatches them: one at a time, under the protocol lock."""
     import can
 
-    from cobus.device import Device, minimal_od
-    from cobus.od import DataType, Variable
     from cobus.runtime import AsyncNetwork, RealTimeLoop
 
     loop = RealTimeLoop()
-    od = minimal_od()
-    od.add(Variable(0x2000, 0, "Setpoint", DataType.UNSIGNED32, default=0))
 
     async def connect() -> AsyncNetwork:
         net = await AsyncNetwork(interface="virtual", channel="bench-instr-cobus").connect()
-        Device(net, NODE, od).start()
+        setup(net)
         return net
 
     net = loop.run_until_complete(connect())
-    batch = [can.Message(arbitration_id=0x600 + NODE, data=data, is_extended_id=False)]
+    batch = [can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)]
     lock, dispatch = loop.protocol_lock, net._on_messages
     for _ in range(_WARM_UP + count):
         with lock:
             dispatch(batch)
 
 
-def _serve_canopen(data: bytes, count: int) -> None:
+def _feed_canopen(network: canopen.Network, cob_id: int, data: bytes, count: int) -> None:
+    """``count`` frames (after the warm-up) through python-canopen's listener."""
     import can
+
+    listener = network.listeners[0]
+    msg = can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
+    for _ in range(_WARM_UP + count):
+        listener.on_message_received(msg)
+
+
+def _serve_cobus(data: bytes, count: int) -> None:
+    from cobus.device import Device, minimal_od
+    from cobus.od import DataType, Variable
+
+    od = minimal_od()
+    od.add(Variable(0x2000, 0, "Setpoint", DataType.UNSIGNED32, default=0))
+    _feed_cobus(lambda net: Device(net, NODE, od).start(), 0x600 + NODE, data, count)
+
+
+def _serve_canopen(data: bytes, count: int) -> None:
     import canopen
 
     from benchmarks.common import canopen_device_type_od
@@ -81,62 +106,27 @@ def _serve_canopen(data: bytes, count: int) -> None:
     network = canopen.Network()
     network.connect(interface="virtual", channel="bench-instr-canopen")
     network.add_node(canopen.LocalNode(NODE, od))
-    listener = network.listeners[0]
-    msg = can.Message(arbitration_id=0x600 + NODE, data=data, is_extended_id=False)
-    for _ in range(_WARM_UP + count):
-        listener.on_message_received(msg)
+    _feed_canopen(network, 0x600 + NODE, data, count)
 
 
 _TPDO = bytes([5, 0, 0, 1])
 
 
 def _receive_cobus(count: int) -> None:
-    import can
+    from benchmarks.bench_load import cobus_master_node
 
-    from cobus.runtime import AsyncNetwork, RealTimeLoop
-
-    loop = RealTimeLoop()
-
-    async def connect() -> AsyncNetwork:
-        net = await AsyncNetwork(interface="virtual", channel="bench-instr-tpdo").connect()
-        node = net.add_remote(NODE)
-        node.nmt.watch_heartbeat(0.3)
-        tpdo = node.tpdo[1]
-        tpdo.add(0x6041, 0, 16)
-        tpdo.add(0x6061, 0, 16)
-        tpdo.cob_id = 0x180 + NODE
-        tpdo.enabled = True
-        return net
-
-    net = loop.run_until_complete(connect())
-    batch = [can.Message(arbitration_id=0x180 + NODE, data=_TPDO, is_extended_id=False)]
-    lock, dispatch = loop.protocol_lock, net._on_messages
-    for _ in range(_WARM_UP + count):
-        with lock:
-            dispatch(batch)
+    _feed_cobus(lambda net: cobus_master_node(net, NODE), 0x180 + NODE, _TPDO, count)
 
 
 def _receive_canopen(count: int) -> None:
-    import can
     import canopen
 
-    from benchmarks.bench_load import _canopen_od
+    from benchmarks.bench_load import canopen_master_node
 
     network = canopen.Network()
     network.connect(interface="virtual", channel="bench-instr-tpdo-canopen")
-    node = canopen.RemoteNode(NODE, _canopen_od())
-    network.add_node(node)
-    tpdo = node.tpdo[1]
-    tpdo.clear()
-    tpdo.add_variable(0x6041)
-    tpdo.add_variable(0x6061)
-    tpdo.cob_id = 0x180 + NODE
-    tpdo.enabled = True
-    tpdo.subscribe()
-    listener = network.listeners[0]
-    msg = can.Message(arbitration_id=0x180 + NODE, data=_TPDO, is_extended_id=False)
-    for _ in range(_WARM_UP + count):
-        listener.on_message_received(msg)
+    canopen_master_node(network, NODE)
+    _feed_canopen(network, 0x180 + NODE, _TPDO, count)
 
 
 def _count(stack: str, request: str, count: int) -> int:

@@ -23,7 +23,7 @@ from collections.abc import Callable
 import can
 import canopen
 
-from cobus.runtime import Network
+from cobus.runtime import AsyncNetwork, Network
 
 NODES = 64
 SECONDS = float(os.environ.get("COBUS_BENCH_LOAD_SECONDS", "5"))
@@ -108,13 +108,7 @@ def cobus_figures() -> tuple[float, int, int]:
     channel = f"load-cobus-{os.getpid()}"
     with Network(interface="virtual", channel=channel) as net:
         for n in range(1, NODES + 1):
-            node = net.add_remote(n)
-            node.nmt.watch_heartbeat(0.3)
-            tpdo = node.tpdo[1]
-            tpdo.add(0x6041, 0, 16)
-            tpdo.add(0x6061, 0, 16)
-            tpdo.cob_id = 0x180 + n
-            tpdo.enabled = True
+            cobus_master_node(net, n)
         before = net.frames_received
         load, rate = _measure(channel, lambda name: name.startswith("cobus"))
         return load, rate, net.frames_received - before
@@ -144,6 +138,32 @@ def _canopen_od() -> canopen.ObjectDictionary:
     return od
 
 
+def cobus_master_node(net: AsyncNetwork | Network, n: int) -> None:
+    """What the cobus master knows of node ``n``: its heartbeat watched, TPDO1 decoded (on
+    the loop for an ``AsyncNetwork``; the blocking ``Network`` runs each call there)."""
+    node = net.add_remote(n)
+    node.nmt.watch_heartbeat(0.3)
+    tpdo = node.tpdo[1]
+    tpdo.add(0x6041, 0, 16)
+    tpdo.add(0x6061, 0, 16)
+    tpdo.cob_id = 0x180 + n
+    tpdo.enabled = True
+
+
+def canopen_master_node(net: canopen.Network, n: int) -> None:
+    """What python-canopen's master knows of node ``n``: TPDO1 mapped and subscribed (its NMT
+    listens to heartbeats itself)."""
+    node: canopen.RemoteNode = canopen.RemoteNode(n, _canopen_od())
+    net.add_node(node)
+    tpdo = node.tpdo[1]
+    tpdo.clear()
+    tpdo.add_variable(0x6041)
+    tpdo.add_variable(0x6061)
+    tpdo.cob_id = 0x180 + n
+    tpdo.enabled = True
+    tpdo.subscribe()
+
+
 def canopen_figures() -> tuple[float, int]:
     """(percent of a core, frames/s offered) for python-canopen."""
     channel = f"load-canopen-{os.getpid()}"
@@ -151,15 +171,7 @@ def canopen_figures() -> tuple[float, int]:
     net.connect(interface="virtual", channel=channel)
     try:
         for n in range(1, NODES + 1):
-            node: canopen.RemoteNode = canopen.RemoteNode(n, _canopen_od())
-            net.add_node(node)
-            tpdo = node.tpdo[1]
-            tpdo.clear()
-            tpdo.add_variable(0x6041)
-            tpdo.add_variable(0x6061)
-            tpdo.cob_id = 0x180 + n
-            tpdo.enabled = True
-            tpdo.subscribe()
+            canopen_master_node(net, n)
         load, rate = _measure(channel, lambda name: name.startswith("Notifier"))
         return load, rate
     finally:
