@@ -40,6 +40,8 @@ __all__ = [
 
 _BASE = 0x700
 _STATES: dict[int, NmtState] = {int(s): s for s in NmtState}
+# A global, asked for every heartbeat: an Enum class attribute costs ~0.5 us in Python 3.11.
+_INITIALISING = NmtState.INITIALISING
 
 
 class HeartbeatConfigError(CobusError, ValueError):
@@ -294,14 +296,14 @@ class HeartbeatMonitor:
         if state is None:
             return Out((), (MalformedHeartbeat(node_id, data, _reason(data)),))
         old = w.state
-        if state is old and not w.lost and state is not NmtState.INITIALISING:
+        if state is old and not w.lost and state is not _INITIALISING:
             if w.timeout:
                 expiry = w.expiry = now + w.timeout
                 if self._deadline is None or expiry < self._deadline:
                     self._deadline = expiry
             return NOTHING
         events: list[Event] = []
-        if state is NmtState.INITIALISING:
+        if state is _INITIALISING:
             # boot-up: the node starts over; supervise again from its next heartbeat
             w.lost = False
             w.expiry = None

@@ -84,6 +84,8 @@ class Waiters(Generic[E]):
 
     def resolve(self, event: E) -> None:
         """End the waits whose test accepts ``event``."""
+        if not self._items:  # the common case: asked for every heartbeat and TPDO
+            return
         for match, future in list(self._items):
             if not future.done() and match(event):
                 future.set_result(event)

@@ -35,6 +35,7 @@ __all__ = ["NmtTimeoutError", "RemoteNmt"]
 
 _HEARTBEAT = 0x700
 _STATES = frozenset(int(s) for s in NmtState)
+_BOOTUP = int(NmtState.INITIALISING)  # a global: asked for every heartbeat
 _RESETS = (NmtCommand.RESET_NODE, NmtCommand.RESET_COMMUNICATION)
 _COMMAND_FOR = {
     NmtState.OPERATIONAL: NmtCommand.START,
@@ -232,7 +233,7 @@ class RemoteNmt:
         if frame.rtr or len(data) != 1 or data[0] not in _STATES:
             return
         self.last_heard = now
-        if data[0] == NmtState.INITIALISING:
+        if data[0] == _BOOTUP:
             self.bootups += 1
             self._reset_answered = self.commanded in _RESETS
         self._resolve(_HEARD)
