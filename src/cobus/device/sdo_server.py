@@ -23,7 +23,7 @@ from cobus.device._objects import RO, U8, U32, composite, var
 from cobus.device.events import EntryWritten
 from cobus.errors import CobusError
 from cobus.od import NodeRelative, ObjectDictionary, Record
-from cobus.proto import NOTHING, Frame
+from cobus.proto import Frame
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer
 
 __all__ = ["SdoBackend", "SdoServerService", "define_objects"]
@@ -131,7 +131,6 @@ class _Channel:
         host = self.host
         if host.machine is self.server:
             host.machine = LateSdoServer(self.server, self.core.simulation)
-            host.apply(NOTHING)  # (arms nothing new: the deadline is the same)
 
     def on_frame(self, frame: Frame, now: float) -> None:
         """A request: to the machine (what ``host.feed`` does, one call less per request)."""
