@@ -30,7 +30,7 @@ import pytest
 
 from cobus.proto import Frame
 from cobus.runtime import AsyncNetwork, RealTimeLoop
-from cobus.runtime.bus import Readiness, loop_source, websocket_readiness
+from cobus.runtime.bus import Readiness, loop_source, websocket_readiness, websocket_waiting
 from cobus.runtime.events import ReceiveFailed
 
 _GUID = b"258EAFA5-E914-47DA-95CA-C5AB0DC85B11"
@@ -249,6 +249,42 @@ def test_a_frame_longer_than_any_can_frame_is_left_to_a_thread(pair):
     assert websocket_readiness(a) is Readiness.HUGE  # more than the kernel's buffer may hold
 
 
+def test_one_look_counts_every_whole_frame_waiting(pair):
+    a, b = pair
+    assert websocket_waiting(a) == (Readiness.NOTHING, 0)
+    three = [can_frame(0x181, bytes([i])) for i in range(3)]
+    ping = ws_frame(0x9, b"ping")
+    b.sendall(three[0] + ping + three[1] + ws_frame(0xA, b"") + three[2] + three[0][:4])
+    # control frames between are read along by recv(); the cut frame at the end is not
+    assert websocket_waiting(a) == (Readiness.WHOLE, 3)
+    a.recv(len(three[0] + ping + three[1]) + 2 + len(three[2]), socket.MSG_WAITALL)
+    assert websocket_waiting(a) == (Readiness.PART, 0)
+    b.sendall(three[0][4:] + ws_frame(0x8, b"\x03\xe8"))
+    assert websocket_waiting(a) == (Readiness.WHOLE, 2)  # a close frame reads at once too
+    a.recv(100)
+    b.close()
+    assert websocket_waiting(a) == (Readiness.WHOLE, 1)  # the end of the stream
+
+
+def test_frames_beyond_the_first_look_are_not_counted(pair):
+    a, b = pair
+    frames = [can_frame(0x181, bytes(8)) for _ in range(100)]  # ~2 KiB, more than one look
+    b.sendall(b"".join(frames))
+    verdict, count = websocket_waiting(a)
+    assert verdict is Readiness.WHOLE and 1 <= count < 100
+    assert count == 512 // len(frames[0])  # the whole ones among the bytes peeked at
+    long_first = ws_frame(0x2, b"z" * 600)  # longer than the first look: it grows to 1 KiB
+    c, d = socket.socketpair()
+    with c, d:
+        d.sendall(long_first + frames[0] + long_first)
+        assert websocket_waiting(c) == (Readiness.WHOLE, 2)
+    big, small = ws_frame(0x2, b"z" * 600), frames[0]
+    e, f = socket.socketpair()
+    with e, f:
+        f.sendall(small + big)  # a small frame then one cut by the look's end
+        assert websocket_waiting(e) == (Readiness.WHOLE, 1)
+
+
 def test_which_buses_the_loop_reads(peer):
     bus = open_remote(peer)
     try:
@@ -335,6 +371,34 @@ def test_frames_are_read_on_the_loop_without_a_thread(peer, loop_kind):
         asyncio.run(main(bus))
     finally:
         close_remote(bus, peer)
+
+
+def test_one_look_at_the_socket_for_each_batch_read(peer):
+    async def main(bus: can.BusABC) -> None:
+        async with AsyncNetwork(bus) as net:
+            ready = net._fd_ready
+            assert ready is not None
+            looks: list[tuple[Readiness, int]] = []
+
+            def counted() -> tuple[Readiness, int]:
+                looks.append(ready())
+                return looks[-1]
+
+            net._fd_ready = counted
+            got: list[Frame] = []
+            net.subscribe(0x181, lambda f, now: got.append(f))
+            peer.send(b"".join(can_frame(0x181, bytes([i])) for i in range(5)))
+            await _until(lambda: len(got) == 5)
+            await asyncio.sleep(0.02)
+            # the five frames arrived at once: read after one look, and no look finds nothing
+            assert looks == [(Readiness.WHOLE, 5)]
+            assert [f.data for f in got] == [bytes([i]) for i in range(5)]
+            peer.send(can_frame(0x181, b"\x07"))
+            await _until(lambda: len(got) == 6)
+            await asyncio.sleep(0.02)
+            assert looks[1:] == [(Readiness.WHOLE, 1)]
+
+    _with_remote(peer, main)
 
 
 def test_a_frame_split_over_segments_does_not_stall_the_loop(peer):

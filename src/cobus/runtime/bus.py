@@ -34,6 +34,7 @@ __all__ = [
     "open_bus",
     "own_echo",
     "websocket_readiness",
+    "websocket_waiting",
 ]
 
 
@@ -265,12 +266,12 @@ class LoopSource(NamedTuple):
     """How the event loop reads a bus itself, without a reader thread.
 
     ``fd`` is watched with ``add_reader``; once it is readable, ``ready()`` (when given) tells
-    whether ``bus.recv(0)`` returns without blocking. Without ``ready``, readable means a whole
-    frame waits.
+    whether ``bus.recv(0)`` returns without blocking, and how many times in a row (see
+    :func:`websocket_waiting`). Without ``ready``, readable means a whole frame waits.
     """
 
     fd: int
-    ready: Callable[[], Readiness] | None
+    ready: Callable[[], tuple[Readiness, int]] | None
 
 
 def loop_source(bus: can.BusABC) -> LoopSource | None:
@@ -298,7 +299,7 @@ def loop_source(bus: can.BusABC) -> LoopSource | None:
         fd = _fileno(bus)
         if fd is None or fd != sock.fileno():
             return None
-        return LoopSource(fd, functools.partial(websocket_readiness, sock))
+        return LoopSource(fd, functools.partial(websocket_waiting, sock))
     return None
 
 
@@ -366,25 +367,45 @@ def websocket_readiness(sock: socket.socket) -> Readiness:
     ``recv`` return without blocking: a whole data or close frame, after any whole control
     frames; or an end of stream or error, which ``recv`` reports at once. The bytes stay in
     the buffer (``MSG_PEEK``)."""
+    return websocket_waiting(sock)[0]
+
+
+def websocket_waiting(sock: socket.socket) -> tuple[Readiness, int]:
+    """:func:`websocket_readiness`, and how many calls of python-can-remote's ``recv`` return
+    without blocking, one after the other (at least 1 when ``WHOLE``; 0 otherwise): the
+    whole data and close frames among the bytes peeked at. One look at the socket for a
+    batch: a second one, to find it empty, would cost a failing system call per wake-up."""
     size = _PEEK_FIRST
     while True:
         try:
             data = sock.recv(size, _PEEK_FLAGS)
         except (BlockingIOError, InterruptedError):
-            return Readiness.NOTHING
+            return Readiness.NOTHING, 0
         except OSError:
-            return Readiness.WHOLE  # recv() raises it, at once
+            return Readiness.WHOLE, 1  # recv() raises it, at once
         if not data:
-            return Readiness.WHOLE  # end of stream: recv() raises WebsocketClosed at once
+            return Readiness.WHOLE, 1  # end of stream: recv() raises WebsocketClosed at once
         verdict, needed = _scan_websocket(data)
         if verdict is Readiness.WHOLE:
-            return verdict
+            return verdict, 1 + _whole_frames_after(data, needed)
         if needed > _PEEK_MAX:  # python-can-remote's CAN frames are 20-250 bytes
-            return Readiness.HUGE
+            return Readiness.HUGE, 0
         if len(data) < size:  # all that waits was seen, and it is not enough
             # unless nothing more can come: then recv() reads up to the end and raises
-            return Readiness.WHOLE if _stream_ended(sock) else Readiness.PART
+            return (Readiness.WHOLE, 1) if _stream_ended(sock) else (Readiness.PART, 0)
         size = max(needed, 2 * size)
+
+
+def _whole_frames_after(data: bytes, pos: int) -> int:
+    """How many more whole data or close frames ``data`` holds from ``pos`` on."""
+    count = 0
+    while pos < len(data):
+        verdict, end = _scan_websocket(data, pos)
+        if verdict is not Readiness.WHOLE:
+            return count
+        count += 1
+        pos = end
+    return count
 
 
 def _stream_ended(sock: socket.socket) -> bool:
@@ -395,9 +416,10 @@ def _stream_ended(sock: socket.socket) -> bool:
     return bool(poller.poll(0))
 
 
-def _scan_websocket(data: bytes) -> tuple[Readiness, int]:
-    """The readiness of peeked bytes, and how many bytes a verdict of PART would need."""
-    pos, end = 0, len(data)
+def _scan_websocket(data: bytes, pos: int = 0) -> tuple[Readiness, int]:
+    """The readiness of peeked bytes from ``pos`` on, and where the frame a verdict of WHOLE
+    saw ends, or how many bytes a verdict of PART would need."""
+    end = len(data)
     while True:
         head = pos + 2
         if head > end:

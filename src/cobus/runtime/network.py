@@ -269,7 +269,7 @@ class AsyncNetwork:
         self._rx_pending: deque[can.Message] = deque()
         self._rx_posted = False
         self._fd: int | None = None
-        self._fd_ready: Callable[[], _bus.Readiness] | None = None
+        self._fd_ready: Callable[[], tuple[_bus.Readiness, int]] | None = None
         self._fd_resume: asyncio.TimerHandle | None = None
         self._fd_backoff = _FD_BACKOFF
         self._part_wait = _PART_WAIT
@@ -799,17 +799,23 @@ class AsyncNetwork:
         failure: Exception | None = None
         part = huge = False
         try:
-            while len(batch) < _BATCH:
-                if ready is not None:
-                    readiness = ready()
-                    if readiness is not _bus.Readiness.WHOLE:
-                        part = readiness is _bus.Readiness.PART and not batch
-                        huge = readiness is _bus.Readiness.HUGE
+            if ready is None:  # readable: a whole frame waits; read until none is left
+                while len(batch) < _BATCH:
+                    msg = bus.recv(0)
+                    if msg is None:
                         break
-                msg = bus.recv(0)
-                if msg is None:
-                    break
-                batch.append(msg)
+                    batch.append(msg)
+            else:  # read what one look found waiting; the descriptor tells if more came
+                readiness, whole = ready()
+                if readiness is _bus.Readiness.WHOLE:
+                    for _ in range(min(whole, _BATCH)):
+                        msg = bus.recv(0)
+                        if msg is None:
+                            break
+                        batch.append(msg)
+                else:
+                    part = readiness is _bus.Readiness.PART
+                    huge = readiness is _bus.Readiness.HUGE
         except Exception as exc:  # any driver failure: report, back off, read on
             failure = exc
         if batch:
