@@ -2,6 +2,7 @@
 frames directly under it instead of handing every frame over to the loop."""
 
 import asyncio
+import collections
 import os
 import signal
 import threading
@@ -101,6 +102,60 @@ def test_call_soon_under_the_lock_wakes_the_sleeping_loop_once_the_lock_is_let_g
     loop.wake_if_pending()
     assert ran.wait(2.0)  # then it runs at once
     assert not loop.wake_pending
+
+
+def test_a_thread_woken_from_under_the_lock_wakes_once_the_holder_lets_go(looping):
+    loop = looping.loop
+    woken = threading.Event()
+    loop.wake_after_release(woken.set)  # this thread does not hold the lock: at once
+    assert woken.is_set()
+    woken.clear()
+    with loop.protocol_lock:
+        loop.wake_after_release(woken.set)
+        assert not woken.is_set()  # woken now, it would only wait for the GIL or the lock
+    assert not woken.wait(0.05)  # (the holder's own wake_if_pending wakes it)
+    loop.wake_if_pending()
+    assert woken.is_set()
+
+
+def test_the_loop_wakes_waiting_threads_before_it_sleeps_or_runs_more(looping):
+    loop = looping.loop
+    order: list[str] = []
+    woken = threading.Event()
+
+    def wake() -> None:
+        order.append("woken")
+        woken.set()
+
+    def job() -> None:  # protocol code on the loop, as a received answer's dispatch
+        loop.wake_after_release(wake)
+        loop.call_soon(lambda: order.append("the next turn's work"))
+        order.append("job done")
+
+    loop.call_soon_threadsafe(job)
+    assert woken.wait(2.0)
+    looping.wait_asleep()
+    # not in the middle of the job; before work left for the next turn
+    assert order == ["job done", "woken", "the next turn's work"]
+    woken.clear()
+    loop.call_soon_threadsafe(lambda: loop.wake_after_release(woken.set))
+    assert woken.wait(2.0)  # a turn with nothing after it: woken as the loop goes to sleep
+    looping.wait_asleep()
+    assert loop._wakes == collections.deque()
+
+
+def test_a_stopping_loop_wakes_the_threads_it_owes_a_wake_up():
+    lt = _LoopThread()
+    woken = threading.Event()
+
+    def job() -> None:
+        lt.loop.wake_after_release(woken.set)
+        lt.loop.stop()
+
+    lt.loop.call_soon_threadsafe(job)
+    lt.thread.join(2)
+    assert woken.is_set()
+    lt.loop.close()
 
 
 def test_a_timer_set_under_the_lock_wakes_the_loop_only_when_due_before_it_would_wake(looping):

@@ -109,8 +109,8 @@ class Runner:
             )
         if not asyncio.iscoroutine(coro):
             raise TypeError(f"run() takes a coroutine (call the async function), not {coro!r}")
-        handoff: _Handoff[T] = _Handoff()
         loop = self.loop
+        handoff: _Handoff[T] = _Handoff(loop)
 
         def start() -> None:
             try:
@@ -154,7 +154,7 @@ class Runner:
             return self.run(fallback())
         if self._on_loop():
             return self.run(fallback())  # raises ReentrantCallError
-        handoff: _Handoff[T] = _Handoff()
+        handoff: _Handoff[T] = _Handoff(self.loop)
         with loop.protocol_lock:
             cancel = begin(handoff.settle)
         loop.wake_if_pending()
@@ -175,7 +175,7 @@ class Runner:
             return fn(*args)
         if self._closed:
             raise NetworkClosedError("the network is closed")
-        handoff: _Handoff[T] = _Handoff()
+        handoff: _Handoff[T] = _Handoff(self.loop)
 
         def job() -> None:
             try:
@@ -271,22 +271,31 @@ class _Handoff(Generic[T]):
     loop's self-pipe in, a plain lock out), where ``run_coroutine_threadsafe`` chains an
     asyncio future to a ``concurrent.futures.Future`` and its condition variable."""
 
-    __slots__ = ("_error", "_lock", "_result", "task")
+    __slots__ = ("_error", "_lock", "_loop", "_result", "task")
 
-    def __init__(self) -> None:
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
         self._lock = threading.Lock()
         self._lock.acquire()  # released once, by the loop thread, when the outcome is there
+        # on a RealTimeLoop the release waits until protocol code lets go of the lock
+        self._loop = loop if isinstance(loop, RealTimeLoop) else None
         self._result: T | None = None
         self._error: BaseException | None = None
         self.task: asyncio.Task[T] | None = None
 
     def succeed(self, result: T) -> None:
         self._result = result
-        self._lock.release()
+        self._release()
 
     def fail(self, error: BaseException) -> None:
         self._error = error
-        self._lock.release()
+        self._release()
+
+    def _release(self) -> None:
+        loop = self._loop
+        if loop is None:
+            self._lock.release()
+        else:
+            loop.wake_after_release(self._lock.release)
 
     def settle(self, outcome: Any) -> None:
         """A result, or an exception to raise in the waiting caller."""

@@ -22,10 +22,12 @@ after letting go of the lock (:meth:`RealTimeLoop.wake_if_pending`).
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import math
 import selectors
 import threading
+import time as _time
 from collections.abc import Callable, Coroutine, Mapping
 from typing import Any, TypeVar
 
@@ -196,12 +198,16 @@ class _SleepingSelector(selectors.BaseSelector):
         owner = self._owner
         lock = owner.protocol_lock
         if timeout == 0 or not owner.lock_held():
+            if owner._wakes:  # (a turn with work left: the loop keeps the lock)
+                owner._run_wakes()
             return self._wait(timeout)
         # Until when the loop sleeps: a timer set meanwhile from another thread wakes it only
         # if it is due earlier (see RealTimeLoop.call_at).
         owner._sleeping_until = math.inf if timeout is None else owner.time() + timeout
         state = lock._release_save()  # type: ignore[attr-defined]
         try:
+            if owner._wakes:
+                owner._run_wakes()
             return self._wait(timeout)
         finally:
             lock._acquire_restore(state)  # type: ignore[attr-defined]
@@ -220,24 +226,61 @@ class RealTimeLoop(asyncio.SelectorEventLoop):
         #: the holder calls :meth:`wake_if_pending` once it has let go of the lock (waking the
         #: loop before would only make it wait for the lock).
         self.wake_pending = False
+        # Threads to wake (lock releases) once the holder of the protocol lock lets go of it:
+        # see wake_after_release. A deque: any thread may empty it, each wake runs once.
+        self._wakes: collections.deque[Callable[[], object]] = collections.deque()
         #: The protocol lock: re-entrant, and every operation on it one call into C, so that
         #: Ctrl-C cannot leave it half taken.
         self.protocol_lock = threading.RLock()
         super().__init__(selector=_SleepingSelector(self))
 
+    #: asyncio's clock, called as a C function: ``BaseEventLoop.time`` is a Python method
+    #: around it, called several times for every frame received and every turn of the loop.
+    time = staticmethod(_time.monotonic)
+
     def lock_held(self) -> bool:
         """Whether the calling thread holds the protocol lock."""
         return bool(self.protocol_lock._is_owned())  # type: ignore[attr-defined]
 
+    def wake_after_release(self, wake: Callable[[], object]) -> None:
+        """Call ``wake`` (it releases a thread waiting for an outcome of protocol code) once
+        the caller, who holds the protocol lock, has let go of it; at once if it does not
+        hold it.
+
+        A thread woken while the holder still runs Python code would only wait again, for
+        the GIL or the lock: one more sleep and wake-up per call (issue 20). The loop thread
+        wakes such threads when it is about to sleep, or on a turn with work left, before
+        looking at its descriptors; another holder when it calls :meth:`wake_if_pending`.
+        """
+        if self.protocol_lock._is_owned():  # type: ignore[attr-defined]
+            self._wakes.append(wake)
+        else:
+            wake()
+
+    def _run_wakes(self) -> None:
+        wakes = self._wakes
+        while wakes:
+            try:
+                wake = wakes.popleft()
+            except IndexError:  # emptied meanwhile by another thread
+                return
+            wake()
+
     def wake_if_pending(self) -> None:
-        """Wake the loop if work scheduled under the lock needs it; call after releasing."""
+        """Wake the threads and the loop that work done under the lock has to wake; call
+        after letting go of the lock."""
+        if self._wakes:
+            self._run_wakes()
         if self.wake_pending:
             self.wake_pending = False
             self._write_to_self()  # type: ignore[attr-defined]  # asyncio's self-pipe
 
     def run_forever(self) -> None:
-        with self.protocol_lock:
-            super().run_forever()
+        try:
+            with self.protocol_lock:
+                super().run_forever()
+        finally:
+            self._run_wakes()
 
     def call_soon(  # type: ignore[override]  # asyncio's stubs type the arguments variadically
         self, callback: Callable[..., object], *args: Any, context: Any = None
