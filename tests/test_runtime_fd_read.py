@@ -612,7 +612,8 @@ def _multicast_or_skip(group: str, port: int) -> None:
         a.shutdown()
 
 
-def test_udp_multicast_is_read_on_the_loop_and_our_own_messages_come_once():
+@pytest.mark.parametrize("on_loop", [True, False])
+def test_udp_multicast_is_read_by_the_loop_or_a_thread_and_our_own_messages_come_once(on_loop):
     from can.interfaces.udp_multicast import UdpMulticastBus
 
     from cobus.device import add_device, minimal_od
@@ -621,11 +622,16 @@ def test_udp_multicast_is_read_on_the_loop_and_our_own_messages_come_once():
     group = UdpMulticastBus.DEFAULT_GROUP_IPv6
     port = random.randrange(20000, 60000)  # (not the default port the benchmarks use)
     _multicast_or_skip(group, port)
-    with (
-        Network(interface="udp_multicast", channel=group, port=port) as master,
-        Network(interface="udp_multicast", channel=group, port=port) as field,
+    with (  # the blocking Network reads with a thread unless read_on_loop=True
+        Network(
+            interface="udp_multicast", channel=group, port=port, read_on_loop=on_loop
+        ) as master,
+        Network(interface="udp_multicast", channel=group, port=port, read_on_loop=on_loop) as field,
     ):
-        assert master.aio._reader is None and master.aio._fd is not None  # no thread
+        if on_loop:
+            assert master.aio._reader is None and master.aio._fd is not None  # no thread
+        else:
+            assert master.aio._reader is not None and master.aio._fd is None
         got: list[Frame] = []
         master.subscribe(0x123, lambda f, now: got.append(f))
         master.send(Frame(0x123, b"\x02"))

@@ -96,7 +96,7 @@ def test_sdo_between_two_processes_over_python_can_remote(remote_bus_url):
     )
     try:
         assert child.stdout is not None and child.stdout.readline().strip() == "ready"
-        with Network(interface="remote", channel=remote_bus_url) as net:
+        with Network(interface="remote", channel=remote_bus_url, read_on_loop=True) as net:
             # the loop reads the websocket itself: no reader thread (tests/test_runtime_fd_read)
             assert net.aio._fd is not None and net.aio._reader is None
             node = net.add_remote(5, sdo_timeout=2.0)

@@ -195,6 +195,43 @@ def test_a_reader_thread_dispatches_frames_itself_under_the_lock():
     assert seen == [("cobus-rx", True)]
 
 
+def test_a_reader_thread_drops_our_own_messages_without_the_lock():
+    bus = can.Bus(interface="virtual", channel="rt-own", receive_own_messages=True)
+    with Network(bus) as net:
+        got: list[Frame] = []
+        net.subscribe(0x123, lambda f, now: got.append(f))
+        loop = net.aio.loop
+        assert isinstance(loop, RealTimeLoop) and net.aio._reader is not None
+        with loop.protocol_lock:  # as a blocking caller sends: under the lock
+            net.aio.send(Frame(0x123, b"\x01"))
+            time.sleep(0.05)  # the bus hands it back meanwhile: dropped, nothing waits
+            assert not net.aio._rx_pending and not net.aio._rx_posted
+        loop.wake_if_pending()
+        time.sleep(0.05)
+        assert got == [Frame(0x123, b"\x01")]  # the local echo, once
+    bus.shutdown()
+
+
+def test_the_blocking_network_reads_a_descriptor_bus_with_a_thread(request):
+    """Where AsyncNetwork's loop reads the descriptor itself, the blocking Network uses a
+    reader thread (read_on_loop=False); read_on_loop=True gives it the loop's way."""
+    from cobus.runtime import bus as bus_module
+
+    bus = can.Bus(interface="virtual", channel="rt-fd")
+    # a virtual bus standing for one the loop could watch: what loop_source decides on
+    real = bus_module.loop_source
+    bus_module.loop_source = lambda b: bus_module.LoopSource(bus.fileno(), None)  # type: ignore
+    request.addfinalizer(lambda: setattr(bus_module, "loop_source", real))
+    r, w = os.pipe()  # a descriptor that never becomes readable
+    request.addfinalizer(lambda: (os.close(r), os.close(w)))
+    bus.fileno = lambda: r  # type: ignore[method-assign]
+    with Network(bus) as net:
+        assert net.aio._reader is not None and net.aio._fd is None
+    with Network(bus, read_on_loop=True) as net:
+        assert net.aio._reader is None and net.aio._fd == r
+    bus.shutdown()
+
+
 def test_frames_keep_their_order_when_a_busy_loop_makes_the_reader_hand_them_over():
     with Network(interface="virtual", channel="rt-busy") as net:
         raw = can.Bus(interface="virtual", channel="rt-busy")

@@ -364,6 +364,11 @@ class Network:
 
     ``simulated=True`` runs on the virtual clock (with a private virtual bus unless one is
     given). Use as a context manager or call :meth:`close`.
+
+    ``read_on_loop`` is False here: a thread reads the bus and dispatches what it receives
+    under the loop's protocol lock, where :class:`AsyncNetwork` has its loop read a bus that
+    gives a descriptor. A blocking caller waits in its own thread either way, and the
+    thread's read costs less than a turn of the loop (``docs/realtime.md``).
     """
 
     #: Given to a blocking twin's method, the :class:`AsyncNetwork` behind it is passed on.
@@ -380,6 +385,7 @@ class Network:
         interface: str | None = None,
         channel: Any = None,
         bitrate: int | None = None,
+        read_on_loop: bool = False,
         **bus_kwargs: Any,
     ) -> None:
         self._runner = Runner(simulated=simulated)
@@ -388,7 +394,12 @@ class Network:
         self._device_twins: dict[int, Any] = {}
         self._services: dict[int, BlockingTwin] = {}  # nmt and sync: one each, for good
         self.aio = AsyncNetwork(
-            bus, interface=interface, channel=channel, bitrate=bitrate, **bus_kwargs
+            bus,
+            interface=interface,
+            channel=channel,
+            bitrate=bitrate,
+            read_on_loop=read_on_loop,
+            **bus_kwargs,
         )
         try:
             self._runner.run(self.aio.connect())

@@ -213,6 +213,13 @@ class AsyncNetwork:
     ``channel``, ``bitrate`` and any python-can option); left out, python-can's configuration and
     the ``CAN_*`` environment variables apply. On a :class:`SimulatedEventLoop` with no bus
     given, the network opens a private python-can ``virtual`` bus.
+
+    ``read_on_loop``: where the bus gives a descriptor the loop can watch (SocketCAN,
+    ``udp_multicast``, python-can-remote), the loop reads it itself: one wake-up per received
+    batch, the fewest for code awaiting on the loop. False reads it with a thread that
+    dispatches under the loop's protocol lock, as on every other bus: the blocking
+    :class:`~cobus.runtime.Network` does, where the waiting caller is another thread anyway
+    and a loop's turn costs more than the thread's read (``docs/realtime.md``).
     """
 
     #: Frames received from the bus so far.
@@ -237,6 +244,7 @@ class AsyncNetwork:
         channel: Any = None,
         bitrate: int | None = None,
         tx_backlog: int = 4096,
+        read_on_loop: bool = True,
         **bus_kwargs: Any,
     ) -> None:
         if "simulated" in bus_kwargs:
@@ -268,6 +276,7 @@ class AsyncNetwork:
         self._listener_tasks: set[asyncio.Task[Any]] = set()
         self._rx_pending: deque[can.Message] = deque()
         self._rx_posted = False
+        self._read_on_loop = read_on_loop
         self._fd: int | None = None
         self._fd_ready: Callable[[], tuple[_bus.Readiness, int]] | None = None
         self._fd_resume: asyncio.TimerHandle | None = None
@@ -726,7 +735,7 @@ class AsyncNetwork:
             self._poll_hook = self._poll
             loop.add_poll_hook(self._poll)
             return
-        source = _bus.loop_source(bus)
+        source = _bus.loop_source(bus) if self._read_on_loop else None
         if source is not None:
             try:
                 loop.add_reader(source.fd, self._read_ready)
@@ -879,6 +888,7 @@ class AsyncNetwork:
         backoff = 0.05
         pending = self._rx_pending
         stop = self._reader_stop
+        marked, tag = self._own_marked, self._echo_tag
         while not stop.is_set():
             try:
                 msg = bus.recv(0.05)
@@ -895,6 +905,8 @@ class AsyncNetwork:
             if msg is None:
                 continue
             backoff = 0.05
+            if (marked and not msg.is_rx) or (tag is not None and msg.channel == tag):
+                continue  # our own message handed back (see _on_messages): not worth the lock
             pending.append(msg)
             if direct is not None and lock is not None and lock.acquire(True, _DIRECT_WAIT):
                 # Direct dispatch: this thread runs the frames' handlers itself, under the
