@@ -30,7 +30,13 @@ import pytest
 
 from cobus.proto import Frame
 from cobus.runtime import AsyncNetwork, RealTimeLoop
-from cobus.runtime.bus import Readiness, loop_source, websocket_readiness, websocket_waiting
+from cobus.runtime.bus import (
+    _PEEK_FIRST,
+    Readiness,
+    loop_source,
+    websocket_readiness,
+    websocket_waiting,
+)
 from cobus.runtime.events import ReceiveFailed
 
 _GUID = b"258EAFA5-E914-47DA-95CA-C5AB0DC85B11"
@@ -268,17 +274,17 @@ def test_one_look_counts_every_whole_frame_waiting(pair):
 
 def test_frames_beyond_the_first_look_are_not_counted(pair):
     a, b = pair
-    frames = [can_frame(0x181, bytes(8)) for _ in range(100)]  # ~2 KiB, more than one look
+    frames = [can_frame(0x181, bytes(8)) for _ in range(400)]  # ~10 KiB, more than one look
     b.sendall(b"".join(frames))
     verdict, count = websocket_waiting(a)
-    assert verdict is Readiness.WHOLE and 1 <= count < 100
-    assert count == 512 // len(frames[0])  # the whole ones among the bytes peeked at
-    long_first = ws_frame(0x2, b"z" * 600)  # longer than the first look: it grows to 1 KiB
+    assert verdict is Readiness.WHOLE and 1 <= count < 400
+    assert count == _PEEK_FIRST // len(frames[0])  # the whole ones among the bytes peeked at
+    long_first = ws_frame(0x2, b"z" * (_PEEK_FIRST + 100))  # longer than the first look
     c, d = socket.socketpair()
     with c, d:
-        d.sendall(long_first + frames[0] + long_first)
+        d.sendall(long_first + frames[0] + long_first)  # the look grows to twice its size
         assert websocket_waiting(c) == (Readiness.WHOLE, 2)
-    big, small = ws_frame(0x2, b"z" * 600), frames[0]
+    big, small = ws_frame(0x2, b"z" * _PEEK_FIRST), frames[0]
     e, f = socket.socketpair()
     with e, f:
         f.sendall(small + big)  # a small frame then one cut by the look's end

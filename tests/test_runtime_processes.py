@@ -87,7 +87,8 @@ def remote_bus_url():
         server.wait(10)
 
 
-def test_sdo_between_two_processes_over_python_can_remote(remote_bus_url):
+@pytest.mark.parametrize("on_loop", [False, True])
+def test_sdo_between_two_processes_over_python_can_remote(remote_bus_url, on_loop):
     child = subprocess.Popen(
         [sys.executable, "-c", SERVER, remote_bus_url],
         stdin=subprocess.PIPE,
@@ -96,9 +97,11 @@ def test_sdo_between_two_processes_over_python_can_remote(remote_bus_url):
     )
     try:
         assert child.stdout is not None and child.stdout.readline().strip() == "ready"
-        with Network(interface="remote", channel=remote_bus_url, read_on_loop=True) as net:
-            # the loop reads the websocket itself: no reader thread (tests/test_runtime_fd_read)
-            assert net.aio._fd is not None and net.aio._reader is None
+        with Network(interface="remote", channel=remote_bus_url, read_on_loop=on_loop) as net:
+            if on_loop:  # the loop reads the websocket itself (tests/test_runtime_fd_read)
+                assert net.aio._fd is not None and net.aio._reader is None
+            else:  # the blocking Network's way: a reader thread
+                assert net.aio._fd is None and net.aio._reader is not None
             node = net.add_remote(5, sdo_timeout=2.0)
             assert node.sdo.upload(0x1000) == b"\x91\x01\x00\x00"
             assert node.sdo.upload(0x2000) == DATA

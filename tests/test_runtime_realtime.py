@@ -2,7 +2,6 @@
 frames directly under it instead of handing every frame over to the loop."""
 
 import asyncio
-import collections
 import os
 import signal
 import threading
@@ -118,6 +117,32 @@ def test_a_thread_woken_from_under_the_lock_wakes_once_the_holder_lets_go(loopin
     assert woken.is_set()
 
 
+def test_each_holder_of_the_lock_runs_only_the_wakes_it_owes(looping):
+    """Ctrl-C lands in the main thread only: a wake-up owed by another thread is never in
+    the main thread's hands, where an interrupt could drop it."""
+    loop = looping.loop
+    mine, theirs = threading.Event(), threading.Event()
+    let_go, go = threading.Event(), threading.Event()
+
+    def other() -> None:
+        with loop.protocol_lock:
+            loop.wake_after_release(theirs.set)
+        let_go.set()
+        go.wait(2.0)
+        loop.wake_if_pending()
+
+    t = threading.Thread(target=other)
+    t.start()
+    assert let_go.wait(2.0)
+    with loop.protocol_lock:
+        loop.wake_after_release(mine.set)
+    loop.wake_if_pending()
+    assert mine.is_set() and not theirs.is_set()  # the other thread's is left to it
+    go.set()
+    t.join(2.0)
+    assert theirs.is_set()
+
+
 def test_the_loop_wakes_waiting_threads_before_it_sleeps_or_runs_more(looping):
     loop = looping.loop
     order: list[str] = []
@@ -140,8 +165,6 @@ def test_the_loop_wakes_waiting_threads_before_it_sleeps_or_runs_more(looping):
     woken.clear()
     loop.call_soon_threadsafe(lambda: loop.wake_after_release(woken.set))
     assert woken.wait(2.0)  # a turn with nothing after it: woken as the loop goes to sleep
-    looping.wait_asleep()
-    assert loop._wakes == collections.deque()
 
 
 def test_a_stopping_loop_wakes_the_threads_it_owes_a_wake_up():
@@ -204,9 +227,17 @@ def test_a_reader_thread_drops_our_own_messages_without_the_lock():
         assert isinstance(loop, RealTimeLoop) and net.aio._reader is not None
         with loop.protocol_lock:  # as a blocking caller sends: under the lock
             net.aio.send(Frame(0x123, b"\x01"))
-            time.sleep(0.05)  # the bus hands it back meanwhile: dropped, nothing waits
+            deadline = time.monotonic() + 5  # the reader takes it back meanwhile...
+            while not bus.queue.empty():  # type: ignore[attr-defined]
+                assert time.monotonic() < deadline, "the reader never took the message"
+                time.sleep(0.001)
+            time.sleep(0.01)
+            # ...and drops it: it neither waits for the lock nor hands it to the loop
             assert not net.aio._rx_pending and not net.aio._rx_posted
         loop.wake_if_pending()
+        deadline = time.monotonic() + 5
+        while not got and time.monotonic() < deadline:
+            time.sleep(0.001)
         time.sleep(0.05)
         assert got == [Frame(0x123, b"\x01")]  # the local echo, once
     bus.shutdown()

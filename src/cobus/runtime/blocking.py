@@ -275,8 +275,9 @@ class _Handoff(Generic[T]):
 
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
         self._lock = threading.Lock()
-        self._lock.acquire()  # released once, by the loop thread, when the outcome is there
-        # on a RealTimeLoop the release waits until protocol code lets go of the lock
+        # released once, when the outcome is there: by the protocol code that has it, or on a
+        # RealTimeLoop by the thread that ran it, once it has let go of the protocol lock
+        self._lock.acquire()
         self._loop = loop if isinstance(loop, RealTimeLoop) else None
         self._result: T | None = None
         self._error: BaseException | None = None
@@ -368,7 +369,8 @@ class Network:
     ``read_on_loop`` is False here: a thread reads the bus and dispatches what it receives
     under the loop's protocol lock, where :class:`AsyncNetwork` has its loop read a bus that
     gives a descriptor. A blocking caller waits in its own thread either way, and the
-    thread's read costs less than a turn of the loop (``docs/realtime.md``).
+    thread's read costs less than a turn of the loop (``docs/realtime.md``, "Who reads the
+    bus").
     """
 
     #: Given to a blocking twin's method, the :class:`AsyncNetwork` behind it is passed on.

@@ -355,7 +355,8 @@ def _fileno(bus: can.BusABC) -> int | None:
 _MSG_DONTWAIT: int | None = getattr(socket, "MSG_DONTWAIT", None)
 _POLLRDHUP: int | None = getattr(select, "POLLRDHUP", None)  # Linux: the peer closed its side
 _PEEK_FLAGS = int(socket.MSG_PEEK) | (_MSG_DONTWAIT or 0)  # (plain ints: IntFlag's | is slow)
-_PEEK_FIRST = 512  # bytes peeked at first: a CAN frame's websocket frame is 20-250 bytes
+_PEEK_FIRST = 4096  # bytes looked at first: a CAN frame's websocket frame is 20-250 bytes, and
+# one look should see a burst (a batch reads what it found whole)
 _PEEK_MAX = 1 << 20
 # websocket opcodes (RFC 6455) after which python-can-remote's read() returns or raises;
 # it answers a ping, skips a pong or continuation, and reads on

@@ -22,7 +22,6 @@ after letting go of the lock (:meth:`RealTimeLoop.wake_if_pending`).
 from __future__ import annotations
 
 import asyncio
-import collections
 import contextlib
 import math
 import selectors
@@ -198,16 +197,14 @@ class _SleepingSelector(selectors.BaseSelector):
         owner = self._owner
         lock = owner.protocol_lock
         if timeout == 0 or not owner.lock_held():
-            if owner._wakes:  # (a turn with work left: the loop keeps the lock)
-                owner._run_wakes()
+            owner._run_wakes()  # (on a turn with work left the loop keeps the lock)
             return self._wait(timeout)
         # Until when the loop sleeps: a timer set meanwhile from another thread wakes it only
         # if it is due earlier (see RealTimeLoop.call_at).
         owner._sleeping_until = math.inf if timeout is None else owner.time() + timeout
         state = lock._release_save()  # type: ignore[attr-defined]
         try:
-            if owner._wakes:
-                owner._run_wakes()
+            owner._run_wakes()
             return self._wait(timeout)
         finally:
             lock._acquire_restore(state)  # type: ignore[attr-defined]
@@ -226,9 +223,10 @@ class RealTimeLoop(asyncio.SelectorEventLoop):
         #: the holder calls :meth:`wake_if_pending` once it has let go of the lock (waking the
         #: loop before would only make it wait for the lock).
         self.wake_pending = False
-        # Threads to wake (lock releases) once the holder of the protocol lock lets go of it:
-        # see wake_after_release. A deque: any thread may empty it, each wake runs once.
-        self._wakes: collections.deque[Callable[[], object]] = collections.deque()
+        # Threads to wake (lock releases) once the holder of the protocol lock lets go of it
+        # (see wake_after_release), kept by the holding thread: each holder runs only its
+        # own, so Ctrl-C in the main thread cannot drop another thread's wake-up.
+        self._held = threading.local()
         #: The protocol lock: re-entrant, and every operation on it one call into C, so that
         #: Ctrl-C cannot leave it half taken.
         self.protocol_lock = threading.RLock()
@@ -252,25 +250,27 @@ class RealTimeLoop(asyncio.SelectorEventLoop):
         wakes such threads when it is about to sleep, or on a turn with work left, before
         looking at its descriptors; another holder when it calls :meth:`wake_if_pending`.
         """
-        if self.protocol_lock._is_owned():  # type: ignore[attr-defined]
-            self._wakes.append(wake)
-        else:
+        if not self.protocol_lock._is_owned():  # type: ignore[attr-defined]
             wake()
+            return
+        held = self._held
+        try:
+            held.wakes.append(wake)
+        except AttributeError:  # this thread's first
+            held.wakes = [wake]
 
     def _run_wakes(self) -> None:
-        wakes = self._wakes
-        while wakes:
-            try:
-                wake = wakes.popleft()
-            except IndexError:  # emptied meanwhile by another thread
-                return
-            wake()
+        held = self._held
+        wakes: list[Callable[[], object]] | None = getattr(held, "wakes", None)
+        if wakes:
+            held.wakes = []
+            for wake in wakes:
+                wake()
 
     def wake_if_pending(self) -> None:
         """Wake the threads and the loop that work done under the lock has to wake; call
         after letting go of the lock."""
-        if self._wakes:
-            self._run_wakes()
+        self._run_wakes()
         if self.wake_pending:
             self.wake_pending = False
             self._write_to_self()  # type: ignore[attr-defined]  # asyncio's self-pipe

@@ -216,10 +216,12 @@ class AsyncNetwork:
 
     ``read_on_loop``: where the bus gives a descriptor the loop can watch (SocketCAN,
     ``udp_multicast``, python-can-remote), the loop reads it itself: one wake-up per received
-    batch, the fewest for code awaiting on the loop. False reads it with a thread that
-    dispatches under the loop's protocol lock, as on every other bus: the blocking
-    :class:`~cobus.runtime.Network` does, where the waiting caller is another thread anyway
-    and a loop's turn costs more than the thread's read (``docs/realtime.md``).
+    batch, the fewest for code awaiting on the loop. False reads it with a thread, as every
+    other bus is read (on a ``RealTimeLoop`` the thread dispatches under the loop's protocol
+    lock; on another loop it hands the frames over). The blocking
+    :class:`~cobus.runtime.Network` passes False: its callers wait in their own threads
+    anyway, and a turn of the loop costs more than the thread's read (``docs/realtime.md``,
+    "Who reads the bus").
     """
 
     #: Frames received from the bus so far.
@@ -917,7 +919,7 @@ class AsyncNetwork:
                     self._dispatch_pending()
                 finally:
                     lock.release()
-                direct.wake_if_pending()
+                    direct.wake_if_pending()  # (the threads this dispatch has to wake)
                 continue
             # Hand-over: one wake-up of the loop per batch; while a wake-up is pending, frames
             # that arrive only join the queue (deque appends are atomic). Also the way out
