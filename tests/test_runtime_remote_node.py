@@ -819,3 +819,57 @@ def test_a_received_tpdo_keeps_its_values_and_is_told_to_whoever_listens_then():
             assert tpdo.names == names[1:] and tpdo.values == {names[1]: 11}
 
     simulate(main())
+
+
+def test_a_tpdo_nobody_listens_to_is_decoded_only_when_its_values_are_asked_for():
+    """A byte-aligned mapping keeps the last frame's bytes and decodes them when asked
+    (a master watching many nodes decodes nothing it does not read); the values are those
+    of the last good frame, of the mapping they were sent for."""
+    from tests.test_device_support import simulate
+
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            tpdo = net.add_remote(5).tpdo[1]
+            tpdo.add(0x6041, 0, 16)
+            tpdo.add(0x6064, 0, 32)
+            tpdo.cob_id = 0x185
+            tpdo.enabled = True
+            status, position = tpdo.names
+            rejected: list[PdoRejected] = []
+
+            async def receive(data: bytes) -> None:
+                net.send(Frame(0x185, data))
+                await asyncio.sleep(0)
+
+            for i in range(5):
+                await receive(bytes([i, 0]) + (1000 * i).to_bytes(4, "little", signed=True))
+
+            def undecoded() -> bool:
+                return tpdo._raw is not None
+
+            assert undecoded()  # the bytes kept, not decoded
+            assert tpdo[status] == 4 and tpdo.values == {status: 4, position: 4000}
+            assert not undecoded()
+            await receive(bytes([9, 0, 1, 2, 3]))  # one byte short: refused, values kept
+            await asyncio.sleep(0)
+            assert tpdo.values == {status: 4, position: 4000} and tpdo.count == 5
+            net.add_listener(lambda e: rejected.append(e) if isinstance(e, PdoRejected) else None)
+            await receive(bytes([9, 0, 1, 2, 3]))
+            assert len(rejected) == 1 and "carries 5 bytes" in rejected[0].reason
+            await receive(bytes([7, 0, 0xFF, 0xFF, 0xFF, 0xFF]))
+            tpdo[position] = 5  # written over the frame's values, which are decoded first
+            assert tpdo.values == {status: 7, position: 5}
+            await receive(bytes([8, 0, 1, 0, 0, 0]))
+            tpdo.clear()  # a new mapping before the last frame was decoded:
+            tpdo.add(0x6061, 0, 8)  # its bytes are not read with the new mapping
+            assert tpdo.values == {tpdo.names[0]: 0}
+            tpdo.clear()  # not byte-aligned: decoded as it comes, as before
+            tpdo.add(0x0005, 0, 8)
+            tpdo.add(0x6061, 0, 8)
+            tpdo.add(0x0001, 0, 1)
+            tpdo.add(0x0001, 0, 7)
+            tpdo.enabled = True
+            await receive(bytes([0xAA, 3, 0]))
+            assert not undecoded() and tpdo.values == {tpdo.names[0]: 3}
+
+    simulate(main())

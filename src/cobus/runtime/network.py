@@ -677,7 +677,7 @@ class AsyncNetwork:
         # Hot path: nothing is queued before these frames, so dispatch them in place.
         now = self._loop.time()
         convert = _bus.message_to_frame
-        dispatch = self._dispatch
+        handlers = self._handlers
         marked, tag = self._own_marked, self._echo_tag
         received = 0
         for msg in messages:
@@ -690,7 +690,15 @@ class AsyncNetwork:
             if frame is None:
                 continue
             received += 1
-            dispatch(frame, now)
+            # _dispatch, inlined for the common case: no monitor, one handler
+            targets = handlers.get(frame.cob_id | _EXT if frame.extended else frame.cob_id)
+            if self._monitors or (targets is not None and len(targets) != 1):
+                self._dispatch(frame, now)
+            elif targets is not None:
+                try:
+                    targets[0](frame, now)
+                except Exception as exc:
+                    self._report_failure(f"handler of {frame!r}", exc)
         self.frames_received += received
         if self._inbound and not self._drain_pending:
             # A handler sent frames: their echo is delivered after this batch, in order.
