@@ -873,3 +873,31 @@ def test_a_tpdo_nobody_listens_to_is_decoded_only_when_its_values_are_asked_for(
             assert not undecoded() and tpdo.values == {tpdo.names[0]: 3}
 
     simulate(main())
+
+
+def test_a_tpdo_value_its_type_refuses_leaves_the_last_values_time_and_count():
+    """A mapping that is not byte-aligned decodes each frame as it comes: a value out of its
+    type's range (TIME_OF_DAY past midnight) is reported and does not count."""
+    from cobus.runtime import HandlerFailed
+
+    b = DictionaryBuilder(device_name="clock")
+    b.variable(0x2000, "Stamp", DataType.TIME_OF_DAY, access="ro", mappable=True)
+    od = b.build()
+
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            tpdo = net.add_remote(5, od).tpdo[1]
+            tpdo.add(0x2000)
+            tpdo.enabled = True
+            failed: list[HandlerFailed] = []
+            net.add_listener(lambda e: failed.append(e) if isinstance(e, HandlerFailed) else None)
+            net.send(Frame(0x185, (100).to_bytes(4, "little") + bytes(2)))
+            await asyncio.sleep(0.01)
+            stamp, when = tpdo["Stamp"], tpdo.timestamp
+            assert stamp.milliseconds == 100 and tpdo.count == 1
+            net.send(Frame(0x185, (0x0FFFFFFF).to_bytes(4, "little") + bytes(2)))
+            await asyncio.sleep(0.01)
+            assert len(failed) == 1 and "86400000" in failed[0].error
+            assert tpdo["Stamp"] == stamp and tpdo.count == 1 and tpdo.timestamp == when
+
+    simulate(main())

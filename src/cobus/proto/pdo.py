@@ -306,7 +306,9 @@ class PdoMap:
 
     @property
     def byte_aligned(self) -> bool:
-        """Whether packing uses the single-struct fast path."""
+        """Whether packing uses the single-struct fast path; then :meth:`unpack` cannot fail
+        on data of the mapping's length (no value has a decoder that could refuse it), which
+        a receiver may rely on to decode only when asked."""
         return self._struct is not None
 
     def pack(self, values: Sequence[Any]) -> bytes:

@@ -287,7 +287,10 @@ class RemotePdo:
         return dict(self._current())
 
     def _current(self) -> dict[str, Any]:
-        """The values, decoding the last frame's data first if it has not been."""
+        """The values, decoding the last frame's data first if it has not been. Protocol
+        code only (on the loop, or under a ``RealTimeLoop``'s protocol lock, where the
+        blocking facade runs it too): it changes state, and a frame arriving in the middle
+        of it from another thread would be lost."""
         raw = self._raw
         if raw is not None:
             self._raw = None
@@ -343,15 +346,17 @@ class RemotePdo:
 
     def _set_fields(self, fields: list[PdoField]) -> None:
         codec = PdoMap([(f.entry, _kind(f)) for f in fields])  # raises for > 64 bits
+        names = [f.name for f in fields if not f.dummy]
+        zeros = codec.unpack(bytes(codec.length)) if codec.value_count else ()  # may raise too
+        # (nothing changed above: a mapping refused leaves the PDO as it was)
         self.configured = True
         self._fields = fields
-        self._names = [f.name for f in fields if not f.dummy]
+        self._names = names
         self._codec = codec
         self._length = codec.length
         self._lazy = codec.byte_aligned
-        zeros = codec.unpack(bytes(codec.length)) if codec.value_count else ()
         self._raw = None  # (a frame of the old mapping)
-        self._values = dict(zip(self.names, zeros, strict=True))
+        self._values = dict(zip(names, zeros, strict=True))
         self._resubscribe()
 
     def field(self, key: str | int | tuple[int, int]) -> PdoField:
@@ -450,13 +455,14 @@ class RemotePdo:
             error = PdoLengthError(self._length, len(data))
             self._network.emit(PdoRejected(self.node_id, self.number, data, str(error)))
             return
-        self.timestamp = now
-        self.count += 1
         if self._lazy:
             self._raw = data  # decoded when asked for, if ever (a master watching 64 nodes)
-        else:
+        else:  # decoded now: a value out of its type's range is refused before it counts
+            values = dict(zip(self._names, self._codec.unpack(data)))  # noqa: B905
             self._raw = None
-            self._values = dict(zip(self._names, self._codec.unpack(data)))  # noqa: B905
+            self._values = values
+        self.timestamp = now
+        self.count += 1
         waiting, called = self._audience
         if not (waiting or called or self._listeners):
             return  # nobody to tell: the event is not built (the values are kept above)
