@@ -243,19 +243,16 @@ def test_a_reader_thread_drops_our_own_messages_without_the_lock():
     bus.shutdown()
 
 
-def test_the_blocking_network_reads_a_descriptor_bus_with_a_thread(request):
+def test_the_blocking_network_reads_a_descriptor_bus_with_a_thread(request, monkeypatch):
     """Where AsyncNetwork's loop reads the descriptor itself, the blocking Network uses a
     reader thread (read_on_loop=False); read_on_loop=True gives it the loop's way."""
     from cobus.runtime import bus as bus_module
 
     bus = can.Bus(interface="virtual", channel="rt-fd")
-    # a virtual bus standing for one the loop could watch: what loop_source decides on
-    real = bus_module.loop_source
-    bus_module.loop_source = lambda b: bus_module.LoopSource(bus.fileno(), None)  # type: ignore
-    request.addfinalizer(lambda: setattr(bus_module, "loop_source", real))
     r, w = os.pipe()  # a descriptor that never becomes readable
     request.addfinalizer(lambda: (os.close(r), os.close(w)))
-    bus.fileno = lambda: r  # type: ignore[method-assign]
+    # a virtual bus standing for one the loop could watch: what loop_source decides on
+    monkeypatch.setattr(bus_module, "loop_source", lambda b: bus_module.LoopSource(r, None))
     with Network(bus) as net:
         assert net.aio._reader is not None and net.aio._fd is None
     with Network(bus, read_on_loop=True) as net:
