@@ -3,15 +3,18 @@ application callbacks and notifications, extra SDO channels, and NMT gating."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from cobus.device import (
     DeviceConfigError,
+    DictionaryBuilder,
     EntryNotFoundError,
     EntryRefusedError,
     EntryWritten,
 )
-from cobus.od import Access
+from cobus.od import Access, DataType, decode
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoAbortedError, SdoTimeoutError
 from cobus.runtime.remote import SdoChannel
 from tests.test_device_support import NODE, Bench, run_bench, test_od
@@ -56,6 +59,49 @@ def test_reads_every_kind_of_entry_and_writes_take_effect():
         assert all(e.node_id == NODE for e in written)
 
     run_bench(scenario)
+
+
+_PLAIN = [
+    DataType.INTEGER8, DataType.INTEGER16, DataType.INTEGER32, DataType.INTEGER64,
+    DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32, DataType.UNSIGNED64,
+    DataType.REAL32, DataType.REAL64, DataType.BOOLEAN, DataType.UNSIGNED24,
+]  # fmt: skip
+
+
+def test_a_download_of_each_type_stores_what_decode_gives_and_a_later_listener_hears_it():
+    """Integers and reals without limits take the struct's unpacker, the rest the decoder:
+    either way the value is what :func:`decode` gives; a network listener added after the
+    device was built hears the write."""
+    builder = DictionaryBuilder(device_name="types")
+    for i, data_type in enumerate(_PLAIN):
+        builder.variable(0x2100 + i, data_type.name, data_type)
+    od = builder.build()
+
+    async def scenario(b: Bench):
+        heard: list[object] = []
+        b.net.add_listener(heard.append)
+        sent = {}
+        for i, data_type in enumerate(_PLAIN):
+            size = data_type.size or 0
+            data = b"\x01" if data_type is DataType.BOOLEAN else bytes(range(0x81, 0x81 + size))
+            await b.sdo.download(0x2100 + i, 0, data)  # expedited up to 4 bytes, else segmented
+            sent[0x2100 + i] = decode(data_type, data)
+        nan = b"\x00\x00\xc0\x7f"  # a REAL32 NaN: stored as it came
+        await b.sdo.download(0x2108, 0, nan)
+        assert math.isnan(b.device.get(0x2108))
+        return sent, {e.index: e.value for e in heard if isinstance(e, EntryWritten)}, b
+
+    sent, heard, b = run_bench(scenario, od)
+    for index, value in sent.items():
+        if index != 0x2108:
+            assert b.device.get(index) == value
+            assert type(b.device.get(index)) is type(value)
+    assert set(heard) == set(sent)
+    assert (
+        heard[0x2103]
+        == sent[0x2103]
+        == int.from_bytes(bytes(range(0x81, 0x89)), "little", signed=True)
+    )
 
 
 def test_every_refusal_has_its_abort_code():

@@ -19,6 +19,7 @@ from cobus.od import (
     codec,
     decode,
     encode,
+    struct_unpacker,
 )
 
 D = DataType
@@ -288,6 +289,37 @@ def test_codec_gives_what_encode_and_decode_call(data_type):
             continue
         assert enc(value) == expected
         assert dec(expected) == decode(data_type, expected)
+
+
+_STRUCT_TYPES = {
+    D.INTEGER8, D.INTEGER16, D.INTEGER32, D.INTEGER64,
+    D.UNSIGNED8, D.UNSIGNED16, D.UNSIGNED32, D.UNSIGNED64,
+    D.REAL32, D.REAL64,
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("data_type", list(D))
+def test_struct_unpacker_decodes_what_decode_decodes_and_only_where_nothing_can_fail(data_type):
+    unpack = struct_unpacker(data_type)
+    if data_type not in _STRUCT_TYPES:  # a decoder that checks more than the length
+        assert unpack is None
+        return
+    assert unpack is not None
+    size = data_type.size
+    for data in (
+        bytes(size),
+        b"\xff" * size,
+        bytes(range(1, size + 1)),
+        b"\x00" * (size - 1) + b"\x80",
+    ):
+        (value,) = unpack(data)
+        expected = decode(data_type, data)
+        assert value == expected or (math.isnan(value) and math.isnan(expected))
+        assert type(value) is type(expected)
+
+
+def test_struct_unpacker_of_an_unknown_type_is_none():
+    assert struct_unpacker(0x1234) is None
 
 
 @pytest.mark.parametrize("unknown", [0x0020, 0x1234, -1])

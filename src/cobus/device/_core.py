@@ -57,6 +57,7 @@ class Core:
         "downloads",
         "entries",
         "handlers",
+        "heard_by_network",
         "indices",
         "listeners",
         "network",
@@ -98,6 +99,8 @@ class Core:
         #: Entry key -> the service's decoder of an SDO download to that entry.
         self.downloads: dict[int, DownloadHandler] = {}
         self.listeners: list[Listener] = []
+        #: The network's listeners, the list itself: asked per request without a call.
+        self.heard_by_network = network._listeners
         #: The NMT slave of the current communication (a new one after a node-ID change).
         self.nmt = NmtSlave(node_id)
         self.started = False
@@ -164,7 +167,10 @@ class Core:
             return
         if remote and entry.writer is not None:
             self.call_writer(entry, value)
-        self.store(entry, value)
+        if entry.tpdos:
+            self.store(entry, value)
+        else:  # store's work when no TPDO maps the entry, a call less per write
+            entry.value = value
 
     def call_writer(self, entry: Entry, value: Any) -> None:
         """The application's write callback of ``entry``; a failure refuses the write."""
@@ -195,7 +201,7 @@ class Core:
     def heard(self) -> bool:
         """Whether an event emitted now reaches anybody (the device's listeners or the
         network's): an event built for every request is skipped when not."""
-        return bool(self.listeners) or self.network.listened
+        return bool(self.listeners or self.heard_by_network)
 
     def emit(self, event: DeviceEvent) -> None:
         """To the device's listeners, then to the network's."""

@@ -16,6 +16,7 @@ from cobus.od import (
     Variable,
     codec,
     encode,
+    struct_unpacker,
 )
 from cobus.proto.sdo import SdoAbort, SdoAbortCode
 
@@ -44,6 +45,7 @@ class Entry:
         "size",
         "subindex",
         "tpdos",
+        "unpack",
         "value",
         "var",
         "writer",
@@ -63,6 +65,9 @@ class Entry:
         self.low = var.low_limit
         self.high = var.high_limit
         self.limited = self.low is not None or self.high is not None
+        #: The type's struct unpacker when bytes of its size need no other check (an integer
+        #: or real type, no limits): a download's value in one C call, no decoder's.
+        self.unpack = None if self.limited else struct_unpacker(var.data_type)
         self.value: Any = None
         #: Where reads get the value from instead of ``value`` (application binding or a
         #: value the device computes).

@@ -80,20 +80,23 @@ class SdoBackend:
             if own is not None:  # a service decodes these bytes itself
                 own(entry, data)
                 return
-        deviations = core.deviations
         if not var.access.writable:
             raise abort(_ABORT.WRITE_READ_ONLY, f"{var.name!r} is {var.access}")
         size = entry.size
-        if (
-            deviations.padded_writes
-            and size is not None
-            and size < len(data) <= 4
-            and not any(data[size:])
-        ):
-            data = data[:size]
-        value = decode_download(entry, data)
+        unpack = entry.unpack
+        if unpack is not None and len(data) == size:
+            value = unpack(data)[0]  # what decode_download returns, where nothing can refuse
+        else:
+            if (
+                core.deviations.padded_writes
+                and size is not None
+                and size < len(data) <= 4
+                and not any(data[size:])
+            ):
+                data = data[:size]
+            value = decode_download(entry, data)
         core.write(entry, value, remote=True)
-        if core.heard():
+        if core.listeners or core.heard_by_network:  # core.heard(), a call less per write
             core.emit(EntryWritten(core.node_id, index, subindex, value))
 
     def size_hint(self, index: int, subindex: int) -> int | None:

@@ -43,6 +43,7 @@ from cobus.od._types import (
     data_type_named,
     decode,
     encode,
+    struct_unpacker,
 )
 
 __all__ = [
@@ -78,5 +79,6 @@ __all__ = [
     "mapping_entries",
     "match_name",
     "normalize_name",
+    "struct_unpacker",
     "validate",
 ]

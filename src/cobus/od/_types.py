@@ -25,6 +25,7 @@ __all__ = [
     "data_type_named",
     "decode",
     "encode",
+    "struct_unpacker",
 ]
 
 
@@ -419,6 +420,10 @@ def _time(dt: DataType) -> tuple[_Encoder, _Decoder]:
     return enc, dec
 
 
+_Unpack = Callable[[Any], tuple[Any, ...]]
+_UNPACKERS: dict[int, _Unpack] = {}
+
+
 def _build() -> tuple[dict[int, _Encoder], dict[int, _Decoder]]:
     enc: dict[int, _Encoder] = {}
     dec: dict[int, _Decoder] = {}
@@ -427,10 +432,13 @@ def _build() -> tuple[dict[int, _Encoder], dict[int, _Decoder]]:
         if bits in fmts:
             fmt = fmts[bits] if signed else fmts[bits].upper()
             enc[dt], dec[dt] = _struct_int(dt, fmt)
+            _UNPACKERS[dt] = struct.Struct(fmt).unpack
         else:
             enc[dt], dec[dt] = _odd_int(dt)
     enc[_D.REAL32], dec[_D.REAL32] = _real(_D.REAL32, "<f")
     enc[_D.REAL64], dec[_D.REAL64] = _real(_D.REAL64, "<d")
+    _UNPACKERS[_D.REAL32] = struct.Struct("<f").unpack
+    _UNPACKERS[_D.REAL64] = struct.Struct("<d").unpack
     enc[_D.BOOLEAN], dec[_D.BOOLEAN] = _enc_bool, _dec_bool
     enc[_D.VISIBLE_STRING], dec[_D.VISIBLE_STRING] = _enc_visible, _dec_visible
     enc[_D.UNICODE_STRING], dec[_D.UNICODE_STRING] = _enc_unicode, _dec_unicode
@@ -468,6 +476,14 @@ def codec(data_type: DataType | int) -> tuple[_Encoder, _Decoder]:
     if enc is None or dec is None:
         raise _unknown(data_type)
     return enc, dec
+
+
+def struct_unpacker(data_type: DataType | int) -> _Unpack | None:
+    """The :meth:`struct.Struct.unpack` behind the decoder of ``data_type`` when that decoder
+    is ``unpack(data)[0]`` and nothing else: bytes of exactly the type's size then always
+    decode, so a hot path that checked the length may call it without the decoder's call.
+    Only the 8-, 16-, 32- and 64-bit integers and the reals have one; None for the rest."""
+    return _UNPACKERS.get(data_type)
 
 
 def decode(data_type: DataType | int, data: bytes | bytearray | memoryview) -> Any:

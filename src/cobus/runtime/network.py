@@ -449,14 +449,23 @@ class AsyncNetwork:
         if self._backlog:
             self._enqueue(frame)
             return
+        # _message and _deliver's test, inline: every frame sent passes here
+        msg = _bus.frame_to_message(frame)
+        tag = self._echo_tag
+        if tag is not None:
+            msg.channel = tag
         try:
-            self._bus.send(self._message(frame), timeout=0)
+            self._bus.send(msg, timeout=0)
         except (can.CanError, OSError) as exc:
             self._enqueue(frame)
             self._blocked(str(exc))
             return
         self.frames_sent += 1
-        self._deliver(frame)
+        if (
+            self._monitors
+            or (frame.cob_id | _EXT if frame.extended else frame.cob_id) in self._handlers
+        ):
+            self._deliver(frame)
 
     def attach(
         self,

@@ -58,6 +58,10 @@ __all__ = [
     "ServerUploaded",
 ]
 
+#: ``Out(frames, events)`` as ``_out(Out, (frames, events))``: one C call where the
+#: NamedTuple's constructor is a Python function (on every expedited request's path).
+_out = tuple.__new__
+
 
 class SdoServerBackend(Protocol):
     """What an :class:`SdoServer` serves: whole values by index and sub-index.
@@ -319,7 +323,7 @@ class SdoServer(ep.Endpoint):
             # a superseded one was reset): only the object named goes, no full _reset.
             self._index = self._subindex = -1
             if not self.reports:
-                return Out((frame,))
+                return _out(Out, ((frame,), ()))
             return Out((frame,), (ServerUploaded(index, subindex, size),))
         self._data = value
         self._pos = 0
@@ -464,7 +468,7 @@ class SdoServer(ep.Endpoint):
             self._index = self._subindex = -1
         else:
             self._reset()
-        return Out(reply, events)
+        return _out(Out, (reply, events))
 
     def _violation(self, code: int, reason: str) -> Out:
         return self._abort(code)  # the server reports the code only (ServerAborted)
