@@ -22,7 +22,7 @@ ENTRIES = {(IDX, 0): bytes(range(40)) * 3, (IDX, 1): b"\x11\x22", (IDX, 2): b""}
 
 
 def _assert_reset(server: SdoServer) -> None:
-    assert server._deadline is None and server._limit is None
+    assert server.deadline is None and server._limit is None
     assert server._data == b"" and server._buf == bytearray()
     assert (server._index, server._subindex) == (-1, -1)
 

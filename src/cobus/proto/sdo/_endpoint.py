@@ -49,7 +49,6 @@ class Endpoint:
         "_crc",
         "_crc_used",
         "_data",
-        "_deadline",
         "_expected",
         "_ext",
         "_in",
@@ -66,6 +65,7 @@ class Endpoint:
         "_timeout",
         "_toggle",
         "block_size",
+        "deadline",
     )
 
     _ROLE: ClassVar[str]  # "client" / "server"
@@ -96,7 +96,9 @@ class Endpoint:
         self.block_size = w.check_block_size(block_size)
         self._crc = crc
         self._state = IDLE
-        self._deadline: float | None = None
+        #: When :meth:`on_timer` must be called next (None: never): a plain attribute, read
+        #: after every step by the host that drives the machine. Read it, do not write it.
+        self.deadline: float | None = None
         self._index = 0
         self._subindex = 0
         self._data = b""
@@ -150,10 +152,6 @@ class Endpoint:
         """Change the timeout; it applies from the next frame sent."""
         self._timeout = w.check_timeout(value)
 
-    @property
-    def deadline(self) -> float | None:
-        return self._deadline
-
     # -- hooks ---------------------------------------------------------------------------------
 
     def _on_command(self, cmd: int, data: bytes, now: float) -> Out:
@@ -198,7 +196,7 @@ class Endpoint:
                     self._expected = 1
                     return self._send(w.ACK.pack(w.BLOCK_ACK, seq, self._blksize), now)
                 self._expected = seq + 1
-                self._deadline = now + self._timeout
+                self.deadline = now + self._timeout
                 return NOTHING
             return self._out_of_sequence(cmd, now)
         if state == SEGMENT_IN and not cmd & w.SERVICE_MASK:  # segments are ccs / scs 0
@@ -268,7 +266,7 @@ class Endpoint:
             ackseq = self._expected - 1
             self._expected = 1
             return self._send(w.ACK.pack(w.BLOCK_ACK, ackseq, blksize), now)
-        self._deadline = now + self._timeout
+        self.deadline = now + self._timeout
         return NOTHING  # a segment after a lost one: dropped, the peer sends it again
 
     def _block_end_in(self, data: bytes) -> Out:
@@ -301,7 +299,7 @@ class Endpoint:
         frames, self._sent, self._sent_last = w.subblock(
             self._out, self._ext, self._data, self._pos, self._blksize
         )
-        self._deadline = now + self._timeout
+        self.deadline = now + self._timeout
         return Out(frames)
 
     def _block_ack(self, data: bytes, now: float) -> Out:
@@ -336,7 +334,7 @@ class Endpoint:
         return Frame(self._out, payload, extended=self._ext)
 
     def _send(self, payload: bytes, now: float) -> Out:
-        self._deadline = now + self._timeout
+        self.deadline = now + self._timeout
         return Out((Frame(self._out, payload, extended=self._ext),))
 
     def _short(self, data: bytes, what: str) -> Out:
@@ -356,6 +354,6 @@ class Endpoint:
     def _reset(self) -> None:
         self._limit = None
         self._state = IDLE
-        self._deadline = None
+        self.deadline = None
         self._data = b""
         self._buf = bytearray()

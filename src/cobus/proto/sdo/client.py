@@ -235,7 +235,7 @@ class SdoClient(ep.Endpoint):
     # -- inputs -------------------------------------------------------------------------------
 
     def on_timer(self, now: float) -> Out:
-        deadline = self._deadline
+        deadline = self.deadline
         if deadline is None or now < deadline:
             return NOTHING
         error = SdoTimeoutError(
