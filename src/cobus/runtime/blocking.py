@@ -139,7 +139,6 @@ class Runner:
         self,
         begin: Callable[[Callable[[Any], None]], Callable[[], None] | None],
         fallback: Callable[[], Coroutine[Any, Any, T]],
-        network: AsyncNetwork | None = None,
     ) -> T:
         """Begin an operation from the caller's thread and wait for it here, with no hop
         through the loop (real time, see ``docs/realtime.md``).
@@ -149,9 +148,6 @@ class Runner:
         protocol code that ends the operation calls ``finish(outcome)`` once (an exception is
         raised here). When it cannot start now — and on the simulated clock, or from protocol
         code — ``fallback()`` is run on the loop as :meth:`run` does.
-
-        The frames ``begin`` sends on ``network`` go out once the lock is let go where that
-        bus would wake this side's reader for them (``AsyncNetwork._hold_sends``).
         """
         loop = self.loop
         if self.simulated or self._closed or not isinstance(loop, RealTimeLoop):
@@ -159,20 +155,8 @@ class Runner:
         if self._on_loop():
             return self.run(fallback())  # raises ReentrantCallError
         handoff: _Handoff[T] = _Handoff(self.loop)
-        held: list[Any] = []
-        try:
-            with loop.protocol_lock:
-                if network is not None:
-                    network._hold_sends()
-                try:
-                    cancel = begin(handoff.settle)
-                finally:
-                    if network is not None:
-                        held = network._take_held()
-        finally:
-            if held:
-                assert network is not None
-                network._send_held(held, loop.protocol_lock)
+        with loop.protocol_lock:
+            cancel = begin(handoff.settle)
         loop.wake_if_pending()
         if cancel is None:
             return self.run(fallback())
@@ -594,9 +578,7 @@ def _transfer(runner: Runner, channel: SdoChannel, start: Callable[[float], Out]
     """One SDO transfer from blocking code, begun in the caller's thread when the channel is
     free (the answer wakes the caller directly), else awaited on the loop in its turn."""
     return runner.run_direct(
-        lambda finish: channel._begin(start, finish),
-        lambda: channel._transfer(start),
-        channel._network,
+        lambda finish: channel._begin(start, finish), lambda: channel._transfer(start)
     )
 
 

@@ -289,7 +289,7 @@ def loop_source(bus: can.BusABC) -> LoopSource | None:
     reads them.
     """
     cls = type(bus)
-    if cls.__name__ == "SocketcanBus" or is_udp_multicast(bus):
+    if cls.__name__ == "SocketcanBus" or _is_udp_multicast(bus):
         fd = _fileno(bus)
         return LoopSource(fd, None) if fd is not None else None
     if cls.__name__ == "RemoteBus" and cls.__module__.startswith("can_remote"):
@@ -303,9 +303,7 @@ def loop_source(bus: can.BusABC) -> LoopSource | None:
     return None
 
 
-def is_udp_multicast(bus: can.BusABC) -> bool:
-    """Whether ``bus`` is python-can's ``udp_multicast`` (its multicast loopback hands this
-    side every message it sends, and each send is one datagram: any thread may send)."""
+def _is_udp_multicast(bus: can.BusABC) -> bool:
     cls = type(bus)
     return cls.__name__ == "UdpMulticastBus" and cls.__module__.startswith(
         "can.interfaces.udp_multicast"
@@ -338,7 +336,7 @@ def own_echo(bus: can.BusABC) -> OwnEcho:
     inner = getattr(bus, "inner", None)
     if isinstance(inner, can.BusABC):
         return own_echo(inner)
-    if is_udp_multicast(bus):
+    if _is_udp_multicast(bus):
         return OwnEcho(False, f"cobus-{uuid.uuid4().hex}")
     cls = type(bus)
     if cls.__name__ == "VirtualBus" and cls.__module__.startswith("can.interfaces.virtual"):

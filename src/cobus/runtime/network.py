@@ -13,7 +13,6 @@ import logging
 import threading
 from collections import deque
 from collections.abc import Callable, Iterable
-from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -293,11 +292,6 @@ class AsyncNetwork:
         #: How the bus hands our own messages back, to drop them (see bus.py: OwnEcho).
         self._own_marked = False
         self._echo_tag: str | None = None
-        #: Whether a blocking caller sends after letting go of the protocol lock (a bus
-        #: whose own messages wake this side's reader; see _hold_sends).
-        self._sends_after_lock = False
-        #: The frames a blocking caller's step sent, kept to go out after the lock.
-        self._held: list[tuple[Frame, can.Message]] | None = None
         self.frames_received = 0
         self.frames_sent = 0
         self._failures: dict[tuple[object, ...], int] = {}  # by where they were raised
@@ -460,21 +454,6 @@ class AsyncNetwork:
         tag = self._echo_tag
         if tag is not None:
             msg.channel = tag
-        heard = (
-            self._monitors
-            or (frame.cob_id | _EXT if frame.extended else frame.cob_id) in self._handlers
-        )
-        held = self._held
-        if held is not None:
-            if not heard:  # goes out once the blocking caller lets go of the lock
-                held.append((frame, msg))
-                self.frames_sent += 1
-                return
-            # heard here: what was kept goes first, now, and nothing more is kept
-            self._held = None
-            if not self._transmit(held) or self._backlog:
-                self._enqueue(frame)
-                return
         try:
             self._bus.send(msg, timeout=0)
         except (can.CanError, OSError) as exc:
@@ -482,63 +461,11 @@ class AsyncNetwork:
             self._blocked(str(exc))
             return
         self.frames_sent += 1
-        if heard:
+        if (
+            self._monitors
+            or (frame.cob_id | _EXT if frame.extended else frame.cob_id) in self._handlers
+        ):
             self._deliver(frame)
-
-    # -- a blocking caller's sends, after the lock (docs/realtime.md: udp_multicast)
-    def _hold_sends(self) -> None:
-        """Under the protocol lock, from a blocking caller about to start a step: keep the
-        frames it sends that nobody here hears, to send them once it has let go of the lock
-        (:meth:`_send_held`). Only on a bus whose own messages wake this side's reader
-        (``udp_multicast``): sending under the lock, the caller let that reader take the GIL
-        and wait for the lock, and then waited for the GIL itself."""
-        if self._sends_after_lock and not self._backlog:
-            self._held = []
-
-    def _take_held(self) -> list[tuple[Frame, can.Message]]:
-        """Under the lock, at the end of the step: the frames kept; nothing is kept after."""
-        held, self._held = self._held, None
-        return held or []
-
-    def _send_held(
-        self, held: list[tuple[Frame, can.Message]], lock: AbstractContextManager[object]
-    ) -> None:
-        """Send ``held`` (:meth:`_take_held`), without the protocol lock: the bus's send may
-        be called from any thread there. A frame the interface refuses goes to the backlog,
-        with those after it, under ``lock``, as :meth:`send` would have done."""
-        bus = self._bus
-        for i, (_, msg) in enumerate(held):
-            if bus is None:
-                return  # closed meanwhile: the transfer ends with the network
-            try:
-                bus.send(msg, timeout=0)
-            except (can.CanError, OSError) as exc:
-                with lock:
-                    self._refused(held[i:], exc)
-                return
-
-    def _transmit(self, held: list[tuple[Frame, can.Message]]) -> bool:
-        """Send ``held`` now, under the lock; False when the interface refused one (it and
-        those after it are in the backlog)."""
-        bus = self._bus
-        assert bus is not None  # send() asked
-        for i, (_, msg) in enumerate(held):
-            try:
-                bus.send(msg, timeout=0)
-            except (can.CanError, OSError) as exc:
-                self._refused(held[i:], exc)
-                return False
-        return True
-
-    def _refused(self, rest: list[tuple[Frame, can.Message]], exc: Exception) -> None:
-        """Frames counted as sent that the interface refused: to the backlog, in order."""
-        self.frames_sent -= len(rest)
-        try:
-            for frame, _ in rest:
-                self._enqueue(frame)
-        except TxOverflowError as overflow:
-            self._report_failure("a blocking caller's frames", overflow)
-        self._blocked(str(exc))
 
     def attach(
         self,
@@ -823,7 +750,6 @@ class AsyncNetwork:
     def _start_receiving(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
         self._errors_local = _bus.error_frames_are_local(bus)
         self._own_marked, self._echo_tag = _bus.own_echo(bus)
-        self._sends_after_lock = _bus.is_udp_multicast(bus)
         if isinstance(loop, SimulatedEventLoop):
             self._poll_hook = self._poll
             loop.add_poll_hook(self._poll)
