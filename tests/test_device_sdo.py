@@ -104,6 +104,32 @@ def test_a_download_of_each_type_stores_what_decode_gives_and_a_later_listener_h
     )
 
 
+def test_each_access_type_is_served_as_its_readable_and_writable_say():
+    """The server tests access by identity (no property call per request): the same
+    answers as Access.readable and Access.writable, for every access type."""
+    builder = DictionaryBuilder(device_name="access")
+    kinds = list(Access)
+    for i, access in enumerate(kinds):
+        builder.variable(0x2100 + i, access.name, DataType.UNSIGNED8, access=access.value)
+    od = builder.build()
+
+    async def scenario(b: Bench):
+        for i, access in enumerate(kinds):
+            index = 0x2100 + i
+            if access.readable:
+                assert await b.sdo.upload(index, 0) == b"\x00"
+            else:
+                assert await _abort(b.sdo.upload(index, 0)) == SdoAbortCode.READ_WRITE_ONLY
+            if access.writable:
+                await b.sdo.download(index, 0, b"\x07")
+            else:
+                assert await _abort(b.sdo.download(index, 0, b"\x07")) == (
+                    SdoAbortCode.WRITE_READ_ONLY
+                )
+
+    run_bench(scenario, od)
+
+
 def test_every_refusal_has_its_abort_code():
     async def scenario(b: Bench):
         sdo = b.sdo

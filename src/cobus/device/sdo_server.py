@@ -22,13 +22,16 @@ from cobus.device._gates import LateSdoServer
 from cobus.device._objects import RO, U8, U32, composite, var
 from cobus.device.events import EntryWritten
 from cobus.errors import CobusError
-from cobus.od import NodeRelative, ObjectDictionary, Record
+from cobus.od import Access, NodeRelative, ObjectDictionary, Record
 from cobus.proto import Frame
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer
 
 __all__ = ["SdoBackend", "SdoServerService", "define_objects"]
 
 _ABORT = SdoAbortCode
+# What Access.readable and .writable test, as module globals: asked on every request, and a
+# property is a call (an Enum class attribute, in Python 3.11, slower still).
+_RO, _WO, _CONST = Access.RO, Access.WO, Access.CONST
 
 
 class SdoBackend:
@@ -47,7 +50,7 @@ class SdoBackend:
         if entry is None:
             entry = core.entry(index, subindex)  # raises the abort that names what is missing
         var = entry.var
-        if not var.access.readable:  # asked each time: the application may change it
+        if var.access is _WO:  # asked each time: the application may change it
             raise abort(_ABORT.READ_WRITE_ONLY, f"{var.name!r} is write-only")
         reader = entry.reader
         if reader is None:
@@ -80,8 +83,9 @@ class SdoBackend:
             if own is not None:  # a service decodes these bytes itself
                 own(entry, data)
                 return
-        if not var.access.writable:
-            raise abort(_ABORT.WRITE_READ_ONLY, f"{var.name!r} is {var.access}")
+        access = var.access
+        if access is _RO or access is _CONST:  # not writable (Access.writable, without a call)
+            raise abort(_ABORT.WRITE_READ_ONLY, f"{var.name!r} is {access}")
         size = entry.size
         unpack = entry.unpack
         if unpack is not None and len(data) == size:
