@@ -141,7 +141,9 @@ class _Channel:
 
     def on_frame(self, frame: Frame, now: float) -> None:
         """A request: to the machine (what ``host.feed`` does, one call less per request)."""
-        if self.core.nmt.sdo_allowed:
+        # sdo_allowed's slot, read directly: the device owns its NMT slave, and the property
+        # would be a call on every request
+        if self.core.nmt._sdo:
             host = self.host
             host.apply(host.machine.on_frame(frame, now))
 

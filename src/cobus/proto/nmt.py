@@ -207,16 +207,7 @@ class NmtSlave:
     boot-up message — so the owner decides when the boot-up goes out.
     """
 
-    __slots__ = ("_services", "_state", "emcy_allowed", "node_id", "pdo_allowed", "sdo_allowed")
-
-    # Kept as plain attributes, set with the state (asked per frame: an attribute is read
-    # without a call, an Enum's hash is Python code); read them, do not write them.
-    #: Whether PDOs may be sent and received (OPERATIONAL only).
-    pdo_allowed: bool
-    #: Whether SDO is served (PRE-OPERATIONAL and OPERATIONAL).
-    sdo_allowed: bool
-    #: Whether emergencies may be sent (PRE-OPERATIONAL and OPERATIONAL).
-    emcy_allowed: bool
+    __slots__ = ("_emcy", "_pdo", "_sdo", "_services", "_state", "node_id")
 
     def __init__(self, node_id: int) -> None:
         self.node_id = check_node_id(node_id)
@@ -224,10 +215,11 @@ class NmtSlave:
         self._set_services(NmtState.INITIALISING)
 
     def _set_services(self, state: NmtState) -> None:
+        # the flags asked per frame are kept as plain bools: an Enum's hash is Python code
         services = self._services = _SERVICES[state]
-        self.sdo_allowed = Service.SDO in services
-        self.pdo_allowed = Service.PDO in services
-        self.emcy_allowed = Service.EMCY in services
+        self._sdo = Service.SDO in services
+        self._pdo = Service.PDO in services
+        self._emcy = Service.EMCY in services
 
     @property
     def state(self) -> NmtState:
@@ -246,6 +238,21 @@ class NmtSlave:
     def allowed(self, service: Service) -> bool:
         """Whether ``service`` may send or be received in the current state."""
         return service in self._services
+
+    @property
+    def pdo_allowed(self) -> bool:
+        """Whether PDOs may be sent and received (OPERATIONAL only)."""
+        return self._pdo
+
+    @property
+    def sdo_allowed(self) -> bool:
+        """Whether SDO is served (PRE-OPERATIONAL and OPERATIONAL)."""
+        return self._sdo
+
+    @property
+    def emcy_allowed(self) -> bool:
+        """Whether emergencies may be sent (PRE-OPERATIONAL and OPERATIONAL)."""
+        return self._emcy
 
     def boot(self, now: float) -> Out:
         """Leave initialisation: send the boot-up message and enter pre-operational."""
