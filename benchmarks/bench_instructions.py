@@ -1,5 +1,5 @@
-"""CPU instructions a device spends on one expedited SDO request, and a master on one
-received TPDO, beside python-canopen's.
+"""CPU instructions a device spends on one expedited SDO request, a master on one received
+TPDO, and a blocking client on its own part of an expedited read, beside python-canopen's.
 
 Wall-clock figures on a shared 2-core machine vary by ±30 % from run to run; instruction
 counts under ``valgrind --tool=callgrind`` repeat exactly (with ``PYTHONHASHSEED`` fixed), so
@@ -13,7 +13,11 @@ python-canopen ``LocalNode`` through its ``MessageListener``) and the answer han
 interface (python-can's virtual bus, nobody else on it). A TPDO is a frame of two mapped
 16-bit values, decoded by a master's remote node (cobus ``tpdo[1]`` of a remote node with its
 heartbeat watched, as ``bench_load`` sets up 64 of them; python-canopen ``RemoteNode.tpdo[1]``
-subscribed), with nobody waiting for it.
+subscribed), with nobody waiting for it. A client's read is what ``bench_dispatch`` times
+as "a blocking client's own work": cobus begins the upload under the protocol lock as a
+blocking call does in the caller's thread and dispatches the answer as its reader thread
+would (the interface's send does nothing); python-canopen's ``RemoteNode.sdo.upload`` gets
+the answer fed through its listener from the interface's send, in the same thread.
 
 Needs valgrind (``apt install valgrind``); without it the table says so and nothing runs.
 Run alone: ``python -m benchmarks.bench_instructions``.
@@ -129,6 +133,55 @@ def _receive_canopen(count: int) -> None:
     _feed_canopen(network, 0x180 + NODE, _TPDO, count)
 
 
+_ANSWER = bytes([0x43, 0, 0x10, 0, 0x91, 1, 0, 0])  # the device type, expedited
+
+
+def _client_cobus(count: int) -> None:
+    import can
+
+    from cobus.runtime import AsyncNetwork, RealTimeLoop
+
+    loop = RealTimeLoop()
+
+    async def connect() -> AsyncNetwork:
+        net = await AsyncNetwork(interface="virtual", channel="bench-instr-client").connect()
+        net.bus.send = lambda msg, timeout=None: None  # type: ignore[method-assign]
+        return net
+
+    net = loop.run_until_complete(connect())
+    channel = net.add_remote(NODE).sdo
+    start = channel._upload_start(0x1000, 0, False)
+    results: list[object] = []
+    lock = loop.protocol_lock
+    answer = [can.Message(arbitration_id=0x580 + NODE, data=_ANSWER, is_extended_id=False)]
+    for _ in range(_WARM_UP + count):
+        with lock:  # as a blocking upload begins it, in the caller's thread
+            channel._begin(start, results.append)
+        loop.wake_if_pending()
+        with lock:  # as the reader thread dispatches the answer
+            net._on_messages(answer)
+
+
+def _client_canopen(count: int) -> None:
+    import can
+    import canopen
+
+    network = canopen.Network()
+    network.connect(interface="virtual", channel="bench-instr-client-canopen")
+    node = canopen.RemoteNode(NODE, canopen.ObjectDictionary())
+    network.add_node(node)
+    listener = canopen.network.MessageListener(network)
+    answer = can.Message(arbitration_id=0x580 + NODE, data=_ANSWER, is_extended_id=False)
+
+    def send(msg: can.Message, timeout: float | None = None) -> None:
+        listener.on_message_received(answer)  # the server's answer, at once
+
+    assert network.bus is not None
+    network.bus.send = send  # type: ignore[method-assign]
+    for _ in range(_WARM_UP + count):
+        node.sdo.upload(0x1000, 0)
+
+
 def _count(stack: str, request: str, count: int) -> int:
     """Instructions of one whole run under callgrind."""
     with tempfile.TemporaryDirectory() as tmp:
@@ -173,6 +226,8 @@ def main() -> None:
         print(row(f"a device: expedited {request}", ours, theirs, "instr", False))
     ours, theirs = per_request("cobus", "tpdo"), per_request("canopen", "tpdo")
     print(row("a master: a TPDO received", ours, theirs, "instr", False))
+    ours, theirs = per_request("cobus", "client"), per_request("canopen", "client")
+    print(row("a blocking client: its own work per read", ours, theirs, "instr", False))
 
 
 if __name__ == "__main__":
@@ -180,6 +235,8 @@ if __name__ == "__main__":
         _, _, stack, request, count = sys.argv
         if request == "tpdo":
             (_receive_cobus if stack == "cobus" else _receive_canopen)(int(count))
+        elif request == "client":
+            (_client_cobus if stack == "cobus" else _client_canopen)(int(count))
         else:
             serve = _serve_cobus if stack == "cobus" else _serve_canopen
             serve(_REQUESTS[request], int(count))

@@ -263,6 +263,8 @@ class AsyncNetwork:
         self._realtime = False
         self._handlers: dict[int, list[FrameHandler]] = {}
         self._monitors: list[FrameHandler] = []
+        # Changed in place only, never rebound: RemotePdo and a device's Core keep this very
+        # list to ask "does anyone listen?" without a call.
         self._listeners: list[EventListener] = []
         self._inbound: deque[Frame] = deque()
         self._drain_pending = False
