@@ -257,6 +257,53 @@ def test_rpdo_applied_at_once_and_notifies_the_application():
     run_bench(scenario)
 
 
+def test_rpdo_values_apply_with_nobody_listening_and_a_later_listener_hears_them():
+    """With no listener no RpdoReceived is built, yet every value is applied, and a TPDO
+    mapping a written entry still sees the change; a listener added later hears the next."""
+
+    async def scenario(b: Bench):
+        await configure_rpdo(b, 1, [SETPOINT, _entry(0x0005, 0, 8), OUTPUT2], 255)
+        await configure_tpdo(b, 1, [SETPOINT], 255)  # event-driven: sent on each change
+        await b.start()
+        b.net.remove_listener(b.events.append)
+        b.send(RPDO1, bytes.fromhex("f6ff 99 42"))
+        await b.settle()
+        assert b.device.get(0x2001) == -10
+        assert b.device.get(0x6200, 2) == 0x42
+        assert b.data(TPDO1)[-1] == bytes.fromhex("f6ff")
+        assert not b.of(RpdoReceived)
+        heard: list[object] = []
+        b.net.add_listener(heard.append)
+        b.send(RPDO1, bytes.fromhex("0500 00 43"))
+        await b.settle()
+        assert [e for e in heard if isinstance(e, RpdoReceived)] == [
+            RpdoReceived(NODE, 1, ((0x2001, 0), (0x6200, 2)), (5, 0x43))
+        ]
+        assert b.data(TPDO1)[-1] == bytes.fromhex("0500")
+
+    run_bench(scenario)
+
+
+def test_an_rpdo_watchdog_turned_off_reports_nothing_more():
+    """Without an event timer a received RPDO leaves the host alone (no deadline to
+    re-arm); a watchdog switched off while armed never reports the RPDO lost."""
+
+    async def scenario(b: Bench):
+        await configure_rpdo(b, 1, [SETPOINT], 255, timer=100)
+        await b.start()
+        b.send(RPDO1, b"\x01\x00")  # arms the watchdog
+        await b.net.sleep(0.05)
+        await b.sdo.write(0x1400, 5, 0)  # off while armed
+        for n in range(3):
+            b.send(RPDO1, bytes((n, 0)))
+            await b.net.sleep(0.01)
+        await b.net.sleep(0.5)
+        assert b.of(RpdoLost) == []
+        assert b.device.get(0x2001) == 2
+
+    run_bench(scenario)
+
+
 def test_synchronous_rpdo_applied_at_the_next_sync():
     async def scenario(b: Bench):
         await configure_rpdo(b, 1, [SETPOINT], 1)

@@ -341,7 +341,12 @@ class PdoService:
         host = rpdo.host
         if host is None:
             return
-        host.apply(rpdo.watchdog.on_frame(frame, now))
+        watchdog = rpdo.watchdog
+        out = watchdog.on_frame(frame, now)
+        if out is not NOTHING or watchdog.event_timer_ms:
+            # (without an event timer and with nothing to report, the host has nothing to
+            # send and no deadline to re-arm: two calls less per frame)
+            host.apply(out)
         data = frame.data
         if len(data) < rpdo.map.length:
             if not self._core.deviations.partial_rpdos:
@@ -373,6 +378,8 @@ class PdoService:
 
     def _apply_rpdo(self, rpdo: Rpdo, values: tuple[Any, ...]) -> None:
         """Write ``values`` to the RPDO's targets (the first ``len(values)`` of them)."""
+        core = self._core
+        heard = core.listeners or core.heard_by_network  # else no RpdoReceived is built
         written: list[tuple[int, int]] = []
         applied: list[Any] = []
         for entry, value in zip(rpdo.targets[: len(values)], values, strict=True):
@@ -380,15 +387,18 @@ class PdoService:
                 if entry.limited:
                     value = check_value(entry, value)
                 if entry.writer is not None:
-                    self._core.call_writer(entry, value)
+                    core.call_writer(entry, value)
             except SdoAbort:
                 continue
-            self._core.store(entry, value)
-            written.append((entry.index, entry.subindex))
-            applied.append(value)
-        self._core.emit(
-            RpdoReceived(self._core.node_id, rpdo.number, tuple(written), tuple(applied))
-        )
+            if entry.tpdos:
+                core.store(entry, value)
+            else:  # store's work when no TPDO maps the entry, a call less per value
+                entry.value = value
+            if heard:
+                written.append((entry.index, entry.subindex))
+                applied.append(value)
+        if heard:
+            core.emit(RpdoReceived(core.node_id, rpdo.number, tuple(written), tuple(applied)))
 
     def _on_rpdo_event(self, rpdo: Rpdo, event: Event) -> None:
         node = self._core.node_id
