@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import threading
 import time
+from collections.abc import Callable
 
 import can
 import canopen
@@ -116,27 +117,39 @@ _ANSWER = can.Message(
 _READS = 5_000
 
 
-def client_cobus() -> float:
+def cobus_client(channel: str) -> tuple[RealTimeLoop, AsyncNetwork, Callable[[], None]]:
+    """A cobus client on a ``RealTimeLoop`` whose interface's send does nothing, and one read
+    of its own work: the upload begun under the protocol lock, as a blocking call does in
+    the caller's thread, and the answer dispatched as its reader thread would."""
     loop = RealTimeLoop()
 
     async def connect() -> AsyncNetwork:
-        net = await AsyncNetwork(interface="virtual", channel="bench-client-cobus").connect()
+        net = await AsyncNetwork(interface="virtual", channel=channel).connect()
         net.bus.send = lambda msg, timeout=None: None  # type: ignore[method-assign]
         return net
 
     net = loop.run_until_complete(connect())
-    channel = net.add_remote(_NODE).sdo
-    start = channel._upload_start(0x1000, 0, False)
+    sdo = net.add_remote(_NODE).sdo
+    start = sdo._upload_start(0x1000, 0, False)
     results: list[object] = []
     lock, answer = loop.protocol_lock, [_ANSWER]
 
+    def read() -> None:
+        with lock:
+            sdo._begin(start, results.append)
+        loop.wake_if_pending()
+        with lock:
+            net._on_messages(answer)
+
+    return loop, net, read
+
+
+def client_cobus() -> float:
+    loop, net, read = cobus_client("bench-client-cobus")
+
     def run() -> None:
         for _ in range(_READS):
-            with lock:  # as a blocking upload begins it, in the caller's thread
-                channel._begin(start, results.append)
-            loop.wake_if_pending()
-            with lock:  # as the reader thread dispatches the answer
-                net._on_messages(answer)
+            read()
 
     try:
         return _READS / best_of(run)
@@ -145,9 +158,11 @@ def client_cobus() -> float:
         loop.close()
 
 
-def client_canopen() -> float:
+def canopen_client(channel: str) -> tuple[canopen.Network, Callable[[], None]]:
+    """python-canopen's ``RemoteNode`` and one read: the answer is fed through its listener
+    from the interface's send, in the same thread."""
     network = canopen.Network()
-    network.connect(interface="virtual", channel="bench-client-canopen")
+    network.connect(interface="virtual", channel=channel)
     node = canopen.RemoteNode(_NODE, canopen.ObjectDictionary())
     network.add_node(node)
     listener = canopen.network.MessageListener(network)
@@ -157,10 +172,15 @@ def client_canopen() -> float:
 
     assert network.bus is not None
     network.bus.send = send  # type: ignore[method-assign]
+    return network, lambda: node.sdo.upload(0x1000, 0)
+
+
+def client_canopen() -> float:
+    network, read = canopen_client("bench-client-canopen")
 
     def run() -> None:
         for _ in range(_READS):
-            node.sdo.upload(0x1000, 0)
+            read()
 
     try:
         return _READS / best_of(run)

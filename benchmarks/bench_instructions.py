@@ -133,53 +133,20 @@ def _receive_canopen(count: int) -> None:
     _feed_canopen(network, 0x180 + NODE, _TPDO, count)
 
 
-_ANSWER = bytes([0x43, 0, 0x10, 0, 0x91, 1, 0, 0])  # the device type, expedited
-
-
 def _client_cobus(count: int) -> None:
-    import can
+    from benchmarks.bench_dispatch import cobus_client
 
-    from cobus.runtime import AsyncNetwork, RealTimeLoop
-
-    loop = RealTimeLoop()
-
-    async def connect() -> AsyncNetwork:
-        net = await AsyncNetwork(interface="virtual", channel="bench-instr-client").connect()
-        net.bus.send = lambda msg, timeout=None: None  # type: ignore[method-assign]
-        return net
-
-    net = loop.run_until_complete(connect())
-    channel = net.add_remote(NODE).sdo
-    start = channel._upload_start(0x1000, 0, False)
-    results: list[object] = []
-    lock = loop.protocol_lock
-    answer = [can.Message(arbitration_id=0x580 + NODE, data=_ANSWER, is_extended_id=False)]
+    _, _, read = cobus_client("bench-instr-client")
     for _ in range(_WARM_UP + count):
-        with lock:  # as a blocking upload begins it, in the caller's thread
-            channel._begin(start, results.append)
-        loop.wake_if_pending()
-        with lock:  # as the reader thread dispatches the answer
-            net._on_messages(answer)
+        read()
 
 
 def _client_canopen(count: int) -> None:
-    import can
-    import canopen
+    from benchmarks.bench_dispatch import canopen_client
 
-    network = canopen.Network()
-    network.connect(interface="virtual", channel="bench-instr-client-canopen")
-    node = canopen.RemoteNode(NODE, canopen.ObjectDictionary())
-    network.add_node(node)
-    listener = canopen.network.MessageListener(network)
-    answer = can.Message(arbitration_id=0x580 + NODE, data=_ANSWER, is_extended_id=False)
-
-    def send(msg: can.Message, timeout: float | None = None) -> None:
-        listener.on_message_received(answer)  # the server's answer, at once
-
-    assert network.bus is not None
-    network.bus.send = send  # type: ignore[method-assign]
+    _, read = canopen_client("bench-instr-client-canopen")
     for _ in range(_WARM_UP + count):
-        node.sdo.upload(0x1000, 0)
+        read()
 
 
 def _count(stack: str, request: str, count: int) -> int:
