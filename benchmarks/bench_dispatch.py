@@ -10,11 +10,11 @@ Four figures, each side by side with python-canopen in the same run:
   receive path to its SDO server (cobus ``Device``, python-canopen ``LocalNode``) and the
   answer handed to the interface (python-can's virtual bus, nobody else on it) — a device's
   own share of every SDO round trip (issue 20);
-- a blocking client's own work per expedited read: the request made and handed to the
-  interface (whose send is a no-op here), the answer dispatched to the client and the result
-  handed over, all in one thread (cobus: the transfer begun as a blocking call begins it,
-  the answer dispatched as the reader thread does; python-canopen: ``sdo.upload`` with the
-  answer fed through its ``MessageListener`` when the request is sent) — the client's share.
+- a blocking client's own work per expedited read: ``sdo.upload`` of the blocking API, the
+  answer fed through each stack's receive path from the interface's send, all in one thread
+  (cobus: a blocking ``Network`` whose reader thread is stopped, the answer dispatched
+  under the protocol lock the caller holds; python-canopen: ``RemoteNode.sdo.upload``
+  through its ``MessageListener``) — the client's share, its facade included.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from benchmarks.common import (
     row,
 )
 from cobus.device import Device, minimal_od
-from cobus.runtime import AsyncNetwork, RealTimeLoop
+from cobus.runtime import AsyncNetwork, Network
 
 N = 20_000
 
@@ -117,35 +117,21 @@ _ANSWER = can.Message(
 _READS = 5_000
 
 
-def cobus_client(channel: str) -> tuple[RealTimeLoop, AsyncNetwork, Callable[[], None]]:
-    """A cobus client on a ``RealTimeLoop`` whose interface's send does nothing, and one read
-    of its own work: the upload begun under the protocol lock, as a blocking call does in
-    the caller's thread, and the answer dispatched as its reader thread would."""
-    loop = RealTimeLoop()
-
-    async def connect() -> AsyncNetwork:
-        net = await AsyncNetwork(interface="virtual", channel=channel).connect()
-        net.bus.send = lambda msg, timeout=None: None  # type: ignore[method-assign]
-        return net
-
-    net = loop.run_until_complete(connect())
+def cobus_client(channel: str) -> tuple[Network, Callable[[], object]]:
+    """A blocking cobus ``Network`` whose interface's send dispatches the answer at once,
+    its reader thread stopped, and one read through the blocking API (the ``sdo`` object
+    held, as an application keeps it: each ``remote.sdo`` is a call on the loop)."""
+    net = Network(interface="virtual", channel=channel)
+    aio = net.aio
+    answer = [_ANSWER]
+    aio.bus.send = lambda msg, timeout=None: aio._on_messages(answer)  # type: ignore[method-assign]
+    aio._reader_stop.set()  # nothing arrives on the bus: the reader would only poll
     sdo = net.add_remote(_NODE).sdo
-    start = sdo._upload_start(0x1000, 0, False)
-    results: list[object] = []
-    lock, answer = loop.protocol_lock, [_ANSWER]
-
-    def read() -> None:
-        with lock:
-            sdo._begin(start, results.append)
-        loop.wake_if_pending()
-        with lock:
-            net._on_messages(answer)
-
-    return loop, net, read
+    return net, lambda: sdo.upload(0x1000, 0)
 
 
 def client_cobus() -> float:
-    loop, net, read = cobus_client("bench-client-cobus")
+    net, read = cobus_client("bench-client-cobus")
 
     def run() -> None:
         for _ in range(_READS):
@@ -154,8 +140,7 @@ def client_cobus() -> float:
     try:
         return _READS / best_of(run)
     finally:
-        loop.run_until_complete(net.disconnect())
-        loop.close()
+        net.close()
 
 
 def canopen_client(channel: str) -> tuple[canopen.Network, Callable[[], None]]:

@@ -14,10 +14,8 @@ interface (python-can's virtual bus, nobody else on it). A TPDO is a frame of tw
 16-bit values, decoded by a master's remote node (cobus ``tpdo[1]`` of a remote node with its
 heartbeat watched, as ``bench_load`` sets up 64 of them; python-canopen ``RemoteNode.tpdo[1]``
 subscribed), with nobody waiting for it. A client's read is what ``bench_dispatch`` times
-as "a blocking client's own work": cobus begins the upload under the protocol lock as a
-blocking call does in the caller's thread and dispatches the answer as its reader thread
-would (the interface's send does nothing); python-canopen's ``RemoteNode.sdo.upload`` gets
-the answer fed through its listener from the interface's send, in the same thread.
+as "a blocking client's own work": ``sdo.upload`` of each stack's blocking API with the
+answer fed through its receive path from the interface's send, in the same thread.
 
 Needs valgrind (``apt install valgrind``); without it the table says so and nothing runs.
 Run alone: ``python -m benchmarks.bench_instructions``.
@@ -136,7 +134,7 @@ def _receive_canopen(count: int) -> None:
 def _client_cobus(count: int) -> None:
     from benchmarks.bench_dispatch import cobus_client
 
-    _, _, read = cobus_client("bench-instr-client")
+    _, read = cobus_client("bench-instr-client")
     for _ in range(_WARM_UP + count):
         read()
 

@@ -284,9 +284,25 @@ def test_rpdo_values_apply_with_nobody_listening_and_a_later_listener_hears_them
     run_bench(scenario)
 
 
+def test_a_listener_added_by_a_write_callback_hears_that_rpdo():
+    async def scenario(b: Bench):
+        await configure_rpdo(b, 1, [SETPOINT], 255)
+        await b.start()
+        b.net.remove_listener(b.events.append)
+        heard: list[object] = []
+        b.device.on_write(0x2001, 0, lambda v: heard or b.device.add_listener(heard.append))
+        b.send(RPDO1, b"\x05\x00")
+        await b.settle()
+        assert [e for e in heard if isinstance(e, RpdoReceived)] == [
+            RpdoReceived(NODE, 1, ((0x2001, 0),), (5,))
+        ]
+
+    run_bench(scenario)
+
+
 def test_an_rpdo_watchdog_turned_off_reports_nothing_more():
-    """Without an event timer a received RPDO leaves the host alone (no deadline to
-    re-arm); a watchdog switched off while armed never reports the RPDO lost."""
+    """A watchdog switched off while armed (which rebuilds the RPDO) never reports the RPDO
+    lost, and frames received afterwards, without an event timer, still apply."""
 
     async def scenario(b: Bench):
         await configure_rpdo(b, 1, [SETPOINT], 255, timer=100)

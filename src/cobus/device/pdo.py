@@ -344,8 +344,9 @@ class PdoService:
         watchdog = rpdo.watchdog
         out = watchdog.on_frame(frame, now)
         if out is not NOTHING or watchdog.event_timer_ms:
-            # (without an event timer and with nothing to report, the host has nothing to
-            # send and no deadline to re-arm: two calls less per frame)
+            # Without an event timer the watchdog never has a deadline, and its host no armed
+            # timer (1400h sub 5 written rebuilds the RPDO and its host): with nothing to
+            # report there is nothing to apply, two calls less per frame.
             host.apply(out)
         data = frame.data
         if len(data) < rpdo.map.length:
@@ -379,7 +380,6 @@ class PdoService:
     def _apply_rpdo(self, rpdo: Rpdo, values: tuple[Any, ...]) -> None:
         """Write ``values`` to the RPDO's targets (the first ``len(values)`` of them)."""
         core = self._core
-        heard = core.listeners or core.heard_by_network  # else no RpdoReceived is built
         written: list[tuple[int, int]] = []
         applied: list[Any] = []
         for entry, value in zip(rpdo.targets[: len(values)], values, strict=True):
@@ -394,10 +394,10 @@ class PdoService:
                 core.store(entry, value)
             else:  # store's work when no TPDO maps the entry, a call less per value
                 entry.value = value
-            if heard:
-                written.append((entry.index, entry.subindex))
-                applied.append(value)
-        if heard:
+            written.append((entry.index, entry.subindex))
+            applied.append(value)
+        # asked after the writes: a write callback may have added a listener
+        if core.listeners or core.heard_by_network:  # else no RpdoReceived is built
             core.emit(RpdoReceived(core.node_id, rpdo.number, tuple(written), tuple(applied)))
 
     def _on_rpdo_event(self, rpdo: Rpdo, event: Event) -> None:
