@@ -99,7 +99,9 @@ class Core:
         #: Entry key -> the service's decoder of an SDO download to that entry.
         self.downloads: dict[int, DownloadHandler] = {}
         self.listeners: list[Listener] = []
-        #: The network's listeners, the list itself: asked per request without a call.
+        #: The network's listeners, the list itself. An event built per request or frame
+        #: (EntryWritten, RpdoReceived) is skipped unless ``listeners or heard_by_network``:
+        #: asked of the lists directly, without a call.
         self.heard_by_network = network._listeners
         #: The NMT slave of the current communication (a new one after a node-ID change).
         self.nmt = NmtSlave(node_id)
@@ -197,11 +199,6 @@ class Core:
             raise abort(
                 SdoAbortCode.INVALID_VALUE, f"the COB-ID rule refused 0x{value:08X}"
             ) from None
-
-    def heard(self) -> bool:
-        """Whether an event emitted now reaches anybody (the device's listeners or the
-        network's): an event built for every request is skipped when not."""
-        return bool(self.listeners or self.heard_by_network)
 
     def emit(self, event: DeviceEvent) -> None:
         """To the device's listeners, then to the network's."""

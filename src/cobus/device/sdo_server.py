@@ -100,7 +100,7 @@ class SdoBackend:
                 data = data[:size]
             value = decode_download(entry, data)
         core.write(entry, value, remote=True)
-        if core.listeners or core.heard_by_network:  # core.heard(), a call less per write
+        if core.listeners or core.heard_by_network:  # anyone to hear it (see Core)
             core.emit(EntryWritten(core.node_id, index, subindex, value))
 
     def size_hint(self, index: int, subindex: int) -> int | None:
