@@ -291,3 +291,9 @@ def test_dummy_usage_set_in_code():
     assert 5 not in od and od.dummy_usage == {5: False, 6: False}
     with pytest.raises(DataTypeError, match="0x0020: only the basic data types"):
         od.set_dummy_usage(0x20)
+
+
+def test_a_variable_takes_its_access_by_value_and_refuses_an_unknown_one():
+    assert Variable(0x2000, 0, "x", DataType.UNSIGNED8, access="ro").access is Access.RO  # type: ignore[arg-type]
+    with pytest.raises(ObjectDictionaryError, match="access 'read' is none of ro, wo"):
+        Variable(0x2000, 0, "x", DataType.UNSIGNED8, access="read")  # type: ignore[arg-type]

@@ -201,7 +201,13 @@ class Variable:
         self.subindex = subindex
         self.name = name
         self.data_type = data_type
-        self.access = access
+        try:  # "ro" and the like become the member: a device tests access by identity
+            self.access = Access(access)
+        except ValueError:
+            known = ", ".join(a.value for a in Access)
+            raise ObjectDictionaryError(
+                f"0x{index:04X}:{subindex:02X} {name!r}: access {access!r} is none of {known}"
+            ) from None
         self.pdo_mappable = pdo_mappable
         self.object_type = object_type
         self.declared_type = None
