@@ -119,15 +119,15 @@ _READS = 5_000
 
 def cobus_client(channel: str) -> tuple[Network, Callable[[], object]]:
     """A blocking cobus ``Network`` whose interface's send dispatches the answer at once,
-    its reader thread stopped, and one read through the blocking API (the ``sdo`` object
-    held, as an application keeps it: each ``remote.sdo`` is a call on the loop)."""
+    its reader thread stopped, and one read through the blocking API, written as
+    python-canopen's below (``node.sdo`` is read in the caller's thread: it never changes)."""
     net = Network(interface="virtual", channel=channel)
     aio = net.aio
     answer = [_ANSWER]
     aio.bus.send = lambda msg, timeout=None: aio._on_messages(answer)  # type: ignore[method-assign]
     aio._reader_stop.set()  # nothing arrives on the bus: the reader would only poll
-    sdo = net.add_remote(_NODE).sdo
-    return net, lambda: sdo.upload(0x1000, 0)
+    node = net.add_remote(_NODE)
+    return net, lambda: node.sdo.upload(0x1000, 0)
 
 
 def client_cobus() -> float:

@@ -636,6 +636,42 @@ def test_the_blocking_network_lists_its_nodes_and_takes_listeners_back():
         AsyncNetwork(simulated=True)
 
 
+def test_what_a_blocking_node_is_made_of_is_read_without_the_loop():
+    """``node.sdo`` and the node's other ``Final`` attributes never change, so the blocking
+    node reads them in the calling thread, once: ``node.sdo.upload(...)`` in a loop costs no
+    trip to the network's loop for ``node.sdo``. They cannot be set; the rest still can."""
+    from cobus.runtime import blocking
+    from cobus.runtime._twin import _Fixed
+
+    assert isinstance(vars(blocking.RemoteNode)["sdo"], _Fixed)
+    assert isinstance(vars(blocking.RemotePdo)["number"], _Fixed)
+    assert not isinstance(vars(blocking.RemotePdo)["transmission_type"], _Fixed)
+    with Network(simulated=True) as net:
+        add_device(net, 5, _valve().build())
+        node = net.add_remote(5)
+        tpdo = node.tpdo[1]
+        runner = net._runner
+        hops: list[object] = []
+        call, run = runner.call, runner.run
+        runner.call = lambda *a, **k: hops.append(a) or call(*a, **k)  # type: ignore[method-assign]
+        runner.run = lambda *a, **k: hops.append(a) or run(*a, **k)  # type: ignore[method-assign]
+        for _ in range(3):
+            assert node.sdo is node.sdo and node.sdo.aio is node.aio.sdo
+            assert node.nmt.aio is node.aio.nmt and node.emcy.aio is node.aio.emcy
+            assert node.tpdo.aio is node.aio.tpdo and node.rpdo.aio is node.aio.rpdo
+            assert (node.node_id, node.od, node.network) == (5, None, net.aio)
+            assert (node.sdo.node_id, node.nmt.node_id, tpdo.number, tpdo.node_id) == (5, 5, 1, 5)
+        assert hops == []
+        assert node.sdo.upload(0x1000) == bytes([0x91, 1, 0, 0])  # device type 401
+        for name in ("sdo", "node_id", "od"):
+            with pytest.raises(AttributeError, match=f"'{name}' is fixed"):
+                setattr(node, name, None)
+        with pytest.raises(AttributeError, match="'number' is fixed"):
+            tpdo.number = 2
+        tpdo.transmission_type = 254  # not Final: set on the loop, as before
+        assert tpdo.transmission_type == 254 and hops
+
+
 def test_the_blocking_network_has_what_the_async_one_has():
     """Network is written by hand (it owns the loop); it has every operation of AsyncNetwork
     but the plumbing for code that runs on the loop, which blocking code does through

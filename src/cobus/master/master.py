@@ -17,7 +17,7 @@ import logging
 import os
 from collections.abc import Awaitable, Callable, Mapping
 from datetime import UTC, datetime
-from typing import Any
+from typing import Any, Final
 
 from cobus.master.config import NetworkConfig, PdoLayout, load_network
 from cobus.master.diagnostics import BusLoadMeter, MasterDiagnostics
@@ -78,17 +78,17 @@ class Master:
     """
 
     #: The network the master runs.
-    network: AsyncNetwork
+    network: Final[AsyncNetwork]
     #: The network description it boots.
-    config: NetworkConfig
+    config: Final[NetworkConfig]
     #: The global diagnostics (frames, bus load, errors).
-    diagnostics: MasterDiagnostics
+    diagnostics: Final[MasterDiagnostics]
     #: The process image behind ``inputs`` and ``outputs``.
-    image: ProcessImage
+    image: Final[ProcessImage]
     #: The process image's inputs (TPDO signals) by ``"node.signal"``.
-    inputs: Inputs
+    inputs: Final[Inputs]
     #: The process image's outputs (RPDO signals) by ``"node.signal"``; setting one sends it.
-    outputs: Outputs
+    outputs: Final[Outputs]
     #: The managed nodes by node-ID.
     nodes: dict[int, ManagedNode]
 

@@ -3,9 +3,12 @@
 A subclass of :class:`BlockingTwin` declared with ``twin_of=`` gets the async class's public
 names: a coroutine method becomes a method that runs it on the network's loop and waits for
 it; a plain method, a property or an annotated public attribute is run or read on the loop
-thread; a callback given to an ``add_*callback``/``add_*listener`` method runs in the blocking
-network's callback thread (inline on the simulated clock). What a call returns is wrapped in
-its own twin when its class has one, so ``node.tpdo[1]`` of a blocking node is a blocking PDO.
+thread, except an attribute annotated ``Final`` (set once in ``__init__``, never again): that
+one is read in the calling thread the first time and kept, so ``node.sdo.upload(...)`` costs
+no trip to the loop for ``node.sdo``; a callback given to an
+``add_*callback``/``add_*listener`` method runs in the blocking network's callback thread
+(inline on the simulated clock). What a call returns is wrapped in its own twin when its
+class has one, so ``node.tpdo[1]`` of a blocking node is a blocking PDO.
 """
 
 from __future__ import annotations
@@ -70,6 +73,11 @@ class BlockingTwin:
         def __contains__(self, key: object) -> bool: ...
 
     else:
+
+        def __setattr__(self, name: str, value: Any) -> None:
+            if isinstance(getattr(type(self), name, None), _Fixed):
+                raise AttributeError(f"{name!r} is fixed when the object is made: it cannot be set")
+            object.__setattr__(self, name, value)
 
         def __getattr__(self, name: str) -> Any:
             """What a subclass of the async class adds (``rig.device(9)`` is an I/O module
@@ -209,6 +217,27 @@ def _property(name: str, doc: str | None, settable: bool) -> property:
     return property(get, put if settable else None, doc=doc)
 
 
+class _Fixed:
+    """A ``Final`` attribute of the async object: read in the calling thread on first use
+    (it was set in the object's ``__init__``, before the object was handed out, and never
+    changes) and kept, in its twin, in the twin's own ``__dict__`` under the same name.
+    Later reads find it there, a plain attribute: this descriptor defines no ``__set__``,
+    and :meth:`BlockingTwin.__setattr__` refuses an assignment."""
+
+    def __init__(self, name: str, doc: str | None) -> None:
+        self._name = name
+        self.__doc__ = doc
+
+    def __get__(self, twin: BlockingTwin | None, owner: type | None = None) -> Any:
+        if twin is None:
+            return self
+        made = twin._wrap(getattr(twin.aio, self._name))
+        return twin.__dict__.setdefault(self._name, made)  # a race keeps the first
+
+
+_FINAL = re.compile(r"^(typing\.)?Final\b")
+
+
 def _iterate(self: BlockingTwin) -> Iterator[Any]:
     items: list[Any] = self._runner.call(list, self.aio)
     return iter([self._wrap(item) for item in items])
@@ -267,7 +296,7 @@ def _attribute_docs(cls: type) -> dict[str, str]:
 
 def _fill(twin: type[BlockingTwin], async_cls: type) -> None:
     twin.__twin_of__ = async_cls
-    annotated: set[str] = set()
+    annotated: dict[str, object] = {}
     docs: dict[str, str] = {}
     for klass in reversed(async_cls.__mro__):
         annotated.update(vars(klass).get("__annotations__", {}))
@@ -286,7 +315,10 @@ def _fill(twin: type[BlockingTwin], async_cls: type) -> None:
             made = _plain(attr, member)
         elif attr in annotated:
             doc = docs.get(attr) or f"``{async_cls.__name__}.{attr}`` of the async object."
-            made = _property(attr, doc, True)
+            if _FINAL.match(str(annotated[attr])):
+                made = _Fixed(attr, doc)
+            else:
+                made = _property(attr, doc, True)
         else:  # a class constant
             made = member
         setattr(twin, attr, made)

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from cobus.proto import Frame
 from cobus.proto.emcy import EMCY_BASE, ErrorRegister, MalformedEmcy, parse_emcy
@@ -70,7 +70,7 @@ class RemoteEmcy:
     """The emergencies of one remote node (see the module docstring)."""
 
     #: The node-ID.
-    node_id: int
+    node_id: Final[int]
     #: The CAN identifier the node's emergencies arrive on (80h + node-ID unless changed).
     cob_id: int
     #: How many emergencies arrived in all (the log keeps only the last ``history``).

@@ -15,7 +15,7 @@ or refused it, would then be shown wrongly). :attr:`RemoteNmt.commanded` keeps t
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from cobus.proto import NOTHING, Event, Frame
 from cobus.proto.heartbeat import (
@@ -60,7 +60,7 @@ class RemoteNmt:
     """The NMT state of one remote node, the commands to it, its heartbeat supervision."""
 
     #: The node-ID.
-    node_id: int
+    node_id: Final[int]
     #: When the node was last heard (heartbeat or boot-up), on the network's clock.
     last_heard: float | None
     #: How many boot-up messages the node sent while watched.

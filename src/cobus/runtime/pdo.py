@@ -22,7 +22,7 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 from cobus.errors import CobusError
 from cobus.od import (
@@ -161,11 +161,11 @@ class RemotePdo:
     """
 
     #: The node-ID of the node the PDO belongs to.
-    node_id: int
+    node_id: Final[int]
     #: The PDO number, 1..512.
-    number: int
+    number: Final[int]
     #: True for a TPDO of the node (received here), False for an RPDO (sent from here).
-    transmit_by_node: bool
+    transmit_by_node: Final[bool]
     #: Whether the node accepts remote requests for it (bit 30 clear).
     rtr_allowed: bool
     #: Sub 2: 0 acyclic sync, 1-240 every n-th SYNC, 252/253 RTR only, 254/255 event.
@@ -743,9 +743,9 @@ class PdoSet:
     """
 
     #: The node-ID of the node.
-    node_id: int
+    node_id: Final[int]
     #: True for ``node.tpdo`` (the node transmits), False for ``node.rpdo``.
-    transmit_by_node: bool
+    transmit_by_node: Final[bool]
 
     def __init__(
         self,

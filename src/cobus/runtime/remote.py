@@ -10,7 +10,7 @@ import asyncio
 import contextlib
 from collections import deque
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 from cobus.od import did_you_mean, match_name
 from cobus.proto import NOTHING, Event, Out
@@ -79,9 +79,9 @@ class SdoChannel:
     """
 
     #: The node-ID of the server.
-    node_id: int
+    node_id: Final[int]
     #: The node's object dictionary (None: raw transfers only).
-    od: ObjectDictionary | None
+    od: Final[ObjectDictionary | None]
 
     def __init__(
         self,
@@ -485,7 +485,7 @@ class SdoVariable:
     """One object of a remote node reached over SDO (``node.sdo["Device type"]``)."""
 
     #: The dictionary entry (name, type, access, limits).
-    od: Variable
+    od: Final[Variable]
 
     def __init__(self, channel: SdoChannel, var: Variable) -> None:
         self._channel = channel
@@ -537,7 +537,7 @@ class SdoRecord:
     """A record or array of a remote node reached over SDO: ``[sub]`` gives its sub-objects."""
 
     #: The dictionary object.
-    od: Record | Array
+    od: Final[Record | Array]
 
     def __init__(self, channel: SdoChannel, obj: Record | Array) -> None:
         self._channel = channel
@@ -673,21 +673,21 @@ class RemoteNode:
     """
 
     #: The node-ID, 1..127.
-    node_id: int
+    node_id: Final[int]
     #: The node's object dictionary (from its EDS/DCF), or None.
-    od: ObjectDictionary | None
+    od: Final[ObjectDictionary | None]
     #: The SDO client channel to the node's default SDO server.
-    sdo: SdoChannel
+    sdo: Final[SdoChannel]
     #: The node's NMT state, commands to it, heartbeat supervision.
-    nmt: RemoteNmt
+    nmt: Final[RemoteNmt]
     #: The node's emergencies.
-    emcy: RemoteEmcy
+    emcy: Final[RemoteEmcy]
     #: The node's transmit PDOs (received here).
-    tpdo: PdoSet
+    tpdo: Final[PdoSet]
     #: The node's receive PDOs (sent from here).
-    rpdo: PdoSet
+    rpdo: Final[PdoSet]
     #: The network the node is on.
-    network: AsyncNetwork
+    network: Final[AsyncNetwork]
 
     def __init__(
         self,
