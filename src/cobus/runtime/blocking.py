@@ -71,6 +71,7 @@ class Runner:
         self.simulated = simulated
         self.loop = new_event_loop(simulated=simulated)
         self._thread: threading.Thread | None = None
+        self._loop_ident: int | None = None  # the loop thread's
         self._callbacks: queue.SimpleQueue[Callable[[], object] | None] | None = None
         self._callback_thread: threading.Thread | None = None
         self._callback_lock = threading.Lock()
@@ -78,6 +79,7 @@ class Runner:
         if not simulated:
             self._thread = threading.Thread(target=self._run_loop, name="cobus-loop", daemon=True)
             self._thread.start()
+            self._loop_ident = self._thread.ident
 
     def _run_loop(self) -> None:
         self.loop.run_forever()
@@ -152,18 +154,20 @@ class Runner:
         loop = self.loop
         if self.simulated or self._closed or not isinstance(loop, RealTimeLoop):
             return self.run(fallback())
-        if self._on_loop():
+        lock = loop.protocol_lock
+        # _on_loop(), inline: every blocking SDO transfer passes here
+        if lock._is_owned() or threading.get_ident() == self._loop_ident:  # type: ignore[attr-defined]
             return self.run(fallback())  # raises ReentrantCallError
-        handoff: _Handoff[T] = _Handoff(self.loop)
-        with loop.protocol_lock:
+        handoff: _Handoff[T] = _Handoff(loop)
+        with lock:
             cancel = begin(handoff.settle)
         loop.wake_if_pending()
         if cancel is None:
             return self.run(fallback())
         try:
-            handoff.wait(None)  # the operation's own timeout ends it (an SDO timeout)
+            handoff._lock.acquire()  # the operation's own timeout ends it (an SDO timeout)
         except BaseException:  # Ctrl-C while waiting: the operation ends with it
-            with loop.protocol_lock:
+            with lock:
                 cancel()
             loop.wake_if_pending()
             raise
@@ -193,7 +197,7 @@ class Runner:
         """Whether the caller runs protocol code: on the loop thread, or a reader thread
         dispatching under the loop's protocol lock."""
         loop = self.loop
-        return threading.current_thread() is self._thread or (
+        return threading.get_ident() == self._loop_ident or (
             isinstance(loop, RealTimeLoop) and loop.lock_held()
         )
 
@@ -301,9 +305,10 @@ class _Handoff(Generic[T]):
     def settle(self, outcome: Any) -> None:
         """A result, or an exception to raise in the waiting caller."""
         if isinstance(outcome, BaseException):
-            self.fail(outcome)
+            self._error = outcome
         else:
-            self.succeed(outcome)
+            self._result = outcome
+        self._release()
 
     def finish(self, task: asyncio.Task[T]) -> None:
         if task.cancelled():

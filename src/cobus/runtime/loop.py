@@ -270,7 +270,12 @@ class RealTimeLoop(asyncio.SelectorEventLoop):
     def wake_if_pending(self) -> None:
         """Wake the threads and the loop that work done under the lock has to wake; call
         after letting go of the lock."""
-        self._run_wakes()
+        held = self._held  # _run_wakes(), inline: a blocking SDO transfer calls this
+        wakes: list[Callable[[], object]] | None = getattr(held, "wakes", None)
+        if wakes:
+            held.wakes = []
+            for wake in wakes:
+                wake()
         if self.wake_pending:
             self.wake_pending = False
             self._write_to_self()  # type: ignore[attr-defined]  # asyncio's self-pipe
