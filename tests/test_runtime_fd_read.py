@@ -21,6 +21,7 @@ import json
 import random
 import socket
 import struct
+import sys
 import threading
 import time
 from collections.abc import Awaitable, Callable
@@ -619,33 +620,151 @@ def _multicast_or_skip(group: str, port: int) -> None:
 
 
 @pytest.mark.parametrize("on_loop", [True, False])
-def test_udp_multicast_is_read_by_the_loop_or_a_thread_and_our_own_messages_come_once(on_loop):
+@pytest.mark.parametrize("filtered", [True, False], ids=["echo-free", "tag-only"])
+def test_udp_multicast_is_read_by_the_loop_or_a_thread_and_our_own_messages_come_once(
+    on_loop, filtered, monkeypatch
+):
+    """Either way the bus is read, each network hears the other and its own frames once:
+    on Linux its own datagrams never reach its socket (a sending socket of its own, filtered
+    out by the kernel); where the filter cannot be attached, the tag drops them."""
     from can.interfaces.udp_multicast import UdpMulticastBus
 
     from cobus.device import add_device, minimal_od
-    from cobus.runtime import Network
+    from cobus.runtime import Network, multicast
 
+    if not filtered:
+        monkeypatch.setattr(multicast, "_SO_ATTACH_FILTER", 0xDEAD)  # refused: no such option
     group = UdpMulticastBus.DEFAULT_GROUP_IPv6
     port = random.randrange(20000, 60000)  # (not the default port the benchmarks use)
     _multicast_or_skip(group, port)
-    with (  # the blocking Network reads with a thread unless read_on_loop=True
-        Network(
-            interface="udp_multicast", channel=group, port=port, read_on_loop=on_loop
-        ) as master,
-        Network(interface="udp_multicast", channel=group, port=port, read_on_loop=on_loop) as field,
-    ):
-        if on_loop:
-            assert master.aio._reader is None and master.aio._fd is not None  # no thread
-        else:
-            assert master.aio._reader is not None and master.aio._fd is None
-        got: list[Frame] = []
-        master.subscribe(0x123, lambda f, now: got.append(f))
-        master.send(Frame(0x123, b"\x02"))
-        add_device(field, 5, minimal_od())
-        # the two networks of this process hear each other (different tags)...
-        assert master.add_remote(5, sdo_timeout=2.0).sdo.upload(0x1000)
-        time.sleep(0.1)
-        assert got == [Frame(0x123, b"\x02")]  # ...and each its own frames once
+    bus = can.Bus(interface="udp_multicast", channel=group, port=port)
+    heard: list[can.Message] = []
+    recv = bus.recv
+
+    def recording(timeout: float | None = None) -> can.Message | None:
+        msg = recv(timeout)
+        if msg is not None:
+            heard.append(msg)
+        return msg
+
+    bus.recv = recording  # type: ignore[method-assign]
+    try:
+        with (  # the blocking Network reads with a thread unless read_on_loop=True
+            Network(bus, read_on_loop=on_loop) as master,
+            Network(
+                interface="udp_multicast", channel=group, port=port, read_on_loop=on_loop
+            ) as field,
+        ):
+            if on_loop:
+                assert master.aio._reader is None and master.aio._fd is not None  # no thread
+            else:
+                assert master.aio._reader is not None and master.aio._fd is None
+            linux = sys.platform.startswith("linux")
+            assert (master.aio._tx is not None) is (filtered and linux)
+            got: list[Frame] = []
+            master.subscribe(0x123, lambda f, now: got.append(f))
+            master.send(Frame(0x123, b"\x02"))
+            add_device(field, 5, minimal_od())
+            # the two networks of this process hear each other (different tags)...
+            assert master.add_remote(5, sdo_timeout=2.0).sdo.upload(0x1000)
+            time.sleep(0.1)
+            assert got == [Frame(0x123, b"\x02")]  # ...and each its own frames once
+            tag = master.aio._echo_tag
+            own = [m for m in heard if m.channel == tag]
+            assert heard and (not own if master.aio._tx is not None else len(own) == 2)
+    finally:
+        bus.shutdown()
+
+
+def test_the_echo_free_sender_drops_only_its_own_datagrams_and_lets_go_when_closed():
+    """python-can's udp_multicast bus with cobus's sending socket: what that socket sends
+    reaches every other socket of the group but not the bus's own; what the bus sends
+    through python-can, and what others send, still arrive; closing takes the filter off."""
+    from can.interfaces.udp_multicast import UdpMulticastBus
+
+    from cobus.runtime.multicast import echo_free_sender
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the kernel filter is Linux's")
+    group = UdpMulticastBus.DEFAULT_GROUP_IPv6
+    port = random.randrange(20000, 60000)
+    _multicast_or_skip(group, port)
+    ours = can.Bus(interface="udp_multicast", channel=group, port=port)
+    other = can.Bus(interface="udp_multicast", channel=group, port=port, fd=False)
+    sender = None
+    try:
+        virtual = can.Bus(interface="virtual", channel="fd-echo-free")
+        assert echo_free_sender(virtual) is None  # only udp_multicast hears itself
+        virtual.shutdown()
+        sender = echo_free_sender(ours)
+        assert sender is not None
+        sender.send(can.Message(arbitration_id=0x101, data=b"\x01", is_extended_id=False))
+        got = other.recv(1.0)
+        assert got is not None and got.arbitration_id == 0x101  # on the group...
+        assert ours.recv(0.3) is None  # ...but never back on our own socket
+        other.send(can.Message(arbitration_id=0x102, data=b"", is_extended_id=False))
+        got = ours.recv(1.0)
+        assert got is not None and got.arbitration_id == 0x102
+        ours.send(can.Message(arbitration_id=0x103, data=b"", is_extended_id=False))
+        got = ours.recv(1.0)  # python-can's own socket is not filtered (the tag's job)
+        assert got is not None and got.arbitration_id == 0x103
+        assert other.recv(1.0) is not None and other.recv(1.0) is not None  # (0x101's, 0x103)
+        refuses_fd = echo_free_sender(other)
+        assert refuses_fd is not None
+        try:
+            with pytest.raises(can.CanOperationError, match="FD"):  # python-can decides FD
+                refuses_fd.send(can.Message(arbitration_id=0x104, data=bytes(12), is_fd=True))
+        finally:
+            refuses_fd.close()
+        address, source_port = sender.address
+        sender.close()
+        sender = None
+        # a socket that gets the closed sender's address and port is heard again
+        late = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
+        try:
+            late.bind((address, source_port))
+            from can.interfaces.udp_multicast.utils import pack_message
+
+            late.sendto(
+                pack_message(can.Message(arbitration_id=0x105, data=b"", is_extended_id=False)),
+                (group, port),
+            )
+            got = ours.recv(1.0)
+            assert got is not None and got.arbitration_id == 0x105
+        finally:
+            late.close()
+    finally:
+        if sender is not None:
+            sender.close()
+        ours.shutdown()
+        other.shutdown()
+
+
+def test_a_filter_program_drops_one_address_and_port_and_accepts_the_rest():
+    """The BPF program, instruction by instruction: the UDP source port, then each 32-bit
+    word of the source address; any mismatch jumps to "accept"."""
+    from cobus.runtime.multicast import drop_from
+
+    def decode(program: bytes) -> list[tuple[int, int, int, int]]:
+        return [struct.unpack_from("HBBI", program, i) for i in range(0, len(program), 8)]
+
+    four = decode(drop_from("192.0.2.7", 5000, socket.AF_INET))
+    net = -0x100000 & 0xFFFFFFFF
+    assert four == [
+        (0x28, 0, 0, 0),  # ldh [0]: the UDP source port
+        (0x15, 0, 3, 5000),  # jeq 5000, else accept
+        (0x20, 0, 0, net + 12),  # ld [net + 12]: the IPv4 source address
+        (0x15, 0, 1, 0xC0000207),  # jeq 192.0.2.7, else accept
+        (0x06, 0, 0, 0),  # drop
+        (0x06, 0, 0, 0xFFFFFFFF),  # accept
+    ]
+    six = decode(drop_from("fe80::1%eth0", 7, socket.AF_INET6))  # (the scope is not sent)
+    assert len(six) == 12 and six[-2:] == four[-2:]
+    loads = [k - net for code, _, _, k in six if code == 0x20]
+    assert loads == [8, 12, 16, 20]  # the IPv6 source address, word by word
+    jumps = [(pc, jf) for pc, (code, _, jf, _) in enumerate(six) if code == 0x15]
+    assert all(pc + 1 + jf == 11 for pc, jf in jumps)  # each to "accept"
+    assert [k for code, _, _, k in six if code == 0x15] == [7, 0xFE800000, 0, 0, 1]
 
 
 def test_own_messages_are_recognised_through_a_fault_injecting_wrapper():

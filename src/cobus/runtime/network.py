@@ -33,6 +33,7 @@ from cobus.runtime.events import (
 )
 from cobus.runtime.local_nodes import LocalNodes
 from cobus.runtime.loop import RealTimeLoop, SimulatedEventLoop
+from cobus.runtime.multicast import EchoFreeSender, echo_free_sender
 from cobus.runtime.remote import NmtMaster, RemoteNode, SyncService, load_od
 
 if TYPE_CHECKING:
@@ -294,6 +295,8 @@ class AsyncNetwork:
         #: How the bus hands our own messages back, to drop them (see bus.py: OwnEcho).
         self._own_marked = False
         self._echo_tag: str | None = None
+        #: udp_multicast: sends from a socket the bus does not hear (see multicast.py)
+        self._tx: EchoFreeSender | None = None
         self.frames_received = 0
         self.frames_sent = 0
         self._failures: dict[tuple[object, ...], int] = {}  # by where they were raised
@@ -457,7 +460,7 @@ class AsyncNetwork:
         if tag is not None:
             msg.channel = tag
         try:
-            self._bus.send(msg, timeout=0)
+            (self._tx or self._bus).send(msg, timeout=0)
         except (can.CanError, OSError) as exc:
             self._enqueue(frame)
             self._blocked(str(exc))
@@ -612,10 +615,11 @@ class AsyncNetwork:
         bus = self._bus
         if bus is None:
             return
+        sender = self._tx or bus
         while self._backlog:
             frame = self._backlog[0]
             try:
-                bus.send(self._message(frame), timeout=0)
+                sender.send(self._message(frame), timeout=0)
             except (can.CanError, OSError) as exc:
                 self._blocked(str(exc))
                 return
@@ -752,6 +756,7 @@ class AsyncNetwork:
     def _start_receiving(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
         self._errors_local = _bus.error_frames_are_local(bus)
         self._own_marked, self._echo_tag = _bus.own_echo(bus)
+        self._tx = echo_free_sender(bus)  # (the tag stays: what python-can's socket sends)
         if isinstance(loop, SimulatedEventLoop):
             self._poll_hook = self._poll
             loop.add_poll_hook(self._poll)
@@ -769,6 +774,9 @@ class AsyncNetwork:
             self._state_poll = loop.call_later(0.5, self._poll_state)
 
     def _stop_receiving(self, loop: asyncio.AbstractEventLoop) -> None:
+        if self._tx is not None:
+            self._tx.close()
+            self._tx = None
         if self._poll_hook is not None and isinstance(loop, SimulatedEventLoop):
             loop.remove_poll_hook(self._poll_hook)
             self._poll_hook = None

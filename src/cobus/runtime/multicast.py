@@ -1,0 +1,151 @@
+"""python-can's ``udp_multicast`` without hearing ourselves: a sending socket of our own, whose
+datagrams the kernel drops before they reach the bus's receiving socket.
+
+Multicast loopback hands every datagram a host sends back to every socket of the group on
+that host, the sender's included, so that processes on one host hear each other. A network
+that sends through python-can's socket therefore wakes its reader for each of its own frames,
+only to drop it (by the tag in ``channel``, see :func:`cobus.runtime.bus.own_echo`); a
+blocking SDO caller then waits for the GIL behind that reader (``docs/realtime.md``).
+
+:func:`echo_free_sender` sends from a second UDP socket connected to the group and attaches a
+classic BPF filter (Linux ``SO_ATTACH_FILTER``) to the bus's receiving socket that drops the
+datagrams whose source address and port are that socket's. Every other sender passes: another
+process, another host, another network of this process, and what is sent through python-can's
+own socket. The tag stays as the fallback, and is all there is off Linux or wherever the
+filter cannot be attached.
+
+It reaches python-can's private ``bus._multicast._socket`` (python-can 4.x): when that is not
+there, nothing changes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import logging
+import socket
+import struct
+import sys
+from typing import Any
+
+import can
+
+__all__ = ["EchoFreeSender", "echo_free_sender"]
+
+log = logging.getLogger(__name__)
+
+# Linux's option numbers (asm-generic; x86, ARM, RISC-V, ...); Python's socket module has no name
+# for them. Elsewhere there is no filter: the tag does the work.
+_SO_ATTACH_FILTER = 26
+_SO_DETACH_FILTER = 27
+_SKF_NET_OFF = -0x100000  # a BPF load from the network (IP) header; offset 0 is the UDP header
+_LDH_ABS, _LDW_ABS, _JEQ_K, _RET_K = 0x28, 0x20, 0x15, 0x06
+_DROP, _ACCEPT = 0, 0xFFFFFFFF
+
+
+def drop_from(address: str, port: int, family: int) -> bytes:
+    """A classic BPF program for a UDP socket that drops datagrams from ``address``:``port``
+    and accepts every other (``struct sock_filter`` entries, native byte order)."""
+    raw = socket.inet_pton(family, address.split("%", 1)[0])  # (an IPv6 scope is not sent)
+    source = 8 if family == socket.AF_INET6 else 12  # the source address in the IP header
+    words = struct.unpack(f"!{len(raw) // 4}I", raw)
+    # ldh [0] (the UDP source port); jeq port; then each word of the source address: ld, jeq.
+    # A mismatch jumps to "accept", the last instruction; all equal falls through to "drop".
+    program: list[tuple[int, int]] = [(_LDH_ABS, 0), (_JEQ_K, port)]
+    for i, word in enumerate(words):
+        program.append((_LDW_ABS, (_SKF_NET_OFF + source + 4 * i) & 0xFFFFFFFF))
+        program.append((_JEQ_K, word))
+    program += [(_RET_K, _DROP), (_RET_K, _ACCEPT)]
+    accept = len(program) - 1
+    out = bytearray()
+    for pc, (code, k) in enumerate(program):
+        jump_false = accept - pc - 1 if code == _JEQ_K else 0
+        out += struct.pack("HBBI", code, 0, jump_false, k)
+    return bytes(out)
+
+
+def _attach(sock: socket.socket, program: bytes) -> None:
+    buffer = ctypes.create_string_buffer(program, len(program))
+    fprog = struct.pack("HP", len(program) // 8, ctypes.addressof(buffer))  # struct sock_fprog
+    sock.setsockopt(socket.SOL_SOCKET, _SO_ATTACH_FILTER, fprog)  # the kernel copies it
+
+
+class EchoFreeSender:
+    """Sends a ``udp_multicast`` bus's messages from a socket its receiving socket does not
+    hear (see the module docstring). Non-blocking: a datagram the kernel cannot take now
+    raises :class:`can.CanOperationError`, as python-can's ``send(msg, timeout=0)`` does."""
+
+    def __init__(self, bus: can.BusABC, tx: socket.socket, rx: socket.socket) -> None:
+        from can.interfaces.udp_multicast.utils import pack_message
+
+        self._bus = bus
+        self._tx = tx
+        self._rx = rx
+        self._pack = pack_message
+        self._send = tx.send
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        """Send ``msg`` to the group (``timeout`` is ignored: this never waits)."""
+        if msg.is_fd:  # python-can decides whether the bus takes CAN FD
+            self._bus.send(msg, timeout)
+            return
+        data = self._pack(msg)
+        try:
+            sent = self._send(data)
+        except OSError as exc:
+            raise can.CanOperationError(f"failed to send via socket: {exc}") from exc
+        if sent != len(data):
+            raise can.CanOperationError(f"sent {sent} bytes of a {len(data)}-byte datagram")
+
+    @property
+    def address(self) -> tuple[str, int]:
+        """The address and port this sender's datagrams come from."""
+        name = self._tx.getsockname()
+        return name[0], name[1]
+
+    def close(self) -> None:
+        """Take the filter off the bus's socket (when the bus outlives this sender, another
+        socket may get this port) and close the sending socket."""
+        with contextlib.suppress(OSError):  # (the bus may have closed its socket already)
+            self._rx.setsockopt(socket.SOL_SOCKET, _SO_DETACH_FILTER, 0)
+        self._tx.close()
+
+
+def echo_free_sender(bus: can.BusABC) -> EchoFreeSender | None:
+    """A sender for ``bus`` whose messages ``bus`` does not receive back, or None: not
+    python-can's ``udp_multicast`` itself (a wrapper sends through the wrapper), not Linux,
+    python-can's private attributes not as expected, or the socket or filter refused."""
+    from cobus.runtime.bus import _is_udp_multicast
+
+    if not sys.platform.startswith("linux") or not _is_udp_multicast(bus):
+        return None
+    multicast: Any = getattr(bus, "_multicast", None)
+    rx = getattr(multicast, "_socket", None)
+    group, port = getattr(multicast, "group", None), getattr(multicast, "port", None)
+    hops = getattr(multicast, "hop_limit", None)
+    if (
+        not isinstance(rx, socket.socket)
+        or rx.family not in (socket.AF_INET, socket.AF_INET6)
+        or not isinstance(group, str)
+        or not isinstance(port, int)
+        or not isinstance(hops, int)
+    ):
+        return None
+    try:
+        tx = socket.socket(rx.family, socket.SOCK_DGRAM)
+    except OSError:
+        return None
+    try:
+        if rx.family == socket.AF_INET6:
+            tx.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS, struct.pack("@I", hops))
+        else:
+            tx.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, struct.pack("@I", hops))
+        tx.connect((group, port))  # fixes the source address and port the filter drops
+        tx.setblocking(False)
+        address, source_port = tx.getsockname()[:2]
+        _attach(rx, drop_from(address, source_port, rx.family))
+    except OSError as exc:
+        log.debug("udp_multicast: no echo-free sending socket (%s); the tag does the work", exc)
+        tx.close()
+        return None
+    return EchoFreeSender(bus, tx, rx)
