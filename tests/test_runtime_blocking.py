@@ -130,6 +130,8 @@ def test_the_blocking_facade_hands_results_errors_and_timeouts_back():
 
         assert "would deadlock" in runner.call(from_the_loop)
         assert net.run(answer("still serving")) == "still serving"
+    assert loop_thread.ident is not None and not loop_thread.is_alive()
+    assert runner._loop_ident is None  # (a new thread may get the dead one's ident)
     with pytest.raises(NetworkClosedError):
         runner.call(int)
     with pytest.raises(NetworkClosedError):

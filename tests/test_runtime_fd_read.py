@@ -635,7 +635,7 @@ def test_udp_multicast_is_read_by_the_loop_or_a_thread_and_our_own_messages_come
     if not filtered:
         monkeypatch.setattr(multicast, "_SO_ATTACH_FILTER", 0xDEAD)  # refused: no such option
     group = UdpMulticastBus.DEFAULT_GROUP_IPv6
-    port = random.randrange(20000, 60000)  # (not the default port the benchmarks use)
+    port = random.randrange(20000, 40000)  # (not the default port the benchmarks use)
     _multicast_or_skip(group, port)
     bus = can.Bus(interface="udp_multicast", channel=group, port=port)
     heard: list[can.Message] = []
@@ -676,68 +676,76 @@ def test_udp_multicast_is_read_by_the_loop_or_a_thread_and_our_own_messages_come
         bus.shutdown()
 
 
-def test_the_echo_free_sender_drops_only_its_own_datagrams_and_lets_go_when_closed():
+def test_the_echo_free_sender_drops_only_its_own_datagrams_and_lets_go_when_closed(caplog):
     """python-can's udp_multicast bus with cobus's sending socket: what that socket sends
     reaches every other socket of the group but not the bus's own; what the bus sends
-    through python-can, and what others send, still arrive; closing takes the filter off."""
+    through python-can, and what others send, still arrive. A sending socket that fails for
+    good (the host's address changed) hands over to python-can's and takes the filter off;
+    so does closing it."""
     from can.interfaces.udp_multicast import UdpMulticastBus
+    from can.interfaces.udp_multicast.utils import pack_message
 
     from cobus.runtime.multicast import echo_free_sender
 
     if not sys.platform.startswith("linux"):
         pytest.skip("the kernel filter is Linux's")
     group = UdpMulticastBus.DEFAULT_GROUP_IPv6
-    port = random.randrange(20000, 60000)
+    port = random.randrange(20000, 40000)
     _multicast_or_skip(group, port)
+
+    def message(cob_id: int, data: bytes = b"", is_fd: bool = False) -> can.Message:
+        return can.Message(arbitration_id=cob_id, is_extended_id=False, data=data, is_fd=is_fd)
+
+    def heard(bus: can.BusABC) -> int | None:
+        got = bus.recv(1.0)
+        return None if got is None else got.arbitration_id
+
+    virtual = can.Bus(interface="virtual", channel="fd-echo-free")
     ours = can.Bus(interface="udp_multicast", channel=group, port=port)
     other = can.Bus(interface="udp_multicast", channel=group, port=port, fd=False)
-    sender = None
+    sender = refuses_fd = None
     try:
-        virtual = can.Bus(interface="virtual", channel="fd-echo-free")
         assert echo_free_sender(virtual) is None  # only udp_multicast hears itself
-        virtual.shutdown()
         sender = echo_free_sender(ours)
         assert sender is not None
-        sender.send(can.Message(arbitration_id=0x101, data=b"\x01", is_extended_id=False))
-        got = other.recv(1.0)
-        assert got is not None and got.arbitration_id == 0x101  # on the group...
+        assert echo_free_sender(ours) is None  # one filter per socket: it has cobus's
+        sender.send(message(0x101, data=b"\x01"))
+        assert heard(other) == 0x101  # on the group...
         assert ours.recv(0.3) is None  # ...but never back on our own socket
-        other.send(can.Message(arbitration_id=0x102, data=b"", is_extended_id=False))
-        got = ours.recv(1.0)
-        assert got is not None and got.arbitration_id == 0x102
-        ours.send(can.Message(arbitration_id=0x103, data=b"", is_extended_id=False))
-        got = ours.recv(1.0)  # python-can's own socket is not filtered (the tag's job)
-        assert got is not None and got.arbitration_id == 0x103
-        assert other.recv(1.0) is not None and other.recv(1.0) is not None  # (0x101's, 0x103)
+        other.send(message(0x102))
+        assert heard(ours) == 0x102
+        ours.send(message(0x103))
+        assert heard(ours) == 0x103  # python-can's own socket is not filtered (the tag's job)
+        assert (heard(other), heard(other)) == (0x102, 0x103)  # (its own, looped back)
         refuses_fd = echo_free_sender(other)
         assert refuses_fd is not None
-        try:
-            with pytest.raises(can.CanOperationError, match="FD"):  # python-can decides FD
-                refuses_fd.send(can.Message(arbitration_id=0x104, data=bytes(12), is_fd=True))
-        finally:
-            refuses_fd.close()
+        with pytest.raises(can.CanOperationError, match="FD"):  # python-can decides FD
+            refuses_fd.send(message(0x104, data=bytes(12), is_fd=True))
         address, source_port = sender.address
-        sender.close()
-        sender = None
-        # a socket that gets the closed sender's address and port is heard again
+        sender._tx.close()  # as a send fails once the host's address has changed
+        sender.send(message(0x105))  # through python-can's socket now
+        assert not sender.active and "sending through python-can" in caplog.text
+        assert heard(other) == 0x105 and heard(ours) == 0x105  # (the filter is off)
+        sender.send(message(0x106))
+        assert heard(other) == 0x106 and heard(ours) == 0x106
+        # a socket that gets the old sender's address and port is heard too
         late = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
         try:
             late.bind((address, source_port))
-            from can.interfaces.udp_multicast.utils import pack_message
-
-            late.sendto(
-                pack_message(can.Message(arbitration_id=0x105, data=b"", is_extended_id=False)),
-                (group, port),
-            )
-            got = ours.recv(1.0)
-            assert got is not None and got.arbitration_id == 0x105
+            late.sendto(pack_message(message(0x107)), (group, port))
+            assert heard(ours) == 0x107
         finally:
             late.close()
+        sender.close()  # again: nothing happens
+        again = echo_free_sender(ours)  # the socket is free for a filter again
+        assert again is not None and again.active
+        again.close()
     finally:
-        if sender is not None:
-            sender.close()
-        ours.shutdown()
-        other.shutdown()
+        for made in (sender, refuses_fd):
+            if made is not None:
+                made.close()
+        for bus in (virtual, ours, other):
+            bus.shutdown()
 
 
 def test_a_filter_program_drops_one_address_and_port_and_accepts_the_rest():
@@ -774,7 +782,7 @@ def test_own_messages_are_recognised_through_a_fault_injecting_wrapper():
     from cobus.sim import FaultyBus
 
     group = UdpMulticastBus.DEFAULT_GROUP_IPv6
-    port = random.randrange(20000, 60000)
+    port = random.randrange(20000, 40000)
     _multicast_or_skip(group, port)
     inner = can.Bus(interface="udp_multicast", channel=group, port=port)
     try:

@@ -668,8 +668,9 @@ def test_what_a_blocking_node_is_made_of_is_read_without_the_loop():
                 setattr(node, name, None)
         with pytest.raises(AttributeError, match="'number' is fixed"):
             tpdo.number = 2
+        hops.clear()
         tpdo.transmission_type = 254  # not Final: set on the loop, as before
-        assert tpdo.transmission_type == 254 and hops
+        assert tpdo.transmission_type == 254 and len(hops) == 2
 
 
 def test_the_blocking_network_has_what_the_async_one_has():

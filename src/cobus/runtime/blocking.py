@@ -71,7 +71,7 @@ class Runner:
         self.simulated = simulated
         self.loop = new_event_loop(simulated=simulated)
         self._thread: threading.Thread | None = None
-        self._loop_ident: int | None = None  # the loop thread's
+        self._loop_ident: int | None = None  # the loop thread's, while it runs
         self._callbacks: queue.SimpleQueue[Callable[[], object] | None] | None = None
         self._callback_thread: threading.Thread | None = None
         self._callback_lock = threading.Lock()
@@ -79,12 +79,16 @@ class Runner:
         if not simulated:
             self._thread = threading.Thread(target=self._run_loop, name="cobus-loop", daemon=True)
             self._thread.start()
-            self._loop_ident = self._thread.ident
 
     def _run_loop(self) -> None:
-        self.loop.run_forever()
-        if self._closed and not self.loop.is_closed():  # close() came from protocol code
-            self.loop.close()
+        # (an ident, unlike a Thread, is reused once the thread is gone: cleared on the way out)
+        self._loop_ident = threading.get_ident()
+        try:
+            self.loop.run_forever()
+            if self._closed and not self.loop.is_closed():  # close() came from protocol code
+                self.loop.close()
+        finally:
+            self._loop_ident = None
 
     def run(self, coro: Coroutine[Any, Any, T], timeout: float | None = None) -> T:
         """Run ``coro`` on the loop and return its result; ``TimeoutError`` after ``timeout``

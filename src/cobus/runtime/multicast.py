@@ -15,17 +15,28 @@ own socket. The tag stays as the fallback, and is all there is off Linux or wher
 filter cannot be attached.
 
 It reaches python-can's private ``bus._multicast._socket`` (python-can 4.x): when that is not
-there, nothing changes.
+there, nothing changes. ``SO_ATTACH_FILTER`` replaces a classic filter the application put on
+that socket itself; a socket that has cobus's filter already (two networks on one bus
+object) is left as it is. Each datagram the filter drops counts in the socket's ``drops``
+and the host's UDP ``InErrors`` (``/proc/net/udp``, ``netstat -su``).
+
+A connected socket keeps the source address it had when it connected; python-can's
+``sendto`` looks the route up for each datagram. When the host's address changes under a
+running network (DHCP, an interface re-plumbed), the sender's next send fails: it then takes
+its filter off and sends through python-can from then on, as before (logged once).
 """
 
 from __future__ import annotations
 
 import contextlib
 import ctypes
+import errno
 import logging
 import socket
 import struct
 import sys
+import weakref
+from collections.abc import Callable
 from typing import Any
 
 import can
@@ -41,6 +52,10 @@ _SO_DETACH_FILTER = 27
 _SKF_NET_OFF = -0x100000  # a BPF load from the network (IP) header; offset 0 is the UDP header
 _LDH_ABS, _LDW_ABS, _JEQ_K, _RET_K = 0x28, 0x20, 0x15, 0x06
 _DROP, _ACCEPT = 0, 0xFFFFFFFF
+# the kernel cannot take the datagram now: the network's backlog holds the frame, as before
+_FULL = (errno.EAGAIN, errno.EWOULDBLOCK, errno.ENOBUFS)
+# the receiving sockets that have cobus's filter
+_FILTERED: weakref.WeakSet[socket.socket] = weakref.WeakSet()
 
 
 def drop_from(address: str, port: int, family: int) -> bytes:
@@ -75,25 +90,45 @@ class EchoFreeSender:
     hear (see the module docstring). Non-blocking: a datagram the kernel cannot take now
     raises :class:`can.CanOperationError`, as python-can's ``send(msg, timeout=0)`` does."""
 
-    def __init__(self, bus: can.BusABC, tx: socket.socket, rx: socket.socket) -> None:
-        from can.interfaces.udp_multicast.utils import pack_message
-
+    def __init__(
+        self,
+        bus: can.BusABC,
+        tx: socket.socket,
+        rx: socket.socket,
+        pack: Callable[[can.Message], bytes],
+    ) -> None:
         self._bus = bus
         self._tx = tx
         self._rx = rx
-        self._pack = pack_message
-        self._send = tx.send
+        self._pack = pack
+        self._send: Callable[[bytes], int] | None = tx.send
+
+    @property
+    def active(self) -> bool:
+        """Whether this sender still sends from its own socket (False once it fell back to
+        python-can's, see the module docstring, or was closed)."""
+        return self._send is not None
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         """Send ``msg`` to the group (``timeout`` is ignored: this never waits)."""
-        if msg.is_fd:  # python-can decides whether the bus takes CAN FD
+        send = self._send
+        if send is None or msg.is_fd:  # (python-can decides whether the bus takes CAN FD)
             self._bus.send(msg, timeout)
             return
         data = self._pack(msg)
         try:
-            sent = self._send(data)
+            sent = send(data)
         except OSError as exc:
-            raise can.CanOperationError(f"failed to send via socket: {exc}") from exc
+            if exc.errno in _FULL:
+                raise can.CanOperationError(f"failed to send via socket: {exc}") from exc
+            log.warning(
+                "udp_multicast: the sending socket failed (%s); sending through python-can's "
+                "socket from now on",
+                exc,
+            )
+            self.close()
+            self._bus.send(msg, timeout)
+            return
         if sent != len(data):
             raise can.CanOperationError(f"sent {sent} bytes of a {len(data)}-byte datagram")
 
@@ -105,9 +140,14 @@ class EchoFreeSender:
 
     def close(self) -> None:
         """Take the filter off the bus's socket (when the bus outlives this sender, another
-        socket may get this port) and close the sending socket."""
+        socket may get this port) and close the sending socket; later sends go through
+        python-can's. Calling it again does nothing."""
+        if self._send is None:
+            return
+        self._send = None
         with contextlib.suppress(OSError):  # (the bus may have closed its socket already)
             self._rx.setsockopt(socket.SOL_SOCKET, _SO_DETACH_FILTER, 0)
+        _FILTERED.discard(self._rx)
         self._tx.close()
 
 
@@ -129,7 +169,12 @@ def echo_free_sender(bus: can.BusABC) -> EchoFreeSender | None:
         or not isinstance(group, str)
         or not isinstance(port, int)
         or not isinstance(hops, int)
+        or rx in _FILTERED
     ):
+        return None
+    try:
+        from can.interfaces.udp_multicast.utils import pack_message
+    except ImportError:
         return None
     try:
         tx = socket.socket(rx.family, socket.SOCK_DGRAM)
@@ -148,4 +193,5 @@ def echo_free_sender(bus: can.BusABC) -> EchoFreeSender | None:
         log.debug("udp_multicast: no echo-free sending socket (%s); the tag does the work", exc)
         tx.close()
         return None
-    return EchoFreeSender(bus, tx, rx)
+    _FILTERED.add(rx)
+    return EchoFreeSender(bus, tx, rx, pack_message)

@@ -329,6 +329,9 @@ class AsyncNetwork:
         except BaseException:
             self._loop = None
             self._realtime = False
+            if self._tx is not None:  # (the filter off a bus the user keeps)
+                self._tx.close()
+                self._tx = None
             if opened:
                 self._bus.shutdown()
                 self._bus = None
