@@ -801,11 +801,39 @@ def test_only_the_virtual_bus_is_trusted_to_mark_our_own_messages():
 
     own = can.Bus(interface="virtual", channel="fd-mark", receive_own_messages=True)
     plain = can.Bus(interface="virtual", channel="fd-mark")
+    safe = can.ThreadSafeBus(interface="virtual", channel="fd-mark", receive_own_messages=True)
     try:
         assert own_echo(own).marked and not own_echo(plain).marked
+        assert own_echo(safe).marked  # python-can's ThreadSafeBus is seen through
     finally:
         own.shutdown()
         plain.shutdown()
+        safe.shutdown()
+
+
+def test_a_thread_safe_udp_multicast_bus_hands_our_own_frames_back_once():
+    """python-can's ThreadSafeBus is a proxy: the udp_multicast bus behind it is recognised,
+    so the network's own frames are dropped (filtered out, or by their tag), not delivered a
+    second time as received."""
+    from can.interfaces.udp_multicast import UdpMulticastBus
+
+    from cobus.runtime import Network
+
+    group = UdpMulticastBus.DEFAULT_GROUP_IPv6
+    port = random.randrange(20000, 40000)
+    _multicast_or_skip(group, port)
+    safe = can.ThreadSafeBus(interface="udp_multicast", channel=group, port=port)
+    try:
+        with Network(safe) as net:
+            assert net.aio._echo_tag is not None
+            assert (net.aio._tx is not None) is sys.platform.startswith("linux")
+            got: list[Frame] = []
+            net.subscribe(0x123, lambda f, now: got.append(f))
+            net.send(Frame(0x123, b"\x03"))
+            time.sleep(0.2)
+            assert got == [Frame(0x123, b"\x03")]
+    finally:
+        safe.shutdown()
 
 
 def test_a_huge_frame_hands_the_connection_to_a_thread_without_stalling_the_loop(peer):

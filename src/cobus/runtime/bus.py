@@ -304,7 +304,7 @@ def loop_source(bus: can.BusABC) -> LoopSource | None:
 
 
 def _is_udp_multicast(bus: can.BusABC) -> bool:
-    cls = type(bus)
+    cls = bus.__class__  # (python-can's ThreadSafeBus is a proxy: this is the wrapped class)
     return cls.__name__ == "UdpMulticastBus" and cls.__module__.startswith(
         "can.interfaces.udp_multicast"
     )
@@ -338,7 +338,7 @@ def own_echo(bus: can.BusABC) -> OwnEcho:
         return own_echo(inner)
     if _is_udp_multicast(bus):
         return OwnEcho(False, f"cobus-{uuid.uuid4().hex}")
-    cls = type(bus)
+    cls = bus.__class__  # (seen through python-can's ThreadSafeBus, as above)
     if cls.__name__ == "VirtualBus" and cls.__module__.startswith("can.interfaces.virtual"):
         return OwnEcho(bool(getattr(bus, "receive_own_messages", False)), None)
     return OwnEcho(False, None)
