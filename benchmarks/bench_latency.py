@@ -55,19 +55,27 @@ ROUNDS = 7
 REQUEST = can.Message(arbitration_id=0x600 + NODE, data=bytes([0x40, 0, 0x10, 0, 0, 0, 0, 0]))
 
 
+#: Per trip: microseconds, voluntary context switches of this process (its threads' sleeps),
+#: and microseconds of CPU this process used (all its threads; in one process, the server's
+#: too).
+Measured = tuple[float, float, float]
+
+
 def _switches() -> int:
     usage = resource.getrusage(resource.RUSAGE_SELF)
     return usage.ru_nvcsw
 
 
-def _measure(trip: Callable[[], object], trips: int = TRIPS) -> tuple[float, float]:
-    """Microseconds and voluntary context switches per trip, over ``trips`` trips."""
+def _measure(trip: Callable[[], object], trips: int = TRIPS) -> Measured:
+    """Microseconds, voluntary context switches and CPU microseconds per trip, over
+    ``trips`` trips."""
     trip()  # warm
-    s0, t0 = _switches(), time.perf_counter()
+    s0, c0, t0 = _switches(), time.process_time(), time.perf_counter()
     for _ in range(trips):
         trip()
     elapsed = time.perf_counter() - t0
-    return elapsed / trips * 1e6, (_switches() - s0) / trips
+    cpu = time.process_time() - c0
+    return elapsed / trips * 1e6, (_switches() - s0) / trips, cpu / trips * 1e6
 
 
 class _PingPong:
@@ -114,12 +122,12 @@ def _canopen_client(channel: str) -> tuple[canopen.Network, Any]:
 
 def _asyncio_round(
     interface: str, channel: str, *, device_here: bool, cobus_loop: bool
-) -> tuple[float, float]:
+) -> Measured:
     """cobus asyncio client against a cobus device (on a second network of the same loop when
     ``device_here``), set up outside the timing; on asyncio's own loop (``asyncio.run``), or
     on cobus's ``RealTimeLoop`` (``cobus.runtime.run``) with its reader threads dispatching."""
 
-    async def main() -> tuple[float, float]:
+    async def main() -> Measured:
         async with contextlib.AsyncExitStack() as stack:
             net = await stack.enter_async_context(
                 AsyncNetwork(interface=interface, channel=channel)
@@ -131,11 +139,12 @@ def _asyncio_round(
                 add_device(field, NODE, minimal_od())
             sdo = net.add_remote(NODE).sdo
             await sdo.upload(0x1000)
-            s0, t0 = _switches(), time.perf_counter()
+            s0, c0, t0 = _switches(), time.process_time(), time.perf_counter()
             for _ in range(TRIPS):
                 await sdo.upload(0x1000)
             elapsed = time.perf_counter() - t0
-            return elapsed / TRIPS * 1e6, (_switches() - s0) / TRIPS
+            cpu = time.process_time() - c0
+            return elapsed / TRIPS * 1e6, (_switches() - s0) / TRIPS, cpu / TRIPS * 1e6
 
     return run(main()) if cobus_loop else asyncio.run(main())
 
@@ -147,10 +156,10 @@ ASYNCIO_ROUNDS = {
 
 
 def _interleave(
-    trips: dict[str, Callable[[], object]], asyncio_round: Callable[[bool], tuple[float, float]]
-) -> dict[str, list[tuple[float, float]]]:
+    trips: dict[str, Callable[[], object]], asyncio_round: Callable[[bool], Measured]
+) -> dict[str, list[Measured]]:
     """ROUNDS rounds, each timing every blocking arrangement, then the asyncio ones."""
-    out: dict[str, list[tuple[float, float]]] = {name: [] for name in trips}
+    out: dict[str, list[Measured]] = {name: [] for name in trips}
     out.update({name: [] for name in ASYNCIO_ROUNDS})
     for _ in range(ROUNDS):
         for name, trip in trips.items():
@@ -169,7 +178,7 @@ def _cobus_pair(channel: str, od: ObjectDictionary) -> tuple[Network, Network, A
     return client, server, client.add_remote(NODE).sdo
 
 
-def figures() -> dict[str, list[tuple[float, float]]]:
+def figures() -> dict[str, list[Measured]]:
     """Per arrangement, the (µs, wake-ups) of each round."""
     pid = os.getpid()
     ping = _PingPong(f"lat-ping-{pid}")
@@ -236,7 +245,7 @@ def _canopen_blob_server(channel: str) -> canopen.Network:
     return net
 
 
-def blob_figures() -> dict[str, list[tuple[float, float]]]:
+def blob_figures() -> dict[str, list[Measured]]:
     """4 KiB uploads, blocking clients: segmented at both ends, and block against a cobus
     device (python-canopen's server has no block transfer)."""
     pid = os.getpid()
@@ -258,7 +267,7 @@ def blob_figures() -> dict[str, list[tuple[float, float]]]:
         "cobus at both ends, block": lambda: cob_sdo.upload(0x2000, block=True),
     }
     assert all(trip() == BLOB for trip in trips.values())
-    out: dict[str, list[tuple[float, float]]] = {name: [] for name in trips}
+    out: dict[str, list[Measured]] = {name: [] for name in trips}
     try:
         for _ in range(ROUNDS):
             for name, trip in trips.items():
@@ -335,7 +344,7 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def remote_figures() -> dict[str, list[tuple[float, float]]] | None:
+def remote_figures() -> dict[str, list[Measured]] | None:
     """The clients here, the servers in a child process, over python-can-remote."""
     port = _free_port()
     where = ["-H", "127.0.0.1", "-p", str(port)]
@@ -386,7 +395,7 @@ def _stop_servers(servers: subprocess.Popen[str]) -> None:
     servers.wait(15)
 
 
-def multicast_figures() -> dict[str, list[tuple[float, float]]] | None:
+def multicast_figures() -> dict[str, list[Measured]] | None:
     """The clients here, the servers in a child process, over python-can's udp_multicast
     (no hub: each process's socket hears the others; cobus reads it on the loop)."""
     if importlib.util.find_spec("msgpack") is None:  # python-can's udp_multicast packs with it
@@ -444,8 +453,8 @@ def _remote_arrangements(interface: str, url: str) -> dict[str, Arrangement]:
 
 def _interleave_connected(
     arrangements: dict[str, Arrangement], interface: str, url: str
-) -> dict[str, list[tuple[float, float]]]:
-    out: dict[str, list[tuple[float, float]]] = {name: [] for name in arrangements}
+) -> dict[str, list[Measured]]:
+    out: dict[str, list[Measured]] = {name: [] for name in arrangements}
     out.update({name: [] for name in ASYNCIO_ROUNDS})
     for _ in range(ROUNDS):
         for name, open_ in arrangements.items():
@@ -461,19 +470,20 @@ def _interleave_connected(
     return out
 
 
-def _table(title: str, results: dict[str, list[tuple[float, float]]], trips: int = TRIPS) -> None:
+def _table(title: str, results: dict[str, list[Measured]], trips: int = TRIPS) -> None:
     base = results["python-canopen at both ends"]
     print(f"\n{title} ({ROUNDS} interleaved rounds of {trips} trips; medians)")
-    print(f"  {'':<50} {'µs/trip':>9} {'wake-ups':>9} {'vs python-canopen':>18}")
+    print(f"  {'':<50} {'µs/trip':>9} {'wake-ups':>9} {'CPU µs':>7} {'vs python-canopen':>18}")
     for name, rounds in results.items():
         us = statistics.median(r[0] for r in rounds)
         wakes = statistics.median(r[1] for r in rounds)
+        cpu = statistics.median(r[2] for r in rounds)
         if name.startswith("facade"):
             ratio = ""
         else:
             paired = [b[0] / r[0] for r, b in zip(rounds, base, strict=True)]
             ratio = f"x{statistics.median(paired):.2f}"
-        print(f"  {name:<50} {us:>9.1f} {wakes:>9.1f} {ratio:>18}")
+        print(f"  {name:<50} {us:>9.1f} {wakes:>9.1f} {cpu:>7.0f} {ratio:>18}")
 
 
 def main() -> None:
@@ -496,7 +506,9 @@ def main() -> None:
     print("   x1.0 for every cobus arrangement, x1.15 for the asyncio client where the bus has a")
     print("   file descriptor, x1.5 for block upload)")
     print("  (wake-ups: voluntary context switches of this process per trip; over")
-    print("   python-can-remote each client here is alone in this process while measured)")
+    print("   python-can-remote each client here is alone in this process while measured;")
+    print("   CPU µs: what all threads of this process used per trip, servers included in")
+    print("   the one-process tables)")
 
 
 if __name__ == "__main__":
