@@ -297,3 +297,11 @@ def test_a_variable_takes_its_access_by_value_and_refuses_an_unknown_one():
     assert Variable(0x2000, 0, "x", DataType.UNSIGNED8, access="ro").access is Access.RO  # type: ignore[arg-type]
     with pytest.raises(ObjectDictionaryError, match="access 'read' is none of ro, wo"):
         Variable(0x2000, 0, "x", DataType.UNSIGNED8, access="read")  # type: ignore[arg-type]
+    var = Variable(0x2001, 0, "y", DataType.UNSIGNED8)
+    var.access = "ro"  # later too: a device would have served a bare string read-write
+    assert var.access is Access.RO and not var.writable
+    with pytest.raises(ObjectDictionaryError, match="0x2001:00 'y': access 'read' is none of"):
+        var.access = "read"
+    assert var.access is Access.RO  # unchanged
+    var.access = Access.CONST
+    assert var.access is Access.CONST

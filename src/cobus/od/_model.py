@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import enum
+import operator
 import os
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeAlias
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 from cobus._enum import NamedIntEnum
 from cobus.errors import CobusError
@@ -109,6 +110,17 @@ class NodeRelative:
         return format_value(DataType.UNSIGNED32, None, self.offset)
 
 
+def _set_access(var: Variable, access: Access | str) -> None:
+    try:  # "ro" and the like become the member: a device tests access by identity
+        var._access = Access(access)
+    except ValueError:
+        known = ", ".join(a.value for a in Access)
+        raise ObjectDictionaryError(
+            f"0x{var.index:04X}:{var.subindex:02X} {var.name!r}: access {access!r} is none of "
+            f"{known}"
+        ) from None
+
+
 class Variable:
     """One value of the dictionary: a VAR object, or a sub-object of a record or array.
 
@@ -120,6 +132,7 @@ class Variable:
     """
 
     __slots__ = (
+        "_access",
         "_default",
         "_default_raw",
         "_high",
@@ -130,7 +143,6 @@ class Variable:
         "_param",
         "_param_raw",
         "_rel",
-        "access",
         "data_type",
         "declared_type",
         "denotation",
@@ -158,11 +170,11 @@ class Variable:
     _param: Any
     _param_raw: str | None
     _rel: int
+    _access: Access
     index: int
     subindex: int
     name: str
     data_type: DataType
-    access: Access
     pdo_mappable: bool
     object_type: ObjectType
     #: The DataType number the file gave when it is not a basic type (then ``data_type`` is
@@ -201,13 +213,7 @@ class Variable:
         self.subindex = subindex
         self.name = name
         self.data_type = data_type
-        try:  # "ro" and the like become the member: a device tests access by identity
-            self.access = Access(access)
-        except ValueError:
-            known = ", ".join(a.value for a in Access)
-            raise ObjectDictionaryError(
-                f"0x{index:04X}:{subindex:02X} {name!r}: access {access!r} is none of {known}"
-            ) from None
+        self.access = access
         self.pdo_mappable = pdo_mappable
         self.object_type = object_type
         self.declared_type = None
@@ -322,6 +328,24 @@ class Variable:
     @property
     def bit_length(self) -> int | None:
         return self.data_type.bit_length
+
+    if TYPE_CHECKING:
+
+        @property
+        def access(self) -> Access:
+            """Who may read and write the value."""
+
+        @access.setter
+        def access(self, value: Access | str) -> None: ...
+
+    else:  # read by a device for every SDO request: a getter in C, no Python frame
+        access = property(
+            operator.attrgetter("_access"),
+            _set_access,
+            doc="""Who may read and write the value: an :class:`Access`. Set to a member or
+            its value (``"ro"``), which becomes the member; anything else raises
+            :class:`ObjectDictionaryError`.""",
+        )
 
     @property
     def readable(self) -> bool:
