@@ -748,6 +748,41 @@ def test_the_echo_free_sender_drops_only_its_own_datagrams_and_lets_go_when_clos
             bus.shutdown()
 
 
+def test_a_connect_that_fails_takes_the_filter_off_the_users_bus(monkeypatch):
+    """Starting to receive fails after the sending socket was made: the connect raises, and
+    the bus the user keeps is left without cobus's filter (free for the next network)."""
+    from can.interfaces.udp_multicast import UdpMulticastBus
+
+    from cobus.runtime import AsyncNetwork
+    from cobus.runtime.multicast import echo_free_sender
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the kernel filter is Linux's")
+    group = UdpMulticastBus.DEFAULT_GROUP_IPv6
+    port = random.randrange(20000, 40000)
+    _multicast_or_skip(group, port)
+    bus = can.Bus(interface="udp_multicast", channel=group, port=port)
+
+    def refuse(*args: object) -> None:
+        raise RuntimeError("no thread today")
+
+    monkeypatch.setattr(AsyncNetwork, "_start_reader_thread", refuse)
+
+    async def main() -> None:
+        net = AsyncNetwork(bus, read_on_loop=False)
+        with pytest.raises(RuntimeError, match="no thread today"):
+            await net.connect()
+        assert net._tx is None
+
+    try:
+        _on_real_time_loop(main)
+        again = echo_free_sender(bus)
+        assert again is not None  # (None while a cobus filter is on the socket)
+        again.close()
+    finally:
+        bus.shutdown()
+
+
 def test_a_filter_program_drops_one_address_and_port_and_accepts_the_rest():
     """The BPF program, instruction by instruction: the UDP source port, then each 32-bit
     word of the source address; any mismatch jumps to "accept"."""
