@@ -41,6 +41,8 @@ from typing import Any
 
 import can
 
+from cobus.runtime.bus import _is_udp_multicast
+
 __all__ = ["EchoFreeSender", "echo_free_sender"]
 
 log = logging.getLogger(__name__)
@@ -153,10 +155,10 @@ class EchoFreeSender:
 
 def echo_free_sender(bus: can.BusABC) -> EchoFreeSender | None:
     """A sender for ``bus`` whose messages ``bus`` does not receive back, or None: not
-    python-can's ``udp_multicast`` itself (a wrapper sends through the wrapper), not Linux,
-    python-can's private attributes not as expected, or the socket or filter refused."""
-    from cobus.runtime.bus import _is_udp_multicast
-
+    python-can's ``udp_multicast`` (python-can's ``ThreadSafeBus`` around it is seen
+    through; a wrapper that injects faults, ``cobus.sim.FaultyBus``, must send through
+    itself), not Linux, python-can's private attributes not as expected, or the socket or
+    filter refused."""
     if not sys.platform.startswith("linux") or not _is_udp_multicast(bus):
         return None
     multicast: Any = getattr(bus, "_multicast", None)
