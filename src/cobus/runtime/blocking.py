@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 import can
 
 from cobus._moved import Moved
-from cobus.proto import Event, Frame, Out
+from cobus.proto import Event, Frame
 from cobus.runtime import emcy as _emcy
 from cobus.runtime import nmt as _nmt
 from cobus.runtime import pdo as _pdo
@@ -61,6 +61,7 @@ __all__ = [
 ]
 
 T = TypeVar("T")
+A = TypeVar("A")
 log = logging.getLogger(__name__)
 
 
@@ -143,31 +144,34 @@ class Runner:
 
     def run_direct(
         self,
-        begin: Callable[[Callable[[Any], None]], Callable[[], None] | None],
-        fallback: Callable[[], Coroutine[Any, Any, T]],
+        begin: Callable[[A, Callable[[Any], None]], Callable[[], None] | None],
+        fallback: Callable[[A], Coroutine[Any, Any, T]],
+        arg: A,
     ) -> T:
         """Begin an operation from the caller's thread and wait for it here, with no hop
         through the loop (real time, see ``docs/realtime.md``).
 
-        ``begin(finish)`` runs under the loop's protocol lock: it starts the operation and
-        returns a function that cancels it, or returns None when it cannot start now; the
-        protocol code that ends the operation calls ``finish(outcome)`` once (an exception is
-        raised here). When it cannot start now — and on the simulated clock, or from protocol
-        code — ``fallback()`` is run on the loop as :meth:`run` does.
+        ``begin(arg, finish)`` runs under the loop's protocol lock: it starts the operation
+        and returns a function that cancels it, or returns None when it cannot start now;
+        the protocol code that ends the operation calls ``finish(outcome)`` once (an
+        exception is raised here). When it cannot start now — and on the simulated clock, or
+        from protocol code — ``fallback(arg)`` is run on the loop as :meth:`run` does.
+        (``arg`` is passed rather than bound in closures: every blocking SDO transfer
+        passes here.)
         """
         loop = self.loop
         if self.simulated or self._closed or not isinstance(loop, RealTimeLoop):
-            return self.run(fallback())
+            return self.run(fallback(arg))
         lock = loop.protocol_lock
         # _on_loop(), inline: every blocking SDO transfer passes here
         if lock._is_owned() or threading.get_ident() == self._loop_ident:  # type: ignore[attr-defined]
-            return self.run(fallback())  # raises ReentrantCallError
+            return self.run(fallback(arg))  # raises ReentrantCallError
         handoff: _Handoff[T] = _Handoff(loop)
         with lock:
-            cancel = begin(handoff.settle)
+            cancel = begin(arg, handoff.settle)
         loop.wake_if_pending()
         if cancel is None:
-            return self.run(fallback())
+            return self.run(fallback(arg))
         try:
             handoff._lock.acquire()  # the operation's own timeout ends it (an SDO timeout)
         except BaseException:  # Ctrl-C while waiting: the operation ends with it
@@ -583,16 +587,14 @@ class Network:
         return twin
 
 
-def _transfer(runner: Runner, channel: SdoChannel, start: Callable[[float], Out]) -> Event:
-    """One SDO transfer from blocking code, begun in the caller's thread when the channel is
-    free (the answer wakes the caller directly), else awaited on the loop in its turn."""
-    return runner.run_direct(
-        lambda finish: channel._begin(start, finish), lambda: channel._transfer(start)
-    )
+# One SDO transfer from blocking code is begun in the caller's thread when the channel is
+# free (the answer wakes the caller directly), else awaited on the loop in its turn:
+# ``runner.run_direct(channel._begin, channel._transfer, start)``.
 
 
 def _upload(runner: Runner, channel: SdoChannel, index: int, subindex: int, block: bool) -> bytes:
-    event = _transfer(runner, channel, channel._upload_start(index, subindex, block))
+    start = channel._upload_start(index, subindex, block)
+    event = runner.run_direct(channel._begin, channel._transfer, start)
     if block and _remote._refused_block(event):
         return _upload(runner, channel, index, subindex, False)
     return _remote._uploaded(event)
@@ -608,7 +610,7 @@ def _download(
     size_indicated: bool,
 ) -> None:
     start = channel._download_start(index, subindex, data, block, size_indicated)
-    event = _transfer(runner, channel, start)
+    event = runner.run_direct(channel._begin, channel._transfer, start)
     if block and _remote._refused_block(event):
         _download(runner, channel, index, subindex, data, False, size_indicated)
         return

@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 from collections import deque
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
@@ -308,15 +309,21 @@ class SdoChannel:
             return
         _downloaded(event)
 
+    # ``start(now)`` of a transfer: a partial is called in C, a lambda would be one more
+    # Python call on every blocking transfer's way to the bus
     def _upload_start(self, index: int, subindex: int, block: bool) -> Callable[[float], Out]:
-        return lambda now: self.client.start_upload(index, subindex, now, block=block)
+        return partial(self.client.start_upload, index, subindex, block=block)
 
     def _download_start(
         self, index: int, subindex: int, data: bytes, block: bool, size_indicated: bool
     ) -> Callable[[float], Out]:
-        data = bytes(data)
-        return lambda now: self.client.start_download(
-            index, subindex, data, now, block=block, size_indicated=size_indicated
+        return partial(
+            self.client.start_download,
+            index,
+            subindex,
+            bytes(data),
+            block=block,
+            size_indicated=size_indicated,
         )
 
     # -- typed access through the object dictionary
