@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
 from cobus.od import did_you_mean, match_name
-from cobus.proto import NOTHING, Event, Out
+from cobus.proto import NOTHING, Event, Frame, Out
 from cobus.proto.nmt import NmtCommand, check_node_id, nmt_command_frame
 from cobus.proto.sdo import (
     DownloadDone,
@@ -24,12 +24,13 @@ from cobus.proto.sdo import (
     TransferFailed,
     UploadDone,
 )
-from cobus.proto.sync import SyncProducer
+from cobus.proto.sync import SyncConfigError, SyncProducer
 from cobus.runtime._service import check_not_bool, parse_nmt_command, removed_error
 from cobus.runtime.emcy import RemoteEmcy
 from cobus.runtime.errors import NetworkClosedError, ObjectAccessError, ObjectNotFoundError
 from cobus.runtime.nmt import RemoteNmt
 from cobus.runtime.pdo import PdoSet
+from cobus.runtime.periodic import InterfaceTimer
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -727,54 +728,108 @@ class RemoteNode:
 
 
 class SyncService:
-    """The SYNC producer of this network: ``net.sync.start(0.01)`` sends SYNC every 10 ms."""
+    """The SYNC producer of this network: ``net.sync.start(0.01)`` sends SYNC every 10 ms.
+
+    The network's loop times it, or, with ``start(..., by_interface=True)``, the CAN interface
+    itself (SocketCAN's kernel: no Python pause can delay it; see
+    :mod:`cobus.runtime.periodic`).
+    """
 
     def __init__(self, network: AsyncNetwork) -> None:
         self._network = network
         self._producer: SyncProducer | None = None
         self._host: MachineHost | None = None
+        self._timer: InterfaceTimer | None = None
+        network.on_disconnect(self._disconnected)
 
     @property
     def running(self) -> bool:
         """Whether SYNC is being sent periodically."""
-        return self._host is not None
+        return self._host is not None or (self._timer is not None and self._timer.running)
+
+    @property
+    def by_interface(self) -> bool:
+        """Whether the CAN interface times the SYNC (``start(..., by_interface=True)``)."""
+        return self._timer is not None and self._timer.running
 
     @property
     def period(self) -> float | None:
         """The SYNC period in seconds, or None while stopped."""
+        if self._timer is not None:
+            return self._timer.period if self._timer.running else None
         if self._producer is None or self._host is None:
             return None
         return self._producer.period_us / 1e6
 
     @property
     def late_max(self) -> float:
-        """The longest delay of a SYNC behind its time so far, in seconds (the host was busy)."""
+        """The longest delay of a SYNC behind its time so far, in seconds (the host was busy).
+
+        0 while the interface times the SYNC: what it sends late, cobus cannot see."""
         return 0.0 if self._producer is None else self._producer.late_max
 
     @property
     def skipped(self) -> int:
-        """SYNC periods that passed without a SYNC because the host was busy for longer."""
+        """SYNC periods that passed without a SYNC because the host was busy for longer
+        (0 while the interface times the SYNC, see :attr:`late_max`)."""
         return 0 if self._producer is None else self._producer.skipped
 
-    def start(self, period: float, *, overflow: int = 0, cob_id: int = 0x80) -> None:
+    @property
+    def send_errors(self) -> int:
+        """SYNCs the interface's sending thread could not send since the last
+        ``start(..., by_interface=True)`` (python-can's udp_multicast: the 1st, 10th,
+        100th... are reported as :class:`~cobus.runtime.HandlerFailed`); 0 otherwise."""
+        return 0 if self._timer is None else self._timer.errors
+
+    def start(
+        self, period: float, *, overflow: int = 0, cob_id: int = 0x80, by_interface: bool = False
+    ) -> None:
         """Send SYNC every ``period`` seconds (the first one period from now).
 
         ``overflow`` 2..240 adds the CiA 301 counter (1..overflow) to each SYNC; 0 = no counter.
+
+        ``by_interface=True`` hands the SYNC, counter included, to the CAN interface: on
+        SocketCAN the kernel sends it, so that no garbage collection, busy thread or burst of
+        frames in this process delays it. The network still hears each SYNC, from the bus.
+        :class:`~cobus.runtime.periodic.InterfaceTimingError` where the interface cannot do
+        that (only SocketCAN and python-can's udp_multicast can, see
+        :mod:`cobus.runtime.periodic`).
         """
         us = round(period * 1e6)
         if not 1 <= us <= 0xFFFFFFFF:
             raise ValueError(
                 f"SYNC period {period!r} s is out of range: 1006h holds 1 us to 4294.967295 s"
             )
-        self.stop()
         producer = SyncProducer(cob_id, overflow=overflow)
+        if by_interface:
+            counts = range(1, overflow + 1) if overflow else (None,)
+            frames = [
+                Frame(cob_id) if count is None else Frame(cob_id, bytes((count,)))
+                for count in counts
+            ]
+            timer = InterfaceTimer(self._network, frames, us / 1e6)  # (raises before stop)
+            self.stop()
+            self._producer = producer
+            self._timer = timer
+            return
+        self.stop()
+        self._timer = None
         producer.set_period(us, self._network.time())
         self._producer = producer
         self._host = self._network.attach(producer)
         self._host.apply(NOTHING)
 
     def send(self) -> None:
-        """Send one SYNC now, outside the period (e.g. once per application cycle)."""
+        """Send one SYNC now, outside the period (e.g. once per application cycle).
+
+        Not while the interface sends SYNC with a counter
+        (:class:`~cobus.proto.sync.SyncConfigError`): it keeps the count, and a SYNC in
+        between would break it."""
+        if self.by_interface and self._producer is not None and self._producer.overflow:
+            raise SyncConfigError(
+                "the interface is sending SYNC with a counter: a SYNC in between would break "
+                "its count; stop() it first, or start it without by_interface"
+            )
         producer = self._producer or SyncProducer()
         self._producer = producer
         for frame in producer.send(self._network.time()).frames:
@@ -785,3 +840,10 @@ class SyncService:
         if self._host is not None:
             self._host.close()
             self._host = None
+        if self._timer is not None:
+            self._timer.stop()  # (kept: its send_errors)
+
+    def _disconnected(self) -> None:
+        # the network's bus may outlive it (the user's): its interface must stop sending
+        if self._timer is not None:
+            self._timer.stop()

@@ -1,0 +1,147 @@
+"""Frames the CAN interface sends by itself, one per period: SYNC that Python's pauses cannot
+delay (``docs/realtime.md``, "Timers and cyclic work").
+
+A network's own timers run on its loop: a garbage collection, another thread holding the GIL
+or the loop serving a burst of frames delays them, and a 1 ms SYNC then comes late or not at
+all. SocketCAN's broadcast manager (BCM) sends a sequence of frames from the kernel instead,
+in turn, one per period, whatever the process does. python-canopen's SYNC uses it (through
+python-can's ``send_periodic``), without a counter; here a counter is a sequence of frames
+(CiA 301: 1..overflow, the kernel takes up to 256).
+
+The network has to hear what the interface sends, as it hears what it sends itself: a SYNC
+drives its own synchronous PDOs and a device on the same network. Only two interfaces hand
+such frames back to the bus object that started them, and only those are accepted:
+
+- SocketCAN: the kernel loops every frame the BCM sends back to the other CAN sockets of the
+  host, this bus's raw socket included (it is not that socket's own frame);
+- python-can's ``udp_multicast``: python-can sends from a thread of its own through its own
+  socket, and multicast loopback hands the datagram back to it (cobus's echo-free filter,
+  :mod:`cobus.runtime.multicast`, drops only what cobus's sending socket sends). The timing is
+  then a Python thread's, as python-canopen's on every interface but SocketCAN.
+
+Elsewhere (``virtual``, python-can-remote, vendor interfaces, a wrapper such as
+``cobus.sim.FaultyBus``) python-can would send from a thread whose frames this network never
+hears, and IXXAT's scheduler takes one frame: :class:`InterfaceTimingError` says so, and the
+loop's producer (the default) is the way there.
+
+A send that fails in python-can's thread (buffer full, bus-off) is reported as
+:class:`~cobus.runtime.HandlerFailed` (the 1st, 10th, 100th... of them) and sending goes on;
+python-can logs each failure itself. The kernel reports nothing of its own failed sends.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+import can
+from can.broadcastmanager import ThreadBasedCyclicSendTask
+
+from cobus.errors import CobusError
+from cobus.proto import Frame
+from cobus.runtime.bus import _is_udp_multicast, frame_to_message
+
+if TYPE_CHECKING:
+    from cobus.runtime.network import AsyncNetwork
+
+__all__ = ["InterfaceTimer", "InterfaceTimingError", "interface_timing"]
+
+#: frames a SocketCAN broadcast manager task sends in turn at most (the kernel's MAX_NFRAMES)
+MAX_FRAMES = 256
+
+
+class InterfaceTimingError(CobusError, ValueError):
+    """The bus cannot send these frames periodically by itself so that its network hears them
+    too."""
+
+
+def interface_timing(bus: can.BusABC) -> str | None:
+    """How ``bus`` sends a periodic sequence of frames by itself and hands it back to its
+    reader: ``"kernel"`` (SocketCAN's broadcast manager), ``"thread"`` (python-can's
+    ``udp_multicast``: a python-can thread, heard back through multicast loopback), or None.
+    python-can's ``ThreadSafeBus`` is seen through; any other wrapper is not (it would send
+    from a thread through its own ``send``)."""
+    cls = bus.__class__  # (ThreadSafeBus is a proxy: this is the wrapped class)
+    if cls.__name__ == "SocketcanBus" and cls.__module__.startswith("can.interfaces.socketcan"):
+        return "kernel"
+    if _is_udp_multicast(bus):
+        return "thread"
+    return None
+
+
+class InterfaceTimer:
+    """``frames`` sent by the network's interface in turn, one every ``period`` seconds, until
+    :meth:`stop` or the network disconnects. The first goes out within one period (at once
+    from python-can's thread; one period from now from SocketCAN's kernel)."""
+
+    def __init__(self, network: AsyncNetwork, frames: Sequence[Frame], period: float) -> None:
+        bus = network.bus
+        kind = interface_timing(bus)
+        if kind is None:
+            raise InterfaceTimingError(
+                f"the {type(bus).__name__} interface cannot send periodic frames by itself so "
+                "that this network hears them too (SocketCAN and python-can's udp_multicast "
+                "can); let the network's loop send them instead"
+            )
+        if not frames or len(frames) > MAX_FRAMES:
+            raise InterfaceTimingError(
+                f"{len(frames)} frames to send in turn: give 1 to {MAX_FRAMES}"
+            )
+        if not 0 < period <= 4294.967295:  # (NaN fails too)
+            raise InterfaceTimingError(f"period {period!r} s: give a positive time up to 4295 s")
+        self._network = network
+        self.kind = kind
+        self.period = period
+        #: Sends python-can's thread could not make (buffer full, bus-off).
+        self.errors = 0
+        self._stopped = False
+        self._cob_id = frames[0].cob_id  # (python-can's thread may fail before _task is set)
+        messages = [frame_to_message(frame) for frame in frames]
+        self._task: Any
+        try:
+            if kind == "kernel":
+                # one TX_SETUP with every frame: the kernel cycles through them
+                self._task = bus.send_periodic(messages, period)
+            else:
+                self._task = ThreadBasedCyclicSendTask(
+                    bus, threading.Lock(), messages, period, on_error=self._failed
+                )
+        except (can.CanError, OSError, ValueError) as exc:
+            raise InterfaceTimingError(
+                f"the interface refused to send frame 0x{frames[0].cob_id:X} every "
+                f"{period:g} s: {exc}"
+            ) from exc
+
+    @property
+    def running(self) -> bool:
+        """Whether the interface is sending the frames."""
+        return not self._stopped
+
+    def stop(self) -> None:
+        """Stop sending (again: nothing happens). A frame python-can's thread is sending at
+        that moment still goes out."""
+        if self._stopped:
+            return
+        self._stopped = True
+        # (raises when the bus is already shut down, and the task with it)
+        with contextlib.suppress(can.CanError, OSError):
+            self._task.stop()
+
+    def _failed(self, exc: Exception) -> bool:
+        """python-can's thread could not send: report it on the loop, and go on sending."""
+        if self._stopped:
+            return False
+        self.errors = count = self.errors + 1
+        network = self._network
+        loop = network._loop
+        if loop is None:  # disconnected under the thread
+            return False
+        if count in (1, 10, 100, 1000) or count % 10_000 == 0:
+            where = f"periodic frame 0x{self._cob_id:X} sent by the interface ({count} failed)"
+            try:
+                loop.call_soon_threadsafe(network._report_failure, where, exc)
+            except RuntimeError:  # the loop is closed
+                return False
+        return True

@@ -1,0 +1,230 @@
+"""SYNC sent by the CAN interface itself (``net.sync.start(..., by_interface=True)``).
+
+SocketCAN's kernel (its broadcast manager) is the interface this is for; this kernel has no
+SocketCAN, so python-can's ``udp_multicast``, whose python-can thread sends and whose
+multicast loopback hands the frames back, stands in for it: the same path through cobus (a
+sequence of frames handed to the interface, heard back from the bus).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import random
+import time
+
+import can
+import pytest
+
+from cobus.proto import Frame
+from cobus.proto.sync import SyncConfigError
+from cobus.runtime import AsyncNetwork, HandlerFailed, Network, RealTimeLoop
+from cobus.runtime.periodic import InterfaceTimer, InterfaceTimingError, interface_timing
+from cobus.runtime.remote import SyncService
+
+
+def _group_or_skip() -> tuple[str, int]:
+    pytest.importorskip("msgpack", reason="python-can's udp_multicast needs msgpack")
+    from can.interfaces.udp_multicast import UdpMulticastBus
+
+    group, port = UdpMulticastBus.DEFAULT_GROUP_IPv6, random.randrange(20000, 40000)
+    try:
+        probe = can.Bus(interface="udp_multicast", channel=group, port=port)
+    except (can.CanError, OSError) as exc:
+        pytest.skip(f"no multicast on this host: {exc}")
+    try:
+        probe.send(can.Message(arbitration_id=0x7F0, data=b"", is_extended_id=False))
+        if probe.recv(1.0) is None:
+            pytest.skip("multicast loopback delivers nothing on this host")
+    finally:
+        probe.shutdown()
+    return group, port
+
+
+def _real_time(coro_fn):
+    loop = RealTimeLoop()
+    try:
+        return loop.run_until_complete(coro_fn())
+    finally:
+        loop.close()
+
+
+def _state(sync: SyncService) -> tuple[bool, bool, float | None]:
+    """running, by_interface, period (read through a call: mypy would keep an earlier
+    assert's narrowing of the properties)"""
+    return sync.running, sync.by_interface, sync.period
+
+
+async def _until(predicate, seconds: float = 3.0) -> None:
+    deadline = time.monotonic() + seconds
+    while not predicate():
+        assert time.monotonic() < deadline, "timed out"
+        await asyncio.sleep(0.002)
+
+
+def test_the_interface_sends_sync_with_its_counter_and_both_networks_hear_it():
+    """The producing network hears its own SYNC from the bus (its synchronous PDOs and a
+    device on it need it), once; the other network hears the same sequence."""
+    group, port = _group_or_skip()
+
+    async def main() -> None:
+        async with (
+            AsyncNetwork(interface="udp_multicast", channel=group, port=port) as master,
+            AsyncNetwork(interface="udp_multicast", channel=group, port=port) as field,
+        ):
+            mine: list[bytes] = []
+            theirs: list[bytes] = []
+            master.subscribe(0x80, lambda f, now: mine.append(f.data))
+            field.subscribe(0x80, lambda f, now: theirs.append(f.data))
+            master.sync.start(0.002, overflow=3, by_interface=True)
+            assert _state(master.sync) == (True, True, 0.002)
+            await _until(lambda: len(mine) >= 7 and len(theirs) >= 7)
+            master.sync.stop()
+            assert _state(master.sync) == (False, False, None)
+            await asyncio.sleep(0.05)  # a SYNC the thread was sending as it stopped
+            heard = len(mine)
+            await asyncio.sleep(0.05)
+            assert len(mine) == heard  # stopped
+            assert mine == theirs  # each SYNC once, in order, on both sides
+            first = mine.index(b"\x01")
+            assert first < 3
+            assert mine[first : first + 6] == [b"\x01", b"\x02", b"\x03"] * 2
+            assert master.sync.late_max == 0.0 and master.sync.skipped == 0
+
+    _real_time(main)
+
+
+def test_the_blocking_network_hands_sync_without_counter_to_the_interface():
+    group, port = _group_or_skip()
+    with (
+        Network(interface="udp_multicast", channel=group, port=port) as master,
+        Network(interface="udp_multicast", channel=group, port=port) as field,
+    ):
+        heard: list[Frame] = []
+        field.subscribe(0x80, lambda f, now: heard.append(f))
+        master.sync.start(0.005, by_interface=True)
+        time.sleep(0.1)
+        assert master.sync.by_interface
+        master.sync.send()  # without a counter, one SYNC in between is fine
+        master.sync.stop()
+        time.sleep(0.05)
+        assert len(heard) >= 10
+        assert set(heard) == {Frame(0x80)}
+
+
+def test_a_sync_in_between_would_break_the_interfaces_count():
+    group, port = _group_or_skip()
+
+    async def main() -> None:
+        async with AsyncNetwork(interface="udp_multicast", channel=group, port=port) as net:
+            net.sync.start(0.01, overflow=4, by_interface=True)
+            with pytest.raises(SyncConfigError, match="break its count"):
+                net.sync.send()
+            net.sync.start(0.01, overflow=4)  # the loop's producer replaces it
+            assert _state(net.sync)[:2] == (True, False)
+            net.sync.send()
+            net.sync.stop()
+
+    _real_time(main)
+
+
+def test_disconnecting_stops_the_interface_sending_on_a_bus_the_user_keeps():
+    group, port = _group_or_skip()
+    bus = can.Bus(interface="udp_multicast", channel=group, port=port)
+    listener = can.Bus(interface="udp_multicast", channel=group, port=port)
+    try:
+
+        async def main() -> None:
+            async with AsyncNetwork(bus) as net:
+                net.sync.start(0.002, by_interface=True)
+                await asyncio.sleep(0.05)
+            assert not net.sync.running
+
+        _real_time(main)
+        time.sleep(0.05)  # (one the thread was sending as it stopped)
+        while listener.recv(0) is not None:
+            pass
+        assert listener.recv(0.1) is None  # the user's bus is open, and silent
+    finally:
+        listener.shutdown()
+        bus.shutdown()
+
+
+def test_a_failing_send_is_reported_and_sending_goes_on(caplog):
+    group, port = _group_or_skip()
+    bus = can.Bus(interface="udp_multicast", channel=group, port=port)
+    send = bus.send
+    failures = iter(range(3))
+
+    def flaky(msg: can.Message, timeout: float | None = None) -> None:
+        if msg.arbitration_id == 0x80 and next(failures, None) is not None:
+            raise can.CanOperationError("No buffer space available [Error Code 105]")
+        send(msg, timeout)
+
+    bus.send = flaky  # type: ignore[method-assign]
+    try:
+
+        async def main() -> None:
+            async with AsyncNetwork(bus) as net:
+                events: list[object] = []
+                heard: list[Frame] = []
+                net.add_listener(events.append)
+                net.subscribe(0x80, lambda f, now: heard.append(f))
+                net.sync.start(0.002, by_interface=True)
+                await _until(lambda: len(heard) >= 5)
+                net.sync.stop()
+                assert net.sync.send_errors == 3
+                failed = [e for e in events if isinstance(e, HandlerFailed)]
+                assert len(failed) == 1  # the 1st of a run is reported, then the 10th...
+                assert "0x80" in failed[0].where and "No buffer space" in failed[0].error
+
+        _real_time(main)
+    finally:
+        bus.shutdown()
+
+
+def test_an_interface_whose_periodic_frames_nobody_here_would_hear_is_refused():
+    """python-can's virtual bus sends periodic frames from a thread, which its own bus object
+    never hears: the network's listeners would miss every SYNC."""
+
+    async def main() -> None:
+        async with AsyncNetwork(interface="virtual", channel="periodic-refused") as net:
+            assert interface_timing(net.bus) is None
+            with pytest.raises(InterfaceTimingError, match="VirtualBus interface cannot"):
+                net.sync.start(0.001, by_interface=True)
+            assert not net.sync.running
+            net.sync.start(0.01)  # the loop's producer
+            with pytest.raises(InterfaceTimingError):  # a failed start keeps what runs
+                net.sync.start(0.001, by_interface=True)
+            assert _state(net.sync)[:2] == (True, False)
+            net.sync.stop()
+
+    _real_time(main)
+
+
+def test_bad_sequences_and_periods_are_refused_before_anything_is_sent():
+    group, port = _group_or_skip()
+
+    async def main() -> None:
+        async with AsyncNetwork(interface="udp_multicast", channel=group, port=port) as net:
+            for frames, period in (
+                ([], 0.01),
+                ([Frame(0x80)] * 257, 0.01),
+                ([Frame(0x80)], 0.0),
+                ([Frame(0x80)], float("nan")),
+            ):
+                with pytest.raises(InterfaceTimingError):
+                    InterfaceTimer(net, frames, period)
+            with pytest.raises(SyncConfigError, match="overflow"):
+                net.sync.start(0.01, overflow=241, by_interface=True)
+            with pytest.raises(ValueError, match="out of range"):
+                net.sync.start(0.0, by_interface=True)
+            assert not net.sync.running
+
+    _real_time(main)
+
+
+def test_socketcan_would_be_timed_by_the_kernel():
+    """No SocketCAN here: python-can's own class, never opened, decides."""
+    from can.interfaces.socketcan import SocketcanBus
+
+    assert interface_timing(SocketcanBus.__new__(SocketcanBus)) == "kernel"
