@@ -790,7 +790,8 @@ class SyncService:
 
         ``by_interface=True`` hands the SYNC, counter included, to the CAN interface: on
         SocketCAN the kernel sends it, so that no garbage collection, busy thread or burst of
-        frames in this process delays it. The network still hears each SYNC, from the bus.
+        frames in this process delays it (the first one period from now; python-can's
+        thread sends its first at once). The network still hears each SYNC, from the bus.
         :class:`~cobus.runtime.periodic.InterfaceTimingError` where the interface cannot do
         that (only SocketCAN and python-can's udp_multicast can, see
         :mod:`cobus.runtime.periodic`).
