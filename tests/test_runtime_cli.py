@@ -82,6 +82,19 @@ def test_sdo_nmt_and_sync_from_the_shell(
         assert main(["sync", "--period", "0.01", "--count", "5", *bus]) == 0
         net.sleep(0.05)
         assert 4 <= sum(1 for f in seen if f.cob_id == 0x80) <= 6
+        seen.clear()
+        assert main(["sync", "--period", "0.01", "--count", "4", "--overflow", "3", *bus]) == 0
+        net.sleep(0.05)
+        counters = [f.data for f in seen if f.cob_id == 0x80]
+        assert counters[:3] == [b"\x01", b"\x02", b"\x03"]  # 3 to 5 of them
+        capsys.readouterr()
+        # python-can's virtual bus would send from a thread whose frames its own bus never
+        # hears: refused, with the reason
+        assert main(["sync", "--by-interface", "--count", "1", *bus]) == 1
+        assert "cannot send periodic frames by itself" in capsys.readouterr().err
+        with pytest.raises(SystemExit) as bad:
+            main(["sync", "--overflow", "1", *bus])
+        assert bad.value.code == 2 and "2 to 240" in capsys.readouterr().err
 
 
 def test_sdo_upload_and_download_show_a_progress_bar_on_a_terminal(

@@ -6,6 +6,7 @@
     cobus sdo download 10 0x1F50 1 firmware.bin --block
     cobus nmt start all                         # start | stop | preop | reset | reset-comm
     cobus sync --period 0.01 --count 100
+    cobus sync --period 0.001 --overflow 10 --by-interface -i socketcan -c can0
 
 Exit codes: 0 done, 1 the node refused (abort code and its text) or did not answer, 2 bad
 usage.
@@ -96,6 +97,18 @@ def register(sub: Any) -> None:
     )
     sync.add_argument("--period", type=seconds, default=0.01, help="seconds (default 0.01)")
     sync.add_argument("--count", type=int, help="how many (default: until Ctrl-C)")
+    sync.add_argument(
+        "--overflow",
+        type=_overflow,
+        default=0,
+        help="add the CiA 301 counter, 1 up to this (2-240; default 0: no counter)",
+    )
+    sync.add_argument(
+        "--by-interface",
+        action="store_true",
+        help="the CAN interface times the SYNC (SocketCAN: the kernel; no pause of this "
+        "program delays it)",
+    )
     add_bus_options(sync)
     sync.set_defaults(handler=_sync)
 
@@ -359,7 +372,7 @@ def _sync(args: argparse.Namespace) -> int:
         return _fail("--count: 1 or more", 2)
     try:
         with _open(args) as net:
-            net.sync.start(args.period)
+            net.sync.start(args.period, overflow=args.overflow, by_interface=args.by_interface)
             began = time.monotonic()
             try:
                 if args.count is None:
@@ -374,5 +387,16 @@ def _sync(args: argparse.Namespace) -> int:
         if type(exc).__module__.startswith(("can", "cobus")):
             return _fail(f"cannot send: {exc}")
         raise
-    print(f"SYNC every {args.period:g} s for {time.monotonic() - began:.1f} s")
+    by = " (sent by the interface)" if args.by_interface else ""
+    print(f"SYNC every {args.period:g} s for {time.monotonic() - began:.1f} s{by}")
     return 0
+
+
+def _overflow(text: str) -> int:
+    try:
+        value = int(text, 0)
+    except ValueError:
+        value = -1
+    if not (value == 0 or 2 <= value <= 240):
+        raise argparse.ArgumentTypeError(f"{text!r}: 0 (no counter) or 2 to 240")
+    return value
