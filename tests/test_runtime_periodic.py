@@ -228,3 +228,74 @@ def test_socketcan_would_be_timed_by_the_kernel():
     from can.interfaces.socketcan import SocketcanBus
 
     assert interface_timing(SocketcanBus.__new__(SocketcanBus)) == "kernel"
+
+
+def test_a_master_whose_interface_times_sync_boots_on_the_sync_it_hears_back(tmp_path):
+    """The master starts its nodes once its first SYNC is out: with the interface sending
+    it, the master learns that from the bus."""
+    from cobus.master import Master
+    from cobus.runtime import run
+    from tests.test_master_support import io_od, network
+
+    group, port = _group_or_skip()
+    text = (
+        "master: {sync_period: 5, sync_overflow: 4, sync_by_interface: true}\n"
+        "nodes:\n  io:\n    node_id: 5\n    eds: io.eds\n"
+    )
+    cfg = network(tmp_path, text)
+    assert cfg.master.sync_by_interface
+
+    async def main() -> list[bytes]:
+        from cobus.device import add_device
+
+        async with (
+            AsyncNetwork(interface="udp_multicast", channel=group, port=port) as net,
+            AsyncNetwork(interface="udp_multicast", channel=group, port=port) as field,
+        ):
+            device = add_device(field, 5, io_od())
+            heard: list[bytes] = []
+            field.subscribe(0x80, lambda f, now: heard.append(f.data))
+            master = Master(net, cfg)
+            try:
+                await master.boot(timeout=10)
+                assert net.sync.by_interface
+                assert device.state.name == "OPERATIONAL"
+            finally:
+                await master.stop()
+            assert not net.sync.running  # stopped with the master
+            return heard
+
+    heard = run(main())
+    assert {b"\x01", b"\x02", b"\x03", b"\x04"} <= set(heard)
+
+
+def test_a_master_on_an_interface_that_cannot_time_sync_refuses_to_start(tmp_path):
+    from cobus.master import Master, MasterError
+    from tests.test_master_support import network
+
+    text = (
+        "master: {sync_period: 10, sync_by_interface: true}\n"
+        "nodes:\n  io:\n    node_id: 5\n    eds: io.eds\n"
+    )
+    cfg = network(tmp_path, text)
+
+    async def main() -> None:
+        async with AsyncNetwork(interface="virtual", channel="periodic-master") as net:
+            master = Master(net, cfg)
+            with pytest.raises(MasterError, match=r"master\.sync_by_interface: .*set it to false"):
+                master.start()
+            assert not master.started and not net.sync.running
+            master.config.master.sync_by_interface = False  # the loop's producer, then
+            master.start()
+            assert _state(net.sync)[:2] == (True, False)
+            await master.stop()
+
+    _real_time(main)
+
+
+def test_sync_by_interface_must_be_true_or_false(tmp_path):
+    from cobus.master import NetworkConfigError
+    from tests.test_master_support import network
+
+    with pytest.raises(NetworkConfigError, match=r"sync_by_interface.*not true or false"):
+        network(tmp_path, "master: {sync_period: 10, sync_by_interface: 1}\nnodes: {}\n")

@@ -5,6 +5,7 @@ master:
   node_id: 1               # optional: without it the master sends no heartbeat
   bitrate: 500000          # bit/s
   sync_period: 10          # ms (0: no SYNC); sync_cob_id: 0x80, sync_overflow: 0
+  sync_by_interface: false # true: the CAN interface times SYNC (SocketCAN: the kernel)
   heartbeat_time: 100      # ms: the master's own heartbeat (needs node_id)
   reset: node              # node | broadcast (one 81h 00 for every node)
   start: node              # node | broadcast (one 01h 00 once every node is configured)
@@ -444,6 +445,7 @@ class MasterConfig:
     sync_period: float = 0.0  # s
     sync_cob_id: int = 0x80
     sync_overflow: int = 0
+    sync_by_interface: bool = False  # the CAN interface times SYNC (SocketCAN: the kernel)
     heartbeat_time: int = 0  # ms
     time_period: float = 0.0  # s
     time_cob_id: int = 0x100
@@ -630,6 +632,7 @@ _MASTER_KEYS = (
     "sync_period",
     "sync_cob_id",
     "sync_overflow",
+    "sync_by_interface",
     "heartbeat_time",
     "time_period",
     "time_cob_id",
@@ -1673,6 +1676,7 @@ def _read_master(raw: Any, report: _Report) -> MasterConfig:
         return v
 
     cfg.sync_overflow = get("sync_overflow", overflow, 0)
+    cfg.sync_by_interface = get("sync_by_interface", _bool, False)
     cfg.heartbeat_time = get("heartbeat_time", _whole_ms, 0)
     cfg.time_period = get("time_period", lambda v: _ms(v, 86_400_000), 0.0) / 1000.0
     cfg.time_cob_id = get("time_cob_id", lambda v: _int(v, 1, 0x7FF, "COB-ID"), 0x100)

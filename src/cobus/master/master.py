@@ -47,6 +47,7 @@ from cobus.runtime import (
     BusState,
     BusStateChanged,
     HandlerFailed,
+    InterfaceTimingError,
     MachineHost,
     NetworkClosedError,
     RxOverflow,
@@ -274,6 +275,17 @@ class Master:
         net = self.network
         loop = net.loop
         cfg = self.config.master
+        if cfg.sync_period:  # first: an interface that cannot time SYNC leaves nothing started
+            try:
+                net.sync.start(
+                    cfg.sync_period,
+                    overflow=cfg.sync_overflow,
+                    cob_id=cfg.sync_cob_id,
+                    by_interface=cfg.sync_by_interface,
+                )
+            except InterfaceTimingError as exc:
+                raise MasterError(f"master.sync_by_interface: {exc} (set it to false)") from exc
+            self._own_sync = True
         self._started = True
         self._sync_seen = False
         self._set_status(MasterStatus.RESET)
@@ -302,9 +314,6 @@ class Master:
             host = net.attach(producer)
             host.apply(NOTHING)
             self._hosts.append(host)
-        if cfg.sync_period:
-            net.sync.start(cfg.sync_period, overflow=cfg.sync_overflow, cob_id=cfg.sync_cob_id)
-            self._own_sync = True
         if cfg.time_period:
             stamp = TimeProducer(cfg.time_cob_id)
             host = net.attach(stamp)

@@ -51,6 +51,7 @@ from cobus.runtime.pdo import (
     PdoRejected,
     PdoTimeoutError,
 )
+from cobus.runtime.periodic import InterfaceTimingError
 from cobus.runtime.remote import (
     NmtMaster,
     ObjectAccessError,
@@ -70,6 +71,7 @@ __all__ = [
     "EmcyTimeoutError",
     "Emergency",
     "HandlerFailed",
+    "InterfaceTimingError",
     "LocalNodes",
     "MachineHost",
     "Network",
