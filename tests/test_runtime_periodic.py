@@ -80,10 +80,10 @@ def test_the_interface_sends_sync_with_its_counter_and_both_networks_hear_it():
             await _until(lambda: len(mine) >= 7 and len(theirs) >= 7)
             master.sync.stop()
             assert _state(master.sync) == (False, False, None)
-            await asyncio.sleep(0.05)  # a SYNC the thread was sending as it stopped
+            await asyncio.sleep(0.02)  # (the last one sent on its way back)
             heard = len(mine)
             await asyncio.sleep(0.05)
-            assert len(mine) == heard  # stopped
+            assert len(mine) == heard  # stopped: nothing is sent once stop() returns
             assert mine == theirs  # each SYNC once, in order, on both sides
             first = mine.index(b"\x01")
             assert first < 3
@@ -102,12 +102,13 @@ def test_the_blocking_network_hands_sync_without_counter_to_the_interface():
         heard: list[Frame] = []
         field.subscribe(0x80, lambda f, now: heard.append(f))
         master.sync.start(0.005, by_interface=True)
-        time.sleep(0.1)
+        deadline = time.monotonic() + 3.0
+        while len(heard) < 10:
+            assert time.monotonic() < deadline, "timed out"
+            time.sleep(0.005)
         assert master.sync.by_interface
         master.sync.send()  # without a counter, one SYNC in between is fine
         master.sync.stop()
-        time.sleep(0.05)
-        assert len(heard) >= 10
         assert set(heard) == {Frame(0x80)}
 
 
@@ -125,6 +126,58 @@ def test_a_sync_in_between_would_break_the_interfaces_count():
             net.sync.stop()
 
     _real_time(main)
+
+
+def test_a_new_start_replaces_the_interfaces_sync_without_overlap():
+    """The old sequence is stopped before the new one starts: with a COB-ID of its own for
+    each start, the identifiers heard never go back."""
+    group, port = _group_or_skip()
+
+    async def main() -> None:
+        async with (
+            AsyncNetwork(interface="udp_multicast", channel=group, port=port) as master,
+            AsyncNetwork(interface="udp_multicast", channel=group, port=port) as field,
+        ):
+            heard: list[int] = []
+            field.subscribe_all(lambda f, now: heard.append(f.cob_id))
+            ids = range(0x700, 0x728)
+            for cob_id in ids:
+                master.sync.start(0.001, overflow=3, cob_id=cob_id, by_interface=True)
+                await asyncio.sleep(0.003)
+            master.sync.stop()
+            await asyncio.sleep(0.05)
+            syncs = [cob_id for cob_id in heard if cob_id in ids]
+            assert len(set(syncs)) > 10
+            assert syncs == sorted(syncs)
+
+    _real_time(main)
+
+
+def test_a_network_not_connected_or_on_the_simulated_clock_refuses(tmp_path):
+    """python-can would send all the same: from a network not connected, or in wall-clock
+    time under a simulated clock."""
+    from cobus.runtime import NetworkClosedError, SimulatedEventLoop
+
+    group, port = _group_or_skip()
+    bus = can.Bus(interface="udp_multicast", channel=group, port=port)
+    try:
+        net = AsyncNetwork(bus)
+        with pytest.raises(NetworkClosedError):
+            net.sync.start(0.001, by_interface=True)
+
+        async def main() -> None:
+            async with AsyncNetwork(bus) as sim:
+                with pytest.raises(InterfaceTimingError, match="simulated clock"):
+                    sim.sync.start(0.001, by_interface=True)
+                assert not sim.sync.running
+
+        loop = SimulatedEventLoop()
+        try:
+            loop.run_until_complete(main())
+        finally:
+            loop.close()
+    finally:
+        bus.shutdown()
 
 
 def test_disconnecting_stops_the_interface_sending_on_a_bus_the_user_keeps():
@@ -299,3 +352,26 @@ def test_sync_by_interface_must_be_true_or_false(tmp_path):
 
     with pytest.raises(NetworkConfigError, match=r"sync_by_interface.*not true or false"):
         network(tmp_path, "master: {sync_period: 10, sync_by_interface: 1}\nnodes: {}\n")
+
+
+def test_a_bus_shut_down_under_the_interfaces_sync_ends_it():
+    """Not a flood of failures at 1 kHz: the bus is gone for good."""
+    group, port = _group_or_skip()
+    bus = can.Bus(interface="udp_multicast", channel=group, port=port)
+
+    async def main() -> None:
+        net = AsyncNetwork(bus, read_on_loop=False)
+        await net.connect()
+        try:
+            net.sync.start(0.001, by_interface=True)
+            await asyncio.sleep(0.01)
+            bus.shutdown()
+            await _until(lambda: not _state(net.sync)[0])
+            assert net.sync.send_errors == 0  # (not counted as failed sends)
+        finally:
+            await net.disconnect()
+
+    try:
+        _real_time(main)
+    finally:
+        bus.shutdown()

@@ -22,11 +22,14 @@ such frames back to the bus object that started them, and only those are accepte
 Elsewhere (``virtual``, python-can-remote, vendor interfaces, a wrapper such as
 ``cobus.sim.FaultyBus``) python-can would send from a thread whose frames this network never
 hears, and IXXAT's scheduler takes one frame: :class:`InterfaceTimingError` says so, and the
-loop's producer (the default) is the way there.
+loop's producer (the default) is the way there. So it does on the simulated clock and for a
+network not connected.
 
-A send that fails in python-can's thread (buffer full, bus-off) is reported as
-:class:`~cobus.runtime.HandlerFailed` (the 1st, 10th, 100th... of them) and sending goes on;
-python-can logs each failure itself. The kernel reports nothing of its own failed sends.
+python-can's thread sends through the timer, under its lock, without blocking: once
+:meth:`InterfaceTimer.stop` returns, nothing more goes out, and a send that fails (buffer
+full, bus-off) is counted and reported as :class:`~cobus.runtime.HandlerFailed` (the 1st,
+10th, 100th... of them) while sending goes on; a bus shut down ends it. The kernel reports
+nothing of its own failed sends.
 """
 
 from __future__ import annotations
@@ -72,11 +75,20 @@ def interface_timing(bus: can.BusABC) -> str | None:
 
 
 class InterfaceTimer:
-    """``frames`` sent by the network's interface in turn, one every ``period`` seconds, until
-    :meth:`stop` or the network disconnects. The first goes out within one period (at once
-    from python-can's thread; one period from now from SocketCAN's kernel)."""
+    """``frames`` sent by the network's interface in turn, one every ``period`` seconds, from
+    :meth:`start` until :meth:`stop` or the network disconnects (a reconnected network does
+    not resume it). The first goes out at once, on both interfaces.
+
+    Made stopped: a timer it replaces is stopped first, so that two never send at once.
+    """
 
     def __init__(self, network: AsyncNetwork, frames: Sequence[Frame], period: float) -> None:
+        network.loop  # noqa: B018  # NetworkClosedError: python-can would send all the same
+        if network.simulated:
+            raise InterfaceTimingError(
+                "on the simulated clock the interface's timing would be wall-clock time: "
+                "let the network's loop send the frames"
+            )
         bus = network.bus
         kind = interface_timing(bus)
         if kind is None:
@@ -92,56 +104,88 @@ class InterfaceTimer:
         if not 0 < period <= 4294.967295:  # (NaN fails too)
             raise InterfaceTimingError(f"period {period!r} s: give a positive time up to 4295 s")
         self._network = network
+        self._bus = bus
         self.kind = kind
         self.period = period
         #: Sends python-can's thread could not make (buffer full, bus-off).
         self.errors = 0
-        self._stopped = False
-        self._cob_id = frames[0].cob_id  # (python-can's thread may fail before _task is set)
+        self._cob_id = frames[0].cob_id
+        # python-can's thread sends under this lock, through send() below: once stop() has
+        # taken it, nothing more goes out
+        self._lock = threading.Lock()
+        self._stopped = True
+        self._started = False
         messages = [frame_to_message(frame) for frame in frames]
         self._task: Any
         try:
             if kind == "kernel":
+                # python-can hands the kernel whole microseconds, cut off: half a microsecond
+                # more keeps a period of 1001 us from becoming 1000
+                us = period * 1e6
+                if abs(us - round(us)) < 1e-6:
+                    period = (round(us) + 0.5) / 1e6
                 # one TX_SETUP with every frame: the kernel cycles through them
-                self._task = bus.send_periodic(messages, period)
+                self._task = bus.send_periodic(messages, period, autostart=False)
             else:
+                sender: Any = self  # (python-can's task calls send(msg) on its "bus")
                 self._task = ThreadBasedCyclicSendTask(
-                    bus, threading.Lock(), messages, period, on_error=self._failed
+                    sender, self._lock, messages, period, autostart=False
                 )
         except (can.CanError, OSError, ValueError) as exc:
-            raise InterfaceTimingError(
-                f"the interface refused to send frame 0x{frames[0].cob_id:X} every "
-                f"{period:g} s: {exc}"
-            ) from exc
+            raise self._refused(exc) from exc
 
     @property
     def running(self) -> bool:
         """Whether the interface is sending the frames."""
         return not self._stopped
 
-    def stop(self) -> None:
-        """Stop sending (again: nothing happens). A frame python-can's thread is sending at
-        that moment still goes out."""
-        if self._stopped:
+    def start(self) -> None:
+        """Start sending (once: a stopped timer is not started again)."""
+        if self._started:
             return
-        self._stopped = True
+        self._started = True
+        self._stopped = False
+        try:
+            self._task.start()
+        except (can.CanError, OSError) as exc:
+            self._stopped = True
+            raise self._refused(exc) from exc
+
+    def stop(self) -> None:
+        """Stop sending (again: nothing happens); once it returns, nothing more is sent."""
+        with self._lock:
+            if self._stopped:
+                return
+            self._stopped = True
         # (raises when the bus is already shut down, and the task with it)
         with contextlib.suppress(can.CanError, OSError):
             self._task.stop()
 
-    def _failed(self, exc: Exception) -> bool:
-        """python-can's thread could not send: report it on the loop, and go on sending."""
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        """python-can's thread sends each frame here, under the lock. A failed send is
+        counted and reported (the 1st, 10th, 100th... on the loop), and sending goes on,
+        unless the bus has been shut down or the network disconnected."""
         if self._stopped:
-            return False
-        self.errors = count = self.errors + 1
+            return
+        try:
+            self._bus.send(msg, timeout=0)  # (as the network sends: never blocks)
+        except (can.CanError, OSError) as exc:
+            self._failed(exc)
+
+    def _failed(self, exc: BaseException) -> None:
         network = self._network
         loop = network._loop
-        if loop is None:  # disconnected under the thread
-            return False
+        if loop is None or getattr(self._bus, "_is_shutdown", False):
+            self._stopped = True  # for good: the bus is gone
+            self._task.stop()
+            return
+        self.errors = count = self.errors + 1
         if count in (1, 10, 100, 1000) or count % 10_000 == 0:
             where = f"periodic frame 0x{self._cob_id:X} sent by the interface ({count} failed)"
-            try:
+            with contextlib.suppress(RuntimeError):  # the loop is closed
                 loop.call_soon_threadsafe(network._report_failure, where, exc)
-            except RuntimeError:  # the loop is closed
-                return False
-        return True
+
+    def _refused(self, exc: BaseException) -> InterfaceTimingError:
+        return InterfaceTimingError(
+            f"the interface refused to send frame 0x{self._cob_id:X} every {self.period:g} s: {exc}"
+        )

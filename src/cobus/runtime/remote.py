@@ -790,8 +790,8 @@ class SyncService:
 
         ``by_interface=True`` hands the SYNC, counter included, to the CAN interface: on
         SocketCAN the kernel sends it, so that no garbage collection, busy thread or burst of
-        frames in this process delays it (the first one period from now; python-can's
-        thread sends its first at once). The network still hears each SYNC, from the bus.
+        frames in this process delays it (the first goes out at once). The network still
+        hears each SYNC, from the bus. Disconnecting ends it; start it again once connected.
         :class:`~cobus.runtime.periodic.InterfaceTimingError` where the interface cannot do
         that (only SocketCAN and python-can's udp_multicast can, see
         :mod:`cobus.runtime.periodic`).
@@ -801,6 +801,7 @@ class SyncService:
             raise ValueError(
                 f"SYNC period {period!r} s is out of range: 1006h holds 1 us to 4294.967295 s"
             )
+        self._network.loop  # noqa: B018  # NetworkClosedError, before the SYNC running stops
         producer = SyncProducer(cob_id, overflow=overflow)
         if by_interface:
             counts = range(1, overflow + 1) if overflow else (None,)
@@ -809,9 +810,10 @@ class SyncService:
                 for count in counts
             ]
             timer = InterfaceTimer(self._network, frames, us / 1e6)  # (raises before stop)
-            self.stop()
+            self.stop()  # never two at once
             self._producer = producer
             self._timer = timer
+            timer.start()
             return
         self.stop()
         self._timer = None
