@@ -7,6 +7,12 @@ virtual bus stamps frames when they are sent). For cobus, the producing network 
 an SDO client against the device throughout, so a SYNC that goes missing under load shows.
 "Missed": intervals longer than 1.5 periods. Run longer with COBUS_BENCH_CYCLIC_SECONDS.
 
+cobus runs twice: SYNC timed by the network's loop, and handed to the CAN interface
+(``by_interface=True``), which ``virtual`` refuses (a dash). On a host with SocketCAN, run
+it where the kernel times SYNC: ``COBUS_BENCH_CYCLIC_INTERFACE=socketcan
+COBUS_BENCH_CYCLIC_CHANNEL=vcan0`` (after ``ip link add dev vcan0 type vcan; ip link set up
+vcan0``); ``udp_multicast`` works too (python-can's thread sends there).
+
 cobus runs on ``cobus.runtime.run`` (a ``RealTimeLoop``, whose waits under 2 ms are not rounded
 up to whole milliseconds) and calls ``gc.freeze()`` once set up, as docs/realtime.md advises
 for cyclic work: otherwise a full garbage collection stops every thread for ~10 ms. Then the
@@ -23,25 +29,40 @@ import statistics
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 import can
 import canopen
 
 from cobus.device import DictionaryBuilder, add_device
 from cobus.od import DataType
-from cobus.runtime import AsyncNetwork, RealTimeLoop, run
+from cobus.runtime import AsyncNetwork, InterfaceTimingError, RealTimeLoop, run
 
 PERIOD = 0.001
 SECONDS = float(os.environ.get("COBUS_BENCH_CYCLIC_SECONDS", "5"))
+INTERFACE = os.environ.get("COBUS_BENCH_CYCLIC_INTERFACE", "virtual")
+CHANNEL = os.environ.get("COBUS_BENCH_CYCLIC_CHANNEL")
 NODE = 5
 SYNC, TPDO1 = 0x80, 0x180 + NODE
 
 
-class _Observer:
-    """Every frame on the channel with its send time, from a thread of its own."""
+def _bus_args(name: str) -> dict[str, Any]:
+    """The bus of one run: a virtual channel of its own, or the one the environment names."""
+    if INTERFACE == "virtual":
+        return {"interface": "virtual", "channel": f"{name}-{os.getpid()}"}
+    if CHANNEL is None and INTERFACE == "udp_multicast":
+        from can.interfaces.udp_multicast import UdpMulticastBus
 
-    def __init__(self, channel: str) -> None:
-        self._bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+        return {"interface": INTERFACE, "channel": UdpMulticastBus.DEFAULT_GROUP_IPv6}
+    return {"interface": INTERFACE, "channel": CHANNEL}
+
+
+class _Observer:
+    """Every frame on the channel with its time stamp (the virtual bus stamps a frame when it
+    is sent; SocketCAN when the kernel receives it), from a thread of its own."""
+
+    def __init__(self, args: dict[str, Any]) -> None:
+        self._bus = can.Bus(**args, receive_own_messages=False)
         self.frames: list[tuple[float, int]] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -85,15 +106,13 @@ def _stats(frames: list[tuple[float, int]]) -> dict[str, float]:
     return out
 
 
-def cobus_figures() -> dict[str, float]:
-    channel = f"cyc-cob-{os.getpid()}"
-    observer = _Observer(channel)
+def cobus_figures(by_interface: bool = False) -> dict[str, float] | None:
+    """None: the interface cannot time SYNC (``by_interface``)."""
+    args = _bus_args("cyc-cob-iface" if by_interface else "cyc-cob")
+    observer = _Observer(args)
 
-    async def main() -> int:
-        async with (
-            AsyncNetwork(interface="virtual", channel=channel) as master,
-            AsyncNetwork(interface="virtual", channel=channel) as field,
-        ):
+    async def main() -> int | None:
+        async with AsyncNetwork(**args) as master, AsyncNetwork(**args) as field:
             b = DictionaryBuilder(device_name="cyclic")
             b.variable(0x2000, "Counter", DataType.UNSIGNED16, access="ro", mappable=True)
             b.tpdo(1, [(0x2000, 0)], transmission_type=1)  # every SYNC
@@ -102,7 +121,10 @@ def cobus_figures() -> dict[str, float]:
             sdo = master.add_remote(NODE).sdo
             await asyncio.sleep(0.05)
             gc.freeze()  # set up: a full collection no longer pauses every thread ~10 ms
-            master.sync.start(PERIOD)
+            try:
+                master.sync.start(PERIOD, by_interface=by_interface)
+            except InterfaceTimingError:
+                return None
             trips = 0
             deadline = time.monotonic() + SECONDS
             while time.monotonic() < deadline:  # the master serves SDO traffic meanwhile
@@ -114,16 +136,19 @@ def cobus_figures() -> dict[str, float]:
             return trips
 
     trips = run(main())
-    out = _stats(observer.close())
+    frames = observer.close()
+    if trips is None:
+        return None
+    out = _stats(frames)
     out["sdo_trips"] = trips
     return out
 
 
 def canopen_figures() -> dict[str, float]:
-    channel = f"cyc-co-{os.getpid()}"
-    observer = _Observer(channel)
+    args = _bus_args("cyc-co")
+    observer = _Observer(args)
     net = canopen.Network()
-    net.connect(interface="virtual", channel=channel)
+    net.connect(**args)
     try:
         net.sync.start(PERIOD)
         time.sleep(SECONDS)
@@ -155,27 +180,37 @@ def timer_lateness(loop_factory: Callable[[], asyncio.AbstractEventLoop]) -> tup
     return statistics.median(late), late[int(len(late) * 0.99)]
 
 
+def _cell(figures: dict[str, float] | None, key: str) -> str:
+    if figures is None or key not in figures:
+        return f"{'-':>12}"
+    return f"{figures[key]:>12,.0f}"
+
+
 def main() -> None:
     cob = cobus_figures()
+    cob_iface = cobus_figures(by_interface=True)
     co = canopen_figures()
     print(
-        f"\nSYNC every {PERIOD * 1e3:g} ms for {SECONDS:g} s (virtual bus, real time; cobus "
+        f"\nSYNC every {PERIOD * 1e3:g} ms for {SECONDS:g} s ({INTERFACE}, real time; cobus "
         "serves SDO meanwhile)"
     )
-    print(f"  {'':<44} {'cobus':>12} {'canopen':>12}")
+    print(f"  {'':<44} {'cobus':>12} {'by interface':>12} {'canopen':>12}")
     for key, label in (
         ("syncs", "SYNCs sent"),
         ("p99", "interval jitter p99 (us)"),
         ("max", "interval jitter max (us)"),
         ("missed", "SYNCs missed (> 1.5 periods)"),
+        ("tpdo_median", "device SYNC -> TPDO median (us)"),
+        ("tpdo_p99", "device SYNC -> TPDO p99 (us)"),
+        ("sdo_trips", "SDO round trips served meanwhile"),
     ):
-        print(f"  {label:<44} {cob[key]:>12,.0f} {co[key]:>12,.0f}")
-    print(
-        f"  {'device SYNC -> TPDO median (us)':<44} {cob.get('tpdo_median', 0):>12,.0f} {'-':>12}"
-    )
-    print(f"  {'device SYNC -> TPDO p99 (us)':<44} {cob.get('tpdo_p99', 0):>12,.0f} {'-':>12}")
-    print(f"  {'SDO round trips served meanwhile':<44} {cob['sdo_trips']:>12,.0f} {'-':>12}")
-    print("  (python-canopen's SYNC is python-can's send_periodic thread; it has no device)")
+        print(f"  {label:<44} {_cell(cob, key)} {_cell(cob_iface, key)} {_cell(co, key)}")
+    print("  (python-canopen's SYNC is python-can's send_periodic; it has no device)")
+    if cob_iface is None:
+        print(
+            f"  ({INTERFACE} cannot time SYNC itself: COBUS_BENCH_CYCLIC_INTERFACE=socketcan "
+            "and COBUS_BENCH_CYCLIC_CHANNEL=vcan0 have the kernel do it)"
+        )
     ours = timer_lateness(RealTimeLoop)
     theirs = timer_lateness(asyncio.new_event_loop)
     print(f"  {'':<44} {'RealTimeLoop':>12} {'asyncio':>12}")
