@@ -375,3 +375,70 @@ def test_a_bus_shut_down_under_the_interfaces_sync_ends_it():
         _real_time(main)
     finally:
         bus.shutdown()
+
+
+def test_a_device_that_produces_sync_can_have_the_interface_time_it():
+    """A cobus device told by 1005h to produce SYNC: by the interface, with its counter from
+    1; silent while stopped or with 1006h at 0, from 1 again after; it hears its own SYNC
+    from the bus (a TPDO on every SYNC follows); closing it ends the SYNC."""
+    from cobus.device import DictionaryBuilder, add_device
+    from cobus.od import DataType
+
+    group, port = _group_or_skip()
+    b = DictionaryBuilder(device_name="producer")
+    b.variable(0x2000, "Counter", DataType.UNSIGNED16, access="ro", mappable=True)
+    b.tpdo(1, [(0x2000, 0)], transmission_type=1)  # every SYNC
+
+    async def main() -> None:
+        async with (
+            AsyncNetwork(interface="udp_multicast", channel=group, port=port) as field,
+            AsyncNetwork(interface="udp_multicast", channel=group, port=port) as master,
+        ):
+            device = add_device(field, 5, b.build(), sync_by_interface=True)
+            heard: list[tuple[int, bytes]] = []
+            master.subscribe(0x80, lambda f, now: heard.append((0x80, f.data)))
+            master.subscribe(0x185, lambda f, now: heard.append((0x185, f.data)))
+            master.nmt.start(5)
+            device.set(0x1019, 0, 3)
+            device.set(0x1005, 0, 0x40000080)
+            device.set(0x1006, 0, 2000)  # 2 ms
+            await _until(lambda: sum(1 for c, _ in heard if c == 0x80) >= 6)
+            syncs = [d for c, d in heard if c == 0x80]
+            assert syncs[:6] == [b"\x01", b"\x02", b"\x03"] * 2
+            await _until(lambda: any(c == 0x185 for c, _ in heard))  # its TPDO on SYNC
+            master.nmt.stop(5)
+            await asyncio.sleep(0.02)
+            count = len(heard)
+            await asyncio.sleep(0.03)
+            assert len(heard) == count  # silent while stopped
+            master.nmt.send("enter_preoperational", 5)
+            await _until(lambda: len(heard) > count)
+            assert heard[count] == (0x80, b"\x01")  # the counter starts again
+            device.set(0x1006, 0, 0)
+            await asyncio.sleep(0.02)
+            count = len(heard)
+            await asyncio.sleep(0.03)
+            assert len(heard) == count  # no period, no SYNC
+            device.set(0x1006, 0, 1000)
+            await _until(lambda: len(heard) > count)
+            assert heard[count] == (0x80, b"\x01")
+            device.close()
+            await asyncio.sleep(0.02)
+            count = len(heard)
+            await asyncio.sleep(0.03)
+            assert len(heard) == count
+
+    _real_time(main)
+
+
+def test_a_device_on_an_interface_that_cannot_time_sync_is_refused():
+    from cobus.device import add_device, minimal_od
+
+    async def main() -> None:
+        async with AsyncNetwork(interface="virtual", channel="periodic-device") as net:
+            with pytest.raises(InterfaceTimingError, match="VirtualBus"):
+                add_device(net, 5, minimal_od(), sync_by_interface=True)
+            assert 5 not in net.devices
+            add_device(net, 5, minimal_od())  # the node-ID is free
+
+    _real_time(main)

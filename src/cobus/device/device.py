@@ -56,6 +56,7 @@ from cobus.proto import nmt as _nmt
 from cobus.proto.emcy import ErrorRegister
 from cobus.proto.nmt import NmtCommand, NmtSlave, NmtState
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServerBackend
+from cobus.runtime.periodic import check_interface_timing
 
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork
@@ -105,7 +106,9 @@ class Device:
     ``sdo_timeout`` — seconds the SDO servers wait within a segmented or block transfer.
     ``emcy_queue_size`` — emergencies held back by the inhibit time 1015h.
     ``deviations`` — a :class:`Deviations` for a model of a device that departs from
-    CiA 301.
+    CiA 301. ``sync_by_interface`` — when 1005h has it produce SYNC, the CAN interface
+    times it (SocketCAN: the kernel; see :mod:`cobus.runtime.periodic`); an interface that
+    cannot raises :class:`~cobus.runtime.InterfaceTimingError` here.
 
     The device attaches itself to ``network`` (it holds ``node_id`` in ``network.devices``
     until :meth:`close`); :meth:`start` boots it (boot-up message, pre-operational).
@@ -127,8 +130,11 @@ class Device:
         sdo_timeout: float = 1.0,
         emcy_queue_size: int = 16,
         deviations: Deviations | None = None,
+        sync_by_interface: bool = False,
     ) -> None:
         _nmt.check_node_id(node_id)
+        if sync_by_interface:
+            check_interface_timing(network)
         #: What a simulation changes in this device (late answers, a muted heartbeat, the
         #: deviations from CiA 301): see :class:`~cobus.device.Simulation`.
         self.simulation = Simulation(deviations, on_delay=self._sdo_delay_changed)
@@ -161,7 +167,9 @@ class Device:
         self._heartbeat = HeartbeatService(self._core, self._emcy, self._nmt.communication_error)
         self._guarding = GuardingService(self._core, self._emcy, self._nmt.communication_error)
         self._pdo = PdoService(self._core, self._emcy, in_sync_window=self._in_sync_window)
-        self._sync = SyncService(self._core, self._emcy, self._pdo.on_sync)
+        self._sync = SyncService(
+            self._core, self._emcy, self._pdo.on_sync, by_interface=sync_by_interface
+        )
         self._time = TimeService(self._core)
         self._install_handlers()
         self._check_free(node_id)

@@ -31,6 +31,7 @@ from cobus.proto import sync as _sync
 from cobus.proto.emcy import EmcyCode
 from cobus.proto.nmt import NmtState
 from cobus.proto.sdo import SdoAbortCode
+from cobus.runtime.periodic import InterfaceTimer
 
 if TYPE_CHECKING:
     from cobus.runtime.network import MachineHost, Subscription
@@ -55,10 +56,15 @@ def define_objects(od: ObjectDictionary) -> None:
 class SyncService:
     """SYNC of one device: consumer and producer, 1005h, 1006h, 1007h, 1019h."""
 
-    def __init__(self, core: Core, emcy: EmcyService, on_sync: OnSync) -> None:
+    def __init__(
+        self, core: Core, emcy: EmcyService, on_sync: OnSync, *, by_interface: bool = False
+    ) -> None:
         self._core = core
         self._emcy = emcy
         self._on_sync = on_sync
+        #: produce SYNC through the CAN interface's own timing (cobus.runtime.periodic)
+        self._by_interface = by_interface
+        self._timer: InterfaceTimer | None = None
         self._consumer: _sync.SyncConsumer | None = None
         self._consumer_host: MachineHost | None = None
         self._sub: Subscription | None = None
@@ -99,11 +105,41 @@ class SyncService:
             producer = _sync.SyncProducer(cob.can_id, extended=cob.extended, overflow=overflow)
             producer.set_period(int(core.value(0x1006, 0)), now)
             self._producer = producer
-            self._producer_host = network.attach(producer, ())
-            self._producer_host.apply(NOTHING)
+            if self._by_interface:
+                self._retime()
+            else:
+                self._producer_host = network.attach(producer, ())
+                self._producer_host.apply(NOTHING)
+
+    def _retime(self) -> None:
+        """(SYNC by the interface) Stop the interface's SYNC, and start it again as the
+        producer now says: its identifier, counter (from 1) and period; none while the
+        period is 0, generation is off or the device is stopped."""
+        if self._timer is not None:
+            self._timer.stop()
+            self._timer = None
+        producer = self._producer
+        if producer is None or not producer.generate or not producer.period_us:
+            return
+        cid, ext = producer.can_id, producer.extended
+        counts = range(1, producer.overflow + 1) if producer.overflow else (None,)
+        frames = [
+            Frame(cid, extended=ext) if c is None else Frame(cid, bytes((c,)), extended=ext)
+            for c in counts
+        ]
+        try:
+            timer = InterfaceTimer(self._core.network, frames, producer.period_us / 1e6)
+            timer.start()
+        except CobusError as exc:
+            self._core.report("SYNC by the interface", exc)
+            return
+        self._timer = timer
 
     def close(self) -> None:
         """Stop consuming and producing."""
+        if self._timer is not None:
+            self._timer.stop()
+            self._timer = None
         for host in (self._consumer_host, self._producer_host):
             if host is not None:
                 host.close()
@@ -115,10 +151,13 @@ class SyncService:
     def state_changed(self, old: NmtState, new: NmtState, now: float) -> None:
         """CiA 301: no SYNC produced in stopped; on leaving it the counter starts at 1."""
         producer, host = self._producer, self._producer_host
-        if producer is not None and host is not None and NmtState.STOPPED in (old, new):
+        if producer is not None and NmtState.STOPPED in (old, new):
             period = 0 if new is NmtState.STOPPED else int(self._core.value(0x1006, 0))
             producer.set_period(period, now)
-            host.apply(NOTHING)
+            if host is not None:
+                host.apply(NOTHING)
+            elif self._by_interface:
+                self._retime()
 
     def _on_frame(self, host: MachineHost, frame: Frame, now: float) -> None:
         if self._core.nmt.allowed(_nmt.Service.SYNC):  # pre-operational and operational
@@ -168,6 +207,10 @@ class SyncService:
         if self._producer is not None and self._producer_host is not None:
             self._producer.set_period(value, now)
             self._producer_host.apply(NOTHING)
+        elif self._producer is not None and self._by_interface:
+            if self._core.nmt.allowed(_nmt.Service.SYNC):  # (stays 0 while stopped)
+                self._producer.set_period(value, now)
+            self._retime()
 
     def _w_window(self, entry: Entry, value: Any) -> None:
         self._core.store(entry, value)

@@ -49,7 +49,12 @@ from cobus.runtime.bus import _is_udp_multicast, frame_to_message
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork
 
-__all__ = ["InterfaceTimer", "InterfaceTimingError", "interface_timing"]
+__all__ = [
+    "InterfaceTimer",
+    "InterfaceTimingError",
+    "check_interface_timing",
+    "interface_timing",
+]
 
 #: frames a SocketCAN broadcast manager task sends in turn at most (the kernel's MAX_NFRAMES)
 MAX_FRAMES = 256
@@ -74,6 +79,28 @@ def interface_timing(bus: can.BusABC) -> str | None:
     return None
 
 
+def check_interface_timing(network: AsyncNetwork) -> str:
+    """How the interface of ``network`` would time periodic frames (see
+    :func:`interface_timing`); :class:`InterfaceTimingError` where it cannot, on the
+    simulated clock, and :class:`~cobus.runtime.NetworkClosedError` while not connected
+    (python-can would send all the same)."""
+    network.loop  # noqa: B018  # (raises NetworkClosedError)
+    if network.simulated:
+        raise InterfaceTimingError(
+            "on the simulated clock the interface's timing would be wall-clock time: "
+            "let the network's loop send the frames"
+        )
+    bus = network.bus
+    kind = interface_timing(bus)
+    if kind is None:
+        raise InterfaceTimingError(
+            f"the {type(bus).__name__} interface cannot send periodic frames by itself so "
+            "that this network hears them too (SocketCAN and python-can's udp_multicast "
+            "can); let the network's loop send them instead"
+        )
+    return kind
+
+
 class InterfaceTimer:
     """``frames`` sent by the network's interface in turn, one every ``period`` seconds, from
     :meth:`start` until :meth:`stop` or the network disconnects (a reconnected network does
@@ -83,20 +110,8 @@ class InterfaceTimer:
     """
 
     def __init__(self, network: AsyncNetwork, frames: Sequence[Frame], period: float) -> None:
-        network.loop  # noqa: B018  # NetworkClosedError: python-can would send all the same
-        if network.simulated:
-            raise InterfaceTimingError(
-                "on the simulated clock the interface's timing would be wall-clock time: "
-                "let the network's loop send the frames"
-            )
+        kind = check_interface_timing(network)
         bus = network.bus
-        kind = interface_timing(bus)
-        if kind is None:
-            raise InterfaceTimingError(
-                f"the {type(bus).__name__} interface cannot send periodic frames by itself so "
-                "that this network hears them too (SocketCAN and python-can's udp_multicast "
-                "can); let the network's loop send them instead"
-            )
         if not frames or len(frames) > MAX_FRAMES:
             raise InterfaceTimingError(
                 f"{len(frames)} frames to send in turn: give 1 to {MAX_FRAMES}"
