@@ -242,7 +242,7 @@ def test_an_interface_whose_periodic_frames_nobody_here_would_hear_is_refused():
     async def main() -> None:
         async with AsyncNetwork(interface="virtual", channel="periodic-refused") as net:
             assert interface_timing(net.bus) is None
-            with pytest.raises(InterfaceTimingError, match="VirtualBus interface cannot"):
+            with pytest.raises(InterfaceTimingError, match="the virtual interface cannot"):
                 net.sync.start(0.001, by_interface=True)
             assert not net.sync.running
             net.sync.start(0.01)  # the loop's producer
@@ -352,6 +352,12 @@ def test_sync_by_interface_must_be_true_or_false(tmp_path):
 
     with pytest.raises(NetworkConfigError, match=r"sync_by_interface.*not true or false"):
         network(tmp_path, "master: {sync_period: 10, sync_by_interface: 1}\nnodes: {}\n")
+    text = "master: {sync_by_interface: true}\nnodes:\n  io:\n    node_id: 5\n    eds: io.eds\n"
+    warnings = [str(w) for w in network(tmp_path, text).warnings]
+    assert any(
+        "master.sync_by_interface: warning: the master sends no SYNC without a sync_period" in w
+        for w in warnings
+    ), warnings
 
 
 def test_a_bus_shut_down_under_the_interfaces_sync_ends_it():
@@ -436,9 +442,98 @@ def test_a_device_on_an_interface_that_cannot_time_sync_is_refused():
 
     async def main() -> None:
         async with AsyncNetwork(interface="virtual", channel="periodic-device") as net:
-            with pytest.raises(InterfaceTimingError, match="VirtualBus"):
+            with pytest.raises(InterfaceTimingError, match="the virtual interface cannot"):
                 add_device(net, 5, minimal_od(), sync_by_interface=True)
             assert 5 not in net.devices
             add_device(net, 5, minimal_od())  # the node-ID is free
 
     _real_time(main)
+
+
+def test_the_interfaces_sync_resumes_when_the_network_connects_again():
+    """As the loop's producer does: a network, and a device producing SYNC on one."""
+    from cobus.device import add_device, minimal_od
+
+    group, port = _group_or_skip()
+
+    async def main() -> None:
+        async with (
+            AsyncNetwork(interface="udp_multicast", channel=group, port=port) as net,
+            AsyncNetwork(interface="udp_multicast", channel=group, port=port) as field,
+            AsyncNetwork(interface="udp_multicast", channel=group, port=port) as listener,
+        ):
+            heard: list[int] = []
+            listener.subscribe_all(lambda f, now: heard.append(f.cob_id))
+            net.sync.start(0.002, overflow=3, by_interface=True)
+            device = add_device(field, 5, minimal_od(), sync_by_interface=True)
+            device.set(0x1005, 0, 0x40000081)  # the device's SYNC on 81h
+            device.set(0x1006, 0, 2000)
+            await _until(lambda: {0x80, 0x81} <= set(heard))
+            await net.disconnect()
+            await field.disconnect()
+            assert _state(net.sync) == (False, False, None)
+            await asyncio.sleep(0.02)
+            count = len(heard)
+            await asyncio.sleep(0.03)
+            assert len(heard) == count  # both silent
+            await net.connect()
+            await field.connect()
+            assert _state(net.sync) == (True, True, 0.002)
+            await _until(lambda: {0x80, 0x81} <= set(heard[count:]))
+            net.sync.stop()
+            device.close()
+            assert not field._on_connect  # (the closed device is forgotten)
+
+    _real_time(main)
+
+
+def test_a_master_on_the_simulated_clock_has_its_loop_time_sync(tmp_path):
+    """The same network description runs on a simulated bench: no interface there."""
+    from tests.test_master_support import Rig, network, rig_test
+
+    text = (
+        "master: {sync_period: 10, sync_by_interface: true}\n"
+        "nodes:\n  io:\n    node_id: 5\n    eds: io.eds\n"
+    )
+
+    async def scenario(rig: Rig) -> None:
+        rig.add(5)
+        await rig.master.boot(timeout=5)
+        assert rig.net.sync.running and not rig.net.sync.by_interface
+        await rig.run(0.1)
+        assert len(rig.data(0x80)) >= 9
+
+    rig_test(network(tmp_path, text), scenario)
+
+
+def test_a_period_that_is_no_number_is_out_of_range():
+    async def main() -> None:
+        async with AsyncNetwork(interface="virtual", channel="periodic-nan") as net:
+            for period in (float("nan"), float("inf")):
+                with pytest.raises(ValueError, match="out of range"):
+                    net.sync.start(period)
+
+    _real_time(main)
+
+
+def test_the_shell_sends_as_many_syncs_as_asked_by_the_interface(monkeypatch, capsys):
+    """``cobus sync --count N --by-interface``: N SYNCs, with the counter; the port of
+    udp_multicast comes from python-can's configuration."""
+    import json
+
+    from cobus.cli import main
+
+    group, port = _group_or_skip()
+    monkeypatch.setenv("CAN_CONFIG", json.dumps({"port": port}))
+    listener = can.Bus(interface="udp_multicast", channel=group, port=port)
+    try:
+        args = ["--period", "0.002", "--count", "7", "--overflow", "3", "--by-interface"]
+        assert main(["sync", *args, "-i", "udp_multicast", "-c", group]) == 0
+        assert capsys.readouterr().out.startswith("7 SYNC sent by the interface")
+        got = []
+        while (msg := listener.recv(0.2)) is not None:
+            if msg.arbitration_id == 0x80:
+                got.append(bytes(msg.data))
+        assert got == [b"\x01", b"\x02", b"\x03"] * 2 + [b"\x01"]
+    finally:
+        listener.shutdown()

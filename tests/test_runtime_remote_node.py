@@ -679,7 +679,16 @@ def test_the_blocking_network_has_what_the_async_one_has():
     ``run()`` and ``close()``."""
     from cobus.runtime import _twin
 
-    plumbing = {"attach", "connect", "disconnect", "emit", "listened", "loop", "on_disconnect"}
+    plumbing = {
+        "attach",
+        "connect",
+        "disconnect",
+        "emit",
+        "listened",
+        "loop",
+        "on_connect",
+        "on_disconnect",
+    }
     missing = _twin.public_names(AsyncNetwork) - _twin.public_names(Network)
     assert missing == plumbing
     assert _twin.public_names(Network) - _twin.public_names(AsyncNetwork) == {"close", "run"}

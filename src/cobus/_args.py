@@ -12,7 +12,11 @@ __all__ = ["add_bus_options", "bus_options", "seconds", "seconds_or_zero"]
 def add_bus_options(parser: argparse.ArgumentParser) -> None:
     """``-i/--interface``, ``-c/--channel``, ``-b/--bitrate`` as python-can's own tools have
     them; what is not given comes from python-can's configuration (``CAN_INTERFACE``...)."""
-    group = parser.add_argument_group("bus (default: python-can's configuration)")
+    group = parser.add_argument_group(
+        "bus (default: python-can's configuration)",
+        "Other options of the interface (udp_multicast's port...) come from python-can's "
+        """configuration too: CAN_CONFIG='{"port": 43114}' or ~/.canrc.""",
+    )
     group.add_argument("--interface", "-i", help="python-can interface (socketcan, pcan...)")
     group.add_argument("--channel", "-c", help="python-can channel (can0, PCAN_USBBUS1...)")
     group.add_argument("--bitrate", "-b", type=int, help="bit rate in bit/s")

@@ -18,6 +18,7 @@ import argparse
 import json
 import math
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -95,7 +96,7 @@ def register(sub: Any) -> None:
         help="produce SYNC",
         epilog="Exit codes: 0 done (or stopped with Ctrl-C), 1 the bus cannot be used.",
     )
-    sync.add_argument("--period", type=seconds, default=0.01, help="seconds (default 0.01)")
+    sync.add_argument("--period", type=_sync_period, default=0.01, help="seconds (default 0.01)")
     sync.add_argument("--count", type=int, help="how many (default: until Ctrl-C)")
     sync.add_argument(
         "--overflow",
@@ -368,28 +369,58 @@ def _nmt(args: argparse.Namespace) -> int:
 
 
 def _sync(args: argparse.Namespace) -> int:
+    from cobus.proto import Frame
+    from cobus.runtime import InterfaceTimingError
+
     if args.count is not None and args.count < 1:
         return _fail("--count: 1 or more", 2)
+    sent = 0
+    done = threading.Event()
     try:
         with _open(args) as net:
-            net.sync.start(args.period, overflow=args.overflow, by_interface=args.by_interface)
+            aio = net.aio
+
+            def heard(frame: Frame, now: float) -> None:
+                # every SYNC: the network's own as it sends it, the interface's from the bus
+                nonlocal sent
+                sent += 1
+                if sent == args.count:
+                    if aio.sync.by_interface:
+                        aio.sync.stop()  # at once: the interface would send the next
+                    else:  # (not from within the producer's own send)
+                        aio.loop.call_soon(aio.sync.stop)
+                    done.set()
+
+            async def begin() -> None:
+                aio.subscribe(0x80, heard)
+                aio.sync.start(args.period, overflow=args.overflow, by_interface=args.by_interface)
+
+            try:
+                net.run(begin())
+            except InterfaceTimingError as exc:
+                return _fail(f"--by-interface: {exc}; leave --by-interface out", 1)
             began = time.monotonic()
             try:
-                if args.count is None:
-                    while True:
-                        net.sleep(1.0)
-                else:
-                    net.sleep(args.period * args.count - args.period / 2)
+                while not done.wait(0.1):
+                    pass
             except KeyboardInterrupt:
                 pass
             net.sync.stop()
+            took = time.monotonic() - began
     except Exception as exc:
         if type(exc).__module__.startswith(("can", "cobus")):
             return _fail(f"cannot send: {exc}")
         raise
-    by = " (sent by the interface)" if args.by_interface else ""
-    print(f"SYNC every {args.period:g} s for {time.monotonic() - began:.1f} s{by}")
+    by = " by the interface" if args.by_interface else ""
+    print(f"{sent} SYNC sent{by}, every {args.period:g} s, in {took:.1f} s")
     return 0
+
+
+def _sync_period(text: str) -> float:
+    value = seconds(text)
+    if not 1e-6 <= value <= 4294.967295:
+        raise argparse.ArgumentTypeError(f"{text!r}: 0.000001 to 4294.967295 s (1006h)")
+    return value
 
 
 def _overflow(text: str) -> int:

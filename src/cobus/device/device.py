@@ -423,6 +423,7 @@ class Device:
             return
         self._closed = True
         self._teardown_comm()
+        self._sync.detach()
         self._nmt.close()
         holder = _SERVED.get(id(self.od))
         if holder is not None and holder() is self:

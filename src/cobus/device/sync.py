@@ -65,6 +65,8 @@ class SyncService:
         #: produce SYNC through the CAN interface's own timing (cobus.runtime.periodic)
         self._by_interface = by_interface
         self._timer: InterfaceTimer | None = None
+        if by_interface:  # the timer ends with a disconnect: start it again on connect
+            core.network.on_connect(self._retime)
         self._consumer: _sync.SyncConsumer | None = None
         self._consumer_host: MachineHost | None = None
         self._sub: Subscription | None = None
@@ -134,6 +136,10 @@ class SyncService:
             self._core.report("SYNC by the interface", exc)
             return
         self._timer = timer
+
+    def detach(self) -> None:
+        """The device is closed: forget the network (:meth:`close` first)."""
+        self._core.network._forget(self._retime)
 
     def close(self) -> None:
         """Stop consuming and producing."""

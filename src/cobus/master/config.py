@@ -5,7 +5,8 @@ master:
   node_id: 1               # optional: without it the master sends no heartbeat
   bitrate: 500000          # bit/s
   sync_period: 10          # ms (0: no SYNC); sync_cob_id: 0x80, sync_overflow: 0
-  sync_by_interface: false # true: the CAN interface times SYNC (SocketCAN: the kernel)
+  sync_by_interface: false # true: the CAN interface times SYNC (SocketCAN: the kernel;
+                           # a simulated network's loop does)
   heartbeat_time: 100      # ms: the master's own heartbeat (needs node_id)
   reset: node              # node | broadcast (one 81h 00 for every node)
   start: node              # node | broadcast (one 01h 00 once every node is configured)
@@ -175,7 +176,7 @@ def _int(value: Any, low: int, high: int, what: str = "value") -> int:
 
 def _bool(value: Any) -> bool:
     if not isinstance(value, bool):
-        raise _Bad(f"{value!r} is not true or false")
+        raise _Bad(f"{value!r} is not true or false (write them without quotes)")
     return value
 
 
@@ -1699,6 +1700,13 @@ def _read_master(raw: Any, report: _Report) -> MasterConfig:
         )
     if cfg.sync_period and cfg.sync_period_us < 1:
         report.error(None, "master.sync_period", "use at least 1 µs", line_of(spec, "sync_period"))
+    if cfg.sync_by_interface and not cfg.sync_period:
+        report.warning(
+            None,
+            "master.sync_by_interface",
+            "the master sends no SYNC without a sync_period",
+            line_of(spec, "sync_by_interface"),
+        )
     return cfg
 
 

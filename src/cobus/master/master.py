@@ -281,7 +281,8 @@ class Master:
                     cfg.sync_period,
                     overflow=cfg.sync_overflow,
                     cob_id=cfg.sync_cob_id,
-                    by_interface=cfg.sync_by_interface,
+                    # (the simulated clock has no interface: its loop times SYNC)
+                    by_interface=cfg.sync_by_interface and not net.simulated,
                 )
             except InterfaceTimingError as exc:
                 raise MasterError(f"master.sync_by_interface: {exc} (set it to false)") from exc

@@ -541,7 +541,8 @@ class Network:
 
     @property
     def frames_sent(self) -> int:
-        """How many frames this network has sent."""
+        """How many frames this network has sent (not those the interface sends by itself:
+        SYNC ``by_interface``)."""
         return self.aio.frames_sent
 
     @property

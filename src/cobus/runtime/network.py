@@ -9,6 +9,7 @@ attached to one network see each other exactly as they would on a wire.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import threading
 from collections import deque
@@ -227,7 +228,8 @@ class AsyncNetwork:
 
     #: Frames received from the bus so far.
     frames_received: int
-    #: Frames sent so far.
+    #: Frames sent so far (not those the interface sends by itself: SYNC ``by_interface``,
+    #: counted in ``frames_received`` when the network hears them back).
     frames_sent: int
     #: The nodes added with :meth:`add_remote`, by node-ID.
     remotes: dict[int, RemoteNode]
@@ -278,6 +280,7 @@ class AsyncNetwork:
         self._reader_stop = threading.Event()
         self._hosts: set[MachineHost] = set()  # until host.close()
         self._on_disconnect: list[Callable[[], object]] = []
+        self._on_connect: list[Callable[[], object]] = []
         self._listener_tasks: set[asyncio.Task[Any]] = set()
         self._rx_pending: deque[can.Message] = deque()
         self._rx_posted = False
@@ -340,6 +343,11 @@ class AsyncNetwork:
             host.apply(NOTHING)
         if self._backlog:
             self._retry_handle = loop.call_soon(self._flush)
+        for callback in list(self._on_connect):
+            try:
+                callback()
+            except Exception as exc:
+                self._report_failure(f"connect callback {callback!r}", exc)
         return self
 
     async def disconnect(self) -> None:
@@ -373,6 +381,17 @@ class AsyncNetwork:
     def on_disconnect(self, callback: Callable[[], object]) -> None:
         """Call ``callback()`` when the network disconnects (to fail pending operations)."""
         self._on_disconnect.append(callback)
+
+    def on_connect(self, callback: Callable[[], object]) -> None:
+        """Call ``callback()`` each time the network connects (after a disconnect: to resume
+        what does not resume with the machines' timers)."""
+        self._on_connect.append(callback)
+
+    def _forget(self, callback: Callable[[], object]) -> None:
+        """No longer call ``callback`` on connect or disconnect."""
+        for callbacks in (self._on_connect, self._on_disconnect):
+            with contextlib.suppress(ValueError):
+                callbacks.remove(callback)
 
     async def __aenter__(self) -> AsyncNetwork:
         return await self.connect()

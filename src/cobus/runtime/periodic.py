@@ -22,8 +22,9 @@ such frames back to the bus object that started them, and only those are accepte
 Elsewhere (``virtual``, python-can-remote, vendor interfaces, a wrapper such as
 ``cobus.sim.FaultyBus``) python-can would send from a thread whose frames this network never
 hears, and IXXAT's scheduler takes one frame: :class:`InterfaceTimingError` says so, and the
-loop's producer (the default) is the way there. So it does on the simulated clock and for a
-network not connected.
+loop's producer (the default) is the way there. So it does on the simulated clock (whose
+time python-can's timing is not); a network not connected raises
+:class:`~cobus.runtime.NetworkClosedError`, as the loop's producer does.
 
 python-can's thread sends through the timer, under its lock, without blocking: once
 :meth:`InterfaceTimer.stop` returns, nothing more goes out, and a send that fails (buffer
@@ -94,11 +95,20 @@ def check_interface_timing(network: AsyncNetwork) -> str:
     kind = interface_timing(bus)
     if kind is None:
         raise InterfaceTimingError(
-            f"the {type(bus).__name__} interface cannot send periodic frames by itself so "
+            f"the {interface_name(bus)} interface cannot send periodic frames by itself so "
             "that this network hears them too (SocketCAN and python-can's udp_multicast "
             "can); let the network's loop send them instead"
         )
     return kind
+
+
+def interface_name(bus: can.BusABC) -> str:
+    """The python-can interface name of ``bus`` (``"virtual"``), or its class name."""
+    cls = bus.__class__
+    for name, (module, class_name) in can.interfaces.BACKENDS.items():
+        if class_name == cls.__name__ and cls.__module__.startswith(module):
+            return name
+    return cls.__name__
 
 
 class InterfaceTimer:
@@ -125,6 +135,8 @@ class InterfaceTimer:
         #: Sends python-can's thread could not make (buffer full, bus-off).
         self.errors = 0
         self._cob_id = frames[0].cob_id
+        #: What it sends, in turn.
+        self.frames = tuple(frames)
         # python-can's thread sends under this lock, through send() below: once stop() has
         # taken it, nothing more goes out
         self._lock = threading.Lock()
@@ -165,13 +177,17 @@ class InterfaceTimer:
         except (can.CanError, OSError) as exc:
             self._stopped = True
             raise self._refused(exc) from exc
+        # a network disconnected from a bus the user keeps: the interface would go on
+        self._network.on_disconnect(self.stop)
 
     def stop(self) -> None:
         """Stop sending (again: nothing happens); once it returns, nothing more is sent."""
         with self._lock:
-            if self._stopped:
-                return
+            was = self._stopped
             self._stopped = True
+        self._network._forget(self.stop)
+        if was:  # (or ended by its thread: a bus shut down)
+            return
         # (raises when the bus is already shut down, and the task with it)
         with contextlib.suppress(can.CanError, OSError):
             self._task.stop()

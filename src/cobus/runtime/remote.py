@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 from collections import deque
 from functools import partial
 from pathlib import Path
@@ -740,7 +741,9 @@ class SyncService:
         self._producer: SyncProducer | None = None
         self._host: MachineHost | None = None
         self._timer: InterfaceTimer | None = None
+        self._wanted = False  # the interface's SYNC: started, not stopped (resumed on connect)
         network.on_disconnect(self._disconnected)
+        network.on_connect(self._connected)
 
     @property
     def running(self) -> bool:
@@ -784,19 +787,21 @@ class SyncService:
     def start(
         self, period: float, *, overflow: int = 0, cob_id: int = 0x80, by_interface: bool = False
     ) -> None:
-        """Send SYNC every ``period`` seconds (the first one period from now).
+        """Send SYNC every ``period`` seconds (the first one period from now; by the
+        interface, at once).
 
         ``overflow`` 2..240 adds the CiA 301 counter (1..overflow) to each SYNC; 0 = no counter.
 
         ``by_interface=True`` hands the SYNC, counter included, to the CAN interface: on
         SocketCAN the kernel sends it, so that no garbage collection, busy thread or burst of
         frames in this process delays it (the first goes out at once). The network still
-        hears each SYNC, from the bus. Disconnecting ends it; start it again once connected.
+        hears each SYNC, from the bus. A network that disconnects and connects again
+        resumes it.
         :class:`~cobus.runtime.periodic.InterfaceTimingError` where the interface cannot do
         that (only SocketCAN and python-can's udp_multicast can, see
         :mod:`cobus.runtime.periodic`).
         """
-        us = round(period * 1e6)
+        us = round(period * 1e6) if math.isfinite(period) else 0  # (NaN, inf: out of range)
         if not 1 <= us <= 0xFFFFFFFF:
             raise ValueError(
                 f"SYNC period {period!r} s is out of range: 1006h holds 1 us to 4294.967295 s"
@@ -814,6 +819,7 @@ class SyncService:
             self._producer = producer
             self._timer = timer
             timer.start()
+            self._wanted = True
             return
         self.stop()
         self._timer = None
@@ -843,6 +849,7 @@ class SyncService:
         if self._host is not None:
             self._host.close()
             self._host = None
+        self._wanted = False
         if self._timer is not None:
             self._timer.stop()  # (kept: its send_errors)
 
@@ -850,3 +857,12 @@ class SyncService:
         # the network's bus may outlive it (the user's): its interface must stop sending
         if self._timer is not None:
             self._timer.stop()
+
+    def _connected(self) -> None:
+        """Start the interface's SYNC again, as the loop's producer resumes."""
+        old = self._timer
+        if not self._wanted or old is None or old.running:
+            return
+        timer = InterfaceTimer(self._network, old.frames, old.period)
+        self._timer = timer  # (its send_errors start again)
+        timer.start()
