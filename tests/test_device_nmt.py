@@ -366,6 +366,26 @@ def test_no_sync_is_produced_in_stopped_and_the_counter_restarts_after():
     run_bench(scenario)
 
 
+def test_a_period_written_while_stopped_takes_effect_once_the_device_leaves_stopped():
+    async def scenario(b: Bench):
+        await b.sdo.write(0x1019, 0, 3)
+        await b.sdo.write(0x1005, 0, 0x40000080)
+        await b.sdo.write(0x1006, 0, 10_000)
+        await b.net.sleep(0.015)
+        b.net.nmt.stop(NODE)
+        await b.settle()
+        b.device.set(0x1006, 0, 5_000)  # by the application: no SDO in stopped
+        await b.net.sleep(0.1)
+        assert b.data(0x80) == [b"\x01"]  # still silent
+        await b.start()
+        t0 = b.net.time()
+        await b.net.sleep(0.0125)
+        assert b.data(0x80)[1:] == [b"\x01", b"\x02"]
+        assert [round(t - t0, 4) for t in b.times(0x80)[1:]] == [0.005, 0.01]
+
+    run_bench(scenario)
+
+
 def test_time_stamps_are_consumed_per_1012h():
     async def scenario(b: Bench):
         when = datetime(2024, 5, 17, 8, 30, 15, 250_000, tzinfo=UTC)

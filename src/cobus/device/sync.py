@@ -210,13 +210,14 @@ class SyncService:
         if self._consumer is not None and self._consumer_host is not None:
             self._consumer.set_period(value, now)
             self._consumer_host.apply(NOTHING)
-        if self._producer is not None and self._producer_host is not None:
-            self._producer.set_period(value, now)
-            self._producer_host.apply(NOTHING)
-        elif self._producer is not None and self._by_interface:
-            if self._core.nmt.allowed(_nmt.Service.SYNC):  # (stays 0 while stopped)
-                self._producer.set_period(value, now)
-            self._retime()
+        producer = self._producer
+        if producer is not None:
+            if self._core.nmt.allowed(_nmt.Service.SYNC):  # (0 while stopped, CiA 301)
+                producer.set_period(value, now)
+            if self._producer_host is not None:
+                self._producer_host.apply(NOTHING)
+            elif self._by_interface:
+                self._retime()
 
     def _w_window(self, entry: Entry, value: Any) -> None:
         self._core.store(entry, value)
