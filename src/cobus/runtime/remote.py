@@ -256,9 +256,15 @@ class SdoChannel:
 
     async def _transfer(self, start: Any) -> Event:
         self._check_open()
-        await self._acquire()
+        if self._busy or self._waiters:
+            await self._acquire()
+            waited = True
+        else:  # _acquire() without a coroutine: every transfer on a free channel
+            self._busy = True
+            waited = False
         try:
-            self._check_open()  # removed while this transfer waited for the channel
+            if waited:
+                self._check_open()  # removed while this transfer waited for the channel
             done: asyncio.Future[Event] = self._network.loop.create_future()
 
             def finished(outcome: Event | BaseException) -> None:
