@@ -97,7 +97,12 @@ def register(sub: Any) -> None:
         epilog="Exit codes: 0 done (or stopped with Ctrl-C), 1 the bus cannot be used.",
     )
     sync.add_argument("--period", type=_sync_period, default=0.01, help="seconds (default 0.01)")
-    sync.add_argument("--count", type=int, help="how many (default: until Ctrl-C)")
+    sync.add_argument(
+        "--count",
+        type=int,
+        help="how many (default: until Ctrl-C); with --by-interface one more may go out at "
+        "short periods (what went out is printed)",
+    )
     sync.add_argument(
         "--overflow",
         type=_overflow,
@@ -400,19 +405,28 @@ def _sync(args: argparse.Namespace) -> int:
             except InterfaceTimingError as exc:
                 return _fail(f"--by-interface: {exc}; leave --by-interface out", 1)
             began = time.monotonic()
+            limit = math.inf  # until Ctrl-C
+            if args.count is not None:  # (a bus that carries none must not hang the shell)
+                limit = began + args.count * args.period + max(1.0, 10 * args.period)
             try:
-                while not done.wait(0.1):
+                while not done.wait(0.1) and time.monotonic() < limit:
                     pass
             except KeyboardInterrupt:
                 pass
             net.sync.stop()
             took = time.monotonic() - began
+            net.sleep(0.05)  # what is still on its way back from the bus
     except Exception as exc:
         if type(exc).__module__.startswith(("can", "cobus")):
             return _fail(f"cannot send: {exc}")
         raise
     by = " by the interface" if args.by_interface else ""
-    print(f"{sent} SYNC sent{by}, every {args.period:g} s, in {took:.1f} s")
+    if args.count is not None and sent < args.count:
+        return _fail(
+            f"only {sent} of {args.count} SYNC went out{by} in {took:.2f} s: is the bus up, "
+            "and does another node acknowledge frames?"
+        )
+    print(f"{sent} SYNC sent{by}, every {args.period:g} s, in {took:.2f} s")
     return 0
 
 

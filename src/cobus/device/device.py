@@ -175,6 +175,7 @@ class Device:
         self._check_free(node_id)
         network.devices.claim(node_id, self)
         _SERVED[id(od)] = weakref.ref(self)
+        self._sync.attach()  # (last: a device that failed to be made leaves nothing behind)
 
     # ================================================================== public API
 

@@ -14,6 +14,7 @@ producer falls silent and on leaving stopped its counter starts again at 1.
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Callable
 from functools import partial
 from typing import TYPE_CHECKING, Any
@@ -65,8 +66,7 @@ class SyncService:
         #: produce SYNC through the CAN interface's own timing (cobus.runtime.periodic)
         self._by_interface = by_interface
         self._timer: InterfaceTimer | None = None
-        if by_interface:  # the timer ends with a disconnect: start it again on connect
-            core.network.on_connect(self._retime)
+        self._timer_start: asyncio.TimerHandle | None = None
         self._consumer: _sync.SyncConsumer | None = None
         self._consumer_host: MachineHost | None = None
         self._sub: Subscription | None = None
@@ -115,13 +115,21 @@ class SyncService:
 
     def _retime(self) -> None:
         """(SYNC by the interface) Stop the interface's SYNC, and start it again as the
-        producer now says: its identifier, counter (from 1) and period; none while the
-        period is 0, generation is off or the device is stopped."""
-        if self._timer is not None:
-            self._timer.stop()
-            self._timer = None
+        producer now says: its identifier, counter (from 1) and period, one period from now
+        (the interface would send the first at once: a shorter interval, before the
+        boot-up); none while the period is 0, generation is off, SYNC is not allowed in the
+        device's state (initialising, stopped) or the network is not connected (it starts
+        again on connect)."""
+        self._stop_timer()
         producer = self._producer
-        if producer is None or not producer.generate or not producer.period_us:
+        network = self._core.network
+        if (
+            producer is None
+            or not producer.generate
+            or not producer.period_us
+            or not self._core.nmt.allowed(_nmt.Service.SYNC)
+            or not network.connected
+        ):
             return
         cid, ext = producer.can_id, producer.extended
         counts = range(1, producer.overflow + 1) if producer.overflow else (None,)
@@ -129,13 +137,37 @@ class SyncService:
             Frame(cid, extended=ext) if c is None else Frame(cid, bytes((c,)), extended=ext)
             for c in counts
         ]
+        period = producer.period_us / 1e6
         try:
-            timer = InterfaceTimer(self._core.network, frames, producer.period_us / 1e6)
-            timer.start()
+            timer = InterfaceTimer(network, frames, period)
         except CobusError as exc:
             self._core.report("SYNC by the interface", exc)
             return
         self._timer = timer
+        self._timer_start = network.loop.call_later(period, self._start_timer, timer)
+
+    def _start_timer(self, timer: InterfaceTimer) -> None:
+        self._timer_start = None
+        if self._timer is not timer or not self._core.network.connected:
+            return
+        try:
+            timer.start()
+        except CobusError as exc:
+            self._core.report("SYNC by the interface", exc)
+
+    def _stop_timer(self) -> None:
+        if self._timer_start is not None:
+            self._timer_start.cancel()
+            self._timer_start = None
+        if self._timer is not None:
+            self._timer.stop()
+            self._timer = None
+
+    def attach(self) -> None:
+        """The device is on its network: (by the interface) its SYNC, which ends when the
+        network disconnects, starts again when it connects."""
+        if self._by_interface:
+            self._core.network.on_connect(self._retime)
 
     def detach(self) -> None:
         """The device is closed: forget the network (:meth:`close` first)."""
@@ -143,9 +175,7 @@ class SyncService:
 
     def close(self) -> None:
         """Stop consuming and producing."""
-        if self._timer is not None:
-            self._timer.stop()
-            self._timer = None
+        self._stop_timer()
         for host in (self._consumer_host, self._producer_host):
             if host is not None:
                 host.close()
@@ -162,7 +192,10 @@ class SyncService:
             producer.set_period(period, now)
             if host is not None:
                 host.apply(NOTHING)
-            elif self._by_interface:
+        if self._by_interface and producer is not None:
+            # on (after the boot-up, on leaving stopped) or off, as SYNC becomes allowed
+            allowed = self._core.nmt.allowed(_nmt.Service.SYNC)
+            if allowed != (self._timer is not None):
                 self._retime()
 
     def _on_frame(self, host: MachineHost, frame: Frame, now: float) -> None:
@@ -200,8 +233,9 @@ class SyncService:
                 "1005h: the SYNC identifier cannot change while this device generates SYNC; "
                 "clear bit 30 first",
             )
+        unchanged = value == self._core.value(0x1005, 0, _sync.SYNC_COB_ID)
         self._core.store(entry, value)
-        if self._core.started:
+        if self._core.started and not unchanged:  # (a configuration download rewrites it)
             self.build()
 
     def _w_period(self, entry: Entry, value: Any) -> None:
@@ -212,12 +246,13 @@ class SyncService:
             self._consumer_host.apply(NOTHING)
         producer = self._producer
         if producer is not None:
+            before = producer.period_us
             if self._core.nmt.allowed(_nmt.Service.SYNC):  # (0 while stopped, CiA 301)
                 producer.set_period(value, now)
             if self._producer_host is not None:
                 self._producer_host.apply(NOTHING)
-            elif self._by_interface:
-                self._retime()
+            elif self._by_interface and (producer.period_us != before or self._timer is None):
+                self._retime()  # (the same period again keeps the phase)
 
     def _w_window(self, entry: Entry, value: Any) -> None:
         self._core.store(entry, value)

@@ -209,6 +209,9 @@ class InterfaceTimer:
         if loop is None or getattr(self._bus, "_is_shutdown", False):
             self._stopped = True  # for good: the bus is gone
             self._task.stop()
+            if loop is not None:  # (the network's lists are the loop's)
+                with contextlib.suppress(RuntimeError):
+                    loop.call_soon_threadsafe(network._forget, self.stop)
             return
         self.errors = count = self.errors + 1
         if count in (1, 10, 100, 1000) or count % 10_000 == 0:

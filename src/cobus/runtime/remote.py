@@ -753,19 +753,24 @@ class SyncService:
 
     @property
     def running(self) -> bool:
-        """Whether SYNC is being sent periodically."""
-        return self._host is not None or (self._timer is not None and self._timer.running)
+        """Whether SYNC is being sent periodically (or will be again once the network
+        connects: it resumes, as it does after a disconnect)."""
+        return self._host is not None or self.by_interface
 
     @property
     def by_interface(self) -> bool:
-        """Whether the CAN interface times the SYNC (``start(..., by_interface=True)``)."""
-        return self._timer is not None and self._timer.running
+        """Whether the CAN interface times the SYNC (``start(..., by_interface=True)``;
+        False once the interface's sending ended on its own: a bus shut down)."""
+        timer = self._timer
+        return timer is not None and (
+            timer.running or (self._wanted and not self._network.connected)
+        )
 
     @property
     def period(self) -> float | None:
         """The SYNC period in seconds, or None while stopped."""
         if self._timer is not None:
-            return self._timer.period if self._timer.running else None
+            return self._timer.period if self.by_interface else None
         if self._producer is None or self._host is None:
             return None
         return self._producer.period_us / 1e6
