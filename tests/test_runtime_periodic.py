@@ -18,48 +18,26 @@ import pytest
 
 from cobus.proto import Frame
 from cobus.proto.sync import SyncConfigError
-from cobus.runtime import AsyncNetwork, HandlerFailed, Network, RealTimeLoop
+from cobus.runtime import AsyncNetwork, HandlerFailed, Network
 from cobus.runtime.periodic import InterfaceTimer, InterfaceTimingError, interface_timing
 from cobus.runtime.remote import SyncService
+from tests.test_runtime_fd_read import _multicast_or_skip, _until
+from tests.test_runtime_fd_read import _on_real_time_loop as _real_time
 
 
 def _group_or_skip() -> tuple[str, int]:
-    pytest.importorskip("msgpack", reason="python-can's udp_multicast needs msgpack")
+    """A multicast group and a port of this test's own (skips where multicast is not)."""
     from can.interfaces.udp_multicast import UdpMulticastBus
 
     group, port = UdpMulticastBus.DEFAULT_GROUP_IPv6, random.randrange(20000, 40000)
-    try:
-        probe = can.Bus(interface="udp_multicast", channel=group, port=port)
-    except (can.CanError, OSError) as exc:
-        pytest.skip(f"no multicast on this host: {exc}")
-    try:
-        probe.send(can.Message(arbitration_id=0x7F0, data=b"", is_extended_id=False))
-        if probe.recv(1.0) is None:
-            pytest.skip("multicast loopback delivers nothing on this host")
-    finally:
-        probe.shutdown()
+    _multicast_or_skip(group, port)
     return group, port
-
-
-def _real_time(coro_fn):
-    loop = RealTimeLoop()
-    try:
-        return loop.run_until_complete(coro_fn())
-    finally:
-        loop.close()
 
 
 def _state(sync: SyncService) -> tuple[bool, bool, float | None]:
     """running, by_interface, period (read through a call: mypy would keep an earlier
     assert's narrowing of the properties)"""
     return sync.running, sync.by_interface, sync.period
-
-
-async def _until(predicate, seconds: float = 3.0) -> None:
-    deadline = time.monotonic() + seconds
-    while not predicate():
-        assert time.monotonic() < deadline, "timed out"
-        await asyncio.sleep(0.002)
 
 
 def test_the_interface_sends_sync_with_its_counter_and_both_networks_hear_it():
