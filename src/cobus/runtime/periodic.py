@@ -95,14 +95,14 @@ def check_interface_timing(network: AsyncNetwork) -> str:
     kind = interface_timing(bus)
     if kind is None:
         raise InterfaceTimingError(
-            f"the {interface_name(bus)} interface cannot send periodic frames by itself so "
+            f"the {_interface_name(bus)} interface cannot send periodic frames by itself so "
             "that this network hears them too (SocketCAN and python-can's udp_multicast "
             "can); let the network's loop send them instead"
         )
     return kind
 
 
-def interface_name(bus: can.BusABC) -> str:
+def _interface_name(bus: can.BusABC) -> str:
     """The python-can interface name of ``bus`` (``"virtual"``), or its class name."""
     cls = bus.__class__
     for name, (module, class_name) in can.interfaces.BACKENDS.items():
@@ -113,8 +113,8 @@ def interface_name(bus: can.BusABC) -> str:
 
 class InterfaceTimer:
     """``frames`` sent by the network's interface in turn, one every ``period`` seconds, from
-    :meth:`start` until :meth:`stop` or the network disconnects (a reconnected network does
-    not resume it). The first goes out at once, on both interfaces.
+    :meth:`start` until :meth:`stop` or the network disconnects (whoever made it makes a new
+    one when the network connects again). The first goes out at once, on both interfaces.
 
     Made stopped: a timer it replaces is stopped first, so that two never send at once.
     """
@@ -134,7 +134,6 @@ class InterfaceTimer:
         self.period = period
         #: Sends python-can's thread could not make (buffer full, bus-off).
         self.errors = 0
-        self._cob_id = frames[0].cob_id
         #: What it sends, in turn.
         self.frames = tuple(frames)
         # python-can's thread sends under this lock, through send() below: once stop() has
@@ -215,11 +214,13 @@ class InterfaceTimer:
             return
         self.errors = count = self.errors + 1
         if count in (1, 10, 100, 1000) or count % 10_000 == 0:
-            where = f"periodic frame 0x{self._cob_id:X} sent by the interface ({count} failed)"
+            cob_id = self.frames[0].cob_id
+            where = f"periodic frame 0x{cob_id:X} sent by the interface ({count} failed)"
             with contextlib.suppress(RuntimeError):  # the loop is closed
                 loop.call_soon_threadsafe(network._report_failure, where, exc)
 
     def _refused(self, exc: BaseException) -> InterfaceTimingError:
         return InterfaceTimingError(
-            f"the interface refused to send frame 0x{self._cob_id:X} every {self.period:g} s: {exc}"
+            f"the interface refused to send frame 0x{self.frames[0].cob_id:X} every "
+            f"{self.period:g} s: {exc}"
         )

@@ -748,8 +748,7 @@ class SyncService:
         self._host: MachineHost | None = None
         self._timer: InterfaceTimer | None = None
         self._wanted = False  # the interface's SYNC: started, not stopped (resumed on connect)
-        network.on_disconnect(self._disconnected)
-        network.on_connect(self._connected)
+        network.on_connect(self._connected)  # (a timer stops itself on disconnect)
 
     @property
     def running(self) -> bool:
@@ -863,11 +862,6 @@ class SyncService:
         self._wanted = False
         if self._timer is not None:
             self._timer.stop()  # (kept: its send_errors)
-
-    def _disconnected(self) -> None:
-        # the network's bus may outlive it (the user's): its interface must stop sending
-        if self._timer is not None:
-            self._timer.stop()
 
     def _connected(self) -> None:
         """Start the interface's SYNC again, as the loop's producer resumes."""
