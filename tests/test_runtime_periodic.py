@@ -9,7 +9,6 @@ sequence of frames handed to the interface, heard back from the bus).
 from __future__ import annotations
 
 import asyncio
-import itertools
 import random
 import time
 
@@ -555,13 +554,15 @@ def test_a_device_sends_its_interface_timed_sync_after_its_boot_up_and_keeps_the
             cobs = [c for _, c in heard]
             assert cobs.index(0x705) < cobs.index(0x80)  # no SYNC while initialising
             await asyncio.sleep(0.012)
-            syncs = [t for t, c in heard if c == 0x80]
+            timer = device._sync._timer
+            assert timer is not None and timer.running
+            count = sum(1 for _, c in heard if c == 0x80)
             device.set(0x1005, 0, 0x40000080)  # the same values again, as a
             device.set(0x1006, 0, 5000)  # configuration download writes them
-            await asyncio.sleep(0.03)
-            syncs = [t for t, c in heard if c == 0x80]
-            gaps = [b - a for a, b in itertools.pairwise(syncs)]
-            assert min(gaps) > 0.003  # no SYNC at once, no shorter interval
+            await _until(lambda: sum(1 for _, c in heard if c == 0x80) >= count + 3)
+            # the same sequence goes on: not stopped and started again (python-can's thread
+            # catches up after a late send, so the intervals heard cannot tell)
+            assert device._sync._timer is timer and timer.running
             device.close()
 
     _real_time(main)
