@@ -150,8 +150,11 @@ class InterfaceTimer:
                 us = period * 1e6
                 if abs(us - round(us)) < 1e-6:
                     period = (round(us) + 0.5) / 1e6
-                # one TX_SETUP with every frame: the kernel cycles through them
-                self._task = bus.send_periodic(messages, period, autostart=False)
+                # one TX_SETUP with every frame: the kernel cycles through them. The bus does
+                # not keep the task (store_task): this timer stops it, and a task the kernel
+                # refused to start would otherwise get a TX_DELETE at the bus's shutdown,
+                # which raises where the TX_SETUP failed (an interface that is down)
+                self._task = bus.send_periodic(messages, period, autostart=False, store_task=False)
             else:
                 sender: Any = self  # (python-can's task calls send(msg) on its "bus")
                 self._task = ThreadBasedCyclicSendTask(
