@@ -307,6 +307,41 @@ def test_using_a_closed_network_is_a_clear_error():
         net.time()
 
 
+def test_a_bus_that_fails_to_shut_down_is_reported_and_the_network_closes(monkeypatch):
+    """A driver raising from ``shutdown`` (a SocketCAN task the kernel will not delete, a
+    USB adapter unplugged) does not escape ``disconnect``: it is reported, the bus is let go
+    and the network connects again on a new one."""
+
+    from can.interfaces.virtual import VirtualBus
+
+    class FailingShutdown(VirtualBus):
+        def shutdown(self) -> None:
+            super().shutdown()
+            raise can.CanOperationError("the adapter is gone")
+
+    opened: list[can.BusABC] = []
+
+    def open_failing(**kwargs: object) -> can.BusABC:
+        opened.append(FailingShutdown(channel="failing-shutdown"))
+        return opened[-1]
+
+    monkeypatch.setattr("cobus.runtime.network._bus.open_bus", open_failing)
+
+    async def main() -> None:
+        net = AsyncNetwork(interface="virtual", channel="failing-shutdown")
+        await net.connect()
+        failures: list[HandlerFailed] = []
+        net.add_listener(lambda e: failures.append(e) if isinstance(e, HandlerFailed) else None)
+        await net.disconnect()
+        assert [f.where for f in failures] == ["shutting the bus down"]
+        assert "the adapter is gone" in failures[0].error
+        await net.connect()  # a new bus, not the one shut down
+        assert net.bus is opened[1]
+        await net.disconnect()
+
+    simulate(main())
+
+
 def test_open_bus_without_interface_says_what_to_do(monkeypatch):
     monkeypatch.delenv("CAN_INTERFACE", raising=False)
     monkeypatch.setenv("HOME", "/nonexistent")

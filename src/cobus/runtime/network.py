@@ -375,8 +375,11 @@ class AsyncNetwork:
                 log.exception("disconnect callback %r failed", callback)
                 del exc
         if self._owns_bus and self._bus is not None:
-            self._bus.shutdown()
-            self._bus = None
+            bus, self._bus = self._bus, None
+            try:
+                bus.shutdown()
+            except (can.CanError, OSError) as exc:  # a driver failing to close: closed anyway
+                self._report_failure("shutting the bus down", exc)
 
     def on_disconnect(self, callback: Callable[[], object]) -> None:
         """Call ``callback()`` when the network disconnects (to fail pending operations)."""
