@@ -37,7 +37,7 @@ import sys
 import textwrap
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import can
@@ -346,6 +346,16 @@ def _free_port() -> int:
 
 def remote_figures() -> dict[str, list[Measured]] | None:
     """The clients here, the servers in a child process, over python-can-remote."""
+    with remote_servers() as url:
+        if url is None:
+            return None
+        return _interleave_connected(_remote_arrangements("remote", url), "remote", url)
+
+
+@contextlib.contextmanager
+def remote_servers() -> Iterator[str | None]:
+    """A python-can-remote hub on 127.0.0.1 and the servers' child process (_SERVERS) on it:
+    the hub's URL, or None when the servers could not start."""
     port = _free_port()
     where = ["-H", "127.0.0.1", "-p", str(port)]
     hub = subprocess.Popen(
@@ -362,9 +372,7 @@ def remote_figures() -> dict[str, list[Measured]] | None:
                 break
             time.sleep(0.05)
         servers = _start_servers("remote", url)
-        if servers is None:
-            return None
-        return _interleave_connected(_remote_arrangements("remote", url), "remote", url)
+        yield None if servers is None else url
     finally:
         if servers is not None:
             _stop_servers(servers)

@@ -1,0 +1,294 @@
+"""Where one expedited SDO round trip spends its time, hop by hop (issue 20), beside
+python-canopen's path and a bare python-can ping-pong.
+
+Every stack reaches the bus through python-can, so the trip is cut where a frame crosses
+python-can: each bus object's ``send`` and ``recv`` are wrapped to note the time
+(``perf_counter_ns``) when the request or the answer is handed to the interface and when it
+is read from it. Per trip:
+
+1. caller -> request handed to the interface: the client stack's way out (cobus: the
+   blocking call begins the transfer in the caller's thread; python-canopen: its
+   ``upload`` sends there too);
+2. request handed over -> read by the server: python-can's ``virtual`` bus (its ``send``
+   copies the message for each receiver) and the wake-up of the server's reading thread;
+3. the server's work: read -> answer handed to the interface (cobus device, python-canopen
+   ``LocalNode`` or the bare thread);
+4. answer handed over -> read on the client's side: the bus again and the wake-up of the
+   client's reading thread (the caller itself in the bare ping-pong);
+5. answer read -> the caller has its value: the client stack's way in and the hand-over to
+   the waiting caller (none in the bare ping-pong, which reads in the caller).
+
+All in this process on ``virtual`` buses in real time, one arrangement after the other in
+interleaved rounds; medians of every trip per hop (the hops' medians need not add up to the
+total's). A wrapper costs each stack the same, about half a microsecond per stamp. Run alone:
+``python -m benchmarks.bench_hops``.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import os
+import statistics
+import time
+from collections.abc import Callable
+from typing import Any
+
+import can
+import canopen
+
+from benchmarks.bench_latency import (
+    NODE,
+    PONG_NODE,
+    _canopen_client,
+    _canopen_server,
+    _cobus_pair,
+    _PingPong,
+    _RemotePing,
+    remote_servers,
+)
+from cobus.device import add_device, minimal_od
+from cobus.runtime import Network
+
+TRIPS = 300
+ROUNDS = 5
+HOPS = (
+    "1. caller -> request handed to the interface",
+    "2. the bus, the server's reader wakes",
+    "3. the server's work",
+    "4. the bus, the client's reader wakes",
+    "5. answer read -> the caller has it",
+)
+REMOTE_HOPS = (
+    HOPS[0],
+    "2-4. to the hub, the server's process and back",
+    HOPS[4],
+)
+
+
+class _Trip:
+    """The time stamps of the trip under way (ns): request sent and read, answer sent and
+    read."""
+
+    __slots__ = ("ans_rx", "ans_tx", "req_rx", "req_tx")
+
+    def __init__(self) -> None:
+        self.req_tx = self.req_rx = self.ans_tx = self.ans_rx = 0
+
+
+def _watch(bus: can.BusABC | None, trip: _Trip, *, client: bool, node: int = NODE) -> None:
+    """Stamp the request to and the answer of ``node`` where they cross ``bus`` (one object:
+    the wrappers are attributes of the instance, found before the class's methods)."""
+    assert bus is not None, "a network not connected"
+    clock = time.perf_counter_ns
+    send, recv = bus.send, bus.recv
+    request, answer = 0x600 + node, 0x580 + node
+    sent_id, read_id = (request, answer) if client else (answer, request)
+
+    def stamped_send(msg: can.Message, timeout: float | None = None) -> None:
+        if msg.arbitration_id == sent_id:
+            now = clock()
+            if client:
+                trip.req_tx = now
+            else:
+                trip.ans_tx = now
+        send(msg, timeout)
+
+    def stamped_recv(timeout: float | None = None) -> can.Message | None:
+        msg = recv(timeout)
+        if msg is not None and msg.arbitration_id == read_id:
+            now = clock()
+            if client:
+                trip.ans_rx = now
+            else:
+                trip.req_rx = now
+        return msg
+
+    bus.send = stamped_send  # type: ignore[method-assign]
+    bus.recv = stamped_recv  # type: ignore[method-assign]
+
+
+Arrangement = tuple[Callable[[], object], Callable[[], None]]
+
+
+def _arrangements(trip: _Trip) -> dict[str, Arrangement]:
+    """Each arrangement's trip and how to close it, its buses watched."""
+    pid = os.getpid()
+    out: dict[str, Arrangement] = {}
+
+    ping = _PingPong(f"hops-ping-{pid}")
+    _watch(ping.client, trip, client=True)
+    _watch(ping.server, trip, client=False)
+    out["bare python-can ping-pong"] = (ping.trip, ping.close)
+
+    co_server = _canopen_server(f"hops-co-{pid}")
+    co_net, co_node = _canopen_client(f"hops-co-{pid}")
+    _watch(co_net.bus, trip, client=True)
+    _watch(co_server.bus, trip, client=False)
+
+    def close_co() -> None:
+        co_net.disconnect()
+        co_server.disconnect()
+
+    out["python-canopen at both ends"] = (lambda: co_node.sdo.upload(0x1000, 0), close_co)
+
+    cob_client, cob_server, cob_sdo = _cobus_pair(f"hops-cob-{pid}", minimal_od())
+    _watch(cob_client.aio.bus, trip, client=True)
+    _watch(cob_server.aio.bus, trip, client=False)
+
+    def close_cob() -> None:
+        cob_client.close()
+        cob_server.close()
+
+    out["cobus at both ends"] = (lambda: cob_sdo.upload(0x1000), close_cob)
+
+    mixed_server = _canopen_server(f"hops-m1-{pid}")
+    mixed_client = Network(interface="virtual", channel=f"hops-m1-{pid}")
+    mixed_sdo = mixed_client.add_remote(NODE).sdo
+    _watch(mixed_client.aio.bus, trip, client=True)
+    _watch(mixed_server.bus, trip, client=False)
+
+    def close_m1() -> None:
+        mixed_client.close()
+        mixed_server.disconnect()
+
+    out["cobus client, python-canopen server"] = (lambda: mixed_sdo.upload(0x1000), close_m1)
+
+    device_net = Network(interface="virtual", channel=f"hops-m2-{pid}")
+    add_device(device_net, NODE, minimal_od())
+    co_client, co_client_node = _canopen_client(f"hops-m2-{pid}")
+    _watch(device_net.aio.bus, trip, client=False)
+    _watch(co_client.bus, trip, client=True)
+
+    def close_m2() -> None:
+        co_client.disconnect()
+        device_net.close()
+
+    out["python-canopen client, cobus device"] = (
+        lambda: co_client_node.sdo.upload(0x1000, 0),
+        close_m2,
+    )
+    return out
+
+
+def _round(
+    call: Callable[[], object], trip: _Trip, trips: int, *, server_here: bool = True
+) -> list[tuple[int, ...]]:
+    """``trips`` trips: per trip the hops and the total, in ns (hops 2-4 as one when the
+    server is in another process)."""
+    clock = time.perf_counter_ns
+    call()  # warm
+    out = []
+    for _ in range(trips):
+        trip.req_tx = trip.req_rx = trip.ans_tx = trip.ans_rx = 0
+        start = clock()
+        call()
+        end = clock()
+        stamps: tuple[int, ...]
+        if server_here:
+            stamps = (start, trip.req_tx, trip.req_rx, trip.ans_tx, trip.ans_rx, end)
+        else:
+            stamps = (start, trip.req_tx, trip.ans_rx, end)
+        if 0 in stamps:  # (a stamp missed: a frame not seen where expected)
+            raise RuntimeError(f"a trip crossed python-can without being stamped: {stamps}")
+        hops = tuple(b - a for a, b in itertools.pairwise(stamps))
+        out.append((*hops, end - start))
+    return out
+
+
+def _medians(
+    arrangements: dict[str, Arrangement],
+    trip: _Trip,
+    trips: int,
+    rounds: int,
+    *,
+    server_here: bool = True,
+) -> dict[str, list[float]]:
+    """Interleaved rounds of every arrangement, then closes them; per arrangement the median
+    µs of each hop and of the whole trip."""
+    samples: dict[str, list[tuple[int, ...]]] = {name: [] for name in arrangements}
+    try:
+        for _ in range(rounds):
+            for name, (call, _close) in arrangements.items():
+                samples[name] += _round(call, trip, trips, server_here=server_here)
+    finally:
+        for _call, close in arrangements.values():
+            close()
+    return {
+        name: [statistics.median(column) / 1000 for column in zip(*rows, strict=True)]
+        for name, rows in samples.items()
+    }
+
+
+def figures(trips: int = TRIPS, rounds: int = ROUNDS) -> dict[str, list[float]]:
+    """One process: per arrangement, the median µs of each hop and of the whole trip."""
+    trip = _Trip()
+    return _medians(_arrangements(trip), trip, trips, rounds)
+
+
+def _remote_arrangements(trip: _Trip, url: str) -> dict[str, Arrangement]:
+    """The clients here, each watched on its own connection to the hub; the servers in the
+    child process of ``bench_latency`` (cobus device 5, python-canopen 6, bare thread 7)."""
+    out: dict[str, Arrangement] = {}
+    ping = _RemotePing("remote", url)
+    _watch(ping.bus, trip, client=True, node=PONG_NODE)
+    out["bare python-can ping-pong"] = (ping.trip, ping.close)
+    for name, node in (
+        ("python-canopen at both ends", 6),
+        ("python-canopen client, cobus device", NODE),
+    ):
+        co_net, co_node = _canopen_client_of(url, node)
+        _watch(co_net.bus, trip, client=True, node=node)
+        out[name] = (functools.partial(co_node.sdo.upload, 0x1000, 0), co_net.disconnect)
+    for name, node in (
+        ("cobus at both ends", NODE),
+        ("cobus client, python-canopen server", 6),
+    ):
+        net = Network(interface="remote", channel=url)
+        _watch(net.aio.bus, trip, client=True, node=node)
+        out[name] = (functools.partial(net.add_remote(node).sdo.upload, 0x1000), net.close)
+    return out
+
+
+def _canopen_client_of(url: str, node: int) -> tuple[canopen.Network, Any]:
+    net = canopen.Network()
+    net.connect(interface="remote", channel=url)
+    remote: Any = canopen.RemoteNode(node, canopen.ObjectDictionary())
+    net.add_node(remote)
+    return net, remote
+
+
+def remote_figures(trips: int = TRIPS, rounds: int = ROUNDS) -> dict[str, list[float]] | None:
+    """Two processes through python-can-remote: the client's side of each trip (hops 1, 2-4
+    and 5), or None where the servers cannot start."""
+    with remote_servers() as url:
+        if url is None:
+            return None
+        trip = _Trip()
+        return _medians(_remote_arrangements(trip, url), trip, trips, rounds, server_here=False)
+
+
+def _table(title: str, hops: tuple[str, ...], results: dict[str, list[float]]) -> None:
+    print(f"\n{title} ({ROUNDS} interleaved rounds of {TRIPS} trips; medians, µs)")
+    print(f"  {'':<38}" + "".join(f"{n.split('.')[0] + '.':>9}" for n in hops) + f"{'trip':>9}")
+    for name, medians in results.items():
+        cells = "".join(f"{value:>9.1f}" for value in medians[:-1])
+        print(f"  {name:<38}{cells}{medians[-1]:>9.1f}")
+    print("  (" + "; ".join(hops) + ")")
+
+
+def main() -> None:
+    _table("One expedited SDO read, hop by hop, one process, virtual bus", HOPS, figures())
+    remote = remote_figures()
+    if remote is not None:
+        _table(
+            "The same between two processes through python-can-remote, the client's side",
+            REMOTE_HOPS,
+            remote,
+        )
+    print("  (the hops' medians need not add up to the trip's; python-canopen's figures are")
+    print("   the ones to beat: each stack's own work is in hops 1, 3 and 5)")
+
+
+if __name__ == "__main__":
+    main()
