@@ -20,7 +20,11 @@ is read from it. Per trip:
 
 All in this process on ``virtual`` buses in real time, one arrangement after the other in
 interleaved rounds; medians of every trip per hop (the hops' medians need not add up to the
-total's). A wrapper costs each stack the same, about half a microsecond per stamp. Run alone:
+total's). The asyncio client runs on ``cobus.runtime.run`` with the device on a second
+network of the same loop (hop 5 is then the reader thread's dispatch and the loop's wake-up
+to resume the awaiting task). Then the clients' side over python-can-remote, with
+``bench_latency``'s servers in a child process: hops 1 and 5, and 2-4 as one. A wrapper costs
+each stack the same, about half a microsecond per stamp. Run alone:
 ``python -m benchmarks.bench_hops``.
 """
 
@@ -48,7 +52,7 @@ from benchmarks.bench_latency import (
     remote_servers,
 )
 from cobus.device import add_device, minimal_od
-from cobus.runtime import Network
+from cobus.runtime import AsyncNetwork, Network, run
 
 TRIPS = 300
 ROUNDS = 5
@@ -108,7 +112,15 @@ def _watch(bus: can.BusABC | None, trip: _Trip, *, client: bool, node: int = NOD
     bus.recv = stamped_recv  # type: ignore[method-assign]
 
 
-Arrangement = tuple[Callable[[], object], Callable[[], None]]
+#: An arrangement: a round of ``n`` trips (per trip the hops and the total, in ns) and how to
+#: close it.
+Arrangement = tuple[Callable[[int], list[tuple[int, ...]]], Callable[[], None]]
+
+
+def _blocking(
+    call: Callable[[], object], trip: _Trip, close: Callable[[], None], *, server_here: bool = True
+) -> Arrangement:
+    return functools.partial(_round, call, trip, server_here=server_here), close
 
 
 def _arrangements(trip: _Trip) -> dict[str, Arrangement]:
@@ -119,7 +131,7 @@ def _arrangements(trip: _Trip) -> dict[str, Arrangement]:
     ping = _PingPong(f"hops-ping-{pid}")
     _watch(ping.client, trip, client=True)
     _watch(ping.server, trip, client=False)
-    out["bare python-can ping-pong"] = (ping.trip, ping.close)
+    out["bare python-can ping-pong"] = _blocking(ping.trip, trip, ping.close)
 
     co_server = _canopen_server(f"hops-co-{pid}")
     co_net, co_node = _canopen_client(f"hops-co-{pid}")
@@ -130,7 +142,9 @@ def _arrangements(trip: _Trip) -> dict[str, Arrangement]:
         co_net.disconnect()
         co_server.disconnect()
 
-    out["python-canopen at both ends"] = (lambda: co_node.sdo.upload(0x1000, 0), close_co)
+    out["python-canopen at both ends"] = _blocking(
+        lambda: co_node.sdo.upload(0x1000, 0), trip, close_co
+    )
 
     cob_client, cob_server, cob_sdo = _cobus_pair(f"hops-cob-{pid}", minimal_od())
     _watch(cob_client.aio.bus, trip, client=True)
@@ -140,7 +154,7 @@ def _arrangements(trip: _Trip) -> dict[str, Arrangement]:
         cob_client.close()
         cob_server.close()
 
-    out["cobus at both ends"] = (lambda: cob_sdo.upload(0x1000), close_cob)
+    out["cobus at both ends"] = _blocking(lambda: cob_sdo.upload(0x1000), trip, close_cob)
 
     mixed_server = _canopen_server(f"hops-m1-{pid}")
     mixed_client = Network(interface="virtual", channel=f"hops-m1-{pid}")
@@ -152,7 +166,9 @@ def _arrangements(trip: _Trip) -> dict[str, Arrangement]:
         mixed_client.close()
         mixed_server.disconnect()
 
-    out["cobus client, python-canopen server"] = (lambda: mixed_sdo.upload(0x1000), close_m1)
+    out["cobus client, python-canopen server"] = _blocking(
+        lambda: mixed_sdo.upload(0x1000), trip, close_m1
+    )
 
     device_net = Network(interface="virtual", channel=f"hops-m2-{pid}")
     add_device(device_net, NODE, minimal_od())
@@ -164,11 +180,48 @@ def _arrangements(trip: _Trip) -> dict[str, Arrangement]:
         co_client.disconnect()
         device_net.close()
 
-    out["python-canopen client, cobus device"] = (
-        lambda: co_client_node.sdo.upload(0x1000, 0),
-        close_m2,
+    out["python-canopen client, cobus device"] = _blocking(
+        lambda: co_client_node.sdo.upload(0x1000, 0), trip, close_m2
+    )
+    out["cobus asyncio client, cobus device"] = (
+        functools.partial(_asyncio_round, trip, f"hops-aio-{pid}"),
+        lambda: None,
     )
     return out
+
+
+def _asyncio_round(trip: _Trip, channel: str, trips: int) -> list[tuple[int, ...]]:
+    """A round of the asyncio client against a cobus device on a second network of the same
+    ``RealTimeLoop`` (``cobus.runtime.run``: the reader threads dispatch), set up for it."""
+    clock = time.perf_counter_ns
+
+    async def main() -> list[tuple[int, ...]]:
+        async with (
+            AsyncNetwork(interface="virtual", channel=channel) as net,
+            AsyncNetwork(interface="virtual", channel=channel) as field,
+        ):
+            add_device(field, NODE, minimal_od())
+            _watch(net.bus, trip, client=True)
+            _watch(field.bus, trip, client=False)
+            sdo = net.add_remote(NODE).sdo
+            await sdo.upload(0x1000)  # warm
+            out = []
+            for _ in range(trips):
+                trip.req_tx = trip.req_rx = trip.ans_tx = trip.ans_rx = 0
+                start = clock()
+                await sdo.upload(0x1000)
+                end = clock()
+                out.append(_hops((start, trip.req_tx, trip.req_rx, trip.ans_tx, trip.ans_rx, end)))
+            return out
+
+    return run(main())
+
+
+def _hops(stamps: tuple[int, ...]) -> tuple[int, ...]:
+    """The hops between ``stamps`` and the whole, in ns."""
+    if 0 in stamps:  # (a stamp missed: a frame not seen where expected)
+        raise RuntimeError(f"a trip crossed python-can without being stamped: {stamps}")
+    return (*(b - a for a, b in itertools.pairwise(stamps)), stamps[-1] - stamps[0])
 
 
 def _round(
@@ -189,30 +242,22 @@ def _round(
             stamps = (start, trip.req_tx, trip.req_rx, trip.ans_tx, trip.ans_rx, end)
         else:
             stamps = (start, trip.req_tx, trip.ans_rx, end)
-        if 0 in stamps:  # (a stamp missed: a frame not seen where expected)
-            raise RuntimeError(f"a trip crossed python-can without being stamped: {stamps}")
-        hops = tuple(b - a for a, b in itertools.pairwise(stamps))
-        out.append((*hops, end - start))
+        out.append(_hops(stamps))
     return out
 
 
 def _medians(
-    arrangements: dict[str, Arrangement],
-    trip: _Trip,
-    trips: int,
-    rounds: int,
-    *,
-    server_here: bool = True,
+    arrangements: dict[str, Arrangement], trips: int, rounds: int
 ) -> dict[str, list[float]]:
     """Interleaved rounds of every arrangement, then closes them; per arrangement the median
     µs of each hop and of the whole trip."""
     samples: dict[str, list[tuple[int, ...]]] = {name: [] for name in arrangements}
     try:
         for _ in range(rounds):
-            for name, (call, _close) in arrangements.items():
-                samples[name] += _round(call, trip, trips, server_here=server_here)
+            for name, (round_, _close) in arrangements.items():
+                samples[name] += round_(trips)
     finally:
-        for _call, close in arrangements.values():
+        for _, close in arrangements.values():
             close()
     return {
         name: [statistics.median(column) / 1000 for column in zip(*rows, strict=True)]
@@ -222,8 +267,7 @@ def _medians(
 
 def figures(trips: int = TRIPS, rounds: int = ROUNDS) -> dict[str, list[float]]:
     """One process: per arrangement, the median µs of each hop and of the whole trip."""
-    trip = _Trip()
-    return _medians(_arrangements(trip), trip, trips, rounds)
+    return _medians(_arrangements(_Trip()), trips, rounds)
 
 
 def _remote_arrangements(trip: _Trip, url: str) -> dict[str, Arrangement]:
@@ -232,21 +276,23 @@ def _remote_arrangements(trip: _Trip, url: str) -> dict[str, Arrangement]:
     out: dict[str, Arrangement] = {}
     ping = _RemotePing("remote", url)
     _watch(ping.bus, trip, client=True, node=PONG_NODE)
-    out["bare python-can ping-pong"] = (ping.trip, ping.close)
+    out["bare python-can ping-pong"] = _blocking(ping.trip, trip, ping.close, server_here=False)
     for name, node in (
         ("python-canopen at both ends", 6),
         ("python-canopen client, cobus device", NODE),
     ):
         co_net, co_node = _canopen_client_of(url, node)
         _watch(co_net.bus, trip, client=True, node=node)
-        out[name] = (functools.partial(co_node.sdo.upload, 0x1000, 0), co_net.disconnect)
+        call = functools.partial(co_node.sdo.upload, 0x1000, 0)
+        out[name] = _blocking(call, trip, co_net.disconnect, server_here=False)
     for name, node in (
         ("cobus at both ends", NODE),
         ("cobus client, python-canopen server", 6),
     ):
         net = Network(interface="remote", channel=url)
         _watch(net.aio.bus, trip, client=True, node=node)
-        out[name] = (functools.partial(net.add_remote(node).sdo.upload, 0x1000), net.close)
+        call = functools.partial(net.add_remote(node).sdo.upload, 0x1000)
+        out[name] = _blocking(call, trip, net.close, server_here=False)
     return out
 
 
@@ -264,16 +310,15 @@ def remote_figures(trips: int = TRIPS, rounds: int = ROUNDS) -> dict[str, list[f
     with remote_servers() as url:
         if url is None:
             return None
-        trip = _Trip()
-        return _medians(_remote_arrangements(trip, url), trip, trips, rounds, server_here=False)
+        return _medians(_remote_arrangements(_Trip(), url), trips, rounds)
 
 
 def _table(title: str, hops: tuple[str, ...], results: dict[str, list[float]]) -> None:
     print(f"\n{title} ({ROUNDS} interleaved rounds of {TRIPS} trips; medians, µs)")
-    print(f"  {'':<38}" + "".join(f"{n.split('.')[0] + '.':>9}" for n in hops) + f"{'trip':>9}")
+    print(f"  {'':<42}" + "".join(f"{n.split('.')[0] + '.':>9}" for n in hops) + f"{'trip':>9}")
     for name, medians in results.items():
         cells = "".join(f"{value:>9.1f}" for value in medians[:-1])
-        print(f"  {name:<38}{cells}{medians[-1]:>9.1f}")
+        print(f"  {name:<42}{cells}{medians[-1]:>9.1f}")
     print("  (" + "; ".join(hops) + ")")
 
 
