@@ -23,7 +23,9 @@ interleaved rounds; medians of every trip per hop (the hops' medians need not ad
 total's). The asyncio client runs on ``cobus.runtime.run`` with the device on a second
 network of the same loop (hop 5 is then the reader thread's dispatch and the loop's wake-up
 to resume the awaiting task). Then the clients' side over python-can-remote, with
-``bench_latency``'s servers in a child process: hops 1 and 5, and 2-4 as one. A wrapper costs
+``bench_latency``'s servers in a child process: hops 1 and 5, and 2-4 as one; then the same
+through python-can's ``udp_multicast``. There each client is connected only while measured
+(every connection hears every frame). A wrapper costs
 each stack the same, about half a microsecond per stamp. Run alone:
 ``python -m benchmarks.bench_hops``.
 """
@@ -31,6 +33,7 @@ each stack the same, about half a microsecond per stamp. Run alone:
 from __future__ import annotations
 
 import functools
+import importlib.util
 import itertools
 import os
 import statistics
@@ -49,6 +52,8 @@ from benchmarks.bench_latency import (
     _cobus_pair,
     _PingPong,
     _RemotePing,
+    _start_servers,
+    _stop_servers,
     remote_servers,
 )
 from cobus.device import add_device, minimal_od
@@ -65,7 +70,7 @@ HOPS = (
 )
 REMOTE_HOPS = (
     HOPS[0],
-    "2-4. to the hub, the server's process and back",
+    "2-4. to the server's process and back",
     HOPS[4],
 )
 
@@ -80,12 +85,17 @@ class _Trip:
         self.req_tx = self.req_rx = self.ans_tx = self.ans_rx = 0
 
 
-def _watch(bus: can.BusABC | None, trip: _Trip, *, client: bool, node: int = NODE) -> None:
+def _watch(
+    bus: can.BusABC | None, trip: _Trip, *, client: bool, node: int = NODE, sender: Any = None
+) -> None:
     """Stamp the request to and the answer of ``node`` where they cross ``bus`` (one object:
-    the wrappers are attributes of the instance, found before the class's methods)."""
+    the wrappers are attributes of the instance, found before the class's methods), and
+    where ``sender`` sends when it is not the bus (a cobus network's echo-free sender on
+    ``udp_multicast``)."""
     assert bus is not None, "a network not connected"
     clock = time.perf_counter_ns
-    send, recv = bus.send, bus.recv
+    sender = bus if sender is None else sender
+    send, recv = sender.send, bus.recv
     request, answer = 0x600 + node, 0x580 + node
     sent_id, read_id = (request, answer) if client else (answer, request)
 
@@ -108,7 +118,7 @@ def _watch(bus: can.BusABC | None, trip: _Trip, *, client: bool, node: int = NOD
                 trip.req_rx = now
         return msg
 
-    bus.send = stamped_send  # type: ignore[method-assign]
+    sender.send = stamped_send
     bus.recv = stamped_recv  # type: ignore[method-assign]
 
 
@@ -270,38 +280,58 @@ def figures(trips: int = TRIPS, rounds: int = ROUNDS) -> dict[str, list[float]]:
     return _medians(_arrangements(_Trip()), trips, rounds)
 
 
-def _remote_arrangements(trip: _Trip, url: str) -> dict[str, Arrangement]:
-    """The clients here, each watched on its own connection to the hub; the servers in the
+Opener = Callable[[], tuple[Callable[[], object], Callable[[], object]]]
+
+
+def _alone(opener: Opener, trip: _Trip) -> Arrangement:
+    """An arrangement whose client is connected only for its own rounds: every client's
+    connection hears every frame, and an idle one would wake for the measured trips."""
+
+    def round_(trips: int) -> list[tuple[int, ...]]:
+        call, close = opener()
+        try:
+            return _round(call, trip, trips, server_here=False)
+        finally:
+            close()
+
+    return round_, lambda: None
+
+
+def _remote_arrangements(trip: _Trip, interface: str, channel: str) -> dict[str, Arrangement]:
+    """The clients here, each on its own connection while measured; the servers in the
     child process of ``bench_latency`` (cobus device 5, python-canopen 6, bare thread 7)."""
-    out: dict[str, Arrangement] = {}
-    ping = _RemotePing("remote", url)
-    _watch(ping.bus, trip, client=True, node=PONG_NODE)
-    out["bare python-can ping-pong"] = _blocking(ping.trip, trip, ping.close, server_here=False)
-    for name, node in (
-        ("python-canopen at both ends", 6),
-        ("python-canopen client, cobus device", NODE),
-    ):
-        co_net, co_node = _canopen_client_of(url, node)
-        _watch(co_net.bus, trip, client=True, node=node)
-        call = functools.partial(co_node.sdo.upload, 0x1000, 0)
-        out[name] = _blocking(call, trip, co_net.disconnect, server_here=False)
-    for name, node in (
-        ("cobus at both ends", NODE),
-        ("cobus client, python-canopen server", 6),
-    ):
-        net = Network(interface="remote", channel=url)
-        _watch(net.aio.bus, trip, client=True, node=node)
-        call = functools.partial(net.add_remote(node).sdo.upload, 0x1000)
-        out[name] = _blocking(call, trip, net.close, server_here=False)
-    return out
 
+    def bare() -> tuple[Callable[[], object], Callable[[], object]]:
+        ping = _RemotePing(interface, channel)
+        _watch(ping.bus, trip, client=True, node=PONG_NODE)
+        return ping.trip, ping.close
 
-def _canopen_client_of(url: str, node: int) -> tuple[canopen.Network, Any]:
-    net = canopen.Network()
-    net.connect(interface="remote", channel=url)
-    remote: Any = canopen.RemoteNode(node, canopen.ObjectDictionary())
-    net.add_node(remote)
-    return net, remote
+    def canopen_to(node: int) -> Opener:
+        def open_() -> tuple[Callable[[], object], Callable[[], object]]:
+            net = canopen.Network()
+            net.connect(interface=interface, channel=channel)
+            remote: Any = canopen.RemoteNode(node, canopen.ObjectDictionary())
+            net.add_node(remote)
+            _watch(net.bus, trip, client=True, node=node)
+            return functools.partial(remote.sdo.upload, 0x1000, 0), net.disconnect
+
+        return open_
+
+    def cobus_to(node: int) -> Opener:
+        def open_() -> tuple[Callable[[], object], Callable[[], object]]:
+            net = Network(interface=interface, channel=channel)
+            _watch(net.aio.bus, trip, client=True, node=node, sender=net.aio._tx)
+            return functools.partial(net.add_remote(node).sdo.upload, 0x1000), net.close
+
+        return open_
+
+    return {
+        "bare python-can ping-pong": _alone(bare, trip),
+        "python-canopen at both ends": _alone(canopen_to(6), trip),
+        "python-canopen client, cobus device": _alone(canopen_to(NODE), trip),
+        "cobus at both ends": _alone(cobus_to(NODE), trip),
+        "cobus client, python-canopen server": _alone(cobus_to(6), trip),
+    }
 
 
 def remote_figures(trips: int = TRIPS, rounds: int = ROUNDS) -> dict[str, list[float]] | None:
@@ -310,7 +340,24 @@ def remote_figures(trips: int = TRIPS, rounds: int = ROUNDS) -> dict[str, list[f
     with remote_servers() as url:
         if url is None:
             return None
-        return _medians(_remote_arrangements(_Trip(), url), trips, rounds)
+        return _medians(_remote_arrangements(_Trip(), "remote", url), trips, rounds)
+
+
+def multicast_figures(trips: int = TRIPS, rounds: int = ROUNDS) -> dict[str, list[float]] | None:
+    """Two processes through python-can's ``udp_multicast`` (no hub): the client's side,
+    or None where it cannot run (no msgpack, no multicast)."""
+    if importlib.util.find_spec("msgpack") is None:  # python-can's udp_multicast packs with it
+        return None
+    from can.interfaces.udp_multicast import UdpMulticastBus
+
+    group = UdpMulticastBus.DEFAULT_GROUP_IPv6
+    servers = _start_servers("udp_multicast", group)
+    if servers is None:
+        return None
+    try:
+        return _medians(_remote_arrangements(_Trip(), "udp_multicast", group), trips, rounds)
+    finally:
+        _stop_servers(servers)
 
 
 def _table(title: str, hops: tuple[str, ...], results: dict[str, list[float]]) -> None:
@@ -330,6 +377,13 @@ def main() -> None:
             "The same between two processes through python-can-remote, the client's side",
             REMOTE_HOPS,
             remote,
+        )
+    multicast = multicast_figures()
+    if multicast is not None:
+        _table(
+            "The same through python-can's udp_multicast (no hub), the client's side",
+            REMOTE_HOPS,
+            multicast,
         )
     print("  (the hops' medians need not add up to the trip's; python-canopen's figures are")
     print("   the ones to beat: each stack's own work is in hops 1, 3 and 5)")
