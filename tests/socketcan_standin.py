@@ -15,6 +15,11 @@ a ``vcan`` interface's kernel: every frame a bus sends goes to every other bus, 
 broadcast manager task sends its frames in turn, one per period, to every bus (the kernel
 loops them back to all raw sockets of the host, the sending bus's own included). Each bus
 opened while it is installed gets a raw pair of its own.
+
+Without the vcan thread nothing takes what a bus sends until the test reads it (``sent``):
+after about 70 unread frames the bus's socket is no longer writable, which python-can reports
+as a full transmit buffer (the network then keeps frames in its backlog). A test that sends
+more should read them, or run the vcan thread.
 """
 
 from __future__ import annotations
