@@ -33,7 +33,6 @@ each stack the same, about half a microsecond per stamp. Run alone:
 from __future__ import annotations
 
 import functools
-import importlib.util
 import itertools
 import os
 import statistics
@@ -52,8 +51,7 @@ from benchmarks.bench_latency import (
     _cobus_pair,
     _PingPong,
     _RemotePing,
-    _start_servers,
-    _stop_servers,
+    multicast_servers,
     remote_servers,
 )
 from cobus.device import add_device, minimal_od
@@ -133,6 +131,16 @@ def _blocking(
     return functools.partial(_round, call, trip, server_here=server_here), close
 
 
+def _both(first: Callable[[], object], second: Callable[[], object]) -> Callable[[], None]:
+    """Close a client and its server."""
+
+    def close() -> None:
+        first()
+        second()
+
+    return close
+
+
 def _arrangements(trip: _Trip) -> dict[str, Arrangement]:
     """Each arrangement's trip and how to close it, its buses watched."""
     pid = os.getpid()
@@ -148,23 +156,17 @@ def _arrangements(trip: _Trip) -> dict[str, Arrangement]:
     _watch(co_net.bus, trip, client=True)
     _watch(co_server.bus, trip, client=False)
 
-    def close_co() -> None:
-        co_net.disconnect()
-        co_server.disconnect()
-
     out["python-canopen at both ends"] = _blocking(
-        lambda: co_node.sdo.upload(0x1000, 0), trip, close_co
+        lambda: co_node.sdo.upload(0x1000, 0), trip, _both(co_net.disconnect, co_server.disconnect)
     )
 
     cob_client, cob_server, cob_sdo = _cobus_pair(f"hops-cob-{pid}", minimal_od())
     _watch(cob_client.aio.bus, trip, client=True)
     _watch(cob_server.aio.bus, trip, client=False)
 
-    def close_cob() -> None:
-        cob_client.close()
-        cob_server.close()
-
-    out["cobus at both ends"] = _blocking(lambda: cob_sdo.upload(0x1000), trip, close_cob)
+    out["cobus at both ends"] = _blocking(
+        lambda: cob_sdo.upload(0x1000), trip, _both(cob_client.close, cob_server.close)
+    )
 
     mixed_server = _canopen_server(f"hops-m1-{pid}")
     mixed_client = Network(interface="virtual", channel=f"hops-m1-{pid}")
@@ -172,12 +174,8 @@ def _arrangements(trip: _Trip) -> dict[str, Arrangement]:
     _watch(mixed_client.aio.bus, trip, client=True)
     _watch(mixed_server.bus, trip, client=False)
 
-    def close_m1() -> None:
-        mixed_client.close()
-        mixed_server.disconnect()
-
     out["cobus client, python-canopen server"] = _blocking(
-        lambda: mixed_sdo.upload(0x1000), trip, close_m1
+        lambda: mixed_sdo.upload(0x1000), trip, _both(mixed_client.close, mixed_server.disconnect)
     )
 
     device_net = Network(interface="virtual", channel=f"hops-m2-{pid}")
@@ -186,12 +184,10 @@ def _arrangements(trip: _Trip) -> dict[str, Arrangement]:
     _watch(device_net.aio.bus, trip, client=False)
     _watch(co_client.bus, trip, client=True)
 
-    def close_m2() -> None:
-        co_client.disconnect()
-        device_net.close()
-
     out["python-canopen client, cobus device"] = _blocking(
-        lambda: co_client_node.sdo.upload(0x1000, 0), trip, close_m2
+        lambda: co_client_node.sdo.upload(0x1000, 0),
+        trip,
+        _both(co_client.disconnect, device_net.close),
     )
     out["cobus asyncio client, cobus device"] = (
         functools.partial(_asyncio_round, trip, f"hops-aio-{pid}"),
@@ -346,18 +342,10 @@ def remote_figures(trips: int = TRIPS, rounds: int = ROUNDS) -> dict[str, list[f
 def multicast_figures(trips: int = TRIPS, rounds: int = ROUNDS) -> dict[str, list[float]] | None:
     """Two processes through python-can's ``udp_multicast`` (no hub): the client's side,
     or None where it cannot run (no msgpack, no multicast)."""
-    if importlib.util.find_spec("msgpack") is None:  # python-can's udp_multicast packs with it
-        return None
-    from can.interfaces.udp_multicast import UdpMulticastBus
-
-    group = UdpMulticastBus.DEFAULT_GROUP_IPv6
-    servers = _start_servers("udp_multicast", group)
-    if servers is None:
-        return None
-    try:
+    with multicast_servers() as group:
+        if group is None:
+            return None
         return _medians(_remote_arrangements(_Trip(), "udp_multicast", group), trips, rounds)
-    finally:
-        _stop_servers(servers)
 
 
 def _table(title: str, hops: tuple[str, ...], results: dict[str, list[float]]) -> None:

@@ -406,17 +406,29 @@ def _stop_servers(servers: subprocess.Popen[str]) -> None:
 def multicast_figures() -> dict[str, list[Measured]] | None:
     """The clients here, the servers in a child process, over python-can's udp_multicast
     (no hub: each process's socket hears the others; cobus reads it on the loop)."""
+    with multicast_servers() as group:
+        if group is None:
+            return None
+        arrangements = _remote_arrangements("udp_multicast", group)
+        return _interleave_connected(arrangements, "udp_multicast", group)
+
+
+@contextlib.contextmanager
+def multicast_servers() -> Iterator[str | None]:
+    """The servers' child process (_SERVERS) on python-can's udp_multicast: the group, or
+    None where it cannot run (no msgpack, no multicast)."""
     if importlib.util.find_spec("msgpack") is None:  # python-can's udp_multicast packs with it
-        return None
+        yield None
+        return
     from can.interfaces.udp_multicast import UdpMulticastBus
 
     group = UdpMulticastBus.DEFAULT_GROUP_IPv6
     servers = _start_servers("udp_multicast", group)
     if servers is None:
-        return None
+        yield None
+        return
     try:
-        arrangements = _remote_arrangements("udp_multicast", group)
-        return _interleave_connected(arrangements, "udp_multicast", group)
+        yield group
     finally:
         _stop_servers(servers)
 
