@@ -203,6 +203,21 @@ def test_sync_by_the_interface_is_one_broadcast_manager_task(kernel):
         bus.shutdown()
 
 
+def test_closing_a_network_that_opened_its_bus_deletes_the_task_and_closes_the_socket(kernel):
+    """The timer deletes its task on the way out; the bus's shutdown then closes the broadcast
+    manager's socket (the kernel would delete what was left on it)."""
+
+    async def main() -> None:
+        net = await AsyncNetwork(interface="socketcan", channel="vcan0").connect()
+        net.sync.start(0.001, overflow=2, by_interface=True)
+        await net.disconnect()
+
+    _real_time(main)
+    setup, delete = kernel.bcm_ops()
+    assert (setup.opcode, delete.opcode, delete.task_id) == (TX_SETUP, TX_DELETE, setup.task_id)
+    assert kernel.closed_bcm == 1
+
+
 def test_a_network_hears_the_sync_the_kernel_sends_for_it_as_the_others_do(kernel):
     """On vcan the kernel loops the broadcast manager's frames back to every raw socket, the
     producing bus's own included: both networks hear each SYNC once, counter in turn."""
