@@ -54,6 +54,7 @@ from benchmarks.bench_latency import (
     multicast_servers,
     remote_servers,
 )
+from benchmarks.bench_latency import Arrangement as Opener
 from cobus.device import add_device, minimal_od
 from cobus.runtime import AsyncNetwork, Network, run
 
@@ -125,10 +126,9 @@ def _watch(
 Arrangement = tuple[Callable[[int], list[tuple[int, ...]]], Callable[[], None]]
 
 
-def _blocking(
-    call: Callable[[], object], trip: _Trip, close: Callable[[], None], *, server_here: bool = True
-) -> Arrangement:
-    return functools.partial(_round, call, trip, server_here=server_here), close
+def _blocking(call: Callable[[], object], trip: _Trip, close: Callable[[], None]) -> Arrangement:
+    """A blocking client and its server, both in this process and kept for every round."""
+    return functools.partial(_round, call, trip), close
 
 
 def _both(first: Callable[[], object], second: Callable[[], object]) -> Callable[[], None]:
@@ -274,9 +274,6 @@ def _medians(
 def figures(trips: int = TRIPS, rounds: int = ROUNDS) -> dict[str, list[float]]:
     """One process: per arrangement, the median µs of each hop and of the whole trip."""
     return _medians(_arrangements(_Trip()), trips, rounds)
-
-
-Opener = Callable[[], tuple[Callable[[], object], Callable[[], object]]]
 
 
 def _alone(opener: Opener, trip: _Trip) -> Arrangement:
