@@ -649,7 +649,7 @@ def test_udp_multicast_is_read_by_the_loop_or_a_thread_and_our_own_messages_come
 
     bus.recv = recording  # type: ignore[method-assign]
     try:
-        with (  # the blocking Network reads with a thread unless read_on_loop=True
+        with (  # the blocking Network reads with its reading role unless read_on_loop=True
             Network(bus, read_on_loop=on_loop) as master,
             Network(
                 interface="udp_multicast", channel=group, port=port, read_on_loop=on_loop
@@ -658,7 +658,7 @@ def test_udp_multicast_is_read_by_the_loop_or_a_thread_and_our_own_messages_come
             if on_loop:
                 assert master.aio._reader is None and master.aio._fd is not None  # no thread
             else:
-                assert master.aio._reader is not None and master.aio._fd is None
+                assert master.aio._reading is not None and master.aio._fd is None
             linux = sys.platform.startswith("linux")
             assert (master.aio._tx is not None) is (filtered and linux)
             got: list[Frame] = []
@@ -767,6 +767,7 @@ def test_a_connect_that_fails_takes_the_filter_off_the_users_bus(monkeypatch):
         raise RuntimeError("no thread today")
 
     monkeypatch.setattr(AsyncNetwork, "_start_reader_thread", refuse)
+    monkeypatch.setattr(AsyncNetwork, "_start_reading_role", refuse)
 
     async def main() -> None:
         net = AsyncNetwork(bus, read_on_loop=False)

@@ -245,7 +245,8 @@ def test_a_reader_thread_drops_our_own_messages_without_the_lock():
 
 def test_the_blocking_network_reads_a_descriptor_bus_with_a_thread(request, monkeypatch):
     """Where AsyncNetwork's loop reads the descriptor itself, the blocking Network uses a
-    reader thread (read_on_loop=False); read_on_loop=True gives it the loop's way."""
+    reader thread, or its waiting callers (read_on_loop=False: cobus.runtime.reading);
+    read_on_loop=True gives it the loop's way."""
     from cobus.runtime import bus as bus_module
 
     bus = can.Bus(interface="virtual", channel="rt-fd")
@@ -254,7 +255,7 @@ def test_the_blocking_network_reads_a_descriptor_bus_with_a_thread(request, monk
     # a virtual bus standing for one the loop could watch: what loop_source decides on
     monkeypatch.setattr(bus_module, "loop_source", lambda b: bus_module.LoopSource(r, None))
     with Network(bus) as net:
-        assert net.aio._reader is not None and net.aio._fd is None
+        assert net.aio._reading is not None and net.aio._fd is None
     with Network(bus, read_on_loop=True) as net:
         assert net.aio._reader is None and net.aio._fd == r
     bus.shutdown()

@@ -95,15 +95,16 @@ def _blob_od(blob: bytes):
 
 
 def test_a_blocking_client_and_a_device_talk_over_a_vcan_interface(kernel):
-    """Two blocking networks on one vcan: a reader thread each (a blocking network's way),
-    expedited, segmented and block uploads, and a download."""
+    """Two blocking networks on one vcan, each read by its reading role (a reader thread, or
+    the blocking caller waiting for its answer): expedited, segmented and block uploads, and
+    a download."""
     kernel.start_vcan()
     blob = bytes(range(256)) * 16
     with (
         Network(interface="socketcan", channel="vcan0") as field,
         Network(interface="socketcan", channel="vcan0") as master,
     ):
-        assert master.aio._reader is not None
+        assert master.aio._reading is not None and master.aio._reader is None
         add_device(field, 5, _blob_od(blob))
         sdo = master.add_remote(5).sdo
         assert sdo.upload(0x1000) == field.devices[5].od[0x1000].default.to_bytes(4, "little")

@@ -77,6 +77,9 @@ class Runner:
         self._callback_thread: threading.Thread | None = None
         self._callback_lock = threading.Lock()
         self._closed = False
+        #: The network whose blocking SDO transfers pass here (its bus may be read by the
+        #: waiting caller: ``AsyncNetwork._reading``).
+        self.network: AsyncNetwork | None = None
         if not simulated:
             self._thread = threading.Thread(target=self._run_loop, name="cobus-loop", daemon=True)
             self._thread.start()
@@ -131,6 +134,10 @@ class Runner:
             task.add_done_callback(handoff.finish)
 
         loop.call_soon_threadsafe(start)
+        network = self.network
+        reading = network._reading if network is not None else None
+        if reading is not None:  # what it waits for is read by the reader thread
+            reading.hurry()
         done = False
         try:
             done = handoff.wait(timeout)
@@ -172,9 +179,16 @@ class Runner:
         loop.wake_if_pending()
         if cancel is None:
             return self.run(fallback(arg))
-        try:
-            handoff._lock.acquire()  # the operation's own timeout ends it (an SDO timeout)
+        network = self.network
+        reading = network._reading if network is not None else None
+        try:  # the operation's own timeout ends it (an SDO timeout)
+            if reading is None:
+                handoff._lock.acquire()
+            else:  # the caller may read the bus itself meanwhile (cobus.runtime.reading)
+                reading.wait(handoff)
         except BaseException:  # Ctrl-C while waiting: the operation ends with it
+            if reading is not None:
+                reading.drop()
             with lock:
                 cancel()
             loop.wake_if_pending()
@@ -283,7 +297,7 @@ class _Handoff(Generic[T]):
     loop's self-pipe in, a plain lock out), where ``run_coroutine_threadsafe`` chains an
     asyncio future to a ``concurrent.futures.Future`` and its condition variable."""
 
-    __slots__ = ("_error", "_lock", "_loop", "_result", "task")
+    __slots__ = ("_error", "_lock", "_loop", "_result", "poke", "reader", "settled", "task")
 
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
         self._lock = threading.Lock()
@@ -294,6 +308,12 @@ class _Handoff(Generic[T]):
         self._result: T | None = None
         self._error: BaseException | None = None
         self.task: asyncio.Task[T] | None = None
+        #: Whether the outcome is known (it may not be released to the caller yet).
+        self.settled = False
+        #: Set while the waiting caller reads the bus itself (thread ``reader``): wakes it
+        #: there when another thread releases the outcome (``cobus.runtime.reading``).
+        self.poke: Callable[[], None] | None = None
+        self.reader = 0
 
     def succeed(self, result: T) -> None:
         self._result = result
@@ -304,11 +324,18 @@ class _Handoff(Generic[T]):
         self._release()
 
     def _release(self) -> None:
+        self.settled = True
         loop = self._loop
         if loop is None:
-            self._lock.release()
+            self._wake()
         else:
-            loop.wake_after_release(self._lock.release)
+            loop.wake_after_release(self._wake)
+
+    def _wake(self) -> None:
+        self._lock.release()
+        poke = self.poke  # (read after the release: see ReadingRole._read_until)
+        if poke is not None and threading.get_ident() != self.reader:
+            poke()
 
     def settle(self, outcome: Any) -> None:
         """A result, or an exception to raise in the waiting caller."""
@@ -317,6 +344,14 @@ class _Handoff(Generic[T]):
         else:
             self._result = outcome
         self._release()
+
+    def ready(self) -> bool:
+        """Take the outcome if it is there."""
+        return self._lock.acquire(False)
+
+    def block(self) -> None:
+        """Wait until the outcome is there, and take it."""
+        self._lock.acquire()
 
     def finish(self, task: asyncio.Task[T]) -> None:
         if task.cancelled():
@@ -416,6 +451,7 @@ class Network:
             read_on_loop=read_on_loop,
             **bus_kwargs,
         )
+        self._runner.network = self.aio
         try:
             self._runner.run(self.aio.connect())
         except BaseException:

@@ -35,6 +35,7 @@ from cobus.runtime.events import (
 from cobus.runtime.local_nodes import LocalNodes
 from cobus.runtime.loop import RealTimeLoop, SimulatedEventLoop
 from cobus.runtime.multicast import EchoFreeSender, echo_free_sender
+from cobus.runtime.reading import ReadingRole
 from cobus.runtime.remote import NmtMaster, RemoteNode, SyncService, load_od
 
 if TYPE_CHECKING:
@@ -277,6 +278,9 @@ class AsyncNetwork:
         self._tx_blocked = False
         self._state = BusState.ACTIVE
         self._reader: threading.Thread | None = None
+        #: A blocking network's bus with a descriptor: read by its reader thread or by a
+        #: blocking caller waiting for an answer (cobus.runtime.reading).
+        self._reading: ReadingRole | None = None
         self._reader_stop = threading.Event()
         self._hosts: set[MachineHost] = set()  # until host.close()
         self._on_disconnect: list[Callable[[], object]] = []
@@ -793,7 +797,7 @@ class AsyncNetwork:
                 self._fd, self._fd_ready = source
             except (NotImplementedError, RuntimeError):
                 self._fd = None
-        if self._fd is None:
+        if self._fd is None and not self._start_reading_role(loop, bus, source):
             self._start_reader_thread(loop, bus)
         if _bus.interface_reports_state(bus):
             self._state_poll = loop.call_later(0.5, self._poll_state)
@@ -821,6 +825,9 @@ class AsyncNetwork:
             self._reader_stop.set()
             self._reader.join(timeout=2.0)
             self._reader = None
+        if self._reading is not None:
+            self._reading.stop()
+            self._reading = None
 
     def _take(self, bus: can.BusABC) -> list[can.Message]:
         batch: list[can.Message] = []
@@ -844,6 +851,66 @@ class AsyncNetwork:
             self.loop.call_soon(self._on_messages, batch)
             return True
         return False
+
+    def _start_reading_role(
+        self, loop: asyncio.AbstractEventLoop, bus: can.BusABC, source: _bus.LoopSource | None
+    ) -> bool:
+        """Whether blocking callers may read ``bus`` themselves (a reading role started):
+        on a RealTimeLoop, when the loop does not read it and a readable descriptor means
+        a whole frame waits (see cobus.runtime.reading)."""
+        if self._read_on_loop or not isinstance(loop, RealTimeLoop):
+            return False
+        if source is None:
+            source = _bus.loop_source(bus)
+        if source is None or source.ready is not None:
+            return False
+        reading = ReadingRole(bus, source.fd, self._take, self._accept, self._read_failed)
+        try:
+            reading.start()
+        except BaseException:
+            reading.stop()
+            raise
+        self._reading = reading
+        return True
+
+    def _accept(self, batch: list[can.Message]) -> bool:
+        """Dispatch frames a thread has read (the reader, or a blocking caller reading the
+        bus) in that thread, under the loop's protocol lock, or hand them to the loop when
+        it stays busy. False once the loop is closed."""
+        loop = self._loop
+        if not isinstance(loop, RealTimeLoop):
+            return False
+        pending = self._rx_pending
+        marked, tag = self._own_marked, self._echo_tag
+        for msg in batch:
+            if (marked and not msg.is_rx) or (tag is not None and msg.channel == tag):
+                continue  # our own message handed back (see _on_messages): not worth the lock
+            pending.append(msg)
+        if not pending:
+            return True
+        lock = loop.protocol_lock
+        if lock.acquire(True, _DIRECT_WAIT):
+            try:
+                if loop.is_closed():
+                    return False
+                self._dispatch_pending()
+            finally:
+                lock.release()
+                loop.wake_if_pending()  # (the threads this dispatch has to wake)
+            return True
+        if not self._rx_posted:  # the loop is busy: hand over, as the reader thread does
+            self._rx_posted = True
+            try:
+                loop.call_soon_threadsafe(self._drain_rx)
+            except RuntimeError:  # the loop is closed
+                return False
+        return True
+
+    def _read_failed(self, exc: Exception) -> None:
+        loop = self._loop
+        if loop is not None:
+            with contextlib.suppress(RuntimeError):  # (the loop is closed)
+                loop.call_soon_threadsafe(self.emit, ReceiveFailed(str(exc)))
 
     def _start_reader_thread(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
         self._reader_stop.clear()
