@@ -417,8 +417,9 @@ class Network:
     ``read_on_loop`` is False here: a thread reads the bus and dispatches what it receives
     under the loop's protocol lock, where :class:`AsyncNetwork` has its loop read a bus that
     gives a descriptor. A blocking caller waits in its own thread either way, and the
-    thread's read costs less than a turn of the loop (``docs/realtime.md``, "Who reads the
-    bus").
+    thread's read costs less than a turn of the loop. On SocketCAN and ``udp_multicast`` a
+    blocking SDO transfer reads its answer itself when no other thread reads
+    (:mod:`cobus.runtime.reading`; ``docs/realtime.md``, "Who reads the bus").
     """
 
     #: Given to a blocking twin's method, the :class:`AsyncNetwork` behind it is passed on.

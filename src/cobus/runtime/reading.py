@@ -265,17 +265,19 @@ class ReadingRole:
                     readable = select.select(watched, (), (), _CALLER_SELECT)[0]
                     if poked in readable:
                         poke_r.recv(64)
-                    batch = self._take(bus) if fd in readable else None
+                    # one frame per look: the caller waits for one, and a second recv(0)
+                    # would cost a failing select; if more wait, the next look says so
+                    msg = bus.recv(0) if fd in readable else None
                 except Exception as exc:  # any failure: report, give the role back, wait
                     if not stop.is_set():
                         self._report(exc)
                         self._avoid_until = time.monotonic() + self._backoff
                         self._backoff = min(self._backoff * 2, 1.0)
                     return False
-                if batch:
+                if msg is not None:
                     self._backoff = _BACKOFF
-                    self.read_by_callers += len(batch)
-                    if not self._accept(batch):
+                    self.read_by_callers += 1
+                    if not self._accept([msg]):
                         return False
             return True
         finally:
