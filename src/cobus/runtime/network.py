@@ -863,7 +863,7 @@ class AsyncNetwork:
         if source is None:
             source = _bus.loop_source(bus)
         if source is None or source.ready is not None:
-            return False
+            return False  # (python-can-remote: measured, see docs/realtime.md)
         reading = ReadingRole(bus, source.fd, self._take, self._accept, self._read_failed)
         try:
             reading.start()

@@ -210,10 +210,11 @@ class ReadingRole:
             self._wait_for(outcome)
             return
         self._takes += 1
+        done = True  # (Ctrl-C: the caller waits no more)
         try:
             done = self._read_until(outcome, me)
         finally:
-            self._let_go(me)
+            self._let_go(me, hand_on=not done)
         if not done:
             self._wait_for(outcome)
 
@@ -238,13 +239,18 @@ class ReadingRole:
         finally:
             waiters.discard(outcome)
 
-    def _let_go(self, me: int) -> None:
+    def _let_go(self, me: int, *, hand_on: bool = False) -> None:
+        """Give the role back; ``hand_on``: the caller goes on waiting for frames it will
+        not read, so the reader thread takes the role at once."""
         claim = self._claim
         if claim.get(_ROLE) != me:
             return
         self._released_at = now = time.monotonic()
         del claim[_ROLE]
-        if self._waiting() or self._reader_wakes_at > now + _LOOK:
+        if hand_on:
+            self._hurry = True
+            self._wake_reader()
+        elif self._waiting() or self._reader_wakes_at > now + _LOOK:
             self._wake_reader()  # others wait for it, or it parks long: it takes the role
         if self._stop.is_set():
             self._close_if_done()
@@ -265,9 +271,11 @@ class ReadingRole:
                     readable = select.select(watched, (), (), _CALLER_SELECT)[0]
                     if poked in readable:
                         poke_r.recv(64)
+                    if fd not in readable:
+                        continue
                     # one frame per look: the caller waits for one, and a second recv(0)
                     # would cost a failing select; if more wait, the next look says so
-                    msg = bus.recv(0) if fd in readable else None
+                    msg = bus.recv(0)
                 except Exception as exc:  # any failure: report, give the role back, wait
                     if not stop.is_set():
                         self._report(exc)
