@@ -123,7 +123,8 @@ class MachineHost:
 
     def run(self, call: Callable[[float], Out]) -> None:
         """Call ``call(now)`` (a method of the machine) and apply what it returns."""
-        self.apply(call(self._network.time()))
+        loop = self._network._loop  # (network.time(), inline: every blocking transfer's way)
+        self.apply(call(loop.time() if loop is not None else self._network.time()))
 
     def apply(self, out: Out) -> None:
         """Send the frames and deliver the events of ``out``, then re-arm the timer.
@@ -432,7 +433,10 @@ class AsyncNetwork:
 
     def time(self) -> float:
         """The network's clock in seconds (virtual on a simulated loop)."""
-        return self.loop.time()
+        loop = self._loop  # (the loop property, inline: every machine's call asks)
+        if loop is None:
+            raise NetworkClosedError("the network is not connected: await network.connect()")
+        return loop.time()
 
     async def sleep(self, seconds: float) -> None:
         """Let the network run for ``seconds`` (virtual seconds on a simulated loop)."""

@@ -227,7 +227,8 @@ class SdoChannel:
         cancels the transfer (to call under the lock), or None when the channel is busy and
         nothing was started (await the transfer instead).
         """
-        self._check_open()
+        if self._removed or self._network._loop is None:  # (the checks, inline: every call)
+            self._check_open()
         if self._busy or self._waiters:
             return None
         self._busy = True
