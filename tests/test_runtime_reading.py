@@ -9,7 +9,10 @@ not how fast.
 
 from __future__ import annotations
 
+import asyncio
 import os
+import random
+import resource
 import signal
 import struct
 import threading
@@ -25,6 +28,7 @@ from cobus.proto import Frame
 from cobus.proto.sdo.errors import SdoTimeoutError
 from cobus.runtime import Network, ReceiveFailed
 from cobus.runtime import reading as _reading
+from cobus.runtime.loop import RealTimeLoop
 from tests.socketcan_standin import KernelStandIn
 
 NODE = 5
@@ -156,7 +160,8 @@ def test_a_reading_caller_is_woken_when_the_loop_settles_its_outcome(kernel, pee
 
 def test_ctrl_c_in_a_reading_caller_gives_the_role_back(kernel, peer, monkeypatch):
     """SIGINT while the main thread reads for an answer that does not come: the call raises
-    KeyboardInterrupt, the transfer is cancelled, the role is free, and the next call works."""
+    KeyboardInterrupt, the transfer is cancelled, the role is given back, and the next
+    calls work."""
     monkeypatch.setattr(_reading, "GRACE", 60.0)
     with Network(interface="socketcan", channel="can0") as net:
         sdo = net.add_remote(NODE, sdo_timeout=30.0).sdo
@@ -179,10 +184,11 @@ def test_ctrl_c_in_a_reading_caller_gives_the_role_back(kernel, peer, monkeypatc
         with pytest.raises(KeyboardInterrupt):
             sdo.upload(0x2001)
         assert role._takes == 1
-        assert _reading._ROLE not in role._claim
+        assert role._claim.get(_reading._ROLE) != main  # (the reader thread's now)
         peer.muted = False
         assert sdo.upload(0x2002) == _value(0x2002)
-        assert role._takes == 2
+        assert sdo.upload(0x2003) == _value(0x2003)
+        assert role._takes >= 2  # (the first of them may find the reader still reading)
 
 
 def test_frames_keep_their_order_whoever_reads_them(kernel, peer, monkeypatch):
@@ -324,3 +330,121 @@ def test_a_coroutine_run_from_blocking_code_has_the_reader_thread_read_at_once(
         assert role is not None and role._takes == 1
         assert _ends(lambda: net.run(sdo.aio.upload(0x2002))) == _value(0x2002)
         assert role._takes == 1
+
+
+def test_frame_handlers_have_the_loop_as_their_running_loop_whoever_reads(
+    kernel, peer, monkeypatch
+):
+    """A handler on the network (``net.aio``) may call ``asyncio.get_running_loop()``: the
+    reader thread and a reading caller both run it with the network's loop."""
+    monkeypatch.setattr(_reading, "GRACE", 60.0)
+    pdo = can.Message(arbitration_id=0x181, data=b"\x01", is_extended_id=False)
+    with Network(interface="socketcan", channel="can0") as net:
+        seen: list[tuple[str, bool]] = []
+
+        def handler(frame: Frame, now: float) -> None:
+            same = asyncio.get_running_loop() is net._runner.loop
+            seen.append((threading.current_thread().name, same))
+
+        net._runner.call(net.aio.subscribe, 0x181, handler)
+        kernel.inject(pdo)  # the reader thread reads it
+        deadline = time.monotonic() + 5.0
+        while not seen and time.monotonic() < deadline:
+            time.sleep(0.01)
+        sdo = net.add_remote(NODE).sdo
+        assert sdo.upload(0x2000) == _value(0x2000)
+        peer.before_answer = lambda: kernel.inject(pdo)
+        assert sdo.upload(0x2001) == _value(0x2001)  # the caller reads the PDO and its answer
+        assert seen == [("cobus-rx", True), (threading.current_thread().name, True)]
+        with pytest.raises(RuntimeError):
+            asyncio.get_running_loop()  # (the caller's own is put back)
+
+
+def test_descriptors_above_select_s_limit_are_read(kernel, peer):
+    """With a thousand descriptors open, the role's socket pair lands above 1023, where
+    ``select`` refuses descriptors: it waits with ``poll``. (The bus's own stays below:
+    python-can's SocketCAN ``recv`` uses ``select``.)"""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard != resource.RLIM_INFINITY and hard < 2048:
+        pytest.skip("cannot open 1,100 descriptors here")
+    resource.setrlimit(resource.RLIMIT_NOFILE, (2048, hard))
+    fillers: list[int] = []
+    try:
+        while not fillers or fillers[-1] < 1018:
+            fillers.append(os.open(os.devnull, os.O_RDONLY))
+        with Network(interface="socketcan", channel="can0") as net:
+            role = net.aio._reading
+            assert role is not None
+            if not role._fd < 1024 <= role._poke_r.fileno():
+                pytest.skip(f"descriptors {role._fd} and {role._poke_r.fileno()} here")
+            failures: list[ReceiveFailed] = []
+            net.add_listener(lambda e: failures.append(e) if isinstance(e, ReceiveFailed) else None)
+            sdo = net.add_remote(NODE).sdo
+            for i in range(20):
+                assert sdo.upload(0x2000 + i) == _value(0x2000 + i)
+            assert role.read_by_callers > 0 and not failures
+    finally:
+        for fd in fillers:
+            os.close(fd)
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+
+
+def test_sigint_while_the_main_thread_reads_never_strands_another_thread(kernel):
+    """Real SIGINTs at random moments while the main thread and a worker thread call devices
+    of another network: the main thread dispatches the worker's answers with SIGINT's
+    handler put aside, so every interrupt ends the main thread's call alone. The worker
+    never times out and the protocol lock is never left taken."""
+    kernel.start_vcan()
+    rng = random.Random(20)
+    main = threading.main_thread().ident
+    assert main is not None
+    with (
+        Network(interface="socketcan", channel="vcan0") as field,
+        Network(interface="socketcan", channel="vcan0") as client,
+    ):
+        for node in (5, 6):
+            add_device(field, node, minimal_od())
+        worker_sdo = client.add_remote(5, sdo_timeout=0.5).sdo
+        main_sdo = client.add_remote(6, sdo_timeout=0.5).sdo
+        stop = threading.Event()
+        calls, failures = [0], []
+
+        def worker() -> None:
+            while not stop.is_set():
+                try:
+                    worker_sdo.upload(0x1000)
+                except Exception as exc:
+                    failures.append(exc)
+                calls[0] += 1
+
+        thread = threading.Thread(target=worker, daemon=True)
+        thread.start()
+        loop = client._runner.loop
+        assert isinstance(loop, RealTimeLoop)
+        lock = loop.protocol_lock
+        role = client.aio._reading
+        assert role is not None
+        interrupts = 0
+        try:
+            for _ in range(400):
+                timer = threading.Timer(
+                    rng.uniform(0.001, 0.01), signal.pthread_kill, (main, signal.SIGINT)
+                )
+                try:  # (the signal may come before start() returns: the GIL is busy)
+                    timer.start()
+                    while True:
+                        main_sdo.upload(0x1000)
+                except KeyboardInterrupt:
+                    interrupts += 1
+                timer.join()
+                assert not lock._is_owned()  # type: ignore[attr-defined]
+                before = calls[0]
+                deadline = time.monotonic() + 3.0
+                while calls[0] == before and time.monotonic() < deadline:
+                    time.sleep(0.002)
+                assert calls[0] > before, "the worker stopped"
+        finally:
+            stop.set()
+            thread.join(5.0)
+        assert interrupts == 400 and not failures
+        assert role._takes > 0

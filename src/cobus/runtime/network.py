@@ -868,7 +868,7 @@ class AsyncNetwork:
             source = _bus.loop_source(bus)
         if source is None or source.ready is not None:
             return False  # (python-can-remote: measured, see docs/realtime.md)
-        reading = ReadingRole(bus, source.fd, self._take, self._accept, self._read_failed)
+        reading = ReadingRole(loop, bus, source.fd, self._take, self._accept, self._read_failed)
         try:
             reading.start()
         except BaseException:

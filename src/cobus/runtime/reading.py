@@ -17,27 +17,35 @@ time: the holder of the *role*.
   awake through a socket pair. When it lets go while other callers wait, it wakes the reader
   thread, which takes the role at once.
 - The reader thread takes the role back only once it has been free for :data:`GRACE`, so
-  that back-to-back calls keep it (the request is sent before the caller takes the role).
-  While one caller holds it, the parked reader looks ever less often (up to
-  :data:`PARK_MAX`); a caller letting go of it then wakes the reader.
+  that back-to-back calls keep it (the request is sent before the caller takes the role);
+  meanwhile it looks every 2 ms. While one caller holds the role across its looks (a long
+  wait), it looks ever less often (up to :data:`PARK_MAX`), and that caller wakes it when it
+  lets go.
 - A caller's read that fails gives the role back and keeps callers off it for a while
   (doubling up to a second); the reader thread reports failures and backs off, as always.
-- Ctrl-C in a reading caller (the main thread) gives the role back and cancels its
-  operation; a frame read in that instant may be lost, as in python-can's own ``recv``.
-  Python runs signal handlers in the main thread whatever thread the signal was sent to,
-  so masking SIGINT there (``pthread_sigmask``) does not keep a KeyboardInterrupt out, and
-  putting the handler aside costs ~20 µs a time.
+- Ctrl-C: while the main thread holds the role, SIGINT's Python handler is put aside for
+  one that notes the signal and pokes the caller; the caller gives the role back and the
+  handler runs then (KeyboardInterrupt, and the transfer is cancelled). So an interrupt
+  never falls inside the dispatch of other threads' frames (their outcomes, wake-ups, the
+  protocol lock): Python runs signal handlers in the main thread whatever thread the
+  signal went to, so masking SIGINT there (``pthread_sigmask``) would not do.
+- Frame handlers run with the network's loop as their running loop, whichever thread reads.
 """
 
 from __future__ import annotations
 
+# signal's C functions: the signal module's wrappers convert to enums (~6 µs a call, ~0.5 here)
+import _signal  # type: ignore[import-not-found]
+import asyncio
 import contextlib
 import select
+import signal
 import socket
 import threading
 import time
-from collections.abc import Callable
-from typing import Protocol
+from collections.abc import Callable, Sequence
+from types import FrameType
+from typing import Any, Protocol
 
 import can
 
@@ -52,6 +60,62 @@ _SELECT = 0.05  # s: the reader thread's wait for frames, between looks at its s
 _CALLER_SELECT = 1.0  # s: a reading caller's wait (it is poked: this only bounds a miss)
 _BACKOFF = 0.05  # s callers keep off the role after a failed read, doubling up to 1 s
 _ROLE = 0  # the key of the role in the claim dict
+_MAIN = threading.main_thread().ident  # where Python runs signal handlers
+_get_running_loop = asyncio.events._get_running_loop
+_set_running_loop = asyncio.events._set_running_loop
+
+
+def _waiter(fds: Sequence[int]) -> Callable[[float], list[int]]:
+    """Wait up to ``timeout`` seconds for one of ``fds`` to be readable (or to fail): the
+    ones that are. ``poll``, where there is one: ``select`` takes no descriptor above 1023."""
+    if not hasattr(select, "poll"):
+        return lambda timeout: select.select(fds, (), (), timeout)[0]
+    poller = select.poll()
+    for fd in fds:
+        poller.register(fd, select.POLLIN)
+
+    def wait(timeout: float) -> list[int]:
+        return [fd for fd, _ in poller.poll(timeout * 1000.0)]
+
+    return wait
+
+
+class _SigintDeferred:
+    """SIGINT's Python handler put aside in the main thread (see the module docstring)."""
+
+    __slots__ = ("_frame", "_saved", "hit", "poke")
+
+    def __init__(self, poke: Callable[[], None]) -> None:
+        self.poke = poke
+        self.hit = False
+        self._frame: FrameType | None = None
+        self._saved: Any = None
+
+    def put_aside(self) -> bool:
+        """Whether SIGINT's handler (a Python one) is now put aside."""
+        saved = _signal.getsignal(signal.SIGINT)
+        if not callable(saved):  # ignored, the default (the process ends), set from C
+            return False
+        try:
+            _signal.signal(signal.SIGINT, self._note)
+        except ValueError:  # not the main interpreter
+            return False
+        self._saved = saved
+        return True
+
+    def _note(self, signum: int, frame: FrameType | None) -> None:
+        self.hit = True
+        self._frame = frame
+        self.poke()
+
+    def restore(self) -> None:
+        """Put the handler back, and run it for a SIGINT that came meanwhile."""
+        saved, self._saved = self._saved, None
+        _signal.signal(signal.SIGINT, saved)
+        if self.hit:
+            self.hit = False
+            frame, self._frame = self._frame, None
+            saved(signal.SIGINT, frame)
 
 
 class Outcome(Protocol):
@@ -75,19 +139,22 @@ class Outcome(Protocol):
 class ReadingRole:
     """The role of reading one bus (see the module docstring), and its reader thread.
 
-    ``take(bus)`` reads what waits (``recv(0)`` until nothing does); ``accept(batch)``
-    dispatches it under the protocol lock, or hands it to the loop, and returns False once
-    the loop is closed; ``report(exc)`` tells the network of a failed read.
+    ``take(bus)`` reads what waits (``recv(0)`` until nothing does, up to a batch);
+    ``accept(batch)`` dispatches it under the protocol lock, or hands it to ``loop``, and
+    returns False once the loop is closed; ``report(exc)`` tells the network of a failed
+    read.
     """
 
     def __init__(
         self,
+        loop: asyncio.AbstractEventLoop,
         bus: can.BusABC,
         fd: int,
         take: Callable[[can.BusABC], list[can.Message]],
         accept: Callable[[list[can.Message]], bool],
         report: Callable[[Exception], None],
     ) -> None:
+        self._loop = loop
         self._bus = bus
         self._fd = fd
         self._take = take
@@ -110,6 +177,9 @@ class ReadingRole:
         self._poke_r, self._poke_w = socket.socketpair()
         self._poke_r.setblocking(False)
         self._poke_w.setblocking(False)
+        self._reader_wait = _waiter((fd,))
+        self._caller_wait = _waiter((fd, self._poke_r.fileno()))
+        self._sigint = _SigintDeferred(self._poke)
         self._thread: threading.Thread | None = None
         #: Frames read by blocking callers; the others were read by the reader thread.
         self.read_by_callers = 0
@@ -138,14 +208,18 @@ class ReadingRole:
     def _serve(self) -> None:
         claim, stop = self._claim, self._stop
         me = threading.get_ident()
+        _set_running_loop(self._loop)  # handlers run here: get_running_loop() is the loop
         interval = _LOOK
         while not stop.is_set():
+            # (said before the look: a caller letting go meanwhile wakes it)
+            self._reader_wakes_at = time.monotonic() + interval
             if claim.setdefault(_ROLE, me) != me:  # a caller reads: look again later
                 seen = self._takes
                 self._park_for(interval)
                 held_on = self._takes == seen and _ROLE in claim
                 interval = min(interval * 2, PARK_MAX) if held_on else _LOOK
                 continue
+            self._reader_wakes_at = 0.0
             idle = time.monotonic() - self._released_at
             if idle < GRACE and not self._hurry and not self._waiting():
                 del claim[_ROLE]  # freed just now: its caller may come back for it
@@ -168,12 +242,11 @@ class ReadingRole:
     def _read_while_held(self) -> bool:
         """Read while this thread holds the role, until a caller wants it (True) or the
         reader stops (False)."""
-        stop, fd, bus = self._stop, self._fd, self._bus
+        stop, bus, wait = self._stop, self._bus, self._reader_wait
         backoff = _BACKOFF
         while not stop.is_set():
             try:
-                readable = select.select((fd,), (), (), _SELECT)[0]
-                batch = self._take(bus) if readable else None
+                batch = self._take(bus) if wait(_SELECT) else None
             except Exception as exc:  # any driver failure: report, back off, read on
                 if stop.is_set():
                     return False
@@ -210,11 +283,14 @@ class ReadingRole:
             self._wait_for(outcome)
             return
         self._takes += 1
-        done = True  # (Ctrl-C: the caller waits no more)
+        sigint = self._sigint if me == _MAIN and self._sigint.put_aside() else None
+        done = False
         try:
-            done = self._read_until(outcome, me)
+            done = self._read_until(outcome, me, sigint)
         finally:
             self._let_go(me, hand_on=not done)
+            if sigint is not None:
+                sigint.restore()  # (a SIGINT meanwhile: its handler runs, and raises)
         if not done:
             self._wait_for(outcome)
 
@@ -234,6 +310,8 @@ class ReadingRole:
         self._wanted = True
         waiters = self._waiters
         waiters.add(outcome)
+        if _ROLE not in self._claim:  # let go of since this caller looked: someone must read
+            self.hurry()
         try:
             outcome.block()
         finally:
@@ -255,20 +333,22 @@ class ReadingRole:
         if self._stop.is_set():
             self._close_if_done()
 
-    def _read_until(self, outcome: Outcome, me: int) -> bool:
-        """Read and dispatch until the outcome is there (True), or until a read fails or the
-        reader stops (False: wait for it instead)."""
+    def _read_until(self, outcome: Outcome, me: int, sigint: _SigintDeferred | None) -> bool:
+        """Read and dispatch until the outcome is there (True), or until a read fails, the
+        reader stops or SIGINT comes (False: wait for it instead, after the handler)."""
         poke_r, fd, bus, stop = self._poke_r, self._fd, self._bus, self._stop
+        wait = self._caller_wait
         poked = poke_r.fileno()
-        watched = (fd, poked)
         outcome.reader = me
         outcome.poke = self._poke
+        running = _get_running_loop()
+        _set_running_loop(self._loop)  # handlers run here: get_running_loop() is the loop
         try:
             while not outcome.ready():
-                if stop.is_set():
+                if stop.is_set() or (sigint is not None and sigint.hit):
                     return False
                 try:
-                    readable = select.select(watched, (), (), _CALLER_SELECT)[0]
+                    readable = wait(_CALLER_SELECT)
                     if poked in readable:
                         poke_r.recv(64)
                     if fd not in readable:
@@ -290,6 +370,7 @@ class ReadingRole:
             return True
         finally:
             outcome.poke = None
+            _set_running_loop(running)
 
     def _poke(self) -> None:
         with contextlib.suppress(OSError):  # (full: poked already; closed: stopped)
