@@ -173,14 +173,14 @@ class Runner:
         # _on_loop(), inline: every blocking SDO transfer passes here
         if lock._is_owned() or threading.get_ident() == self._loop_ident:  # type: ignore[attr-defined]
             return self.run(fallback(arg))  # raises ReentrantCallError
-        handoff: _Handoff[T] = _Handoff(loop)
+        network = self.network
+        reading = network._reading if network is not None else None
+        handoff: _Handoff[T] = _Handoff(loop, reading is not None)
         with lock:
             cancel = begin(arg, handoff.settle)
         loop.wake_if_pending()
         if cancel is None:
             return self.run(fallback(arg))
-        network = self.network
-        reading = network._reading if network is not None else None
         try:  # the operation's own timeout ends it (an SDO timeout)
             if reading is None:
                 handoff._lock.acquire()
@@ -297,9 +297,20 @@ class _Handoff(Generic[T]):
     loop's self-pipe in, a plain lock out), where ``run_coroutine_threadsafe`` chains an
     asyncio future to a ``concurrent.futures.Future`` and its condition variable."""
 
-    __slots__ = ("_error", "_lock", "_loop", "_result", "poke", "reader", "settled", "task")
+    __slots__ = (
+        "_error",
+        "_lock",
+        "_loop",
+        "_pokeable",
+        "_result",
+        "poke",
+        "reader",
+        "settled",
+        "task",
+    )
 
-    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+    def __init__(self, loop: asyncio.AbstractEventLoop, pokeable: bool = False) -> None:
+        """``pokeable``: the waiting caller may read the bus itself (see ``poke``)."""
         self._lock = threading.Lock()
         # released once, when the outcome is there: by the protocol code that has it, or on a
         # RealTimeLoop by the thread that ran it, once it has let go of the protocol lock
@@ -314,6 +325,7 @@ class _Handoff(Generic[T]):
         #: there when another thread releases the outcome (``cobus.runtime.reading``).
         self.poke: Callable[[], None] | None = None
         self.reader = 0
+        self._pokeable = pokeable
 
     def succeed(self, result: T) -> None:
         self._result = result
@@ -325,11 +337,13 @@ class _Handoff(Generic[T]):
 
     def _release(self) -> None:
         self.settled = True
+        # (the release alone, in C, where no poke can be needed)
+        wake = self._wake if self._pokeable else self._lock.release
         loop = self._loop
         if loop is None:
-            self._wake()
+            wake()
         else:
-            loop.wake_after_release(self._wake)
+            loop.wake_after_release(wake)
 
     def _wake(self) -> None:
         self._lock.release()
