@@ -12,7 +12,8 @@ that it delivered something, the loop runs that first and the clock stays where 
 
 :class:`RealTimeLoop` is the blocking facade's real-time loop. It holds its protocol lock
 whenever it runs, and lets go of it only while it sleeps in ``select``. A bus's reader thread
-(and a blocking caller starting an SDO transfer) may take the lock and run protocol code
+(and a blocking caller starting an SDO transfer, or reading its answer from the bus:
+``cobus.runtime.reading``) may take the lock and run protocol code
 directly — the same code the loop would run, never at the same time as the loop — which saves
 a hand-over between threads on every frame (issue 20, ``docs/realtime.md``). Under the lock,
 ``call_soon``/``call_at`` work from that thread too; the holder wakes the loop, when it must,
