@@ -448,3 +448,67 @@ def test_sigint_while_the_main_thread_reads_never_strands_another_thread(kernel)
             thread.join(5.0)
         assert interrupts == 400 and not failures
         assert role._takes > 0
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        assert not role._sigint.hit
+
+
+def test_the_main_thread_leaves_the_bus_to_the_reader_while_another_signal_has_a_handler(
+    kernel, peer, monkeypatch
+):
+    """A Python handler of another signal (SIGALRM timeouts, SIGTERM, SIGUSR1) may raise at
+    any bytecode of the main thread: it then waits as before, and reads again once the
+    handler is gone. Another thread still reads."""
+    monkeypatch.setattr(_reading, "GRACE", 60.0)
+    with Network(interface="socketcan", channel="can0") as net:
+        sdo = net.add_remote(NODE).sdo
+        role = net.aio._reading
+        assert role is not None
+        assert sdo.upload(0x2000) == _value(0x2000)
+        previous = signal.signal(signal.SIGUSR1, lambda signum, frame: None)
+        try:
+            for i in range(5):
+                assert sdo.upload(0x2001 + i) == _value(0x2001 + i)
+            assert role._takes == 0
+            assert _ends(lambda: sdo.upload(0x2006)) == _value(0x2006)  # not the main thread
+            assert role._takes == 1
+        finally:
+            signal.signal(signal.SIGUSR1, previous)
+        assert sdo.upload(0x2007) == _value(0x2007)
+        assert role._takes == 2
+
+
+def test_a_sigint_handler_that_does_not_raise_lets_the_call_go_on(kernel, peer, monkeypatch):
+    """The user's own SIGINT handler runs once per signal when the reading caller gives the
+    role back, and the call still gets its answer; the handler is put back after."""
+    monkeypatch.setattr(_reading, "GRACE", 60.0)
+    main = threading.main_thread().ident
+    assert main is not None
+    seen: list[int] = []
+
+    def counting(signum: int, frame: object) -> None:
+        seen.append(signum)
+
+    previous = signal.signal(signal.SIGINT, counting)
+    try:
+        with Network(interface="socketcan", channel="can0") as net:
+            sdo = net.add_remote(NODE).sdo
+            role = net.aio._reading
+            assert role is not None
+            assert sdo.upload(0x2000) == _value(0x2000)
+            sent = peer.requests
+
+            def interrupt_then_answer() -> None:
+                while _reading._ROLE not in role._claim or peer.requests == sent:
+                    time.sleep(0.005)
+                signal.pthread_kill(main, signal.SIGINT)
+                time.sleep(0.05)
+                peer.muted = False
+                kernel.inject(_answer(0x2001, 0, 0x2001 * 0x100))
+
+            peer.muted = True
+            threading.Thread(target=interrupt_then_answer, daemon=True).start()
+            assert sdo.upload(0x2001) == _value(0x2001)
+            assert seen == [signal.SIGINT] and role._takes == 1
+            assert signal.getsignal(signal.SIGINT) is counting
+    finally:
+        signal.signal(signal.SIGINT, previous)

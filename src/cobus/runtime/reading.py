@@ -23,12 +23,14 @@ time: the holder of the *role*.
   lets go.
 - A caller's read that fails gives the role back and keeps callers off it for a while
   (doubling up to a second); the reader thread reports failures and backs off, as always.
-- Ctrl-C: while the main thread holds the role, SIGINT's Python handler is put aside for
-  one that notes the signal and pokes the caller; the caller gives the role back and the
-  handler runs then (KeyboardInterrupt, and the transfer is cancelled). So an interrupt
-  never falls inside the dispatch of other threads' frames (their outcomes, wake-ups, the
-  protocol lock): Python runs signal handlers in the main thread whatever thread the
-  signal went to, so masking SIGINT there (``pthread_sigmask``) would not do.
+- Signals. Python runs signal handlers in the main thread, whatever thread the signal went
+  to (so masking a signal there with ``pthread_sigmask`` would not keep it out), at almost
+  any bytecode: a handler that raises inside the dispatch of other threads' frames could
+  leave their outcomes unreleased or the protocol lock taken. So the main thread reads
+  only while no signal but SIGINT has a Python handler (~4 µs to look at them all), and
+  with SIGINT's handler put aside for one that notes the signal and pokes the caller: the
+  caller gives the role back, the handler is put back and run then (KeyboardInterrupt: the
+  transfer is cancelled; a handler that does not raise: the call goes on waiting).
 - Frame handlers run with the network's loop as their running loop, whichever thread reads.
 """
 
@@ -80,6 +82,16 @@ def _waiter(fds: Sequence[int]) -> Callable[[float], list[int]]:
     return wait
 
 
+def _other_handlers() -> bool:
+    """Whether a signal other than SIGINT has a Python handler (one that could raise in the
+    main thread while it dispatches others' frames): ~4 µs, every signal looked at in C."""
+    return any(map(callable, map(_signal.getsignal, _OTHER_SIGNALS)))
+
+
+_OTHER_SIGNALS = tuple(sorted(set(signal.valid_signals()) - {signal.SIGINT}))
+_ASIDE, _UNHANDLED, _REFUSED = 0, 1, 2
+
+
 class _SigintDeferred:
     """SIGINT's Python handler put aside in the main thread (see the module docstring)."""
 
@@ -91,17 +103,28 @@ class _SigintDeferred:
         self._frame: FrameType | None = None
         self._saved: Any = None
 
-    def put_aside(self) -> bool:
-        """Whether SIGINT's handler (a Python one) is now put aside."""
+    def put_aside(self) -> int:
+        """``_ASIDE``: SIGINT's Python handler is put aside; ``_UNHANDLED``: it has none (it
+        is ignored, or ends the process); ``_REFUSED``: it cannot be put aside here (already
+        aside, or not the main interpreter). A handler that raises for a SIGINT pending
+        already raises here, before anything changed."""
+        if self._saved is not None:
+            return _REFUSED
         saved = _signal.getsignal(signal.SIGINT)
-        if not callable(saved):  # ignored, the default (the process ends), set from C
-            return False
+        if saved is None:  # set from C: cannot be put back
+            return _REFUSED
+        if not callable(saved):
+            return _UNHANDLED
+        if saved == self._note:
+            return _REFUSED
+        self.hit = False
+        self._frame = None
         try:
             _signal.signal(signal.SIGINT, self._note)
         except ValueError:  # not the main interpreter
-            return False
+            return _REFUSED
         self._saved = saved
-        return True
+        return _ASIDE
 
     def _note(self, signum: int, frame: FrameType | None) -> None:
         self.hit = True
@@ -110,8 +133,11 @@ class _SigintDeferred:
 
     def restore(self) -> None:
         """Put the handler back, and run it for a SIGINT that came meanwhile."""
-        saved, self._saved = self._saved, None
-        _signal.signal(signal.SIGINT, saved)
+        saved = self._saved
+        if saved is None:
+            return
+        _signal.signal(signal.SIGINT, saved)  # (what is pending runs first: _note)
+        self._saved = None
         if self.hit:
             self.hit = False
             frame, self._frame = self._frame, None
@@ -273,24 +299,38 @@ class ReadingRole:
     # ------------------------------------------------------------------ a blocking caller
     def wait(self, outcome: Outcome) -> None:
         """Wait until ``outcome`` is there (and take it), reading the bus meanwhile when the
-        role is free. On Ctrl-C, the caller's handler calls :meth:`drop`."""
+        role is free. On Ctrl-C, the caller's handler calls :meth:`drop`.
+
+        The main thread reads only while no other signal than SIGINT has a Python handler,
+        and with SIGINT's put aside (see the module docstring)."""
         me = threading.get_ident()
-        if (
-            self._stop.is_set()
-            or time.monotonic() < self._avoid_until
-            or self._claim.setdefault(_ROLE, me) != me
-        ):
+        if self._stop.is_set() or time.monotonic() < self._avoid_until or _ROLE in self._claim:
             self._wait_for(outcome)
             return
-        self._takes += 1
-        sigint = self._sigint if me == _MAIN and self._sigint.put_aside() else None
-        done = False
+        sigint: _SigintDeferred | None = None
+        if me == _MAIN:
+            if _other_handlers():
+                self._wait_for(outcome)
+                return
+            aside = self._sigint.put_aside()  # (before the role: nothing to give back)
+            if aside == _REFUSED:
+                self._wait_for(outcome)
+                return
+            if aside == _ASIDE:
+                sigint = self._sigint
+        took = done = False
         try:
-            done = self._read_until(outcome, me, sigint)
+            took = self._claim.setdefault(_ROLE, me) == me
+            if took:
+                self._takes += 1
+                done = self._read_until(outcome, me, sigint)
         finally:
-            self._let_go(me, hand_on=not done)
-            if sigint is not None:
-                sigint.restore()  # (a SIGINT meanwhile: its handler runs, and raises)
+            try:
+                if took:
+                    self._let_go(me, hand_on=not done)
+            finally:
+                if sigint is not None:
+                    sigint.restore()  # (a SIGINT meanwhile: its handler runs now)
         if not done:
             self._wait_for(outcome)
 
