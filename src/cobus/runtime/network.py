@@ -878,11 +878,12 @@ class AsyncNetwork:
         return True
 
     def _accept(self, batch: list[can.Message]) -> bool:
-        """Dispatch frames a thread has read (the reader, or a blocking caller reading the
-        bus) in that thread, under the loop's protocol lock, or hand them to the loop when
-        it stays busy. False once the loop is closed."""
+        """Dispatch frames a thread has read (a reader thread, or a blocking caller reading
+        the bus): on a RealTimeLoop in that thread, under the loop's protocol lock (never
+        while the loop runs), saving a hand-over; else, or when the loop stays busy, handed
+        to the loop. False once the network is disconnected or the loop closed."""
         loop = self._loop
-        if not isinstance(loop, RealTimeLoop):
+        if loop is None:
             return False
         pending = self._rx_pending
         marked, tag = self._own_marked, self._echo_tag
@@ -892,17 +893,22 @@ class AsyncNetwork:
             pending.append(msg)
         if not pending:
             return True
-        lock = loop.protocol_lock
-        if lock.acquire(True, _DIRECT_WAIT):
-            try:
-                if loop.is_closed():
-                    return False
-                self._dispatch_pending()
-            finally:
-                lock.release()
-                loop.wake_if_pending()  # (the threads this dispatch has to wake)
-            return True
-        if not self._rx_posted:  # the loop is busy: hand over, as the reader thread does
+        if isinstance(loop, RealTimeLoop):
+            lock = loop.protocol_lock
+            if lock.acquire(True, _DIRECT_WAIT):
+                try:
+                    if loop.is_closed():
+                        return False
+                    self._dispatch_pending()
+                finally:
+                    lock.release()
+                    loop.wake_if_pending()  # (the threads this dispatch has to wake)
+                return True
+        # Hand-over: one wake-up of the loop per batch; while a wake-up is pending, frames
+        # that arrive only join the queue (deque appends are atomic). Also the way out when
+        # the loop is busy, so a reader is never starved by it; the queue keeps the order,
+        # as the direct path empties it first.
+        if not self._rx_posted:
             self._rx_posted = True
             try:
                 loop.call_soon_threadsafe(self._drain_rx)
@@ -1006,14 +1012,11 @@ class AsyncNetwork:
         self._start_reader_thread(loop, bus)
 
     def _reader_thread(self, loop: asyncio.AbstractEventLoop, bus: can.BusABC) -> None:
-        direct = loop if isinstance(loop, RealTimeLoop) else None
-        lock = direct.protocol_lock if direct is not None else None
-        if direct is not None:  # handlers run here: asyncio.get_running_loop() is the loop
-            asyncio.events._set_running_loop(direct)
+        if isinstance(loop, RealTimeLoop):  # handlers run here: get_running_loop() is the loop
+            asyncio.events._set_running_loop(loop)
         backoff = 0.05
-        pending = self._rx_pending
         stop = self._reader_stop
-        marked, tag = self._own_marked, self._echo_tag
+        accept = self._accept
         while not stop.is_set():
             try:
                 msg = bus.recv(0.05)
@@ -1030,30 +1033,8 @@ class AsyncNetwork:
             if msg is None:
                 continue
             backoff = 0.05
-            if (marked and not msg.is_rx) or (tag is not None and msg.channel == tag):
-                continue  # our own message handed back (see _on_messages): not worth the lock
-            pending.append(msg)
-            if direct is not None and lock is not None and lock.acquire(True, _DIRECT_WAIT):
-                # Direct dispatch: this thread runs the frames' handlers itself, under the
-                # loop's protocol lock (never while the loop runs), saving a hand-over.
-                try:
-                    if stop.is_set() or loop.is_closed():
-                        return
-                    self._dispatch_pending()
-                finally:
-                    lock.release()
-                    direct.wake_if_pending()  # (the threads this dispatch has to wake)
-                continue
-            # Hand-over: one wake-up of the loop per batch; while a wake-up is pending, frames
-            # that arrive only join the queue (deque appends are atomic). Also the way out
-            # when the loop is busy, so a reader is never starved by it; the queue keeps the
-            # order, as the direct path empties it first.
-            if not self._rx_posted:
-                self._rx_posted = True
-                try:
-                    loop.call_soon_threadsafe(self._drain_rx)
-                except RuntimeError:  # the loop is closed
-                    return
+            if not accept([msg]):
+                return
 
     def _dispatch_pending(self) -> None:
         """Dispatch what the reader thread queued, holding the protocol lock."""
