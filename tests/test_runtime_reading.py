@@ -135,7 +135,7 @@ def test_a_reading_caller_is_woken_when_the_loop_settles_its_outcome(kernel, pee
     same network (it answers through the loop's local echo), and an SDO timeout. The caller
     is poked awake; it would otherwise sleep in ``select`` for a minute here."""
     monkeypatch.setattr(_reading, "GRACE", 60.0)
-    monkeypatch.setattr(_reading, "_CALLER_SELECT", 60.0)
+    monkeypatch.setattr(_reading, "_CALLER_WAIT", 60.0)
     with Network(interface="socketcan", channel="can0") as net:
         od = minimal_od()
         add_device(net, 9, od)

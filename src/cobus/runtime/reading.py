@@ -58,8 +58,8 @@ GRACE = 0.002
 #: s at most between two looks of the parked reader thread while one caller holds the role
 PARK_MAX = 0.05
 _LOOK = 0.002  # s: its first look, and its looks while callers come and go
-_SELECT = 0.05  # s: the reader thread's wait for frames, between looks at its stop flag
-_CALLER_SELECT = 1.0  # s: a reading caller's wait (it is poked: this only bounds a miss)
+_READER_WAIT = 0.05  # s: the reader thread's wait for frames, between looks at its stop flag
+_CALLER_WAIT = 1.0  # s: a reading caller's wait (it is poked: this only bounds a miss)
 _BACKOFF = 0.05  # s callers keep off the role after a failed read, doubling up to 1 s
 _ROLE = 0  # the key of the role in the claim dict
 _MAIN = threading.main_thread().ident  # where Python runs signal handlers
@@ -272,7 +272,7 @@ class ReadingRole:
         backoff = _BACKOFF
         while not stop.is_set():
             try:
-                batch = self._take(bus) if wait(_SELECT) else None
+                batch = self._take(bus) if wait(_READER_WAIT) else None
             except Exception as exc:  # any driver failure: report, back off, read on
                 if stop.is_set():
                     return False
@@ -388,7 +388,7 @@ class ReadingRole:
                 if stop.is_set() or (sigint is not None and sigint.hit):
                     return False
                 try:
-                    readable = wait(_CALLER_SELECT)
+                    readable = wait(_CALLER_WAIT)
                     if poked in readable:
                         poke_r.recv(64)
                     if fd not in readable:
