@@ -111,6 +111,14 @@ def _ends(call: Callable[[], Any], bound: float = 20.0) -> Any:
     return out.get("value")
 
 
+def _eventually(done: Callable[[], bool], seconds: float) -> None:
+    """Wait until ``done()`` (a frame or event another thread delivers), at most ``seconds``;
+    the assertion after it says what was missing."""
+    deadline = time.monotonic() + seconds
+    while not done() and time.monotonic() < deadline:
+        time.sleep(0.002)
+
+
 def _value(index: int, subindex: int = 0) -> bytes:
     return (index * 0x100 + subindex).to_bytes(4, "little")
 
@@ -230,9 +238,7 @@ def test_frames_keep_their_order_whoever_reads_them(kernel, peer, monkeypatch):
         calls(0x2300)
         for worker in workers:
             worker.join(20.0)
-        deadline = time.monotonic() + 5.0
-        while len(got) < count and time.monotonic() < deadline:
-            time.sleep(0.01)
+        _eventually(lambda: len(got) >= count, 5.0)
         assert got == list(range(count)) and count == 160 * 20
 
 
@@ -261,9 +267,7 @@ def test_a_failing_read_backs_off_and_the_call_still_ends(kernel, peer, monkeypa
         role = net.aio._reading
         assert role is not None and role._takes == 1
         assert 2 <= reads <= 10  # the caller's, then the reader's: 50, 100, 200, 400 ms apart
-        deadline = time.monotonic() + 2.0
-        while not events and time.monotonic() < deadline:
-            time.sleep(0.01)
+        _eventually(lambda: bool(events), 2.0)
         assert events and "went away" in events[0].reason
 
 
@@ -348,9 +352,7 @@ def test_frame_handlers_have_the_loop_as_their_running_loop_whoever_reads(
 
         net._runner.call(net.aio.subscribe, 0x181, handler)
         kernel.inject(pdo)  # the reader thread reads it
-        deadline = time.monotonic() + 5.0
-        while not seen and time.monotonic() < deadline:
-            time.sleep(0.01)
+        _eventually(lambda: bool(seen), 5.0)
         sdo = net.add_remote(NODE).sdo
         assert sdo.upload(0x2000) == _value(0x2000)
         peer.before_answer = lambda: kernel.inject(pdo)
@@ -439,9 +441,11 @@ def test_sigint_while_the_main_thread_reads_never_strands_another_thread(kernel)
                 timer.join()
                 assert not lock._is_owned()  # type: ignore[attr-defined]
                 before = calls[0]
-                deadline = time.monotonic() + 3.0
-                while calls[0] == before and time.monotonic() < deadline:
-                    time.sleep(0.002)
+
+                def moved(seen: int = before) -> bool:
+                    return calls[0] > seen
+
+                _eventually(moved, 3.0)
                 assert calls[0] > before, "the worker stopped"
         finally:
             stop.set()
