@@ -36,20 +36,18 @@ time: the holder of the *role*.
 
 from __future__ import annotations
 
-# signal's C functions: the signal module's wrappers convert to enums (~6 µs a call, ~0.5 here)
-import _signal  # type: ignore[import-not-found]
 import asyncio
 import contextlib
 import select
-import signal
 import socket
 import threading
 import time
 from collections.abc import Callable, Sequence
-from types import FrameType
-from typing import Any, Protocol
+from typing import Protocol
 
 import can
+
+from cobus.runtime._sigint import ASIDE, MAIN, REFUSED, SigintDeferred, other_handlers
 
 __all__ = ["GRACE", "PARK_MAX", "Outcome", "ReadingRole"]
 
@@ -62,7 +60,6 @@ _READER_WAIT = 0.05  # s: the reader thread's wait for frames, between looks at 
 _CALLER_WAIT = 1.0  # s: a reading caller's wait (it is poked: this only bounds a miss)
 _BACKOFF = 0.05  # s callers keep off the role after a failed read, doubling up to 1 s
 _ROLE = 0  # the key of the role in the claim dict
-_MAIN = threading.main_thread().ident  # where Python runs signal handlers
 _get_running_loop = asyncio.events._get_running_loop
 _set_running_loop = asyncio.events._set_running_loop
 
@@ -80,68 +77,6 @@ def _waiter(fds: Sequence[int]) -> Callable[[float], list[int]]:
         return [fd for fd, _ in poller.poll(timeout * 1000.0)]
 
     return wait
-
-
-def _other_handlers() -> bool:
-    """Whether a signal other than SIGINT has a Python handler (one that could raise in the
-    main thread while it dispatches others' frames): ~4 µs, every signal looked at in C."""
-    return any(map(callable, map(_signal.getsignal, _OTHER_SIGNALS)))
-
-
-_OTHER_SIGNALS = tuple(sorted(set(signal.valid_signals()) - {signal.SIGINT}))
-_ASIDE, _UNHANDLED, _REFUSED = 0, 1, 2
-
-
-class _SigintDeferred:
-    """SIGINT's Python handler put aside in the main thread (see the module docstring)."""
-
-    __slots__ = ("_frame", "_saved", "hit", "poke")
-
-    def __init__(self, poke: Callable[[], None]) -> None:
-        self.poke = poke
-        self.hit = False
-        self._frame: FrameType | None = None
-        self._saved: Any = None
-
-    def put_aside(self) -> int:
-        """``_ASIDE``: SIGINT's Python handler is put aside; ``_UNHANDLED``: it has none (it
-        is ignored, or ends the process); ``_REFUSED``: it cannot be put aside here (already
-        aside, or not the main interpreter). A handler that raises for a SIGINT pending
-        already raises here, before anything changed."""
-        if self._saved is not None:
-            return _REFUSED
-        saved = _signal.getsignal(signal.SIGINT)
-        if saved is None:  # set from C: cannot be put back
-            return _REFUSED
-        if not callable(saved):
-            return _UNHANDLED
-        if saved == self._note:
-            return _REFUSED
-        self.hit = False
-        self._frame = None
-        try:
-            _signal.signal(signal.SIGINT, self._note)
-        except ValueError:  # not the main interpreter
-            return _REFUSED
-        self._saved = saved
-        return _ASIDE
-
-    def _note(self, signum: int, frame: FrameType | None) -> None:
-        self.hit = True
-        self._frame = frame
-        self.poke()
-
-    def restore(self) -> None:
-        """Put the handler back, and run it for a SIGINT that came meanwhile."""
-        saved = self._saved
-        if saved is None:
-            return
-        _signal.signal(signal.SIGINT, saved)  # (what is pending runs first: _note)
-        self._saved = None
-        if self.hit:
-            self.hit = False
-            frame, self._frame = self._frame, None
-            saved(signal.SIGINT, frame)
 
 
 class Outcome(Protocol):
@@ -205,7 +140,7 @@ class ReadingRole:
         self._poke_w.setblocking(False)
         self._reader_wait = _waiter((fd,))
         self._caller_wait = _waiter((fd, self._poke_r.fileno()))
-        self._sigint = _SigintDeferred(self._poke)
+        self._sigint = SigintDeferred(self._poke)
         self._thread: threading.Thread | None = None
         #: Frames read by blocking callers; the others were read by the reader thread.
         self.read_by_callers = 0
@@ -307,16 +242,16 @@ class ReadingRole:
         if self._stop.is_set() or time.monotonic() < self._avoid_until or _ROLE in self._claim:
             self._wait_for(outcome)
             return
-        sigint: _SigintDeferred | None = None
-        if me == _MAIN:
-            if _other_handlers():
+        sigint: SigintDeferred | None = None
+        if me == MAIN:
+            if other_handlers():
                 self._wait_for(outcome)
                 return
             aside = self._sigint.put_aside()  # (before the role: nothing to give back)
-            if aside == _REFUSED:
+            if aside == REFUSED:
                 self._wait_for(outcome)
                 return
-            if aside == _ASIDE:
+            if aside == ASIDE:
                 sigint = self._sigint
         took = done = False
         try:
@@ -373,7 +308,7 @@ class ReadingRole:
         if self._stop.is_set():
             self._close_if_done()
 
-    def _read_until(self, outcome: Outcome, me: int, sigint: _SigintDeferred | None) -> bool:
+    def _read_until(self, outcome: Outcome, me: int, sigint: SigintDeferred | None) -> bool:
         """Read and dispatch until the outcome is there (True), or until a read fails, the
         reader stops or SIGINT comes (False: wait for it instead, after the handler)."""
         poke_r, fd, bus, stop = self._poke_r, self._fd, self._bus, self._stop
