@@ -166,10 +166,11 @@ def test_a_reading_caller_is_woken_when_the_loop_settles_its_outcome(kernel, pee
         assert remote.upload(0x2003) == _value(0x2003)
 
 
-def test_ctrl_c_in_a_reading_caller_gives_the_role_back(kernel, peer, monkeypatch):
+@pytest.mark.parametrize("presses", [1, 2])
+def test_ctrl_c_in_a_reading_caller_gives_the_role_back(kernel, peer, monkeypatch, presses):
     """SIGINT while the main thread reads for an answer that does not come: the call raises
     KeyboardInterrupt, the transfer is cancelled, the role is given back, and the next
-    calls work."""
+    calls work — also when a second SIGINT lands while the abort is sent."""
     monkeypatch.setattr(_reading, "GRACE", 60.0)
     with Network(interface="socketcan", channel="can0") as net:
         sdo = net.add_remote(NODE, sdo_timeout=30.0).sdo
@@ -180,6 +181,17 @@ def test_ctrl_c_in_a_reading_caller_gives_the_role_back(kernel, peer, monkeypatc
         peer.muted = True
         main = threading.main_thread().ident
         assert main is not None
+        bus = net.aio.bus
+        send = bus.send
+
+        def send_then_interrupt(msg: can.Message, timeout: float | None = None) -> None:
+            send(msg, timeout)
+            if msg.data[0] == 0x80:  # the abort: the second Ctrl-C comes now (once)
+                bus.send = send  # type: ignore[method-assign]
+                signal.pthread_kill(main, signal.SIGINT)
+
+        if presses == 2:
+            bus.send = send_then_interrupt  # type: ignore[method-assign]
 
         def interrupt() -> None:
             while peer.requests == seen:
@@ -194,8 +206,9 @@ def test_ctrl_c_in_a_reading_caller_gives_the_role_back(kernel, peer, monkeypatc
         assert role._takes == 1
         assert role._claim.get(_reading._ROLE) != main  # (the reader thread's now)
         peer.muted = False
-        assert sdo.upload(0x2002) == _value(0x2002)
+        assert _ends(lambda: sdo.upload(0x2002)) == _value(0x2002)  # (the channel is free)
         assert sdo.upload(0x2003) == _value(0x2003)
+        assert sdo.upload(0x2004) == _value(0x2004)
         assert role._takes >= 2  # (the first of them may find the reader still reading)
 
 

@@ -434,6 +434,52 @@ def test_ctrl_c_while_waiting_aborts_the_transfer_and_frees_the_channel():
             node.sdo.upload(0x1000)
 
 
+def test_a_second_ctrl_c_while_the_transfer_is_cancelled_still_frees_the_channel():
+    """The user presses Ctrl-C twice: the second SIGINT lands while the first one's cleanup
+    sends the abort (here, exactly then). It is raised once the channel is free, not in the
+    middle of the cancellation, which would leave the channel busy for good."""
+    with Network(interface="virtual", channel="rt-ctrl-c-twice") as net:
+        raw = can.Bus(interface="virtual", channel="rt-ctrl-c-twice")
+        node = net.add_remote(9, sdo_timeout=30)
+        bus = net.aio.bus
+        send = bus.send
+        main = threading.main_thread().ident
+        assert main is not None
+
+        def send_then_interrupt(msg: can.Message, timeout: float | None = None) -> None:
+            send(msg, timeout)
+            if msg.data[0] == 0x80:  # the abort: the second Ctrl-C comes now (once)
+                bus.send = send  # type: ignore[method-assign]
+                signal.pthread_kill(main, signal.SIGINT)
+
+        bus.send = send_then_interrupt  # type: ignore[method-assign]
+        timer = threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGINT))
+        timer.start()
+        with pytest.raises(KeyboardInterrupt) as second:
+            node.sdo.upload(0x1000)
+        timer.join()
+        assert isinstance(second.value.__context__, KeyboardInterrupt)  # raised after the first
+        frames = []
+        while (msg := raw.recv(0.5)) is not None:
+            frames.append((msg.arbitration_id, msg.data[0]))
+        raw.shutdown()
+        assert frames == [(0x609, 0x40), (0x609, 0x80)]
+        node.sdo.timeout = 0.05
+        outcome: list[BaseException] = []
+
+        def next_transfer() -> None:  # free: it runs (and times out)
+            try:
+                node.sdo.upload(0x1000)
+            except BaseException as exc:
+                outcome.append(exc)
+
+        caller = threading.Thread(target=next_transfer, daemon=True)
+        caller.start()
+        caller.join(5.0)
+        assert outcome, "the channel stayed busy: the next transfer never started"
+        assert isinstance(outcome[0], SdoTimeoutError)
+
+
 # -- the asyncio API on a RealTimeLoop (cobus.runtime.run)
 
 

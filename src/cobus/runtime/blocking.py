@@ -29,6 +29,7 @@ from cobus.runtime import emcy as _emcy
 from cobus.runtime import nmt as _nmt
 from cobus.runtime import pdo as _pdo
 from cobus.runtime import remote as _remote
+from cobus.runtime._sigint import ASIDE, MAIN, SigintDeferred
 from cobus.runtime._twin import BlockingTwin, twin_of
 from cobus.runtime.errors import ReentrantCallError
 from cobus.runtime.events import BusState
@@ -42,6 +43,7 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from cobus.od import ObjectDictionary
+    from cobus.runtime.reading import ReadingRole
 
 __all__ = [
     "BlockingNmt",
@@ -187,11 +189,7 @@ class Runner:
             else:  # the caller may read the bus itself meanwhile (cobus.runtime.reading)
                 reading.wait(handoff)
         except BaseException:  # Ctrl-C while waiting: the operation ends with it
-            if reading is not None:
-                reading.drop()
-            with lock:
-                cancel()
-            loop.wake_if_pending()
+            _end_after_interrupt(reading, lock, cancel, loop)
             raise
         return handoff.outcome()
 
@@ -290,6 +288,39 @@ class Runner:
             self.loop.run_until_complete(_cancel_tasks())
         if not self.loop.is_running():
             self.loop.close()
+
+
+def _end_after_interrupt(
+    reading: ReadingRole | None,
+    lock: threading.RLock,
+    cancel: Callable[[], None],
+    loop: RealTimeLoop,
+) -> None:
+    """End an operation begun by :meth:`Runner.run_direct` whose caller was interrupted.
+
+    In the main thread SIGINT's handler is put aside meanwhile (``cobus.runtime._sigint``):
+    a second Ctrl-C landing in the middle of ``cancel()`` would leave the operation half
+    ended (an SDO channel busy for good); it is raised once the operation has ended."""
+    deferred: SigintDeferred | None = None
+    try:
+        if threading.get_ident() == MAIN:
+            deferred = SigintDeferred(_nothing)
+            if deferred.put_aside() != ASIDE:
+                deferred = None
+    finally:  # (a SIGINT pending already has raised in put_aside: end the operation anyway)
+        try:
+            if reading is not None:
+                reading.drop()
+            with lock:
+                cancel()
+            loop.wake_if_pending()
+        finally:
+            if deferred is not None:
+                deferred.restore()  # a Ctrl-C meanwhile: its KeyboardInterrupt, now
+
+
+def _nothing() -> None:
+    pass
 
 
 class _Handoff(Generic[T]):
