@@ -30,6 +30,7 @@ from cobus.runtime import Network, ReceiveFailed
 from cobus.runtime import reading as _reading
 from cobus.runtime.loop import RealTimeLoop
 from tests.socketcan_standin import KernelStandIn
+from tests.util import second_ctrl_c_on_abort
 
 NODE = 5
 
@@ -181,17 +182,8 @@ def test_ctrl_c_in_a_reading_caller_gives_the_role_back(kernel, peer, monkeypatc
         peer.muted = True
         main = threading.main_thread().ident
         assert main is not None
-        bus = net.aio.bus
-        send = bus.send
-
-        def send_then_interrupt(msg: can.Message, timeout: float | None = None) -> None:
-            send(msg, timeout)
-            if msg.data[0] == 0x80:  # the abort: the second Ctrl-C comes now (once)
-                bus.send = send  # type: ignore[method-assign]
-                signal.pthread_kill(main, signal.SIGINT)
-
         if presses == 2:
-            bus.send = send_then_interrupt  # type: ignore[method-assign]
+            second_ctrl_c_on_abort(net.aio.bus)
 
         def interrupt() -> None:
             while peer.requests == seen:

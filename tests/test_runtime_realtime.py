@@ -18,6 +18,7 @@ from cobus.runtime import AsyncNetwork, Network, run
 from cobus.runtime.errors import NetworkClosedError, ReentrantCallError
 from cobus.runtime.loop import RealTimeLoop, new_event_loop
 from cobus.runtime.network import MachineHost
+from tests.util import second_ctrl_c_on_abort
 
 
 def test_the_real_time_loop_of_the_blocking_facade_is_a_real_time_loop():
@@ -441,18 +442,7 @@ def test_a_second_ctrl_c_while_the_transfer_is_cancelled_still_frees_the_channel
     with Network(interface="virtual", channel="rt-ctrl-c-twice") as net:
         raw = can.Bus(interface="virtual", channel="rt-ctrl-c-twice")
         node = net.add_remote(9, sdo_timeout=30)
-        bus = net.aio.bus
-        send = bus.send
-        main = threading.main_thread().ident
-        assert main is not None
-
-        def send_then_interrupt(msg: can.Message, timeout: float | None = None) -> None:
-            send(msg, timeout)
-            if msg.data[0] == 0x80:  # the abort: the second Ctrl-C comes now (once)
-                bus.send = send  # type: ignore[method-assign]
-                signal.pthread_kill(main, signal.SIGINT)
-
-        bus.send = send_then_interrupt  # type: ignore[method-assign]
+        second_ctrl_c_on_abort(net.aio.bus)
         timer = threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGINT))
         timer.start()
         with pytest.raises(KeyboardInterrupt) as second:

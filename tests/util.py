@@ -20,6 +20,26 @@ def simulate(coro: Coroutine[Any, Any, T]) -> T:
         loop.close()
 
 
+def second_ctrl_c_on_abort(bus: Any) -> None:
+    """Have ``bus`` (a network's python-can bus) send SIGINT to the main thread right after
+    it sends the first SDO abort: a second Ctrl-C that lands while an interrupted transfer
+    is being cancelled. Once only; the bus's own ``send`` is put back then."""
+    import signal
+    import threading
+
+    send = bus.send
+    main = threading.main_thread().ident
+    assert main is not None
+
+    def send_then_interrupt(msg: Any, timeout: float | None = None) -> None:
+        send(msg, timeout)
+        if msg.data[0] == 0x80:
+            bus.send = send
+            signal.pthread_kill(main, signal.SIGINT)
+
+    bus.send = send_then_interrupt
+
+
 def until(check: Callable[[], object], timeout: float = 2.0) -> None:
     """Wait in real time (polling every 5 ms) until ``check()`` holds; AssertionError after
     ``timeout`` seconds. For tests with python-canopen, which runs its own threads."""
