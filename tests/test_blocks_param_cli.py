@@ -62,3 +62,67 @@ def test_diff_apply_snapshot_and_their_exit_codes(
         assert "[11] read 0x6081:00" in capsys.readouterr().out
         assert main(["params", "snapshot", "10", str(snap), "-i", "virtual", "-c", channel]) == 2
         assert "needs the node's EDS" in capsys.readouterr().err
+
+
+def test_a_snapshot_holds_no_commands_and_applying_it_leaves_a_disabled_drive_disabled(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 38 (1): the snapshot of an enabled servo held its controlword and targets, and
+    applying it to the disabled drive switched it back on (0x0231 → 0x0637)."""
+    channel = f"cli-params-commands-{os.getpid()}"
+    with Network(interface="virtual", channel=channel) as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        eds = tmp_path / "servo.eds"
+        eds.write_text(export_eds(rig.aio.devices[10].od))
+        bus = ["-i", "virtual", "-c", channel, "--eds", str(eds)]
+        servo = net.add_remote(10)
+        for controlword in (0x06, 0x07, 0x0F):  # shutdown, switch on, enable operation
+            servo.sdo.download(0x6040, 0, controlword.to_bytes(2, "little"))
+        servo.sdo.download(0x60FF, 0, (1000).to_bytes(4, "little", signed=True))
+
+        def statusword() -> int:
+            return int.from_bytes(servo.sdo.upload(0x6041, 0), "little") & 0x6F
+
+        assert statusword() == 0x27  # operation enabled
+
+        snap = tmp_path / "s.yml"
+        assert main(["params", "snapshot", "10", str(snap), *bus]) == 0
+        out = capsys.readouterr().out
+        text = snap.read_text()
+        for index in ("0x6040", "0x6060", "0x607A", "0x60FF", "0x6071", "0x6081"):
+            assert f'"{index}:00"' not in text, index
+        assert '"0x6065:00"' in text  # the following error window: configuration
+        assert "left out as commands or process data" in out
+        assert "0x6040:00 Controlword: the CiA 402 controlword" in out
+        named = tmp_path / "named.yml"
+        assert main(["params", "snapshot", "10", str(named), *bus, "--objects", "0x6040"]) == 0
+        capsys.readouterr()
+
+        servo.sdo.download(0x6040, 0, (0x06).to_bytes(2, "little"))  # disable
+        assert statusword() == 0x21  # ready to switch on
+        assert main(["params", "apply", "10", str(snap), *bus]) == 0
+        capsys.readouterr()
+        assert statusword() == 0x21  # still disabled
+
+        # named on its own, a command is read (while enabled); the set is then refused ...
+        assert '"0x6040:00": {value: 15, type: UNSIGNED16}' in named.read_text()
+        assert main(["params", "apply", "10", str(named), *bus]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1  # one line
+        assert "0x6040:00 Controlword: the CiA 402 controlword" in err
+        assert "--allow-commands" in err
+        assert statusword() == 0x21  # nothing was written
+
+        # ... unless the user asks for exactly that
+        assert main(["params", "apply", "10", str(named), *bus, "--allow-commands"]) == 0
+        assert "0x6040:00" in capsys.readouterr().out
+        assert statusword() == 0x27
+
+        # a range leaves commands out as the default does
+        ranged = tmp_path / "ranged.csv"
+        args = ["--objects", "0x6000-0x60FF", "--json"]
+        assert main(["params", "snapshot", "10", str(ranged), *bus, *args]) == 0
+        result = json.loads(capsys.readouterr().out)
+        left = {entry["object"] for entry in result["not_parameters"]}
+        assert {"0x6040:00", "0x6060:00", "0x607A:00", "0x60FF:00", "0x6071:00"} <= left
+        assert "0x6040" not in ranged.read_text() and "0x6065" in ranged.read_text()

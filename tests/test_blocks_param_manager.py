@@ -18,7 +18,7 @@ from cobus.blocks import (
     ParameterStep,
     loads_parameters,
 )
-from cobus.blocks.param_manager import ParameterFault
+from cobus.blocks.param_manager import CommandsInSetError, ParameterFault
 from cobus.device import export_eds
 from cobus.od import DataType, ObjectDictionary, loads
 from cobus.proto import Frame
@@ -313,3 +313,67 @@ def test_snapshot_lists_what_the_node_refuses_and_skips_what_is_no_parameter() -
     assert [p.index for p in snap] == [0x1017, 0x20A8]  # 1000h ro, 1010h, PDO: no parameters
     assert [f.code for f in failures] == [12]
     assert "0x2001:00 acceleration time" in str(failures[0])
+
+
+def test_a_set_holding_commands_is_refused_before_anything_is_written() -> None:
+    """Issue 38 (1): a parameter is configuration; the ZAPI's speed set-point and controlword
+    are process data its EDS maps to RPDO 1 (and 1011h restores the factory defaults)."""
+    text = SET + "  controlword: 0x0C\n  speed setpoint: 1500\n"
+
+    async def scenario(b: Bench) -> tuple[str, list[str], dict[str, int], ParameterReport]:
+        manager = AsyncParameterManager(b.node, b.parameters(text))
+        with pytest.raises(CommandsInSetError) as refused:
+            await manager.apply()
+        requests = b.sdo_requests()
+        before = {"controlword": b.device.get(0x2201, 0), "setpoint": b.device.get(0x2200, 0)}
+        allowed = await AsyncParameterManager(
+            b.node, b.parameters(text), allow_commands=True
+        ).apply()
+        return str(refused.value), requests, before, allowed
+
+    message, requests, before, allowed = run(scenario)
+    assert requests == []  # refused before the first transfer
+    assert before == {"controlword": 0, "setpoint": 0}
+    assert message.startswith("node 8: the set writes 2 command(s), not parameters - ")
+    assert "0x2201:00 controlword: process data the device receives: the EDS maps it to RPDO 1" in (
+        message
+    )
+    assert "allow_commands=True" in message
+    assert allowed.ok and {p.index for p in allowed.written} >= {0x2200, 0x2201}
+
+
+def test_a_snapshot_leaves_process_data_out_unless_named() -> None:
+    async def scenario(b: Bench) -> tuple[ParameterSet, list[Any], ParameterSet]:
+        manager = AsyncParameterManager(b.node)
+        snap, _ = await manager.snapshot()
+        left_out = list(manager.left_out)
+        named, _ = await manager.snapshot(["speed setpoint", 0x2001])
+        return snap, left_out, named
+
+    snap, left_out, named = run(scenario)
+    assert not {p.index for p in snap} & {0x2200, 0x2201, 0x2202, 0x2203, 0x2204}
+    assert [(v.index, why.split(":")[0]) for v, why in left_out] == [
+        (i, "process data the device receives") for i in range(0x2200, 0x2205)
+    ]
+    assert [p.index for p in named] == [0x2200, 0x2001]
+
+
+def test_a_dcf_set_leaves_its_commands_out_and_says_so() -> None:
+    from cobus.sim.drive402 import Drive402 as Servo
+
+    async def main() -> ParameterSet:
+        async with AsyncNetwork() as net:
+            od = loads(export_eds(Servo(net, 10).od))
+        for index, value in ((0x6040, 0x0F), (0x6060, 1), (0x607A, 5000), (0x6065, 700)):
+            var = od.get_variable(index, 0)
+            assert var is not None
+            var.parameter_value = value
+        return ParameterSet.from_dcf(od, path="servo.dcf")
+
+    pset = simulate(main())
+    assert [p.index for p in pset] == [0x6065]
+    assert [(p.index, why.split(" (")[0].split(":")[0]) for p, why in pset.left_out] == [
+        (0x6040, "the CiA 402 controlword"),
+        (0x6060, "the CiA 402 modes of operation"),
+        (0x607A, "a CiA 402 set-point"),
+    ]

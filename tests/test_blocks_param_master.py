@@ -243,3 +243,55 @@ def test_a_swapped_factory_fresh_zapi_is_re_parameterised_and_saved_on_sub_0(
         "node 8 'zapi': re-parameterised, 1 of 1 written, saved and verified",
     ]
     assert values == [90, 90, 100, 90]
+
+
+def test_a_boot_step_whose_set_holds_a_command_holds_the_node_back(tmp_path: Path) -> None:
+    async def main() -> tuple[list[str], Any, Any]:
+        async with AsyncNetwork() as net:
+            servo = Servo(net, 10, name="servo")
+            servo.start()
+            assert servo.device.get(0x6060, 0) != 3
+            write_files(tmp_path, servo)
+            (tmp_path / "servo.yml").write_text(
+                f"eds: servo.eds\n{PARAMETERS}  modes of operation: 3\n"
+            )
+            master = Master(net, loads_network(NETWORK, base_dir=tmp_path))
+            master.add_boot_step(None, Parameterise(tmp_path / "servo.yml"))
+            events: list[str] = []
+            master.add_listener(
+                lambda e: events.append(str(e)) if isinstance(e, BootStepFailed) else None
+            )
+            await master.boot(timeout=10)
+            result = (events, master.node(10).state, servo.device.get(0x6060, 0) == 3)
+            await master.stop()
+            return result
+
+    events, state, written = simulate(main())
+    assert len(events) == 1 and "the set writes 1 command(s)" in events[0]
+    assert "0x6060:00 Modes of operation: the CiA 402 modes of operation" in events[0]
+    assert state is NodeState.CONFIGURING  # held: never started
+    assert not written
+
+
+def test_the_ec_motor_s_commands_are_no_parameters() -> None:
+    from cobus.blocks import loads_parameters
+    from cobus.blocks.param_manager import CommandsInSetError
+
+    text = 'save: false\nparameters:\n  "0x2024:00": {value: 1234, type: INTEGER16}\n'
+
+    async def main() -> tuple[str, int]:
+        async with AsyncNetwork() as net:
+            motor = EcMotor(net, 3)
+            motor.start()
+            await asyncio.sleep(0.1)
+            drive = AsyncEcMotorDrive(net, 3)
+            manager = AsyncParameterManager(drive, loads_parameters(text))
+            try:
+                await manager.apply()
+            except CommandsInSetError as exc:
+                return str(exc), await drive.read("p_ven")
+            raise AssertionError("applied")
+
+    message, velocity = simulate(main())
+    assert "0x2024:00: p_ven, the target velocity" in message
+    assert velocity == 0

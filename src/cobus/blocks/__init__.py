@@ -43,6 +43,7 @@ from cobus.blocks.netvars import (
 )
 from cobus.blocks.param_manager import (
     AsyncParameterManager,
+    CommandsInSetError,
     ParameterFailure,
     Parameterise,
     ParameterManager,
@@ -72,6 +73,7 @@ __all__ = [
     "AlarmRuleError",
     "AsyncNetworkVariables",
     "AsyncParameterManager",
+    "CommandsInSetError",
     "ListIncomplete",
     "ListMalformed",
     "ListReceived",

@@ -6,9 +6,15 @@
     cobus params apply servo servo.yml --network line.yml  # a node by name, its EDS from there
 
 The file is YAML (objects by EDS name or address), CSV or a DCF (its ParameterValues); see
-``cobus.blocks.parameters``. Names come from ``--eds``, the network file's EDS, or the file's
-own ``eds:``. The bus is python-can's (``-i/--interface``, ``-c/--channel``, ``-b/--bitrate``,
-else its configuration).
+``cobus.blocks.parameters``.
+
+Parameters are configuration. A snapshot leaves out commands and process data - the CiA 402
+controlword, modes and set-points, CiA 401 outputs, what the EDS maps to an RPDO or marks rww -
+unless --objects names them; apply refuses a set that would write a command (it could switch
+a drive on or move it) unless --allow-commands is given.
+
+Names come from ``--eds``, the network file's EDS, or the file's own ``eds:``. The bus is
+python-can's (``-i/--interface``, ``-c/--channel``, ``-b/--bitrate``, else its configuration).
 
 Exit codes: 0 the node holds the set (diff: nothing differs; snapshot: every object read),
 1 a transfer failed (no answer, refused, verify mismatch; snapshot: some objects left out),
@@ -67,13 +73,20 @@ def register(sub: Any) -> None:
             )
             p.add_argument("--retries", type=int, default=2, help="tries again after a timeout")
             p.add_argument("--restarts", type=int, default=1, help="runs again after a failure")
+            p.add_argument(
+                "--allow-commands",
+                action="store_true",
+                help="also write the controlwords, modes, set-points and outputs the set holds "
+                "(they can switch a drive on or move it; refused without this)",
+            )
         if name == "snapshot":
             p.add_argument(
                 "--objects",
                 nargs="+",
                 metavar="OBJ",
                 help="objects by name, index (0x2001) or range (0x2000-0x5FFF); default: "
-                "every read-write object from 2000h",
+                "every read-write object from 2000h; a range, like the default, leaves out "
+                "commands and process data, an object named on its own is read",
             )
             p.add_argument(
                 "--communication",
@@ -117,7 +130,7 @@ def _target(args: argparse.Namespace) -> tuple[int, Any]:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from cobus.blocks.param_manager import ParameterManager
+    from cobus.blocks.param_manager import CommandsInSetError, ParameterManager
     from cobus.blocks.parameters import ParameterFileError, load_parameters
     from cobus.runtime import Network
 
@@ -140,13 +153,22 @@ def _run(args: argparse.Namespace) -> int:
         return _fail("a snapshot needs the node's EDS for names and types: give --eds FILE")
     options: dict[str, Any] = {}
     if args.action == "apply":
-        options = {"retries": args.retries, "restarts": args.restarts, "save": not args.no_save}
+        options = {
+            "retries": args.retries,
+            "restarts": args.restarts,
+            "save": not args.no_save,
+            "allow_commands": args.allow_commands,
+        }
     objects = None
+    left_out: list[tuple[Any, str]] = []
     if args.action == "snapshot" and args.objects:
         try:
-            objects = _objects(args.objects, od)
+            objects = _objects(args.objects, od, left_out)
         except ValueError as exc:
             return _fail(str(exc))
+    if pset is not None and pset.left_out and not args.json:
+        for param, why in pset.left_out:
+            print(f"cobus params: left out {param.address} {param.name}: {why}", file=sys.stderr)
     quiet = args.json or not sys.stderr.isatty()
     with _Progress(quiet) as progress:
         try:
@@ -157,8 +179,11 @@ def _run(args: argparse.Namespace) -> int:
                     snap, failures = manager.snapshot(objects, communication=args.communication)
                     snap.write(args.file)
                     progress.stop()
-                    return _snapshot_done(args, snap, failures)
+                    left_out += manager.left_out
+                    return _snapshot_done(args, snap, failures, left_out)
                 report = manager.diff() if args.action == "diff" else manager.apply()
+        except CommandsInSetError as exc:
+            return _fail(str(exc))
         except (OSError, ValueError) as exc:
             return _fail(str(exc))
         except Exception as exc:  # the bus could not be opened (python-can's errors)
@@ -168,14 +193,27 @@ def _run(args: argparse.Namespace) -> int:
     return _report_done(args, report)
 
 
-def _objects(specs: list[str], od: Any) -> list[Any]:
+def _objects(specs: list[str], od: Any, left_out: list[tuple[Any, str]]) -> list[Any]:
+    """The objects ``--objects`` names: a range's parameters as (index, sub-index), its
+    commands and process data added to ``left_out``; a name or index as given."""
+    from cobus.blocks.param_manager import is_parameter
+    from cobus.od import CommandObjects, process_data_of
+
+    commands = CommandObjects(od)
     out: list[Any] = []
     for spec in specs:
         low, sep, high = spec.partition("-")
         try:
             if sep:
                 lo, hi = int(low, 16), int(high, 16)
-                out.extend(obj.index for obj in od if lo <= obj.index <= hi)
+                for var in od.variables():
+                    if not lo <= var.index <= hi or not is_parameter(var):
+                        continue
+                    why = process_data_of(var, commands)
+                    if why is None:
+                        out.append((var.index, var.subindex))
+                    else:
+                        left_out.append((var, why))
                 continue
             key: Any = int(spec, 16) if spec.lower().startswith("0x") else spec
         except ValueError:
@@ -186,7 +224,9 @@ def _objects(specs: list[str], od: Any) -> list[Any]:
     return out
 
 
-def _snapshot_done(args: argparse.Namespace, snap: Any, failures: list[Any]) -> int:
+def _snapshot_done(
+    args: argparse.Namespace, snap: Any, failures: list[Any], left_out: list[tuple[Any, str]]
+) -> int:
     if args.json:
         print(
             json.dumps(
@@ -194,6 +234,10 @@ def _snapshot_done(args: argparse.Namespace, snap: Any, failures: list[Any]) -> 
                     "file": str(args.file),
                     "parameters": len(snap),
                     "left_out": [str(f) for f in failures],
+                    "not_parameters": [
+                        {"object": f"0x{v.index:04X}:{v.subindex:02X}", "name": v.name, "why": why}
+                        for v, why in left_out
+                    ],
                 }
             )
         )
@@ -203,6 +247,13 @@ def _snapshot_done(args: argparse.Namespace, snap: Any, failures: list[Any]) -> 
 
         console = Console(highlight=False)
         console.print(f"{len(snap)} parameters written to {escape(str(args.file))}")
+        if left_out:
+            console.print(
+                f"{len(left_out)} object(s) left out as commands or process data "
+                "(name one with --objects to read it):"
+            )
+            for var, why in left_out:
+                console.print(f"  0x{var.index:04X}:{var.subindex:02X} {escape(var.name)}: {why}")
         for failure in failures:
             console.print(f"[yellow]left out:[/] {escape(str(failure))}")
     return _EXIT_FAILED if failures else _EXIT_OK

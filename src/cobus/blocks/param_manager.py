@@ -38,13 +38,14 @@ from cobus.blocks.parameters import (
 )
 from cobus.errors import CobusError
 from cobus.master.errors import BootStepError
-from cobus.od import DataType, ObjectDictionary, Variable
+from cobus.od import CommandObjects, DataType, ObjectDictionary, Variable, process_data_of
 from cobus.runtime._twin import BlockingTwin
 
 log = logging.getLogger(__name__)
 
 __all__ = [
     "AsyncParameterManager",
+    "CommandsInSetError",
     "ParameterFailure",
     "ParameterFault",
     "ParameterManager",
@@ -64,6 +65,23 @@ class SdoPort(Protocol):
 
     async def download(self, index: int, subindex: int, data: bytes) -> None:
         """Write the object's bytes (errors as :meth:`upload`)."""
+
+
+class CommandsInSetError(CobusError, ValueError):
+    """A set that would write commands (a controlword, a mode, a set-point, an output), refused
+    before anything is written; ``commands`` lists each parameter with why it is a command."""
+
+    def __init__(self, node: str, commands: list[tuple[Parameter, str]]) -> None:
+        self.node = node
+        self.commands = commands
+        listed = "; ".join(
+            f"{p.address}{' ' + p.name if p.name else ''}: {why}" for p, why in commands
+        )
+        super().__init__(
+            f"{node}: the set writes {len(commands)} command(s), not parameters - {listed}. "
+            "Applying it could switch a drive on or move it: leave them out of the set, or "
+            "allow them explicitly (allow_commands=True; cobus params apply --allow-commands)"
+        )
 
 
 class ParameterStep(NamedIntEnum):
@@ -315,6 +333,11 @@ class AsyncParameterManager:
     sequence after a step failed; ``save``: False never saves (even if the set says how);
     ``progress(step, done, total)`` is called as it goes; ``od``: names for
     :meth:`snapshot` (default: the set's or the node's dictionary).
+
+    A parameter is configuration. :meth:`apply` refuses, with :class:`CommandsInSetError` and
+    before any transfer, a set that holds a command - an object whose write makes the node
+    act (a CiA 402 controlword, mode or set-point, a CiA 401 output, what the EDS maps to an
+    RPDO; see :class:`~cobus.od.CommandObjects`) - unless ``allow_commands`` is True.
     """
 
     def __init__(
@@ -327,6 +350,7 @@ class AsyncParameterManager:
         save: bool = True,
         progress: Progress | None = None,
         od: ObjectDictionary | None = None,
+        allow_commands: bool = False,
     ) -> None:
         for what, value in (("retries", retries), ("restarts", restarts)):
             if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 100:
@@ -343,6 +367,10 @@ class AsyncParameterManager:
         self.restarts = restarts
         self.save = save
         self.progress = progress
+        self.allow_commands = allow_commands
+        #: The objects the last :meth:`snapshot` left out as commands or process data, each
+        #: with why (name them to capture them).
+        self.left_out: list[tuple[Variable, str]] = []
         #: The step the sequence is in (IDLE before and after a run).
         self.step = ParameterStep.IDLE
         #: The report of the last run (None before the first).
@@ -376,11 +404,17 @@ class AsyncParameterManager:
         index or (index, sub); by default every readable and writable object of the
         dictionary from 2000h on (``communication``: from 1000h on, without the 1010h/1011h
         commands and the PDO parameters the master configures). Objects the node refuses
-        or does not answer are left out and listed."""
+        or does not answer are left out and listed.
+
+        By default a snapshot holds configuration only: commands and process data
+        (:func:`~cobus.od.process_data_of`: controlwords, modes, set-points, outputs, what
+        the EDS maps to an RPDO or marks ``rww``) are left out and listed in
+        :attr:`left_out`; an object named in ``objects`` is read all the same."""
         od = self.od
         if od is None:
             raise ValueError("a snapshot needs the node's EDS for names and types: give od=")
-        chosen = list(_chosen(od, objects, communication))
+        self.left_out = []
+        chosen = list(_chosen(od, objects, communication, self.left_out))
         if not chosen:
             raise ValueError("none of those objects is a readable and writable parameter")
         if self._running:
@@ -423,6 +457,10 @@ class AsyncParameterManager:
             raise ValueError("no parameter set: give one to the manager")
         if self._running:
             raise RuntimeError(f"the parameter manager of {self.node_name} runs already")
+        if apply and not self.allow_commands:
+            commands = self.commands_in(params)
+            if commands:
+                raise CommandsInSetError(self.node_name, commands)
         report = ParameterReport(self.node_name, checked=len(params), dry_run=not apply)
         began = self._now()
         self._running = True
@@ -454,6 +492,21 @@ class AsyncParameterManager:
         report.duration = self._now() - began
         self.last_report = report
         return report
+
+    def commands_in(self, params: Iterable[Parameter]) -> list[tuple[Parameter, str]]:
+        """The parameters of ``params`` that are commands for this node, each with why."""
+        if isinstance(self.port, _EcPort):
+            from cobus.profiles.ecmotor import COMMANDS
+
+            commands = CommandObjects(table=COMMANDS)
+        else:
+            commands = CommandObjects(self.od)
+        found = []
+        for param in params:
+            why = commands.reason(param.index, param.subindex)
+            if why is not None:
+                found.append((param, why))
+        return found
 
     @property
     def _save_command(self) -> SaveCommand | None:
@@ -632,17 +685,26 @@ def _chosen(
     od: ObjectDictionary,
     objects: Iterable[int | tuple[int, int] | str] | None,
     communication: bool,
+    left_out: list[tuple[Variable, str]],
 ) -> Iterable[Variable]:
     if objects is None:
         low = 0x1000 if communication else 0x2000
-        yield from (v for v in od.variables() if v.index >= low and is_parameter(v))
+        commands = CommandObjects(od)
+        for var in od.variables():
+            if var.index < low or not is_parameter(var):
+                continue
+            why = process_data_of(var, commands)
+            if why is None:
+                yield var
+            else:
+                left_out.append((var, why))
         return
     for key in objects:
         if isinstance(key, tuple):
-            var = od.get_variable(*key)
-            if var is None:
+            named = od.get_variable(*key)
+            if named is None:
                 raise ValueError(f"the EDS has no object 0x{key[0]:04X}:{key[1]:02X}")
-            found: Iterable[Variable] = [var]
+            found: Iterable[Variable] = [named]
         else:
             obj = od.get(key)
             if obj is None:
@@ -715,7 +777,10 @@ class Parameterise:
             raise BootStepError(str(exc)) from None
         if manager.parameters is not None:
             self._sets[node.node_id] = manager.parameters
-        report = await manager.apply()
+        try:
+            report = await manager.apply()
+        except CommandsInSetError as exc:
+            raise BootStepError(str(exc)) from None
         self.reports[node.node_id] = report
         if not report.ok:
             raise BootStepError(report.summary)

@@ -37,6 +37,7 @@ import yaml
 from cobus._yaml import DataFileError, FileProblem, LineMap, line_of, read_yaml
 from cobus.master.config import ObjectIndex
 from cobus.od import (
+    CommandObjects,
     DataType,
     EdsError,
     ObjectDictionary,
@@ -157,6 +158,8 @@ class ParameterSet:
     path: str | None = None
     #: The dictionary that named the objects (None: addresses and types only).
     od: ObjectDictionary | None = None
+    #: What the source held that the set leaves out, each with why (a DCF's commands).
+    left_out: tuple[tuple[Parameter, str], ...] = ()
 
     def __iter__(self) -> Iterator[Parameter]:
         return iter(self.parameters)
@@ -177,15 +180,26 @@ class ParameterSet:
         cls, od: ObjectDictionary, *, save: SaveCommand | None = None, path: str | None = None
     ) -> ParameterSet:
         """Every parameter of ``od`` with a ParameterValue (a DCF), in index order: readable
-        and writable, without 1010h/1011h and the PDO parameters (the master's part)."""
+        and writable, without 1010h/1011h and the PDO parameters (the master's part). A
+        command (a controlword, a mode, a set-point, an output, what the DCF maps to an
+        RPDO: :class:`~cobus.od.CommandObjects`) is no parameter: it is left out and listed in
+        ``left_out``."""
         from cobus.blocks.param_manager import is_parameter
 
+        commands = CommandObjects(od)
         params = []
+        left_out = []
         for var in od.variables():
             if var.parameter_value is None or not is_parameter(var):
                 continue
-            params.append(_parameter(var, var.parameter_value, None))
-        return cls(tuple(params), save if save is not None else SaveCommand(), path, od)
+            param = _parameter(var, var.parameter_value, None)
+            why = commands.reason(var.index, var.subindex)
+            if why is None:
+                params.append(param)
+            else:
+                left_out.append((param, why))
+        chosen = save if save is not None else SaveCommand()
+        return cls(tuple(params), chosen, path, od, tuple(left_out))
 
     def to_yaml(self) -> str:
         """The set as a YAML parameter file: each value with its type (the file reads the

@@ -7,6 +7,8 @@
 - :func:`load` / :func:`loads` read EDS and DCF files, tolerant by default: what deviates from
   CiA 306 is listed in ``od.findings``; ``strict=True`` raises :class:`EdsError` instead.
 - ``od.to_eds()`` / ``od.to_dcf(node_id)`` / ``od.save(path)`` write them back.
+- :class:`CommandObjects` / :func:`process_data_of` — which objects are commands (controlwords,
+  modes, set-points, outputs) or process data rather than parameters.
 """
 
 from cobus.od._checks import mapping_entries, validate
@@ -34,6 +36,7 @@ from cobus.od._model import (
     Record,
     Variable,
 )
+from cobus.od._roles import CommandObjects, process_data_of
 from cobus.od._types import (
     DataType,
     TimeDifference,
@@ -49,6 +52,7 @@ from cobus.od._types import (
 __all__ = [
     "Access",
     "Array",
+    "CommandObjects",
     "Commissioning",
     "DataLengthError",
     "DataType",
@@ -79,6 +83,7 @@ __all__ = [
     "mapping_entries",
     "match_name",
     "normalize_name",
+    "process_data_of",
     "struct_unpacker",
     "validate",
 ]

@@ -28,6 +28,7 @@ from cobus.runtime._service import Callbacks
 from cobus.runtime._twin import BlockingTwin
 
 __all__ = [
+    "COMMANDS",
     "MODES",
     "OBJECTS",
     "UNITS",
@@ -135,6 +136,17 @@ def _objects() -> dict[str, EcObject]:
 #: The motor's objects by their names in the document.
 OBJECTS: Mapping[str, EcObject] = _objects()
 _BY_INDEX = {obj.index: obj for obj in OBJECTS.values()}
+
+#: The objects whose write makes the motor act (index → why): a parameter set never holds
+#: them unless allowed (:class:`~cobus.od.CommandObjects` with this table).
+COMMANDS: Mapping[int, str] = {
+    0x200A: "m_eci, the motor's I/O bits: it switches its outputs",
+    0x200D: "m_set, the motor control word: it enables the power stage and sets the direction",
+    0x2023: "p_pon, the target position",
+    0x2024: "p_ven, the target velocity",
+    0x2042: "the working mode (T_MOD): it starts and stops the motor",
+    0x2045: "a motor command (clear errors, zero the position)",
+}
 
 #: m_sss (200Eh) error and warning bits, by name.
 M_SSS_BITS: Mapping[int, str] = dict(table("ecmotor_status")["m_sss"])
