@@ -135,3 +135,39 @@ def test_sdo_upload_and_download_show_a_progress_bar_on_a_terminal(
     assert "upload 1021h:00" in shown and "/" in shown and "kB" in shown
     assert "download 1021h:00" in shown  # the bar, then the refusal
     assert "node 10 1021h:00 Store EDS:" in shown
+
+
+NO_BUS = ["-i", "cobus_no_such_interface", "-c", "can9"]
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["scan"],
+        ["monitor"],
+        ["record", "{tmp}/out.log"],
+        ["sdo", "read", "10", "0x1000", "0"],
+        ["sdo", "write", "10", "0x1017", "0", "100", "--type", "u16"],
+        ["sdo", "upload", "10", "0x1008", "0", "{tmp}/out.bin"],
+        ["nmt", "start", "10"],
+        ["sync"],
+        ["params", "diff", "10", "examples/parameters/servo.yml"],
+        ["params", "apply", "10", "examples/parameters/servo.yml"],
+        ["params", "snapshot", "10", "{tmp}/s.yml", "--eds", "examples/networks/servo.eds"],
+        ["ec", "read", "3", "p_ven"],
+        ["ec", "write", "3", "p_acc", "100"],
+        ["ec", "mode", "3", "OFF"],
+        ["ec", "status", "3"],
+        ["sim", "thesis"],
+    ],
+    ids=lambda argv: " ".join(argv[:2]),
+)
+def test_a_bus_that_cannot_be_opened_is_one_line_and_exit_1(
+    argv: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 38 (3): params and ec printed a 45-line traceback."""
+    args = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    assert main([*args, *NO_BUS]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("cobus"), err
+    assert "cobus_no_such_interface" in err and "Traceback" not in err

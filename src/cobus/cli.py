@@ -35,6 +35,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="cobus",
         description="CANopen master, device, simulators and tools.",
+        epilog="Exit codes, the same in every command: 0 done, 1 the bus, a node or a file "
+        "failed (one line on stderr says which and why), 2 bad usage or a bad input file, "
+        "3 differences found (params diff), 130 interrupted (Ctrl-C).",
     )
     parser.add_argument("--version", action="version", version=f"cobus {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -63,6 +66,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return 0
+    except Exception as exc:
+        # (imported here: the runtime is not loaded for --help and --version)
+        from cobus.runtime.errors import BusOpenError
+
+        if not isinstance(exc, BusOpenError):
+            raise
+        print(f"cobus {args.command}: {exc}", file=sys.stderr)
+        return 1
     return int(result or 0)
 
 

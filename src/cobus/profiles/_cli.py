@@ -6,7 +6,8 @@
     cobus ec status 3
 
 The bus is python-can's (``-i/--interface``, ``-c/--channel``, ``-b/--bitrate``, else its
-configuration). Exit codes: 0 done, 1 the motor refused or did not answer, 2 bad usage.
+configuration). Exit codes: 0 done, 1 the motor refused or did not answer, or the bus cannot
+be used, 2 bad usage.
 """
 
 from __future__ import annotations

@@ -3,6 +3,9 @@
 A master in another process (cobus, python-canopen, a PLC) talks to them over the bus: a real
 interface, or python-can-remote on the loopback (``--interface remote --channel
 ws://127.0.0.1:54701/``). RIG is a rig file or the name of a rig cobus ships (``thesis``).
+
+Exit codes: 0 stopped by Ctrl-C or SIGTERM, 1 the bus cannot be used, 2 a bad rig file or bad
+usage.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from typing import Any, TextIO
 
 from cobus._args import seconds, seconds_or_zero
 from cobus.errors import CobusError
+from cobus.runtime.errors import BusOpenError
 from cobus.sim.faults import fault_catalogue
 from cobus.sim.rig import Rig, ready_rig, ready_rigs, resolve_kind
 
@@ -72,6 +76,9 @@ def _run(args: argparse.Namespace) -> int:
             _list_faults(rig, sys.stdout)
             return 0
         return asyncio.run(_serve(rig, args))
+    except BusOpenError as exc:
+        print(f"cobus sim: {exc}", file=sys.stderr)
+        return 1
     except CobusError as exc:
         print(f"cobus sim: {exc}", file=sys.stderr)
         return 2
