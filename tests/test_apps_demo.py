@@ -1,6 +1,7 @@
 """``cobus demo``: the thesis rig booted and run by the master, on both clocks."""
 
 import io
+from typing import Any
 
 import pytest
 
@@ -179,3 +180,69 @@ def test_the_demo_says_when_the_machine_was_too_busy_to_keep_sync():
     )
     lines = render([], 2.0, status=text).splitlines()
     assert lines[1] == text and lines[2] == ""
+
+
+def test_a_lost_zapi_handshake_shows_and_the_application_restarts_the_inverter(tmp_path):
+    """Issue 38 (2): a cycle left unanswered (a busy machine) made the inverter raise 248
+    CAN BUS KO and drop to pre-operational for good, while the master still counted it
+    operational."""
+    rows: list[dict[str, dict[str, str]]] = []
+
+    def on_tick(demo: Demo) -> None:
+        assert demo.zapi is not None
+        if len(rows) == 5:
+            demo.zapi.answering = False  # the application misses the handshake's cycles
+        if len(rows) == 6:
+            demo.zapi.answering = True
+        rows.append({row["node"]: row for row in demo.rows()})
+
+    demo = simulate(
+        run_demo(
+            duration=9.0,
+            refresh=0.5,
+            out=io.StringIO(),
+            clear=False,
+            workdir=tmp_path,
+            on_tick=on_tick,
+        )
+    )
+    zapi = [r["8"] for r in rows]
+    assert any(r["note"] == "CAN BUS KO" for r in zapi), "the handshake was lost"
+    assert zapi[-1]["nmt"] == "operational" and zapi[-1]["master"] == "5 operational"
+    assert zapi[-1]["note"].startswith("handshake lost 1x, restarted at t = ")
+    assert float(zapi[-1]["speed"].split()[0]) > 1.0  # running again
+    assert demo.zapi_restarts == 1
+
+
+def test_the_demo_shuts_down_in_order_and_no_timer_fires_into_a_closed_network(tmp_path):
+    """Issue 38 (2): about one run in three ended in a traceback: the ZAPI adapter's
+    handshake watchdog fired after the networks were closed (NetworkClosedError)."""
+    import asyncio
+
+    errors: list[dict[str, object]] = []
+    closed: list[tuple[bool, bool]] = []
+    servo_states: list[str] = []
+    servos: list[Any] = []
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        loop.set_exception_handler(lambda _loop, context: errors.append(context))
+        for n, duration in enumerate((1.0, 1.37, 2.21, 2.5, 3.03)):
+            workdir = tmp_path / str(n)
+            workdir.mkdir()
+            demo = await run_demo(
+                duration=duration,
+                refresh=0.25,
+                out=io.StringIO(),
+                clear=False,
+                workdir=workdir,
+                on_tick=lambda d: servos.append(d.rig.devices[10]),
+            )
+            await asyncio.sleep(1.0)  # what the demo left armed would fire now
+            closed.append((demo.master_net.connected, demo.rig_net.connected))
+            servo_states.append(servos[-1].state.value)
+
+    simulate(main())
+    assert errors == []
+    assert set(closed) == {(False, False)}  # both networks closed
+    assert set(servo_states) == {"switch on disabled"}  # the servo was switched off first

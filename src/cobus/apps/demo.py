@@ -13,7 +13,13 @@ a small application in the spirit of the thesis's PLC program:
   inside its limit switches;
 - the ZAPI inverter, which has no boot-up and no heartbeat, is started by the master once
   SYNC runs; :class:`cobus.profiles.zapi.AsyncZapiDrive` answers each of its TPDO1 with the
-  opposite handshake toggle and runs it clockwise at a speed that follows the potentiometer.
+  opposite handshake toggle and runs it clockwise at a speed that follows the potentiometer;
+  when a cycle goes unanswered (a machine too busy), the inverter raises 248 CAN BUS KO and
+  drops to pre-operational, the note says so, and the application acknowledges the alarm and
+  has the master start it again (the note then counts the restarts).
+
+At the end (``--duration``, Ctrl-C) it shuts down in order: the application, the drives
+(switched off, their adapters closed), the master, the rig, the networks.
 
 A live table shows each node: NMT state, the master's node state, heartbeat age (or why
 there is none), EMCY count and speed, and in its note the drive's state, the newest error
@@ -36,6 +42,7 @@ from typing import Any, TextIO
 
 from cobus._args import seconds
 from cobus.device import export_eds
+from cobus.errors import CobusError
 from cobus.master import Master, loads_network
 from cobus.master.events import (
     ErrorControlRestored,
@@ -48,7 +55,7 @@ from cobus.master.events import (
 )
 from cobus.master.states import NodeState
 from cobus.profiles import AsyncDrive402, DriveError
-from cobus.profiles.zapi import AsyncZapiDrive
+from cobus.profiles.zapi import AsyncZapiDrive, ZapiError
 from cobus.proto.nmt import NmtState
 from cobus.runtime import AsyncNetwork, SimulatedEventLoop
 from cobus.runtime.emcy import Emergency
@@ -90,6 +97,11 @@ class Demo:
         self.started_at = 0.0
         #: The ZAPI inverter's adapter (it keeps the handshake), once the master runs.
         self.zapi: AsyncZapiDrive | None = None
+        #: The servo's drive, once the application runs.
+        self.servo: AsyncDrive402 | None = None
+        #: Times the ZAPI handshake was lost (a cycle unanswered: a busy machine) and the
+        #: application acknowledged the alarm and restarted the inverter.
+        self.zapi_restarts = 0
         self._tasks: list[asyncio.Task[None]] = []
 
     # -- life cycle
@@ -115,12 +127,24 @@ class Demo:
         ]
 
     async def stop(self) -> None:
-        """Stop the application, the master and the rig, and disconnect both networks."""
+        """Shut down in order - the application, the drives (switched off, their adapters
+        closed), the master, the rig, both networks - so that nothing runs into a network
+        that is already closed."""
         for task in self._tasks:
             task.cancel()
         for task in self._tasks:
             with contextlib.suppress(asyncio.CancelledError):
                 await task
+        self._tasks = []
+        if self.zapi is not None:
+            self.zapi.release()  # set-point 0, power stage off, contactor open
+            self.zapi.close()
+        if self.servo is not None:
+            # (best effort: a transfer cut short by the cancelled application may leave a
+            # late answer behind that this one refuses; the rig stops next anyway)
+            with contextlib.suppress(CobusError, TimeoutError):
+                await self.servo.disable(timeout=1.0)
+            self.servo.close()
         if self.master is not None:
             await self.master.stop()
         await self.rig.stop()
@@ -152,6 +176,7 @@ class Demo:
     async def _run_servo(self) -> None:
         assert self.master is not None
         servo = AsyncDrive402(self.master.node("servo"))  # RPDO4: controlword + velocity
+        self.servo = servo
         await servo.enable()
         while True:
             velocity = round((self._pot() - 0.5) * 2 * SERVO_MAX_SPEED)
@@ -161,9 +186,27 @@ class Demo:
             await asyncio.sleep(0.1)
 
     async def _run_zapi(self) -> None:
-        assert self.zapi is not None
+        """Run the inverter at the potentiometer's speed; when its handshake is lost (a cycle
+        went unanswered: alarm 248 CAN BUS KO, the inverter drops to pre-operational and the
+        master, with no heartbeat to tell it, still counts it operational) acknowledge the
+        alarm and have the master start it again, as the thesis's program does."""
+        zapi = self.zapi
+        assert zapi is not None
         while True:
-            self.zapi.run(round(self._pot() * ZAPI_MAX_HZ, 2))
+            if zapi.alarm or (zapi.cycles and not zapi.handshake_running):
+                why = f"alarm {zapi.alarm} {zapi.alarm_text}" if zapi.alarm else "no TPDO1"
+                self.events[ZAPI] = f"handshake lost ({why}): acknowledging, restarting"
+                try:
+                    await zapi.acknowledge(timeout=2.0)
+                except ZapiError as exc:
+                    self.events[ZAPI] = str(exc)
+                    await asyncio.sleep(1.0)
+                    continue
+                self.zapi_restarts += 1
+                self.events[ZAPI] = (
+                    f"handshake lost {self.zapi_restarts}x, restarted at t = {self.elapsed():.1f} s"
+                )
+            zapi.run(round(self._pot() * ZAPI_MAX_HZ, 2))
             await asyncio.sleep(0.1)
 
     def _on_master_event(self, event: MasterEvent) -> None:

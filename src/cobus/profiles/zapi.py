@@ -290,6 +290,7 @@ class AsyncZapiDrive:
         self._alarm = 0
         self._running = False
         self._lost = False
+        self._closed = False
         self._misses: dict[str, int] = {}
         self._watchdog: asyncio.TimerHandle | None = None
         self._listeners: Callbacks[ZapiEvent] = Callbacks(port.network, f"ZAPI node {self.node_id}")
@@ -388,26 +389,39 @@ class AsyncZapiDrive:
         self._send(always=False)
 
     async def acknowledge(self, timeout: float = 2.0) -> None:
-        """Clear the alarm: fault acknowledge (2.4) with the run bits released, NMT start
-        again through the master, then wait for TPDO1 and the alarm byte 0. The motor stays
-        off: call :meth:`run` again. :class:`ZapiError` when the alarm stays (its cause is
-        still there)."""
+        """Clear the alarm: the run bits released, NMT start again through the master, then -
+        once TPDO1 comes and a cycle was answered without it - fault acknowledge (2.4, which
+        acts on its rising edge) until the alarm byte reads 0. The motor stays off: call
+        :meth:`run` again. :class:`ZapiError` when the alarm stays (its cause is still there)
+        or TPDO1 does not come; the acknowledge bit is then released, so that the next try
+        makes an edge again."""
         self._speed = 0.0
-        self._command = _C.FAULT_ACKNOWLEDGE
+        self._command = _C(0)
         self._send(always=True)
         await self._master.restart_node(self.node_id)
         since = self.cycles
         try:
-            await self._wait(lambda: self.cycles > since + 1 and self._alarm == 0, timeout)
-        except TimeoutError:
-            raise ZapiError(
-                f"node {self.node_id}: alarm {self._alarm} {self.alarm_text} still set after "
-                f"acknowledge and restart ({timeout:g} s); its cause is still there"
-                if self._alarm
-                else f"node {self.node_id}: no TPDO1 within {timeout:g} s after the restart"
-            ) from None
-        self._command = _C(0)
-        self._send(always=False)
+            try:
+                await self._wait(lambda: self.cycles > since, timeout)
+            except TimeoutError:
+                raise ZapiError(
+                    f"node {self.node_id}: no TPDO1 within {timeout:g} s after the restart"
+                ) from None
+            self._command = _C.FAULT_ACKNOWLEDGE
+            self._send(always=True)
+            since = self.cycles
+            try:
+                await self._wait(lambda: self.cycles > since + 1 and self._alarm == 0, timeout)
+            except TimeoutError:
+                raise ZapiError(
+                    f"node {self.node_id}: alarm {self._alarm} {self.alarm_text} still set after "
+                    f"acknowledge and restart ({timeout:g} s); its cause is still there"
+                    if self._alarm
+                    else f"node {self.node_id}: TPDO1 stopped again after the restart"
+                ) from None
+        finally:
+            self._command = _C(0)
+            self._send(always=False)
 
     async def wait_for_speed(
         self, speed: float, tolerance: float = 0.2, timeout: float = 30.0
@@ -447,11 +461,16 @@ class AsyncZapiDrive:
         self._listeners.remove(listener)
 
     def close(self) -> None:
-        """Stop answering and watching the node."""
+        """Stop answering and watching the node (nothing of the adapter runs afterwards, no
+        timer fires into a network closed after it)."""
+        if self._closed:
+            return
+        self._closed = True
         self._port.remove_input_callback(self._on_tpdo)
         self._port.close()
         if self._watchdog is not None:
             self._watchdog.cancel()
+            self._watchdog = None
         for _test, future in self._waiters:
             if not future.done():
                 future.set_exception(ZapiError(f"node {self.node_id}: the adapter was closed"))
@@ -471,6 +490,8 @@ class AsyncZapiDrive:
         self._port.set_outputs(values, always=always)
 
     def _on_tpdo(self, number: int, now: float) -> None:
+        if self._closed:
+            return
         if self._has_alarm:
             code = self._input(self.objects.alarm)
             if code != self._alarm:
@@ -510,6 +531,8 @@ class AsyncZapiDrive:
 
     def _silent(self, since: float) -> None:
         self._watchdog = None
+        if self._closed or not self._port.network.connected:
+            return  # (the network went away under a running adapter: nothing to watch)
         if self._running and not self._lost:
             self._lost = True
             now = self._port.network.time()
