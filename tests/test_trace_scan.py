@@ -31,7 +31,7 @@ def test_scan_finds_the_thesis_rig_on_the_simulated_clock() -> None:
 
 
 def test_the_scan_command(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch):
-    monkeypatch.setenv("COLUMNS", "250")
+    monkeypatch.delenv("COLUMNS", raising=False)  # piped: no terminal width to go by
     channel = f"scan-{os.getpid()}"
     with Network(interface="virtual", channel=channel) as net:
         start_rig(net, "thesis")
@@ -42,7 +42,20 @@ def test_the_scan_command(capsys: pytest.CaptureFixture[str], monkeypatch: pytes
         assert found[2]["profile"] == 402
         assert main(["scan", "--nodes", "9-10", *bus]) == 0
         out = capsys.readouterr().out
-        assert "2 node(s) found" in out and "0x00020192" in out
+        # issue 38 (4): piped, the table fell back to 80 columns and every cell read 0x0…
+        assert "…" not in out and "│" not in out and "\x1b" not in out
+        lines = out.splitlines()
+        assert lines[0] == "2 node(s) found"
+        assert lines[1].split() == [
+            "node", "heard", "device", "type", "vendor", "product", "revision", "serial",
+            "name", "hw", "sw", "errors",
+        ]  # fmt: skip
+        assert lines[3].split()[:7] == [
+            "10", "PRE_OPERATIONAL", "0x00020192", "0x00C0B005", "0x00000192", "0x00000001",
+            "0x00000000",
+        ]  # fmt: skip
+        assert "cobus CiA 402 drive" in lines[3]
+        assert all(line == line.rstrip() for line in lines)
 
 
 def test_scan_objects_of_the_zapi_into_a_draft_eds(
@@ -50,7 +63,7 @@ def test_scan_objects_of_the_zapi_into_a_draft_eds(
 ) -> None:
     from cobus.od import load
 
-    monkeypatch.setenv("COLUMNS", "200")
+    monkeypatch.delenv("COLUMNS", raising=False)
     channel = f"scan-objects-{os.getpid()}"
     draft = tmp_path / "zapi-draft.eds"
     with Network(interface="virtual", channel=channel) as net:

@@ -96,13 +96,13 @@ def _run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps([vars(r) for r in records]))
         return 0
-    from rich.console import Console
     from rich.markup import escape
-    from rich.table import Table
 
-    table = Table(title=f"{args.history}: {len(records)} activation(s)")
-    for column in ("raised", "cleared", "node", "source", "code", "text", "severity", "ack"):
-        table.add_column(column)
+    from cobus._console import print_table
+    from cobus._console import table as new_table
+
+    columns = ("raised", "cleared", "node", "source", "code", "text", "severity", "ack")
+    table = new_table(*columns, title=f"{args.history}: {len(records)} activation(s)")
 
     def when(seconds: float | None) -> str:
         if seconds is None:
@@ -121,5 +121,5 @@ def _run(args: argparse.Namespace) -> int:
             r.severity,
             escape(r.acknowledged_by or ""),
         )
-    Console(highlight=False).print(table)
+    print_table(table)
     return 0

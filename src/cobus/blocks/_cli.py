@@ -242,10 +242,11 @@ def _snapshot_done(
             )
         )
     else:
-        from rich.console import Console
         from rich.markup import escape
 
-        console = Console(highlight=False)
+        from cobus._console import console as new_console
+
+        console = new_console()
         console.print(f"{len(snap)} parameters written to {escape(str(args.file))}")
         if left_out:
             console.print(
@@ -263,15 +264,22 @@ def _report_done(args: argparse.Namespace, report: Any) -> int:
     if args.json:
         print(json.dumps(report.to_dict(), default=str))
     else:
-        from rich.console import Console
         from rich.markup import escape
-        from rich.table import Table
 
-        console = Console(highlight=False)
+        from cobus._console import console as new_console
+        from cobus._console import print_table
+        from cobus._console import table as new_table
+
+        console = new_console()
         if report.differences:
-            table = Table(title=f"{report.node}: {len(report.differences)} difference(s)")
-            for column in ("object", "name", "set-point", "node held", "written"):
-                table.add_column(column)
+            table = new_table(
+                "object",
+                "name",
+                "set-point",
+                "node held",
+                "written",
+                title=f"{report.node}: {len(report.differences)} difference(s)",
+            )
             written = {(p.index, p.subindex) for p in report.written}
             for param, held in report.differences:
                 table.add_row(
@@ -281,7 +289,7 @@ def _report_done(args: argparse.Namespace, report: Any) -> int:
                     "unreadable" if held is None else escape(repr(held)),
                     "yes" if (param.index, param.subindex) in written else "",
                 )
-            console.print(table)
+            print_table(table)
         for failure in report.failures:
             console.print(f"[red]failed:[/] {escape(str(failure))}")
         colour = "green" if report.ok else ("yellow" if report.dry_run else "red")

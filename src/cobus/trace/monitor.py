@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import os
 import sys
 import time
 from collections import deque
@@ -164,10 +163,10 @@ def _frames(args: argparse.Namespace, say: Any) -> Iterator[tuple[Any, float] | 
 
 
 def _table(decoder: Any, rate: float, load: float | None) -> Any:
-    from rich.table import Table
+    from cobus._console import table as new_table
 
     shown = f"{rate:,.0f} frames/s" + ("" if load is None else f", bus load {load:.1f} %")
-    table = Table(title=f"nodes — {shown}")
+    table = new_table(title=f"nodes — {shown}")
     columns = (
         "node",
         "state",
@@ -216,9 +215,7 @@ def _run(args: argparse.Namespace) -> int:
     except Exception as exc:  # a network file or EDS that cannot be read
         return _fail(str(exc), 2)
     live_view = sys.stdout.isatty() and not args.json
-    # Piped (a log, a pager) the table is not cut to 80 columns: states stay readable.
-    wide = None if sys.stdout.isatty() or os.environ.get("COLUMNS") else 160
-    console = Console(highlight=False, width=wide)
+    console = Console(highlight=False)  # (the live view's: on a terminal)
     newest: deque[str] = deque(maxlen=500)
     window: deque[tuple[float, int]] = deque()  # (time, bits) of the last second
     first: float | None = None
@@ -289,13 +286,17 @@ def _run(args: argparse.Namespace) -> int:
                     redraw(live)
             if not keys.paused:
                 redraw(live, force=True)  # the last records before the view is left
+    except BrokenPipeError:
+        raise  # (the reader went away, `| head`: cobus.cli ends quietly)
     except ConnectionError as exc:
         return _fail(f"cannot open the bus: {exc}")
     except KeyboardInterrupt:
         pass
     if not live_view and not args.json:
+        from cobus._console import print_table
+
         rate, load = figures()
-        console.print(_table(decoder, rate, load))
+        print_table(_table(decoder, rate, load))
     elif args.json:
         print(json.dumps({"nodes": [decoder.stats[n].summary() for n in sorted(decoder.stats)]}))
     return 0

@@ -321,17 +321,17 @@ def _list(found: Mapping[tuple[int | None, str], Series], as_json: bool) -> int:
     if as_json:
         print(json.dumps([_summary(s) for s in ordered]))
         return 0
-    from rich.console import Console
-    from rich.table import Table
+    from cobus._console import print_table
+    from cobus._console import table as new_table
 
-    table = Table("node", "signal", "samples", "min", "max", title="PDO signals in the trace")
+    table = new_table("node", "signal", "samples", "min", "max", title="PDO signals in the trace")
     for s in ordered:
         low = f"{min(s.values):g}" if s.values else "-"
         high = f"{max(s.values):g}" if s.values else "-"
         table.add_row(
             str(s.node if s.node is not None else "-"), s.name, str(len(s.values)), low, high
         )
-    Console().print(table)
+    print_table(table)
     if not ordered:
         print(
             "no PDO signal could be named: give the nodes' EDS (--eds NODE=FILE, --network FILE)",

@@ -317,9 +317,8 @@ def _range(text: str) -> range:
 
 
 def _run_objects(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.table import Table
-
+    from cobus._console import print_table
+    from cobus._console import table as new_table
     from cobus.runtime import Network
 
     if len(args.nodes) != 1:
@@ -348,13 +347,17 @@ def _run_objects(args: argparse.Namespace) -> int:
         ]
         print(json.dumps(rows))
         return 0
-    table = Table(title=f"node {node_id}: {len(found)} sub-index(es) answered")
-    for column in ("object", "bytes", "type guess", "value"):
-        table.add_column(column)
+    table = new_table(
+        "object",
+        "bytes",
+        "type guess",
+        "value",
+        title=f"node {node_id}: {len(found)} sub-index(es) answered",
+    )
     for o in found:
         value = str(int.from_bytes(o.data, "little")) if len(o.data) <= 4 else repr(o.data[:24])
         table.add_row(f"{o.index:04X}h:{o.subindex:02X}", str(len(o.data)), o.type_guess, value)
-    Console(highlight=False).print(table)
+    print_table(table)
     return 0
 
 
@@ -364,8 +367,9 @@ def _run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
-    from rich.table import Table
 
+    from cobus._console import print_table
+    from cobus._console import table as new_table
     from cobus.runtime import Network
 
     quiet = args.json or not sys.stderr.isatty()
@@ -408,10 +412,8 @@ def _run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps([n.to_dict() for n in found]))
         return 0
-    table = Table(title=f"{len(found)} node(s) found")
     columns = ("node", "heard", "device type", "vendor", "product", "revision", "serial")
-    for column in (*columns, "name", "hw", "sw", "errors"):
-        table.add_column(column)
+    table = new_table(*columns, "name", "hw", "sw", "errors", title=f"{len(found)} node(s) found")
     for n in found:
         ident = [n.identity.get(k) for k in _IDENTITY]
         table.add_row(
@@ -424,5 +426,5 @@ def _run(args: argparse.Namespace) -> int:
             escape(n.software_version or ""),
             " ".join(f"{e:08X}" for e in n.errors),
         )
-    Console(highlight=False).print(table)
+    print_table(table)
     return 0
