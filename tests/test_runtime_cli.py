@@ -37,14 +37,14 @@ def test_sdo_nmt_and_sync_from_the_shell(
 
         assert main(["sdo", "read", "10", "0x1008", "0", *bus]) == 0
         # no EDS: CiA 301 still names and types the communication objects
-        assert "1008h:00 Manufacturer device name = 'cobus CiA 402 drive'" in (
+        assert "1008h:00 Manufacturer device name = cobus CiA 402 drive" in (
             capsys.readouterr().out
         )
         nowhere = tmp_path / "no" / "such" / "folder.eds"
         assert main(["sdo", "upload", "10", "0x1021", "0", str(nowhere), *bus]) == 2
         assert "there is no folder" in capsys.readouterr().err
         assert main(["sdo", "read", "10", "1008h", "0", "--eds", str(eds), *bus]) == 0
-        assert "1008h:00 Manufacturer device name = 'cobus CiA 402 drive'" in (
+        assert "1008h:00 Manufacturer device name = cobus CiA 402 drive" in (
             capsys.readouterr().out
         )
         assert main(["sdo", "write", "10", "0x6081", "0", "20000", "--type", "u32", *bus]) == 0
@@ -72,6 +72,31 @@ def test_sdo_nmt_and_sync_from_the_shell(
         assert main(["sdo", "read", "11", "0x1000", "0", "--timeout", "0.1", *bus]) == 1
         assert main(["sdo", "write", "10", "0x6081", "0", "5", *bus]) == 2
         assert "give --type" in capsys.readouterr().err
+
+        # issue 38 (6): objects by name, the sub-index 0 by default, values by their type
+        eds_ = ["--eds", str(eds)]
+        assert main(["sdo", "read", "10", "Position actual value", *eds_, *bus]) == 0
+        assert capsys.readouterr().out == "6064h:00 Position actual value = 0\n"
+        assert main(["sdo", "write", "10", "profile velocity", "25000", *eds_, *bus]) == 0
+        assert capsys.readouterr().out == "6081h:00 Profile velocity <- 25000\n"
+        assert servo.device.get(0x6081, 0) == 25000
+        assert main(["sdo", "read", "10", "Statusword", "--hex", *eds_, *bus]) == 0
+        assert capsys.readouterr().out.startswith("6041h:00 Statusword = 0x0")
+        assert main(["sdo", "read", "10", "Identity object.Vendor-ID", "--hex", *bus]) == 0
+        assert capsys.readouterr().out == "1018h:01 Identity object.Vendor-ID = 0x00C0B005\n"
+        assert main(["sdo", "read", "10", "0x1018:01", *bus]) == 0  # sub-index in the address
+        assert capsys.readouterr().out == f"1018h:01 Identity object.Vendor-ID = {0xC0B005}\n"
+        assert main(["sdo", "read", "10", "Position actual valu", *eds_, *bus]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "did you mean 'position_actual_value'" in err
+        assert main(["sdo", "read", "10", "Position actual value", *bus]) == 2
+        assert "give --eds" in capsys.readouterr().err
+        assert main(["sdo", "read", "10", "1008", *bus]) == 2
+        assert "write 0x1008 or 1008h" in capsys.readouterr().err
+        assert main(["sdo", "read", "10", "0x1018:01", "2", *bus]) == 2
+        assert "names sub-index 1" in capsys.readouterr().err
+        assert main(["sdo", "write", "10", "0x6081", "0", "1", "2", *eds_, *bus]) == 2
+        assert "too many arguments" in capsys.readouterr().err
 
         assert main(["nmt", "start", "10", *bus]) == 0
         net.sleep(0.1)

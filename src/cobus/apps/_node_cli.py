@@ -1,12 +1,20 @@
 """cobus sdo / nmt / sync: talk to nodes from the shell (a program on the runtime's public API).
 
-    cobus sdo read 10 0x1008 0                  # value, with the EDS's name and type (--eds)
-    cobus sdo write 10 0x6081 0 20000 --type u32
-    cobus sdo upload 10 0x1021 0 servo.eds --block
+    cobus sdo read 10 0x1008                    # value, with the EDS's name and type (--eds)
+    cobus sdo read 10 "Position actual value" --eds servo.eds
+    cobus sdo read 10 0x1018 2 --hex            # sub-index 2 (default 0), unsigned in hex
+    cobus sdo write 10 0x6081 20000 --type u32
+    cobus sdo write 10 "Profile velocity" 20000 --eds servo.eds
+    cobus sdo upload 10 0x1021 servo.eds --block
     cobus sdo download 10 0x1F50 1 firmware.bin --block
     cobus nmt start all                         # start | stop | preop | reset | reset-comm
     cobus sync --period 0.01 --count 100
     cobus sync --period 0.001 --overflow 10 --by-interface -i socketcan -c can0
+
+An object is an address (0x1018, 1018h, 0x1018:02) or, with ``--eds``, a name from the EDS
+("Identity object.Vendor-ID", close names are suggested); without an EDS the CiA 301 names of
+1000h-1FFFh work too. ``sdo write`` writes exactly the object named, a controlword or a
+set-point too: the drive acts on it.
 
 Exit codes: 0 done, 1 the node refused (abort code and its text) or did not answer, 2 bad
 usage.
@@ -69,12 +77,27 @@ def register(sub: Any) -> None:
     ):
         p = actions.add_parser(name, help=help_text, description=help_text, epilog=_EXITS)
         p.add_argument("node", type=_node, help="node-ID 1-127")
-        p.add_argument("index", type=_number, help="index (0x1008, 1008h)")
-        p.add_argument("subindex", type=_number, help="sub-index")
-        if name == "write":
-            p.add_argument("value", help="the value (a number, text, or hex bytes with --type)")
-        if name in ("upload", "download"):
-            p.add_argument("file", type=Path, help="the file")
+        p.add_argument(
+            "object",
+            help="an address (0x1008, 1008h, 0x1018:02) or, with --eds, a name from the EDS",
+        )
+        if name == "read":
+            p.add_argument("rest", nargs="?", metavar="SUBINDEX", help="sub-index (default 0)")
+        elif name == "write":
+            p.add_argument(
+                "rest",
+                nargs="+",
+                metavar="[SUBINDEX] VALUE",
+                help="sub-index (default 0) and the value (a number, text, or hex bytes)",
+            )
+        else:
+            p.add_argument(
+                "rest", nargs="+", metavar="[SUBINDEX] FILE", help="sub-index (default 0), file"
+            )
+        if name == "read":
+            p.add_argument(
+                "--hex", action="store_true", help="unsigned numbers of 16 bits and more in hex"
+            )
         p.add_argument("--eds", type=Path, help="the node's EDS/DCF: names and types")
         p.add_argument("--type", help="the data type without an EDS (u8, u16, i32, real32...)")
         p.add_argument("--block", action="store_true", help="a block transfer")
@@ -146,18 +169,19 @@ def _sdo(args: argparse.Namespace) -> int:
             od = load(args.eds, node_id=args.node)
         except (OSError, EdsError) as exc:
             return _fail(f"cannot read {args.eds}: {exc}", 2)
-    if od is not None:
-        var = od.get_variable(args.index, args.subindex)
-    else:  # CiA 301 still names and types its objects (1000h-1BFFh)
-        from cobus.trace.decoder import standard_variable
-
-        var = standard_variable(args.index, args.subindex)
+    try:
+        args.index, args.subindex, var = _object(args, od)
+    except ValueError as exc:
+        return _fail(str(exc), 2)
     data_type: DataType | None = var.data_type if var is not None else None
     if args.type is not None:
         data_type = data_type_named(args.type)
         if data_type is None:
             return _fail(f"--type {args.type!r} is not a CiA 301 type", 2)
-    where = f"{args.index:04X}h:{args.subindex:02X}" + (f" {var.name}" if var else "")
+    label = "" if var is None else var.name
+    if var is not None and var.parent is not None and "." not in label:
+        label = f"{var.parent.name}.{label}"
+    where = f"{args.index:04X}h:{args.subindex:02X}" + (f" {label}" if label else "")
     payload = b""
     if args.action == "write":
         if data_type is None:
@@ -229,7 +253,7 @@ def _sdo(args: argparse.Namespace) -> int:
         print(json.dumps(result))
         return 0
     if args.action == "read":
-        print(f"{where} = {_show(data, data_type, decode)}")
+        print(f"{where} = {_show(data, data_type, decode, hex_numbers=args.hex)}")
     elif args.action == "upload":
         if not _save(args.file, data):
             return 1
@@ -239,6 +263,99 @@ def _sdo(args: argparse.Namespace) -> int:
     else:
         print(f"{where} <- {len(payload)} bytes from {args.file}")
     return 0
+
+
+def _object(args: argparse.Namespace, od: Any) -> tuple[int, int, Any]:
+    """The index, sub-index and variable (None: unknown) the arguments name; the value or
+    the file put into ``args``. A ValueError says what is wrong."""
+    rest = [args.rest] if isinstance(args.rest, str) else list(args.rest or [])
+    if args.action != "read":
+        last = rest.pop()
+        if args.action == "write":
+            args.value = last
+        else:
+            args.file = Path(last)
+    if len(rest) > 1:
+        raise ValueError(f"too many arguments: {' '.join(rest)}")
+    sub: int | None = None
+    if rest:
+        try:
+            sub = _number(rest[0])
+        except argparse.ArgumentTypeError as exc:
+            raise ValueError(f"sub-index {exc}") from None
+        if not 0 <= sub <= 0xFF:
+            raise ValueError(f"sub-index {rest[0]!r}: 0-255")
+    var = _resolve(args.object, od)
+    if var is None:  # an address the dictionary does not have (or no dictionary)
+        index, given = _address(args.object)
+    else:
+        index, given = var.index, (var.subindex if var.subindex or var.parent else None)
+    if given is not None and sub is not None and given != sub:
+        raise ValueError(
+            f"{args.object!r} names sub-index {given}; the sub-index {sub} given besides differs"
+        )
+    subindex = sub if sub is not None else (given or 0)
+    if var is None or var.subindex != subindex:
+        var = od.get_variable(index, subindex) if od is not None else None
+        if var is None:
+            from cobus.trace.decoder import standard_variable
+
+            var = standard_variable(index, subindex)
+    return index, subindex, var
+
+
+def _address(text: str) -> tuple[int, int | None]:
+    """(index, sub-index or None) of ``0x1018``, ``1018h``, ``0x1018:02``, ``1018sub2``."""
+    from cobus.master.config import _ADDRESS
+
+    lowered = text.strip().lower()
+    match = _ADDRESS.match(lowered)
+    head = lowered.partition(":")[0].partition("sub")[0].strip()
+    if match is None or not (head.startswith("0x") or head.endswith("h")):
+        bare = match is not None and head.isdigit()
+        raise ValueError(
+            f"{text!r}: an index is hexadecimal, write 0x{head.upper()} or {head.upper()}h"
+            if bare
+            else f"{text!r} is not an object: give an address (0x1008, 1008h, 0x1018:02), "
+            "or --eds FILE to name objects by the EDS's names"
+        )
+    index = int(match.group(1), 16)
+    if not 0 < index <= 0xFFFF:
+        raise ValueError(f"{text!r}: an index 0001h-FFFFh")
+    return index, int(match.group(3), 16) if match.group(3) is not None else None
+
+
+def _resolve(text: str, od: Any) -> Any:
+    """The variable ``text`` names in ``od`` (an EDS), or among the CiA 301 objects without
+    one; None for an address neither has. ValueError: a name nobody has (close names)."""
+    from cobus.master.config import ObjectIndex
+
+    if text.strip().isdigit():
+        _address(text)  # (raises: a bare number, hex or decimal?)
+    if od is None:
+        from cobus.trace.decoder import _cia301
+
+        try:
+            _address(text)
+        except ValueError:
+            pass
+        else:
+            return None  # (an address: standard_variable() names it, whatever its number)
+        try:
+            return ObjectIndex(_cia301(), "CiA 301 (give --eds for the node's own names)").resolve(
+                text
+            )
+        except ValueError as exc:
+            raise ValueError(str(exc)) from None
+    name = "the EDS" if od is None else str(getattr(od, "path", None) or "the EDS")
+    try:
+        return ObjectIndex(od, name).resolve(text)
+    except ValueError as exc:
+        try:
+            _address(text)
+        except ValueError:
+            raise ValueError(str(exc)) from None
+        return None  # an address the EDS lacks: the node may still have it
 
 
 def _with_progress(job: Any, sdo: Any, what: str) -> Any:
@@ -338,13 +455,24 @@ def _plain(value: Any) -> Any:
     return str(value)
 
 
-def _show(data: bytes, data_type: Any, decode: Any) -> str:
+def _show(data: bytes, data_type: Any, decode: Any, *, hex_numbers: bool = False) -> str:
+    """The value by its type: numbers in decimal (unsigned of 16 bits and more in hex with
+    ``hex_numbers``), text as text, bytes in hex; without a type, the bytes and a guess."""
     if data_type is not None:
         try:
             size = data_type.size
-            return repr(decode(data_type, data[:size] if size else data))
+            value = decode(data_type, data[:size] if size else data)
         except ValueError:
             pass
+        else:
+            if isinstance(value, str):
+                return value
+            if isinstance(value, bytes | bytearray):
+                return bytes(value).hex(" ") or "(no data)"
+            unsigned = data_type.is_integer and not data_type.is_signed and (size or 0) >= 2
+            if hex_numbers and unsigned and isinstance(value, int):
+                return f"0x{value:0{size * 2}X}"
+            return str(value)
     shown = data.hex(" ") or "(no data)"
     if 0 < len(data) <= 4:
         number = int.from_bytes(data, "little")
