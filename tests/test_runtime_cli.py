@@ -196,3 +196,51 @@ def test_a_bus_that_cannot_be_opened_is_one_line_and_exit_1(
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("cobus"), err
     assert "cobus_no_such_interface" in err and "Traceback" not in err
+
+
+BROKEN_EDS = """[FileInfo]
+FileName=broken.eds
+[1000]
+ParameterName=Device type
+ObjectType=0x7
+DataType=0x0007
+AccessType=ro
+DefaultValue=zz
+[6040]
+ParameterName=Controlword
+DataType=0x0006
+AccessType=rww
+"""
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["sdo", "read", "10", "0x6040", "--eds", "{eds}"],
+        ["params", "diff", "10", "examples/parameters/servo.yml", "--eds", "{eds}"],
+        ["decode", "{tmp}/none.asc", "--eds", "10={eds}"],
+        ["monitor", "--duration", "0.1", "--eds", "10={eds}"],
+    ],
+    ids=lambda argv: argv[0],
+)
+def test_an_empty_eds_is_refused_and_a_broken_one_said_once(
+    argv: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 38 (5): sdo, params, decode and monitor used a broken or empty EDS silently."""
+    empty = tmp_path / "empty.eds"
+    empty.write_text("; nothing here\n")
+    broken = tmp_path / "broken.eds"
+    broken.write_text(BROKEN_EDS)
+
+    def run(eds: Path) -> int:
+        args = [a.replace("{eds}", str(eds)).replace("{tmp}", str(tmp_path)) for a in argv]
+        return main(args if args[0] == "decode" else [*args, *NO_BUS])
+
+    assert run(empty) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{empty}: the file defines no objects" in err
+    run(broken)  # (goes on to the bus or the trace file, which are not there)
+    err = capsys.readouterr().err
+    warnings = [line for line in err.splitlines() if "warning" in line]
+    assert len(warnings) == 1 and f"{broken}:8: [1000] error: DefaultValue" in warnings[0]
+    assert f"cobus eds check {broken}" in warnings[0] and "Traceback" not in err

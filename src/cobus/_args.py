@@ -6,7 +6,7 @@ import argparse
 import math
 from typing import Any
 
-__all__ = ["add_bus_options", "bus_options", "seconds", "seconds_or_zero"]
+__all__ = ["add_bus_options", "bus_options", "load_eds", "seconds", "seconds_or_zero"]
 
 
 def add_bus_options(parser: argparse.ArgumentParser) -> None:
@@ -28,6 +28,30 @@ def bus_options(args: argparse.Namespace) -> dict[str, Any]:
     if args.bitrate:
         options["bitrate"] = args.bitrate
     return options
+
+
+def load_eds(path: Any, command: str, *, node_id: int | None = None) -> Any:
+    """An EDS/DCF a command was given: a file with no object in it is refused (EdsError);
+    one with errors is used as far as it goes, and the command says so once on stderr (the
+    first error with its file and line, and how many there are)."""
+    import sys
+
+    from cobus.od import EdsError, Severity, load
+
+    od = load(path, node_id=node_id)
+    errors = [f for f in od.findings if f.severity is Severity.ERROR]
+    if next(iter(od), None) is None:
+        last = errors[-1] if errors else None
+        reason = last.reason if last is not None else "the file defines no objects"
+        raise EdsError(str(path), None, None, reason)
+    if errors:
+        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+        print(
+            f"cobus {command}: warning: {errors[0]}{more}; the rest of the file is used "
+            f"(cobus eds check {path} lists every problem)",
+            file=sys.stderr,
+        )
+    return od
 
 
 def seconds(text: str) -> float:

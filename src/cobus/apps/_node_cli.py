@@ -160,15 +160,16 @@ def _open(args: argparse.Namespace) -> Any:
 
 
 def _sdo(args: argparse.Namespace) -> int:
+    from cobus._args import load_eds
     from cobus.errors import CobusError
-    from cobus.od import DataType, EdsError, data_type_named, decode, encode, load
+    from cobus.od import DataType, EdsError, data_type_named, decode, encode
 
     od = None
     if args.eds is not None:
         try:
-            od = load(args.eds, node_id=args.node)
+            od = load_eds(args.eds, "sdo", node_id=args.node)
         except (OSError, EdsError) as exc:
-            return _fail(f"cannot read {args.eds}: {exc}", 2)
+            return _fail(str(exc), 2)
     try:
         args.index, args.subindex, var = _object(args, od)
     except ValueError as exc:

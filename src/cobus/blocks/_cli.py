@@ -104,7 +104,8 @@ def _fail(message: str, code: int = _EXIT_USAGE) -> int:
 
 def _target(args: argparse.Namespace) -> tuple[int, Any]:
     """The node-ID and the dictionary the arguments name; ValueError says why not."""
-    from cobus.od import EdsError, load
+    from cobus._args import load_eds
+    from cobus.od import EdsError
 
     od = None
     node_id: int | None = None
@@ -119,9 +120,9 @@ def _target(args: argparse.Namespace) -> tuple[int, Any]:
         node_id, od = cfg.node_id, cfg.od
     if args.eds is not None:
         try:
-            od = load(args.eds)
+            od = load_eds(args.eds, "params")
         except (OSError, EdsError) as exc:
-            raise ValueError(f"cannot read {args.eds}: {exc}") from None
+            raise ValueError(str(exc)) from None
     if node_id is None:
         if not args.node.isdigit() or not 1 <= int(args.node) <= 127:
             raise ValueError(f"node {args.node!r}: give a node-ID 1-127 (or --network FILE)")

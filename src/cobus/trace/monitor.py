@@ -60,7 +60,8 @@ def _fail(message: str, code: int = 1) -> int:
 def _inputs(args: argparse.Namespace) -> tuple[dict[int, Any], Any]:
     """The dictionaries of ``--eds NODE=FILE`` and the network of ``--network FILE`` (its
     nodes' EDS, and its PDO signals with their names, scales and units)."""
-    from cobus.od import EdsError, load
+    from cobus._args import load_eds
+    from cobus.od import EdsError
 
     network = None
     if getattr(args, "network", None) is not None:
@@ -70,9 +71,9 @@ def _inputs(args: argparse.Namespace) -> tuple[dict[int, Any], Any]:
     out: dict[int, Any] = {}
     for node, path in args.eds:
         try:
-            out[node] = load(path, node_id=node)
+            out[node] = load_eds(path, args.command, node_id=node)
         except (OSError, EdsError) as exc:
-            raise ValueError(f"cannot read {path}: {exc}") from None
+            raise ValueError(str(exc)) from None
     return out, network
 
 
