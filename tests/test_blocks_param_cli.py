@@ -4,12 +4,17 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import threading
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from cobus.cli import main
 from cobus.device import export_eds
+from cobus.proto import Frame
 from cobus.runtime import Network
 from cobus.sim import Rig, start_rig
 
@@ -126,3 +131,45 @@ def test_a_snapshot_holds_no_commands_and_applying_it_leaves_a_disabled_drive_di
         left = {entry["object"] for entry in result["not_parameters"]}
         assert {"0x6040:00", "0x6060:00", "0x607A:00", "0x60FF:00", "0x6071:00"} <= left
         assert "0x6040" not in ranged.read_text() and "0x6065" in ranged.read_text()
+
+
+def _ctrl_c_when(net: Any, wanted: Callable[[Frame], bool]) -> None:
+    """Send SIGINT to the main thread once a frame ``wanted`` is seen on the bus."""
+    main_thread = threading.main_thread().ident
+    assert main_thread is not None
+    fired = threading.Event()
+
+    def look(frame: Frame, now: float) -> None:
+        if not fired.is_set() and wanted(frame):
+            fired.set()
+            signal.pthread_kill(main_thread, signal.SIGINT)
+
+    net.subscribe_all(look)
+
+
+def test_ctrl_c_in_apply_says_what_was_written_and_what_was_cut_short(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 38 (8): Ctrl-C in params apply exited 130 without a word of what it had
+    already written."""
+    channel = f"cli-params-ctrl-c-{os.getpid()}"
+    with Network(interface="virtual", channel=channel) as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        eds = tmp_path / "servo.eds"
+        eds.write_text(export_eds(rig.aio.devices[10].od))
+        (tmp_path / "servo.yml").write_text(
+            "parameters:\n  profile velocity: 20000\n  following error window: 500\n"
+        )
+        rig.devices[10].inject("sdo_delay", delay=0.3)
+        # the download of the second parameter (6065h) is in flight when Ctrl-C comes
+        _ctrl_c_when(
+            net.aio, lambda f: f.cob_id == 0x60A and f.data[:4] == bytes.fromhex("23656000")
+        )
+        bus = ["-i", "virtual", "-c", channel, "--eds", str(eds), "--timeout", "1"]
+        assert main(["params", "apply", "10", str(tmp_path / "servo.yml"), *bus]) == 130
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert err.startswith("cobus params: interrupted (write); written before: ")
+    assert "0x6081:00 Profile velocity = 20000" in err
+    assert "not saved: the node loses them at its next power-up" in err
+    assert "the write of 0x6065:00 Following error window = 500 was cut short" in err

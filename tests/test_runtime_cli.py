@@ -244,3 +244,59 @@ def test_an_empty_eds_is_refused_and_a_broken_one_said_once(
     warnings = [line for line in err.splitlines() if "warning" in line]
     assert len(warnings) == 1 and f"{broken}:8: [1000] error: DefaultValue" in warnings[0]
     assert f"cobus eds check {broken}" in warnings[0] and "Traceback" not in err
+
+
+def test_ctrl_c_in_an_sdo_transfer_says_it_was_aborted(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 38 (8): Ctrl-C in sdo exited 130 without a word."""
+    import signal
+    import threading
+
+    channel = f"cli-sdo-ctrl-c-{os.getpid()}"
+    main_thread = threading.main_thread().ident
+    assert main_thread is not None
+    with Network(interface="virtual", channel=channel) as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        rig.devices[10].inject("sdo_delay", delay=0.5)
+        fired = threading.Event()
+
+        def look(frame: Frame, now: float) -> None:
+            if frame.cob_id == 0x60A and not fired.is_set():
+                fired.set()
+                signal.pthread_kill(main_thread, signal.SIGINT)
+
+        net.aio.subscribe_all(look)
+        bus = ["-i", "virtual", "-c", channel]
+        assert main(["sdo", "write", "10", "0x1017", "100", "--type", "u16", *bus]) == 130
+        err = capsys.readouterr().err
+        assert err == (
+            "cobus: interrupted: the write of 1017h:00 Producer heartbeat time was aborted: "
+            "the node may or may not have taken the value\n"
+        )
+        fired.clear()
+        assert main(["sdo", "read", "10", "0x1017", *bus]) == 130
+        assert capsys.readouterr().err == (
+            "cobus: interrupted: the read of 1017h:00 Producer heartbeat time was aborted\n"
+        )
+
+
+def test_ctrl_c_in_any_other_command_says_interrupted(capsys: pytest.CaptureFixture[str]) -> None:
+    import signal
+    import threading
+
+    channel = f"cli-ec-ctrl-c-{os.getpid()}"
+    main_thread = threading.main_thread().ident
+    assert main_thread is not None
+    with Network(interface="virtual", channel=channel) as net:
+        fired = threading.Event()
+
+        def look(frame: Frame, now: float) -> None:
+            if not fired.is_set():
+                fired.set()
+                signal.pthread_kill(main_thread, signal.SIGINT)
+
+        net.aio.subscribe_all(look)
+        argv = ["ec", "read", "3", "p_ven", "--timeout", "5", "-i", "virtual", "-c", channel]
+        assert main(argv) == 130
+    assert capsys.readouterr().err == "cobus ec: interrupted\n"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+from typing import Any
 
 import pytest
 
@@ -110,3 +111,30 @@ def test_scan_finds_a_python_canopen_local_node(
         peer.disconnect()
     assert [n["node_id"] for n in found] == [5]
     assert found[0]["device_type"] == 0x00020192 and found[0]["profile"] == 402
+
+
+def test_ctrl_c_in_a_scan_keeps_what_was_found(capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 38 (8): Ctrl-C in scan exited 130 silently, its results lost."""
+    import signal
+    import threading
+
+    channel = f"scan-ctrl-c-{os.getpid()}"
+    main_thread = threading.main_thread().ident
+    assert main_thread is not None
+    with Network(interface="virtual", channel=channel) as net:
+        start_rig(net, "thesis")
+        fired = threading.Event()
+
+        def look(frame: Any, now: float) -> None:
+            if frame.cob_id == 0x600 + 40 and not fired.is_set():  # asking node 40
+                fired.set()
+                signal.pthread_kill(main_thread, signal.SIGINT)
+
+        net.aio.subscribe_all(look)
+        bus = ["-i", "virtual", "-c", channel, "--listen", "0.05", "--timeout", "0.2"]
+        assert main(["scan", *bus]) == 130
+    out, err = capsys.readouterr()
+    assert err.startswith("cobus scan: interrupted after ") and " of 127 node-ID(s) asked; " in err
+    assert err.rstrip().endswith("4 found so far")  # STÖBER 1, ZAPI 8, I/O 9, servo 10
+    rows = [line.split()[0] for line in out.splitlines()[2:]]
+    assert "10" in rows and "9" in rows

@@ -65,6 +65,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         result = handler(args)
     except KeyboardInterrupt:
+        # (a command with something to say of what it had done says it, and returns 130)
+        print(f"cobus {args.command}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
         # the reader went away (`cobus monitor | head`): end quietly, and let the flush at

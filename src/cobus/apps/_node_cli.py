@@ -212,6 +212,10 @@ def _sdo(args: argparse.Namespace) -> int:
                 data = _with_progress(job, node.sdo, f"{args.action} {where}")
             else:
                 data = job()
+    except KeyboardInterrupt:
+        what = "read" if args.action in ("read", "upload") else "write"
+        after = "" if what == "read" else ": the node may or may not have taken the value"
+        return _fail(f"interrupted: the {what} of {where} was aborted{after}", 130)
     except (CobusError, TimeoutError) as exc:
         if args.json:
             code = getattr(exc, "code", None)

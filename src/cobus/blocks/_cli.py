@@ -171,6 +171,7 @@ def _run(args: argparse.Namespace) -> int:
         for param, why in pset.left_out:
             print(f"cobus params: left out {param.address} {param.name}: {why}", file=sys.stderr)
     quiet = args.json or not sys.stderr.isatty()
+    manager: Any = None
     with _Progress(quiet) as progress:
         try:
             with Network(**bus_options(args)) as net:
@@ -183,6 +184,9 @@ def _run(args: argparse.Namespace) -> int:
                     left_out += manager.left_out
                     return _snapshot_done(args, snap, failures, left_out)
                 report = manager.diff() if args.action == "diff" else manager.apply()
+        except KeyboardInterrupt:
+            progress.stop()
+            return _interrupted(args, None if manager is None else manager.aio)
         except CommandsInSetError as exc:
             return _fail(str(exc))
         except (OSError, ValueError) as exc:
@@ -192,6 +196,40 @@ def _run(args: argparse.Namespace) -> int:
                 return _fail(f"cannot open the bus: {exc}")
             raise
     return _report_done(args, report)
+
+
+def _interrupted(args: argparse.Namespace, manager: Any) -> int:
+    """Ctrl-C: say so, and what the run had written (and whether it was saved)."""
+    written = manager.written if manager is not None else []
+    short = manager.cut_short if manager is not None else None
+    step = short[0].name.lower().replace("_", " ") if short is not None else None
+    cut = short[1] if short is not None and short[0].name == "WRITE" else None
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "interrupted": True,
+                    "step": step,
+                    "written": [p.address for p in written],
+                    "saved": not manager.unsaved if written else None,
+                    "cut_short": None if cut is None else cut.address,
+                }
+            )
+        )
+    parts = ["interrupted" + (f" ({step})" if step else "")]
+    if args.action == "apply":
+        if written:
+            shown = ", ".join(str(p) for p in written)
+            parts.append(f"written before: {shown}")
+            if manager.unsaved:
+                parts.append("not saved: the node loses them at its next power-up")
+        else:
+            parts.append("nothing was written")
+        if cut is not None:
+            parts.append(f"the write of {cut} was cut short: the node may hold either value")
+    else:
+        parts.append("nothing was written" if args.action == "diff" else f"{args.file} not written")
+    return _fail("; ".join(parts), 130)
 
 
 def _objects(specs: list[str], od: Any, left_out: list[tuple[Any, str]]) -> list[Any]:

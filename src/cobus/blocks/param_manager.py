@@ -19,6 +19,7 @@ re-parameterised) and reports it by a :class:`~cobus.master.BootStepDone` event.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import os
 import time
@@ -378,7 +379,24 @@ class AsyncParameterManager:
         self._abort = False
         self._running = False
         self._failures: list[ParameterFailure] = []
+        self._written: dict[tuple[int, int], Parameter] = {}
+        self._unsaved = False
+        #: The step and parameter of the transfer a cancellation cut short (None: none was):
+        #: in the WRITE step, a value that may or may not have reached the node.
+        self.cut_short: tuple[ParameterStep, Parameter] | None = None
         self._now = _clock(node)
+
+    @property
+    def written(self) -> list[Parameter]:
+        """What the running (or last) :meth:`apply` has written so far - also when it was
+        interrupted or cancelled."""
+        return list(self._written.values())
+
+    @property
+    def unsaved(self) -> bool:
+        """Whether values written by the running (or last) :meth:`apply` are not saved yet
+        (the node loses them at its next power-up)."""
+        return self._unsaved
 
     def abort(self) -> None:
         """Stop the running sequence before its next transfer (its report says aborted)."""
@@ -423,6 +441,7 @@ class AsyncParameterManager:
         self._running = True
         self._abort = False
         self._failures = []
+        self.cut_short = None
         try:
             for done, var in enumerate(chosen):
                 self._report_progress(ParameterStep.READ, done, len(chosen))
@@ -466,8 +485,9 @@ class AsyncParameterManager:
         self._running = True
         self._abort = False
         self._failures = []
-        self._written: dict[tuple[int, int], Parameter] = {}
+        self._written = {}
         self._unsaved = False
+        self.cut_short = None
         try:
             for attempt in range(self.restarts + 1):
                 report.attempts = attempt + 1
@@ -628,6 +648,9 @@ class AsyncParameterManager:
                     return await self.port.upload(param.index, param.subindex)
                 await self.port.download(param.index, param.subindex, data)
                 return data
+            except asyncio.CancelledError:
+                self.cut_short = (step, param)
+                raise
             except TimeoutError as exc:
                 last = str(exc) or "timeout"
                 continue

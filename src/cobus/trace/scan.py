@@ -75,18 +75,20 @@ async def scan(
     listen: float = 0.5,
     parallel: int = 16,
     progress: Callable[[int, int], object] | None = None,
+    found: dict[int, FoundNode] | None = None,
 ) -> list[FoundNode]:
     """Scan ``nodes`` on an :class:`~cobus.runtime.AsyncNetwork`: listen ``listen`` seconds
     for boot-ups and heartbeats, read 1000h of each node (``timeout`` per answer, ``parallel``
     at once), then the identity, names and error history of those that answered (the
     remote nodes it makes for that are removed again; those the network had are used).
-    ``progress(done, total)`` is called as node-IDs are asked. The nodes found, by node-ID."""
+    ``progress(done, total)`` is called as node-IDs are asked. The nodes found, by node-ID;
+    ``found``, a dict, is filled as they answer (a caller interrupted keeps what was found)."""
     from cobus.errors import CobusError
     from cobus.proto.sdo import SdoTimeoutError
 
     wanted = sorted(set(nodes))
     added: set[int] = set()
-    found: dict[int, FoundNode] = {}
+    found = {} if found is None else found
     heard: dict[int, str] = {}
 
     def on_frame(frame: Any, now: float) -> None:
@@ -365,14 +367,13 @@ def _run(args: argparse.Namespace) -> int:
     if args.objects is not None:
         return _run_objects(args)
     from rich.console import Console
-    from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
-    from cobus._console import print_table
-    from cobus._console import table as new_table
     from cobus.runtime import Network
 
     quiet = args.json or not sys.stderr.isatty()
+    found_so_far: dict[int, FoundNode] = {}
+    asked = [0]
     bar = None
     if not quiet:
         bar = Progress(
@@ -389,6 +390,7 @@ def _run(args: argparse.Namespace) -> int:
                 bar.start()
 
             def progress(done: int, total: int) -> None:
+                asked[0] = done
                 if bar is not None:
                     bar.update(task, completed=done)  # type: ignore[arg-type]
 
@@ -399,8 +401,21 @@ def _run(args: argparse.Namespace) -> int:
                     timeout=args.timeout,
                     listen=args.listen,
                     progress=progress,
+                    found=found_so_far,
                 )
             )
+    except KeyboardInterrupt:
+        if bar is not None:
+            bar.stop()
+            bar = None
+        found = [found_so_far[n] for n in sorted(found_so_far)]
+        print(
+            f"cobus scan: interrupted after {asked[0]} of {len(args.nodes)} node-ID(s) asked; "
+            f"{len(found)} found so far",
+            file=sys.stderr,
+        )
+        _print_nodes(args, found)
+        return 130
     except Exception as exc:
         if type(exc).__module__.startswith(("can", "cobus")):
             print(f"cobus scan: cannot use the bus: {exc}", file=sys.stderr)
@@ -409,9 +424,20 @@ def _run(args: argparse.Namespace) -> int:
     finally:
         if bar is not None:
             bar.stop()
+    _print_nodes(args, found)
+    return 0
+
+
+def _print_nodes(args: argparse.Namespace, found: list[FoundNode]) -> None:
+    """The nodes found, as a table (or JSON)."""
+    from rich.markup import escape
+
+    from cobus._console import print_table
+    from cobus._console import table as new_table
+
     if args.json:
         print(json.dumps([n.to_dict() for n in found]))
-        return 0
+        return
     columns = ("node", "heard", "device type", "vendor", "product", "revision", "serial")
     table = new_table(*columns, "name", "hw", "sw", "errors", title=f"{len(found)} node(s) found")
     for n in found:
@@ -427,4 +453,3 @@ def _run(args: argparse.Namespace) -> int:
             " ".join(f"{e:08X}" for e in n.errors),
         )
     print_table(table)
-    return 0
