@@ -128,3 +128,12 @@ def test_convert_an_eds_to_a_node_dcf_and_back(capsys, tmp_path):
     assert len(load(eds)) == len(od)
     code, _, err = run(capsys, "convert", str(source), str(tmp_path / "x.dcf"))
     assert code == 2 and "give --node-id" in err
+
+
+def test_convert_refuses_a_name_it_would_not_honour(capsys, tmp_path):
+    """Issue 38 (9): `eds convert x.eds x.xdd` wrote an EDS under the .xdd name."""
+    source = Path(__file__).resolve().parent.parent / "examples" / "networks" / "servo.eds"
+    for name, why in (("x.xdd", "XDD/XDC (CiA 311) is not written"), ("x.txt", ".eds or .dcf")):
+        code, _, err = run(capsys, "convert", str(source), str(tmp_path / name))
+        assert code == 2 and why in err and err.count("\n") == 1
+        assert not (tmp_path / name).exists()

@@ -271,3 +271,14 @@ def test_monitor_into_a_pipe_that_closes_ends_quietly(capsys: pytest.CaptureFixt
     assert result == [0]
     assert head.getvalue().count("\n") == 2
     assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("node", ["0", "128", "300", "x"])
+def test_a_node_id_out_of_range_is_refused(
+    node: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 38 (9): `decode --node 300` was accepted and printed another node's transfer."""
+    for argv in (["decode", str(tmp_path / "t.asc")], ["monitor", "--duration", "0.1"]):
+        with pytest.raises(SystemExit) as usage:
+            main([*argv, "--node", node])
+        assert usage.value.code == 2 and "a node-ID 1-127" in capsys.readouterr().err

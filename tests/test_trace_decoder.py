@@ -657,3 +657,32 @@ def test_a_linked_rpdo_of_a_network_file_leaves_the_frame_to_the_tpdo(tmp_path: 
     (tmp_path / "linked.yml").write_text(text)
     d = Decoder(network=load_network(tmp_path / "linked.yml"))
     assert decoded(d, "182: 12 34") == ["node 2 TPDO1 io1.inputs_low=18, io1.inputs_high=52"]
+
+
+def test_a_cia402_drive_s_emergencies_have_the_cia402_texts() -> None:
+    """Issue 38 (9): a drive's EMCY codes got the generic CiA 301 class texts."""
+    emcy = Frame(0x08A, bytes([0x05, 0x73, 0x81, 0, 0, 0, 0, 0]))  # 7305h, node 10
+    plain = Decoder()
+    (generic,) = plain.feed(emcy, 0.0)
+    assert isinstance(generic, Emergency) and generic.text == "Additional modules (7305h)"
+    # the decoder learns the profile from a read of 1000h on the bus ...
+    plain.feed(Frame(0x60A, bytes([0x40, 0x00, 0x10, 0, 0, 0, 0, 0])), 0.1)
+    plain.feed(Frame(0x58A, bytes([0x43, 0x00, 0x10, 0, 0x92, 0x01, 0x02, 0x00])), 0.2)
+    (drive,) = plain.feed(emcy, 0.3)
+    assert isinstance(drive, Emergency) and drive.text == "Incremental sensor 1 fault"
+    assert "EMCY 7305h Incremental sensor 1 fault" in str(drive)
+    # ... or from the node's EDS
+    od = loads(_servo_eds())
+    (known,) = Decoder({10: od}).feed(emcy, 0.0)
+    assert isinstance(known, Emergency) and known.text == "Incremental sensor 1 fault"
+    # another node's stays CiA 301's
+    (other,) = Decoder({10: od}).feed(Frame(0x08B, emcy.data), 0.0)
+    assert isinstance(other, Emergency) and other.text == "Additional modules (7305h)"
+
+
+def _servo_eds() -> str:
+    async def export() -> str:
+        async with AsyncNetwork() as net:
+            return export_eds(Servo(net, 10).od)
+
+    return simulate(export())

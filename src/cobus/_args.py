@@ -6,7 +6,25 @@ import argparse
 import math
 from typing import Any
 
-__all__ = ["add_bus_options", "bus_options", "load_eds", "seconds", "seconds_or_zero"]
+__all__ = [
+    "add_bus_options",
+    "bus_options",
+    "load_eds",
+    "node_id",
+    "seconds",
+    "seconds_or_zero",
+]
+
+
+def node_id(text: str) -> int:
+    """A node-ID, 1-127."""
+    try:
+        value = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: a node-ID 1-127") from None
+    if not 1 <= value <= 127:
+        raise argparse.ArgumentTypeError(f"{text!r}: a node-ID 1-127")
+    return value
 
 
 def add_bus_options(parser: argparse.ArgumentParser) -> None:

@@ -789,11 +789,14 @@ class _NodeReader:
         cfg.tpdos = self._layouts(cfg, transmit=True)
         cfg.rpdos = self._layouts(cfg, transmit=False)
         self._signals(cfg)
-        if cfg.error_control is None and cfg.enabled:
+        # (a node without error control whose TPDO the master supervises is watched all the
+        # same: a missing TPDO tells it failed, as with the ZAPI inverter of the thesis)
+        watched = any(layout.timeout for layout in cfg.tpdos)
+        if cfg.error_control is None and cfg.enabled and not watched:
             self.warning(
                 None,
-                "neither heartbeat_time nor guard_time: the master cannot tell when this node "
-                "fails",
+                "neither heartbeat_time nor guard_time, nor a supervised TPDO: the master "
+                "cannot tell when this node fails",
                 raw,
                 "node_id",
             )

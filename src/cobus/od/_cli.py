@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Iterable
 from typing import Any
@@ -96,7 +97,16 @@ def _convert(args: argparse.Namespace) -> int:
     od = _load(args)
     if od is None:
         return 2
-    to_dcf = args.out.lower().endswith(".dcf")
+    suffix = os.path.splitext(args.out)[1].lower()
+    if suffix not in (".eds", ".dcf"):
+        what = "an XDD/XDC (CiA 311) is not written" if suffix in (".xdd", ".xdc") else ""
+        print(
+            f"cobus eds convert: {args.out}: name the file .eds or .dcf, the formats this "
+            f"writes" + (f"; {what}" if what else ""),
+            file=sys.stderr,
+        )
+        return 2
+    to_dcf = suffix == ".dcf"
     node_id = args.node_id if args.node_id is not None else od.node_id
     if to_dcf and node_id is None:
         print("a DCF is for one node: give --node-id", file=sys.stderr)

@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from cobus._args import add_bus_options, bus_options, seconds
+from cobus._args import add_bus_options, bus_options, node_id, seconds
 
 __all__ = ["register"]
 
@@ -73,7 +73,7 @@ def register(sub: Any) -> None:
     decode.add_argument("file", type=Path, help="a trace file python-can reads")
     add_decoder_options(decode)
     decode.add_argument("--filter", type=_kinds, help=f"only these kinds ({','.join(_KINDS)})")
-    decode.add_argument("--node", type=int, help="only records of this node-ID")
+    decode.add_argument("--node", type=node_id, help="only records of this node-ID (1-127)")
     decode.add_argument("--json", action="store_true", help="one JSON object per line")
     decode.set_defaults(handler=_decode)
     record = sub.add_parser(

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from cobus.od import DataType, ObjectDictionary, Variable, decode
-from cobus.profiles.cia402 import PowerState
+from cobus.profiles.cia402 import PowerState, error_text
 from cobus.proto import Frame
 from cobus.proto.emcy import ErrorRegister, describe
 from cobus.proto.sdo import SdoAbortCode, crc16
@@ -167,16 +167,21 @@ class TimeRecord(Record):
 
 @dataclass(frozen=True)
 class Emergency(Record):
-    """An emergency: code with its CiA 301 text, the error register and its bits."""
+    """An emergency: code with its text, the error register and its bits. ``profile``: the
+    device profile of the node (1000h), when the decoder knows it: a CiA 402 drive's codes
+    have the CiA 402-2 texts."""
 
     node: int
     code: int
     register: int
     data: bytes
+    profile: int | None = None
 
     @property
     def text(self) -> str:
-        """The code's meaning."""
+        """The code's meaning (CiA 402-2's for a drive, else CiA 301's)."""
+        if self.profile == 402:
+            return error_text(self.code)
         return describe(self.code)
 
     @property
@@ -520,7 +525,12 @@ class Decoder:
         #: (node, tpdo, number) -> the PDO as a network file has it.
         self._layouts: dict[tuple[int, bool, int], _Pdo] = {}
         self._params: dict[int, dict[tuple[int, int], int]] = {}
+        #: Node -> its device profile (1000h bits 0-15), from its EDS or a read of 1000h.
+        self._profiles: dict[int, int] = {}
         for node, od in self.dictionaries.items():
+            device_type = od.get_variable(0x1000, 0)
+            if device_type is not None and isinstance(device_type.value, int):
+                self._profiles[node] = device_type.value & 0xFFFF
             if od.node_id is None:
                 od.node_id = node  # ($NODEID in COB-IDs: the node it is given for)
             self._learn(node, od)
@@ -713,7 +723,9 @@ class Decoder:
             return [TimeRecord(now, cob, moment)]
         if func == 0x080 and node and len(data) >= 3:
             code = int.from_bytes(data[:2], "little")
-            return [Emergency(now, cob, node, code, data[2], data[3:8].ljust(5, b"\0"))]
+            profile = self._profiles.get(node)
+            extra = data[3:8].ljust(5, b"\0")
+            return [Emergency(now, cob, node, code, data[2], extra, profile)]
         if func == 0x700 and node:
             if frame.rtr:
                 self._guard_asked[node] = now
@@ -975,6 +987,8 @@ class Decoder:
                 value = None
         elif 0 < len(data) <= 4:
             value = int.from_bytes(data, "little")
+        if (t.index, t.subindex) == (0x1000, 0) and len(data) >= 2:
+            self._profiles[node] = int.from_bytes(data[:2], "little")  # what the node says
         if t.write and 0x1400 <= t.index <= 0x1BFF and isinstance(value, int):
             self._params.setdefault(node, {})[(t.index, t.subindex)] = value
             self._rebuild(node)  # a mapping written on the bus: learnt

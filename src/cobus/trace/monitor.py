@@ -26,7 +26,7 @@ from collections import deque
 from collections.abc import Iterator
 from typing import Any
 
-from cobus._args import add_bus_options, bus_options, seconds
+from cobus._args import add_bus_options, bus_options, node_id, seconds
 
 __all__ = ["register"]
 
@@ -45,7 +45,7 @@ def register(sub: Any) -> None:
     )
     add_decoder_options(p)
     p.add_argument("--filter", type=_kinds, help="only these kinds (nmt,hb,sync,sdo,pdo,...)")
-    p.add_argument("--node", type=int, help="only records of this node-ID")
+    p.add_argument("--node", type=node_id, help="only records of this node-ID (1-127)")
     p.add_argument("--duration", type=seconds, help="seconds to run (default: until q/Ctrl-C)")
     p.add_argument("--json", action="store_true", help="one JSON object per record")
     add_bus_options(p)
