@@ -84,6 +84,8 @@ def test_sdo_nmt_and_sync_from_the_shell(
         assert capsys.readouterr().out.startswith("6041h:00 Statusword = 0x0")
         assert main(["sdo", "read", "10", "Identity object.Vendor-ID", "--hex", *bus]) == 0
         assert capsys.readouterr().out == "1018h:01 Identity object.Vendor-ID = 0x00C0B005\n"
+        assert main(["sdo", "read", "10", "0x1018", "1", *eds_, *bus]) == 0  # a record's sub
+        assert capsys.readouterr().out == f"1018h:01 Identity object.Vendor-ID = {0xC0B005}\n"
         assert main(["sdo", "read", "10", "0x1018:01", *bus]) == 0  # sub-index in the address
         assert capsys.readouterr().out == f"1018h:01 Identity object.Vendor-ID = {0xC0B005}\n"
         assert main(["sdo", "read", "10", "Position actual valu", *eds_, *bus]) == 2
@@ -300,3 +302,40 @@ def test_ctrl_c_in_any_other_command_says_interrupted(capsys: pytest.CaptureFixt
         argv = ["ec", "read", "3", "p_ven", "--timeout", "5", "-i", "virtual", "-c", channel]
         assert main(argv) == 130
     assert capsys.readouterr().err == "cobus ec: interrupted\n"
+
+
+def test_each_command_s_help_in_the_table_is_its_module_s() -> None:
+    """cobus --help lists the commands from cobus.cli.COMMANDS without importing them: what
+    it says of each must be what the command's module says."""
+    from cobus.cli import COMMANDS, build_parser
+
+    parser = build_parser()  # every module registered
+    actions = [a for a in parser._actions if a.dest == "command"]
+    listed = {c.dest: c.help for c in actions[0]._choices_actions}  # type: ignore[attr-defined]
+    assert listed == {name: help_text for name, (_module, help_text) in COMMANDS.items()}
+
+
+def test_help_and_version_load_no_command_and_a_command_only_its_own() -> None:
+    """Issue 38 (7): every command took about 1 s to start, importing all of cobus. (The
+    times are in benchmarks/bench_startup.py; here, what is imported.)"""
+    import subprocess
+    import sys
+
+    probe = (
+        "import sys; from cobus.cli import main\n"
+        "try:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
+        "print(sorted(m for m in sys.modules if m.startswith('cobus.')), file=sys.stderr)"
+    )
+
+    def loaded(*argv: str) -> set[str]:
+        done = subprocess.run(
+            [sys.executable, "-c", probe, *argv], capture_output=True, text=True, check=False
+        )
+        last = done.stderr.strip().splitlines()[-1]
+        return set(eval(last))
+
+    heavy = {"cobus.runtime", "cobus.master", "cobus.od", "cobus.sim", "cobus.trace"}
+    assert not loaded("--version") & heavy
+    assert not loaded("--help") & heavy
+    assert not loaded("sdo", "--help") & {"cobus.master", "cobus.sim", "cobus.trace"}
+    assert "cobus.trace.scan" not in loaded("eds", "--help")

@@ -1,8 +1,8 @@
 """The ``cobus`` command line.
 
 Each area of the package contributes its sub-commands through a ``register(subparsers)``
-function in a private ``_cli`` module; this file only assembles them, so adding a command never
-means editing the others.
+function in a private ``_cli`` module; this file only assembles them: :data:`COMMANDS` names
+each command's module and help, and only the module of the command run is imported.
 """
 
 from __future__ import annotations
@@ -13,27 +13,73 @@ import importlib
 import os
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from cobus import __version__
 
-# Modules with a ``register(subparsers)`` function, in the order their commands are listed.
-_COMMAND_MODULES = (
-    "cobus.od._cli",
-    "cobus.master._cli",
-    "cobus.sim._cli",
-    "cobus.profiles._cli",
-    "cobus.blocks._cli",
-    "cobus.blocks._alarms_cli",
-    "cobus.trace._cli",
-    "cobus.trace.monitor",
-    "cobus.trace.plot",
-    "cobus.trace.scan",
-    "cobus.apps._node_cli",
-    "cobus.apps.demo",
-)
+#: Every command: the module whose ``register(subparsers)`` adds it, and its one-line help, in
+#: the order ``cobus --help`` lists them. Only the module of the command run is imported, so
+#: that ``--help``, ``--version`` and every command start fast; a test checks that each help
+#: here is the one its module gives.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "eds": ("cobus.od._cli", "check, list or document an EDS/DCF file (CiA 306)"),
+    "config": ("cobus.master._cli", "check a network description (YAML) or write its DCFs"),
+    "sim": ("cobus.sim._cli", "run simulated devices (a rig file) on a CAN bus until Ctrl-C"),
+    "ec": (
+        "cobus.profiles._cli",
+        "read and write the EC motor (seed 002) over its own SDO dialect",
+    ),
+    "params": (
+        "cobus.blocks._cli",
+        "compare, apply and capture a node's parameters (parameter manager)",
+    ),
+    "alarms": ("cobus.blocks._alarms_cli", "read an alarm history file (show, export as CSV)"),
+    "decode": (
+        "cobus.trace._cli",
+        "decode a trace file into CANopen records (NMT, SDO, PDO, EMCY...)",
+    ),
+    "record": (
+        "cobus.trace._cli",
+        "record the bus into a trace file (any format python-can writes)",
+    ),
+    "replay": ("cobus.trace._cli", "send a recording back onto a bus with its timing"),
+    "monitor": ("cobus.trace.monitor", "the live bus decoded, with a node table and the bus load"),
+    "plot": (
+        "cobus.trace.plot",
+        "PDO signals over time from a trace file, to a PNG (matplotlib)",
+    ),
+    "scan": (
+        "cobus.trace.scan",
+        "find the nodes on the bus: device type, identity, names, error history",
+    ),
+    "sdo": ("cobus.apps._node_cli", "read and write objects of a node by SDO"),
+    "nmt": ("cobus.apps._node_cli", "send an NMT command to a node or to all"),
+    "sync": ("cobus.apps._node_cli", "produce SYNC"),
+    "demo": (
+        "cobus.apps.demo",
+        "run the simulated thesis rig, booted and supervised by the cobus master",
+    ),
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
+class _Only:
+    """The sub-command parsers as one module's ``register`` sees them: only the command
+    wanted is added; the module's other commands go to parsers nobody uses."""
+
+    def __init__(self, sub: Any, wanted: str | None) -> None:
+        self.sub = sub
+        self.wanted = wanted
+
+    def add_parser(self, name: str, **options: Any) -> argparse.ArgumentParser:
+        if self.wanted is None or name == self.wanted:
+            parser: argparse.ArgumentParser = self.sub.add_parser(name, **options)
+            return parser
+        return argparse.ArgumentParser(prog=f"cobus {name}", add_help=False)
+
+
+def build_parser(command: str | None = "*") -> argparse.ArgumentParser:
+    """The ``cobus`` parser: with every command's own (``"*"``), with ``command``'s only
+    (the others listed by name and help), or with none (``None``: for ``--help``)."""
     parser = argparse.ArgumentParser(
         prog="cobus",
         description="CANopen master, device, simulators and tools.",
@@ -43,21 +89,24 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"cobus {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in _COMMAND_MODULES:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            # An area not built yet is skipped; a missing dependency inside one is an error.
-            if exc.name is None or not name.startswith(exc.name):
-                raise
+    done: set[str] = set()
+    for name, (module_name, help_text) in COMMANDS.items():
+        if command != "*" and name != command:
+            sub.add_parser(name, help=help_text, add_help=False)
             continue
-        module.register(sub)
+        if module_name in done:
+            continue
+        done.add(module_name)
+        module = importlib.import_module(module_name)
+        module.register(_Only(sub, None if command == "*" else command))
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    words = list(sys.argv[1:] if argv is None else argv)
+    command = next((w for w in words if not w.startswith("-")), None)
+    parser = build_parser(command if command in COMMANDS else None)
+    args = parser.parse_args(words)
     handler = getattr(args, "handler", None)
     if handler is None:
         parser.print_help()

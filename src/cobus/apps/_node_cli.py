@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import sys
 import threading
 import time
@@ -290,11 +291,14 @@ def _object(args: argparse.Namespace, od: Any) -> tuple[int, int, Any]:
             raise ValueError(f"sub-index {exc}") from None
         if not 0 <= sub <= 0xFF:
             raise ValueError(f"sub-index {rest[0]!r}: 0-255")
-    var = _resolve(args.object, od)
-    if var is None:  # an address the dictionary does not have (or no dictionary)
+    var = None
+    try:
         index, given = _address(args.object)
-    else:
-        index, given = var.index, (var.subindex if var.subindex or var.parent else None)
+    except ValueError:
+        if args.object.strip().isdigit():
+            raise  # (a bare number: hex or decimal? said so)
+        var = _by_name(args.object, od)
+        index, given = var.index, var.subindex
     if given is not None and sub is not None and given != sub:
         raise ValueError(
             f"{args.object!r} names sub-index {given}; the sub-index {sub} given besides differs"
@@ -309,10 +313,13 @@ def _object(args: argparse.Namespace, od: Any) -> tuple[int, int, Any]:
     return index, subindex, var
 
 
+# (as cobus.master.config has it for network files: not imported for an address, as the
+# master package takes a tenth of a second to load)
+_ADDRESS = re.compile(r"\s*(?:0x)?([0-9a-f]{1,4})h?\s*(?:(?::|sub)\s*(0x)?([0-9a-f]{1,2})h?)?\s*\Z")
+
+
 def _address(text: str) -> tuple[int, int | None]:
     """(index, sub-index or None) of ``0x1018``, ``1018h``, ``0x1018:02``, ``1018sub2``."""
-    from cobus.master.config import _ADDRESS
-
     lowered = text.strip().lower()
     match = _ADDRESS.match(lowered)
     head = lowered.partition(":")[0].partition("sub")[0].strip()
@@ -330,37 +337,18 @@ def _address(text: str) -> tuple[int, int | None]:
     return index, int(match.group(3), 16) if match.group(3) is not None else None
 
 
-def _resolve(text: str, od: Any) -> Any:
+def _by_name(text: str, od: Any) -> Any:
     """The variable ``text`` names in ``od`` (an EDS), or among the CiA 301 objects without
-    one; None for an address neither has. ValueError: a name nobody has (close names)."""
+    one; ValueError: a name nobody has (with close names)."""
     from cobus.master.config import ObjectIndex
 
-    if text.strip().isdigit():
-        _address(text)  # (raises: a bare number, hex or decimal?)
     if od is None:
         from cobus.trace.decoder import _cia301
 
-        try:
-            _address(text)
-        except ValueError:
-            pass
-        else:
-            return None  # (an address: standard_variable() names it, whatever its number)
-        try:
-            return ObjectIndex(_cia301(), "CiA 301 (give --eds for the node's own names)").resolve(
-                text
-            )
-        except ValueError as exc:
-            raise ValueError(str(exc)) from None
-    name = "the EDS" if od is None else str(getattr(od, "path", None) or "the EDS")
-    try:
-        return ObjectIndex(od, name).resolve(text)
-    except ValueError as exc:
-        try:
-            _address(text)
-        except ValueError:
-            raise ValueError(str(exc)) from None
-        return None  # an address the EDS lacks: the node may still have it
+        od, name = _cia301(), "CiA 301 (give --eds for the node's own names)"
+    else:
+        name = str(getattr(od, "path", None) or "the EDS")
+    return ObjectIndex(od, name).resolve(text)
 
 
 def _with_progress(job: Any, sdo: Any, what: str) -> Any:
