@@ -339,3 +339,39 @@ def test_help_and_version_load_no_command_and_a_command_only_its_own() -> None:
     assert not loaded("--help") & heavy
     assert not loaded("sdo", "--help") & {"cobus.master", "cobus.sim", "cobus.trace"}
     assert "cobus.trace.scan" not in loaded("eds", "--help")
+
+
+def test_send_puts_raw_frames_on_the_bus(capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 38: users asked for `cobus send ID#DATA` (a raw frame, cansend's notation)."""
+    channel = f"cli-send-{os.getpid()}"
+    with Network(interface="virtual", channel=channel) as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        seen: list[Frame] = []
+        net.aio.subscribe_all(lambda f, now: seen.append(f))
+        bus = ["-i", "virtual", "-c", channel]
+        argv = ["send", "000#010A", "70A#R1", "12345678#DE.AD.BE.EF", *bus]
+        assert main(argv) == 0
+        assert capsys.readouterr().out == "sent 000#010A 70A#R1 12345678#DEADBEEF\n"
+        net.sleep(0.1)
+        assert rig.devices[10].device.state.name == "OPERATIONAL"  # the NMT start
+        # (the servo's own frames on 70Ah - boot-up, its answer to the RTR - left out)
+        sent = [f for f in seen if f.cob_id in (0x000, 0x12345678) or f.rtr]
+        assert [(f.cob_id, f.data, f.rtr, f.extended) for f in sent] == [
+            (0x000, b"\x01\x0a", False, False),
+            (0x70A, b"", True, False),
+            (0x12345678, bytes.fromhex("deadbeef"), False, True),
+        ]
+        seen.clear()
+        assert main(["send", "080#", "--count", "3", "--period", "0.01", "--json", *bus]) == 0
+        assert json.loads(capsys.readouterr().out) == {"sent": 3, "frames": ["080#"]}
+        assert len([f for f in seen if f.cob_id == 0x080]) == 3
+    for bad, why in (
+        ("800#00", "does not fit an 11-bit identifier"),
+        ("12#00", "3 hex digits (11-bit, 000-7FF) or 8 (29-bit)"),
+        ("123#001", "each two hex digits"),
+        ("123#R9", "DLC 9"),
+        ("123", "write ID#DATA"),
+    ):
+        with pytest.raises(SystemExit) as usage:
+            main(["send", bad, *NO_BUS])
+        assert usage.value.code == 2 and why in capsys.readouterr().err

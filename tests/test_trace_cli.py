@@ -282,3 +282,62 @@ def test_a_node_id_out_of_range_is_refused(
         with pytest.raises(SystemExit) as usage:
             main([*argv, "--node", node])
         assert usage.value.code == 2 and "a node-ID 1-127" in capsys.readouterr().err
+
+
+def _trace_at(path: Path, start: float, frames: list[Frame]) -> None:
+    with can.Logger(str(path)) as logger:
+        for n, f in enumerate(frames):
+            logger(
+                can.Message(
+                    timestamp=start + n * 0.25,
+                    arbitration_id=f.cob_id,
+                    data=f.data,
+                    is_extended_id=False,
+                )
+            )
+
+
+@pytest.mark.parametrize("suffix", [".log", ".asc", ".blf", ".csv"])
+def test_decode_shows_absolute_times_when_asked(
+    suffix: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 38: users asked for absolute timestamps in cobus decode."""
+    import datetime as dt
+
+    start = dt.datetime(2026, 11, 30, 14, 5, 7, 250000).timestamp()
+    trace = tmp_path / f"bench{suffix}"
+    _trace_at(trace, start, [Frame(0x000, b"\x01\x0a"), Frame(0x70A, b"\x05")])
+    assert main(["decode", str(trace), "--absolute"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line[:26] for line in lines] == [
+        "2026-11-30 14:05:07.250000",
+        "2026-11-30 14:05:07.500000",
+    ]
+    assert lines[0].endswith("NMT start -> node 10")
+    assert main(["decode", str(trace), "--absolute", "--json", "--node", "10"]) == 0
+    records = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert [r["datetime"] for r in records] == [
+        "2026-11-30 14:05:07.250000",
+        "2026-11-30 14:05:07.500000",
+    ]
+
+
+def test_decode_of_a_trace_without_a_date_says_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    trace = tmp_path / "bench.log"
+    _trace_at(trace, 12.0, [Frame(0x000, b"\x01\x0a")])
+    assert main(["decode", str(trace), "--absolute"]) == 0
+    out, err = capsys.readouterr()
+    assert out.split()[0] == "0.000000" and "carry no date: shown in seconds" in err
+
+
+def test_an_open_transfer_at_the_end_honours_the_filters(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    trace = tmp_path / "bench.log"
+    _trace_at(trace, 1000.0, [Frame(0x60A, bytes.fromhex("4017100000000000"))])
+    assert main(["decode", str(trace), "--filter", "nmt"]) == 0
+    assert capsys.readouterr().out == ""
+    assert main(["decode", str(trace), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["mode"] == "incomplete"

@@ -16,6 +16,7 @@ tshark: -d can.subdissector,canopen). Exit codes: 0 done, 1 the file or the bus 
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import json
 import sys
 import time
@@ -75,6 +76,12 @@ def register(sub: Any) -> None:
     decode.add_argument("--filter", type=_kinds, help=f"only these kinds ({','.join(_KINDS)})")
     decode.add_argument("--node", type=node_id, help="only records of this node-ID (1-127)")
     decode.add_argument("--json", action="store_true", help="one JSON object per line")
+    decode.add_argument(
+        "--absolute",
+        action="store_true",
+        help="the date and time of day of each record (local time), not seconds from the "
+        "trace's first frame",
+    )
     decode.set_defaults(handler=_decode)
     record = sub.add_parser(
         "record",
@@ -141,17 +148,49 @@ def _decode(args: argparse.Namespace) -> int:
     decoder = Decoder(dictionaries, network=network)
     first: float | None = None
     now = 0.0
+    absolute = args.absolute
+    options: dict[str, Any] = {}
+    if absolute and args.file.suffix.lower() == ".asc":
+        options["relative_timestamp"] = False  # (the date of its header, not 0)
     try:
-        reader = can.LogReader(str(args.file))
+        reader = can.LogReader(str(args.file), **options)
     except Exception as exc:  # python-can's readers raise their own kinds (BLF, zlib...)
         return _fail(_unreadable(args.file, exc))
+
+    def stamp(seconds: float) -> str:
+        if not absolute:
+            return f"{seconds:12.6f}"
+        moment = dt.datetime.fromtimestamp((first or 0.0) + seconds)
+        return moment.isoformat(sep=" ", timespec="microseconds")
+
+    def emit(rec: Any) -> None:
+        if args.filter is not None and rec.kind not in args.filter:
+            return
+        if args.node is not None and not rec.concerns(args.node):
+            return
+        if args.json:
+            body = {k: _plain(v) for k, v in vars(rec).items()}
+            if absolute:
+                body["datetime"] = stamp(rec.time)
+            print(json.dumps({"kind": rec.kind, "text": str(rec), **body}))
+        else:
+            print(f"{stamp(rec.time)}  {rec}")
+
     try:
         for msg in reader:
             now = float(msg.timestamp)
-            first = now if first is None else first
+            if first is None:
+                first = now
+                if absolute and first < _YEAR_2000:
+                    absolute = False
+                    print(
+                        f"# {args.file}: its times count from its start and carry no date: "
+                        "shown in seconds",
+                        file=sys.stderr,
+                    )
             if msg.is_error_frame:
-                if args.filter is None and args.node is None:
-                    print(f"{now - first:12.6f}  error frame")
+                if args.filter is None and args.node is None and not args.json:
+                    print(f"{stamp(now - first)}  error frame")
                 continue
             frame = message_to_frame(msg)
             if frame is None:  # a CAN FD frame: CANopen (CiA 301) has none
@@ -159,19 +198,10 @@ def _decode(args: argparse.Namespace) -> int:
                     f"# {now - first:.6f}: frame skipped: not a classic CAN frame", file=sys.stderr
                 )
                 continue
-            records = decoder.feed(frame, now - first)
-            for rec in records:
-                if args.filter is not None and rec.kind not in args.filter:
-                    continue
-                if args.node is not None and not rec.concerns(args.node):
-                    continue
-                if args.json:
-                    body = {k: _plain(v) for k, v in vars(rec).items()}
-                    print(json.dumps({"kind": rec.kind, "text": str(rec), **body}))
-                else:
-                    print(f"{rec.time:12.6f}  {rec}")
+            for rec in decoder.feed(frame, now - first):
+                emit(rec)
         for rec in decoder.flush(0.0 if first is None else now - first):
-            print(f"{rec.time:12.6f}  {rec}")  # transfers the trace ended in
+            emit(rec)  # transfers the trace ended in
     except BrokenPipeError:
         raise
     except Exception as exc:  # a damaged file, whatever the reader raises for it
@@ -181,6 +211,9 @@ def _decode(args: argparse.Namespace) -> int:
         if stop is not None:
             stop()
     return 0
+
+
+_YEAR_2000 = 946_684_800.0  # (a trace's first time below it is no date: seconds from its start)
 
 
 def _record(args: argparse.Namespace) -> int:
