@@ -341,3 +341,80 @@ def test_an_open_transfer_at_the_end_honours_the_filters(
     assert capsys.readouterr().out == ""
     assert main(["decode", str(trace), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["mode"] == "incomplete"
+
+
+def test_monitor_raw_shows_the_bus_by_identifier(capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 38: users asked for a raw per-ID view in cobus monitor (count, period, last
+    data - as python-can's viewer)."""
+    channel = f"monitor-raw-{os.getpid()}"
+    with Network(interface="virtual", channel=channel) as net:
+        result: list[int] = []
+        bus = ["-i", "virtual", "-c", channel]
+        monitor = threading.Thread(
+            target=lambda: result.append(
+                main(["monitor", "--raw", "--duration", "1.0", "--json", *bus])
+            )
+        )
+        monitor.start()
+        listening(channel, 2)
+        for n in range(5):
+            net.send(Frame(0x70A, b"\x05"))  # a heartbeat every 50 ms
+            net.send(Frame(0x18A, bytes([n, 0x12])))  # a TPDO
+            net.sleep(0.05)
+        net.send(Frame(0x12345678, b"\x01", extended=True))
+        monitor.join()
+    assert result == [0]
+    rows = {r["id"]: r for r in json.loads(capsys.readouterr().out)}
+    assert list(rows) == ["18A", "70A", "12345678"]
+    assert rows["70A"]["count"] == 5 and rows["70A"]["what"] == "heartbeat node 10"
+    assert 30 < rows["70A"]["period_ms"] < 200
+    assert rows["18A"]["data"] == "0412" and rows["18A"]["what"] == "TPDO1 node 10"
+    assert rows["12345678"]["extended"] and rows["12345678"]["count"] == 1
+    assert main(["monitor", "--raw", "--node", "10", *bus]) == 2
+    assert "--filter and --node do not apply" in capsys.readouterr().err
+
+
+def test_monitor_raw_piped_prints_the_table_at_the_end(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    channel = f"monitor-raw-table-{os.getpid()}"
+    with Network(interface="virtual", channel=channel) as net:
+        result: list[int] = []
+        monitor = threading.Thread(
+            target=lambda: result.append(
+                main(["monitor", "--raw", "--duration", "0.6", "-i", "virtual", "-c", channel])
+            )
+        )
+        monitor.start()
+        listening(channel, 2)
+        net.send(Frame(0x000, b"\x01\x00"))
+        monitor.join()
+    assert result == [0]
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("1 identifier(s), 1 frame(s) in ")
+    assert lines[1].split() == ["id", "count", "period", "last", "gap", "dlc", "data", "what"]
+    assert lines[2].split() == ["000", "1", "2", "01", "00", "NMT"]
+
+
+def test_monitor_raw_on_a_terminal_updates_its_table(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("COLUMNS", "100")
+    term = Terminal()
+    channel = f"monitor-raw-tty-{os.getpid()}"
+    monkeypatch.setattr("sys.stdout", term.file)
+    try:
+        with Network(interface="virtual", channel=channel) as net:
+            result: list[int] = []
+            command = ["monitor", "--raw", "--duration", "0.8", "-i", "virtual", "-c", channel]
+            monitor = threading.Thread(target=lambda: result.append(main(command)))
+            monitor.start()
+            listening(channel, 2)
+            for _ in range(3):
+                net.send(Frame(0x70A, b"\x05"))
+                net.sleep(0.1)
+            monitor.join()
+    finally:
+        monkeypatch.undo()
+        term.close()
+    assert result == [0]
+    last = term.text().rsplit("identifier(s)", 1)[1]  # the last picture
+    assert "70A" in last and "heartbeat node 10" in last and "│" in last

@@ -4,6 +4,9 @@
     cobus monitor --network line.yml --filter sdo,emcy        # EDS files from the network file
     cobus monitor -i remote -c ws://127.0.0.1:54701/          # beside `cobus sim thesis`
 
+``--raw``: the bus by CAN identifier instead, as python-can's viewer shows it (count,
+period, last data), with what each identifier carries (heartbeat node 10, pdo node 9...).
+
 On a terminal: the node table (NMT state, heartbeats with period, jitter and missed beats,
 emergencies and the last one, SDO answer latency), frames/s and bus load, and the newest
 decoded records; ``p`` or space pauses the display (decoding goes on), ``q`` quits. Piped or
@@ -48,6 +51,11 @@ def register(sub: Any) -> None:
     p.add_argument("--node", type=node_id, help="only records of this node-ID (1-127)")
     p.add_argument("--duration", type=seconds, help="seconds to run (default: until q/Ctrl-C)")
     p.add_argument("--json", action="store_true", help="one JSON object per record")
+    p.add_argument(
+        "--raw",
+        action="store_true",
+        help="the bus by CAN identifier: count, period, last data, and what it carries",
+    )
     add_bus_options(p)
     p.set_defaults(handler=_run)
 
@@ -215,6 +223,12 @@ def _run(args: argparse.Namespace) -> int:
         decoder = Decoder(dictionaries, network=network)
     except Exception as exc:  # a network file or EDS that cannot be read
         return _fail(str(exc), 2)
+    if args.raw:
+        if args.filter is not None or args.node is not None:
+            return _fail("--raw shows every identifier: --filter and --node do not apply", 2)
+        from cobus.trace._raw import run_raw
+
+        return run_raw(args, decoder)
     live_view = sys.stdout.isatty() and not args.json
     console = Console(highlight=False)  # (the live view's: on a terminal)
     newest: deque[str] = deque(maxlen=500)
