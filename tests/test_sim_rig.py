@@ -415,3 +415,56 @@ def test_cobus_sim_runs_for_a_duration_and_prints_the_status(tmp_path, capsys):
     assert out.startswith("cobus sim: running 3 device(s) on virtual cli-run")
     assert out.count("node  name") == 2 and "bus: state error-active" in out
     assert out.rstrip().endswith("cobus sim: stopped")
+
+
+def test_the_control_socket_replaces_a_stale_one_and_refuses_to_take_a_live_one(tmp_path):
+    import asyncio
+    import socket
+
+    from cobus.sim._control import ControlError, ask, serve
+
+    class FakeRig:
+        def status(self) -> list[dict[str, object]]:
+            return [{"node_id": 1}]
+
+        def bus_status(self) -> dict[str, object]:
+            return {}
+
+        def faults(self, node: object) -> dict[str, str]:
+            return {"x": "y"}
+
+        def inject(self, node: object, fault: str, **params: object) -> None:
+            raise ValueError(f"no {fault}")
+
+    path = tmp_path / "c.sock"
+    stale = socket.socket(socket.AF_UNIX)
+    stale.bind(str(path))
+    stale.close()  # a socket file nobody listens on: a simulation that ended
+
+    async def scenario() -> None:
+        server = await serve(FakeRig(), path)
+        try:
+            got = await asyncio.to_thread(ask, path, {"op": "status"})
+            assert got["devices"] == [{"node_id": 1}]
+            with pytest.raises(ControlError, match="no zap"):
+                await asyncio.to_thread(ask, path, {"op": "inject", "node": 1, "fault": "zap"})
+            with pytest.raises(ControlError, match="op 'nope'"):
+                await asyncio.to_thread(ask, path, {"op": "nope"})
+            with pytest.raises(ControlError, match="another cobus sim listens"):
+                await serve(FakeRig(), path)
+        finally:
+            server.close()
+            await server.wait_closed()
+
+    asyncio.run(scenario())
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ControlError, match="is no socket"):
+        asyncio.run(serve(FakeRig(), tmp_path / "file"))
+
+
+def test_without_an_interface_the_message_says_how_to_name_one(monkeypatch, capsys):
+    monkeypatch.delenv("CAN_INTERFACE", raising=False)
+    monkeypatch.setenv("HOME", "/nonexistent")  # (no ~/.canrc)
+    assert main(["sim", "thesis", "--duration", "1", "--control", "/nonexistent/c.sock"]) == 1
+    err = capsys.readouterr().err
+    assert "no CAN interface given" in err and "-i/--interface" in err

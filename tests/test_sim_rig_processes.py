@@ -126,3 +126,56 @@ def test_a_newcomer_watches_cobus_sim_thesis_boot_with_cobus_monitor(bus_url):
     assert "node 10 boot-up" in out and "node 9 boot-up" in out
     assert "heartbeat PRE_OPERATIONAL" in out
     assert "frames/s" in out  # the node table at the end
+
+
+def test_faults_are_injected_into_a_running_cobus_sim_from_another_shell(tmp_path, bus_url, capsys):
+    """Issue 38: users asked to inject faults into a running `cobus sim` from another shell
+    (`cobus sim inject 10 drive_fault code=0x7305`), over its control socket."""
+    import json
+    import stat
+
+    from cobus.cli import main
+    from cobus.runtime import Network
+
+    rig = tmp_path / "rig.yaml"
+    rig.write_text(textwrap.dedent(RIG), encoding="utf-8")
+    sock = tmp_path / "sim.sock"
+    command = [sys.executable, "-m", "cobus.cli", "sim", str(rig), "--status-every", "0"]
+    child = subprocess.Popen(
+        [*command, "--interface", "remote", "--channel", bus_url, "--control", str(sock)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    control = ["--control", str(sock)]
+    try:
+        assert child.stdout is not None
+        assert child.stdout.readline().startswith("cobus sim: running 2 device(s)")
+        assert f"cobus sim inject --control {sock}" in child.stdout.readline()
+        assert stat.S_IMODE(sock.stat().st_mode) == 0o600  # its owner's only
+        with Network(interface="remote", channel=bus_url) as net:
+            seen: list[bytes] = []
+            net.subscribe(0x08A, lambda frame, now: seen.append(frame.data))
+            net.sleep(0.2)
+            assert main(["sim", "inject", "10", "drive_fault", "code=0x7305", *control]) == 0
+            assert capsys.readouterr().out == "drive_fault injected into node 10\n"
+            deadline = time.monotonic() + 5
+            while not seen and time.monotonic() < deadline:
+                net.sleep(0.05)
+        assert seen and seen[0][:2] == bytes([0x05, 0x73])  # its EMCY, on the bus
+        assert main(["sim", "status", "--json", *control]) == 0
+        status = json.loads(capsys.readouterr().out)
+        servo = next(d for d in status["devices"] if d["node_id"] == 10)
+        assert servo["state"] == "fault" and servo["error_code"] == "7305h"
+        assert main(["sim", "faults", "20", *control]) == 0
+        assert "heartbeat_stop" in capsys.readouterr().out
+        assert main(["sim", "inject", "10", "nonsense", *control]) == 1
+        assert "cannot inject 'nonsense'" in capsys.readouterr().err
+        assert main(["sim", "inject", "10", "drive_fault", "code", *control]) == 2
+        assert "write KEY=VALUE" in capsys.readouterr().err
+    finally:
+        child.send_signal(signal.SIGINT)
+        child.wait(10)
+    assert not sock.exists()  # removed at the end
+    assert main(["sim", "status", *control]) == 1
+    assert "no cobus sim runs with the control socket" in capsys.readouterr().err

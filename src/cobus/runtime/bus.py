@@ -59,6 +59,12 @@ def open_bus(
     try:
         return can.Bus(**config)
     except can.CanInterfaceNotImplementedError as exc:
+        if config.get("interface") is None and '"None"' in str(exc):
+            raise BusOpenError(
+                "no CAN interface given, and python-can's configuration names none: give one "
+                "(-i/--interface, interface=...) or set CAN_INTERFACE (e.g. socketcan, pcan, "
+                "kvaser, virtual)"
+            ) from exc
         raise BusOpenError(
             f"CAN interface not available: {exc}. Name one with interface=... or the "
             "CAN_INTERFACE environment variable (e.g. socketcan, pcan, kvaser, virtual)"

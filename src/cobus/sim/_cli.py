@@ -4,6 +4,13 @@ A master in another process (cobus, python-canopen, a PLC) talks to them over th
 interface, or python-can-remote on the loopback (``--interface remote --channel
 ws://127.0.0.1:54701/``). RIG is a rig file or the name of a rig cobus ships (``thesis``).
 
+From another shell, while it runs (its control socket, see ``cobus.sim._control``):
+
+    cobus sim inject 10 drive_fault code=0x7305   # a device's fault, parameters as KEY=VALUE
+    cobus sim inject bus error_frames count=5     # a bus fault
+    cobus sim faults 10                           # what node 10 can be given
+    cobus sim status --json                       # every device's state
+
 Exit codes: 0 stopped by Ctrl-C or SIGTERM, 1 the bus cannot be used, 2 a bad rig file or bad
 usage.
 """
@@ -39,8 +46,24 @@ def register(sub: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sim.add_argument(
-        "rig", help=f"rig YAML file, or a ready rig: {', '.join(ready_rigs()) or 'none'}"
+        "rig",
+        help=f"rig YAML file, or a ready rig: {', '.join(ready_rigs()) or 'none'}; or inject, "
+        "faults, status to talk to a running simulation",
     )
+    sim.add_argument(
+        "words",
+        nargs="*",
+        metavar="ARG",
+        help="inject: NODE (or bus) FAULT [KEY=VALUE ...]; faults: [NODE]",
+    )
+    sim.add_argument(
+        "--control",
+        type=Path,
+        metavar="PATH",
+        help="the control socket (default: cobus-sim.sock in $XDG_RUNTIME_DIR or the "
+        "temporary folder)",
+    )
+    sim.add_argument("--json", action="store_true", help="inject, faults, status: as JSON")
     sim.add_argument("--interface", "-i", help="python-can interface (overrides the rig file)")
     sim.add_argument("--channel", "-c", help="python-can channel (overrides the rig file)")
     sim.add_argument("--bitrate", "-b", type=int, help="bit rate in bit/s")
@@ -69,7 +92,15 @@ def _rig_path(name: str) -> Path:
     return ready_rig(name)
 
 
+_CONTROL = ("inject", "faults", "status")
+
+
 def _run(args: argparse.Namespace) -> int:
+    if args.rig in _CONTROL:
+        return _control(args)
+    if args.words:
+        print(f"cobus sim: unexpected {' '.join(args.words)!r} after the rig", file=sys.stderr)
+        return 2
     try:
         rig = Rig.load(_rig_path(args.rig))
         if args.list_faults:
@@ -102,14 +133,18 @@ async def _serve(rig: Rig, args: argparse.Namespace) -> int:
         with contextlib.suppress(NotImplementedError, RuntimeError):
             loop.add_signal_handler(sig, stop.set)
     where = " ".join(str(v) for v in (args.interface or rig.bus_spec.interface, args.channel) if v)
-    async with rig.running(
-        interface=args.interface, channel=args.channel, bitrate=args.bitrate
-    ) as net:
+    async with (
+        rig.running(interface=args.interface, channel=args.channel, bitrate=args.bitrate) as net,
+        _controlled(rig, args) as control,
+    ):
         bus = where or f"the configured bus ({net.bus.channel_info})"
         print(
             f"cobus sim: running {len(rig.devices)} device(s) on {bus}; Ctrl-C stops",
             flush=True,
         )
+        if control is not None:
+            option = "" if args.control is None else f" --control {control}"
+            print(f"cobus sim: faults from another shell: cobus sim inject{option} ...", flush=True)
         started = loop.time()
         period = args.status_every if args.status_every and args.status_every > 0 else None
         end = None if args.duration is None else started + args.duration
@@ -130,6 +165,87 @@ async def _serve(rig: Rig, args: argparse.Namespace) -> int:
                 await asyncio.wait_for(stop.wait(), timeout)
     print("cobus sim: stopped", flush=True)
     return 0
+
+
+@contextlib.asynccontextmanager
+async def _controlled(rig: Rig, args: argparse.Namespace) -> Any:
+    """The control socket while the rig runs (None when the default one is another
+    simulation's: this one runs without); removed at the end."""
+    from cobus.sim._control import ControlError, default_path, serve
+
+    path = args.control or default_path()
+    try:
+        server = await serve(rig, path)
+    except (ControlError, OSError) as exc:
+        if args.control is not None:
+            raise
+        print(f"cobus sim: no control socket: {exc}", file=sys.stderr, flush=True)
+        yield None
+        return
+    try:
+        yield path
+    finally:
+        server.close()
+        with contextlib.suppress(OSError):
+            path.unlink()
+
+
+def _control(args: argparse.Namespace) -> int:
+    """``cobus sim inject|faults|status``: ask the running simulation."""
+    import json
+
+    from cobus.sim._control import ControlError, ask, default_path, parse_value
+
+    path = args.control or default_path()
+    words = list(args.words)
+    request: dict[str, Any] = {"op": args.rig}
+    if args.rig == "inject":
+        if len(words) < 2:
+            print("cobus sim inject: give NODE (or bus) and FAULT [KEY=VALUE ...]", file=sys.stderr)
+            return 2
+        node, fault, *pairs = words
+        params: dict[str, Any] = {}
+        for pair in pairs:
+            key, sep, value = pair.partition("=")
+            if not sep or not key:
+                print(f"cobus sim inject: {pair!r}: write KEY=VALUE (code=0x7305)", file=sys.stderr)
+                return 2
+            params[key] = parse_value(value)
+        request.update(node=_node_of(node), fault=fault, params=params)
+    elif args.rig == "faults":
+        if len(words) > 1:
+            print("cobus sim faults: give at most a NODE (none: the bus)", file=sys.stderr)
+            return 2
+        request["node"] = _node_of(words[0]) if words else None
+    elif words:
+        print("cobus sim status: takes no arguments", file=sys.stderr)
+        return 2
+    try:
+        answer = ask(path, request)
+    except ControlError as exc:
+        print(f"cobus sim {args.rig}: {exc}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(answer, default=str))
+    elif args.rig == "inject":
+        print(answer["text"])
+    elif args.rig == "faults":
+        for name, text in answer["faults"].items():
+            print(f"{name:18} {text}")
+    else:
+        print(format_table(answer["devices"]))
+        print("bus: " + ", ".join(f"{k} {v}" for k, v in answer["bus"].items()))
+    return 0
+
+
+def _node_of(word: str) -> int | str | None:
+    """A node-ID, a device's name, or None for ``bus``."""
+    if word == "bus":
+        return None
+    try:
+        return int(word, 0) if word.lower().startswith("0x") else int(word)
+    except ValueError:
+        return word
 
 
 def _cell(value: Any) -> str:
