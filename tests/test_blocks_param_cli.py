@@ -173,3 +173,57 @@ def test_ctrl_c_in_apply_says_what_was_written_and_what_was_cut_short(
     assert "0x6081:00 Profile velocity = 20000" in err
     assert "not saved: the node loses them at its next power-up" in err
     assert "the write of 0x6065:00 Following error window = 500 was cut short" in err
+
+
+def test_review_findings_on_params(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """What a review as a new user found: a snapshot of a silent node wiped a good file; a
+    DCF's command was left out even with --allow-commands; refusals printed no JSON."""
+    from cobus.od import load
+
+    channel = f"cli-params-review-{os.getpid()}"
+    with Network(interface="virtual", channel=channel) as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        od = rig.aio.devices[10].od
+        eds = tmp_path / "servo.eds"
+        eds.write_text(export_eds(od))
+        bus = ["-i", "virtual", "-c", channel, "--eds", str(eds)]
+
+        # a node that does not answer: one line, the file left as it was
+        good = tmp_path / "good.yml"
+        good.write_text("parameters: {}\n")
+        args = ["params", "snapshot", "50", str(good), *bus, "--timeout", "0.05"]
+        assert main(args) == 1
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "node 50 does not answer: the snapshot stopped" in err
+        assert "good.yml left as it was" in err and good.read_text() == "parameters: {}\n"
+
+        # a DCF's command: left out and said, applied with --allow-commands
+        dcf = tmp_path / "servo.dcf"
+        main(["eds", "convert", str(eds), str(dcf), "--node-id", "10"])
+        dcf_od = load(dcf)
+        mode = dcf_od.get_variable(0x6060, 0)
+        assert mode is not None
+        mode.parameter_value = 3
+        dcf.write_text(dcf_od.to_dcf(10))
+        capsys.readouterr()
+        assert main(["params", "diff", "10", str(dcf), *bus, "--json"]) in (0, 3)
+        report = json.loads(capsys.readouterr().out)
+        assert report["left_out"] == [
+            {
+                "object": "0x6060:00",
+                "name": "Modes of operation",
+                "why": "the CiA 402 modes of operation: it changes how the drive moves",
+            }
+        ]
+        assert main(["params", "apply", "10", str(dcf), *bus, "--allow-commands"]) == 0
+        assert rig.devices[10].device.get(0x6060, 0) == 3
+        capsys.readouterr()
+
+        # a refusal with --json is a JSON object too; the hint is the option's
+        named = tmp_path / "cw.yml"
+        named.write_text('parameters:\n  "0x6040:00": 15\n')
+        assert main(["params", "apply", "10", str(named), *bus, "--json"]) == 2
+        out, err = capsys.readouterr()
+        refused = json.loads(out)
+        assert refused["ok"] is False and refused["exit"] == 2
+        assert "(--allow-commands)" in err and "allow_commands=True" not in err

@@ -137,3 +137,16 @@ def test_convert_refuses_a_name_it_would_not_honour(capsys, tmp_path):
         code, _, err = run(capsys, "convert", str(source), str(tmp_path / name))
         assert code == 2 and why in err and err.count("\n") == 1
         assert not (tmp_path / name).exists()
+
+
+def test_show_doc_and_convert_refuse_a_file_with_no_object(capsys, tmp_path):
+    empty = tmp_path / "empty.eds"
+    empty.write_text("; nothing\n")
+    for argv in (
+        ("show", str(empty)),
+        ("doc", str(empty)),
+        ("convert", str(empty), str(tmp_path / "o.dcf"), "--node-id", "3"),
+    ):
+        code, _, err = run(capsys, *argv)
+        assert code == 2 and "the file defines no objects" in err
+    assert not (tmp_path / "o.dcf").exists()

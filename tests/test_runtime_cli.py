@@ -243,7 +243,7 @@ def test_an_empty_eds_is_refused_and_a_broken_one_said_once(
     assert err.count("\n") == 1 and f"{empty}: the file defines no objects" in err
     run(broken)  # (goes on to the bus or the trace file, which are not there)
     err = capsys.readouterr().err
-    warnings = [line for line in err.splitlines() if "warning" in line]
+    warnings = [line for line in err.splitlines() if "has errors, the rest of it is used" in line]
     assert len(warnings) == 1 and f"{broken}:8: [1000] error: DefaultValue" in warnings[0]
     assert f"cobus eds check {broken}" in warnings[0] and "Traceback" not in err
 
@@ -375,3 +375,22 @@ def test_send_puts_raw_frames_on_the_bus(capsys: pytest.CaptureFixture[str]) -> 
         with pytest.raises(SystemExit) as usage:
             main(["send", bad, *NO_BUS])
         assert usage.value.code == 2 and why in capsys.readouterr().err
+
+
+def test_sdo_type_given_against_the_eds_or_the_answer(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A review found --type silently overriding the EDS and printing wrong values."""
+    channel = f"cli-sdo-type-{os.getpid()}"
+    with Network(interface="virtual", channel=channel) as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        eds = tmp_path / "servo.eds"
+        eds.write_text(export_eds(rig.aio.devices[10].od))
+        bus = ["-i", "virtual", "-c", channel]
+        argv = ["sdo", "read", "10", "0x607F", "--type", "u8", "--eds", str(eds), *bus]
+        assert main(argv) == 2
+        assert "--type UNSIGNED8 differs from the EDS's UNSIGNED32" in capsys.readouterr().err
+        assert main(["sdo", "read", "10", "0x1008", "--type", "u16", *bus]) == 0
+        out = capsys.readouterr().out
+        assert out.startswith("1008h:00 Manufacturer device name = 63 6f 62 75 73")
+        assert out.rstrip().endswith("- 19 byte(s), not a UNSIGNED16")

@@ -65,7 +65,7 @@ def load_eds(path: Any, command: str, *, node_id: int | None = None) -> Any:
     if errors:
         more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
         print(
-            f"cobus {command}: warning: {errors[0]}{more}; the rest of the file is used "
+            f"cobus {command}: {path} has errors, the rest of it is used - {errors[0]}{more} "
             f"(cobus eds check {path} lists every problem)",
             file=sys.stderr,
         )

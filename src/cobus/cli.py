@@ -22,7 +22,7 @@ from cobus import __version__
 #: that ``--help``, ``--version`` and every command start fast; a test checks that each help
 #: here is the one its module gives.
 COMMANDS: dict[str, tuple[str, str]] = {
-    "eds": ("cobus.od._cli", "check, list or document an EDS/DCF file (CiA 306)"),
+    "eds": ("cobus.od._cli", "check, show or document an EDS/DCF file (CiA 306)"),
     "config": ("cobus.master._cli", "check a network description (YAML) or write its DCFs"),
     "sim": ("cobus.sim._cli", "run simulated devices (a rig file) on a CAN bus until Ctrl-C"),
     "ec": (
@@ -106,8 +106,12 @@ def build_parser(command: str | None = "*") -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     words = list(sys.argv[1:] if argv is None else argv)
     command = next((w for w in words if not w.startswith("-")), None)
-    parser = build_parser(command if command in COMMANDS else None)
-    args = parser.parse_args(words)
+    try:  # (Ctrl-C while the command's module loads: nothing was done yet)
+        parser = build_parser(command if command in COMMANDS else None)
+        args = parser.parse_args(words)
+    except KeyboardInterrupt:
+        print(f"cobus{' ' + command if command in COMMANDS else ''}: interrupted", file=sys.stderr)
+        return 130
     handler = getattr(args, "handler", None)
     if handler is None:
         parser.print_help()

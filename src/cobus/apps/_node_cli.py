@@ -198,9 +198,16 @@ def _sdo(args: argparse.Namespace) -> int:
         return _fail(str(exc), 2)
     data_type: DataType | None = var.data_type if var is not None else None
     if args.type is not None:
-        data_type = data_type_named(args.type)
-        if data_type is None:
+        given = data_type_named(args.type)
+        if given is None:
             return _fail(f"--type {args.type!r} is not a CiA 301 type", 2)
+        if od is not None and var is not None and data_type is not None and given != data_type:
+            return _fail(
+                f"--type {given.name} differs from the EDS's {data_type.name} for "
+                f"{var.index:04X}h:{var.subindex:02X}: leave --type out",
+                2,
+            )
+        data_type = given
     label = "" if var is None else var.name
     if var is not None and var.parent is not None and "." not in label:
         label = f"{var.parent.name}.{label}"
@@ -448,14 +455,27 @@ def _save(path: Path, data: bytes) -> bool:
     return True
 
 
+def _fitting(data: bytes, data_type: Any) -> bytes | None:
+    """``data`` as ``data_type`` takes it, or None when its length does not fit the type
+    (an expedited answer without size has 4 bytes: the zero bytes beyond are dropped)."""
+    size = data_type.size
+    if not size or len(data) == size:
+        return data
+    if len(data) == 4 and size < 4 and not any(data[size:]):
+        return data[:size]
+    return None
+
+
 def _value(data: bytes, data_type: Any, decode: Any) -> Any:
-    """The value of ``data`` by its type; without one, a number for up to 4 bytes."""
+    """The value of ``data`` by its type; without one (or not fitting), a number for up to
+    4 bytes."""
     if data_type is not None:
-        try:
-            size = data_type.size
-            return decode(data_type, data[:size] if size else data)
-        except ValueError:
-            pass
+        fitting = _fitting(data, data_type)
+        if fitting is not None:
+            try:
+                return decode(data_type, fitting)
+            except ValueError:
+                pass
     return int.from_bytes(data, "little") if 0 < len(data) <= 4 else None
 
 
@@ -472,10 +492,15 @@ def _plain(value: Any) -> Any:
 def _show(data: bytes, data_type: Any, decode: Any, *, hex_numbers: bool = False) -> str:
     """The value by its type: numbers in decimal (unsigned of 16 bits and more in hex with
     ``hex_numbers``), text as text, bytes in hex; without a type, the bytes and a guess."""
+    mismatch = ""
     if data_type is not None:
+        size = data_type.size
+        fitting = _fitting(data, data_type)
         try:
-            size = data_type.size
-            value = decode(data_type, data[:size] if size else data)
+            if fitting is None:
+                mismatch = f" - {len(data)} byte(s), not a {data_type.name}"
+                raise ValueError(mismatch)
+            value = decode(data_type, fitting)
         except ValueError:
             pass
         else:
@@ -493,7 +518,7 @@ def _show(data: bytes, data_type: Any, decode: Any, *, hex_numbers: bool = False
         shown += f" ({number}, 0x{number:X})"
     elif data and all(32 <= b < 127 for b in data):
         shown += f" ({data.decode('ascii')!r})"
-    return shown
+    return shown + mismatch
 
 
 def _nmt(args: argparse.Namespace) -> int:

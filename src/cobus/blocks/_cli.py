@@ -97,7 +97,13 @@ def register(sub: Any) -> None:
         p.set_defaults(handler=_run)
 
 
+#: Set by _run: a failure is also a JSON object on stdout ({"ok": false, "error": ...}).
+_JSON = [False]
+
+
 def _fail(message: str, code: int = _EXIT_USAGE) -> int:
+    if _JSON[0]:
+        print(json.dumps({"ok": False, "error": message, "exit": code}))
     print(f"cobus params: {message}", file=sys.stderr)
     return code
 
@@ -135,6 +141,7 @@ def _run(args: argparse.Namespace) -> int:
     from cobus.blocks.parameters import ParameterFileError, load_parameters
     from cobus.runtime import Network
 
+    _JSON[0] = bool(args.json)
     try:
         node_id, od = _target(args)
     except ValueError as exc:
@@ -142,7 +149,8 @@ def _run(args: argparse.Namespace) -> int:
     pset = None
     if args.action != "snapshot":
         try:
-            pset = load_parameters(args.file, od=od)
+            allowed = bool(getattr(args, "allow_commands", False))
+            pset = load_parameters(args.file, od=od, commands=allowed)
         except ParameterFileError as exc:
             return _fail(str(exc))
         if getattr(args, "save_subindex", None) is not None:
@@ -169,7 +177,11 @@ def _run(args: argparse.Namespace) -> int:
             return _fail(str(exc))
     if pset is not None and pset.left_out and not args.json:
         for param, why in pset.left_out:
-            print(f"cobus params: left out {param.address} {param.name}: {why}", file=sys.stderr)
+            print(
+                f"cobus params: {param} left out of {args.file}: {why} (--allow-commands "
+                "applies it)",
+                file=sys.stderr,
+            )
     quiet = args.json or not sys.stderr.isatty()
     manager: Any = None
     with _Progress(quiet) as progress:
@@ -179,8 +191,11 @@ def _run(args: argparse.Namespace) -> int:
                 manager = ParameterManager(node, pset, progress=progress.update, **options)
                 if args.action == "snapshot":
                     snap, failures = manager.snapshot(objects, communication=args.communication)
-                    snap.write(args.file)
                     progress.stop()
+                    if manager.stopped or not len(snap):
+                        why = failures[-1] if failures else "nothing could be read"
+                        return _fail(f"{why}; {args.file} left as it was", _EXIT_FAILED)
+                    snap.write(args.file)
                     left_out += manager.left_out
                     return _snapshot_done(args, snap, failures, left_out)
                 report = manager.diff() if args.action == "diff" else manager.apply()
@@ -188,14 +203,16 @@ def _run(args: argparse.Namespace) -> int:
             progress.stop()
             return _interrupted(args, None if manager is None else manager.aio)
         except CommandsInSetError as exc:
-            return _fail(str(exc))
+            return _fail(exc.describe("--allow-commands"))
+        except BrokenPipeError:
+            raise  # (the reader went away: cobus.cli ends quietly)
         except (OSError, ValueError) as exc:
             return _fail(str(exc))
         except Exception as exc:  # the bus could not be opened (python-can's errors)
             if type(exc).__module__.startswith("can"):
                 return _fail(f"cannot open the bus: {exc}")
             raise
-    return _report_done(args, report)
+    return _report_done(args, report, pset.left_out if pset is not None else ())
 
 
 def _interrupted(args: argparse.Namespace, manager: Any) -> int:
@@ -205,6 +222,7 @@ def _interrupted(args: argparse.Namespace, manager: Any) -> int:
     step = short[0].name.lower().replace("_", " ") if short is not None else None
     cut = short[1] if short is not None and short[0].name == "WRITE" else None
     if args.json:
+        _JSON[0] = False  # (this JSON says it all)
         print(
             json.dumps(
                 {
@@ -299,9 +317,15 @@ def _snapshot_done(
     return _EXIT_FAILED if failures else _EXIT_OK
 
 
-def _report_done(args: argparse.Namespace, report: Any) -> int:
+def _report_done(
+    args: argparse.Namespace, report: Any, left_out: tuple[tuple[Any, str], ...] = ()
+) -> int:
     if args.json:
-        print(json.dumps(report.to_dict(), default=str))
+        result = report.to_dict()
+        result["left_out"] = [
+            {"object": p.address, "name": p.name, "why": why} for p, why in left_out
+        ]
+        print(json.dumps(result, default=str))
     else:
         from rich.markup import escape
 

@@ -75,13 +75,18 @@ class CommandsInSetError(CobusError, ValueError):
     def __init__(self, node: str, commands: list[tuple[Parameter, str]]) -> None:
         self.node = node
         self.commands = commands
+        super().__init__(self.describe("allow_commands=True"))
+
+    def describe(self, how: str) -> str:
+        """The message, with ``how`` the caller allows commands (``--allow-commands``)."""
         listed = "; ".join(
-            f"{p.address}{' ' + p.name if p.name else ''}: {why}" for p, why in commands
+            f"{p.address}{' ' + p.name if p.name else ''}: {why}" for p, why in self.commands
         )
-        super().__init__(
-            f"{node}: the set writes {len(commands)} command(s), not parameters - {listed}. "
-            "Applying it could switch a drive on or move it: leave them out of the set, or "
-            "allow them explicitly (allow_commands=True; cobus params apply --allow-commands)"
+        return (
+            f"{self.node}: the set writes {len(self.commands)} command(s), not parameters - "
+            f"{listed}. Writing them makes the device act (a drive switched on or moved, "
+            "outputs switched, its parameters stored or restored): leave them out of the set, "
+            f"or allow them explicitly ({how})"
         )
 
 
@@ -372,6 +377,9 @@ class AsyncParameterManager:
         #: The objects the last :meth:`snapshot` left out as commands or process data, each
         #: with why (name them to capture them).
         self.left_out: list[tuple[Variable, str]] = []
+        #: Whether the last :meth:`snapshot` stopped early: the node did not answer (at its
+        #: first object, or several in a row); what it holds is then no image of the node.
+        self.stopped = False
         #: The step the sequence is in (IDLE before and after a run).
         self.step = ParameterStep.IDLE
         #: The report of the last run (None before the first).
@@ -432,6 +440,7 @@ class AsyncParameterManager:
         if od is None:
             raise ValueError("a snapshot needs the node's EDS for names and types: give od=")
         self.left_out = []
+        self.stopped = False
         chosen = list(_chosen(od, objects, communication, self.left_out))
         if not chosen:
             raise ValueError("none of those objects is a readable and writable parameter")
@@ -442,14 +451,32 @@ class AsyncParameterManager:
         self._abort = False
         self._failures = []
         self.cut_short = None
+        silent = 0  # reads in a row the node did not answer
         try:
             for done, var in enumerate(chosen):
                 self._report_progress(ParameterStep.READ, done, len(chosen))
                 probe = Parameter(var.index, var.subindex, None, var.data_type, var.name)
                 try:
                     data = await self._transfer(ParameterStep.READ, probe, None)
-                except (_Restart, _Refused):
+                except _Restart:  # no answer after the retries (its failure is listed)
+                    silent += 1
+                    if not values or silent >= _SILENT_READS:
+                        self._failures.append(
+                            ParameterFailure(
+                                ParameterStep.READ,
+                                ParameterFault.TIMEOUT,
+                                None,
+                                f"{self.node_name} does not answer: the snapshot stopped "
+                                f"after {done + 1} of {len(chosen)} object(s)",
+                            )
+                        )
+                        self.stopped = True
+                        break
+                    continue
+                except _Refused:
+                    silent = 0
                     continue  # (its failure is listed)
+                silent = 0
                 try:
                     values.append((var, probe.decode(data)))
                 except ValueError as exc:
@@ -688,6 +715,10 @@ class AsyncParameterManager:
 
 class _Refused(Exception):
     pass
+
+
+#: Reads in a row left unanswered (after their retries) that stop a snapshot.
+_SILENT_READS = 3
 
 
 _U32 = DataType.UNSIGNED32

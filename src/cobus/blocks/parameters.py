@@ -22,6 +22,7 @@ a value out of the type's range or the EDS limits, a missing type.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import math
@@ -177,24 +178,30 @@ class ParameterSet:
 
     @classmethod
     def from_dcf(
-        cls, od: ObjectDictionary, *, save: SaveCommand | None = None, path: str | None = None
+        cls,
+        od: ObjectDictionary,
+        *,
+        save: SaveCommand | None = None,
+        path: str | None = None,
+        commands: bool = False,
     ) -> ParameterSet:
         """Every parameter of ``od`` with a ParameterValue (a DCF), in index order: readable
         and writable, without 1010h/1011h and the PDO parameters (the master's part). A
         command (a controlword, a mode, a set-point, an output, what the DCF maps to an
         RPDO: :class:`~cobus.od.CommandObjects`) is no parameter: it is left out and listed in
-        ``left_out``."""
+        ``left_out`` - unless ``commands``, when it is kept (and a manager applies it only
+        with ``allow_commands``)."""
         from cobus.blocks.param_manager import is_parameter
 
-        commands = CommandObjects(od)
+        roles = CommandObjects(od)
         params = []
         left_out = []
         for var in od.variables():
             if var.parameter_value is None or not is_parameter(var):
                 continue
             param = _parameter(var, var.parameter_value, None)
-            why = commands.reason(var.index, var.subindex)
-            if why is None:
+            why = roles.reason(var.index, var.subindex)
+            if why is None or commands:
                 params.append(param)
             else:
                 left_out.append((param, why))
@@ -234,9 +241,17 @@ class ParameterSet:
         return out.getvalue()
 
     def write(self, path: str | os.PathLike[str]) -> None:
-        """Write the set to ``path``: CSV for ``.csv``, YAML otherwise."""
+        """Write the set to ``path``: CSV for ``.csv``, YAML otherwise. The file is replaced
+        whole or not at all (written beside it, then renamed)."""
         text = self.to_csv() if os.fspath(path).lower().endswith(".csv") else self.to_yaml()
-        Path(path).write_text(text, encoding="utf-8")
+        target = Path(path)
+        partial = target.with_name(f".{target.name}.partial")
+        try:
+            partial.write_text(text, encoding="utf-8")
+            os.replace(partial, target)
+        finally:
+            with contextlib.suppress(OSError):
+                partial.unlink()
 
 
 def show(value: Any) -> str:
@@ -604,25 +619,29 @@ def load_parameters(
     *,
     od: ObjectDictionary | None = None,
     save: SaveCommand | None = _KEEP,
+    commands: bool = False,
 ) -> ParameterSet:
     """Read a parameter file: ``.csv`` as CSV, ``.dcf`` as a DCF (its ParameterValues),
     anything else as YAML. ``save`` replaces the file's save command (None: never save; CSV
-    and DCF files have none of their own: CiA 301's 1010h sub 1). Raises
+    and DCF files have none of their own: CiA 301's 1010h sub 1). A DCF's commands are left
+    out unless ``commands`` (see :meth:`ParameterSet.from_dcf`). Raises
     :class:`ParameterFileError` with every problem."""
-    pset = _load(path, od)
+    pset = _load(path, od, commands)
     if save is not _KEEP:
         pset.save = save
     return pset
 
 
-def _load(path: str | os.PathLike[str], od: ObjectDictionary | None) -> ParameterSet:
+def _load(
+    path: str | os.PathLike[str], od: ObjectDictionary | None, commands: bool = False
+) -> ParameterSet:
     name = os.fspath(path)
     if name.lower().endswith(".dcf"):
         try:
             dcf = load(name)
         except (OSError, EdsError) as exc:
             raise ParameterFileError([ParameterProblem(name, None, None, str(exc))]) from None
-        return ParameterSet.from_dcf(dcf, path=name)
+        return ParameterSet.from_dcf(dcf, path=name, commands=commands)
     try:
         text = Path(name).read_text(encoding="utf-8-sig")  # (a BOM, as Excel writes it)
     except (OSError, UnicodeDecodeError) as exc:

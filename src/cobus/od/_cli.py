@@ -21,7 +21,7 @@ __all__ = ["register", "render_markdown", "render_table"]
 def register(sub: Any) -> None:
     """Add ``cobus eds ...`` to the top-level sub-command parser."""
     eds: argparse.ArgumentParser = sub.add_parser(
-        "eds", help="check, list or document an EDS/DCF file (CiA 306)"
+        "eds", help="check, show or document an EDS/DCF file (CiA 306)"
     )
     eds.set_defaults(handler=lambda _args: _usage(eds))
     cmds = eds.add_subparsers(dest="eds_command", metavar="ACTION")
@@ -60,8 +60,17 @@ def _usage(parser: argparse.ArgumentParser) -> int:
     return 2
 
 
-def _load(args: argparse.Namespace) -> ObjectDictionary | None:
+def _load(args: argparse.Namespace, *, usable: bool = True) -> ObjectDictionary | None:
+    """The file's dictionary; ``usable``: refused when it has no object, its first error
+    said once (show, doc, convert), else as it is (check lists every finding itself)."""
     try:
+        if usable:
+            from cobus._args import load_eds
+
+            od: ObjectDictionary = load_eds(
+                args.file, f"eds {args.eds_command}", node_id=args.node_id
+            )
+            return od
         return load(args.file, node_id=args.node_id)
     except EdsError as exc:
         print(f"{exc} (error)", file=sys.stderr)
@@ -69,7 +78,7 @@ def _load(args: argparse.Namespace) -> ObjectDictionary | None:
 
 
 def _check(args: argparse.Namespace) -> int:
-    od = _load(args)
+    od = _load(args, usable=False)
     if od is None:
         return 2
     for finding in od.findings:
