@@ -97,7 +97,7 @@ def test_every_problem_is_named_with_file_line_and_key() -> None:
     got = problems(exc)
     assert got[0].startswith("zapi.yml:9: colour: unknown key")
     assert "zapi.yml:2: main_contactor_volts: " in got[1]
-    assert "did you mean 'main_contactor_voltage'" in got[1]
+    assert "did you mean 'main contactor voltage'" in got[1]
     assert got[2].startswith("zapi.yml:3: main_contactor_voltage: 101 is not a valid UNSIGNED8")
     assert "HighLimit" in got[2]
     assert got[3].startswith("zapi.yml:4: firmware: 'firmware' (ro) cannot be written")

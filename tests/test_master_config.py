@@ -220,7 +220,7 @@ nodes:
         ("    heartbeat_time: -5\n", "heartbeat_time", "out of range"),
         ("    sdo_timeout: soon\n", "sdo_timeout", "not a duration"),
         ("    error_reaction: panic\n", "error_reaction", "not one of none, stop_node"),
-        ("    tpdo1: {mapping: [setpointt]}\n", "tpdo1.mapping[0]", "did you mean 'setpoint'"),
+        ("    tpdo1: {mapping: [setpointt]}\n", "tpdo1.mapping[0]", "did you mean 'Setpoint'"),
         ("    tpdo1: {mapping: [parameter]}\n", "tpdo1.mapping[0]", "not PDO-mappable"),
         ("    rpdo1: {mapping: [counter]}\n", "rpdo1.mapping[0]", "cannot go in an RPDO"),
         ("    tpdo1: {mapping: [0x6041]}\n", "tpdo1.mapping[0]", "in quotes"),

@@ -86,11 +86,15 @@ def test_sdo_nmt_and_sync_from_the_shell(
         assert capsys.readouterr().out == "1018h:01 Identity object.Vendor-ID = 0x00C0B005\n"
         assert main(["sdo", "read", "10", "0x1018", "1", *eds_, *bus]) == 0  # a record's sub
         assert capsys.readouterr().out == f"1018h:01 Identity object.Vendor-ID = {0xC0B005}\n"
+        assert main(["sdo", "read", "10", "Identity object", "1", *bus]) == 0  # a record's name
+        assert capsys.readouterr().out == f"1018h:01 Identity object.Vendor-ID = {0xC0B005}\n"
+        assert main(["sdo", "read", "10", "Max position limit", *eds_, *bus]) == 0  # a sub's own
+        assert capsys.readouterr().out.startswith("607Dh:02 Software position limit.Max")
         assert main(["sdo", "read", "10", "0x1018:01", *bus]) == 0  # sub-index in the address
         assert capsys.readouterr().out == f"1018h:01 Identity object.Vendor-ID = {0xC0B005}\n"
         assert main(["sdo", "read", "10", "Position actual valu", *eds_, *bus]) == 2
         err = capsys.readouterr().err
-        assert err.count("\n") == 1 and "did you mean 'position_actual_value'" in err
+        assert err.count("\n") == 1 and "did you mean 'Position actual value'" in err
         assert main(["sdo", "read", "10", "Position actual value", *bus]) == 2
         assert "give --eds" in capsys.readouterr().err
         assert main(["sdo", "read", "10", "1008", *bus]) == 2

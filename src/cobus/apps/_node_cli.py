@@ -46,17 +46,11 @@ _NMT = {
 }
 
 
-def _number(text: str) -> int:
-    try:
-        if text.lower().endswith("h"):
-            return int(text[:-1], 16)
-        return int(text, 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: a number (0x1008, 1008h or 4104)") from None
-
-
 def _node(text: str) -> int:
-    value = _number(text)
+    try:
+        value = int(text, 0) if text.lower().startswith("0x") else int(text)
+    except ValueError:
+        value = 0
     if not 1 <= value <= 127:
         raise argparse.ArgumentTypeError(f"{text!r}: a node-ID 1-127")
     return value
@@ -77,7 +71,14 @@ def register(sub: Any) -> None:
         ("upload", "read an object's bytes into a file"),
         ("download", "write a file's bytes to an object"),
     ):
-        p = actions.add_parser(name, help=help_text, description=help_text, epilog=_EXITS)
+        tail = {"read": "", "write": " VALUE", "upload": " FILE", "download": " FILE"}[name]
+        p = actions.add_parser(
+            name,
+            help=help_text,
+            description=help_text,
+            epilog=_EXITS,
+            usage=f"cobus sdo {name} NODE OBJECT [SUBINDEX]{tail} [options]",
+        )
         p.add_argument("node", type=_node, help="node-ID 1-127")
         p.add_argument(
             "object",
@@ -314,19 +315,23 @@ def _object(args: argparse.Namespace, od: Any) -> tuple[int, int, Any]:
     sub: int | None = None
     if rest:
         try:
-            sub = _number(rest[0])
-        except argparse.ArgumentTypeError as exc:
-            raise ValueError(f"sub-index {exc}") from None
+            sub = int(rest[0], 0) if rest[0].lower().startswith("0x") else int(rest[0])
+        except ValueError:
+            sub = -1
         if not 0 <= sub <= 0xFF:
-            raise ValueError(f"sub-index {rest[0]!r}: 0-255")
+            raise ValueError(f"sub-index {rest[0]!r}: a number 0-255 (2, 0x0A)")
     var = None
     try:
         index, given = _address(args.object)
     except ValueError:
         if args.object.strip().isdigit():
             raise  # (a bare number: hex or decimal? said so)
-        var = _by_name(args.object, od)
-        index, given = var.index, var.subindex
+        record = _record_named(args.object, od) if sub is not None else None
+        if record is not None:  # "Identity object" 1
+            index, given = record, None
+        else:
+            var = _by_name(args.object, od)
+            index, given = var.index, var.subindex
     if given is not None and sub is not None and given != sub:
         raise ValueError(
             f"{args.object!r} names sub-index {given}; the sub-index {sub} given besides differs"
@@ -363,6 +368,20 @@ def _address(text: str) -> tuple[int, int | None]:
     if not 0 < index <= 0xFFFF:
         raise ValueError(f"{text!r}: an index 0001h-FFFFh")
     return index, int(match.group(3), 16) if match.group(3) is not None else None
+
+
+def _record_named(text: str, od: Any) -> int | None:
+    """The index of the record or array named ``text`` (None: none is)."""
+    from cobus.master.config import normalise
+    from cobus.od import Variable
+
+    if od is None:
+        from cobus.trace.decoder import _cia301
+
+        od = _cia301()
+    key = normalise(text)
+    found = [o.index for o in od if not isinstance(o, Variable) and normalise(o.name) == key]
+    return found[0] if len(found) == 1 else None
 
 
 def _by_name(text: str, od: Any) -> Any:

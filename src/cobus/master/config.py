@@ -229,16 +229,26 @@ class ObjectIndex:
         self.od = od
         self.file = file
         self._names: dict[str, list[Variable]] = {}
+        #: A sub-object by its own name alone ("Min position limit"), where that is unique.
+        self._subs: dict[str, list[Variable]] = {}
+        #: The names as the file writes them, by lookup key (for "did you mean").
+        self._shown: dict[str, str] = {}
         for obj in od:
             if obj.index < 0x1000:
                 continue
             if isinstance(obj, Variable):
-                self._names.setdefault(normalise(obj.name), []).append(obj)
+                key = normalise(obj.name)
+                self._names.setdefault(key, []).append(obj)
+                self._shown.setdefault(key, obj.name)
                 continue
             parent = normalise(obj.name)
             for var in obj:
-                self._names.setdefault(f"{parent}.{normalise(var.name)}", []).append(var)
+                key = f"{parent}.{normalise(var.name)}"
+                self._names.setdefault(key, []).append(var)
+                self._shown.setdefault(key, f"{obj.name}.{var.name}")
                 self._names.setdefault(f"{parent}[{var.subindex}]", []).append(var)
+                if var.subindex:
+                    self._subs.setdefault(normalise(var.name), []).append(var)
 
     def canonical(self, var: Variable) -> str:
         """The signal name of ``var``: its normalised name (``record.sub`` for sub-objects);
@@ -280,7 +290,15 @@ class ObjectIndex:
             obj = self.od.get(text)
             if isinstance(obj, Variable):
                 return obj
-            hint = _suggest(key, self._names)
+            subs = self._subs.get(key, [])
+            if len(subs) == 1:
+                return subs[0]
+            close = difflib.get_close_matches(key, list(self._shown), n=3, cutoff=0.6)
+            hint = (
+                f" (did you mean {', '.join(repr(self._shown[c]) for c in close)}?)"
+                if close
+                else ""
+            )
             raise _Bad(f"{self.file} has no object named {text!r}{hint}")
         if len(found) > 1:
             where = ", ".join(f"0x{v.index:04X}:{v.subindex:02X}" for v in found)
