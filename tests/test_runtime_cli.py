@@ -398,3 +398,55 @@ def test_sdo_type_given_against_the_eds_or_the_answer(
         out = capsys.readouterr().out
         assert out.startswith("1008h:00 Manufacturer device name = 63 6f 62 75 73")
         assert out.rstrip().endswith("- 19 byte(s), not a UNSIGNED16")
+
+
+def test_pdo_show_and_map_against_the_simulated_servo(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 38: users asked for `cobus pdo show/map NODE` (read and remap PDOs from the
+    shell, checked against the EDS)."""
+    channel = f"cli-pdo-{os.getpid()}"
+    with Network(interface="virtual", channel=channel) as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        eds = tmp_path / "servo.eds"
+        eds.write_text(export_eds(rig.aio.devices[10].od))
+        bus = ["-i", "virtual", "-c", channel]
+        eds_ = ["--eds", str(eds)]
+
+        assert main(["pdo", "show", "10", *eds_, *bus]) == 0
+        lines = capsys.readouterr().out.splitlines()
+        assert lines[0] == "node 10: 8 PDO(s)"
+        assert lines[3].split() == [
+            "TPDO2", "0x28A", "1", "(every", "SYNC)", "0", "ms", "0", "ms",
+            "Statusword", "(16),", "Position", "actual", "value", "(32)",
+        ]  # fmt: skip
+
+        argv = ["pdo", "map", "10", "tpdo2", "Velocity actual value", "Statusword"]
+        assert main([*argv, "--type", "2", "--json", *eds_, *bus]) == 0
+        (tpdo2,) = json.loads(capsys.readouterr().out)["pdos"]
+        assert tpdo2["transmission_type"] == 2 and tpdo2["enabled"]
+        assert [o["object"] for o in tpdo2["objects"]] == ["0x606C:00", "0x6041:00"]
+        # the node sends it so: every 2nd SYNC, 6 bytes
+        seen: list[Frame] = []
+        net.subscribe(0x28A, lambda f, now: seen.append(f))
+        net.send(Frame(0x000, b"\x01\x0a"))
+        for _ in range(4):
+            net.sleep(0.02)
+            net.send(Frame(0x080, b""))
+        net.sleep(0.05)
+        assert len(seen) == 2 and all(len(f.data) == 6 for f in seen)
+
+        for bad, why in (
+            (["rpdo1", "Statusword"], "is ro: an RPDO cannot write it"),
+            (["tpdo2", *["Position actual value"] * 3], "at most 64"),
+            (["tpdo2", "Nothing such"], "has no object named 'Nothing such'"),
+        ):
+            assert main(["pdo", "map", "10", *bad, *eds_, *bus]) == 2
+            assert why in capsys.readouterr().err
+        assert main(["pdo", "map", "10", "tpdo2", "Statusword", *bus]) == 2
+        assert "give the node's --eds" in capsys.readouterr().err
+        assert main(["pdo", "map", "10", "tpdo9", "Statusword", *eds_, *bus]) == 1
+        assert "object does not exist" in capsys.readouterr().err
+        with pytest.raises(SystemExit):
+            main(["pdo", "map", "10", "xpdo1", *bus])
+        assert "tpdo1..tpdo512 or rpdo1..rpdo512" in capsys.readouterr().err

@@ -55,6 +55,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sdo": ("cobus.apps._node_cli", "read and write objects of a node by SDO"),
     "nmt": ("cobus.apps._node_cli", "send an NMT command to a node or to all"),
     "send": ("cobus.apps._node_cli", "send raw CAN frames: ID#DATA as cansend writes them"),
+    "pdo": ("cobus.apps._pdo_cli", "read a node's PDOs, or map one anew, checked against its EDS"),
     "sync": ("cobus.apps._node_cli", "produce SYNC"),
     "demo": (
         "cobus.apps.demo",
