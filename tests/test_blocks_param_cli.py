@@ -131,6 +131,11 @@ def test_a_snapshot_holds_no_commands_and_applying_it_leaves_a_disabled_drive_di
         left = {entry["object"] for entry in result["not_parameters"]}
         assert {"0x6040:00", "0x6060:00", "0x607A:00", "0x60FF:00", "0x6071:00"} <= left
         assert "0x6040" not in ranged.read_text() and "0x6065" in ranged.read_text()
+        args = ["--objects", "0x6040-0x6040"]
+        assert main(["params", "snapshot", "10", str(ranged), *bus, *args]) == 2
+        assert "all are commands or process data (0x6040:00 Controlword)" in (
+            capsys.readouterr().err
+        )
 
 
 def _ctrl_c_when(net: Any, wanted: Callable[[Frame], bool]) -> None:

@@ -80,6 +80,9 @@ def test_sdo_nmt_and_sync_from_the_shell(
         assert main(["sdo", "write", "10", "profile velocity", "25000", *eds_, *bus]) == 0
         assert capsys.readouterr().out == "6081h:00 Profile velocity <- 25000\n"
         assert servo.device.get(0x6081, 0) == 25000
+        assert main(["sdo", "write", "10", "profile velocity", "26000", "--json", *eds_, *bus]) == 0
+        written = json.loads(capsys.readouterr().out)
+        assert written["value"] == 26000 and written["data"] == "90650000"  # typed, as read
         assert main(["sdo", "read", "10", "Statusword", "--hex", *eds_, *bus]) == 0
         assert capsys.readouterr().out.startswith("6041h:00 Statusword = 0x0")
         assert main(["sdo", "read", "10", "Identity object.Vendor-ID", "--hex", *bus]) == 0

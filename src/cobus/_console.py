@@ -40,12 +40,16 @@ def console(*, stderr: bool = False) -> Any:
 
 
 def table(*columns: str, title: str | None = None, stderr: bool = False) -> Any:
-    """A rich table with these column headers: boxed on a terminal, plain columns apart by
-    two blanks when piped (print it with :func:`print_table`)."""
+    """A rich table with these column headers: boxed on a terminal (a value too wide for it
+    wraps), plain columns apart by two blanks when piped (print it with
+    :func:`print_table`)."""
     from rich.table import Table
 
     if terminal(sys.stderr if stderr else sys.stdout):
-        return Table(*columns, title=title)
+        boxed = Table(*columns, title=title)
+        for column in boxed.columns:  # a narrow terminal wraps a value, never cuts it (0x0…)
+            column.overflow = "fold"
+        return boxed
     return Table(
         *columns,
         title=title,

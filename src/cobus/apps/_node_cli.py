@@ -282,7 +282,7 @@ def _sdo(args: argparse.Namespace) -> int:
                 return 1
             result.update(file=str(args.file), size=len(data))
         elif args.action == "write":
-            result.update(value=args.value, data=payload.hex())
+            result.update(value=_plain(_value(payload, data_type, decode)), data=payload.hex())
         else:
             result.update(file=str(args.file), size=len(payload))
         print(json.dumps(result))

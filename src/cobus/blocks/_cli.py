@@ -175,6 +175,12 @@ def _run(args: argparse.Namespace) -> int:
             objects = _objects(args.objects, od, left_out)
         except ValueError as exc:
             return _fail(str(exc))
+        if not objects and left_out:
+            shown = ", ".join(f"0x{v.index:04X}:{v.subindex:02X} {v.name}" for v, _ in left_out)
+            return _fail(
+                f"--objects: all are commands or process data ({shown}); name one on its own "
+                "(--objects 0x6040) to read it"
+            )
     if pset is not None and pset.left_out and not args.json:
         for param, why in pset.left_out:
             print(
