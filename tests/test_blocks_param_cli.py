@@ -4,19 +4,15 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import threading
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import pytest
 
 from cobus.cli import main
 from cobus.device import export_eds
-from cobus.proto import Frame
 from cobus.runtime import Network
 from cobus.sim import Rig, start_rig
+from tests.util import ctrl_c_when
 
 RIG = """
 bus: embedded
@@ -138,20 +134,6 @@ def test_a_snapshot_holds_no_commands_and_applying_it_leaves_a_disabled_drive_di
         )
 
 
-def _ctrl_c_when(net: Any, wanted: Callable[[Frame], bool]) -> None:
-    """Send SIGINT to the main thread once a frame ``wanted`` is seen on the bus."""
-    main_thread = threading.main_thread().ident
-    assert main_thread is not None
-    fired = threading.Event()
-
-    def look(frame: Frame, now: float) -> None:
-        if not fired.is_set() and wanted(frame):
-            fired.set()
-            signal.pthread_kill(main_thread, signal.SIGINT)
-
-    net.subscribe_all(look)
-
-
 def test_ctrl_c_in_apply_says_what_was_written_and_what_was_cut_short(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -167,7 +149,7 @@ def test_ctrl_c_in_apply_says_what_was_written_and_what_was_cut_short(
         )
         rig.devices[10].inject("sdo_delay", delay=0.3)
         # the download of the second parameter (6065h) is in flight when Ctrl-C comes
-        _ctrl_c_when(
+        ctrl_c_when(
             net.aio, lambda f: f.cob_id == 0x60A and f.data[:4] == bytes.fromhex("23656000")
         )
         bus = ["-i", "virtual", "-c", channel, "--eds", str(eds), "--timeout", "1"]

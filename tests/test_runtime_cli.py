@@ -13,7 +13,7 @@ from cobus.device import export_eds
 from cobus.proto import Frame
 from cobus.runtime import Network
 from cobus.sim import Rig, start_rig
-from tests.util import Terminal
+from tests.util import Terminal, ctrl_c_when
 
 RIG = """
 bus: embedded
@@ -259,23 +259,11 @@ def test_ctrl_c_in_an_sdo_transfer_says_it_was_aborted(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """Issue 38 (8): Ctrl-C in sdo exited 130 without a word."""
-    import signal
-    import threading
-
     channel = f"cli-sdo-ctrl-c-{os.getpid()}"
-    main_thread = threading.main_thread().ident
-    assert main_thread is not None
     with Network(interface="virtual", channel=channel) as net:
         rig = start_rig(net, Rig.loads(RIG))
         rig.devices[10].inject("sdo_delay", delay=0.5)
-        fired = threading.Event()
-
-        def look(frame: Frame, now: float) -> None:
-            if frame.cob_id == 0x60A and not fired.is_set():
-                fired.set()
-                signal.pthread_kill(main_thread, signal.SIGINT)
-
-        net.aio.subscribe_all(look)
+        again = ctrl_c_when(net.aio, lambda f: f.cob_id == 0x60A)
         bus = ["-i", "virtual", "-c", channel]
         assert main(["sdo", "write", "10", "0x1017", "100", "--type", "u16", *bus]) == 130
         err = capsys.readouterr().err
@@ -283,7 +271,7 @@ def test_ctrl_c_in_an_sdo_transfer_says_it_was_aborted(
             "cobus: interrupted: the write of 1017h:00 Producer heartbeat time was aborted: "
             "the node may or may not have taken the value\n"
         )
-        fired.clear()
+        again()
         assert main(["sdo", "read", "10", "0x1017", *bus]) == 130
         assert capsys.readouterr().err == (
             "cobus: interrupted: the read of 1017h:00 Producer heartbeat time was aborted\n"
@@ -291,21 +279,9 @@ def test_ctrl_c_in_an_sdo_transfer_says_it_was_aborted(
 
 
 def test_ctrl_c_in_any_other_command_says_interrupted(capsys: pytest.CaptureFixture[str]) -> None:
-    import signal
-    import threading
-
     channel = f"cli-ec-ctrl-c-{os.getpid()}"
-    main_thread = threading.main_thread().ident
-    assert main_thread is not None
     with Network(interface="virtual", channel=channel) as net:
-        fired = threading.Event()
-
-        def look(frame: Frame, now: float) -> None:
-            if not fired.is_set():
-                fired.set()
-                signal.pthread_kill(main_thread, signal.SIGINT)
-
-        net.aio.subscribe_all(look)
+        ctrl_c_when(net.aio, lambda f: True)
         argv = ["ec", "read", "3", "p_ven", "--timeout", "5", "-i", "virtual", "-c", channel]
         assert main(argv) == 130
     assert capsys.readouterr().err == "cobus ec: interrupted\n"
@@ -378,6 +354,8 @@ def test_send_puts_raw_frames_on_the_bus(capsys: pytest.CaptureFixture[str]) -> 
         ("123#001", "each two hex digits"),
         ("123#R9", "DLC 9"),
         ("123", "write ID#DATA"),
+        ("123##1DEAD", "a CAN FD frame"),
+        ("123#GG", "each two hex digits"),
     ):
         with pytest.raises(SystemExit) as usage:
             main(["send", bad, *NO_BUS])
@@ -453,3 +431,47 @@ def test_pdo_show_and_map_against_the_simulated_servo(
         with pytest.raises(SystemExit):
             main(["pdo", "map", "10", "xpdo1", *bus])
         assert "tpdo1..tpdo512 or rpdo1..rpdo512" in capsys.readouterr().err
+
+        # what is not given stays as the node has it: off stays off (RPDO2 carries the
+        # controlword: switching it on behind the user would let frames drive the servo)
+        def rpdo2() -> dict[str, object]:
+            assert main(["pdo", "show", "10", "--json", *eds_, *bus]) == 0
+            pdos = json.loads(capsys.readouterr().out)["pdos"]
+            found: dict[str, object] = next(p for p in pdos if p["pdo"] == "RPDO2")
+            return found
+
+        assert main(["pdo", "map", "10", "rpdo2", "--disable", *eds_, *bus]) == 0
+        assert main(["pdo", "map", "10", "rpdo2", "--inhibit", "10", *eds_, *bus]) == 0
+        capsys.readouterr()
+        assert rpdo2()["enabled"] is False and rpdo2()["inhibit_100us"] == 10
+        # refused before any write: the PDO as it was
+        for bad, why in (
+            (["rpdo2", "--type", "253"], "(on RTR) is for a TPDO"),
+            (["rpdo2", "--type", "245"], "241-251 are reserved"),
+            (["rpdo2"], "nothing to change"),
+        ):
+            assert main(["pdo", "map", "10", *bad, *eds_, *bus]) == 2
+            assert why in capsys.readouterr().err
+        assert rpdo2()["transmission_type"] == 255 and rpdo2()["enabled"] is False
+        with pytest.raises(SystemExit):
+            main(["pdo", "map", "10", "rpdo2", "--event-timer", "70000", *eds_, *bus])
+        assert "0-65535" in capsys.readouterr().err
+        assert main(["pdo", "map", "10", "rpdo2", "--enable", *eds_, *bus]) == 0
+        capsys.readouterr()
+        assert rpdo2()["enabled"] is True
+        # a gap in a mapping
+        argv = ["pdo", "map", "10", "tpdo3", "Statusword", "dummy16", "--json", *eds_, *bus]
+        assert main(argv) == 0
+        (tpdo3,) = json.loads(capsys.readouterr().out)["pdos"]
+        assert [(o["name"], o["bits"]) for o in tpdo3["objects"]] == [
+            ("Statusword", 16),
+            ("dummy16", 16),
+        ]
+
+
+def test_send_period_needs_a_count(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["send", "080#", "--period", "0.1", *NO_BUS]) == 2
+    assert "give --count too" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["send", "080#", "--count", "0", *NO_BUS])
+    assert "1 to 1,000,000" in capsys.readouterr().err

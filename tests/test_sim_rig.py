@@ -468,3 +468,17 @@ def test_without_an_interface_the_message_says_how_to_name_one(monkeypatch, caps
     assert main(["sim", "thesis", "--duration", "1", "--control", "/nonexistent/c.sock"]) == 1
     err = capsys.readouterr().err
     assert "no CAN interface given" in err and "-i/--interface" in err
+
+
+def test_a_control_path_that_cannot_be_used_is_one_line(tmp_path, capsys):
+    long = tmp_path / ("x" * 120 + ".sock")
+    for path, why in (
+        (tmp_path / "nowhere" / "c.sock", "there is no folder"),
+        (long, "at most 107 bytes"),
+    ):
+        argv = ["sim", "thesis", "--duration", "1", "-i", "virtual", "--control", str(path)]
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and why in err
+        assert main(["sim", "status", "--control", str(path)]) in (1, 2)
+        assert "Traceback" not in capsys.readouterr().err

@@ -169,7 +169,7 @@ def test_faults_are_injected_into_a_running_cobus_sim_from_another_shell(tmp_pat
         assert servo["state"] == "fault" and servo["error_code"] == "7305h"
         assert main(["sim", "faults", "20", *control]) == 0
         assert "heartbeat_stop" in capsys.readouterr().out
-        assert main(["sim", "inject", "10", "nonsense", *control]) == 1
+        assert main(["sim", "inject", "10", "nonsense", *control]) == 2  # a wrong request
         assert "cannot inject 'nonsense'" in capsys.readouterr().err
         assert main(["sim", "inject", "10", "drive_fault", "code", *control]) == 2
         assert "write KEY=VALUE" in capsys.readouterr().err

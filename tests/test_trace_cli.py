@@ -365,11 +365,11 @@ def test_monitor_raw_shows_the_bus_by_identifier(capsys: pytest.CaptureFixture[s
         monitor.join()
     assert result == [0]
     rows = {r["id"]: r for r in json.loads(capsys.readouterr().out)}
-    assert list(rows) == ["18A", "70A", "12345678"]
-    assert rows["70A"]["count"] == 5 and rows["70A"]["what"] == "heartbeat node 10"
-    assert 30 < rows["70A"]["period_ms"] < 200
-    assert rows["18A"]["data"] == "0412" and rows["18A"]["what"] == "TPDO1 node 10"
-    assert rows["12345678"]["extended"] and rows["12345678"]["count"] == 1
+    assert list(rows) == ["0x18A", "0x70A", "0x12345678"]
+    assert rows["0x70A"]["count"] == 5 and rows["0x70A"]["what"] == "heartbeat node 10"
+    assert 30 < rows["0x70A"]["period_ms"] < 200
+    assert rows["0x18A"]["data"] == "0412" and rows["0x18A"]["what"] == "TPDO1 node 10"
+    assert rows["0x12345678"]["extended"] and rows["0x12345678"]["count"] == 1
     assert main(["monitor", "--raw", "--node", "10", *bus]) == 2
     assert "--filter and --node do not apply" in capsys.readouterr().err
 

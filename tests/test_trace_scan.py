@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-from typing import Any
 
 import pytest
 
@@ -115,22 +114,12 @@ def test_scan_finds_a_python_canopen_local_node(
 
 def test_ctrl_c_in_a_scan_keeps_what_was_found(capsys: pytest.CaptureFixture[str]) -> None:
     """Issue 38 (8): Ctrl-C in scan exited 130 silently, its results lost."""
-    import signal
-    import threading
+    from tests.util import ctrl_c_when
 
     channel = f"scan-ctrl-c-{os.getpid()}"
-    main_thread = threading.main_thread().ident
-    assert main_thread is not None
     with Network(interface="virtual", channel=channel) as net:
         start_rig(net, "thesis")
-        fired = threading.Event()
-
-        def look(frame: Any, now: float) -> None:
-            if frame.cob_id == 0x600 + 40 and not fired.is_set():  # asking node 40
-                fired.set()
-                signal.pthread_kill(main_thread, signal.SIGINT)
-
-        net.aio.subscribe_all(look)
+        ctrl_c_when(net.aio, lambda f: f.cob_id == 0x600 + 40)  # asking node 40
         bus = ["-i", "virtual", "-c", channel, "--listen", "0.05", "--timeout", "0.2"]
         assert main(["scan", *bus]) == 130
     out, err = capsys.readouterr()

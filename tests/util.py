@@ -92,3 +92,23 @@ class Terminal:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def ctrl_c_when(network: Any, wanted: Callable[[Any], bool]) -> Callable[[], None]:
+    """Send SIGINT to the main thread once, when a frame ``wanted(frame)`` is seen on the
+    async ``network`` (a Ctrl-C at a known point of a command); returns a function that arms
+    it again."""
+    import signal
+    import threading
+
+    main = threading.main_thread().ident
+    assert main is not None
+    fired = threading.Event()
+
+    def look(frame: Any, now: float) -> None:
+        if not fired.is_set() and wanted(frame):
+            fired.set()
+            signal.pthread_kill(main, signal.SIGINT)
+
+    network.subscribe_all(look)
+    return fired.clear

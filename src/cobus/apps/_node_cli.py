@@ -129,7 +129,7 @@ def register(sub: Any) -> None:
     )
     send.add_argument("frames", nargs="+", metavar="ID#DATA", type=_frame, help="the frames")
     send.add_argument(
-        "--count", type=int, default=1, help="send the frames this many times (default 1)"
+        "--count", type=_count, default=1, help="send the frames this many times (default 1)"
     )
     send.add_argument(
         "--period", type=seconds, default=None, help="seconds between rounds (with --count)"
@@ -564,6 +564,10 @@ def _frame(text: str) -> Any:
     from cobus.proto import Frame, FrameError
 
     head, sep, body = text.partition("#")
+    if body.startswith("#"):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: a CAN FD frame (ID##...): CANopen (CiA 301) uses classic CAN frames"
+        )
     if not sep or not head or not all(c in "0123456789abcdefABCDEF" for c in head):
         raise argparse.ArgumentTypeError(
             f"{text!r}: write ID#DATA, e.g. 000#010A, 12345678#DEADBEEF or 70A#R"
@@ -578,11 +582,14 @@ def _frame(text: str) -> Any:
             dlc = int(body[1:]) if body[1:] else 0
             return Frame(cob_id, b"", rtr=True, extended=extended, dlc=dlc)
         digits = body.replace(".", "")
-        if len(digits) % 2 or len(digits) > 16:
+        if len(digits) % 2 or len(digits) > 16 or not all(c in _HEX for c in digits):
             raise ValueError("the data is 0-8 bytes, each two hex digits (DE.AD or DEAD)")
         return Frame(cob_id, bytes.fromhex(digits), extended=extended)
     except (ValueError, FrameError) as exc:
         raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from None
+
+
+_HEX = frozenset("0123456789abcdefABCDEF")
 
 
 def _notation(frame: Any) -> str:
@@ -590,9 +597,19 @@ def _notation(frame: Any) -> str:
     return f"{head}#R{frame.dlc or ''}" if frame.rtr else f"{head}#{frame.data.hex().upper()}"
 
 
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if not 1 <= value <= 1_000_000:
+        raise argparse.ArgumentTypeError(f"{text!r}: 1 to 1,000,000")
+    return value
+
+
 def _send(args: argparse.Namespace) -> int:
-    if not 1 <= args.count <= 1_000_000:
-        return _fail("--count: 1 to 1,000,000", 2)
+    if args.period is not None and args.count == 1:
+        return _fail("--period is the time between rounds: give --count too", 2)
     sent = 0
     try:
         with _open(args) as net:

@@ -4,12 +4,15 @@
     cobus pdo show 10 --json
     cobus pdo map 10 tpdo2 "Position actual value" Statusword --type 1 --eds servo.eds
     cobus pdo map 10 rpdo1 Controlword "Target velocity" --eds servo.eds
-    cobus pdo map 10 tpdo4 --disable --eds servo.eds
+    cobus pdo map 10 tpdo4 --disable --eds servo.eds    # (--enable: on again)
+    cobus pdo map 8 tpdo2 "alarm code" dummy8 dummy16 "controller temperature" --eds zapi.eds
 
 ``map`` writes the PDO the CiA 301 way - disable it, write the transmission type and timers,
 clear the mapping, write the entries, set their count, enable it again - then reads it back.
 Each object is checked against the EDS first: it exists, may be mapped, can be sent (TPDO) or
-written (RPDO), and the PDO stays within 64 bits. Remapping changes what the node sends and
+written (RPDO), and the PDO stays within 64 bits; ``dummy8``, ``dummy16``, ``dummy32`` leave
+a gap. What is not given stays as the node has it - its objects, type, timers, and whether
+it is on (``--enable``/``--disable`` change that). Remapping changes what the node sends and
 takes; it writes no value itself (an RPDO's objects take what the next frame carries).
 
 Exit codes: 0 done, 1 the node refused or did not answer, or the bus cannot be used, 2 bad
@@ -59,15 +62,35 @@ def register(sub: Any) -> None:
         dest="transmission_type",
         help="transmission type: 0 acyclic sync, 1-240 every n-th SYNC, 254/255 event",
     )
-    mapping.add_argument("--event-timer", type=int, metavar="MS", help="event timer, ms")
-    mapping.add_argument("--inhibit", type=int, metavar="N", help="inhibit time, 100 us units")
-    mapping.add_argument("--disable", action="store_true", help="leave the PDO disabled")
+    mapping.add_argument(
+        "--event-timer", type=_u16, metavar="MS", help="event timer, ms (0-65535; 0: none)"
+    )
+    mapping.add_argument(
+        "--inhibit", type=_u16, metavar="N", help="inhibit time, 100 us units (0-65535)"
+    )
+    on_off = mapping.add_mutually_exclusive_group()
+    on_off.add_argument("--disable", action="store_true", help="switch the PDO off")
+    on_off.add_argument("--enable", action="store_true", help="switch the PDO on")
     for p in (show, mapping):
         p.add_argument("--eds", type=Path, help="the node's EDS or DCF (names, checks)")
         p.add_argument("--timeout", type=seconds, default=1.0, help="seconds per SDO answer")
         p.add_argument("--json", action="store_true", help="the PDOs as JSON")
         add_bus_options(p)
         p.set_defaults(handler=_run)
+
+
+def _u16(text: str) -> int:
+    try:
+        value = int(text, 0)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 0xFFFF:
+        raise argparse.ArgumentTypeError(f"{text!r}: a whole number 0-65535")
+    return value
+
+
+_DUMMY = re.compile(r"\s*dummy\s*(8|16|32)\s*\Z", re.IGNORECASE)
+_DUMMY_TYPES = {8: 0x0005, 16: 0x0006, 32: 0x0007}
 
 
 def _pdo_name(text: str) -> tuple[bool, int]:
@@ -99,7 +122,15 @@ def _run(args: argparse.Namespace) -> int:
     if args.action == "map":
         if od is None:
             return _fail("give the node's --eds: the objects are checked against it", 2)
+        given = (args.transmission_type, args.event_timer, args.inhibit)
+        if not args.objects and all(v is None for v in given) and not (args.enable or args.disable):
+            return _fail(
+                "nothing to change: give objects, --type, --event-timer, --inhibit, --enable "
+                "or --disable",
+                2,
+            )
         try:
+            _check_type(args.pdo[0], args.transmission_type)
             entries = [_entry(text, od) for text in args.objects]
         except ValueError as exc:
             return _fail(str(exc), 2)
@@ -124,29 +155,45 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _entry(text: str, od: Any) -> tuple[int, int]:
-    """(index, sub-index) of an object named or numbered in ``od``; ValueError: none."""
+def _check_type(transmit: bool, tt: int | None) -> None:
+    """ValueError for a transmission type the PDO cannot have (checked before any write)."""
+    if tt is None:
+        return
+    if not 0 <= tt <= 255 or 241 <= tt <= 251:
+        raise ValueError(f"--type {tt}: 0, 1-240, 252-255 (241-251 are reserved)")
+    if not transmit and tt in (252, 253):
+        raise ValueError(f"--type {tt} (on RTR) is for a TPDO: an RPDO takes 0-240, 254, 255")
+
+
+def _entry(text: str, od: Any) -> tuple[int, int, int | None]:
+    """(index, sub-index, bits: None for the object's own) of an object named or numbered in
+    ``od``, or a dummy (``dummy8``); ValueError: none."""
     from cobus.master.config import ObjectIndex
 
+    dummy = _DUMMY.match(text)
+    if dummy is not None:
+        bits = int(dummy.group(1))
+        return _DUMMY_TYPES[bits], 0, bits
     var = ObjectIndex(od, str(getattr(od, "path", None) or "the EDS")).resolve(text)
-    return var.index, var.subindex
+    return var.index, var.subindex, None
 
 
-def _map(node: Any, args: argparse.Namespace, entries: list[tuple[int, int]]) -> Any:
+def _map(node: Any, args: argparse.Namespace, entries: list[tuple[int, int, int | None]]) -> Any:
     transmit, number = args.pdo
     pdo = (node.tpdo if transmit else node.rpdo)[number]
     pdo.read()  # (what it has now: the options not given stay)
     if args.objects:
         pdo.clear()
-        for index, sub in entries:
-            pdo.add(index, sub)
+        for index, sub, bits in entries:
+            pdo.add(index, sub, bits)
     if args.transmission_type is not None:
         pdo.transmission_type = args.transmission_type
     if args.event_timer is not None:
         pdo.event_timer = args.event_timer
     if args.inhibit is not None:
         pdo.inhibit_time = args.inhibit
-    pdo.enabled = not args.disable
+    if args.enable or args.disable:
+        pdo.enabled = args.enable  # (else: on or off as the node has it)
     pdo.save()
     pdo.read()  # what the node holds now
     return pdo
@@ -159,12 +206,12 @@ def _describe(pdo: Any) -> dict[str, Any]:
         "cob_id": f"0x{pdo.cob_id:X}",
         "enabled": pdo.enabled,
         "transmission_type": pdo.transmission_type,
-        "inhibit_time": pdo.inhibit_time,
+        "inhibit_100us": pdo.inhibit_time,
         "event_timer": pdo.event_timer,
         "objects": [
             {
                 "object": f"0x{f.entry.index:04X}:{f.entry.subindex:02X}",
-                "name": f.name,
+                "name": f"dummy{f.entry.bit_length}" if f.dummy else f.name,
                 "bits": f.entry.bit_length,
             }
             for f in pdo.fields
@@ -200,7 +247,7 @@ def _print(args: argparse.Namespace, described: list[dict[str, Any]]) -> None:
     )
     for d in described:
         objects = ", ".join(f"{o['name']} ({o['bits']})" for o in d["objects"]) or "(none)"
-        inhibit, event = d["inhibit_time"], d["event_timer"]
+        inhibit, event = d["inhibit_100us"], d["event_timer"]
         table.add_row(
             d["pdo"],
             d["cob_id"] if d["enabled"] else f"{d['cob_id']} off",

@@ -57,8 +57,8 @@ class Frame:
             return
         limit = _MAX_EXT if extended else _MAX_STD
         if not 0 <= cob_id <= limit:
-            kind = "29-bit" if extended else "11-bit"
-            raise FrameError(f"CAN identifier 0x{cob_id:X} does not fit an {kind} identifier")
+            kind = "a 29-bit" if extended else "an 11-bit"
+            raise FrameError(f"CAN identifier 0x{cob_id:X} does not fit {kind} identifier")
         if len(data) > 8:
             raise FrameError(
                 f"CAN frame 0x{cob_id:X} has {len(data)} data bytes; a classic frame carries 0 to 8"

@@ -7,12 +7,13 @@ ws://127.0.0.1:54701/``). RIG is a rig file or the name of a rig cobus ships (``
 From another shell, while it runs (its control socket, see ``cobus.sim._control``):
 
     cobus sim inject 10 drive_fault code=0x7305   # a device's fault, parameters as KEY=VALUE
-    cobus sim inject bus error_frames count=5     # a bus fault
+    cobus sim inject bus frame_loss rate=0.1      # a bus fault
     cobus sim faults 10                           # what node 10 can be given
     cobus sim status --json                       # every device's state
 
-Exit codes: 0 stopped by Ctrl-C or SIGTERM, 1 the bus cannot be used, 2 a bad rig file or bad
-usage.
+Exit codes: 0 stopped by Ctrl-C or SIGTERM (inject, faults, status: done), 1 the bus cannot be
+used (no simulation answers), 2 a bad rig file, a bad control path or bad usage (a fault or a
+parameter the device does not know).
 """
 
 from __future__ import annotations
@@ -223,8 +224,11 @@ def _control(args: argparse.Namespace) -> int:
     try:
         answer = ask(path, request)
     except ControlError as exc:
+        code = 2 if exc.refused else 1  # a wrong request, or no simulation to ask
+        if args.json:
+            print(json.dumps({"ok": False, "error": str(exc), "exit": code}))
         print(f"cobus sim {args.rig}: {exc}", file=sys.stderr)
-        return 1
+        return code
     if args.json:
         print(json.dumps(answer, default=str))
     elif args.rig == "inject":

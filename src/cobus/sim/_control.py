@@ -3,7 +3,7 @@ another shell.
 
     cobus sim thesis -i remote -c ws://127.0.0.1:54701/      # says where its control socket is
     cobus sim inject 10 drive_fault code=0x7305              # from another shell
-    cobus sim inject bus error_frames count=5
+    cobus sim inject bus frame_loss rate=0.1
     cobus sim status --json
 
 A Unix socket, readable and writable by its owner only (mode 0600, nothing on the network):
@@ -34,7 +34,23 @@ _MAX_REQUEST = 64 * 1024
 
 
 class ControlError(CobusError):
-    """No simulation answers on the control socket, or it refused the request."""
+    """No simulation answers on the control socket, or it refused the request
+    (``refused``: the request was wrong - an unknown fault, a bad parameter)."""
+
+    def __init__(self, message: str, *, refused: bool = False) -> None:
+        super().__init__(message)
+        self.refused = refused
+
+
+#: The longest path a Unix socket takes (sun_path, less its terminating byte).
+_MAX_PATH = 107
+
+
+def _check_path(path: Path) -> None:
+    if len(os.fsencode(path)) > _MAX_PATH:
+        raise ControlError(
+            f"{path}: a control socket's path is at most {_MAX_PATH} bytes: give a shorter one"
+        )
 
 
 def default_path() -> Path:
@@ -76,7 +92,10 @@ def _alive(path: Path) -> bool:
 async def serve(rig: Any, path: Path) -> Any:
     """Listen on ``path`` for requests about ``rig``; the server (close it to stop). A
     stale socket file of a simulation that ended is replaced; a live one is not
-    (:class:`ControlError`)."""
+    (:class:`ControlError`, as for a path that cannot be used)."""
+    _check_path(path)
+    if not path.parent.is_dir():
+        raise ControlError(f"{path}: there is no folder {path.parent}")
     if path.exists() or path.is_symlink():
         if not path.is_socket():
             raise ControlError(f"{path} exists and is no socket: give --control another path")
@@ -100,6 +119,8 @@ async def serve(rig: Any, path: Path) -> Any:
     old = os.umask(0o177)  # the socket: its owner's only
     try:
         return await asyncio.start_unix_server(handle, str(path), limit=_MAX_REQUEST)
+    except OSError as exc:
+        raise ControlError(f"{path}: {exc.strerror or exc}") from None
     finally:
         os.umask(old)
 
@@ -132,7 +153,8 @@ def _answer(rig: Any, line: bytes) -> dict[str, Any]:
 
 def ask(path: Path, request: dict[str, Any], timeout: float = 5.0) -> dict[str, Any]:
     """Send ``request`` to the simulation on ``path``; its answer. :class:`ControlError`
-    when none answers, or when it refused (the answer's error)."""
+    when none answers, or when it refused (the answer's error; ``refused``)."""
+    _check_path(path)
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as conn:
         conn.settimeout(timeout)
         try:
@@ -155,5 +177,5 @@ def ask(path: Path, request: dict[str, Any], timeout: float = 5.0) -> dict[str, 
     except ValueError:
         raise ControlError(f"the simulation on {path} answered no JSON") from None
     if not answer.get("ok"):
-        raise ControlError(str(answer.get("error", "refused")))
+        raise ControlError(str(answer.get("error", "refused")), refused=True)
     return answer

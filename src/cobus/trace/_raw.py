@@ -44,7 +44,7 @@ class IdStats:
     def to_dict(self) -> dict[str, Any]:
         period = self.period
         return {
-            "id": self.label,
+            "id": f"0x{self.cob_id:X}",
             "extended": self.extended,
             "count": self.count,
             "period_ms": None if period is None else round(period * 1000, 3),
