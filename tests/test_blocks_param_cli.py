@@ -214,3 +214,27 @@ def test_review_findings_on_params(tmp_path: Path, capsys: pytest.CaptureFixture
         refused = json.loads(out)
         assert refused["ok"] is False and refused["exit"] == 2
         assert "(--allow-commands)" in err and "allow_commands=True" not in err
+
+
+def test_an_eds_of_another_device_is_refused_for_apply_and_said_for_diff(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """With another device's EDS, names, types and commands would be misjudged."""
+    examples = Path(__file__).resolve().parent.parent / "examples" / "networks"
+    channel = f"cli-params-other-{os.getpid()}"
+    with Network(interface="virtual", channel=channel) as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        io_eds = ["--eds", str(examples / "io.eds")]
+        bus = ["-i", "virtual", "-c", channel]
+        (tmp_path / "set.yml").write_text('parameters:\n  "0x1017:00": 50\n')
+        held = rig.devices[10].device.get(0x1017, 0)
+        assert main(["params", "apply", "10", str(tmp_path / "set.yml"), *io_eds, *bus]) == 2
+        err = capsys.readouterr().err
+        assert "node 10 reports device type 0x00020192 (profile 402)" in err
+        assert "the EDS is another device's; nothing written" in err
+        assert rig.devices[10].device.get(0x1017, 0) == held
+        main(["params", "diff", "10", str(tmp_path / "set.yml"), *io_eds, *bus])
+        assert "the EDS is another device's" in capsys.readouterr().err
+        assert main(["pdo", "show", "10", *io_eds, *bus]) == 0
+        assert "the EDS is another device's" in capsys.readouterr().err
+        assert main(["pdo", "map", "10", "tpdo1", "--disable", *io_eds, *bus]) == 2

@@ -39,12 +39,23 @@ def test_without_a_dictionary_the_cia_401_and_402_commands_are_known() -> None:
 
 
 def test_the_device_type_picks_the_profile_table() -> None:
-    drive = CommandObjects(_device(0x00020192))  # 402
-    assert drive.reason(0x6040, 0) is not None and drive.reason(0x6200, 1) is None
-    io = CommandObjects(_device(0x000F0191))  # 401
+    drive = CommandObjects(
+        _device(0x00020192, Variable(0x6200, 0, "a drive's own 6200h", DataType.UNSIGNED8))
+    )  # 402: its own 6200h is no CiA 401 output
+    assert drive.reason(0x6040, 0) is not None and drive.reason(0x6200, 0) is None
+    io = CommandObjects(
+        _device(0x000F0191, Variable(0x6040, 0, "Some 401 object", DataType.UNSIGNED16))
+    )  # 401: its own 6040h is no CiA 402 controlword
     assert io.reason(0x6200, 1) is not None and io.reason(0x6040, 0) is None
-    encoder = CommandObjects(_device(0x00010196))  # 406: neither table applies
-    assert encoder.reason(0x6040, 0) is None and encoder.reason(0x6200, 1) is None
+    encoder = CommandObjects(
+        _device(
+            0x00010196,  # 406: neither table applies to its own objects
+            Variable(0x6040, 0, "Operating parameters", DataType.UNSIGNED16),
+        )
+    )
+    assert encoder.reason(0x6040, 0) is None
+    # an object its dictionary lacks is judged by every table: a set for another device
+    assert encoder.reason(0x6200, 1) is not None and io.reason(0x6060, 0) is not None
     assert encoder.reason(0x1010, 1) is not None  # the save command is one everywhere
 
 

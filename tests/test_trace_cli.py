@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import threading
 import time
 from pathlib import Path
@@ -316,10 +317,12 @@ def test_decode_shows_absolute_times_when_asked(
     assert lines[0].endswith("NMT start -> node 10")
     assert main(["decode", str(trace), "--absolute", "--json", "--node", "10"]) == 0
     records = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
-    assert [r["datetime"] for r in records] == [
+    assert [r["datetime"][:26] for r in records] == [
         "2026-11-30 14:05:07.250000",
         "2026-11-30 14:05:07.500000",
     ]
+    offset = records[0]["datetime"][26:]  # the local time's offset from UTC
+    assert re.fullmatch(r"[+-]\d\d:\d\d", offset)
 
 
 def test_decode_of_a_trace_without_a_date_says_so(

@@ -72,6 +72,27 @@ def load_eds(path: Any, command: str, *, node_id: int | None = None) -> Any:
     return od
 
 
+def other_device(node: Any, od: Any) -> str | None:
+    """Why ``od`` (an EDS given on the command line) is not the dictionary of ``node``: the
+    device profile its 1000h names is not the one the node reports (None: it is, or either
+    says nothing - an EDS with 0, a node that does not answer)."""
+    var = od.get_variable(0x1000, 0) if od is not None else None
+    expected = var.value if var is not None else None
+    if not isinstance(expected, int) or not expected & 0xFFFF:
+        return None
+    try:
+        data = node.sdo.upload(0x1000, 0)
+    except Exception:  # (no answer, a refusal: what comes next says so)
+        return None
+    got = int.from_bytes(bytes(data[:4]).ljust(4, b"\0"), "little")
+    if got & 0xFFFF == expected & 0xFFFF:
+        return None
+    return (
+        f"node {node.node_id} reports device type 0x{got:08X} (profile {got & 0xFFFF}), the EDS "
+        f"0x{expected:08X} (profile {expected & 0xFFFF}): the EDS is another device's"
+    )
+
+
 def seconds(text: str) -> float:
     """A number of seconds above 0 (``nan``, ``inf`` and negatives refused)."""
     value = _number(text)

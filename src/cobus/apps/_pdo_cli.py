@@ -28,7 +28,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from cobus._args import add_bus_options, bus_options, node_id, seconds
+from cobus._args import add_bus_options, bus_options, node_id, other_device, seconds
 
 __all__ = ["register"]
 
@@ -137,6 +137,11 @@ def _run(args: argparse.Namespace) -> int:
     try:
         with Network(**bus_options(args)) as net:
             node = net.add_remote(args.node, od, sdo_timeout=args.timeout)
+            mismatch = other_device(node, od)
+            if mismatch is not None:
+                if args.action == "map":  # (the checks against the EDS would be wrong)
+                    return _fail(f"{mismatch}; nothing written: give the node's own EDS", 2)
+                print(f"cobus pdo: {mismatch}", file=sys.stderr)
             if args.action == "show":
                 pdos = [*node.tpdo.read(), *node.rpdo.read()]
             else:

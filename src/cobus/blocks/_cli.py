@@ -29,7 +29,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from cobus._args import add_bus_options, bus_options, seconds
+from cobus._args import add_bus_options, bus_options, other_device, seconds
 
 __all__ = ["register"]
 
@@ -194,6 +194,11 @@ def _run(args: argparse.Namespace) -> int:
         try:
             with Network(**bus_options(args)) as net:
                 node = net.add_remote(node_id, od, sdo_timeout=args.timeout)
+                mismatch = other_device(node, od)
+                if mismatch is not None:
+                    if args.action == "apply":  # (names, types, commands would be misjudged)
+                        return _fail(f"{mismatch}; nothing written: give the node's own EDS")
+                    print(f"cobus params: {mismatch}", file=sys.stderr)
                 manager = ParameterManager(node, pset, progress=progress.update, **options)
                 if args.action == "snapshot":
                     snap, failures = manager.snapshot(objects, communication=args.communication)

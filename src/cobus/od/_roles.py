@@ -69,16 +69,19 @@ class CommandObjects:
     """The command objects of one device: ``reason(index, subindex)`` says why writing the
     object is a command (None: it is not one).
 
-    ``od``: the device's dictionary (its device type picks the profile tables; its RPDO
-    mapping adds the objects it receives as process data); without one, the CiA 401 and 402
-    tables both apply. ``table``: a dialect's own commands by index (then the CiA tables do
-    not apply).
+    ``od``: the device's dictionary (its RPDO mapping adds the objects it receives as
+    process data; its device type says which profile its own objects follow); without one,
+    the CiA 401 and 402 tables both apply - and so they do, whatever the device type, to an
+    object the dictionary does not have (a set written for another device is refused rather
+    than trusted). ``table``: a dialect's own commands by index (then the CiA tables do not
+    apply).
     """
 
     def __init__(
         self, od: ObjectDictionary | None = None, *, table: Mapping[int, str] | None = None
     ) -> None:
         self.table = table
+        self._od = od
         profile = _profile(od)
         self._cia402 = table is None and profile in (None, 402)
         self._cia401 = table is None and profile in (None, 401)
@@ -92,12 +95,17 @@ class CommandObjects:
                 return text
         elif index in _STORAGE:
             return _STORAGE[index]
-        if self._cia402 and 0x6000 <= index < 0x6000 + _AXES * _AXIS_STEP:
+        # (an object the dictionary lacks is judged by every CiA table: it may be the other
+        # device's)
+        foreign = self.table is None and (
+            self._od is None or self._od.get_variable(index, subindex) is None
+        )
+        if (self._cia402 or foreign) and 0x6000 <= index < 0x6000 + _AXES * _AXIS_STEP:
             axis, offset = divmod(index - 0x6000, _AXIS_STEP)
             entry = _CIA402.get(0x6000 + offset)
             if entry is not None and entry[1] in (None, subindex):
                 return entry[0] + (f" (axis {axis + 1})" if axis else "")
-        if self._cia401 and index in _CIA401:
+        if (self._cia401 or foreign) and index in _CIA401:
             return _CIA401[index]
         rpdo = self._mapped.get((index, subindex))
         if rpdo is not None:

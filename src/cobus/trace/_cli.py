@@ -157,10 +157,14 @@ def _decode(args: argparse.Namespace) -> int:
     except Exception as exc:  # python-can's readers raise their own kinds (BLF, zlib...)
         return _fail(_unreadable(args.file, exc))
 
-    def stamp(seconds: float) -> str:
+    def stamp(seconds: float, *, zone: bool = False) -> str:
+        """Seconds from the first frame; with --absolute the local date and time (and, for
+        JSON, its offset from UTC)."""
         if not absolute:
             return f"{seconds:12.6f}"
         moment = dt.datetime.fromtimestamp((first or 0.0) + seconds)
+        if zone:
+            moment = moment.astimezone()
         return moment.isoformat(sep=" ", timespec="microseconds")
 
     def emit(rec: Any) -> None:
@@ -171,7 +175,7 @@ def _decode(args: argparse.Namespace) -> int:
         if args.json:
             body = {k: _plain(v) for k, v in vars(rec).items()}
             if absolute:
-                body["datetime"] = stamp(rec.time)
+                body["datetime"] = stamp(rec.time, zone=True)
             print(json.dumps({"kind": rec.kind, "text": str(rec), **body}))
         else:
             print(f"{stamp(rec.time)}  {rec}")
