@@ -12,7 +12,7 @@ from cobus.cli import main
 from cobus.device import export_eds
 from cobus.runtime import Network
 from cobus.sim import Rig, start_rig
-from tests.util import ctrl_c_when
+from tests.util import ctrl_c_when, servo_bench
 
 RIG = """
 bus: embedded
@@ -70,12 +70,8 @@ def test_a_snapshot_holds_no_commands_and_applying_it_leaves_a_disabled_drive_di
 ) -> None:
     """Issue 38 (1): the snapshot of an enabled servo held its controlword and targets, and
     applying it to the disabled drive switched it back on (0x0231 → 0x0637)."""
-    channel = f"cli-params-commands-{os.getpid()}"
-    with Network(interface="virtual", channel=channel) as net:
-        rig = start_rig(net, Rig.loads(RIG))
-        eds = tmp_path / "servo.eds"
-        eds.write_text(export_eds(rig.aio.devices[10].od))
-        bus = ["-i", "virtual", "-c", channel, "--eds", str(eds)]
+    with servo_bench(tmp_path, "cli-params-commands") as (net, _rig, eds, bus):
+        bus = [*bus, "--eds", str(eds)]
         servo = net.add_remote(10)
         for controlword in (0x06, 0x07, 0x0F):  # shutdown, switch on, enable operation
             servo.sdo.download(0x6040, 0, controlword.to_bytes(2, "little"))
@@ -139,11 +135,7 @@ def test_ctrl_c_in_apply_says_what_was_written_and_what_was_cut_short(
 ) -> None:
     """Issue 38 (8): Ctrl-C in params apply exited 130 without a word of what it had
     already written."""
-    channel = f"cli-params-ctrl-c-{os.getpid()}"
-    with Network(interface="virtual", channel=channel) as net:
-        rig = start_rig(net, Rig.loads(RIG))
-        eds = tmp_path / "servo.eds"
-        eds.write_text(export_eds(rig.aio.devices[10].od))
+    with servo_bench(tmp_path, "cli-params-ctrl-c") as (net, rig, eds, bus):
         (tmp_path / "servo.yml").write_text(
             "parameters:\n  profile velocity: 20000\n  following error window: 500\n"
         )
@@ -152,7 +144,7 @@ def test_ctrl_c_in_apply_says_what_was_written_and_what_was_cut_short(
         ctrl_c_when(
             net.aio, lambda f: f.cob_id == 0x60A and f.data[:4] == bytes.fromhex("23656000")
         )
-        bus = ["-i", "virtual", "-c", channel, "--eds", str(eds), "--timeout", "1"]
+        bus = [*bus, "--eds", str(eds), "--timeout", "1"]
         assert main(["params", "apply", "10", str(tmp_path / "servo.yml"), *bus]) == 130
     err = capsys.readouterr().err
     assert err.count("\n") == 1
@@ -167,13 +159,8 @@ def test_review_findings_on_params(tmp_path: Path, capsys: pytest.CaptureFixture
     DCF's command was left out even with --allow-commands; refusals printed no JSON."""
     from cobus.od import load
 
-    channel = f"cli-params-review-{os.getpid()}"
-    with Network(interface="virtual", channel=channel) as net:
-        rig = start_rig(net, Rig.loads(RIG))
-        od = rig.aio.devices[10].od
-        eds = tmp_path / "servo.eds"
-        eds.write_text(export_eds(od))
-        bus = ["-i", "virtual", "-c", channel, "--eds", str(eds)]
+    with servo_bench(tmp_path, "cli-params-review") as (_net, rig, eds, bus):
+        bus = [*bus, "--eds", str(eds)]
 
         # a node that does not answer: one line, the file left as it was
         good = tmp_path / "good.yml"

@@ -13,7 +13,7 @@ from cobus.device import export_eds
 from cobus.proto import Frame
 from cobus.runtime import Network
 from cobus.sim import Rig, start_rig
-from tests.util import Terminal, ctrl_c_when
+from tests.util import Terminal, ctrl_c_when, servo_bench
 
 RIG = """
 bus: embedded
@@ -366,12 +366,7 @@ def test_sdo_type_given_against_the_eds_or_the_answer(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A review found --type silently overriding the EDS and printing wrong values."""
-    channel = f"cli-sdo-type-{os.getpid()}"
-    with Network(interface="virtual", channel=channel) as net:
-        rig = start_rig(net, Rig.loads(RIG))
-        eds = tmp_path / "servo.eds"
-        eds.write_text(export_eds(rig.aio.devices[10].od))
-        bus = ["-i", "virtual", "-c", channel]
+    with servo_bench(tmp_path, "cli-sdo-type") as (_net, _rig, eds, bus):
         argv = ["sdo", "read", "10", "0x607F", "--type", "u8", "--eds", str(eds), *bus]
         assert main(argv) == 2
         assert "--type UNSIGNED8 differs from the EDS's UNSIGNED32" in capsys.readouterr().err
@@ -386,12 +381,7 @@ def test_pdo_show_and_map_against_the_simulated_servo(
 ) -> None:
     """Issue 38: users asked for `cobus pdo show/map NODE` (read and remap PDOs from the
     shell, checked against the EDS)."""
-    channel = f"cli-pdo-{os.getpid()}"
-    with Network(interface="virtual", channel=channel) as net:
-        rig = start_rig(net, Rig.loads(RIG))
-        eds = tmp_path / "servo.eds"
-        eds.write_text(export_eds(rig.aio.devices[10].od))
-        bus = ["-i", "virtual", "-c", channel]
+    with servo_bench(tmp_path, "cli-pdo") as (net, _rig, eds, bus):
         eds_ = ["--eds", str(eds)]
 
         assert main(["pdo", "show", "10", *eds_, *bus]) == 0

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import time
-from collections.abc import Callable, Coroutine
+from collections.abc import Callable, Coroutine, Iterator
+from pathlib import Path
 from typing import Any, TypeVar
 
 from cobus.runtime import SimulatedEventLoop
@@ -112,3 +114,29 @@ def ctrl_c_when(network: Any, wanted: Callable[[Any], bool]) -> Callable[[], Non
 
     network.subscribe_all(look)
     return fired.clear
+
+
+SERVO_RIG = """
+bus: embedded
+devices:
+  - {node: 10, kind: cia402_drive, name: servo}
+"""
+
+
+@contextlib.contextmanager
+def servo_bench(folder: Path, tag: str) -> Iterator[tuple[Any, Any, Path, list[str]]]:
+    """The simulated CiA 402 servo (node 10) alone on a virtual bus of its own: the blocking
+    network, the rig, the servo's EDS exported into ``folder``, and the command line's bus
+    options for that bus."""
+    import os
+
+    from cobus.device import export_eds
+    from cobus.runtime import Network
+    from cobus.sim import Rig, start_rig
+
+    channel = f"{tag}-{os.getpid()}"
+    with Network(interface="virtual", channel=channel) as net:
+        rig = start_rig(net, Rig.loads(SERVO_RIG))
+        eds = folder / "servo.eds"
+        eds.write_text(export_eds(rig.aio.devices[10].od))
+        yield net, rig, eds, ["-i", "virtual", "-c", channel]
