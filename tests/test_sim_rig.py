@@ -482,3 +482,13 @@ def test_a_control_path_that_cannot_be_used_is_one_line(tmp_path, capsys):
         assert err.count("\n") == 1 and why in err
         assert main(["sim", "status", "--control", str(path)]) in (1, 2)
         assert "Traceback" not in capsys.readouterr().err
+
+
+def test_sim_runs_without_a_control_socket_when_told(tmp_path, capsys):
+    sock = tmp_path / "c.sock"
+    argv = ["sim", "thesis", "--duration", "0.3", "--status-every", "0", "-i", "virtual"]
+    assert main([*argv, "-c", "ctl-on", "--control", str(sock)]) == 0
+    assert f"cobus sim inject --control {sock}" in capsys.readouterr().out
+    assert not sock.exists()  # removed at the end
+    assert main([*argv, "-c", "ctl-off", "--no-control"]) == 0
+    assert "another shell" not in capsys.readouterr().out

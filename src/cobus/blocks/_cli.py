@@ -97,12 +97,9 @@ def register(sub: Any) -> None:
         p.set_defaults(handler=_run)
 
 
-#: Set by _run: a failure is also a JSON object on stdout ({"ok": false, "error": ...}).
-_JSON = [False]
-
-
-def _fail(message: str, code: int = _EXIT_USAGE) -> int:
-    if _JSON[0]:
+def _fail(message: str, code: int = _EXIT_USAGE, *, as_json: bool = False) -> int:
+    """Say why on stderr (and, ``as_json``, as a JSON object on stdout); the exit code."""
+    if as_json:
         print(json.dumps({"ok": False, "error": message, "exit": code}))
     print(f"cobus params: {message}", file=sys.stderr)
     return code
@@ -141,25 +138,27 @@ def _run(args: argparse.Namespace) -> int:
     from cobus.blocks.parameters import ParameterFileError, load_parameters
     from cobus.runtime import Network
 
-    _JSON[0] = bool(args.json)
+    def fail(message: str, code: int = _EXIT_USAGE) -> int:
+        return _fail(message, code, as_json=args.json)
+
     try:
         node_id, od = _target(args)
     except ValueError as exc:
-        return _fail(str(exc))
+        return fail(str(exc))
     pset = None
     if args.action != "snapshot":
         try:
             allowed = bool(getattr(args, "allow_commands", False))
             pset = load_parameters(args.file, od=od, commands=allowed)
         except ParameterFileError as exc:
-            return _fail(str(exc))
+            return fail(str(exc))
         if getattr(args, "save_subindex", None) is not None:
             from cobus.blocks.parameters import SaveCommand
 
             pset.save = SaveCommand(0x1010, args.save_subindex)
         od = od or pset.od
     elif od is None:
-        return _fail("a snapshot needs the node's EDS for names and types: give --eds FILE")
+        return fail("a snapshot needs the node's EDS for names and types: give --eds FILE")
     options: dict[str, Any] = {}
     if args.action == "apply":
         options = {
@@ -174,10 +173,10 @@ def _run(args: argparse.Namespace) -> int:
         try:
             objects = _objects(args.objects, od, left_out)
         except ValueError as exc:
-            return _fail(str(exc))
+            return fail(str(exc))
         if not objects and left_out:
             shown = ", ".join(f"0x{v.index:04X}:{v.subindex:02X} {v.name}" for v, _ in left_out)
-            return _fail(
+            return fail(
                 f"--objects: all are commands or process data ({shown}); name one on its own "
                 "(--objects 0x6040) to read it"
             )
@@ -197,7 +196,7 @@ def _run(args: argparse.Namespace) -> int:
                 mismatch = other_device(node, od)
                 if mismatch is not None:
                     if args.action == "apply":  # (names, types, commands would be misjudged)
-                        return _fail(f"{mismatch}; nothing written: give the node's own EDS")
+                        return fail(f"{mismatch}; nothing written: give the node's own EDS")
                     print(f"cobus params: {mismatch}", file=sys.stderr)
                 manager = ParameterManager(node, pset, progress=progress.update, **options)
                 if args.action == "snapshot":
@@ -205,7 +204,7 @@ def _run(args: argparse.Namespace) -> int:
                     progress.stop()
                     if manager.stopped or not len(snap):
                         why = failures[-1] if failures else "nothing could be read"
-                        return _fail(f"{why}; {args.file} left as it was", _EXIT_FAILED)
+                        return fail(f"{why}; {args.file} left as it was", _EXIT_FAILED)
                     snap.write(args.file)
                     left_out += manager.left_out
                     return _snapshot_done(args, snap, failures, left_out)
@@ -214,14 +213,14 @@ def _run(args: argparse.Namespace) -> int:
             progress.stop()
             return _interrupted(args, None if manager is None else manager.aio)
         except CommandsInSetError as exc:
-            return _fail(exc.describe("--allow-commands"))
+            return fail(exc.describe("--allow-commands"))
         except BrokenPipeError:
             raise  # (the reader went away: cobus.cli ends quietly)
         except (OSError, ValueError) as exc:
-            return _fail(str(exc))
+            return fail(str(exc))
         except Exception as exc:  # the bus could not be opened (python-can's errors)
             if type(exc).__module__.startswith("can"):
-                return _fail(f"cannot open the bus: {exc}")
+                return fail(f"cannot open the bus: {exc}")
             raise
     return _report_done(args, report, pset.left_out if pset is not None else ())
 
@@ -233,7 +232,6 @@ def _interrupted(args: argparse.Namespace, manager: Any) -> int:
     step = short[0].name.lower().replace("_", " ") if short is not None else None
     cut = short[1] if short is not None and short[0].name == "WRITE" else None
     if args.json:
-        _JSON[0] = False  # (this JSON says it all)
         print(
             json.dumps(
                 {

@@ -57,12 +57,18 @@ def register(sub: Any) -> None:
         metavar="ARG",
         help="inject: NODE (or bus) FAULT [KEY=VALUE ...]; faults: [NODE]",
     )
-    sim.add_argument(
+    control = sim.add_mutually_exclusive_group()
+    control.add_argument(
         "--control",
         type=Path,
         metavar="PATH",
-        help="the control socket (default: cobus-sim.sock in $XDG_RUNTIME_DIR or the "
-        "temporary folder)",
+        help="the control socket, a Unix socket only its owner can use (default: "
+        "cobus-sim.sock in $XDG_RUNTIME_DIR or the temporary folder)",
+    )
+    control.add_argument(
+        "--no-control",
+        action="store_true",
+        help="run without a control socket (no faults from another shell)",
     )
     sim.add_argument("--json", action="store_true", help="inject, faults, status: as JSON")
     sim.add_argument("--interface", "-i", help="python-can interface (overrides the rig file)")
@@ -174,6 +180,9 @@ async def _controlled(rig: Rig, args: argparse.Namespace) -> Any:
     simulation's: this one runs without); removed at the end."""
     from cobus.sim._control import ControlError, default_path, serve
 
+    if args.no_control:
+        yield None
+        return
     path = args.control or default_path()
     try:
         server = await serve(rig, path)
