@@ -306,16 +306,18 @@ STATES = [
 
 # For each waiting state, an answer that is valid somewhere in SDO but not there.
 WRONG = {
-    "upload initiate": s2c(0x60, LO, HI, 0),
     "upload segment": s2c(0x20),
-    "download initiate": s2c(0x43, LO, HI, 0, 1),
     "download segment": s2c(0x00, 1),
-    "block upload initiate": s2c(0x60, LO, HI, 0),
     "block upload end": s2c(0xA2, 1, 1),
-    "block download initiate": s2c(0x60, LO, HI, 0),
     "block download ack": s2c(0x60, LO, HI, 0),
     "block download end": s2c(0xA2, 1, 1),
 }
+INITIATING = [
+    "upload initiate",
+    "download initiate",
+    "block upload initiate",
+    "block download initiate",
+]
 
 
 @pytest.mark.parametrize("state", sorted(WRONG))
@@ -326,13 +328,60 @@ def test_unexpected_command_aborts_05040001(state: str) -> None:
     assert f"{WRONG[state].data[0]:02X}h" in str(error)
 
 
-@pytest.mark.parametrize("state", ["upload initiate", "download initiate", "block upload initiate"])
-def test_initiate_response_for_another_object_aborts_06040043(state: str) -> None:
+@pytest.mark.parametrize("state", INITIATING)
+def test_a_command_no_server_sends_aborts_05040001_while_initiating(state: str) -> None:
     c = _in_state(state)
-    cmd = {"upload initiate": 0x4F, "download initiate": 0x60, "block upload initiate": 0xC6}
-    out = c.on_frame(s2c(cmd[state], LO, HI, 9, 1), 0.5)
-    error = assert_protocol_abort(c, out, SdoAbortCode.PARAMETER_INCOMPATIBLE)
-    assert "answered for 0x2000:09" in str(error)
+    error = assert_protocol_abort(c, c.on_frame(s2c(0xE0, LO, HI, 0), 0.5), 0x05040001)
+    assert "E0h" in str(error)
+
+
+# A reply of another service, for another object, or an abort naming another object: what a
+# server answering late (or a second client's server) sends while an initiate is pending.
+STALE = [
+    s2c(0x60, 0x17, 0x10, 0),  # download response, 1017h
+    s2c(0x60, LO, HI, 0),  # download response, the same object
+    s2c(0x43, 0x00, 0x10, 0, 0x91, 1, 0, 0),  # upload response, 1000h
+    s2c(0x4F, LO, HI, 9, 1),  # upload response, another sub-index
+    s2c(0x20),  # download segment response
+    s2c(0x00, 1, 2, 3),  # upload segment
+    s2c(0xA2, 1, 1),  # block acknowledge
+    s2c(0xC6, 0x18, 0x10, 1, 4),  # block upload response, 1018h
+    abort_frame(TX, 0x1017, 0, 0x05040000),  # an abort of an earlier transfer
+]
+
+
+@pytest.mark.parametrize("state", INITIATING)
+def test_stale_replies_are_dropped_while_initiating_and_the_answer_is_taken(state: str) -> None:
+    c = _in_state(state)
+    answers = {
+        "upload initiate": s2c(0x4F, LO, HI, 0, 7),
+        "download initiate": s2c(0x60, LO, HI, 0),
+        "block upload initiate": s2c(0x4F, LO, HI, 0, 7),  # (a protocol switch)
+        "block download initiate": s2c(0xA4, LO, HI, 0, 127),
+    }
+    stale = [f for f in STALE if not (state == "download initiate" and f == answers[state])]
+    for n, frame in enumerate(stale, 1):
+        assert c.on_frame(frame, 0.1 * n) is NOTHING, frame
+        assert c.busy and c.deadline == 1.0  # (still waiting for the answer in time)
+    dropped = c.stale_replies
+    assert dropped == len(stale)
+    out = c.on_frame(answers[state], 0.95)
+    assert out.events or out.frames  # the real answer goes on with the transfer
+    assert not any(isinstance(e, TransferFailed) for e in out.events)
+    assert c.stale_replies == dropped
+
+
+def test_a_timeout_after_stale_replies_says_what_was_dropped() -> None:
+    c = _in_state("upload initiate")
+    c.on_frame(s2c(0x60, 0x17, 0x10, 0), 0.5)
+    error = failed(c.on_timer(1.0)).error
+    assert isinstance(error, SdoTimeoutError)
+    assert error.stale is not None
+    assert "1 stale reply dropped, the last command 60h for 0x1017:00" in str(error)
+    c.start_upload(IDX, 0, 2.0)  # the count is per transfer
+    error = failed(c.on_timer(3.0)).error
+    assert isinstance(error, SdoTimeoutError) and error.stale is None
+    assert c.stale_replies == 1
 
 
 def test_initiate_response_shorter_than_its_index_is_a_protocol_error() -> None:

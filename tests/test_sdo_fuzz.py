@@ -159,6 +159,8 @@ def client_oracle(state: str, frame: Frame) -> int:
     if state == "block upload data":  # block size 127, segment 1 expected
         return SdoAbortCode.SEQUENCE_NUMBER if cmd & 0x7F == 0 else NONE
     if not VALID[state](cmd):
+        if state.endswith("initiate") and cmd & 0xE0 not in (0x80, 0xE0):
+            return NONE  # a reply of another service: stale, dropped
         return SdoAbortCode.INVALID_COMMAND
     if state in ("upload segment", "download segment") and cmd & 0x10:
         return SdoAbortCode.TOGGLE_BIT

@@ -57,9 +57,7 @@ class SdoLink:
                 self._host.run(start)
                 event = await future
             except asyncio.CancelledError:
-                if self.client.busy:
-                    client = self.client
-                    self._host.run(lambda now: client.abort(SdoAbortCode.GENERAL_ERROR, now))
+                self._abort_pending()
                 raise
             finally:
                 self._pending = None
@@ -97,8 +95,17 @@ class SdoLink:
         var = self.variable(index, subindex)
         await self.download(var.index, var.subindex, var.encode(value))
 
-    def close(self) -> None:
-        if self.client.busy:
-            client = self.client
+    def _abort_pending(self) -> None:
+        """Abort the transfer under way on the bus; with the network closed already there is
+        no bus to tell: the client is only set free."""
+        client = self.client
+        if not client.busy:
+            return
+        if self._network.connected:
             self._host.run(lambda now: client.abort(SdoAbortCode.GENERAL_ERROR, now))
+        else:
+            client.abort(SdoAbortCode.GENERAL_ERROR, 0.0)  # (its frame goes nowhere)
+
+    def close(self) -> None:
+        self._abort_pending()
         self._host.close()

@@ -29,6 +29,7 @@ __all__ = [
     "NodeEvent",
     "NodeMissing",
     "NodeStateChanged",
+    "SdoUnanswered",
     "StateRestored",
     "TpdoLengthError",
     "TpdoMissing",
@@ -209,6 +210,22 @@ class UnexpectedState(NodeEvent):
 
     def __str__(self) -> str:
         return f"node {self.node_id} reports {self.reported.name}, expected {self.expected.name}"
+
+
+@dataclass(frozen=True, slots=True)
+class SdoUnanswered(NodeEvent):
+    """The node did not answer SDO while the master configured it, though its heartbeat says
+    it is there in ``reported``: the master sent ``command`` to make it answer again
+    (``"enter_preoperational"`` for a stopped node, ``"reset_node"`` for one whose SDO server
+    is silent), or ``""`` when it has sent as many as its limit allows and leaves the node as
+    it is (``reason`` says so)."""
+
+    reported: NmtState
+    command: str
+    reason: str
+
+    def __str__(self) -> str:
+        return f"node {self.node_id}: {self.reason}"
 
 
 @dataclass(frozen=True, slots=True)

@@ -33,6 +33,7 @@ from cobus.master.events import (
     NodeEmergency,
     NodeMissing,
     NodeStateChanged,
+    SdoUnanswered,
     StateRestored,
     TpdoLengthError,
     TpdoMissing,
@@ -45,7 +46,7 @@ from cobus.proto import guarding as _guarding
 from cobus.proto.emcy import EmcyReceived
 from cobus.proto.nmt import NmtState
 from cobus.proto.pdo import RpdoResumed, RpdoTimeout, RpdoWatchdog
-from cobus.proto.sdo import SdoAbortedError, SdoError, SdoTimeoutError
+from cobus.proto.sdo import SdoAbortedError, SdoError, SdoProtocolError, SdoTimeoutError
 from cobus.runtime.events import BusState, HandlerFailed
 
 if TYPE_CHECKING:
@@ -125,6 +126,10 @@ class ManagedNode:
         self._rpdo_missing = False
         self._configured_at: float | None = None
         self._last_ec: float | None = None
+        #: The NMT state the node's last heartbeat (or guarding reply) gave, and when.
+        self._heard: tuple[float, NmtState] | None = None
+        self._wakes: list[float] = []  # when NMT commands made a silent node answer SDO
+        self._left_said: str | None = None  # the "left as it is" SdoUnanswered last emitted
         self._first_check: asyncio.TimerHandle | None = None
         #: A pending NMT command bringing the node back to the state the master expects.
         self._heal: asyncio.TimerHandle | None = None
@@ -337,7 +342,7 @@ class ManagedNode:
             except _NodeSilent:
                 self._not_found = True
                 self.problem = "stopped answering SDO while being configured"
-                if not cfg.mandatory:
+                if not cfg.mandatory and not self._wake(True):
                     self._set_state(NodeState.ABSENT)
                     self.master._emit(NodeMissing(self.node_id, False, self.problem))
                     return
@@ -431,28 +436,39 @@ class ManagedNode:
             self._bootup = None
 
     async def _presence(self) -> bool:
-        """Read 1000h (a mandatory node every 0.5 s until it answers, an optional one once)."""
+        """Read 1000h (a mandatory node every 0.5 s until it answers, an optional one once).
+
+        A node silent on SDO whose heartbeat says it is there is made to answer
+        (:meth:`_wake`); a protocol error (a reply that makes no sense, as a late reply of
+        an earlier transfer may) is asked again before it counts as the node's answer."""
         cfg = self.config
         loop = self.master.network.loop
         reported = False
+        silent = garbled = 0
         while True:
             began = loop.time()
             try:
                 data = await self.sdo.upload(0x1000, 0)
             except SdoTimeoutError:
+                silent += 1
                 self._not_found = True
                 self.problem = "no boot-up and no answer to the 1000h read"
-                if not cfg.mandatory:
+                woke = self._wake(silent > cfg.sdo_retries)
+                if not cfg.mandatory and not woke:
                     self._set_state(NodeState.ABSENT)
                     self.master._emit(NodeMissing(self.node_id, False, self.problem))
                     return False
-                if not reported:
+                if not reported and cfg.mandatory:
                     reported = True
                     self.master._note_configuring()
                     self.master._emit(NodeMissing(self.node_id, True, self.problem))
-                await asyncio.sleep(max(0.0, _PRESENCE_RETRY - (loop.time() - began)))
+                pause = self.HEAL_DELAY if woke else _PRESENCE_RETRY - (loop.time() - began)
+                await asyncio.sleep(max(0.0, pause))
                 continue
             except SdoError as exc:
+                if isinstance(exc, SdoProtocolError) and garbled < cfg.sdo_retries:
+                    garbled += 1
+                    continue
                 # the node is there but refuses 1000h (a mandatory object: it is broken)
                 self._not_found = False
                 self.device_type = None
@@ -462,6 +478,7 @@ class ManagedNode:
                     raise _Held() from None
                 return True
             self._not_found = False
+            self._left_said = None
             self.problem = None
             actual = int.from_bytes(data[:4].ljust(4, b"\0"), "little")
             self.device_type = actual
@@ -480,6 +497,60 @@ class ManagedNode:
                     raise _Held()
             return True
 
+    #: At most this many NMT commands in WAKE_WINDOW seconds make a node that does not answer
+    #: SDO answer again; then it is left as it is (and the event says so) until the window
+    #: has passed.
+    WAKE_LIMIT = 3
+    WAKE_WINDOW = 60.0
+
+    def _wake(self, reset_too: bool) -> bool:
+        """The node did not answer SDO while the master needs it. If its heartbeat (heard
+        lately) says it is STOPPED, it gets enter pre-operational (a stopped node answers no
+        SDO, CiA 301); if it says PRE-OPERATIONAL or OPERATIONAL and ``reset_too``, its SDO
+        server is silent: it gets reset node. True when a command went out."""
+        heard = self._heard
+        cfg = self.config
+        network = self.master.network
+        now = network.time()
+        recent = max(2.0, 3 * cfg.heartbeat_time / 1000.0)
+        if heard is None or now - heard[0] > recent:
+            return False  # nothing says it is there: it is missing
+        state = heard[1]
+        if state is NmtState.STOPPED:
+            command = "enter_preoperational"
+            action = "enter pre-operational sent"
+        elif reset_too and state in (NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL):
+            command = "reset_node"
+            action = "reset node sent"
+        else:
+            return False
+        said = f"reports {state.name} but does not answer SDO"
+        self._wakes = [t for t in self._wakes if now - t < self.WAKE_WINDOW]
+        if cfg.restart == "manual" or len(self._wakes) >= self.WAKE_LIMIT:
+            if cfg.restart == "manual":
+                reason = f"{said}; waiting for a manual restart (restart: manual)"
+            else:
+                reason = (
+                    f"{said} after {self.WAKE_LIMIT} NMT commands within "
+                    f"{self.WAKE_WINDOW:g} s: left as it is"
+                )
+            self.problem = reason
+            if self._left_said != reason:  # said once, not at every read
+                self._left_said = reason
+                self.master._emit(SdoUnanswered(self.node_id, state, "", reason))
+            return False
+        self._wakes.append(now)
+        self._left_said = None
+        reason = f"{said}: {action}"
+        self.problem = reason
+        self.master._emit(SdoUnanswered(self.node_id, state, command, reason))
+        try:
+            getattr(network.nmt, command)(self.node_id)
+        except Exception as exc:  # (a full transmit backlog, a closed network)
+            network._report_failure(f"master: node {self.node_id} NMT {command}", exc)
+            return False
+        return True
+
     def _mismatched(self, reason: str) -> None:
         self._mismatch = True
         self.problem = reason
@@ -491,13 +562,18 @@ class ManagedNode:
         ):
             if not expected:
                 continue
-            try:
-                data = await self.sdo.upload(0x1018, sub)
-                actual: int | None = int.from_bytes(data[:4].ljust(4, b"\0"), "little")
-            except SdoTimeoutError:
-                raise _NodeSilent() from None
-            except SdoError:
-                actual = None
+            actual: int | None = None
+            for _attempt in range(self.config.sdo_retries + 1):
+                try:
+                    data = await self.sdo.upload(0x1018, sub)
+                except SdoTimeoutError:
+                    raise _NodeSilent() from None
+                except SdoProtocolError:
+                    continue  # a reply that made no sense: asked again before it counts
+                except SdoError:
+                    break  # refused
+                actual = int.from_bytes(data[:4].ljust(4, b"\0"), "little")
+                break
             self.identity[field] = actual
             if actual != expected:
                 shown = "refused" if actual is None else f"0x{actual:08X}"
@@ -649,6 +725,12 @@ class ManagedNode:
             return
         self._last_ec = now
         data = frame.data
+        if len(data) == 1:
+            code = data[0] & 0x7F
+            if code in _VALID_STATES:
+                self._heard = (now, NmtState(code))
+            elif code == 0:  # a boot-up: pre-operational from now on
+                self._heard = (now, NmtState.PRE_OPERATIONAL)
         if self.error_control != "guarding" or data == b"\x00":
             # A guarding reply is no heartbeat (its toggle bit would read as a malformed
             # one); the monitor only needs a guarded node's boot-up, to see it re-boot.

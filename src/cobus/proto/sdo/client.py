@@ -11,9 +11,15 @@ Choices where CiA 301 leaves room:
   example a download response ``60 idx idx sub`` of 4 bytes, or an expedited upload response
   that carries its data bytes). A reply missing bytes its command needs is a protocol error
   (abort 05040001). Empty frames on the response COB-ID are ignored.
-- An initiate response for another object than the one requested is answered with abort
-  06040043 (general parameter incompatibility).
-- An abort from the server ends the transfer whatever index it names (some servers send 0:0).
+- While the client waits for the answer to its initiate request, a reply that cannot be that
+  answer is taken as stale and dropped (CiA 301 lets the client ignore it): an initiate
+  response for another object, a reply of another service (a download response while an
+  upload is asked for), an abort naming another object than the one requested or 0:0. Such
+  replies come from a server answering a transfer the client already gave up (it answers
+  late), or from a second client on the same channel; the transfer goes on waiting, and if
+  it then times out the timeout says what was dropped. ``stale_replies`` counts them.
+- An abort from the server naming the object or 0:0 (some servers send 0:0) ends the
+  transfer; in the data phases any abort ends it.
 - Data beyond an indicated size is refused with abort 06070012, missing data with 06070013.
 - During the data phase of a block upload every frame except an abort (80h) is a block segment:
   the protocol gives no way to tell them apart. A segment out of sequence is ignored; at the
@@ -89,6 +95,18 @@ _BDL_ACK = ep.BLOCK_OUT  # sub-block sent, waiting for its acknowledge (A2h)
 _BDL_END = ep.BLOCK_OUT_END  # end sent, waiting for A1h
 
 _UPLOADS = (_UL_INIT, _UL_SEG, _BUL_INIT, _BUL_DATA, _BUL_END)
+_INITIATING = (_UL_INIT, _DL_INIT, _BUL_INIT, _BDL_INIT)
+# Command specifiers (bits 7..5) a server sends; 80h (abort) is taken before, E0h never is.
+_SERVER_SERVICES = frozenset(
+    (
+        w.SCS_UPLOAD_SEGMENT,
+        w.SCS_DOWNLOAD_SEGMENT,
+        w.SCS_INITIATE_UPLOAD,
+        w.SCS_INITIATE_DOWNLOAD,
+        w.SCS_BLOCK_DOWNLOAD,
+        w.SCS_BLOCK_UPLOAD,
+    )
+)
 
 _BLOCK_HINT = (
     "the server may not support block transfers: retry without block, or check the "
@@ -107,7 +125,7 @@ class SdoClient(ep.Endpoint):
     block CRC. ``node`` names the node in error messages (derived from default COB-IDs).
     """
 
-    __slots__ = ("_channel", "_node", "_pst")
+    __slots__ = ("_channel", "_last_stale", "_node", "_pst", "_stale", "stale_replies")
 
     _ROLE = "client"
     _PEER = "the server"
@@ -137,6 +155,10 @@ class SdoClient(ep.Endpoint):
         self._pst = pst
         self._node = node if node is not None else w.node_of(rx_cob_id, tx_cob_id)
         self._channel = f"0x{rx_cob_id:X}/0x{tx_cob_id:X}"
+        #: Replies dropped as stale since the client was made (see the module's notes).
+        self.stale_replies = 0
+        self._stale = 0  # ... during the transfer under way
+        self._last_stale = ""
 
     # -- properties --------------------------------------------------------------------------
 
@@ -238,12 +260,20 @@ class SdoClient(ep.Endpoint):
         deadline = self.deadline
         if deadline is None or now < deadline:
             return NOTHING
+        stale = None
+        if self._stale:
+            stale = (
+                f"{self._stale} stale repl{'y' if self._stale == 1 else 'ies'} dropped, the "
+                f"last {self._last_stale}: the server answers late or another client uses this "
+                "channel"
+            )
         error = SdoTimeoutError(
             index=self._index,
             subindex=self._subindex,
             timeout=self._timeout,
             node=self._node,
             channel=self._channel,
+            stale=stale,
         )
         return self._fail(error, SdoAbortCode.TIMEOUT)
 
@@ -252,6 +282,8 @@ class SdoClient(ep.Endpoint):
         if state == _IDLE:
             return NOTHING
         if cmd == w.ABORT:
+            if state in _INITIATING and not self._abort_ours(data):
+                return self._drop_stale(data)
             return self._peer_abort(data)
         if state == _UL_SEG:  # an upload segment goes to _segment_in
             return self._unexpected(cmd, "an upload segment (0xh/1xh)")
@@ -283,7 +315,7 @@ class SdoClient(ep.Endpoint):
     def _upload_response(self, data: bytes, now: float) -> Out:
         cmd = data[0]
         if cmd & w.SERVICE_MASK != w.SCS_INITIATE_UPLOAD:
-            return self._unexpected(cmd, "an upload response (4xh)")
+            return self._other(data, "an upload response (4xh)")
         if not self._mux_ok(data):
             return self._mux_error(data)
         if cmd & w.EXPEDITED:
@@ -301,7 +333,7 @@ class SdoClient(ep.Endpoint):
     def _download_response(self, data: bytes, now: float) -> Out:
         cmd = data[0]
         if cmd & w.SERVICE_MASK != w.SCS_INITIATE_DOWNLOAD:
-            return self._unexpected(cmd, "a download response (60h)")
+            return self._other(data, "a download response (60h)")
         if not self._mux_ok(data):
             return self._mux_error(data)
         if self._sent_last:  # expedited: done
@@ -341,7 +373,7 @@ class SdoClient(ep.Endpoint):
             # the size is at most pst; accepted whatever pst was, the data is the same).
             return self._upload_response(data, now)
         if cmd & w.BLOCK6_MASK != w.SCS_BLOCK_UPLOAD:
-            return self._unexpected(cmd, "a block upload response (C0h..C6h) or upload response")
+            return self._other(data, "a block upload response (C0h..C6h) or upload response")
         if not self._mux_ok(data):
             return self._mux_error(data)
         if cmd & w.BLOCK_SIZE_FLAG:
@@ -359,7 +391,7 @@ class SdoClient(ep.Endpoint):
     def _block_download_response(self, data: bytes, now: float) -> Out:
         cmd = data[0]
         if cmd & w.BLOCK5_MASK != w.SCS_BLOCK_DOWNLOAD:
-            return self._unexpected(cmd, "a block download response (A0h/A4h)")
+            return self._other(data, "a block download response (A0h/A4h)")
         if not self._mux_ok(data):
             return self._mux_error(data)
         if len(data) < 5:
@@ -390,6 +422,7 @@ class SdoClient(ep.Endpoint):
         w.check_object(index, subindex)
         self._index = index
         self._subindex = subindex
+        self._stale = 0
 
     def _succeed(self, event: Event) -> Out:
         self._reset()
@@ -432,11 +465,32 @@ class SdoClient(ep.Endpoint):
     def _mux_error(self, data: bytes) -> Out:
         if len(data) < 4:
             return self._short(data, "an initiate response (command, index, sub-index)")
+        return self._drop_stale(data)
+
+    def _other(self, data: bytes, wanted: str) -> Out:
+        """An initiate response of another service than the one asked for: a stale reply of
+        an earlier transfer, unless no server sends that command at all."""
+        cmd = data[0]
+        if cmd & w.SERVICE_MASK in _SERVER_SERVICES:
+            return self._drop_stale(data)
+        return self._unexpected(cmd, wanted)
+
+    def _abort_ours(self, data: bytes) -> bool:
+        """Whether an abort names the object asked for, 0:0, or nothing (a short frame)."""
+        if len(data) < 4:
+            return True
         _, index, subindex = w.MUX.unpack_from(data)
-        return self._violation(
-            SdoAbortCode.PARAMETER_INCOMPATIBLE,
-            f"the server answered for 0x{index:04X}:{subindex:02X}",
-        )
+        return (index, subindex) in ((self._index, self._subindex), (0, 0))
+
+    def _drop_stale(self, data: bytes) -> Out:
+        self._stale += 1
+        self.stale_replies += 1
+        what = f"command {data[0]:02X}h"
+        if len(data) >= 4:
+            _, index, subindex = w.MUX.unpack_from(data)
+            what += f" for 0x{index:04X}:{subindex:02X}"
+        self._last_stale = what
+        return NOTHING
 
     def _peer_abort(self, data: bytes) -> Out:
         code = w.U32.unpack_from(w.padded(data), 4)[0]

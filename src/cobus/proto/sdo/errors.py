@@ -104,14 +104,20 @@ class SdoTimeoutError(SdoError, TimeoutError):
         timeout: float,
         node: int | None = None,
         channel: str = "",
+        stale: str | None = None,
     ) -> None:
         self.timeout = timeout
-        message = (
-            f"SDO timeout on {where(index, subindex, node, channel)}: no answer within "
-            f"{timeout:g} s (check that the node is powered, connected at the same bit rate, "
-            "not in NMT stopped state, and that the SDO COB-IDs are right; slow devices may "
-            "need a longer timeout)"
-        )
+        #: What the client dropped as stale while it waited (None: nothing).
+        self.stale = stale
+        message = f"SDO timeout on {where(index, subindex, node, channel)}: no answer within "
+        if stale is not None:
+            message += f"{timeout:g} s ({stale}; a longer timeout may help)"
+        else:
+            message += (
+                f"{timeout:g} s (check that the node is powered, connected at the same bit "
+                "rate, not in NMT stopped state, and that the SDO COB-IDs are right; slow "
+                "devices may need a longer timeout)"
+            )
         super().__init__(message, index=index, subindex=subindex, node=node)
 
 
