@@ -94,6 +94,24 @@ def _nest(data: bytes, rng: random.Random) -> bytes:
     return data[:at] + opener * depth + data[at:]
 
 
+_KEY_VALUE = re.compile(rb"(?m)^([ \t-]*[^\s#:][^:\n]*:[ \t]+)([^\s#{\[&*|>][^\n#]*)")
+
+
+def alias_bomb(data: bytes, rng: random.Random | None = None, key: bytes = b"") -> bytes:
+    """A YAML "billion laughs" (a few hundred bytes that expand to 9**9 values): anchors
+    at the top of a mapping file, and the value of ``key`` (the first one; a random key with a
+    plain value with ``rng``) made the alias of the biggest - the value a message would name."""
+    levels = [b"lol0: &l0 [lol, lol, lol, lol, lol, lol, lol, lol, lol]"]
+    for n in range(1, 10):
+        refs = b", ".join([b"*l%d" % (n - 1)] * 9)
+        levels.append(b"lol%d: &l%d [%s]" % (n, n, refs))
+    spots = [m for m in _KEY_VALUE.finditer(data) if not key or m.group(1).strip(b" \t-:") == key]
+    if spots:
+        spot = rng.choice(spots) if rng is not None else spots[0]
+        data = data[: spot.start(2)] + b"*l9 " + data[spot.end(2) :]
+    return b"\n".join(levels) + b"\n" + data
+
+
 def _cut(data: bytes, rng: random.Random) -> bytes:
     return data[: rng.randrange(len(data) + 1)]
 
@@ -115,6 +133,7 @@ _MUTATORS: list[Callable[[bytes, random.Random], bytes]] = [
     _nest,
     _cut,
     _splice,
+    alias_bomb,
 ]
 
 

@@ -140,3 +140,33 @@ def servo_bench(folder: Path, tag: str) -> Iterator[tuple[Any, Any, Path, list[s
         eds = folder / "servo.eds"
         eds.write_text(export_eds(rig.aio.devices[10].od))
         yield net, rig, eds, ["-i", "virtual", "-c", channel]
+
+
+def bounded_python(
+    code: str, *, memory_mb: int = 1500, seconds: float = 60.0, cwd: Path | None = None
+) -> tuple[int, str, str]:
+    """Run ``code`` in a child Python under an address-space cap and a time limit: what a
+    hostile input could make run away (a regression costs a MemoryError or a timeout in the
+    child, never the test run). (exit status, stdout, stderr); status -9 on a timeout."""
+    import resource
+    import subprocess
+    import sys
+
+    def cap() -> None:
+        limit = memory_mb * 1024 * 1024
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", code],
+            capture_output=True,
+            text=True,
+            timeout=seconds,
+            preexec_fn=cap,
+            cwd=cwd,
+            check=False,
+        )
+    except subprocess.TimeoutExpired as exc:
+        out = exc.stdout.decode() if isinstance(exc.stdout, bytes) else (exc.stdout or "")
+        return -9, out, f"timed out after {seconds:g} s"
+    return done.returncode, done.stdout, done.stderr

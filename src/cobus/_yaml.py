@@ -5,7 +5,11 @@ and unreadable input reported as :class:`YamlProblem` with a line, never a bare 
 Plain scalars are typed as YAML 1.2 types them, not as PyYAML's YAML 1.1 would, so that a
 set-point means what it says: ``010`` is ten (not octal eight), ``1:30`` is text (not 90),
 ``no``/``on`` are text (only true/false are booleans); hex ``0x1A`` and octal ``0o17`` stay.
-A number of more than 40 digits is refused (a value no CANopen type holds)."""
+A number of more than 40 digits is refused (a value no CANopen type holds).
+
+Anchors and aliases (``&defaults`` / ``<<: *defaults``) are read, but a document whose
+aliases add more than :data:`MAX_ALIAS_VALUES` values to it (an "alias bomb": a few hundred
+bytes that expand to gigabytes) or refer to themselves is refused before anything is built."""
 
 from __future__ import annotations
 
@@ -17,9 +21,10 @@ from typing import Any, ClassVar
 
 import yaml
 
-from cobus.errors import CobusError
+from cobus.errors import CobusError, clip
 
 __all__ = [
+    "MAX_ALIAS_VALUES",
     "DataFileError",
     "FileProblem",
     "LineMap",
@@ -29,6 +34,11 @@ __all__ = [
     "milliseconds",
     "read_yaml",
 ]
+
+
+#: The most values (scalars, mappings, sequences) the aliases of a document may add to it once
+#: expanded (a 127-node network file holds about 10,000 values in all).
+MAX_ALIAS_VALUES = 100_000
 
 
 class LineMap(dict[Any, Any]):
@@ -65,8 +75,8 @@ class FileProblem:
 
     def __str__(self) -> str:
         where = self.path if self.line is None else f"{self.path}:{self.line}"
-        key = "" if self.key is None else f" {self.key}:"
-        return f"{where}:{key} {self.reason}"
+        key = "" if self.key is None else f" {clip(self.key, 80)}:"
+        return f"{where}:{key} {clip(self.reason)}"
 
 
 class DataFileError(CobusError, ValueError):
@@ -174,7 +184,12 @@ def read_yaml(text: str) -> tuple[Any, list[YamlProblem]]:
     try:
         loader = _Loader(text)  # (the reader refuses control characters here already)
         loader.duplicates = []
-        data = loader.get_single_data()
+        node = loader.get_single_node()
+        if node is not None:
+            refused = _expansion_problem(node)
+            if refused is not None:
+                return None, [refused]
+        data = loader.construct_document(node) if node is not None else None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = mark.line + 1 if mark is not None else None
@@ -198,6 +213,57 @@ def read_yaml(text: str) -> tuple[Any, list[YamlProblem]]:
         for key, line in loader.duplicates
     ]
     return data, problems
+
+
+def _expansion_problem(root: yaml.Node) -> YamlProblem | None:
+    """Why the node graph of a document must not be built: its aliases add more than
+    :data:`MAX_ALIAS_VALUES` values to it, or one refers to a value it is part of."""
+    sizes: dict[int, int] = {}  # id(node) -> values in it, aliases expanded
+    open_: set[int] = set()
+    # An explicit stack (a deep document must not cost Python's recursion): (node, children
+    # done); a node is summed once its children are.
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        if done:
+            open_.discard(key)
+            total = 1 + sum(sizes[id(child)] for child in _children(node))
+            if total > MAX_ALIAS_VALUES + len(sizes) + 1:  # (more than its own values)
+                return YamlProblem(
+                    node.start_mark.line + 1,
+                    f"the aliases (*name) add more than {MAX_ALIAS_VALUES:,} values to this "
+                    "document (an alias bomb?): write the values out, or use fewer aliases "
+                    "of aliases",
+                )
+            sizes[key] = total
+            continue
+        if key in sizes:
+            continue
+        if key in open_:
+            return YamlProblem(
+                node.start_mark.line + 1,
+                "an alias (*name) refers to a value it is part of: a value cannot hold itself",
+            )
+        open_.add(key)
+        stack.append((node, True))
+        for child in _children(node):
+            if id(child) in open_:
+                return YamlProblem(
+                    child.start_mark.line + 1,
+                    "an alias (*name) refers to a value it is part of: a value cannot hold itself",
+                )
+            if id(child) not in sizes:
+                stack.append((child, False))
+    return None
+
+
+def _children(node: yaml.Node) -> list[yaml.Node]:
+    if isinstance(node, yaml.MappingNode):
+        return [n for pair in node.value for n in pair]
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    return []
 
 
 _DURATION = re.compile(r"\s*([0-9]+(?:\.[0-9]*)?|\.[0-9]+)\s*(us|µs|ms|s)?\s*\Z")

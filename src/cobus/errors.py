@@ -7,3 +7,17 @@ everything cobus reports with one ``except`` and still tell the causes apart.
 
 class CobusError(Exception):
     """Base class of all errors raised by cobus."""
+
+
+#: The most characters of a value (or of one problem's reason) a message shows.
+CLIP = 300
+
+
+def clip(text: str, limit: int = CLIP) -> str:
+    """``text`` cut in its middle to about ``limit`` characters, saying how many were left out:
+    a message names a value, it never prints a megabyte of it."""
+    if len(text) <= limit:
+        return text
+    head = limit * 2 // 3
+    tail = limit - head
+    return f"{text[:head]}…({len(text) - limit:,} characters left out)…{text[-tail:]}"

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from cobus.errors import CobusError
+from cobus.errors import CobusError, clip
 from cobus.od import Severity  # one scale for every finding: errors stop loading
 
 __all__ = [
@@ -37,10 +37,10 @@ class ConfigProblem:
         where = self.path if self.line is None else f"{self.path}:{self.line}"
         parts = [f"{where}:"]
         if self.node is not None:
-            parts.append(f"node {self.node!r}:")
+            parts.append(f"node {clip(repr(self.node), 80)}:")
         if self.key is not None:
-            parts.append(f"{self.key}:")
-        parts.append(f"{self.severity}: {self.reason}")
+            parts.append(f"{clip(self.key, 80)}:")
+        parts.append(f"{self.severity}: {clip(self.reason)}")
         return " ".join(parts)
 
 

@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from cobus._yaml import read_yaml
+from cobus.errors import clip
 from cobus.proto import Event, Frame
 from cobus.proto.nmt import check_node_id
 from cobus.runtime import open_bus
@@ -88,6 +89,9 @@ _BUS_KEYS = {"interface", "channel", "bitrate"}
 
 class RigError(SimulationError, ValueError):
     """A rig file or a rig operation that cannot work; says where and what to change."""
+
+    def __str__(self) -> str:
+        return "\n".join(clip(line, 600) for line in super().__str__().split("\n"))
 
 
 class KindUnavailableError(RigError):
