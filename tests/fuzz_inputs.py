@@ -112,6 +112,21 @@ def alias_bomb(data: bytes, rng: random.Random | None = None, key: bytes = b"") 
     return b"\n".join(levels) + b"\n" + data
 
 
+def _repeat_line(data: bytes, rng: random.Random) -> bytes:
+    """One line (a key, in an EDS) repeated thousands of times where it is."""
+    lines = _lines(data)
+    at = rng.randrange(len(lines))
+    return b"\n".join(lines[:at] + [lines[at]] * rng.choice([1000, 20_000]) + lines[at:])
+
+
+def _indent_headers(data: bytes, rng: random.Random) -> bytes:
+    """Every section header (or every line) indented by a space or a tab."""
+    pad = rng.choice([b" ", b"\t"])
+    if rng.random() < 0.5:
+        return data.replace(b"\n[", b"\n" + pad + b"[")
+    return b"\n".join(pad + line for line in _lines(data))
+
+
 def _cut(data: bytes, rng: random.Random) -> bytes:
     return data[: rng.randrange(len(data) + 1)]
 
@@ -133,6 +148,8 @@ _MUTATORS: list[Callable[[bytes, random.Random], bytes]] = [
     _nest,
     _cut,
     _splice,
+    _repeat_line,
+    _indent_headers,
     alias_bomb,
 ]
 

@@ -112,3 +112,67 @@ def test_clip_keeps_both_ends_and_says_how_much_is_left_out() -> None:
     text = clip("a" * 200 + "b" * 1000 + "c" * 100)
     assert text.startswith("a" * 200) and text.endswith("c" * 100)
     assert "(1,000 characters left out)" in text
+
+
+# -- EDS: linear time, bounded widths -----------------------------------------------------------
+
+OBJECT = "[{index:04X}]\nParameterName={name}\nObjectType=0x7\nDataType={type}\nAccessType=rw\n"
+OBJECT += "DefaultValue={default}\nPDOMapping=0\n"
+
+
+def eds_text(*objects: str) -> str:
+    head = "[FileInfo]\nFileName=hostile.eds\n[DeviceInfo]\nVendorName=x\n[MandatoryObjects]\n"
+    return head + "SupportedObjects=1\n1=0x1000\n" + "".join(objects)
+
+
+def load_eds_bounded(text: str, tmp_path: Path, *, show: bool = False) -> dict[str, object]:
+    path = tmp_path / "hostile.eds"
+    path.write_text(text, encoding="latin-1")
+    code = textwrap.dedent(
+        f"""
+        import json
+        from cobus.od import load
+        from cobus.od._cli import render_table
+        od = load({str(path)!r})
+        shown = render_table(od) if {show!r} else ""
+        print(json.dumps({{"findings": [str(f) for f in od.findings][:3],
+                           "count": len(od.findings), "shown": len(shown)}}))
+        """
+    )
+    status, stdout, stderr = bounded_python(code, memory_mb=1500, seconds=30)
+    assert status == 0, f"exit {status}: {stderr[-2000:]}"
+    result: dict[str, object] = json.loads(stdout)
+    return result
+
+
+def test_an_eds_of_repeated_keys_is_read_in_linear_time(tmp_path: Path) -> None:
+    """520 kB of one key repeated took 22 s (each repeat scanned the section for the line of
+    the first); now each repeat is a finding that names that line."""
+    device_type = OBJECT.format(index=0x1000, name="Device type", type="0x0007", default=0x191)
+    result = load_eds_bounded(eds_text(device_type + "DefaultValue=1\n" * 37_000), tmp_path)
+    assert result["count"] == 37_000
+    first = str(result["findings"][0])  # type: ignore[index]
+    assert "key DefaultValue appears twice in the section (first at line 13)" in first
+    assert "hostile.eds:15:" in first
+
+
+def test_an_eds_of_indented_section_headers_is_read_in_linear_time(tmp_path: Path) -> None:
+    """Headers indented by a space (" [2000]") kept the whole file in one stretch and
+    counted each header's offset from its start: 160 kB took 9.4 s, 650 kB minutes."""
+    headers = "".join(f" [{n >> 8:04X}sub{n & 0xFF:X}]\n" for n in range(50_000))
+    result = load_eds_bounded(eds_text(headers), tmp_path)
+    assert int(str(result["count"])) >= 1  # (a sub-object without its object, without keys)
+
+
+def test_eds_show_pads_no_row_to_a_huge_cell(tmp_path: Path) -> None:
+    """A 700 kB default value used to pad every row of `cobus eds show` to its width."""
+    objects = [
+        OBJECT.format(index=0x1000, name="Device type", type="0x0007", default=0x191),
+        OBJECT.format(index=0x2000, name="Huge", type="0x0009", default="x" * 700_000),
+        *(
+            OBJECT.format(index=0x2001 + n, name=f"n{n}", type="0x0007", default=n)
+            for n in range(200)
+        ),
+    ]
+    result = load_eds_bounded(eds_text(*objects), tmp_path, show=True)
+    assert int(str(result["shown"])) < 700_000 + 200 * 200

@@ -169,12 +169,17 @@ def _kind(obj: Variable | Record | Array) -> str:
     return obj.object_type.name
 
 
+#: The widest a column is padded to: a longer cell (a 100 kB default value) runs past its
+#: column in its own row, whole, instead of padding every row of the table to its width.
+_MAX_WIDTH = 60
+
+
 def _table(header: list[str], rows: Iterable[list[str]]) -> list[str]:
     rows = list(rows)
     widths = [len(h) for h in header]
     for row in rows:
         for i, cell in enumerate(row):
-            widths[i] = max(widths[i], len(cell))
+            widths[i] = max(widths[i], min(len(cell), _MAX_WIDTH))
     lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)).rstrip()]
     lines.append("  ".join("-" * w for w in widths))
     lines.extend(

@@ -129,7 +129,7 @@ _COMMISSIONING_KEYS = {
 
 
 class _Section:
-    __slots__ = ("comments", "end", "keys", "line", "name", "start")
+    __slots__ = ("comments", "end", "key_lines", "keys", "line", "name", "start")
 
     def __init__(self, name: str, line: int, start: int) -> None:
         self.name = name
@@ -139,6 +139,9 @@ class _Section:
         self.keys: dict[str, str] = {}
         #: Whole-line comments: (the key before it, or None; the line).
         self.comments: list[tuple[str | None, str]] | None = None
+        #: The line of each key, kept only once a key appeared twice in the section (so
+        #: that a file of repeated keys costs one scan of the section, not one per repeat).
+        self.key_lines: dict[str, int] | None = None
 
 
 class _Loader:
@@ -178,6 +181,16 @@ class _Loader:
                 return i
         return sec.line
 
+    def key_lines(self, sec: _Section) -> dict[str, int]:
+        """The line of each key of ``sec`` (lower case, the first one of a name)."""
+        found: dict[str, int] = {}
+        for i, raw in enumerate(self.text[sec.start : sec.end].split("\n"), sec.line + 1):
+            key, sep, _ = raw.partition("=")
+            key = key.strip()
+            if sep and key and key[0] not in ";#[":
+                found.setdefault(key.lower(), i)
+        return found
+
     # --- pass 1: sections -------------------------------------------------------------------
 
     def tokenize(self, text: str) -> list[_Section]:
@@ -205,6 +218,11 @@ class _Loader:
             lines = text[start:end].split("\n")
             if not lines[-1]:
                 lines.pop()  # what follows the stretch's last newline
+            # Text offset of the line after the last header found in this stretch and its
+            # index in ``lines``: a header's offset is counted on from there (headers that do
+            # not start a line, " [1000]", stay in one stretch: counting from the stretch's
+            # start for each was quadratic).
+            mark, mark_at = start, 0
             for i, raw in enumerate(lines, no + 1):
                 line = raw.strip()
                 if not line:
@@ -221,12 +239,10 @@ class _Loader:
                     continue
                 if first == "[":
                     # Text offsets of this line and of the next one.
-                    here = (
-                        start
-                        if i == no + 1
-                        else start + sum(len(x) + 1 for x in lines[: i - no - 1])
-                    )
+                    at = i - no - 1
+                    here = mark + sum(len(x) + 1 for x in lines[mark_at:at])
                     after = here + len(raw) + 1
+                    mark, mark_at = after, at + 1
                     if cur is not None:
                         cur.end = here
                     last_key = None
@@ -271,18 +287,24 @@ class _Loader:
                     continue
                 keys = cur.keys
                 if key in keys:
-                    cur.end = end
+                    key_lines = cur.key_lines
+                    if key_lines is None:
+                        cur.end = end
+                        key_lines = cur.key_lines = self.key_lines(cur)
                     self.error(
                         i,
                         cur.name,
                         f"key {key} appears twice in the section (first at line "
-                        f"{self.key_line(cur, key)}); keep one — the first value is used",
+                        f"{key_lines.get(key.lower(), cur.line)}); keep one — the first value "
+                        "is used",
                     )
                     continue
                 value = value.lstrip()
                 # One string object per distinct key and value: files repeat them a lot.
                 last_key = intern(key, key)
                 keys[last_key] = intern(value, value)
+                if cur.key_lines is not None:
+                    cur.key_lines.setdefault(key.lower(), i)
             no += len(lines)
             start = end
             if cur is not None:
