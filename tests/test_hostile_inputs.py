@@ -176,3 +176,22 @@ def test_eds_show_pads_no_row_to_a_huge_cell(tmp_path: Path) -> None:
     ]
     result = load_eds_bounded(eds_text(*objects), tmp_path, show=True)
     assert int(str(result["shown"])) < 700_000 + 200 * 200
+
+
+# -- parameter files: bounded suggestions and reports -------------------------------------------
+
+
+def test_a_parameter_file_of_5000_unknown_names_is_reported_briefly(tmp_path: Path) -> None:
+    """Each unknown name cost a close-match search (5,000: 14 s) and the message listed all
+    (949 kB): now the first 20 get suggestions, the message lists 50 and counts the rest."""
+    eds = EXAMPLES / "networks/servo.eds"
+    names = "".join(f"  profile velocityy {n}: 1\n" for n in range(5000))
+    (tmp_path / "many.yml").write_text(f"eds: {eds}\nparameters:\n{names}")
+    result = load_bounded("parameters", tmp_path / "many.yml")
+    assert result["error"] == "ParameterFileError"
+    message = result["message"]
+    assert message.startswith("the parameter file has 5000 problem(s):")
+    assert message.count("did you mean") == 20
+    assert "no suggestions after the first ones" in message
+    assert message.endswith("... and 4,950 more (fix these first)")
+    assert len(message) < 20_000

@@ -21,7 +21,7 @@ from typing import Any, ClassVar
 
 import yaml
 
-from cobus.errors import CobusError, clip
+from cobus.errors import CobusError, clip, listing
 
 __all__ = [
     "MAX_ALIAS_VALUES",
@@ -88,7 +88,7 @@ class DataFileError(CobusError, ValueError):
     def __init__(self, problems: Sequence[FileProblem]) -> None:
         self.problems = list(problems)
         head = f"{self.what} has {len(self.problems)} problem(s):"
-        super().__init__("\n".join([head, *(f"  {p}" for p in self.problems)]))
+        super().__init__(listing(head, [str(p) for p in self.problems]))
 
 
 class _Loader(yaml.SafeLoader):

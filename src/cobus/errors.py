@@ -21,3 +21,16 @@ def clip(text: str, limit: int = CLIP) -> str:
     head = limit * 2 // 3
     tail = limit - head
     return f"{text[:head]}…({len(text) - limit:,} characters left out)…{text[-tail:]}"
+
+
+#: The most problems a message lists; the error keeps them all.
+SHOWN_PROBLEMS = 50
+
+
+def listing(head: str, items: list[str], limit: int = SHOWN_PROBLEMS) -> str:
+    """``head`` and the first ``limit`` of ``items`` indented one per line, then how many
+    more there are: a file with 5,000 problems gives a message to read, not a megabyte."""
+    lines = [head, *(f"  {item}" for item in items[:limit])]
+    if len(items) > limit:
+        lines.append(f"  ... and {len(items) - limit:,} more (fix these first)")
+    return "\n".join(lines)

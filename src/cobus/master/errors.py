@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from cobus.errors import CobusError, clip
+from cobus.errors import CobusError, clip, listing
 from cobus.od import Severity  # one scale for every finding: errors stop loading
 
 __all__ = [
@@ -52,7 +52,7 @@ class NetworkConfigError(CobusError):
         errors = [p for p in self.problems if p.severity is Severity.ERROR]
         shown = errors or self.problems
         head = f"the network description has {len(errors)} error(s):"
-        super().__init__("\n".join([head, *(f"  {p}" for p in shown)]))
+        super().__init__(listing(head, [str(p) for p in shown]))
 
 
 class MasterError(CobusError):
