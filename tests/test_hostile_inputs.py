@@ -195,3 +195,71 @@ def test_a_parameter_file_of_5000_unknown_names_is_reported_briefly(tmp_path: Pa
     assert "no suggestions after the first ones" in message
     assert message.endswith("... and 4,950 more (fix these first)")
     assert len(message) < 20_000
+
+
+# -- BLF: no container inflated past what cobus allows --------------------------------------------
+
+
+def blf_bomb(path: Path, inflated: int, announced: int) -> None:
+    """A BLF file of a few real frames, then a log container of ``inflated`` zero bytes
+    (zlib: about a thousandth of that on disk) that announces ``announced`` bytes."""
+    import zlib
+
+    import can
+    from can.io import blf
+
+    with can.BLFWriter(str(path)) as writer:
+        for n in range(5):
+            writer.on_message_received(can.Message(arbitration_id=0x181, data=[n], timestamp=n))
+    deflate = zlib.compressobj()
+    chunk = bytes(16 * 1024 * 1024)
+    parts = [deflate.compress(chunk) for _ in range(inflated // len(chunk))]
+    parts.append(deflate.compress(bytes(inflated % len(chunk))))
+    parts.append(deflate.flush())
+    body = blf.LOG_CONTAINER_STRUCT.pack(blf.ZLIB_DEFLATE, announced) + b"".join(parts)
+    size = blf.OBJ_HEADER_BASE_STRUCT.size + len(body)
+    head = blf.OBJ_HEADER_BASE_STRUCT.pack(b"LOBJ", 16, 1, size, blf.LOG_CONTAINER)
+    with path.open("ab") as f:
+        f.write(head + body + bytes(size % 4))
+
+
+def decode_bounded(path: Path) -> tuple[int, str, str]:
+    code = f"from cobus.cli import main; raise SystemExit(main(['decode', {str(path)!r}]))"
+    return bounded_python(code, memory_mb=700, seconds=60)
+
+
+@pytest.mark.parametrize(
+    ("announced", "said"),
+    [
+        (1 << 30, "announces 1,073,741,824 bytes uncompressed, more than the 16,777,216"),
+        (128 * 1024, "inflates to more than the 131,072 bytes it announces (a zip bomb?)"),
+    ],
+)
+def test_a_blf_zlib_bomb_is_refused_before_it_is_inflated(
+    tmp_path: Path, announced: int, said: str
+) -> None:
+    """python-can's reader inflates a container whole: 1.57 MB took 1.6 GB."""
+    path = tmp_path / "bomb.blf"
+    blf_bomb(path, 1 << 30, announced)
+    assert path.stat().st_size < 2_000_000
+    status, _, stderr = decode_bounded(path)
+    assert status == 1, stderr[-2000:]
+    assert "bomb.blf: the log container at byte " in stderr
+    assert said in stderr and "not read" in stderr
+    assert len(stderr.strip().splitlines()) == 1
+
+
+def test_a_real_blf_file_passes_the_check(tmp_path: Path) -> None:
+    import can
+
+    from cobus.trace.files import check_blf, open_trace
+
+    path = tmp_path / "real.blf"
+    with can.BLFWriter(str(path)) as writer:
+        for n in range(20_000):  # (several containers of 128 KiB)
+            msg = can.Message(arbitration_id=0x180 + n % 8, data=n.to_bytes(4, "little"))
+            msg.timestamp = n / 1000
+            writer.on_message_received(msg)
+    check_blf(path)
+    with open_trace(path) as reader:
+        assert sum(1 for _ in reader) == 20_000

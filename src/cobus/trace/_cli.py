@@ -133,7 +133,6 @@ def _plain(value: Any) -> Any:
 
 
 def _decode(args: argparse.Namespace) -> int:
-    import can
 
     from cobus.runtime.bus import message_to_frame
     from cobus.trace.decoder import Decoder
@@ -153,7 +152,9 @@ def _decode(args: argparse.Namespace) -> int:
     if absolute and args.file.suffix.lower() == ".asc":
         options["relative_timestamp"] = False  # (the date of its header, not 0)
     try:
-        reader = can.LogReader(str(args.file), **options)
+        from cobus.trace.files import open_trace
+
+        reader = open_trace(args.file, **options)
     except Exception as exc:  # python-can's readers raise their own kinds (BLF, zlib...)
         return _fail(_unreadable(args.file, exc))
 
@@ -256,7 +257,9 @@ def _replay(args: argparse.Namespace) -> int:
     if not args.file.is_file():
         return _fail(f"{args.file}: no such file")
     try:
-        reader = can.LogReader(str(args.file))
+        from cobus.trace.files import open_trace
+
+        reader = open_trace(args.file)
     except Exception as exc:  # python-can's readers raise their own kinds (BLF, zlib...)
         return _fail(_unreadable(args.file, exc))
     try:

@@ -239,11 +239,10 @@ def _fail(message: str, code: int = 1) -> int:
 
 def frames_of(path: Path) -> Iterator[tuple[float, Frame]]:
     """The classic CAN frames of a trace file, with seconds from its first message."""
-    import can
-
     from cobus.runtime.bus import message_to_frame
+    from cobus.trace.files import open_trace
 
-    reader = can.LogReader(str(path))
+    reader = open_trace(path)
     first: float | None = None
     try:
         for msg in reader:
