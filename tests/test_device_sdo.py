@@ -3,6 +3,7 @@ application callbacks and notifications, extra SDO channels, and NMT gating."""
 
 from __future__ import annotations
 
+import asyncio
 import math
 
 import pytest
@@ -15,6 +16,7 @@ from cobus.device import (
     EntryWritten,
 )
 from cobus.od import Access, DataType, decode
+from cobus.proto import Frame
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoAbortedError, SdoTimeoutError
 from cobus.runtime.remote import SdoChannel
 from tests.test_device_support import NODE, Bench, run_bench, test_od
@@ -319,5 +321,27 @@ def test_entry_written_reaches_whoever_listens_when_the_write_comes():
         ]
         assert b.of(EntryWritten) == [EntryWritten(NODE, 0x2001, 0, 3)]
         assert b.device.get(0x2001) == 3
+
+    run_bench(scenario)
+
+
+def test_a_download_announcing_more_than_the_limit_is_refused_at_once():
+    """0xFFFFFFFF announced into a DOMAIN kept the device buffering (21 MB, no abort): now
+    05040005 at the initiate; the limit is 1 MiB unless set per object."""
+
+    async def scenario(b: Bench):
+        huge = bytes((0x21, 0x08, 0x20, 0, 0xFF, 0xFF, 0xFF, 0xFF))  # segmented, size 4 GiB-1
+        since = b.net.time()
+        b.net.send(Frame(0x600 + NODE, huge))
+        await asyncio.sleep(0.01)
+        (answer,) = b.data(0x580 + NODE, since=since)
+        assert answer == bytes((0x80, 0x08, 0x20, 0, 0x05, 0x00, 0x04, 0x05))
+        await b.sdo.download(0x2008, 0, bytes(1 << 20))  # 1 MiB: taken
+        b.device.limit_download("Blob", 0, 100)
+        assert await _abort(b.sdo.download(0x2008, 0, bytes(101))) == SdoAbortCode.OUT_OF_MEMORY
+        await b.sdo.download(0x2008, 0, bytes(100), block=True)
+        assert b.device.get(0x2008) == bytes(100)
+        with pytest.raises(ValueError, match="UNSIGNED32 of 4 bytes"):
+            b.device.limit_download(0x200A, 0, 100)
 
     run_bench(scenario)

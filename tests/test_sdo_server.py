@@ -459,3 +459,28 @@ def test_a_domain_without_size_is_capped_by_max_download() -> None:
         toggle ^= 0x10
     out = s.on_frame(c2s(toggle, *range(7)), 0.0)  # 21 bytes: one too many
     assert_abort(s, out, SdoAbortCode.LENGTH_TOO_HIGH)
+
+
+@pytest.mark.parametrize("block", [False, True])
+def test_an_announced_size_above_the_limit_is_refused_before_any_data(block: bool) -> None:
+    """0xFFFFFFFF announced into a domain used to be buffered for as long as data came."""
+    s = SdoServer(RX, TX, DictBackend({(IDX, 0): b""}), max_download=20)
+    command = 0xC6 if block else 0x21  # (block: CRC and size; segmented: size)
+    out = s.on_frame(c2s(command, LO, HI, 0, 0xFF, 0xFF, 0xFF, 0xFF), 0.0)
+    assert_abort(s, out, SdoAbortCode.OUT_OF_MEMORY)
+    assert s.on_frame(c2s(0x21, LO, HI, 0, 20, 0, 0, 0), 0.0).frames[0].data[0] == 0x60
+
+
+class _Limited(DictBackend):
+    def download_limit(self, index: int, subindex: int) -> int | None:
+        return 8 if index == IDX else None
+
+
+def test_a_back_end_sets_the_limit_per_object() -> None:
+    s = SdoServer(RX, TX, _Limited({(IDX, 0): b"", (IDX + 1, 0): b""}), max_download=20)
+    assert_abort(s, s.on_frame(c2s(0x21, LO, HI, 0, 9, 0, 0, 0), 0.0), SdoAbortCode.OUT_OF_MEMORY)
+    s.on_frame(c2s(0x20, LO, HI, 0), 0.0)  # no size: capped at 8 bytes as they come
+    s.on_frame(c2s(0x00, *range(7)), 0.0)
+    assert_abort(s, s.on_frame(c2s(0x10, *range(7)), 0.0), SdoAbortCode.LENGTH_TOO_HIGH)
+    other = bytes((0x21, (IDX + 1) & 0xFF, (IDX + 1) >> 8, 0, 20, 0, 0, 0))
+    assert s.on_frame(Frame(RX, other), 0.0).frames[0].data[0] == 0x60  # the server's 20

@@ -35,6 +35,7 @@ class Entry:
     __slots__ = (
         "data_type",
         "decoder",
+        "download_limit",
         "encoder",
         "high",
         "index",
@@ -69,6 +70,9 @@ class Entry:
         #: or real type, no limits): a download's value in one C call, no decoder's.
         self.unpack = None if self.limited else struct_unpacker(var.data_type)
         self.value: Any = None
+        #: The most bytes an SDO download may bring into it when its type has no fixed size
+        #: (None: the server's 1 MiB); set with Device.limit_download.
+        self.download_limit: int | None = None
         #: Where reads get the value from instead of ``value`` (application binding or a
         #: value the device computes).
         self.reader: Reader | None = None

@@ -269,6 +269,20 @@ class Device:
         entry = self._app_entry(index, subindex)
         entry.reader = fn
 
+    def limit_download(self, index: Key, subindex: Key, max_bytes: int) -> None:
+        """The most bytes an SDO download may bring into an entry of no fixed size (a DOMAIN,
+        a string): 1 MiB unless set here. A download announcing more is refused at once with
+        05040005 (out of memory), one bringing more without announcing it with 06070012."""
+        entry = self._resolve(index, subindex)
+        if isinstance(max_bytes, bool) or not isinstance(max_bytes, int) or max_bytes < 0:
+            raise ValueError(f"download limit {max_bytes!r} is not a number of bytes (>= 0)")
+        if entry.size is not None:
+            raise ValueError(
+                f"0x{entry.index:04X}:{entry.subindex:02X} is a {entry.data_type.name} of "
+                f"{entry.size} bytes: a download brings exactly that, no limit to set"
+            )
+        entry.download_limit = max_bytes
+
     def on_write(self, index: Key, subindex: Key, fn: Callable[[Any], object] | None) -> None:
         """Call ``fn(value)`` when a master writes an application entry (SDO or RPDO), before
         the value is stored; ``fn`` may raise :class:`~cobus.proto.sdo.SdoAbort` to refuse

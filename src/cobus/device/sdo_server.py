@@ -103,6 +103,11 @@ class SdoBackend:
         if core.listeners or core.heard_by_network:  # anyone to hear it (see Core)
             core.emit(EntryWritten(core.node_id, index, subindex, value))
 
+    def download_limit(self, index: int, subindex: int) -> int | None:
+        """The most bytes a download of no fixed size may bring into the entry (None: the
+        server's own limit)."""
+        return self._core.entry(index, subindex).download_limit
+
     def size_hint(self, index: int, subindex: int) -> int | None:
         """The size a download to the entry must have (None: any), or the abort."""
         entry = self._core.entry(index, subindex)

@@ -31,8 +31,10 @@ Choices where CiA 301 leaves room:
 - Size checks: more data than indicated is refused with 06070012 as soon as it arrives, less
   with 06070013 at the end. Without a size indication the download may bring at most the
   object's size (the back end's ``size_hint``) or, for objects of no fixed size,
-  ``max_download`` bytes (1 MiB by default): more is refused with 06070012 as soon as it
-  arrives, so a hostile client cannot make the server buffer without end.
+  ``max_download`` bytes (1 MiB by default, or the back end's ``download_limit`` for that
+  object): more is refused with 06070012 as soon as it arrives, so a hostile client cannot
+  make the server buffer without end. An indicated size above that limit is refused at once
+  with 05040005 (out of memory): 0xFFFFFFFF announced into a domain buffers nothing.
 - A stalled segmented or block transfer is aborted with 05040000 after ``timeout`` seconds.
 """
 
@@ -74,7 +76,10 @@ class SdoServerBackend(Protocol):
     when a segmented or block download starts, before any data arrives: it may raise
     :class:`SdoAbort` to refuse early (no such object, read only), and an int it returns is the
     size the value must have, so an indicated size that differs is refused with 06070012 or
-    06070013 at once; ``None`` accepts any size.
+    06070013 at once; ``None`` accepts any size up to the server's ``max_download``.
+
+    And ``download_limit(index, subindex) -> int | None``: the most bytes a download into an
+    object of no fixed size may bring (None: the server's ``max_download``).
     """
 
     def upload(self, index: int, subindex: int) -> bytes:
@@ -186,7 +191,16 @@ class SdoServer(ep.Endpoint):
     ``reports=False`` builds no events (see :attr:`reports`).
     """
 
-    __slots__ = ("_backend", "_hint", "_size_hint", "max_download", "node", "reports")
+    __slots__ = (
+        "_backend",
+        "_cap",
+        "_download_limit",
+        "_hint",
+        "_size_hint",
+        "max_download",
+        "node",
+        "reports",
+    )
 
     _ROLE = "server"
     _PEER = "the client"
@@ -222,8 +236,11 @@ class SdoServer(ep.Endpoint):
         #: fixed size (a domain); objects of a fixed size take at most that size.
         self.max_download = max_download
         self._hint: int | None = None
+        self._cap = max_download  # the limit of the object of the download under way
         hint = getattr(backend, "size_hint", None)
         self._size_hint = cast("_SizeHint | None", hint if callable(hint) else None)
+        limit = getattr(backend, "download_limit", None)
+        self._download_limit = cast("_SizeHint | None", limit if callable(limit) else None)
         self.node = w.node_of(rx_cob_id, tx_cob_id)
         self._index = -1  # -1: no object named yet
         self._subindex = -1
@@ -415,21 +432,34 @@ class SdoServer(ep.Endpoint):
         else :attr:`max_download` (None when a size was indicated: that one applies)."""
         if self._size is not None:
             return None
-        return self._hint if self._hint is not None else self.max_download
+        return self._hint if self._hint is not None else self._cap
 
     def _check_size(self, size: int | None) -> int | None:
         """Ask the back end about a download before its data arrives; the abort code or None."""
         self._hint = None
-        if self._size_hint is None:
-            return None
-        try:
-            expected = self._size_hint(self._index, self._subindex)
-        except SdoAbort as refusal:
-            return refusal.code
-        self._hint = expected
-        if expected is None or size is None or size == expected:
-            return None
-        return SdoAbortCode.LENGTH_TOO_HIGH if size > expected else SdoAbortCode.LENGTH_TOO_LOW
+        expected: int | None = None
+        if self._size_hint is not None:
+            try:
+                expected = self._size_hint(self._index, self._subindex)
+            except SdoAbort as refusal:
+                return refusal.code
+            self._hint = expected
+        if expected is not None:
+            if size is None or size == expected:
+                return None
+            return SdoAbortCode.LENGTH_TOO_HIGH if size > expected else SdoAbortCode.LENGTH_TOO_LOW
+        cap = self.max_download
+        if self._download_limit is not None:
+            try:
+                own = self._download_limit(self._index, self._subindex)
+            except SdoAbort as refusal:
+                return refusal.code
+            if own is not None:
+                cap = own
+        self._cap = cap
+        if size is not None and size > cap:
+            return SdoAbortCode.OUT_OF_MEMORY  # (announced: nothing buffered, nothing waited)
+        return None
 
     # -- segmented -----------------------------------------------------------------------------
 
