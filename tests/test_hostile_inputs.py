@@ -263,3 +263,48 @@ def test_a_real_blf_file_passes_the_check(tmp_path: Path) -> None:
     check_blf(path)
     with open_trace(path) as reader:
         assert sum(1 for _ in reader) == 20_000
+
+
+# -- rig files: what would never fire, or fail when it fires, is refused at load -------------
+
+
+RIG = """
+bus: embedded
+devices:
+  - {{node: 5, kind: cia401_io}}
+  - {{node: 6, kind: cia401_io}}
+faults:
+  - {fault}
+"""
+
+
+@pytest.mark.parametrize(
+    ("fault", "said"),
+    [
+        ("{at: .nan, node: 5, fault: power_loss}", "at nan must be seconds after the start"),
+        ("{at: .inf, node: 5, fault: power_loss}", "at inf must be seconds after the start"),
+        (
+            "{at: 1, node: 5, fault: node_id_change, node_id: 200}",
+            "node_id_change: node_id 200 must be a node-ID 1..127",
+        ),
+        (
+            "{at: 1, node: 5, fault: node_id_change, node_id: 6}",
+            "node_id_change to node 6: that node-ID is taken by another device of this rig",
+        ),
+    ],
+)
+def test_a_rig_fault_that_could_never_fire_is_refused_at_load(fault: str, said: str) -> None:
+    from cobus.sim import Rig
+    from cobus.sim.rig import RigError
+
+    with pytest.raises(RigError, match="faults\\[0\\]") as err:
+        Rig.loads(RIG.format(fault=fault))
+    assert said in str(err.value)
+
+
+def test_a_node_id_change_to_a_node_freed_first_still_loads() -> None:
+    from cobus.sim import Rig
+
+    text = RIG.format(fault="{at: 1, node: 6, fault: node_id_change, node_id: 7}")
+    text += "  - {at: 2, node: 5, fault: node_id_change, node_id: 6}\n"
+    assert len(Rig.loads(text).fault_specs) == 2

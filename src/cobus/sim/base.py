@@ -38,7 +38,7 @@ class SimulatedDevice:
     kind: ClassVar[str] = "device"
     QUIRKS: ClassVar[Mapping[str, str]] = {}
     FAULTS: ClassVar[Mapping[str, str]] = {}
-    #: Per fault, its parameters and their kinds ("int", "number", "seconds", "rate",
+    #: Per fault, its parameters and their kinds ("int", "node_id", "number", "seconds", "rate",
     #: "bool", "any"; "?" when optional): :func:`cobus.sim.faults.check_fault_parameters`
     #: checks a rig file's faults against it when the file loads.
     FAULT_PARAMS: ClassVar[Mapping[str, Mapping[str, str]]] = {

@@ -337,6 +337,9 @@ def _kind_problem(kind: str, value: Any) -> str | None:
         return None if number and math.isfinite(value) and value >= 0 else "seconds, 0 or more"
     if kind == "rate":
         return None if number and 0 <= value <= 1 else "a rate from 0 to 1"
+    if kind == "node_id":
+        whole = isinstance(value, int) and not isinstance(value, bool)
+        return None if whole and 1 <= value <= 127 else "a node-ID 1..127"
     return None
 
 

@@ -157,7 +157,7 @@ class CanopenSimDevice(SimulatedDevice):
     }
     #: The parameters each fault takes (kind, "?" when optional): checked when a rig loads.
     FAULT_PARAMS: ClassVar[Mapping[str, Mapping[str, str]]] = {
-        "node_id_change": {"node_id": "int"},
+        "node_id_change": {"node_id": "node_id"},
         "heartbeat_stop": {},
         "heartbeat_resume": {},
         "sdo_delay": {"delay": "seconds"},

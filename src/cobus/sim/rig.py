@@ -33,6 +33,7 @@ import asyncio
 import contextlib
 import importlib
 import logging
+import math
 from collections.abc import AsyncIterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
@@ -236,6 +237,7 @@ class Rig:
             if fault.node is not None and fault.node not in seen:
                 raise RigError(f"{where}: faults[{i}]: there is no device with node {fault.node}")
             self._check_params(i, fault, where)
+            self._check_new_node(i, fault, where)
         #: The running devices by the node-ID their spec gives (empty until started).
         self.devices: dict[int, SimulatedDevice] = {}
         self.network: AsyncNetwork | None = None
@@ -259,6 +261,19 @@ class Rig:
             check_fault_parameters(device, fault.fault, fault.params)
         except FaultParameterError as exc:
             raise RigError(f"{where}: faults[{i}]: {exc}") from None
+
+    def _check_new_node(self, i: int, fault: FaultSpec, where: str) -> None:
+        """A node_id_change to the node-ID of a device of the rig that never moves away
+        would fail when it fires: said now."""
+        if fault.fault != "node_id_change":
+            return
+        new = fault.params.get("node_id")
+        movers = {f.node for f in self.fault_specs if f.fault == "node_id_change"}
+        if new != fault.node and any(s.node == new and s.node not in movers for s in self.specs):
+            raise RigError(
+                f"{where}: faults[{i}]: node_id_change to node {new}: that node-ID is taken by "
+                "another device of this rig"
+            )
 
     # ------------------------------------------------------------------ files
     @classmethod
@@ -623,8 +638,8 @@ def _fault_spec(raw: Any, where: str) -> FaultSpec:
     if not isinstance(raw, dict) or not isinstance(raw.get("fault"), str):
         raise RigError(f"{where}: a fault is a mapping with fault (and at, node, parameters)")
     at = raw.get("at", 0)
-    if isinstance(at, bool) or not isinstance(at, int | float) or at < 0:
-        raise RigError(f"{where}: at {at!r} must be seconds after the start (>= 0)")
+    if isinstance(at, bool) or not isinstance(at, int | float) or not 0 <= at < math.inf:
+        raise RigError(f"{where}: at {at!r} must be seconds after the start (>= 0, finite)")
     node = raw.get("node")
     if node is not None and not _is_int(node):
         raise RigError(f"{where}: node {node!r} must be a node-ID (leave it out for a bus fault)")
