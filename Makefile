@@ -30,7 +30,8 @@ pytest: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run.py
 
-# Mutation fuzzing of every text input (20,000 EDS/DCF + 5,000 YAML), capped at 3 GB of
+# Mutation fuzzing of every input (20,000 EDS/DCF + 5,000 YAML + 500 damaged alarm
+# histories + 200 mutated or zip-bombed BLF traces), capped at 3 GB of
 # address space and 30 minutes; failing inputs land in fuzz-failures/. CI does not run it.
 fuzz: $(STAMP)
 	ulimit -v 3000000; timeout 1800 $(BIN)/python -m tests.fuzz_inputs --eds 20000 --yaml 5000

@@ -216,6 +216,88 @@ def try_yaml(kind: str, data: bytes, source: Path, folder: Path) -> None:
         pass
 
 
+def try_history(data: bytes, folder: Path) -> None:
+    """Open a (damaged) alarm history every way cobus does; only AlarmHistoryError may come
+    out of AlarmHistory, nothing out of AlarmHandler."""
+    from cobus.blocks import AlarmHandler, AlarmHistory, AlarmHistoryError
+
+    path = folder / "history.db"
+    for leftover in folder.glob("history.db*"):
+        leftover.unlink()
+    path.write_bytes(data)
+    try:
+        with AlarmHistory(path) as history:
+            history.query()
+            history.opened(source="f", node=None, code=1, text="t", severity="alarm", at=1.0)
+    except AlarmHistoryError:
+        pass
+    path.write_bytes(data)
+    AlarmHandler(path).close()
+
+
+def history_sample(folder: Path) -> bytes:
+    """A sound alarm history of 300 rows, as bytes."""
+    from cobus.blocks import AlarmHistory
+
+    path = folder / "sample.db"
+    with AlarmHistory(path) as history:
+        for n in range(300):
+            row = history.opened(
+                source="s", node=n % 127 + 1, code=n, text="x" * (n % 40), severity="alarm", at=n
+            )
+            history.cleared(row, n + 0.5)
+    return path.read_bytes()
+
+
+def try_blf(data: bytes, folder: Path) -> None:
+    """Read a (mutated, maybe bombed) BLF trace the way cobus decode does: what python-can's
+    reader raises on a damaged file is allowed; running away is not (make fuzz's caps)."""
+    from cobus.trace.files import TraceFileError, open_trace
+
+    path = folder / "trace.blf"
+    path.write_bytes(data)
+    try:
+        with open_trace(path) as reader:
+            for _ in reader:
+                pass
+    except TraceFileError:
+        pass
+    except Exception as exc:  # python-can's own: BLFParseError, struct.error, zlib.error
+        if isinstance(exc, MemoryError):
+            raise
+
+
+def blf_sample(folder: Path) -> bytes:
+    import can
+
+    path = folder / "sample.blf"
+    with can.BLFWriter(str(path)) as writer:
+        for n in range(3000):
+            msg = can.Message(arbitration_id=0x180 + n % 16, data=n.to_bytes(4, "little"))
+            msg.timestamp = n / 1000
+            writer.on_message_received(msg)
+    return path.read_bytes()
+
+
+def blf_bomb_mutation(data: bytes, rng: random.Random) -> bytes:
+    """A log container of zeros appended that inflates far past what it announces (or
+    announces it honestly)."""
+    import zlib
+
+    from can.io import blf
+
+    inflated = rng.choice([1 << 20, 64 << 20, 512 << 20])
+    deflate = zlib.compressobj()
+    chunk = bytes(min(inflated, 16 << 20))
+    body = b"".join(deflate.compress(chunk) for _ in range(inflated // len(chunk)))
+    body += deflate.flush()
+    announced = rng.choice([inflated, 128 * 1024, 0xFFFFFFFF])
+    body = blf.LOG_CONTAINER_STRUCT.pack(blf.ZLIB_DEFLATE, announced) + body
+    size = blf.OBJ_HEADER_BASE_STRUCT.size + len(body)
+    head = blf.OBJ_HEADER_BASE_STRUCT.pack(b"LOBJ", 16, 1, size, blf.LOG_CONTAINER)
+    return data + head + body + bytes(size % 4)
+
+
 def scratch(source: Path, into: Path) -> Path:
     """A copy of ``source``'s folder (with what its files reference) in ``into``."""
     folder = into / source.parent.name
@@ -231,6 +313,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--eds", type=int, default=20000, help="EDS/DCF inputs")
     parser.add_argument("--yaml", type=int, default=5000, help="YAML inputs")
+    parser.add_argument("--sqlite", type=int, default=500, help="damaged alarm histories")
+    parser.add_argument("--blf", type=int, default=200, help="mutated and bombed BLF traces")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--slow", type=float, default=2.0, help="seconds: an input is slow")
     args = parser.parse_args(argv)
@@ -266,10 +350,33 @@ def main(argv: list[str] | None = None) -> int:
             worst = max(worst, took)
             if took > args.slow:
                 slow.append(f"{kind} input {n} from {path.name}: {took:.1f} s")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        binaries = [
+            ("sqlite", args.sqlite, history_sample(folder), try_history, [_flip, _cut]),
+            ("blf", args.blf, blf_sample(folder), try_blf, [_flip, _cut, blf_bomb_mutation]),
+        ]
+        for kind, count, sample, target, mutators in binaries:
+            for n in range(count):
+                mutated = sample
+                for _ in range(rng.randint(1, 2)):
+                    mutated = rng.choice(mutators)(mutated, rng)
+                t0 = time.perf_counter()
+                try:
+                    target(mutated, folder)
+                except Exception as exc:
+                    failures.append(_keep(f"{kind}-{n}", folder / f"x.{kind}", mutated, exc))
+                took = time.perf_counter() - t0
+                worst = max(worst, took)
+                if took > args.slow:
+                    slow.append(f"{kind} input {n}: {took:.1f} s")
     import resource
 
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f"{args.eds} EDS/DCF and {args.yaml} YAML inputs (seed {args.seed})")
+    print(
+        f"{args.eds} EDS/DCF, {args.yaml} YAML, {args.sqlite} alarm history and {args.blf} "
+        f"BLF inputs (seed {args.seed})"
+    )
     print(f"  untyped exceptions: {len(failures)}")
     print(f"  inputs over {args.slow:g} s: {len(slow)} (slowest {worst:.2f} s)")
     print(f"  peak memory: {peak_mb:.0f} MB")

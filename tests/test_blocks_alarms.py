@@ -535,3 +535,85 @@ def test_a_command_not_reported_back_for_some_cycles_is_an_alarm() -> None:
     assert h.history is None
     with pytest.raises(ValueError, match="cycles=0"):
         h.check_feedback("A16", True, False, code=16, cycles=0)
+
+
+def _damaged_copies(tmp_path: Path, runs: int) -> list[Path]:
+    """Copies of a history of 400 rows, each with one byte flipped past the file header."""
+    import random
+
+    source = tmp_path / "sound.db"
+    with AlarmHistory(source) as history:
+        for n in range(400):
+            row = history.opened(
+                source="zapi", node=8, code=n, text=f"alarm {n} " * 5, severity="alarm", at=n
+            )
+            history.cleared(row, n + 0.5)
+    data = source.read_bytes()
+    rng = random.Random(39)
+    copies = []
+    for n in range(runs):
+        damaged = bytearray(data)
+        damaged[rng.randrange(100, len(data))] ^= 1 << rng.randrange(8)
+        path = tmp_path / f"damaged-{n}.db"
+        path.write_bytes(bytes(damaged))
+        copies.append(path)
+    return copies
+
+
+def test_a_damaged_history_never_raises_anything_but_its_own_error(tmp_path: Path) -> None:
+    """A flipped byte made query() raise sqlite3's OperationalError / DatabaseError (24 of
+    48 runs); now AlarmHistoryError, and a damaged file is refused when it opens."""
+    refused = 0
+    for path in _damaged_copies(tmp_path, 48):
+        try:
+            with AlarmHistory(path) as history:
+                history.query()
+                len(history)
+                history.export_csv(tmp_path / "out.csv")
+                history.opened(source="x", node=None, code=1, text="t", severity="alarm", at=1)
+        except AlarmHistoryError:
+            refused += 1
+    assert refused > 0  # (the integrity check finds what queries would trip on)
+
+
+def test_the_handler_starts_on_a_damaged_history_moving_it_aside(tmp_path: Path) -> None:
+    from cobus.blocks.alarm_history import AlarmHistoryDamagedError
+
+    moved = 0
+    for path in _damaged_copies(tmp_path, 48):
+        damaged = path.read_bytes()
+        try:
+            AlarmHistory(path).close()
+            was_damaged = False
+        except AlarmHistoryDamagedError:
+            was_damaged = True
+        h = AlarmHandler(path)  # never raises: the application starts
+        h.raise_alarm("zapi", 17, node=8)
+        assert h.history is not None and h.history_problem is None
+        if was_damaged:
+            moved += 1
+            assert h.history_moved is not None and h.history_moved.read_bytes() == damaged
+            assert h.history_moved.name.startswith(f"{path.name}.damaged-")
+            (warning,) = [a for a in h.active if a.source == "history"]
+            assert warning.code == 2 and warning.severity is Severity.WARNING
+            assert "was damaged (" in warning.text and h.history_moved.name in warning.text
+            assert [r.code for r in h.history.query()] == [17]  # a new file
+        else:
+            assert h.history_moved is None
+        h.close()
+    assert moved > 0
+
+
+def test_the_command_line_says_a_history_is_damaged_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from cobus.cli import main
+
+    for path in _damaged_copies(tmp_path, 24):
+        for words in (["show", str(path)], ["export", str(path), str(tmp_path / "x.csv")]):
+            status = main(["alarms", *words])
+            err = capsys.readouterr().err
+            assert status in (0, 1)
+            assert "Traceback" not in err
+            if status == 1:
+                assert len(err.strip().splitlines()) == 1 and "is damaged" in err

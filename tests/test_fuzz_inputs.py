@@ -1,6 +1,7 @@
 """Mutated EDS/DCF and YAML inputs are refused with cobus's typed errors only (a bounded run;
-``make fuzz`` runs 20,000 + 5,000 under a memory and time cap). The mutators and targets are
-in tests/fuzz_inputs.py; inputs that once broke a loader are kept under tests/data/fuzz/."""
+``make fuzz`` runs 20,000 + 5,000, with damaged alarm histories and BLF bombs, under a memory
+and time cap). The mutators and targets are in tests/fuzz_inputs.py; inputs that once broke a
+loader are kept under tests/data/fuzz/."""
 
 from __future__ import annotations
 

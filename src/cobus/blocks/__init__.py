@@ -13,7 +13,12 @@ master, the drive profiles and any node with an SDO server.
   ``docs/network-variables.md``).
 """
 
-from cobus.blocks.alarm_history import AlarmHistory, AlarmHistoryError, AlarmRecord
+from cobus.blocks.alarm_history import (
+    AlarmHistory,
+    AlarmHistoryDamagedError,
+    AlarmHistoryError,
+    AlarmRecord,
+)
 from cobus.blocks.alarm_texts import MasterAlarm, Severity, table_text
 from cobus.blocks.alarms import (
     Alarm,
@@ -67,6 +72,7 @@ __all__ = [
     "AlarmEvent",
     "AlarmHandler",
     "AlarmHistory",
+    "AlarmHistoryDamagedError",
     "AlarmHistoryError",
     "AlarmRaised",
     "AlarmRecord",

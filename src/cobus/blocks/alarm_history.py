@@ -10,6 +10,7 @@ still active.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import datetime as _dt
 import os
@@ -20,9 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
-from cobus.errors import CobusError
+from cobus.errors import CobusError, clip
 
-__all__ = ["AlarmHistory", "AlarmHistoryError", "AlarmRecord"]
+__all__ = ["AlarmHistory", "AlarmHistoryDamagedError", "AlarmHistoryError", "AlarmRecord"]
 
 _VERSION = 1
 _SCHEMA = """
@@ -58,6 +59,48 @@ _COLUMNS = (
 
 class AlarmHistoryError(CobusError):
     """The history file cannot be used (not a database, another program's, unreadable)."""
+
+
+class AlarmHistoryDamagedError(AlarmHistoryError):
+    """The history file is damaged: SQLite finds it malformed, or its integrity check fails
+    (:class:`~cobus.blocks.AlarmHandler` then moves it aside and starts a new one).
+    ``reason`` is SQLite's word for the damage."""
+
+    def __init__(self, path: str, reason: str, what: str | None = None) -> None:
+        self.path = path
+        self.reason = reason
+        doing = "" if what is None else f" and cannot {what}"
+        super().__init__(
+            f"the alarm history {path} is damaged ({reason}){doing}: move it aside (an "
+            "AlarmHandler does) or name another file"
+        )
+
+
+class _NotOurs(sqlite3.DatabaseError):
+    """A sound database that is no alarm history of this cobus (not damaged)."""
+
+
+def _sqlite_file(path: str) -> bool:
+    """Whether ``path`` starts as an SQLite database does (a damaged one still does; a text
+    file named by mistake does not, and is not taken for a damaged history)."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(16) == b"SQLite format 3\x00"
+    except OSError:
+        return False
+
+
+@contextlib.contextmanager
+def _guarded(path: str, what: str) -> Iterator[None]:
+    """Every SQLite error of ``what`` as an :class:`AlarmHistoryError` that names the file."""
+    try:
+        yield
+    except sqlite3.OperationalError as exc:  # locked, read-only, no room, I/O
+        raise AlarmHistoryError(f"cannot {what} the alarm history {path}: {exc}") from None
+    except sqlite3.DatabaseError as exc:
+        raise AlarmHistoryDamagedError(path, str(exc), what) from None
+    except sqlite3.Error as exc:
+        raise AlarmHistoryError(f"cannot {what} the alarm history {path}: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -130,22 +173,29 @@ class AlarmHistory:
         except sqlite3.OperationalError as exc:  # locked, read-only, no room, I/O
             self._db.close()
             raise AlarmHistoryError(f"cannot use the alarm history {self.path}: {exc}") from None
-        except sqlite3.DatabaseError as exc:
+        except sqlite3.DatabaseError as exc:  # malformed, not a database, integrity
             self._db.close()
-            raise AlarmHistoryError(
-                f"{self.path} is not an alarm history database ({exc}): name another file"
-            ) from None
+            if isinstance(exc, _NotOurs) or not _sqlite_file(self.path):
+                raise AlarmHistoryError(
+                    f"{self.path} is not an alarm history database ({exc}): name another file"
+                ) from None
+            raise AlarmHistoryDamagedError(self.path, str(exc)) from None
 
     def _set_up(self) -> None:
         db = self._db
+        # A damaged file shows here, not at the first query of a running application.
+        verdict = [row[0] for row in db.execute("PRAGMA integrity_check(5)")]
+        if verdict != ["ok"]:
+            found = " ".join("; ".join(map(str, verdict)).split())  # (one line)
+            raise sqlite3.DatabaseError(f"integrity check: {clip(found, 200)}")
         db.execute("PRAGMA journal_mode=WAL")
         db.execute("PRAGMA synchronous=FULL")
         version = db.execute("PRAGMA user_version").fetchone()[0]
         tables = {row[0] for row in db.execute("SELECT name FROM sqlite_master")}
         if version == 0 and tables - {"sqlite_sequence"}:
-            raise sqlite3.DatabaseError("it holds tables of another program")
+            raise _NotOurs("it holds tables of another program")
         if version > _VERSION:
-            raise sqlite3.DatabaseError(f"written by a newer cobus (format {version})")
+            raise _NotOurs(f"written by a newer cobus (format {version})")
         if version == 0:  # new: the schema and its version in one transaction
             db.executescript(f"BEGIN IMMEDIATE;{_SCHEMA}PRAGMA user_version={_VERSION};COMMIT;")
         else:
@@ -167,7 +217,7 @@ class AlarmHistory:
         at: float,
     ) -> int:
         """Log an activation; its row id."""
-        with self._lock, self._transaction():
+        with self._lock, _guarded(self.path, "log an alarm in"), self._transaction():
             cursor = self._db.execute(
                 "INSERT INTO alarms (raised_at, node, source, code, text, severity) "
                 "VALUES (?, ?, ?, ?, ?, ?)",
@@ -180,14 +230,14 @@ class AlarmHistory:
 
     def cleared(self, row: int, at: float) -> None:
         """Log the clearing of activation ``row`` (once: a second call changes nothing)."""
-        with self._lock, self._transaction():
+        with self._lock, _guarded(self.path, "log a clearing in"), self._transaction():
             self._db.execute(
                 "UPDATE alarms SET cleared_at = ? WHERE id = ? AND cleared_at IS NULL", (at, row)
             )
 
     def acknowledged(self, row: int, at: float, by: str) -> None:
         """Log who acknowledged activation ``row`` (the first acknowledgement counts)."""
-        with self._lock, self._transaction():
+        with self._lock, _guarded(self.path, "log an acknowledgement in"), self._transaction():
             self._db.execute(
                 "UPDATE alarms SET acknowledged_at = ?, acknowledged_by = ? "
                 "WHERE id = ? AND acknowledged_at IS NULL",
@@ -242,7 +292,7 @@ class AlarmHistory:
         if limit is not None:
             sql += " LIMIT ?"
             args.append(int(limit))
-        with self._lock:
+        with self._lock, _guarded(self.path, "read"):
             rows = self._db.execute(sql, args).fetchall()
         return [AlarmRecord(*row) for row in rows]
 
@@ -250,7 +300,7 @@ class AlarmHistory:
         return iter(self.query(newest_first=False))
 
     def __len__(self) -> int:
-        with self._lock:
+        with self._lock, _guarded(self.path, "count the rows of"):
             return int(self._db.execute("SELECT COUNT(*) FROM alarms").fetchone()[0])
 
     def export_csv(self, target: str | os.PathLike[str] | IO[str], **filters: Any) -> int:
@@ -286,12 +336,12 @@ class AlarmHistory:
 
     def check(self) -> str:
         """SQLite's integrity check: ``"ok"`` for an undamaged file."""
-        with self._lock:
+        with self._lock, _guarded(self.path, "check"):
             return str(self._db.execute("PRAGMA integrity_check").fetchone()[0])
 
     def close(self) -> None:
         """Close the file (writes were committed already)."""
-        with self._lock:
+        with self._lock, _guarded(self.path, "close"):
             self._db.close()
 
     def __enter__(self) -> AlarmHistory:

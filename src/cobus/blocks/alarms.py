@@ -35,9 +35,10 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, TypeVar
 
-from cobus.blocks.alarm_history import AlarmHistory, AlarmHistoryError
+from cobus.blocks.alarm_history import AlarmHistory, AlarmHistoryDamagedError, AlarmHistoryError
 from cobus.blocks.alarm_texts import ALIASES, TABLES, MasterAlarm, Severity, emcy_text, table_text
 from cobus.errors import CobusError
 
@@ -166,6 +167,23 @@ def _compile_rule(expression: str) -> tuple[Any, frozenset[str]]:
     return compile(tree, "<alarm rule>", "eval"), frozenset(names)
 
 
+def _move_aside(path: Path) -> Path:
+    """Rename a damaged history file (and its WAL and shared-memory files) to
+    ``NAME.damaged-YYYYMMDD-HHMMSS``: kept for a post-mortem, out of the way of a new one."""
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    target = path.with_name(f"{path.name}.damaged-{stamp}")
+    n = 1
+    while target.exists():
+        n += 1
+        target = path.with_name(f"{path.name}.damaged-{stamp}-{n}")
+    for suffix in ("-wal", "-shm"):
+        extra = path.with_name(path.name + suffix)
+        if extra.exists():
+            extra.replace(target.with_name(target.name + suffix))
+    path.replace(target)
+    return target
+
+
 class AlarmHandler:
     """The alarm handler. ``history``: an :class:`AlarmHistory` or a file for one (None:
     no history); ``view_time``: seconds each active alarm is the current one; ``clock``: the
@@ -193,8 +211,18 @@ class AlarmHandler:
         self.view_time = float(view_time)
         self.clock = clock or time.monotonic
         self.wall_clock = wall_clock or time.time
+        #: Where a damaged history file was moved before a new one was started (None: it
+        #: was not); an active warning (source "history", code 2) says so too.
+        self.history_moved: Path | None = None
+        damage = ""
         if history is not None and not isinstance(history, AlarmHistory):
-            history = AlarmHistory(history)
+            path = Path(history)
+            try:
+                history = AlarmHistory(path)
+            except AlarmHistoryDamagedError as exc:
+                damage = f"the alarm history {path} was damaged ({exc.reason})"
+                self.history_moved = _move_aside(path)
+                history = AlarmHistory(path)
         self.history = history
         self._active: dict[Key, Alarm] = {}
         self._listeners: list[Callable[[AlarmEvent], object]] = []
@@ -213,13 +241,18 @@ class AlarmHandler:
         self._adopted_until: float | None = self.clock() + self.adopt_grace
         #: Why the history could not be written last (None: it works).
         self.history_problem: str | None = None
+        if self.history_moved is not None:
+            text = f"{damage}: it was kept as {self.history_moved.name}, a new one started"
+            log.warning("%s", text)
+            self._raise_unlogged("history", 2, text, Severity.WARNING)
         if history is not None:
             self._adopt(history)
 
     def _adopt(self, history: AlarmHistory) -> None:
         """Alarms still active when the program stopped are active again, their history rows
         going on; a source confirms one by raising it again within ``adopt_grace``."""
-        for record in history.query(active=True, newest_first=False):
+        records = self._log("reading the active alarms", lambda: history.query(active=True))
+        for record in reversed(records or []):
             try:
                 severity = Severity.of(record.severity)
             except ValueError:
