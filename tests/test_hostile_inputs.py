@@ -5,6 +5,7 @@ run away runs in a child Python under an address-space cap and a time limit."""
 from __future__ import annotations
 
 import json
+import os
 import textwrap
 from pathlib import Path
 
@@ -308,3 +309,53 @@ def test_a_node_id_change_to_a_node_freed_first_still_loads() -> None:
     text = RIG.format(fault="{at: 1, node: 6, fault: node_id_change, node_id: 7}")
     text += "  - {at: 2, node: 5, fault: node_id_change, node_id: 6}\n"
     assert len(Rig.loads(text).fault_specs) == 2
+
+
+# -- udp_multicast: this host only unless asked -------------------------------------------------
+
+
+def test_the_reach_of_a_multicast_group() -> None:
+    from cobus.runtime.bus import HOST_ONLY_GROUP, multicast_reach
+
+    assert multicast_reach(HOST_ONLY_GROUP) is None
+    assert multicast_reach("ff02::1") == "this link"
+    assert multicast_reach("ff15:7079:7468:6f6e:6465:6d6f:6d63:6173") == (
+        "beyond this link (scope 5)"
+    )
+    assert "IPv4" in str(multicast_reach("239.74.163.2"))
+
+
+def test_udp_multicast_stays_on_this_host_unless_a_group_is_named(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    import logging
+
+    pytest.importorskip("msgpack", reason="python-can's udp_multicast needs msgpack")
+    from cobus.runtime.bus import HOST_ONLY_GROUP, open_bus
+
+    port = 43_000 + os.getpid() % 500
+    with caplog.at_level(logging.WARNING, logger="cobus.runtime.bus"):
+        try:
+            bus = open_bus("udp_multicast", port=port)
+        except Exception as exc:  # (no IPv6 multicast on this host)
+            pytest.skip(f"no multicast here: {exc}")
+        try:
+            assert bus._multicast.group == HOST_ONLY_GROUP  # type: ignore[attr-defined]
+        finally:
+            bus.shutdown()
+        assert not caplog.records
+        wide = open_bus("udp_multicast", "ff15:7079:7468:6f6e:6465:6d6f:6d63:6173", port=port)
+        wide.shutdown()
+    (record,) = caplog.records
+    assert "anyone who can send there writes to this bus" in record.getMessage()
+
+
+def test_the_help_of_the_bus_options_says_who_can_write(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from cobus.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["monitor", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "python-can listens on every interface" in text

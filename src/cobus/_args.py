@@ -33,7 +33,10 @@ def add_bus_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group(
         "bus (default: python-can's configuration)",
         "Other options of the interface (udp_multicast's port...) come from python-can's "
-        """configuration too: CAN_CONFIG='{"port": 43114}' or ~/.canrc.""",
+        """configuration too: CAN_CONFIG='{"port": 43114}' or ~/.canrc. udp_multicast """
+        "without -c uses a group that never leaves this host; python-can listens on every "
+        "interface, so whoever can send to its group and port writes to the bus: name a "
+        "wider group only on a trusted network, and firewall the port (43113).",
     )
     group.add_argument("--interface", "-i", help="python-can interface (socketcan, pcan...)")
     group.add_argument("--channel", "-c", help="python-can channel (can0, PCAN_USBBUS1...)")

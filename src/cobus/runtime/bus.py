@@ -3,12 +3,21 @@
 It opens any interface python-can has (from arguments, from python-can's own configuration
 files, or from ``CAN_INTERFACE`` / ``CAN_CHANNEL`` / ``CAN_BITRATE``), converts messages to and
 from :class:`~cobus.proto.Frame`, and decodes error frames into bus-state events.
+
+python-can's ``udp_multicast`` binds every interface of the host: whoever can send to its
+group (and port) writes to the bus. Opened by cobus without a channel it uses
+:data:`HOST_ONLY_GROUP`, an interface-local IPv6 group that the kernel never sends on the
+wire (python-can's own default group reaches the site); a group that reaches beyond the host
+is logged as a warning when the bus opens. A unicast datagram to the host's port still
+reaches the bus socket: on a host others can reach, firewall the port (43113 by default).
 """
 
 from __future__ import annotations
 
 import enum
 import functools
+import ipaddress
+import logging
 import select
 import socket
 import uuid
@@ -22,6 +31,7 @@ from cobus.runtime.errors import BusOpenError
 from cobus.runtime.events import BusErrorFrame, BusState, RxOverflow, TxBufferOverflow
 
 __all__ = [
+    "HOST_ONLY_GROUP",
     "BusOpenError",
     "LoopSource",
     "OwnEcho",
@@ -36,6 +46,14 @@ __all__ = [
     "websocket_readiness",
     "websocket_waiting",
 ]
+
+
+log = logging.getLogger(__name__)
+
+#: The multicast group cobus's ``udp_multicast`` buses use unless a channel is given:
+#: python-can's default group with the interface-local scope (ff1\ *1*: transient,
+#: interface-local), so that its datagrams never leave this host.
+HOST_ONLY_GROUP = "ff11:7079:7468:6f6e:6465:6d6f:6d63:6173"
 
 
 def open_bus(
@@ -56,8 +74,13 @@ def open_bus(
         config["channel"] = channel
     if bitrate is not None:
         config["bitrate"] = bitrate
+    if config.get("channel") is None and _names_udp_multicast(config):
+        config["channel"] = HOST_ONLY_GROUP  # (python-can's default group reaches the site)
     try:
-        return can.Bus(**config)
+        bus = can.Bus(**config)
+        if _is_udp_multicast(bus):
+            _warn_if_reachable(bus)
+        return bus
     except can.CanInterfaceNotImplementedError as exc:
         if config.get("interface") is None and '"None"' in str(exc):
             raise BusOpenError(
@@ -72,6 +95,51 @@ def open_bus(
     except (can.CanError, OSError, ValueError) as exc:
         iface, chan = config.get("interface", "?"), config.get("channel", "?")
         raise BusOpenError(f"cannot open CAN interface {iface} channel {chan}: {exc}") from exc
+
+
+def _names_udp_multicast(config: dict[str, Any]) -> bool:
+    """Whether ``config`` (with python-can's configuration for what it leaves out) opens
+    python-can's udp_multicast."""
+    interface = config.get("interface")
+    if interface is None:
+        try:
+            interface = can.util.load_config(config=dict(config)).get("interface")
+        except (can.CanError, ValueError, OSError):
+            return False
+    return interface == "udp_multicast"
+
+
+def multicast_reach(group: str) -> str | None:
+    """Where datagrams to multicast ``group`` go beyond this host, in words (None: they stay
+    on it: an IPv6 interface-local group)."""
+    try:
+        address = ipaddress.ip_address(group.split("%", 1)[0])
+    except ValueError:
+        return "wherever its name resolves to"
+    if isinstance(address, ipaddress.IPv6Address) and address.is_multicast:
+        scope = address.packed[1] & 0x0F
+        if scope == 1:
+            return None
+        return "this link" if scope == 2 else f"beyond this link (scope {scope:X})"
+    return "this link or beyond (IPv4 has no host-only group)"
+
+
+def _warn_if_reachable(bus: can.BusABC) -> None:
+    group = getattr(getattr(bus, "_multicast", None), "group", None)
+    if not isinstance(group, str):
+        return
+    reach = multicast_reach(group)
+    if reach is not None:
+        port = getattr(getattr(bus, "_multicast", None), "port", "?")
+        log.warning(
+            "udp_multicast group %s reaches %s, and python-can listens on every interface "
+            "(port %s): anyone who can send there writes to this bus. Leave the channel out "
+            "(cobus then uses %s, this host only) or use a CAN interface",
+            group,
+            reach,
+            port,
+            HOST_ONLY_GROUP,
+        )
 
 
 def _message_by_init(frame: Frame) -> can.Message:
