@@ -359,3 +359,91 @@ def test_the_help_of_the_bus_options_says_who_can_write(
         main(["monitor", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "python-can listens on every interface" in text
+
+
+# -- outputs: never overwritten unasked, never written through a link -----------------------------
+
+
+SERVO_EDS = EXAMPLES / "networks/servo.eds"
+
+
+def _cli(capsys: pytest.CaptureFixture[str], *words: str) -> tuple[int, str]:
+    from cobus.cli import main
+
+    code = main(list(words))
+    return code, capsys.readouterr().err
+
+
+def test_eds_convert_overwrites_only_with_force_and_never_through_a_link(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "out" / "servo.eds"
+    out.parent.mkdir()
+    outside = tmp_path / "precious.txt"
+    outside.write_text("not yours")
+    out.symlink_to(outside)
+    code, err = _cli(capsys, "eds", "convert", str(SERVO_EDS), str(out))
+    assert code == 2 and "is a symbolic link: pass --force" in err
+    assert outside.read_text() == "not yours"
+    assert _cli(capsys, "eds", "convert", str(SERVO_EDS), str(out), "--force")[0] == 0
+    assert outside.read_text() == "not yours"  # the link was replaced, not followed
+    assert not out.is_symlink() and out.read_bytes().startswith(b"[FileInfo]\r\n")
+    code, err = _cli(capsys, "eds", "convert", str(SERVO_EDS), str(out))
+    assert (
+        code == 2
+        and err.strip() == f"cobus eds convert: {out} exists: pass --force to overwrite it"
+    )
+    assert not list(out.parent.glob(".*partial"))  # (no leftovers)
+
+
+def test_config_dcf_writes_nothing_over_files_or_through_links_unasked(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    network_file = EXAMPLES / "networks/thesis.yml"
+    outdir = tmp_path / "dcf"
+    assert _cli(capsys, "config", "dcf", str(network_file), str(outdir))[0] == 0
+    written = sorted(p.name for p in outdir.iterdir())
+    assert "servo.dcf" in written and "servo.bin" in written
+    outside = tmp_path / "precious.txt"
+    outside.write_text("not yours")
+    (outdir / "servo.dcf").unlink()
+    (outdir / "servo.dcf").symlink_to(outside)
+    code, err = _cli(capsys, "config", "dcf", str(network_file), str(outdir))
+    assert code == 2 and "nothing written" in err
+    assert "servo.dcf is a symbolic link" in err and "servo.bin exists" in err
+    assert _cli(capsys, "config", "dcf", str(network_file), str(outdir), "--force")[0] == 0
+    assert outside.read_text() == "not yours" and not (outdir / "servo.dcf").is_symlink()
+
+
+def test_record_overwrites_only_with_force(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    trace = tmp_path / "bus.log"
+    trace.write_text("earlier recording\n")
+    code, err = _cli(capsys, "record", str(trace), "--duration", "0.1", "-i", "virtual")
+    assert code == 2 and "exists: pass --force" in err
+    assert trace.read_text() == "earlier recording\n"
+    outside = tmp_path / "precious.txt"
+    outside.write_text("not yours")
+    link = tmp_path / "link.log"
+    link.symlink_to(outside)
+    args = ("record", str(link), "--duration", "0.1", "-i", "virtual", "-c", f"rec{os.getpid()}")
+    assert _cli(capsys, *args)[0] == 2
+    assert _cli(capsys, *args, "--force")[0] == 0
+    assert outside.read_text() == "not yours" and not link.is_symlink()
+
+
+def test_config_check_shows_no_line_of_a_file_that_is_no_eds(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    secret = tmp_path / "secret.txt"
+    secret.write_text("root:x:0:0:root:/root:/bin/bash\nsecret=hunter2\n[x]\npassword=abc\n")
+    (tmp_path / "net.yml").write_text("nodes:\n  a: {node_id: 5, eds: secret.txt}\n")
+    from cobus.cli import main
+
+    assert main(["config", "check", str(tmp_path / "net.yml")]) == 2
+    shown = capsys.readouterr()
+    text = shown.out + shown.err
+    assert "secret.txt is not an EDS or DCF: it defines no objects" in text
+    for word in ("root:x", "hunter2", "password", "abc"):
+        assert word not in text

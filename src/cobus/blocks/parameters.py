@@ -22,7 +22,6 @@ a value out of the type's range or the EDS limits, a missing type.
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import io
 import math
@@ -35,6 +34,7 @@ from typing import Any
 
 import yaml
 
+from cobus._files import replace_file
 from cobus._yaml import DataFileError, FileProblem, LineMap, line_of, read_yaml
 from cobus.master.config import ObjectIndex
 from cobus.od import (
@@ -242,16 +242,10 @@ class ParameterSet:
 
     def write(self, path: str | os.PathLike[str]) -> None:
         """Write the set to ``path``: CSV for ``.csv``, YAML otherwise. The file is replaced
-        whole or not at all (written beside it, then renamed)."""
+        whole or not at all (written beside it, then renamed; a link there is replaced, never
+        written through)."""
         text = self.to_csv() if os.fspath(path).lower().endswith(".csv") else self.to_yaml()
-        target = Path(path)
-        partial = target.with_name(f".{target.name}.partial")
-        try:
-            partial.write_text(text, encoding="utf-8")
-            os.replace(partial, target)
-        finally:
-            with contextlib.suppress(OSError):
-                partial.unlink()
+        replace_file(path, text.encode("utf-8"))
 
 
 def show(value: Any) -> str:

@@ -35,6 +35,11 @@ def register(sub: Any) -> None:
     )
     dcf.add_argument("file", help="network description (YAML)")
     dcf.add_argument("outdir", help="directory to write into (created if missing)")
+    dcf.add_argument(
+        "--force",
+        action="store_true",
+        help="overwrite the files there (a link is replaced, never written through)",
+    )
     dcf.set_defaults(handler=_dcf)
 
 
@@ -82,6 +87,14 @@ def _dcf(args: argparse.Namespace) -> int:
     errors, _warnings = _report(problems)
     if cfg is None or errors:
         print(f"{args.file}: {errors} error(s); nothing written", file=sys.stderr)
+        return 2
+    from cobus._files import refusal
+
+    refused = [r for p in cfg.dcf_files(args.outdir) if (r := refusal(p, args.force))]
+    if refused:
+        for reason in refused:
+            print(f"cobus config dcf: {reason}", file=sys.stderr)
+        print(f"{args.file}: nothing written", file=sys.stderr)
         return 2
     try:
         written = cfg.write_dcfs(args.outdir)

@@ -61,6 +61,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from cobus._files import replace_file
 from cobus._yaml import line_of, milliseconds, read_yaml
 from cobus.errors import CobusError, clip
 from cobus.master.errors import (
@@ -641,17 +642,22 @@ class NetworkConfig:
                     out.setdefault(sig.name, sig)
         return out
 
+    def dcf_files(self, outdir: str | os.PathLike[str]) -> list[Path]:
+        """The files :meth:`write_dcfs` writes into ``outdir``."""
+        target = Path(outdir)
+        return [target / f"{n.name}{ext}" for n in self.nodes.values() for ext in (".dcf", ".bin")]
+
     def write_dcfs(self, outdir: str | os.PathLike[str]) -> list[Path]:
-        """Write ``<node>.dcf`` and the concise ``<node>.bin`` of every node into ``outdir``."""
+        """Write ``<node>.dcf`` and the concise ``<node>.bin`` of every node into ``outdir``,
+        each whole or not at all; a symbolic link there is replaced, never written through."""
         target = Path(outdir)
         target.mkdir(parents=True, exist_ok=True)
         written: list[Path] = []
         for node in self.nodes.values():
             dcf = target / f"{node.name}.dcf"
-            with dcf.open("w", encoding="utf-8", newline="\r\n") as fh:
-                fh.write(node.to_dcf())
+            replace_file(dcf, node.to_dcf().replace("\n", "\r\n").encode("utf-8"))
             concise = target / f"{node.name}.bin"
-            concise.write_bytes(node.concise_dcf())
+            replace_file(concise, node.concise_dcf())
             written += [dcf, concise]
         return written
 
@@ -886,6 +892,9 @@ class _NodeReader:
             self.error(key, f"the file cannot be read: {exc}")
             return None, None
         od.path = str(path)
+        if not len(od):
+            self.error(key, f"{path.name} is not an EDS or DCF: it defines no objects")
+            return None, None
         lost = [f for f in od.errors if _dropped_value(od, f)]
         for finding in lost:
             # a configured value the reader had to drop: the node would not get it

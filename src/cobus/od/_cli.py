@@ -52,6 +52,9 @@ def register(sub: Any) -> None:
     convert.add_argument("out", help="the file to write: .dcf or .eds")
     convert.add_argument("--node-id", type=int, default=None, help="the node-ID (for a DCF)")
     convert.add_argument("--bitrate", type=int, default=None, help="bit/s (for a DCF)")
+    convert.add_argument(
+        "--force", action="store_true", help="overwrite OUT if it exists (a link is replaced)"
+    )
     convert.set_defaults(handler=_convert)
 
 
@@ -103,6 +106,8 @@ def _show(args: argparse.Namespace) -> int:
 
 
 def _convert(args: argparse.Namespace) -> int:
+    from cobus._files import refusal, replace_file
+
     od = _load(args)
     if od is None:
         return 2
@@ -123,10 +128,13 @@ def _convert(args: argparse.Namespace) -> int:
     if node_id is not None and not 1 <= node_id <= 127:
         print(f"--node-id {node_id}: 1-127", file=sys.stderr)
         return 2
+    refused = refusal(args.out, args.force)
+    if refused is not None:
+        print(f"cobus eds convert: {refused}", file=sys.stderr)
+        return 2
     try:
         text = od.to_dcf(node_id, args.bitrate) if to_dcf else od.to_eds()
-        with open(args.out, "w", encoding="utf-8", newline="\r\n") as fh:
-            fh.write(text)
+        replace_file(args.out, text.replace("\n", "\r\n").encode("utf-8"))
     except (OSError, ValueError) as exc:
         print(f"cannot write {args.out}: {exc}", file=sys.stderr)
         return 2

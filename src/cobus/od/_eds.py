@@ -18,6 +18,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+from cobus.errors import clip
 from cobus.od._checks import check_dictionary
 from cobus.od._errors import EdsError, Finding, Severity
 from cobus.od._model import (
@@ -274,17 +275,19 @@ class _Loader:
                     self.by_line[i] = cur
                     continue
                 key, sep, value = line.partition("=")
+                if cur is None:
+                    # Before any section the file may be no EDS at all (a network file's
+                    # eds: naming another file): its lines are not quoted.
+                    self.error(i, None, "text before the first [section]: an EDS starts with one")
+                    continue
                 if not sep:
                     self.error(
                         i,
-                        cur.name if cur else None,
-                        f"line {line!r} is not key=value, a [section] or a ;comment",
+                        cur.name,
+                        f"line {clip(repr(line), 80)} is not key=value, a [section] or a ;comment",
                     )
                     continue
                 key = key.rstrip()
-                if cur is None:
-                    self.error(i, None, f"key {key!r} comes before the first [section]")
-                    continue
                 keys = cur.keys
                 if key in keys:
                     key_lines = cur.key_lines
@@ -1140,6 +1143,9 @@ def loads(
     sections = loader.tokenize(text)
     od = loader.build(sections, node_id)
     if not od._objects:
+        # Not an EDS: what its lines would say is noise, and no line of it is shown (a
+        # network file's eds: may name any file).
+        loader.findings = []
         loader.error(
             None,
             None,

@@ -93,6 +93,9 @@ def register(sub: Any) -> None:
         "file", type=Path, help="the trace file (.asc, .blf, .log, .trc, .csv, .pcap, .pcapng)"
     )
     record.add_argument("--duration", type=seconds, help="seconds to record (default: Ctrl-C)")
+    record.add_argument(
+        "--force", action="store_true", help="overwrite FILE if it exists (a link is replaced)"
+    )
     add_bus_options(record)
     record.set_defaults(handler=_record)
     replay = sub.add_parser(
@@ -224,11 +227,19 @@ _YEAR_2000 = 946_684_800.0  # (a trace's first time below it is no date: seconds
 def _record(args: argparse.Namespace) -> int:
     import can
 
+    from cobus._files import refusal
+    from cobus.runtime.bus import open_bus
+
+    refused = refusal(args.file, args.force)
+    if refused is not None:
+        return _fail(refused, 2)
     try:
-        bus = can.Bus(**{k: v for k, v in bus_options(args).items() if v is not None})
-    except (can.CanError, OSError, ValueError, ImportError) as exc:
+        bus = open_bus(**{k: v for k, v in bus_options(args).items() if v is not None})
+    except Exception as exc:  # (BusOpenError, an interface's own)
         return _fail(f"cannot open the bus: {exc}")
     try:
+        if args.file.is_symlink():  # (--force: the link goes, what it points to is not written)
+            args.file.unlink()
         logger = can.Logger(str(args.file))
     except (ValueError, OSError, ImportError) as exc:
         bus.shutdown()
@@ -262,9 +273,11 @@ def _replay(args: argparse.Namespace) -> int:
         reader = open_trace(args.file)
     except Exception as exc:  # python-can's readers raise their own kinds (BLF, zlib...)
         return _fail(_unreadable(args.file, exc))
+    from cobus.runtime.bus import open_bus
+
     try:
-        bus = can.Bus(**{k: v for k, v in bus_options(args).items() if v is not None})
-    except (can.CanError, OSError, ValueError, ImportError) as exc:
+        bus = open_bus(**{k: v for k, v in bus_options(args).items() if v is not None})
+    except Exception as exc:  # (BusOpenError, an interface's own)
         return _fail(f"cannot open the bus: {exc}")
     sent = skipped = 0
     try:
