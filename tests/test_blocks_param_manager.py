@@ -377,3 +377,40 @@ def test_a_dcf_set_leaves_its_commands_out_and_says_so() -> None:
         (0x6060, "the CiA 402 modes of operation"),
         (0x607A, "a CiA 402 set-point"),
     ]
+
+
+def test_a_refused_save_is_a_failure_and_the_values_stay_unsaved() -> None:
+    """The node refuses 1010h (08000020, cannot be stored): the report says NOT saved and
+    names the save, the manager keeps them unsaved, and a power cycle loses them."""
+    from cobus.proto.sdo import SdoAbortedError
+
+    class RefusedSave:
+        def __init__(self, sdo: Any) -> None:
+            self.sdo = sdo
+
+        async def upload(self, index: int, subindex: int) -> bytes:
+            data: bytes = await self.sdo.upload(index, subindex)
+            return data
+
+        async def download(self, index: int, subindex: int, data: bytes) -> None:
+            if index == 0x1010:
+                raise SdoAbortedError(
+                    SdoAbortCode.CANNOT_STORE, index=index, subindex=subindex, node=NODE
+                )
+            await self.sdo.download(index, subindex, data)
+
+    async def scenario(b: Bench) -> tuple[ParameterReport, bool, ParameterReport]:
+        manager = AsyncParameterManager(RefusedSave(b.node.sdo), b.parameters())
+        report = await manager.apply()
+        unsaved = manager.unsaved
+        await b.power_cycle()
+        after = await AsyncParameterManager(b.node, b.parameters()).diff()
+        return report, unsaved, after
+
+    report, unsaved, after = run(scenario)
+    assert report.saved is False and not report.ok
+    (failure,) = report.failures
+    assert failure.step is ParameterStep.SAVE and failure.fault is ParameterFault.REFUSED
+    assert "save 0x1010:00" in report.summary and "refused" in report.summary
+    assert unsaved
+    assert not after.up_to_date and len(after.differences) == 3  # lost at the power cycle

@@ -65,6 +65,25 @@ def test_named_channels_polarity_interrupts_and_changes_on_a_bare_node() -> None
         assert not sim.digital_output(8)
         io.set_filter("door", True)  # 6003h: the module debounces the door input
         assert node.sdo.upload(0x6003, 1) == b"\x01"
+        io.set_outputs({"lamp": True, "horn": True})
+        assert sim.digital_output(1) and sim.digital_output(8)
+        io.set_outputs({"lamp": False, "horn": False})
+        assert not sim.digital_output(1) and not sim.digital_output(8)
+
+        # estop (channel 10: bit 1 of sub 2) on its falling edge only: 6006h/6007h/6008h
+        io.set_interrupt("estop", any_change=False, falling=True)
+        masks = [node.sdo.upload(index, 2)[0] & 0x02 for index in (0x6006, 0x6007, 0x6008)]
+        assert masks == [0, 0, 0x02]
+        seen = len(changes)
+        net.run(_call(lambda: sim.set_digital_input(10, False)))  # falling: sent
+        net.sleep(0.05)
+        estop = [str(c) for c in changes[seen:] if c.name == "estop"]
+        assert estop == ["estop = False"]
+        net.run(_call(lambda: sim.set_digital_input(10, True)))  # rising: not sent
+        net.sleep(0.05)
+        assert [str(c) for c in changes[seen:] if c.name == "estop"] == estop
+        io.set_interrupt("estop")  # back to any change
+        assert [node.sdo.upload(i, 2)[0] & 0x02 for i in (0x6006, 0x6007, 0x6008)] == [2, 0, 0]
 
         io.enable_interrupts()  # 6423h is off by default (CiA 401)
         io.set_delta("pot", 10.0)  # 10 % of the range: 3277 raw

@@ -136,6 +136,18 @@ def test_run_cw_then_ccw_ten_minutes_then_break_the_handshake(tmp_path: Path) ->
         zapi.wait_for_speed(10.0)
         assert bench.kept(net.time() - 0.5) > 20
 
+        zapi.stop()  # set-point 0: the inverter ramps down, contactor and enable held
+        assert zapi.setpoint == 0.0
+        zapi.wait_for_speed(0.0)
+        assert zapi.status & ZapiStatus.A16_MAIN_CONTACTOR
+        assert not zapi.command & (ZapiControl.CLOCKWISE | ZapiControl.COUNTER_CLOCKWISE)
+        assert zapi.command & ZapiControl.A16_MAIN_CONTACTOR
+        zapi.release()  # everything off: no direction, no enable, the contactor opens
+        assert zapi.command & ~ZapiControl.HANDSHAKE == 0
+        net.sleep(0.2)
+        assert not zapi.status & ZapiStatus.A16_MAIN_CONTACTOR
+        assert inverter.status()["speed_hz"] == 0.0 and zapi.alarm == 0
+
 
 def test_a_contactor_that_does_not_close_is_reported(tmp_path: Path) -> None:
     with Network(simulated=True) as net:

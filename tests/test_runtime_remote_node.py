@@ -344,6 +344,24 @@ def test_emergencies_keep_their_history_and_active_errors():
             net.send(Frame(0x83, b"\x10\x42\x09\x00\x00\x00\x00\x00"))
             await asyncio.sleep(0)
             assert [e.code for e in node.emcy.active] == [0x4210]
+            assert node.emcy.count == 4
+
+            node.emcy.clear()  # forgotten: the log, the active errors and the count
+            assert (node.emcy.log, node.emcy.active, node.emcy.count) == ([], [], 0)
+            assert node.emcy.last is None
+
+            # the node's 1014h says 0x0A3: emergencies come on it, no longer on 83h
+            node.emcy.set_cob_id(0x0A3)
+            assert node.emcy.cob_id == 0x0A3
+            net.send(Frame(0x83, b"\x10\x81\x11\x00\x00\x00\x00\x00"))
+            net.send(Frame(0xA3, b"\x30\x81\x11\x00\x00\x00\x00\x00"))
+            await asyncio.sleep(0)
+            assert [e.code for e in node.emcy.log] == [0x8130]
+            with pytest.raises(ValueError, match="11-bit identifier"):
+                node.emcy.set_cob_id(0x800)
+            net.remove_remote(3)
+            with pytest.raises(NetworkClosedError, match="removed from the network"):
+                node.emcy.set_cob_id(0x83)
 
     simulate(main())
 

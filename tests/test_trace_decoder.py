@@ -307,6 +307,21 @@ def test_hostile_and_partial_traces_from_a_review() -> None:
         "node 5 read 1008h:00 Manufacturer device name = 'CiA 402 sv' (10 bytes, segmented, "
         "11 bytes announced, 6.0 ms)"
     ]
+    # the same for a download: a segment sent again with the toggle bit of the last one
+    # (the client repeating it) is not data
+    out = decoded(
+        d,
+        "605: 21 00 20 00 09 00 00 00",
+        "585: 60 00 20 00 00 00 00 00",
+        "605: 00 01 02 03 04 05 06 07",
+        "605: 00 01 02 03 04 05 06 07",  # again, toggle 0
+        "585: 20 00 00 00 00 00 00 00",
+        "605: 1B 08 09 00 00 00 00 00",
+        "585: 30 00 00 00 00 00 00 00",
+    )
+    assert out == [
+        "node 5 write 2000h:00 = 01 02 03 04 05 06 07 08 09 (9 bytes, segmented, 6.0 ms)"
+    ]
     # a transfer the trace ends in is reported by flush()
     decoded(d, "605: 40 09 10 00 00 00 00 00")
     assert [str(r) for r in d.flush(1.0)] == [
