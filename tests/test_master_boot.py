@@ -4,7 +4,6 @@ clock: resets, boot-up, checks, configuration, error control set-up, start."""
 from __future__ import annotations
 
 import itertools
-import time
 
 import pytest
 
@@ -64,12 +63,10 @@ def test_127_nodes_boot_to_operational(tmp_path):
     text = "master: {sync_period: 20, reset: broadcast, start: broadcast}\nnodes:\n" + nodes
     cfg = network(tmp_path, text)
 
-    async def scenario(rig: Rig) -> float:
+    async def scenario(rig: Rig) -> None:
         for node_id in range(1, 128):
             rig.add(node_id)
-        wall = time.perf_counter()
-        await rig.master.boot(timeout=30)
-        wall = time.perf_counter() - wall
+        await rig.master.boot(timeout=30)  # (its wall time: benchmarks/bench_master.py)
         assert master_state(rig.master) is MasterState.RUNNING
         assert all(state(n) is NodeState.OPERATIONAL for n in rig.master.nodes.values())
         await rig.run(0.5)  # heartbeats flow, TPDOs arrive
@@ -80,10 +77,8 @@ def test_127_nodes_boot_to_operational(tmp_path):
             assert diagnostic(rig.master.nodes[node_id]) is Diagnostic.OK, node_id
         # one broadcast reset and one broadcast start, nothing else on 000h
         assert rig.data(0x000) == [b"\x81\x00", b"\x01\x00"]
-        return wall
 
-    wall = rig_test(cfg, scenario)
-    assert wall < 20, f"boot of 127 nodes took {wall:.1f} s of wall time"
+    rig_test(cfg, scenario)
 
 
 def test_per_node_reset_and_start_with_the_whole_sequence(tmp_path):

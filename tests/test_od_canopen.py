@@ -19,8 +19,9 @@ import pytest
 
 from cobus.od import DataType, ObjectDictionary, Variable, load
 from tests.conftest import EDS_DIR, corpus_files
+from tests.util import need_module
 
-canopen = pytest.importorskip("canopen")
+canopen = need_module("canopen", "python-canopen (the interoperability peer) is not installed")
 pytestmark = pytest.mark.interop
 
 

@@ -579,8 +579,6 @@ def test_the_shell_gives_up_when_no_sync_goes_out(monkeypatch, capsys):
         raise can.CanOperationError("No buffer space available [Error Code 105]")
 
     monkeypatch.setattr(VirtualBus, "send", refuse)
-    began = time.monotonic()
     args = ["sync", "--period", "0.01", "--count", "3", "-i", "virtual", "-c", "no-sync"]
-    assert main(args) == 1
-    assert time.monotonic() - began < 5
+    assert main(args) == 1  # (it gives up: waiting for ever would hit the suite's timeout)
     assert "only 0 of 3 SYNC went out" in capsys.readouterr().err

@@ -12,6 +12,7 @@ import textwrap
 import threading
 import time
 
+import can
 import canopen
 import pytest
 
@@ -104,19 +105,35 @@ def test_a_newcomer_watches_cobus_sim_thesis_boot_with_cobus_monitor(bus_url):
     cobus = [sys.executable, "-m", "cobus.cli"]
     bus = ["-i", "remote", "-c", bus_url]
     monitor = subprocess.Popen(
-        [*cobus, "monitor", "--duration", "6", *bus],
+        [*cobus, "monitor", "--duration", "15", *bus],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
-    time.sleep(2.0)  # (it connects)
+    lines: list[str] = []
+    assert monitor.stdout is not None
+    reader = threading.Thread(target=lambda: lines.extend(monitor.stdout or ()), daemon=True)
+    reader.start()
+    # It listens once it shows a probe (node 127's boot-up) sent from here: then the sim.
+    probe = can.Bus(interface="remote", channel=bus_url)
+    try:
+        until_listening = time.monotonic() + 30
+        while not any("node 127 boot-up" in line for line in lines):
+            assert time.monotonic() < until_listening, "the monitor never showed the probe"
+            probe.send(can.Message(arbitration_id=0x77F, data=b"\x00", is_extended_id=False))
+            time.sleep(0.2)
+    finally:
+        probe.shutdown()
     sim = subprocess.Popen(
         [*cobus, "sim", "thesis", "--status-every", "0", "--duration", "3", *bus],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
     try:
-        out, err = monitor.communicate(timeout=60)
+        monitor.wait(timeout=60)
+        reader.join(10)
+        err = monitor.stderr.read() if monitor.stderr is not None else ""
+        out = "".join(lines)
     finally:
         for child in (sim, monitor):
             if child.poll() is None:

@@ -27,6 +27,7 @@ from cobus.trace.pcap import (
     message_from_bytes,
 )
 from tests.test_trace_cli import RIG, listening
+from tests.util import need
 
 MESSAGES = [
     can.Message(timestamp=1.0, arbitration_id=0x000, is_extended_id=False, data=b"\x01\x05"),
@@ -194,8 +195,8 @@ def _tshark_kind(function_code: str, node: str) -> str:
     return f"function code {code}"
 
 
-@pytest.mark.skipif(shutil.which("tshark") is None, reason="Debian's tshark is not installed")
 def test_tshark_reads_a_cobus_recording_as_the_same_canopen_frames(tmp_path: Path) -> None:
+    need(shutil.which("tshark"), "Debian's tshark is not installed")
     channel = f"pcap-{os.getpid()}"
     trace = tmp_path / "rig.pcapng"
     with Network(interface="virtual", channel=channel) as net:

@@ -170,3 +170,29 @@ def bounded_python(
         out = exc.stdout.decode() if isinstance(exc.stdout, bytes) else (exc.stdout or "")
         return -9, out, f"timed out after {seconds:g} s"
     return done.returncode, done.stdout, done.stderr
+
+
+def need(ok: object, reason: str) -> None:
+    """Skip the test when ``ok`` is false - unless ``CI=true``: in CI a missing dependency
+    (a program, a module, a working udp_multicast) fails the test, so that a green run never
+    hides what it did not run."""
+    import os
+
+    import pytest
+
+    if ok:
+        return
+    if os.environ.get("CI") == "true":
+        pytest.fail(f"{reason} (CI=true: a missing dependency fails)")
+    pytest.skip(reason)
+
+
+def need_module(name: str, reason: str | None = None) -> Any:
+    """``pytest.importorskip(name)`` that fails instead with ``CI=true`` (see :func:`need`)."""
+    import importlib
+
+    try:
+        return importlib.import_module(name)
+    except ImportError:
+        need(False, reason or f"the module {name} is not installed")
+        raise
