@@ -617,3 +617,48 @@ def test_the_command_line_says_a_history_is_damaged_in_one_line(
             assert "Traceback" not in err
             if status == 1:
                 assert len(err.strip().splitlines()) == 1 and "is damaged" in err
+
+
+def test_another_programs_damaged_database_is_never_moved_aside(tmp_path: Path) -> None:
+    other = tmp_path / "other.db"
+    db = sqlite3.connect(other)
+    db.execute("CREATE TABLE customers (name TEXT)")
+    db.executemany("INSERT INTO customers VALUES (?)", [("x" * 200,)] * 200)
+    db.commit()
+    db.close()
+    data = bytearray(other.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # damaged in a data page
+    other.write_bytes(bytes(data))
+    with pytest.raises(AlarmHistoryError, match="tables of another program"):
+        AlarmHandler(other)
+    assert other.read_bytes() == bytes(data) and list(tmp_path.iterdir()) == [other]
+
+
+def test_a_damaged_history_that_cannot_be_moved_leaves_the_handler_without_one(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import cobus.blocks.alarms as alarms
+
+    path = _damaged_copies(tmp_path, 48)
+    damaged = next(p for p in path if _is_damaged(p))
+
+    def refuse(target: Path) -> Path:
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(alarms, "_move_aside", refuse)
+    h = AlarmHandler(damaged)  # the application still starts
+    assert h.history is None and h.history_moved is None
+    (warning,) = h.active
+    assert "cannot be moved aside (Permission denied): no history kept" in warning.text
+    h.raise_alarm("zapi", 17, node=8)  # alarms still work, in memory
+    assert len(h.active) == 2
+
+
+def _is_damaged(path: Path) -> bool:
+    from cobus.blocks.alarm_history import AlarmHistoryDamagedError
+
+    try:
+        AlarmHistory(path).close()
+    except AlarmHistoryDamagedError:
+        return True
+    return False

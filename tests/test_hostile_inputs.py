@@ -250,6 +250,36 @@ def test_a_blf_zlib_bomb_is_refused_before_it_is_inflated(
     assert len(stderr.strip().splitlines()) == 1
 
 
+def test_a_gzipped_blf_bomb_is_refused_too(tmp_path: Path) -> None:
+    import gzip
+
+    from cobus.trace.files import TraceFileError, open_trace
+
+    plain = tmp_path / "bomb.blf"
+    blf_bomb(plain, 64 << 20, 128 * 1024)
+    packed = tmp_path / "bomb.blf.gz"
+    packed.write_bytes(gzip.compress(plain.read_bytes()))
+    with pytest.raises(TraceFileError, match="inflates to more than the 131,072 bytes"):
+        open_trace(packed)
+
+
+def test_a_stored_container_is_not_held_to_its_announced_size(tmp_path: Path) -> None:
+    """python-can ignores the size a stored (uncompressed) container announces: its bytes
+    are in the file already, so the check does not refuse it for that."""
+    from can.io import blf
+
+    from cobus.trace.files import check_blf
+
+    path = tmp_path / "stored.blf"
+    blf_bomb(path, 0, 0)  # (a few real frames, then an empty deflated container)
+    body = blf.LOG_CONTAINER_STRUCT.pack(blf.NO_COMPRESSION, 0xFFFFFFFF) + bytes(64)
+    size = blf.OBJ_HEADER_BASE_STRUCT.size + len(body)
+    head = blf.OBJ_HEADER_BASE_STRUCT.pack(b"LOBJ", 16, 1, size, blf.LOG_CONTAINER)
+    with path.open("ab") as f:
+        f.write(head + body)
+    check_blf(path)
+
+
 def test_a_real_blf_file_passes_the_check(tmp_path: Path) -> None:
     import can
 
@@ -263,6 +293,12 @@ def test_a_real_blf_file_passes_the_check(tmp_path: Path) -> None:
             writer.on_message_received(msg)
     check_blf(path)
     with open_trace(path) as reader:
+        assert sum(1 for _ in reader) == 20_000
+    import gzip
+
+    packed = tmp_path / "real.blf.gz"
+    packed.write_bytes(gzip.compress(path.read_bytes()))
+    with open_trace(packed) as reader:
         assert sum(1 for _ in reader) == 20_000
 
 
@@ -448,3 +484,36 @@ def test_config_check_shows_no_line_of_a_file_that_is_no_eds(
     assert "secret.txt is not an EDS or DCF: it defines no objects" in text
     for word in ("root:x", "hunter2", "password", "abc"):
         assert word not in text
+
+
+def test_replacing_a_file_keeps_its_mode_and_never_writes_a_device(tmp_path: Path) -> None:
+    from cobus._files import refusal, replace_file
+
+    target = tmp_path / "private.dcf"
+    target.write_text("old")
+    target.chmod(0o600)
+    replace_file(target, b"new")
+    assert target.read_bytes() == b"new" and (target.stat().st_mode & 0o777) == 0o600
+    fresh = tmp_path / "fresh.dcf"
+    replace_file(fresh, b"x")
+    assert fresh.stat().st_mode & 0o777 == 0o666 & ~_umask_now()
+    assert "no regular file" in str(refusal("/dev/null", True))
+    assert "is a folder" in str(refusal(tmp_path, True))
+
+
+def _umask_now() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def test_a_group_from_python_cans_configuration_is_kept(monkeypatch: pytest.MonkeyPatch) -> None:
+    from cobus.runtime.bus import _udp_multicast_without_group
+
+    monkeypatch.setenv("CAN_INTERFACE", "udp_multicast")
+    monkeypatch.setenv("CAN_CHANNEL", "239.74.163.2")
+    assert not _udp_multicast_without_group({})  # the user's group, from the environment
+    monkeypatch.delenv("CAN_CHANNEL")
+    assert _udp_multicast_without_group({})  # none named: cobus's host-only group
+    assert not _udp_multicast_without_group({"channel": "ff12::1"})
+    assert not _udp_multicast_without_group({"interface": "virtual"})

@@ -114,10 +114,13 @@ def test_a_node_kept_stopped_is_commanded_a_few_times_then_left_as_it_is(tmp_pat
         assert [e.command for e in events] == ["enter_preoperational"] * 3 + [""]
         assert events[-1].reason == (
             "reports STOPPED but does not answer SDO after 3 NMT commands within 60 s: "
-            "left as it is"
+            "left as it is until it answers SDO or the application restarts it"
         )
         assert state(node) is NodeState.WAITING
         assert "left as it is" in (node.problem or "")
+        await rig.run(120.0)  # past the window: still no more commands (not 3 a minute)
+        commands = [d for d in rig.data(0x000, since=since) if d == bytes([0x80, 5])]
+        assert len(commands) == 3 and len(rig.of(SdoUnanswered)) == 4
 
     rig_test(cfg, scenario)
 
@@ -297,3 +300,36 @@ def test_closing_the_network_while_a_boot_waits_for_sdo_is_quiet(tmp_path, caplo
         events = simulate(main())
     assert not [r for r in caplog.records if r.exc_info or r.levelno >= logging.WARNING]
     assert events  # (the master did run)
+
+
+def test_a_node_the_master_must_not_initialise_gets_no_command(tmp_path):
+    cfg = network(tmp_path, net_text(extra="    do_not_initialise: true\n"))
+
+    async def scenario(rig: Rig) -> None:
+        device = rig.add(5, beating())
+        device.simulation.sdo_response_delay = 3600.0  # hung, heartbeat PRE-OPERATIONAL
+        rig.master.start()
+        await rig.run(20.0)
+        assert [d for d in rig.data(0x000) if d[1:] == b"\x05"] == []
+        assert not rig.of(SdoUnanswered)
+
+    rig_test(cfg, scenario)
+
+
+def test_the_masters_own_stop_is_not_undone_by_a_wake(tmp_path):
+    """The application stops the node (through this process's NMT service) while the master
+    reads its 1000h after a boot-up: STOPPED is what this process asked for."""
+    cfg = network(tmp_path, net_text())
+
+    async def scenario(rig: Rig) -> None:
+        await booted(rig)
+        since = rig.net.time()
+        rig.send(0x000, bytes([0x81, 5]))  # someone else resets it ...
+        await rig.run(0.01)
+        rig.net.nmt.stop(5)  # ... and the application stops it
+        await rig.run(20.0)
+        assert bytes([0x80, 5]) not in rig.data(0x000, since=since)
+        assert not rig.of(SdoUnanswered)
+        assert nmt(rig.devices[5]) is NmtState.STOPPED
+
+    rig_test(cfg, scenario)

@@ -575,3 +575,9 @@ def test_node_can_be_named() -> None:
     assert c.node == 64 and client().node == 5
     c.start_upload(IDX, 0, 0.0)
     assert "node 64" in str(failed(c.on_timer(2.0)).error)
+
+
+def test_an_abort_naming_another_sub_index_of_the_object_still_ends_the_transfer() -> None:
+    c = _in_state("upload initiate")
+    error = failed(c.on_frame(abort_frame(TX, IDX, 7, 0x06090011), 0.5)).error
+    assert isinstance(error, SdoAbortedError) and error.code == 0x06090011

@@ -183,19 +183,23 @@ class AlarmHistory:
 
     def _set_up(self) -> None:
         db = self._db
-        # A damaged file shows here, not at the first query of a running application.
-        verdict = [row[0] for row in db.execute("PRAGMA integrity_check(5)")]
-        if verdict != ["ok"]:
-            found = " ".join("; ".join(map(str, verdict)).split())  # (one line)
-            raise sqlite3.DatabaseError(f"integrity check: {clip(found, 200)}")
-        db.execute("PRAGMA journal_mode=WAL")
-        db.execute("PRAGMA synchronous=FULL")
+        # Whose file it is first (the header and the schema): another program's database,
+        # damaged or not, is refused as such - never moved aside as a damaged history.
         version = db.execute("PRAGMA user_version").fetchone()[0]
         tables = {row[0] for row in db.execute("SELECT name FROM sqlite_master")}
         if version == 0 and tables - {"sqlite_sequence"}:
             raise _NotOurs("it holds tables of another program")
         if version > _VERSION:
             raise _NotOurs(f"written by a newer cobus (format {version})")
+        # A damaged file shows here, not at the first query of a running application
+        # (quick_check: every page and row, in time linear in the file; check() runs the
+        # full integrity check, indexes against their tables too).
+        verdict = [row[0] for row in db.execute("PRAGMA quick_check(5)")]
+        if verdict != ["ok"]:
+            found = " ".join("; ".join(map(str, verdict)).split())  # (one line)
+            raise sqlite3.DatabaseError(f"integrity check: {clip(found, 200)}")
+        db.execute("PRAGMA journal_mode=WAL")
+        db.execute("PRAGMA synchronous=FULL")
         if version == 0:  # new: the schema and its version in one transaction
             db.executescript(f"BEGIN IMMEDIATE;{_SCHEMA}PRAGMA user_version={_VERSION};COMMIT;")
         else:

@@ -221,8 +221,13 @@ class AlarmHandler:
                 history = AlarmHistory(path)
             except AlarmHistoryDamagedError as exc:
                 damage = f"the alarm history {path} was damaged ({exc.reason})"
-                self.history_moved = _move_aside(path)
-                history = AlarmHistory(path)
+                try:
+                    self.history_moved = _move_aside(path)
+                except OSError as move:  # (a folder it cannot rename in): no history, said
+                    damage += f" and cannot be moved aside ({move.strerror}): no history kept"
+                    history = None
+                else:
+                    history = AlarmHistory(path)
         self.history = history
         self._active: dict[Key, Alarm] = {}
         self._listeners: list[Callable[[AlarmEvent], object]] = []
@@ -241,8 +246,10 @@ class AlarmHandler:
         self._adopted_until: float | None = self.clock() + self.adopt_grace
         #: Why the history could not be written last (None: it works).
         self.history_problem: str | None = None
-        if self.history_moved is not None:
-            text = f"{damage}: it was kept as {self.history_moved.name}, a new one started"
+        if damage:
+            text = damage
+            if self.history_moved is not None:
+                text += f": it was kept as {self.history_moved.name}, a new one started"
             log.warning("%s", text)
             self._raise_unlogged("history", 2, text, Severity.WARNING)
         if history is not None:

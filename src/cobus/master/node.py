@@ -40,7 +40,7 @@ from cobus.master.events import (
     TpdoRestored,
     UnexpectedState,
 )
-from cobus.master.states import Diagnostic, EmcyRecord, LedPattern, Leds, NodeState
+from cobus.master.states import Diagnostic, EmcyRecord, LedPattern, Leds, MasterStatus, NodeState
 from cobus.proto import Event, Frame
 from cobus.proto import guarding as _guarding
 from cobus.proto.emcy import EmcyReceived
@@ -129,6 +129,12 @@ class ManagedNode:
         #: The NMT state the node's last heartbeat (or guarding reply) gave, and when.
         self._heard: tuple[float, NmtState] | None = None
         self._wakes: list[float] = []  # when NMT commands made a silent node answer SDO
+        #: The limit of those was reached: no more until the node answers SDO again or the
+        #: application restarts it (a hung node is not reset three times a minute for ever).
+        self._wakes_spent = False
+        #: The last NMT state this process commanded the node into since its boot-up (the
+        #: application's or the master's own stop is not undone by a wake).
+        self._last_commanded: NmtState | None = None
         self._left_said: str | None = None  # the "left as it is" SdoUnanswered last emitted
         self._first_check: asyncio.TimerHandle | None = None
         #: A pending NMT command bringing the node back to the state the master expects.
@@ -255,6 +261,8 @@ class ManagedNode:
             from cobus.master.errors import MasterError
 
             raise MasterError("the master is not started: call master.start() first")
+        self._wakes_spent = False  # (the application asks: the wakes may be tried again)
+        self._wakes.clear()
         task = self._spawn("reset")
         try:
             await asyncio.shield(task)
@@ -479,6 +487,7 @@ class ManagedNode:
                 return True
             self._not_found = False
             self._left_said = None
+            self._wakes_spent = False  # (it answers: a later silence may be woken again)
             self.problem = None
             actual = int.from_bytes(data[:4].ljust(4, b"\0"), "little")
             self.device_type = actual
@@ -515,7 +524,15 @@ class ManagedNode:
         recent = max(2.0, 3 * cfg.heartbeat_time / 1000.0)
         if heard is None or now - heard[0] > recent:
             return False  # nothing says it is there: it is missing
+        if cfg.do_not_initialise:
+            return False  # (the master sends such a node no reset, not even the broadcast)
         state = heard[1]
+        if state is NmtState.STOPPED and (
+            self._last_commanded is NmtState.STOPPED
+            or self.expected_nmt is NmtState.STOPPED
+            or self.master._status is MasterStatus.STOP
+        ):
+            return False  # stopped by this process (a reaction, the application): it stays
         if state is NmtState.STOPPED:
             command = "enter_preoperational"
             action = "enter pre-operational sent"
@@ -526,13 +543,16 @@ class ManagedNode:
             return False
         said = f"reports {state.name} but does not answer SDO"
         self._wakes = [t for t in self._wakes if now - t < self.WAKE_WINDOW]
-        if cfg.restart == "manual" or len(self._wakes) >= self.WAKE_LIMIT:
+        if len(self._wakes) >= self.WAKE_LIMIT:
+            self._wakes_spent = True
+        if cfg.restart == "manual" or self._wakes_spent:
             if cfg.restart == "manual":
                 reason = f"{said}; waiting for a manual restart (restart: manual)"
             else:
                 reason = (
                     f"{said} after {self.WAKE_LIMIT} NMT commands within "
-                    f"{self.WAKE_WINDOW:g} s: left as it is"
+                    f"{self.WAKE_WINDOW:g} s: left as it is until it answers SDO or the "
+                    "application restarts it"
                 )
             self.problem = reason
             if self._left_said != reason:  # said once, not at every read
@@ -941,6 +961,8 @@ class ManagedNode:
             0x02: NmtState.STOPPED,
             0x80: NmtState.PRE_OPERATIONAL,
         }.get(command)
+        if wanted is not None:
+            self._last_commanded = wanted
         if wanted is None or self._state is not NodeState.OPERATIONAL:
             return  # (a reset: the boot-up that follows is handled; a node not running yet)
         self._heal_done()
@@ -955,6 +977,7 @@ class ManagedNode:
     def _on_bootup(self) -> None:
         """The node sent its boot-up message."""
         self.nmt_state = NmtState.PRE_OPERATIONAL
+        self._last_commanded = None
         future = self._bootup
         if future is not None and not future.done():
             future.set_result(None)

@@ -74,7 +74,7 @@ def open_bus(
         config["channel"] = channel
     if bitrate is not None:
         config["bitrate"] = bitrate
-    if config.get("channel") is None and _names_udp_multicast(config):
+    if _udp_multicast_without_group(config):
         config["channel"] = HOST_ONLY_GROUP  # (python-can's default group reaches the site)
     try:
         bus = can.Bus(**config)
@@ -97,16 +97,16 @@ def open_bus(
         raise BusOpenError(f"cannot open CAN interface {iface} channel {chan}: {exc}") from exc
 
 
-def _names_udp_multicast(config: dict[str, Any]) -> bool:
-    """Whether ``config`` (with python-can's configuration for what it leaves out) opens
-    python-can's udp_multicast."""
-    interface = config.get("interface")
-    if interface is None:
-        try:
-            interface = can.util.load_config(config=dict(config)).get("interface")
-        except (can.CanError, ValueError, OSError):
-            return False
-    return interface == "udp_multicast"
+def _udp_multicast_without_group(config: dict[str, Any]) -> bool:
+    """Whether ``config``, completed by python-can's configuration (CAN_INTERFACE,
+    CAN_CHANNEL, ~/.canrc...), opens python-can's udp_multicast with no group named."""
+    if config.get("channel") is not None:
+        return False
+    try:
+        full = can.util.load_config(config=dict(config))
+    except (can.CanError, ValueError, OSError):
+        return False
+    return full.get("interface") == "udp_multicast" and full.get("channel") is None
 
 
 def multicast_reach(group: str) -> str | None:

@@ -14,7 +14,7 @@ Choices where CiA 301 leaves room:
 - While the client waits for the answer to its initiate request, a reply that cannot be that
   answer is taken as stale and dropped (CiA 301 lets the client ignore it): an initiate
   response for another object, a reply of another service (a download response while an
-  upload is asked for), an abort naming another object than the one requested or 0:0. Such
+  upload is asked for), an abort naming another index than the one requested or 0:0. Such
   replies come from a server answering a transfer the client already gave up (it answers
   late), or from a second client on the same channel; the transfer goes on waiting, and if
   it then times out the timeout says what was dropped. ``stale_replies`` counts them.
@@ -476,11 +476,12 @@ class SdoClient(ep.Endpoint):
         return self._unexpected(cmd, wanted)
 
     def _abort_ours(self, data: bytes) -> bool:
-        """Whether an abort names the object asked for, 0:0, or nothing (a short frame)."""
+        """Whether an abort names the index asked for (any sub-index: some servers name
+        another), 0:0, or nothing (a short frame)."""
         if len(data) < 4:
             return True
         _, index, subindex = w.MUX.unpack_from(data)
-        return (index, subindex) in ((self._index, self._subindex), (0, 0))
+        return index == self._index or (index, subindex) == (0, 0)
 
     def _drop_stale(self, data: bytes) -> Out:
         self._stale += 1
