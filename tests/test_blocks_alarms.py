@@ -662,3 +662,20 @@ def _is_damaged(path: Path) -> bool:
     except AlarmHistoryDamagedError:
         return True
     return False
+
+
+def test_a_damaged_text_in_a_history_reads_with_a_replacement_character(
+    tmp_path: Path,
+) -> None:
+    """sqlite3 decodes texts (and SQLite's messages, which quote a damaged schema) as UTF-8:
+    a flipped byte there raised UnicodeDecodeError from AlarmHistory (make fuzz found it)."""
+    path = tmp_path / "alarms.db"
+    with AlarmHistory(path) as history:
+        history.opened(source="zapi", node=8, code=1, text="é" * 50, severity="alarm", at=1.0)
+    data = bytearray(path.read_bytes())
+    at = data.rindex("é".encode())
+    data[at] = 0xFF  # no UTF-8 starts so
+    path.write_bytes(bytes(data))
+    with AlarmHistory(path) as history:  # (the structure is sound: quick_check passes)
+        (record,) = history.query()
+        assert "\ufffd" in record.text  # read, the damaged character replaced

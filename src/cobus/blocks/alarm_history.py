@@ -80,6 +80,10 @@ class _NotOurs(sqlite3.DatabaseError):
     """A sound database that is no alarm history of this cobus (not damaged)."""
 
 
+def _text(raw: bytes) -> str:
+    return raw.decode("utf-8", "replace")
+
+
 def _sqlite_file(path: str) -> bool:
     """Whether ``path`` starts as an SQLite database does (a damaged one still does; a text
     file named by mistake does not, and is not taken for a damaged history)."""
@@ -94,7 +98,10 @@ def _sqlite_file(path: str) -> bool:
 def _guarded(path: str, what: str) -> Iterator[None]:
     """Every SQLite error of ``what`` as an :class:`AlarmHistoryError` that names the file."""
     try:
-        yield
+        try:
+            yield
+        except UnicodeDecodeError as exc:  # (SQLite's message quotes a damaged schema)
+            raise sqlite3.DatabaseError(f"a damaged text: {exc.reason}") from None
     except sqlite3.OperationalError as exc:  # locked, read-only, no room, I/O
         raise AlarmHistoryError(f"cannot {what} the alarm history {path}: {exc}") from None
     except sqlite3.DatabaseError as exc:
@@ -168,8 +175,14 @@ class AlarmHistory:
             )
         except sqlite3.Error as exc:
             raise AlarmHistoryError(f"cannot open the alarm history {self.path}: {exc}") from None
+        # A damaged text reads with U+FFFD in its place: the rest of the history stays
+        # readable (sqlite3's own decoding raised UnicodeDecodeError at the first one).
+        self._db.text_factory = _text
         try:
-            self._set_up()
+            try:
+                self._set_up()
+            except UnicodeDecodeError as exc:  # (SQLite's message quotes a damaged schema)
+                raise sqlite3.DatabaseError(f"a damaged text: {exc.reason}") from None
         except sqlite3.OperationalError as exc:  # locked, read-only, no room, I/O
             self._db.close()
             raise AlarmHistoryError(f"cannot use the alarm history {self.path}: {exc}") from None
