@@ -507,8 +507,8 @@ class ManagedNode:
             return True
 
     #: At most this many NMT commands in WAKE_WINDOW seconds make a node that does not answer
-    #: SDO answer again; then it is left as it is (and the event says so) until the window
-    #: has passed.
+    #: SDO answer again; then it is left as it is (and the event says so) until it answers
+    #: SDO or the application restarts it.
     WAKE_LIMIT = 3
     WAKE_WINDOW = 60.0
 
