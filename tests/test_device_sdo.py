@@ -345,3 +345,18 @@ def test_a_download_announcing_more_than_the_limit_is_refused_at_once():
             b.device.limit_download(0x200A, 0, 100)
 
     run_bench(scenario)
+
+
+def test_a_device_wide_download_limit_takes_a_bigger_image():
+    """A device taking program images (1F50h style) raises the limit for all its domains."""
+
+    async def scenario(b: Bench):
+        await b.sdo.download(0x2008, 0, bytes(3 << 20), block=True)  # 3 MiB, announced
+        assert len(b.device.get(0x2008)) == 3 << 20
+        assert await _abort(b.sdo.download(0x2008, 0, bytes((4 << 20) + 1))) == (
+            SdoAbortCode.OUT_OF_MEMORY
+        )
+
+    run_bench(scenario, sdo_max_download=4 << 20)
+    with pytest.raises(DeviceConfigError, match="sdo_max_download -1"):
+        run_bench(scenario, sdo_max_download=-1)

@@ -104,6 +104,8 @@ class Device:
     Options: ``storage`` — a path (parameters of 1010h in that file, written atomically) or a
     :class:`~cobus.device.ParameterStorage`; default: kept in memory, across resets only.
     ``sdo_timeout`` — seconds the SDO servers wait within a segmented or block transfer.
+    ``sdo_max_download`` — the most bytes an SDO download may bring into an entry of no
+    fixed size (1 MiB; :meth:`limit_download` sets it per entry): more is refused.
     ``emcy_queue_size`` — emergencies held back by the inhibit time 1015h.
     ``deviations`` — a :class:`Deviations` for a model of a device that departs from
     CiA 301. ``sync_by_interface`` — when 1005h has it produce SYNC, the CAN interface
@@ -128,6 +130,7 @@ class Device:
         *,
         storage: str | Path | ParameterStorage | None = None,
         sdo_timeout: float = 1.0,
+        sdo_max_download: int = 1 << 20,
         emcy_queue_size: int = 16,
         deviations: Deviations | None = None,
         sync_by_interface: bool = False,
@@ -146,6 +149,12 @@ class Device:
             )
         if not sdo_timeout > 0:
             raise DeviceConfigError(f"SDO timeout {sdo_timeout!r} must be a positive number")
+        if (
+            isinstance(sdo_max_download, bool)
+            or not isinstance(sdo_max_download, int)
+            or sdo_max_download < 0
+        ):
+            raise DeviceConfigError(f"sdo_max_download {sdo_max_download!r}: a number of bytes")
         holder = _SERVED.get(id(od))
         other = holder() if holder is not None else None
         if other is not None and other.serves(od):
@@ -156,7 +165,9 @@ class Device:
         self.network = network
         self.od = od
         self._core = Core(network, od, node_id, self.simulation)
-        self._sdo = SdoServerService(self._core, timeout=float(sdo_timeout))
+        self._sdo = SdoServerService(
+            self._core, timeout=float(sdo_timeout), max_download=sdo_max_download
+        )
         self._storage = StorageService(self._core, storage)
         self._closed = False
         # communication state, rebuilt by every reset communication
@@ -271,8 +282,9 @@ class Device:
 
     def limit_download(self, index: Key, subindex: Key, max_bytes: int) -> None:
         """The most bytes an SDO download may bring into an entry of no fixed size (a DOMAIN,
-        a string): 1 MiB unless set here. A download announcing more is refused at once with
-        05040005 (out of memory), one bringing more without announcing it with 06070012."""
+        a string): the device's ``sdo_max_download`` (1 MiB) unless set here. A download
+        announcing more is refused at once with 05040005 (out of memory), one bringing more
+        without announcing it with 06070012."""
         entry = self._resolve(index, subindex)
         if isinstance(max_bytes, bool) or not isinstance(max_bytes, int) or max_bytes < 0:
             raise ValueError(f"download limit {max_bytes!r} is not a number of bytes (>= 0)")

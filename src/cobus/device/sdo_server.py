@@ -184,9 +184,10 @@ def define_objects(od: ObjectDictionary, *, servers: int) -> None:
 class SdoServerService:
     """The SDO server channels of one device and their parameters 1200h-127Fh."""
 
-    def __init__(self, core: Core, *, timeout: float) -> None:
+    def __init__(self, core: Core, *, timeout: float, max_download: int = 1 << 20) -> None:
         self._core = core
         self._timeout = timeout
+        self._max_download = max_download
         self.backend = SdoBackend(core)
         self._channels: dict[int, _Channel] = {}
         for index in range(0x1200, 0x1280):
@@ -217,7 +218,14 @@ class SdoServerService:
                 if rx_value & INVALID or tx_value & INVALID:
                     continue
                 rx, tx = rx_value & 0x7FF, tx_value & 0x7FF
-            server = SdoServer(rx, tx, self.backend, timeout=self._timeout, reports=False)
+            server = SdoServer(
+                rx,
+                tx,
+                self.backend,
+                timeout=self._timeout,
+                max_download=self._max_download,
+                reports=False,
+            )
             self._channels[n] = _Channel(core, n, server, rx)
 
     def delay_changed(self) -> None:
