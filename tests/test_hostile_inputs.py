@@ -8,13 +8,14 @@ import json
 import os
 import textwrap
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from cobus._yaml import MAX_ALIAS_VALUES, read_yaml
 from cobus.errors import clip
 from tests.fuzz_inputs import EXAMPLES, ROOT, alias_bomb
-from tests.util import bounded_python, need, need_module
+from tests.util import bounded_python, need, need_module, until
 
 # (example file, loader call, a key whose value a message names) of the four YAML inputs.
 YAML_INPUTS = {
@@ -517,3 +518,56 @@ def test_a_group_from_python_cans_configuration_is_kept(monkeypatch: pytest.Monk
     assert _udp_multicast_without_group({})  # none named: cobus's host-only group
     assert not _udp_multicast_without_group({"channel": "ff12::1"})
     assert not _udp_multicast_without_group({"interface": "virtual"})
+
+
+def test_a_unicast_datagram_to_the_port_is_no_frame_on_the_bus() -> None:
+    """python-can's udp_multicast socket listens on every interface at its port: a datagram
+    sent to the host's address was a frame on the bus. cobus's filter (Linux) takes only
+    what was sent to the group - and what other members send there still arrives."""
+    import random
+    import socket
+    import sys
+
+    import can
+
+    need_module("msgpack", "python-can's udp_multicast needs msgpack")
+    from can.interfaces.udp_multicast.utils import pack_message
+
+    from cobus.proto import Frame
+    from cobus.runtime import Network
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the kernel filter is Linux's")
+    port = random.randrange(20000, 40000)
+    try:
+        net = Network(interface="udp_multicast", port=port)
+    except Exception as exc:  # (no IPv6 multicast on this host)
+        need(False, f"no multicast here: {exc}")
+        return
+    with net, Network(interface="udp_multicast", port=port) as other:
+        assert net.aio._tx is not None  # the filter is on (the host-only group too)
+        got: list[Frame] = []
+        net.subscribe(0x123, lambda f, now: got.append(f))
+        other.subscribe(0x123, lambda f, now: got.append(f))
+        # (both sockets share the port: the kernel hands a unicast datagram to either)
+        sockets = [n.aio._bus._multicast._socket for n in (net, other)]  # type: ignore[union-attr]
+        dropped = sum(map(_drops, sockets))
+        intruder = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
+        forged = can.Message(arbitration_id=0x123, data=b"\x66", is_extended_id=False)
+        intruder.sendto(pack_message(forged), ("::1", port))
+        intruder.close()
+        until(lambda: sum(map(_drops, sockets)) > dropped)  # the kernel's filter took it
+        other.send(Frame(0x123, b"\x01"))  # what a member sends still arrives
+        until(lambda: len(got) == 2)  # (net hears it; other too, by its local echo)
+        assert got == [Frame(0x123, b"\x01")] * 2
+
+
+def _drops(sock: Any) -> int:
+    """The datagrams the kernel dropped for ``sock`` (its filter's too): /proc/net/udp6."""
+    inode = os.fstat(sock.fileno()).st_ino
+    with open("/proc/net/udp6", encoding="ascii") as f:
+        for line in f:
+            fields = line.split()
+            if len(fields) > 12 and fields[9] == str(inode):
+                return int(fields[-1])
+    return 0

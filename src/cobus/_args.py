@@ -36,7 +36,7 @@ def add_bus_options(parser: argparse.ArgumentParser) -> None:
         """configuration too: CAN_CONFIG='{"port": 43114}' or ~/.canrc. udp_multicast """
         "without -c uses a group that never leaves this host; python-can listens on every "
         "interface, so whoever can send to its group and port writes to the bus: name a "
-        "wider group only on a trusted network, and firewall the port (43113).",
+        "wider group only on a trusted network (off Linux, firewall the port 43113).",
     )
     group.add_argument("--interface", "-i", help="python-can interface (socketcan, pcan...)")
     group.add_argument("--channel", "-c", help="python-can channel (can0, PCAN_USBBUS1...)")

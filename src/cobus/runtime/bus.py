@@ -8,8 +8,10 @@ python-can's ``udp_multicast`` binds every interface of the host: whoever can se
 group (and port) writes to the bus. Opened by cobus without a channel it uses
 :data:`HOST_ONLY_GROUP`, an interface-local IPv6 group that the kernel never sends on the
 wire (python-can's own default group reaches the site); a group that reaches beyond the host
-is logged as a warning when the bus opens. A unicast datagram to the host's port still
-reaches the bus socket: on a host others can reach, firewall the port (43113 by default).
+is logged as a warning when the bus opens. A unicast datagram to the host's port reaches
+python-can's socket too: on Linux a cobus network's socket filter drops it
+(:func:`cobus.runtime.multicast.only_to`); elsewhere, or for a bare python-can bus, firewall
+the port (43113 by default) on a host others can reach.
 """
 
 from __future__ import annotations

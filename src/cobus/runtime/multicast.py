@@ -12,7 +12,9 @@ classic BPF filter (Linux ``SO_ATTACH_FILTER``) to the bus's receiving socket th
 datagrams whose source address and port are that socket's. Every other sender passes: another
 process, another host, another network of this process, and what is sent through python-can's
 own socket. The tag stays as the fallback, and is all there is off Linux or wherever the
-filter cannot be attached.
+filter cannot be attached. The filter also drops what was not sent to the group
+(:func:`only_to`): python-can's socket listens on every interface at its port, so without it
+a unicast datagram from anywhere to that port was a frame on the bus.
 
 It reaches python-can's private ``bus._multicast._socket`` (python-can 4.x): when that is not
 there, nothing changes. ``SO_ATTACH_FILTER`` replaces a classic filter the application put on
@@ -79,6 +81,38 @@ def drop_from(address: str, port: int, family: int) -> bytes:
         jump_false = accept - pc - 1 if code == _JEQ_K else 0
         out += struct.pack("HBBI", code, 0, jump_false, k)
     return bytes(out)
+
+
+def only_to(group: str, address: str, port: int, family: int) -> bytes:
+    """:func:`drop_from`'s program behind a check of the destination: a datagram not sent
+    to multicast ``group`` is dropped too. python-can's socket listens on every interface
+    at its port, so a unicast datagram from anywhere to that port was a frame on the bus;
+    now only what was sent to the group is."""
+    tail = drop_from(address, port, family)
+    raw = socket.inet_pton(family, group.split("%", 1)[0])
+    destination = 24 if family == socket.AF_INET6 else 16  # in the IP header
+    words = struct.unpack(f"!{len(raw) // 4}I", raw)
+    drop = 2 * len(words) + len(tail) // 8 - 2  # drop_from's "drop", the one before last
+    out = bytearray()
+    for i, word in enumerate(words):
+        pc = 2 * i
+        out += struct.pack(
+            "HBBI", _LDW_ABS, 0, 0, (_SKF_NET_OFF + destination + 4 * i) & 0xFFFFFFFF
+        )
+        out += struct.pack("HBBI", _JEQ_K, 0, drop - (pc + 1) - 1, word)
+    return bytes(out) + tail
+
+
+def _joined_on(group: str) -> int | None:
+    """The index of the interface this host joined IPv6 multicast ``group`` on (Linux's
+    /proc/net/igmp6; None when it is not there or not one interface)."""
+    try:
+        wanted = socket.inet_pton(socket.AF_INET6, group.split("%", 1)[0]).hex()
+        with open("/proc/net/igmp6", encoding="ascii") as f:
+            found = {int(fields[0]) for fields in map(str.split, f) if fields[2:3] == [wanted]}
+    except (OSError, ValueError, IndexError):
+        return None
+    return found.pop() if len(found) == 1 else None
 
 
 def _attach(sock: socket.socket, program: bytes) -> None:
@@ -187,10 +221,22 @@ def echo_free_sender(bus: can.BusABC) -> EchoFreeSender | None:
             tx.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS, struct.pack("@I", hops))
         else:
             tx.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, struct.pack("@I", hops))
-        tx.connect((group, port))  # fixes the source address and port the filter drops
+        try:
+            tx.connect((group, port))  # fixes the source address and port the filter drops
+        except OSError as exc:
+            # An interface- or link-local group (cobus's host-only default) names no route:
+            # connect on the interface python-can's socket joined the group on.
+            index = _joined_on(group) if exc.errno == errno.EINVAL else None
+            if index is None:
+                raise
+            tx.connect((group, port, 0, index))
         tx.setblocking(False)
         address, source_port = tx.getsockname()[:2]
-        _attach(rx, drop_from(address, source_port, rx.family))
+        try:
+            program = only_to(group, address, source_port, rx.family)
+        except (OSError, ValueError):  # (a group given by name): the source check alone
+            program = drop_from(address, source_port, rx.family)
+        _attach(rx, program)
     except OSError as exc:
         log.debug("udp_multicast: no echo-free sending socket (%s); the tag does the work", exc)
         tx.close()
