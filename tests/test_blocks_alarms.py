@@ -679,3 +679,22 @@ def test_a_damaged_text_in_a_history_reads_with_a_replacement_character(
     with AlarmHistory(path) as history:  # (the structure is sound: quick_check passes)
         (record,) = history.query()
         assert "\ufffd" in record.text  # read, the damaged character replaced
+
+
+def test_a_history_whose_header_magic_is_damaged_is_moved_aside_not_refused(
+    tmp_path: Path,
+) -> None:
+    """make fuzz: a flipped byte in "SQLite format 3" made the handler refuse the file as
+    another program's (the application died at start)."""
+    path = tmp_path / "alarms.db"
+    with AlarmHistory(path) as history:
+        history.opened(source="zapi", node=8, code=1, text="t", severity="alarm", at=1.0)
+    data = bytearray(path.read_bytes())
+    data[3] ^= 0x01  # "SQLite" -> "SQLhte"
+    path.write_bytes(bytes(data))
+    h = AlarmHandler(path)
+    assert h.history_moved is not None and h.history is not None
+    h.close()
+    (tmp_path / "text.db").write_text("hello " * 1000)  # a text file is still refused
+    with pytest.raises(AlarmHistoryError, match="is not an alarm history database"):
+        AlarmHandler(tmp_path / "text.db")

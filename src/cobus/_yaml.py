@@ -25,6 +25,7 @@ from cobus.errors import CobusError, clip, listing
 
 __all__ = [
     "MAX_ALIAS_VALUES",
+    "MAX_TEXT",
     "DataFileError",
     "FileProblem",
     "LineMap",
@@ -177,9 +178,22 @@ def line_of(container: Any, key: Any) -> int | None:
     return None
 
 
+#: The most characters a data file may hold: a 127-node network file has about 100,000; PyYAML
+#: reads some 4 MB a second, so 100 MB would cost half a minute.
+MAX_TEXT = 16 * 1024 * 1024
+
+
 def read_yaml(text: str) -> tuple[Any, list[YamlProblem]]:
     """The data of ``text`` and the problems found (data None when it cannot be read;
     duplicate keys are problems too, the data then holds the second value)."""
+    if len(text) > MAX_TEXT:
+        return None, [
+            YamlProblem(
+                None,
+                f"{len(text):,} characters, more than the {MAX_TEXT:,} a cobus data file may "
+                "hold: is it the right file?",
+            )
+        ]
     loader: _Loader | None = None
     try:
         loader = _Loader(text)  # (the reader refuses control characters here already)

@@ -86,12 +86,17 @@ def _text(raw: bytes) -> str:
 
 def _sqlite_file(path: str) -> bool:
     """Whether ``path`` starts as an SQLite database does (a damaged one still does; a text
-    file named by mistake does not, and is not taken for a damaged history)."""
+    file named by mistake does not, and is not taken for a damaged history): its 16-byte
+    magic, or - a byte of that damaged - the three payload fractions every SQLite 3 file
+    holds at bytes 21-23 (64, 32, 32)."""
     try:
         with open(path, "rb") as f:
-            return f.read(16) == b"SQLite format 3\x00"
+            head = f.read(24)
     except OSError:
         return False
+    return head[:16] == b"SQLite format 3\x00" or (
+        len(head) == 24 and head[21:24] == b"\x40\x20\x20"
+    )
 
 
 @contextlib.contextmanager
