@@ -145,7 +145,7 @@ def run_raw(args: argparse.Namespace, decoder: Any) -> int:
     from rich.live import Live
 
     from cobus._console import print_table
-    from cobus.trace.monitor import _frames, _Keys
+    from cobus.trace.monitor import _frames, _Keys, _running
 
     view = RawView()
     live_view = sys.stdout.isatty() and not args.json
@@ -170,10 +170,7 @@ def run_raw(args: argparse.Namespace, decoder: Any) -> int:
         display = Live(view.table(title()), console=console, auto_refresh=False)
     try:
         with _Keys() as keys, display as live:
-            for item in _frames(args, say):
-                keys.poll()
-                if keys.quit or (deadline is not None and time.monotonic() >= deadline):
-                    break
+            for item in _running(_frames(args, say), keys, deadline):
                 if item is not None:
                     frame, stamp = item
                     first = stamp if first is None else first

@@ -122,6 +122,18 @@ class _Keys:
             termios.tcsetattr(sys.stdin, termios.TCSADRAIN, self._saved)
 
 
+def _running(
+    items: Iterator[tuple[Any, float] | None], keys: _Keys, deadline: float | None
+) -> Iterator[tuple[Any, float] | None]:
+    """``items`` (of :func:`_frames`) until q is pressed or the deadline passes; the keys
+    are read before each (the decoded and the raw view share this loop)."""
+    for item in items:
+        keys.poll()
+        if keys.quit or (deadline is not None and time.monotonic() >= deadline):
+            return
+        yield item
+
+
 def _frames(args: argparse.Namespace, say: Any) -> Iterator[tuple[Any, float] | None]:
     """Frames from the bus with their time (None about every 0.1 s without one); a bus
     that fails is said and opened again."""
@@ -275,10 +287,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     try:
         with _Keys() as keys, display as live:
-            for item in _frames(args, say):
-                keys.poll()
-                if keys.quit or (deadline is not None and time.monotonic() >= deadline):
-                    break
+            for item in _running(_frames(args, say), keys, deadline):
                 if item is None:
                     if not keys.paused:
                         redraw(live)
