@@ -167,6 +167,12 @@ class ManagedNode:
         return self._state
 
     @property
+    def heard_at(self) -> float | None:
+        """When (network time) the node's last heartbeat or guarding answer came (None: none
+        since the master started)."""
+        return None if self._heard is None else self._heard[0]
+
+    @property
     def mandatory(self) -> bool:
         """Whether the network cannot run without this node."""
         return self.config.mandatory

@@ -1,0 +1,26 @@
+"""The operator panel: a local web HMI for a running cobus network (issue 40).
+
+    panel = Panel(port=8047)             # 127.0.0.1 unless told otherwise
+    serve_master(panel, master)          # the Network page: nodes, LEDs, NMT buttons, bus load
+    await panel.start()                  # aiohttp in this loop: no thread, no signal handlers
+    print(panel.url)
+
+``cobus run NETWORK.yml --panel`` does the same from the command line. The pages are static
+files (package data, no build step; uPlot vendored) talking to the server over one WebSocket:
+:mod:`cobus.apps.panel.server` tells the protocol, :mod:`cobus.apps.panel.hub` the queues.
+"""
+
+from cobus.apps.panel.hub import Client, Hub
+from cobus.apps.panel.network import MasterView, serve_master
+from cobus.apps.panel.server import Command, CommandError, Panel, PanelError
+
+__all__ = [
+    "Client",
+    "Command",
+    "CommandError",
+    "Hub",
+    "MasterView",
+    "Panel",
+    "PanelError",
+    "serve_master",
+]

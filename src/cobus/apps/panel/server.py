@@ -1,0 +1,415 @@
+"""The panel's web server: aiohttp inside the running asyncio loop, one WebSocket per page.
+
+:class:`Panel` serves the static pages (package data, no build step, no CDN: every response
+says ``Content-Security-Policy: default-src 'self'``) and ``/ws``, over which a page gets
+
+- ``{"type": "snapshot", "seq", "state", "events", "series", "info"}`` when it connects, after
+  it fell behind, or when it asks (``{"cmd": "resync"}``, sent by a page that sees a gap in the
+  event numbers);
+- ``{"type": "delta", "values": {key: latest}}`` at most ``rate`` times a second;
+- ``{"type": "event", "seq", "time", "kind", ...}`` for each event, numbered, never conflated;
+- ``{"type": "ack", "id", "result"}`` or ``{"type": "error", "id", "code", "text"}`` for
+  each command ``{"id": ..., "cmd": NAME, ...arguments, "token": ...}`` it sends.
+
+Safety: it binds 127.0.0.1 unless told otherwise. Bound anywhere else (or with ``token=``
+given), every command that writes to the bus needs the token printed at start. A request
+whose ``Host`` is not a loopback name while bound to loopback (DNS rebinding) and a WebSocket
+opened from another origin (another site in the same browser) are refused. Commands are
+checked here, each failure answered with a typed error and a text; a malformed message never
+ends the connection, and nothing a client does (or fails to do) reaches the bus uninvited:
+each client has a bounded queue (:mod:`cobus.apps.panel.hub`) and one stuck for ``stall``
+seconds is dropped.
+
+It runs in the caller's loop (``await panel.start()``): no thread, no second loop, no signal
+handlers of its own.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hmac
+import ipaddress
+import json
+import logging
+import secrets
+from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+from aiohttp import WSMsgType, web
+
+from cobus.apps.panel.hub import Client, Hub
+from cobus.errors import CobusError, clip
+
+__all__ = ["Command", "CommandError", "Panel", "PanelError"]
+
+log = logging.getLogger(__name__)
+
+STATIC = Path(__file__).with_name("static")
+#: The largest message a page may send (a command is a few hundred bytes).
+MAX_MESSAGE = 64 * 1024
+#: Commands of one page still running; more are answered "busy".
+MAX_PENDING = 16
+#: Replies a page has not taken before it counts as not reading (it is dropped).
+MAX_REPLIES = 256
+_LOOPBACK_NAMES = {"localhost", "127.0.0.1", "::1"}
+CSP = (
+    "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'; base-uri 'none'; "
+    "form-action 'none'"
+)
+
+
+class PanelError(CobusError):
+    """The panel cannot start (address in use, bad address...)."""
+
+
+class CommandError(CobusError):
+    """A command refused or failed: ``code`` for programs, the text for people."""
+
+    def __init__(self, code: str, text: str) -> None:
+        super().__init__(text)
+        self.code = code
+        self.text = text
+
+
+Handler = Callable[[Mapping[str, Any]], Awaitable[Any]]
+
+
+@dataclass(frozen=True)
+class Command:
+    """A command pages may send: its handler, and whether it writes to the bus."""
+
+    name: str
+    handler: Handler
+    writes: bool
+    help: str = ""
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` (a name or an address) names this machine only."""
+    host = host.strip("[]")
+    if host in _LOOPBACK_NAMES:
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+class Panel:
+    """The operator panel's server (see the module text).
+
+    ``port`` 0 takes a free port (:attr:`url` then tells which); ``unix`` also serves on a
+    Unix socket at that path. ``token``: the token writes need (default: a random one, needed
+    only when ``host`` is not loopback; given, it is always needed). ``rate``: deltas per
+    second at most. ``clock``: the time events carry (the network's, for a master)."""
+
+    def __init__(
+        self,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 8047,
+        unix: str | None = None,
+        token: str | None = None,
+        rate: float = 10.0,
+        stall: float = 5.0,
+        max_events: int = 500,
+        clock: Callable[[], float] | None = None,
+        title: str = "cobus",
+    ) -> None:
+        if not 0 <= port <= 65535:
+            raise PanelError(f"port {port}: give 0-65535 (0: any free port)")
+        if not rate > 0:
+            raise PanelError(f"rate {rate}: give a positive number of updates per second")
+        self.host = host
+        self.port = port
+        self.unix = unix
+        self.rate = rate
+        self.needs_token = token is not None or not is_loopback(host)
+        self.token = token if token is not None else secrets.token_urlsafe(18)
+        self._clock = clock
+        self.hub = Hub(self._now, max_events=max_events, stall=stall)
+        self.hub.info.update({"title": title, "needs_token": self.needs_token})
+        self.commands: dict[str, Command] = {}
+        self._samplers: list[Callable[[], Mapping[str, Any]]] = []
+        self._runner: web.AppRunner | None = None
+        self._ticker: asyncio.Task[None] | None = None
+        self._sockets: set[web.WebSocketResponse] = set()
+        self.bound: tuple[str, int] | None = None
+
+    def _now(self) -> float:
+        if self._clock is not None:
+            return self._clock()
+        return asyncio.get_running_loop().time()
+
+    # ------------------------------------------------------------------ extension
+    def command(self, name: str, handler: Handler, *, writes: bool, help: str = "") -> None:
+        """Let pages send ``{"cmd": name, ...}``; ``handler(message)`` answers it (its return
+        value is the ack's result) or raises :class:`CommandError` / ``ValueError``."""
+        if name in self.commands or name == "resync":
+            raise ValueError(f"the panel already has a command {name!r}")
+        self.commands[name] = Command(name, handler, writes, help)
+
+    def sample(self, sampler: Callable[[], Mapping[str, Any]]) -> None:
+        """Call ``sampler`` ``rate`` times a second; the keys it returns update the state."""
+        self._samplers.append(sampler)
+
+    # ------------------------------------------------------------------ life cycle
+    @property
+    def url(self) -> str:
+        """The page's address (with the token when writes need one)."""
+        if self.bound is None:
+            raise PanelError("the panel is not started")
+        host, port = self.bound
+        shown = f"[{host}]" if ":" in host else host
+        query = f"?token={self.token}" if self.needs_token else ""
+        return f"http://{shown}:{port}/{query}"
+
+    def app(self) -> web.Application:
+        """The aiohttp application (the server's routes; tests serve it themselves)."""
+        app = web.Application(middlewares=[self._guard], client_max_size=MAX_MESSAGE)
+        app.router.add_get("/", self._index)
+        app.router.add_get("/ws", self._websocket)
+        app.router.add_static("/static/", STATIC, follow_symlinks=False)
+        app.on_shutdown.append(self._close_sockets)
+        return app
+
+    async def start(self) -> None:
+        """Serve in the running loop; :class:`PanelError` if the address cannot be bound."""
+        runner = web.AppRunner(self.app(), handle_signals=False, access_log=None)
+        await runner.setup()
+        try:
+            site = web.TCPSite(runner, self.host, self.port)
+            await site.start()
+            if self.unix is not None:
+                await web.UnixSite(runner, self.unix).start()
+        except OSError as exc:
+            await runner.cleanup()
+            where = f"{self.host}:{self.port}" if self.unix is None else self.unix
+            raise PanelError(
+                f"cannot serve the panel on {where}: {exc.strerror or exc} (give another "
+                "--listen address, or port 0 for any free one)"
+            ) from None
+        port = next((a[1] for a in runner.addresses if isinstance(a, tuple)), self.port)
+        self.bound = (self.host, int(port))
+        self._runner = runner
+        self._ticker = asyncio.create_task(self._tick(), name="cobus panel ticker")
+
+    async def stop(self) -> None:
+        """Close every page's connection and stop serving."""
+        if self._ticker is not None:
+            self._ticker.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._ticker
+            self._ticker = None
+        if self._runner is not None:
+            await self._runner.cleanup()
+            self._runner = None
+
+    async def __aenter__(self) -> Panel:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.stop()
+
+    def refresh(self) -> None:
+        """Take a sample now (the ticker does so ``rate`` times a second)."""
+        for sampler in self._samplers:
+            try:
+                values = sampler()
+            except Exception:
+                log.exception("a panel sampler failed")
+                continue
+            self.hub.update(values)
+        self.hub.check()
+
+    async def _tick(self) -> None:
+        while True:
+            self.refresh()
+            await asyncio.sleep(1.0 / self.rate)
+
+    async def _close_sockets(self, _app: web.Application) -> None:
+        for ws in list(self._sockets):
+            with contextlib.suppress(Exception):
+                await ws.close(code=1001, message=b"the panel stops")
+
+    # ------------------------------------------------------------------ HTTP
+    @web.middleware
+    async def _guard(
+        self, request: web.Request, handler: Callable[[web.Request], Awaitable[web.StreamResponse]]
+    ) -> web.StreamResponse:
+        host = urlsplit("//" + request.host).hostname or ""
+        unix = isinstance(request.transport and request.transport.get_extra_info("sockname"), str)
+        if not unix and is_loopback(self.host) and not is_loopback(host):
+            return _refused(
+                421, f"this panel answers to 127.0.0.1 or localhost only, not {clip(host)}"
+            )
+        try:
+            response = await handler(request)
+        except web.HTTPException as exc:
+            _secure(exc.headers)
+            raise
+        _secure(response.headers)
+        return response
+
+    async def _index(self, _request: web.Request) -> web.StreamResponse:
+        return web.FileResponse(STATIC / "index.html")
+
+    async def _websocket(self, request: web.Request) -> web.StreamResponse:
+        origin = request.headers.get("Origin")
+        if origin is not None and urlsplit(origin).netloc != request.host:
+            return _refused(403, f"a page from {clip(origin)} may not use this panel")
+        ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE, heartbeat=20.0)
+        await ws.prepare(request)
+        client = self.hub.connect()
+        self._sockets.add(ws)
+        sender = asyncio.create_task(self._send(ws, client), name=f"cobus panel {client.name}")
+        pending: set[asyncio.Task[None]] = set()
+        try:
+            async for msg in ws:
+                if msg.type is WSMsgType.TEXT:
+                    self._receive(client, msg.data, pending)
+                elif msg.type is WSMsgType.BINARY:
+                    client.reply(_error(None, "malformed", "send commands as JSON text"))
+                if len(client.replies) > MAX_REPLIES:
+                    client.close("it sends commands but does not read the answers")
+                if client.closed:
+                    break
+        finally:
+            client.close(client.closed or "disconnected")
+            self._sockets.discard(ws)
+            for task in pending:
+                task.cancel()
+            sender.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await sender
+            if not ws.closed:
+                with contextlib.suppress(Exception):
+                    await asyncio.wait_for(ws.close(code=1008, message=client.closed.encode()), 1)
+        return ws
+
+    async def _send(self, ws: web.WebSocketResponse, client: Client) -> None:
+        period = 1.0 / self.rate
+        last_delta = -period
+        loop = asyncio.get_running_loop()
+        try:
+            while True:
+                await client.ready.wait()
+                if client.closed:
+                    break
+                for message in client.messages():
+                    await self._put(ws, client, message)
+                if client.values:
+                    wait = last_delta + period - loop.time()
+                    if wait > 0:
+                        await asyncio.sleep(wait)
+                        continue
+                    last_delta = loop.time()
+                    await self._put(ws, client, client.delta())
+        except (ConnectionError, RuntimeError):
+            client.close("connection lost")
+        if client.closed.startswith("stalled"):
+            # the browser stopped reading: end the connection without waiting for it
+            with contextlib.suppress(Exception):
+                ws._writer.transport.abort()  # type: ignore[union-attr]
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(ws.close(code=1008, message=b"stalled"), 0.5)
+
+    async def _put(self, ws: web.WebSocketResponse, client: Client, message: Any) -> None:
+        client.sending_since = self.hub.clock()
+        try:
+            await ws.send_str(json.dumps(message, separators=(",", ":"), default=str))
+        finally:
+            client.sending_since = None
+
+    # ------------------------------------------------------------------ commands
+    def _receive(self, client: Client, text: str, pending: set[asyncio.Task[None]]) -> None:
+        try:
+            message = json.loads(text)
+        except ValueError as exc:
+            client.reply(_error(None, "malformed", f"not JSON: {exc}"))
+            return
+        if not isinstance(message, dict):
+            client.reply(_error(None, "malformed", 'send a JSON object: {"id": 1, "cmd": ...}'))
+            return
+        ident = message.get("id")
+        if ident is not None and not (
+            isinstance(ident, int | str) and not isinstance(ident, bool) and len(str(ident)) <= 64
+        ):
+            client.reply(_error(None, "malformed", "id: a number or a text of up to 64 characters"))
+            return
+        name = message.get("cmd")
+        if name == "resync":
+            client.resync = True
+            client.ready.set()
+            return
+        command = self.commands.get(name) if isinstance(name, str) else None
+        if command is None:
+            known = ", ".join(sorted([*self.commands, "resync"]))
+            client.reply(
+                _error(ident, "unknown-command", f"cmd {clip(repr(name))}: one of {known}")
+            )
+            return
+        if command.writes and self.needs_token:
+            given = message.get("token")
+            if not isinstance(given, str) or not hmac.compare_digest(
+                given.encode(), self.token.encode()
+            ):
+                client.reply(
+                    _error(
+                        ident,
+                        "token",
+                        f"{name} writes to the bus: this panel needs the token it printed at "
+                        "start (open the address it printed, with ?token=...)",
+                    )
+                )
+                return
+        if len(pending) >= MAX_PENDING:
+            client.reply(
+                _error(ident, "busy", f"{MAX_PENDING} commands are still running: wait for one")
+            )
+            return
+        task = asyncio.create_task(self._run(client, command, ident, message))
+        pending.add(task)
+        task.add_done_callback(pending.discard)
+
+    async def _run(
+        self, client: Client, command: Command, ident: Any, message: Mapping[str, Any]
+    ) -> None:
+        try:
+            result = await command.handler(message)
+        except CommandError as exc:
+            reply = _error(ident, exc.code, exc.text)
+        except ValueError as exc:
+            reply = _error(ident, "bad-argument", f"{command.name}: {exc}")
+        except CobusError as exc:
+            reply = _error(ident, "failed", f"{command.name}: {exc}")
+        except TimeoutError as exc:
+            reply = _error(ident, "timeout", f"{command.name}: {exc or 'no answer in time'}")
+        except Exception as exc:
+            log.exception("panel command %s failed", command.name)
+            reply = _error(ident, "internal", f"{command.name} failed: {type(exc).__name__}: {exc}")
+        else:
+            reply = {"type": "ack", "id": ident, "result": result}
+        client.reply(reply)
+
+
+def _secure(headers: Any) -> None:
+    """The headers every answer carries: nothing but this server's files (works offline),
+    no framing, no sniffing, no referrer."""
+    headers["Content-Security-Policy"] = CSP
+    headers["X-Content-Type-Options"] = "nosniff"
+    headers["Referrer-Policy"] = "no-referrer"
+    headers["Cache-Control"] = "no-cache"
+
+
+def _error(ident: Any, code: str, text: str) -> dict[str, Any]:
+    return {"type": "error", "id": ident, "code": code, "text": text}
+
+
+def _refused(status: int, text: str) -> web.Response:
+    return web.Response(status=status, text=text + "\n")

@@ -1,0 +1,238 @@
+// The operator panel's pages. One Link (WebSocket) per page; each page draws from its state.
+import {Link} from "/static/link.js";
+
+const $ = (sel, root = document) => root.querySelector(sel);
+const el = (tag, attrs = {}, ...children) => {
+  const node = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === "class") node.className = v; else node.setAttribute(k, v);
+  }
+  node.append(...children);
+  return node;
+};
+
+function notice(text, kind = "error") {
+  const box = $("#notice");
+  box.textContent = text;
+  box.className = kind;
+  box.hidden = !text;
+}
+
+function ageText(seconds) {
+  const s = Math.max(0, seconds);
+  return s < 10 ? `${s.toFixed(2)} s` : `${s.toFixed(1)} s`;
+}
+
+// A time of the panel's clock as the wall-clock time of day here (HH:MM:SS.mmm).
+function timeOfDay(link, t) {
+  const wall = new Date(Date.now() - (link.now() - t) * 1000);
+  const pad = (n, w = 2) => String(n).padStart(w, "0");
+  return `${pad(wall.getHours())}:${pad(wall.getMinutes())}:${pad(wall.getSeconds())}` +
+         `.${pad(wall.getMilliseconds(), 3)}`;
+}
+
+// ----------------------------------------------------------------------------- Network page
+const NMT_LABEL = {start: "Start", stop: "Stop", preop: "Pre-op", reset: "Reset"};
+const CONFIRM = {
+  "stop:all": "Stop every node? Process data stops flowing.",
+  "reset:all": "Reset every node? Each boots again and the master configures it anew.",
+};
+
+class NetworkPage {
+  constructor(link) {
+    this.link = link;
+    this.rows = new Map();
+    this.busLoad = [[], []];
+    this.plot = null;
+    $("#all-nodes").addEventListener("click", (e) => this.nmtButton(e));
+    $("#nodes tbody").addEventListener("click", (e) => this.nmtButton(e));
+    setInterval(() => this.tick(), 250);
+  }
+
+  async nmtButton(e) {
+    const button = e.target.closest("button[data-nmt]");
+    if (!button) return;
+    const action = button.dataset.nmt;
+    const node = button.dataset.node === "all" ? "all" : Number(button.dataset.node);
+    const question = CONFIRM[`${action}:${button.dataset.node}`];
+    if (question && !confirm(question)) return;
+    button.disabled = true;
+    try {
+      await this.link.command("nmt", {node, action});
+      notice("");
+    } catch (err) {
+      notice(err.text || String(err));
+    } finally {
+      button.disabled = !this.writable();
+    }
+  }
+
+  writable() {
+    return !this.link.info.needs_token || Boolean(this.link.token);
+  }
+
+  snapshot(msg) {
+    const body = $("#nodes tbody");
+    body.replaceChildren();
+    this.rows.clear();
+    for (const info of msg.info.nodes || []) this.addRow(body, info);
+    for (const [key, value] of Object.entries(msg.state)) this.update(key, value);
+    // the plot's x axis is wall-clock time here: the panel's clock moved by their offset
+    const offset = Date.now() / 1000 - this.link.now();
+    const series = msg.series.bus_load || [];
+    this.busLoad = [series.map((s) => s[0] + offset), series.map((s) => s[1])];
+    $("#events").replaceChildren();
+    for (const ev of msg.events) this.event(ev);
+    for (const b of document.querySelectorAll("button[data-nmt]")) b.disabled = !this.writable();
+    if (!this.writable()) {
+      notice("Read-only: this panel needs its token for commands (open the address it printed).",
+             "info");
+    }
+    this.drawPlot();
+  }
+
+  addRow(body, info) {
+    const id = info.id;
+    const buttons = el("td", {class: "commands"});
+    for (const [action, label] of Object.entries(NMT_LABEL)) {
+      buttons.append(el("button", {"data-nmt": action, "data-node": String(id),
+                                   title: `${label} node ${id}`}, label), " ");
+    }
+    const device = [info.vendor, info.product].filter(Boolean).join(" · ");
+    const row = el("tr", {"data-node": String(id)},
+      el("td", {class: "num"}, String(id)),
+      el("td", {}, info.name + (info.mandatory ? " *" : "")),
+      el("td", {class: "device muted", title: "from the EDS until the node answers 1008h"}, device),
+      el("td", {class: "leds"},
+         el("span", {class: "led run off", title: "run LED"}),
+         el("span", {class: "led error off", title: "error LED"})),
+      el("td", {class: "nmt"}, "—"),
+      el("td", {class: "state"}, "—"),
+      el("td", {class: "diag"}, "—"),
+      el("td", {class: "heard num"}, "—"),
+      el("td", {class: "emcy num"}, "0"),
+      el("td", {class: "problem"}, ""),
+      buttons);
+    body.append(row);
+    this.rows.set(id, row);
+  }
+
+  update(key, value) {
+    const [kind, id] = key.split("/");
+    if (kind === "node") this.node(Number(id), value);
+    else if (kind === "master") this.master(value);
+  }
+
+  node(id, v) {
+    const row = this.rows.get(id);
+    if (!row) return;
+    const set = (cls, text) => { $(`.${cls}`, row).textContent = text; };
+    set("nmt", v.nmt ? v.nmt.replace("_", "-") : "—");
+    set("state", `${v.state} ${v.state_text}`);
+    set("diag", `${v.diagnostic} ${v.diagnostic_text}`);
+    set("emcy", String(v.emcy));
+    set("problem", v.problem || "");
+    row.classList.toggle("bad", v.diagnostic !== 0);
+    for (const [which, pattern] of [["run", v.run_led], ["error", v.error_led]]) {
+      const led = $(`.led.${which}`, row);
+      led.className = `led ${which} ${pattern.replace(" ", "-")}${pattern === "off" ? "" : " lit"}`;
+      led.title = `${which} LED: ${pattern}`;
+    }
+    const d = v.device || {};
+    if (d.name || d.vendor_id !== undefined) {
+      const cell = $(".device", row);
+      const ids = d.vendor_id !== undefined
+        ? ` (vendor 0x${d.vendor_id.toString(16).toUpperCase()}, product 0x${(d.product_code ?? 0).toString(16).toUpperCase()})`
+        : "";
+      cell.textContent = (d.name || cell.textContent) + ids;
+      cell.classList.remove("muted");
+      cell.title = "1008h and 1018h as the node answered";
+    }
+  }
+
+  master(m) {
+    const rows = [
+      ["State", `${m.state} (${m.status})`], ["Bus", m.bus_state],
+      ["TX / RX errors", `${m.tx_errors ?? "—"} / ${m.rx_errors ?? "—"}`],
+      ["Bus-off count", m.bus_off_count], ["Frames", m.frames], ["SYNC count", m.sync_count],
+      ["Send errors", m.send_errors],
+    ];
+    $("#master").replaceChildren(...rows.flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, String(v))]));
+  }
+
+  tick() {
+    const now = this.link.now();
+    for (const [id, row] of this.rows) {
+      const heard = this.link.state[`heard/${id}`];
+      $(".heard", row).textContent = heard == null ? "—" : `${ageText(now - heard)} ago`;
+    }
+    if (this.link.state.bus_load !== undefined) {
+      const wall = Date.now() / 1000;
+      this.busLoad[0].push(wall);
+      this.busLoad[1].push(this.link.state.bus_load);
+      const cut = this.busLoad[0].findIndex((t) => t >= wall - 60);
+      if (cut > 0) { this.busLoad[0].splice(0, cut); this.busLoad[1].splice(0, cut); }
+      this.drawPlot();
+    }
+  }
+
+  drawPlot() {
+    const box = $("#bus-load");
+    if (typeof uPlot === "undefined") return;
+    if (this.plot === null) {
+      this.plot = new uPlot({
+        width: Math.max(300, box.clientWidth || 500), height: 160,
+        scales: {x: {time: true}, y: {range: [0, 100]}},
+        axes: [{}, {label: "%"}],
+        series: [{}, {label: "bus load %", stroke: "#0b63c5", width: 1.5, points: {show: false}}],
+        legend: {show: false},
+      }, this.busLoad, box);
+    } else {
+      this.plot.setData(this.busLoad);
+    }
+  }
+
+  event(ev) {
+    const list = $("#events");
+    const item = el("li", {class: ev.level || "info", "data-seq": String(ev.seq)},
+      el("time", {}, timeOfDay(this.link, ev.time)), ev.text);
+    list.prepend(item);
+    while (list.children.length > 200) list.lastChild.remove();
+  }
+}
+
+// ----------------------------------------------------------------------------- the pages
+const pages = {};
+const link = new Link({
+  snapshot(msg) {
+    $("#title").textContent = msg.info.title || "cobus";
+    document.title = `${msg.info.title || "cobus"} panel`;
+    for (const page of Object.values(pages)) page.snapshot(msg);
+  },
+  delta(values) {
+    for (const page of Object.values(pages)) {
+      for (const [key, value] of Object.entries(values)) page.update(key, value);
+    }
+  },
+  event(ev) { for (const page of Object.values(pages)) page.event(ev); },
+  error(msg) { notice(msg.text); },
+  status(up, text) {
+    const box = $("#link");
+    box.textContent = text;
+    box.className = `link ${up ? "up" : "down"}`;
+  },
+});
+pages.network = new NetworkPage(link);
+
+function show() {
+  const name = (location.hash || "#network").slice(1);
+  for (const section of document.querySelectorAll(".page")) {
+    section.hidden = section.id !== `page-${name}`;
+  }
+  for (const a of document.querySelectorAll("#pages a")) {
+    a.classList.toggle("current", a.dataset.page === name);
+  }
+}
+window.addEventListener("hashchange", show);
+show();
+window.cobusPanel = {link, pages};

@@ -1,0 +1,96 @@
+"""The operator panel in a real browser: Debian's chromium driven by Playwright, against the
+simulated thesis rig booted by the cobus master.
+
+Screenshots land in ``test-artifacts/`` (``COBUS_ARTIFACTS`` to change it). Chromium runs
+headless with no network of its own (no background requests, no component updates); every
+request it makes must go to the panel on 127.0.0.1, and the page must log no error (a
+Content-Security-Policy violation would be one).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import shutil
+from pathlib import Path
+from urllib.parse import urlsplit
+
+import pytest
+
+from cobus.apps.demo import IO, SERVO
+from tests.test_panel_protocol import running, served
+from tests.util import need, need_module
+
+pytestmark = pytest.mark.slow
+
+CHROMIUM = os.environ.get("COBUS_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
+#: Chromium's own network off: on a closed machine its background requests are refused.
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-default-apps",
+    "--disable-dev-shm-usage",
+]
+
+
+def artifacts() -> Path:
+    folder = Path(os.environ.get("COBUS_ARTIFACTS", "test-artifacts"))
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+def test_the_network_page_shows_the_rig_and_its_buttons_reach_the_nodes(tmp_path: Path) -> None:
+    need(Path(CHROMIUM).exists(), f"no chromium at {CHROMIUM} (Debian: apt install chromium)")
+    need_module("playwright", "Playwright is not installed (pip install playwright)")
+    from playwright.async_api import async_playwright, expect
+
+    requests: list[str] = []
+    problems: list[str] = []
+
+    async def main() -> None:
+        async with served(tmp_path) as (demo, panel), async_playwright() as pw:
+            browser = await pw.chromium.launch(
+                executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS
+            )
+            try:
+                page = await browser.new_page(viewport={"width": 1400, "height": 900})
+                page.on("request", lambda r: requests.append(r.url))
+                page.on(
+                    "console",
+                    lambda m: problems.append(m.text) if m.type in ("error", "warning") else None,
+                )
+                page.on("pageerror", lambda e: problems.append(str(e)))
+                page.on("dialog", lambda d: asyncio.ensure_future(d.accept()))
+                await page.goto(panel.url)
+                await running(demo)
+                io = page.locator(f'tr[data-node="{IO}"]')
+                await expect(io.locator(".nmt")).to_have_text("OPERATIONAL", timeout=10_000)
+                await expect(io.locator(".led.run")).to_have_class("led run on lit")
+                await expect(page.locator("#link")).to_have_text("connected")
+                servo = page.locator(f'tr[data-node="{SERVO}"]')
+                await expect(servo.locator(".state")).to_have_text("5 operational")
+                await expect(servo.locator(".heard")).to_contain_text(" s ago")
+                await expect(page.locator("#bus-load canvas").first).to_be_visible()
+                # the I/O module's stop button: the node stops, its run LED single-flashes
+                await io.locator('button[data-nmt="stop"]').click()
+                await expect(io.locator(".nmt")).to_have_text("STOPPED", timeout=5_000)
+                await expect(io.locator(".led.run")).to_have_class("led run single-flash lit")
+                assert str(demo.rig.devices[IO].status()["nmt"]).upper() == "STOPPED"
+                await page.screenshot(path=str(artifacts() / "panel-network.png"), full_page=True)
+                # start all (no question asked) brings it back
+                await page.locator('#all-nodes button[data-nmt="start"]').click()
+                await expect(io.locator(".nmt")).to_have_text("OPERATIONAL", timeout=5_000)
+                # the event list shows the master's word
+                await expect(page.locator("#events li").first).to_be_visible()
+            finally:
+                await browser.close()
+
+    asyncio.run(asyncio.wait_for(main(), 90))
+    hosts = {urlsplit(u).hostname for u in requests}
+    assert hosts == {"127.0.0.1"}, requests
+    assert problems == [], problems

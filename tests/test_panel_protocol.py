@@ -1,0 +1,419 @@
+"""The panel's server over a real WebSocket (aiohttp's client), against the simulated thesis
+rig booted by the cobus master: snapshot, deltas, numbered events, resync, commands and their
+errors, the token, the origin and host checks, a slow client, the vendored files."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import contextlib
+import hashlib
+import itertools
+import json
+import os
+import socket
+from collections.abc import AsyncIterator, Awaitable, Callable
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import pytest
+
+from cobus.apps.demo import IO, SERVO, Demo
+from cobus.apps.panel import CommandError, Panel, PanelError, serve_master
+from cobus.apps.panel.server import CSP, STATIC
+
+
+def run(coro: Awaitable[Any], timeout: float = 60.0) -> Any:
+    async def bounded() -> Any:
+        return await asyncio.wait_for(coro, timeout)
+
+    return asyncio.run(bounded())
+
+
+@contextlib.asynccontextmanager
+async def served(workdir: Path, **options: Any) -> AsyncIterator[tuple[Demo, Panel]]:
+    """The thesis rig booted by the master (the demo's), with a panel on a free port."""
+    demo = Demo(workdir)
+    await demo.start()
+    assert demo.master is not None
+    panel = Panel(port=0, clock=demo.master_net.time, title="thesis", **options)
+    view = serve_master(panel, demo.master)
+    await panel.start()
+    try:
+        yield demo, panel
+    finally:
+        view.close()
+        await panel.stop()
+        await demo.stop()
+
+
+def base(panel: Panel) -> str:
+    assert panel.bound is not None
+    return f"http://127.0.0.1:{panel.bound[1]}"
+
+
+class Page:
+    """A WebSocket to the panel read by a task of its own into a queue (aiohttp's own receive
+    must not be cut short by a timeout)."""
+
+    def __init__(self, ws: aiohttp.ClientWebSocketResponse) -> None:
+        self.ws = ws
+        self.queue: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
+        self.task = asyncio.create_task(self._read())
+
+    async def _read(self) -> None:
+        async for msg in self.ws:
+            if msg.type is aiohttp.WSMsgType.TEXT:
+                self.queue.put_nowait(json.loads(msg.data))
+
+    async def send(self, message: Any) -> None:
+        if isinstance(message, str):
+            await self.ws.send_str(message)
+        elif isinstance(message, bytes):
+            await self.ws.send_bytes(message)
+        else:
+            await self.ws.send_json(message)
+
+    async def receive(self, timeout: float = 5.0) -> dict[str, Any]:
+        return await asyncio.wait_for(self.queue.get(), timeout)
+
+    async def until(
+        self, check: Callable[[dict[str, Any]], bool], timeout: float = 10.0
+    ) -> dict[str, Any]:
+        loop = asyncio.get_running_loop()
+        end = loop.time() + timeout
+        while True:
+            message = await self.receive(max(0.01, end - loop.time()))
+            if check(message):
+                return message
+
+    async def reply(self) -> dict[str, Any]:
+        return await self.until(lambda m: m["type"] in ("ack", "error"))
+
+
+@contextlib.asynccontextmanager
+async def page(http: aiohttp.ClientSession, url: str, **options: Any) -> AsyncIterator[Page]:
+    async with http.ws_connect(url, **options) as ws:
+        reader = Page(ws)
+        try:
+            yield reader
+        finally:
+            reader.task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await reader.task
+
+
+async def running(demo: Demo) -> None:
+    """Wait until the rig's I/O module and servo took the master's start command."""
+    for _ in range(200):
+        if nmt_of(demo, IO) == nmt_of(demo, SERVO) == "OPERATIONAL":
+            return
+        await asyncio.sleep(0.01)
+    raise AssertionError("the rig was never started")
+
+
+def nmt_of(demo: Demo, node_id: int) -> str:
+    return str(demo.rig.devices[node_id].status().get("nmt", "operational")).upper()
+
+
+def test_a_page_gets_a_snapshot_then_deltas_then_numbered_events(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with (
+            served(tmp_path) as (demo, panel),
+            aiohttp.ClientSession() as http,
+            page(http, base(panel) + "/ws") as ws,
+        ):
+            snapshot = await ws.receive()
+            assert snapshot["type"] == "snapshot"
+            assert snapshot["info"]["title"] == "thesis"
+            assert snapshot["info"]["needs_token"] is False
+            assert {n["id"] for n in snapshot["info"]["nodes"]} == {8, IO, SERVO}
+            node = snapshot["state"][f"node/{SERVO}"]
+            assert node["nmt"] == "OPERATIONAL" and node["state"] == 5
+            assert node["run_led"] == "on" and node["error_led"] == "off"
+            assert snapshot["state"]["master"]["state"] == "RUNNING"
+            assert isinstance(snapshot["state"][f"heard/{SERVO}"], float)
+            assert "bus_load" in snapshot["series"]
+            seq = snapshot["seq"]
+            assert seq == len(snapshot["events"])  # (the panel came after the boot)
+            assert [e["seq"] for e in snapshot["events"]] == list(range(1, seq + 1))
+            # heartbeats keep arriving: deltas, at most 10 a second
+            first = await ws.until(lambda m: m["type"] == "delta")
+            await asyncio.sleep(1.0)
+            deltas = [first]
+            while True:
+                try:
+                    message = await ws.receive(0.05)
+                except TimeoutError:
+                    break
+                if message["type"] == "delta":
+                    deltas.append(message)
+            assert 2 <= len(deltas) <= 13
+            times = [d["time"] for d in deltas]
+            assert all(b - a >= 0.09 for a, b in itertools.pairwise(times))
+            # an event: the master's word on a node put to pre-operational
+            demo.rig_net.nmt.send(0x80, IO)  # someone else on the bus
+            event = await ws.until(lambda m: m["type"] == "event")
+            assert event["seq"] == seq + 1
+            assert event["kind"] == "master" and event["node"] == IO
+            assert event["text"]
+
+    run(main())
+
+
+def test_nmt_buttons_reach_the_node_and_are_acknowledged(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with (
+            served(tmp_path) as (demo, panel),
+            aiohttp.ClientSession() as http,
+            page(http, base(panel) + "/ws") as ws,
+        ):
+            await ws.receive()
+            await ws.send({"id": 7, "cmd": "nmt", "node": IO, "action": "stop"})
+            ack = await ws.reply()
+            assert ack == {"type": "ack", "id": 7, "result": {"node": IO, "action": "stop"}}
+            await ws.until(
+                lambda m: (
+                    m["type"] == "delta"
+                    and m["values"].get(f"node/{IO}", {}).get("nmt") == "STOPPED"
+                ),
+            )
+            assert nmt_of(demo, IO) == "STOPPED"
+            await ws.send({"id": "s", "cmd": "nmt", "node": "all", "action": "start"})
+            ack = await ws.reply()
+            assert ack["type"] == "ack" and ack["result"]["node"] == "all"
+
+    run(main())
+
+
+@pytest.mark.parametrize(
+    ("message", "code", "text"),
+    [
+        ("{not json", "malformed", "not JSON"),
+        ("[1, 2]", "malformed", "JSON object"),
+        ('{"id": {"a": 1}, "cmd": "nmt"}', "malformed", "id"),
+        ('{"id": 1, "cmd": "format_disk"}', "unknown-command", "nmt"),
+        ('{"id": 2, "cmd": "nmt", "node": 9, "action": "explode"}', "bad-argument", "preop"),
+        ('{"id": 3, "cmd": "nmt", "node": "9", "action": "stop"}', "bad-argument", "node-ID"),
+        ('{"id": 4, "cmd": "nmt", "node": true, "action": "stop"}', "bad-argument", "node-ID"),
+        ('{"id": 5, "cmd": "nmt", "node": 42, "action": "stop"}', "no-node", "8, 9, 10"),
+    ],
+)
+def test_a_malformed_command_gets_a_typed_error_and_the_page_stays_connected(
+    tmp_path: Path, message: str, code: str, text: str
+) -> None:
+    async def main() -> None:
+        async with (
+            served(tmp_path) as (demo, panel),
+            aiohttp.ClientSession() as http,
+            page(http, base(panel) + "/ws") as ws,
+        ):
+            await ws.receive()
+            await running(demo)
+            await ws.send(message)
+            error = await ws.reply()
+            assert error["type"] == "error" and error["code"] == code, error
+            assert text in error["text"]
+            states = {n: nmt_of(demo, n) for n in (IO, SERVO)}
+            assert states == {IO: "OPERATIONAL", SERVO: "OPERATIONAL"}  # untouched
+            # still connected: a good command works
+            await ws.send({"id": 9, "cmd": "nmt", "node": IO, "action": "start"})
+            ack = await ws.reply()
+            assert ack["type"] == "ack" and ack["id"] == 9
+
+    run(main())
+
+
+def test_a_panel_with_a_token_refuses_commands_without_it(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with served(tmp_path, token="s3cret") as (demo, panel):
+            assert panel.needs_token and panel.url.endswith("/?token=s3cret")
+            async with aiohttp.ClientSession() as http, page(http, base(panel) + "/ws") as ws:
+                snapshot = await ws.receive()
+                await running(demo)
+                assert snapshot["info"]["needs_token"] is True  # reading needs none
+                for given in (None, "wrong", 12):
+                    command = {"id": 1, "cmd": "nmt", "node": IO, "action": "stop"}
+                    if given is not None:
+                        command["token"] = given
+                    await ws.send(command)
+                    error = await ws.reply()
+                    assert error["code"] == "token" and "token" in error["text"]
+                assert nmt_of(demo, IO) == "OPERATIONAL"
+                await ws.send(
+                    {"id": 2, "cmd": "nmt", "node": IO, "action": "stop", "token": "s3cret"}
+                )
+                ack = await ws.reply()
+                assert ack["type"] == "ack"
+
+    run(main())
+
+
+def test_a_panel_bound_beyond_loopback_needs_a_token() -> None:
+    panel = Panel(host="0.0.0.0", port=0)
+    assert panel.needs_token and len(panel.token) >= 20
+    assert not Panel(port=0).needs_token
+    assert not Panel(host="::1", port=0).needs_token
+
+
+def test_a_gap_is_closed_by_a_resync(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with (
+            served(tmp_path) as (_demo, panel),
+            aiohttp.ClientSession() as http,
+            page(http, base(panel) + "/ws") as ws,
+        ):
+            first = await ws.receive()
+            panel.hub.event("test", text="one")
+            await ws.until(lambda m: m["type"] == "event")
+            await ws.send({"cmd": "resync"})
+            again = await ws.until(lambda m: m["type"] == "snapshot")
+            assert again["seq"] == first["seq"] + 1
+            assert again["events"][-1]["text"] == "one"
+
+    run(main())
+
+
+def test_cross_origin_pages_and_foreign_host_names_are_refused(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with served(tmp_path) as (_demo, panel), aiohttp.ClientSession() as http:
+            url = base(panel)
+            with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
+                await http.ws_connect(url + "/ws", origin="http://evil.example")
+            assert refused.value.status == 403
+            same = url.replace("http://", "")
+            async with page(http, url + "/ws", origin=f"http://{same}") as ws:
+                assert (await ws.receive())["type"] == "snapshot"
+            # DNS rebinding: a name that resolves here but is not this machine's
+            async with http.get(url + "/", headers={"Host": f"evil.example:{panel.bound[1]}"}) as r:  # type: ignore[index]
+                assert r.status == 421
+            for path in ("/", "/static/panel.js", "/static/vendor/uPlot.iife.min.js", "/nope"):
+                async with http.get(url + path) as r:
+                    assert r.headers["Content-Security-Policy"] == CSP, path
+                    assert r.status == (404 if path == "/nope" else 200)
+            async with http.get(url + "/static/../server.py") as r:
+                assert r.status in (403, 404)
+
+    run(main())
+
+
+def test_a_stuck_browser_is_dropped_and_the_others_go_on() -> None:
+    big = "x" * 300_000
+
+    async def main() -> None:
+        panel = Panel(port=0, stall=0.5, rate=20)
+        ticks = {"n": 0}
+
+        def sample() -> dict[str, Any]:
+            ticks["n"] += 1
+            return {"blob": f"{ticks['n']}{big}", "n": ticks["n"]}
+
+        panel.sample(sample)
+        await panel.start()
+        assert panel.bound is not None
+        port = panel.bound[1]
+        # a client that opens the WebSocket and then never reads, with a tiny window
+        stuck = socket.socket()
+        stuck.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        stuck.connect(("127.0.0.1", port))
+        key = base64.b64encode(os.urandom(16)).decode()
+        stuck.sendall(
+            (
+                f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+                f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+                "Sec-WebSocket-Version: 13\r\n\r\n"
+            ).encode()
+        )
+        try:
+            async with (
+                aiohttp.ClientSession() as http,
+                page(http, f"http://127.0.0.1:{port}/ws", max_msg_size=0) as ws,
+            ):
+                loop = asyncio.get_running_loop()
+                end = loop.time() + 30
+                seen = 0
+                while panel.hub.dropped == 0 and loop.time() < end:
+                    message = await ws.receive()
+                    seen += message["type"] == "delta"
+                assert panel.hub.dropped == 1, "the stuck client was never dropped"
+                assert len(panel.hub.clients) == 1  # the reading one stays
+                before = seen
+                for _ in range(5):
+                    message = await ws.receive()
+                    seen += message["type"] == "delta"
+                assert seen > before
+        finally:
+            stuck.close()
+            await panel.stop()
+
+    run(main())
+
+
+def test_an_address_in_use_is_a_panel_error() -> None:
+    async def main() -> None:
+        async with Panel(port=0) as first:
+            assert first.bound is not None
+            second = Panel(port=first.bound[1])
+            with pytest.raises(PanelError, match=r"cannot serve the panel .*port 0"):
+                await second.start()
+
+    run(main())
+
+
+@pytest.mark.parametrize(("options", "text"), [({"port": 70000}, "port"), ({"rate": 0}, "rate")])
+def test_bad_panel_options_are_refused(options: dict[str, Any], text: str) -> None:
+    with pytest.raises(PanelError, match=text):
+        Panel(**options)
+
+
+def test_a_failing_command_is_answered_and_others_keep_working() -> None:
+    async def main() -> None:
+        panel = Panel(port=0)
+
+        async def broken(_message: Any) -> None:
+            raise RuntimeError("boom")
+
+        async def refuses(_message: Any) -> None:
+            raise CommandError("busy-drive", "the drive is homing")
+
+        async def slow(_message: Any) -> str:
+            await asyncio.sleep(0.3)
+            return "done"
+
+        panel.command("broken", broken, writes=False)
+        panel.command("refuses", refuses, writes=False)
+        panel.command("slow", slow, writes=False)
+        with pytest.raises(ValueError, match="already"):
+            panel.command("slow", slow, writes=False)
+        async with panel, aiohttp.ClientSession() as http:
+            assert panel.bound is not None
+            async with page(http, f"http://127.0.0.1:{panel.bound[1]}/ws") as ws:
+                await ws.receive()
+                await ws.send({"id": 1, "cmd": "slow"})
+                await ws.send({"id": 2, "cmd": "broken"})
+                await ws.send({"id": 3, "cmd": "refuses"})
+                await ws.send(b"\x00")
+                replies = [await ws.until(lambda m: "id" in m) for _ in range(4)]
+                by_id = {r["id"]: r for r in replies}
+                assert by_id[2]["code"] == "internal" and "boom" in by_id[2]["text"]
+                assert by_id[3]["code"] == "busy-drive"
+                assert by_id[None]["code"] == "malformed"
+                assert by_id[1] == {"type": "ack", "id": 1, "result": "done"}
+                assert [r["id"] for r in replies][-1] == 1  # the slow one did not hold others
+
+    run(main())
+
+
+def test_the_vendored_files_are_the_pinned_ones() -> None:
+    vendor = STATIC / "vendor"
+    record = json.loads((vendor / "VENDOR.json").read_text())["uplot"]
+    assert record["tarball"].startswith("https://registry.npmjs.org/uplot/-/uplot-")
+    assert record["version"] in record["tarball"]
+    for name, facts in record["files"].items():
+        assert hashlib.sha256((vendor / name).read_bytes()).hexdigest() == facts["sha256"], name
+    assert f"(v{record['version']})" in (vendor / "uPlot.iife.min.js").read_text()[:200]
+    assert "MIT License" in (vendor / "uPlot.LICENSE").read_text()
+    # every file the page loads is served from the package (no CDN)
+    index = (STATIC / "index.html").read_text()
+    assert "http" not in index.replace('lang="en"', "")
