@@ -24,6 +24,10 @@ from cobus import __version__
 COMMANDS: dict[str, tuple[str, str]] = {
     "eds": ("cobus.od._cli", "check, show or document an EDS/DCF file (CiA 306)"),
     "config": ("cobus.master._cli", "check a network description (YAML) or write its DCFs"),
+    "run": (
+        "cobus.apps._run_cli",
+        "boot and supervise a network with the cobus master (and its operator panel)",
+    ),
     "sim": ("cobus.sim._cli", "run simulated devices (a rig file) on a CAN bus until Ctrl-C"),
     "ec": (
         "cobus.profiles._cli",

@@ -1,0 +1,173 @@
+"""``cobus run NETWORK.yml``: boot and supervise a network with the cobus master, with its panel.
+
+    cobus run line.yml -i socketcan -c can0              # boot, supervise, print the events
+    cobus run line.yml --panel                           # and serve the operator panel
+    cobus run line.yml --panel --listen 0.0.0.0:8047     # reachable from other machines:
+                                                         # commands then need the printed token
+    cobus run line.yml --panel --unix /run/cobus.sock    # also on a Unix socket
+
+The master boots the network the CiA 302 way and supervises it until Ctrl-C (or
+``--duration``); each of its events is printed as a line on stderr (``--quiet``: none). On
+stop it ends supervision and leaves every node in the NMT state it is in.
+
+The panel (``--panel``) runs in the master's own loop and binds 127.0.0.1:8047 unless
+``--listen`` says otherwise; bound to another address, every command that writes to the bus
+(NMT buttons...) needs the token the URL it prints carries.
+
+Exit codes: 0 ran until stopped, 1 the bus cannot be used, 2 bad usage or a bad network file,
+3 the panel cannot listen there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+from cobus._args import add_bus_options, bus_options, seconds
+
+__all__ = ["listen_address", "register"]
+
+_EXIT_OK, _EXIT_BUS, _EXIT_USAGE, _EXIT_PANEL = 0, 1, 2, 3
+DEFAULT_PORT = 8047
+
+
+def listen_address(text: str) -> tuple[str, int]:
+    """``HOST:PORT``, ``:PORT``, ``PORT`` or ``[V6]:PORT`` as (host, port); host defaults to
+    127.0.0.1, port to 8047."""
+    text = text.strip()
+    if text.isdigit():
+        host, port = "127.0.0.1", int(text)
+    else:
+        try:
+            parts = urlsplit("//" + text)
+            host = parts.hostname or "127.0.0.1"
+            port = DEFAULT_PORT if parts.port is None else parts.port
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: give HOST:PORT (127.0.0.1:8047, [::1]:8047, :8047)"
+            ) from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: the port is 0-65535")
+    return host, port
+
+
+def register(sub: Any) -> None:
+    """Add ``cobus run`` to the command line's sub-commands."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "run",
+        help="boot and supervise a network with the cobus master (and its operator panel)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("network", type=Path, help="the network description (YAML)")
+    p.add_argument("--panel", action="store_true", help="serve the operator panel")
+    p.add_argument(
+        "--listen",
+        type=listen_address,
+        default=("127.0.0.1", DEFAULT_PORT),
+        metavar="HOST:PORT",
+        help="where the panel listens (default 127.0.0.1:8047; port 0: any free one)",
+    )
+    p.add_argument("--unix", metavar="PATH", help="the panel also listens on this Unix socket")
+    p.add_argument(
+        "--token",
+        help="the token the panel's commands need (default: a random one, needed only when "
+        "it listens beyond 127.0.0.1)",
+    )
+    p.add_argument("--duration", type=seconds, help="stop after this many seconds")
+    p.add_argument("--quiet", "-q", action="store_true", help="do not print the master's events")
+    add_bus_options(p)
+    p.set_defaults(handler=_run)
+
+
+def _fail(message: str, code: int) -> int:
+    print(f"cobus run: {message}", file=sys.stderr)
+    return code
+
+
+def _run(args: argparse.Namespace) -> int:
+    from cobus.master import NetworkConfigError, load_network
+
+    if (args.unix or args.token is not None) and not args.panel:
+        return _fail("--unix and --token are options of the panel: add --panel", _EXIT_USAGE)
+    try:
+        config = load_network(args.network)
+    except OSError as exc:
+        return _fail(f"cannot read {args.network}: {exc.strerror or exc}", _EXIT_USAGE)
+    except NetworkConfigError as exc:
+        return _fail(str(exc), _EXIT_USAGE)
+    done: list[str] = []
+    try:
+        return asyncio.run(_serve(args, config, done))
+    except KeyboardInterrupt:
+        said = "; ".join(done) or "nothing had started"
+        print(f"\ncobus run: stopped by Ctrl-C: {said}", file=sys.stderr)
+        return _EXIT_OK
+
+
+async def _serve(args: argparse.Namespace, config: Any, done: list[str]) -> int:
+    from cobus.apps.panel import Panel, PanelError, serve_master
+    from cobus.errors import CobusError
+    from cobus.master import Master, MasterEvent
+    from cobus.runtime import AsyncNetwork
+
+    network = AsyncNetwork(**bus_options(args))
+    try:
+        await network.connect()
+    except (CobusError, OSError, ValueError) as exc:
+        return _fail(f"cannot open the bus: {exc}", _EXIT_BUS)
+    master = Master(network, config)
+    started = network.time()
+
+    def said(event: MasterEvent) -> None:
+        print(f"{network.time() - started:9.3f} s  {event}", file=sys.stderr)
+
+    if not args.quiet:
+        master.add_listener(said)
+    panel = None
+    try:
+        if args.panel:
+            host, port = args.listen
+            panel = Panel(
+                host=host,
+                port=port,
+                unix=args.unix,
+                token=args.token,
+                clock=network.time,
+                title=args.network.stem,
+            )
+            serve_master(panel, master)
+            try:
+                await panel.start()
+            except PanelError as exc:
+                return _fail(str(exc), _EXIT_PANEL)
+            print(f"cobus run: the panel is at {panel.url}", flush=True)
+            if panel.needs_token:
+                print(
+                    "cobus run: commands from the panel need the token in that address",
+                    flush=True,
+                )
+        master.start()
+        done.append(f"the master supervised {len(master.nodes)} node(s)")
+        print(
+            f"cobus run: booting {len(master.nodes)} node(s) of {args.network} "
+            "(Ctrl-C stops supervision; nodes stay in their states)",
+            file=sys.stderr,
+            flush=True,
+        )
+        if args.duration is None:
+            await asyncio.Event().wait()  # until Ctrl-C
+        else:
+            await asyncio.sleep(args.duration)
+        return _EXIT_OK
+    finally:
+        if panel is not None:
+            await panel.stop()
+            done.append("the panel closed")
+        await master.stop()
+        done.append("supervision ended, every node left in its NMT state")
+        await network.disconnect()

@@ -1,0 +1,135 @@
+"""``cobus run NETWORK.yml [--panel]``: the master on a bus, the panel beside it."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import socket
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from cobus.apps._run_cli import listen_address
+from cobus.cli import main
+from cobus.device import export_eds
+from cobus.runtime import Network
+from cobus.sim import Rig, start_rig
+
+RIG = """
+bus: embedded
+devices:
+  - {node: 10, kind: cia402_drive, name: servo}
+"""
+
+NETWORK = """
+master: {node_id: 127, heartbeat_time: 100}
+nodes:
+  servo: {node_id: 10, eds: servo.eds, mandatory: true, heartbeat_time: 100}
+"""
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.mark.parametrize(
+    ("text", "address"),
+    [
+        ("127.0.0.1:8047", ("127.0.0.1", 8047)),
+        (":9000", ("127.0.0.1", 9000)),
+        ("9000", ("127.0.0.1", 9000)),
+        ("0.0.0.0:0", ("0.0.0.0", 0)),
+        ("[::1]:8047", ("::1", 8047)),
+        ("localhost", ("localhost", 8047)),
+    ],
+)
+def test_listen_addresses(text: str, address: tuple[str, int]) -> None:
+    assert listen_address(text) == address
+
+
+@pytest.mark.parametrize("text", ["127.0.0.1:99999", "host:port", "[::1"])
+def test_bad_listen_addresses_say_what_to_give(text: str) -> None:
+    with pytest.raises(argparse.ArgumentTypeError, match=r"HOST:PORT|0-65535"):
+        listen_address(text)
+
+
+def test_the_master_runs_the_network_with_its_panel(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    channel = f"cli-run-{os.getpid()}"
+    port = free_port()
+    fetched: dict[str, object] = {}
+
+    def fetch() -> None:
+        for _ in range(400):
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=2) as r:
+                    fetched["status"] = r.status
+                    fetched["csp"] = r.headers["Content-Security-Policy"]
+                    return
+            except OSError:
+                time.sleep(0.01)
+
+    with Network(interface="virtual", channel=channel) as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        (tmp_path / "servo.eds").write_text(export_eds(rig.aio.devices[10].od))
+        (tmp_path / "line.yml").write_text(NETWORK)
+        reader = threading.Thread(target=fetch)
+        reader.start()
+        code = main(
+            [
+                "run",
+                str(tmp_path / "line.yml"),
+                "--panel",
+                "--listen",
+                f"127.0.0.1:{port}",
+                "--duration",
+                "1.5",
+                "-i",
+                "virtual",
+                "-c",
+                channel,
+            ]
+        )
+        reader.join()
+        assert str(rig.aio.devices[10].status()["nmt"]).upper() == "OPERATIONAL"
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert f"the panel is at http://127.0.0.1:{port}/\n" in out
+    assert "node 10: configured -> operational" in err
+    assert fetched["status"] == 200 and "default-src 'self'" in str(fetched["csp"])
+
+
+def test_bad_usage_and_files_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["run", str(tmp_path / "missing.yml")]) == 2
+    assert "cannot read" in capsys.readouterr().err
+    (tmp_path / "bad.yml").write_text("nodes: [1, 2]\n")
+    assert main(["run", str(tmp_path / "bad.yml")]) == 2
+    assert "bad.yml" in capsys.readouterr().err
+    (tmp_path / "ok.yml").write_text("nodes: {}\n")
+    assert main(["run", str(tmp_path / "ok.yml"), "--unix", "/tmp/x.sock"]) == 2
+    assert "add --panel" in capsys.readouterr().err
+
+
+def test_a_panel_address_in_use_exits_3(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    with Network(interface="virtual", channel=f"cli-run-eds-{os.getpid()}") as net:
+        servo = start_rig(net, Rig.loads(RIG)).aio.devices[10]
+        (tmp_path / "servo.eds").write_text(export_eds(servo.od))
+    (tmp_path / "ok.yml").write_text(NETWORK)
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        code = main(
+            [
+                *("run", str(tmp_path / "ok.yml"), "--panel", "--listen", f"127.0.0.1:{port}"),
+                *("-i", "virtual", "-c", f"cli-run-taken-{os.getpid()}", "--duration", "1"),
+            ]
+        )
+    assert code == 3
+    assert "cannot serve the panel on 127.0.0.1:" in capsys.readouterr().err
