@@ -1,6 +1,8 @@
 """``cobus demo``: the thesis rig booted and run by the master, on both clocks."""
 
+import asyncio
 import io
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -248,3 +250,48 @@ def test_the_demo_shuts_down_in_order_and_no_timer_fires_into_a_closed_network(t
     assert errors == []
     assert set(closed) == {(False, False)}  # both networks closed
     assert set(servo_states) == {"switch on disabled"}  # the servo was switched off first
+
+
+def test_the_demo_serves_its_panel_and_takes_another_port_when_8047_is_taken(
+    tmp_path: Path,
+) -> None:
+    import socket
+
+    out = io.StringIO()
+    seen: list[int] = []
+
+    fetches: list[asyncio.Task[None]] = []
+
+    async def fetch(url: str) -> None:
+        import aiohttp
+
+        async with aiohttp.ClientSession() as http, http.get(url) as r:
+            seen.append(r.status)
+
+    def on_tick(demo: Demo) -> None:  # (on the demo's loop: the page is fetched beside it)
+        fetches.append(asyncio.create_task(fetch(demo.panel_url)))
+
+    async def main() -> Demo:
+        with socket.socket() as taken:
+            taken.bind(("127.0.0.1", 0))
+            taken.listen()
+            port = taken.getsockname()[1]
+            demo = await run_demo(
+                duration=1.0,
+                refresh=0.5,
+                out=out,
+                clear=False,
+                workdir=tmp_path,
+                on_tick=on_tick,
+                panel=("127.0.0.1", port),
+            )
+            await asyncio.gather(*fetches, return_exceptions=True)
+            return demo
+
+    demo = asyncio.run(main())
+    text = out.getvalue()
+    assert "cannot serve the panel on 127.0.0.1:" in text and "takes another port" in text
+    assert f"the operator panel is at {demo.panel_url}\n" in text
+    assert f"cobus demo — panel {demo.panel_url}" in text
+    assert seen and set(seen) == {200}
+    assert demo.panel is not None and demo.panel.bound is not None  # stopped with the demo

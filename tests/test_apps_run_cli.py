@@ -90,6 +90,8 @@ def test_the_master_runs_the_network_with_its_panel(
                 f"127.0.0.1:{port}",
                 "--duration",
                 "1.5",
+                "--history",
+                str(tmp_path / "alarms.sqlite"),
                 "-i",
                 "virtual",
                 "-c",
@@ -103,6 +105,7 @@ def test_the_master_runs_the_network_with_its_panel(
     assert f"the panel is at http://127.0.0.1:{port}/\n" in out
     assert "node 10: configured -> operational" in err
     assert fetched["status"] == 200 and "default-src 'self'" in str(fetched["csp"])
+    assert (tmp_path / "alarms.sqlite").stat().st_size > 0
 
 
 def test_bad_usage_and_files_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -87,6 +87,46 @@ def test_the_network_page_shows_the_rig_and_its_buttons_reach_the_nodes(tmp_path
                 await expect(io.locator(".nmt")).to_have_text("OPERATIONAL", timeout=5_000)
                 # the event list shows the master's word
                 await expect(page.locator("#events li").first).to_be_visible()
+
+                # faults: the alarm line shows them in turn, the Alarms page acknowledges them
+                line = page.locator("#current-alarm")
+                await expect(line).to_have_text("no active alarm")
+                await page.get_by_role("button", name="Unplug the I/O module").click()
+                await expect(line).to_contain_text(f"node {IO} master", timeout=10_000)
+                await page.get_by_role("button", name="Servo drive fault").click()
+                # it rotates through the active alarms, the view time (3 s) each
+                await expect(line).to_contain_text("7305h", timeout=15_000)
+                await expect(line).to_contain_text(f"node {IO}", timeout=10_000)
+                await expect(page.locator("#alarm-count")).to_be_visible()
+                await page.screenshot(path=str(artifacts() / "panel-alarm-line.png"))
+                await page.get_by_role("link", name="Alarms").click()
+                active = page.locator("#active-alarms tbody tr")
+                await expect(active.first).to_be_visible()
+                texts = await active.all_text_contents()
+                assert any("7305h" in t for t in texts), texts  # the servo's EMCY
+                io_alarm = active.filter(has_text="heartbeat lost")
+                await io_alarm.get_by_role("button", name="Acknowledge").click()
+                await expect(io_alarm.locator("td").nth(6)).to_have_text("panel")
+                await page.get_by_role("button", name="Acknowledge all").click()
+                await expect(page.locator("#alarm-count")).to_be_hidden()
+                # the cause goes: the alarm clears and stays in the history
+                await page.get_by_role("link", name="Network").click()
+                await page.get_by_role("button", name="Plug it back").click()
+                await expect(io.locator(".nmt")).to_have_text("OPERATIONAL", timeout=15_000)
+                await page.get_by_role("link", name="Alarms").click()
+                await expect(active).to_have_count(len(texts) - 1, timeout=10_000)
+                await expect(active.filter(has_text="7305h")).to_have_count(1)  # still faulted
+                history = page.locator("#alarm-history tbody tr")
+                cleared = history.filter(has_text="heartbeat lost")
+                await expect(cleared.first.locator("td").nth(6)).not_to_have_text("active")
+                await expect(cleared.first.locator("td").nth(7)).to_contain_text("by panel")
+                await page.screenshot(path=str(artifacts() / "panel-alarms.png"), full_page=True)
+                # filters: only what is still active
+                await page.locator("#history-filter select").select_option("true")
+                await page.get_by_role("button", name="Show").click()
+                await expect(history).to_have_count(1)
+                csv = await page.locator("#history-csv").get_attribute("href")
+                assert csv == "/alarms.csv?active=true"
             finally:
                 await browser.close()
 

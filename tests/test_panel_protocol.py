@@ -8,6 +8,7 @@ import asyncio
 import base64
 import contextlib
 import hashlib
+import io
 import itertools
 import json
 import os
@@ -19,8 +20,8 @@ from typing import Any
 import aiohttp
 import pytest
 
-from cobus.apps.demo import IO, SERVO, Demo
-from cobus.apps.panel import CommandError, Panel, PanelError, serve_master
+from cobus.apps.demo import IO, SERVO, Demo, start_panel
+from cobus.apps.panel import CommandError, Panel, PanelError
 from cobus.apps.panel.server import CSP, STATIC
 
 
@@ -33,18 +34,20 @@ def run(coro: Awaitable[Any], timeout: float = 60.0) -> Any:
 
 @contextlib.asynccontextmanager
 async def served(workdir: Path, **options: Any) -> AsyncIterator[tuple[Demo, Panel]]:
-    """The thesis rig booted by the master (the demo's), with a panel on a free port."""
+    """The thesis rig booted by the master (the demo's, with its alarm handler and faults),
+    with the demo's panel on a free port, attached before the boot."""
     demo = Demo(workdir)
-    await demo.start()
-    assert demo.master is not None
-    panel = Panel(port=0, clock=demo.master_net.time, title="thesis", **options)
-    view = serve_master(panel, demo.master)
-    await panel.start()
+    panels: list[Panel] = []
+
+    async def attach(d: Demo) -> None:
+        panels.append(await start_panel(d, "127.0.0.1", 0, io.StringIO(), **options))
+
     try:
-        yield demo, panel
+        await demo.start(before_boot=attach)
+        yield demo, panels[0]
     finally:
-        view.close()
-        await panel.stop()
+        for panel in panels:
+            await panel.stop()
         await demo.stop()
 
 
@@ -126,7 +129,7 @@ def test_a_page_gets_a_snapshot_then_deltas_then_numbered_events(tmp_path: Path)
         ):
             snapshot = await ws.receive()
             assert snapshot["type"] == "snapshot"
-            assert snapshot["info"]["title"] == "thesis"
+            assert snapshot["info"]["title"] == "cobus demo"
             assert snapshot["info"]["needs_token"] is False
             assert {n["id"] for n in snapshot["info"]["nodes"]} == {8, IO, SERVO}
             node = snapshot["state"][f"node/{SERVO}"]
@@ -136,7 +139,7 @@ def test_a_page_gets_a_snapshot_then_deltas_then_numbered_events(tmp_path: Path)
             assert isinstance(snapshot["state"][f"heard/{SERVO}"], float)
             assert "bus_load" in snapshot["series"]
             seq = snapshot["seq"]
-            assert seq == len(snapshot["events"])  # (the panel came after the boot)
+            assert seq == len(snapshot["events"]) > 5  # the boot, as it happened
             assert [e["seq"] for e in snapshot["events"]] == list(range(1, seq + 1))
             # heartbeats keep arriving: deltas, at most 10 a second
             first = await ws.until(lambda m: m["type"] == "delta")
@@ -155,9 +158,12 @@ def test_a_page_gets_a_snapshot_then_deltas_then_numbered_events(tmp_path: Path)
             # an event: the master's word on a node put to pre-operational
             demo.rig_net.nmt.send(0x80, IO)  # someone else on the bus
             event = await ws.until(lambda m: m["type"] == "event")
-            assert event["seq"] == seq + 1
-            assert event["kind"] == "master" and event["node"] == IO
-            assert event["text"]
+            events = [event]
+            while not (event["kind"] == "master" and event["node"] == IO):
+                event = await ws.until(lambda m: m["type"] == "event")
+                events.append(event)
+            assert [e["seq"] for e in events] == list(range(seq + 1, seq + 1 + len(events)))
+            assert event["text"] and event["level"] == "problem"  # an unexpected state
 
     run(main())
 
@@ -193,7 +199,14 @@ def test_nmt_buttons_reach_the_node_and_are_acknowledged(tmp_path: Path) -> None
         ("{not json", "malformed", "not JSON"),
         ("[1, 2]", "malformed", "JSON object"),
         ('{"id": {"a": 1}, "cmd": "nmt"}', "malformed", "id"),
-        ('{"id": 1, "cmd": "format_disk"}', "unknown-command", "nmt"),
+        ('{"id": 1, "cmd": "format_disk"}', "unknown-command", "alarm.ack, alarm.history"),
+        ('{"id": 6, "cmd": "alarm.ack", "source": "emcy"}', "bad-argument", "code"),
+        ('{"id": 6, "cmd": "alarm.ack", "source": "x", "node": 9, "code": 1}', "no-alarm", "x 1"),
+        ('{"id": 6, "cmd": "alarm.ack", "all": true, "by": ""}', "bad-argument", "by"),
+        ('{"id": 8, "cmd": "alarm.history", "limit": 0}', "bad-argument", "1-1000"),
+        ('{"id": 8, "cmd": "alarm.history", "node": "9"}', "bad-argument", "node"),
+        ('{"id": 8, "cmd": "alarm.history", "since": "yesterday"}', "bad-argument", "1970"),
+        ('{"id": 9, "cmd": "demo.fault", "fault": "meteor"}', "bad-argument", "unplug_io"),
         ('{"id": 2, "cmd": "nmt", "node": 9, "action": "explode"}', "bad-argument", "preop"),
         ('{"id": 3, "cmd": "nmt", "node": "9", "action": "stop"}', "bad-argument", "node-ID"),
         ('{"id": 4, "cmd": "nmt", "node": true, "action": "stop"}', "bad-argument", "node-ID"),
@@ -417,3 +430,56 @@ def test_the_vendored_files_are_the_pinned_ones() -> None:
     # every file the page loads is served from the package (no CDN)
     index = (STATIC / "index.html").read_text()
     assert "http" not in index.replace('lang="en"', "")
+
+
+def test_a_fault_raises_an_alarm_that_is_acknowledged_cleared_and_kept(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with (
+            served(tmp_path) as (_demo, panel),
+            aiohttp.ClientSession() as http,
+            page(http, base(panel) + "/ws") as ws,
+        ):
+            snapshot = await ws.receive()
+            assert snapshot["info"]["alarms"] == {"view_time": 3.0, "history": True}
+            assert [f["name"] for f in snapshot["info"]["faults"]][:2] == ["unplug_io", "replug_io"]
+            assert snapshot["state"]["alarms/current"] is None
+            await ws.send({"id": 1, "cmd": "demo.fault", "fault": "unplug_io"})
+            assert (await ws.reply())["result"].startswith("the I/O module loses its power")
+            raised = await ws.until(
+                lambda m: m["type"] == "event" and m["kind"] == "alarm" and m["node"] == IO
+            )
+            assert raised["action"] == "raised" and raised["level"] == "problem"
+            alarm = raised["alarm"]
+            assert alarm["source"] == "master" and alarm["acknowledged_by"] is None
+            current = await ws.until(
+                lambda m: m["type"] == "delta" and bool(m["values"].get("alarms/current"))
+            )
+            assert current["values"]["alarms/current"]["node"] == IO
+            key = {k: alarm[k] for k in ("source", "node", "code")}
+            await ws.send({"id": 2, "cmd": "alarm.ack", **key, "by": "Anna"})
+            assert (await ws.reply()) == {"type": "ack", "id": 2, "result": {"acknowledged": 1}}
+            await ws.until(lambda m: m["type"] == "event" and m.get("action") == "acknowledged")
+            await ws.send({"id": 3, "cmd": "demo.fault", "fault": "replug_io"})
+            await ws.reply()
+            await ws.until(
+                lambda m: (
+                    m["type"] == "event"
+                    and m.get("action") == "cleared"
+                    and m["alarm"]["code"] == alarm["code"]
+                ),
+                timeout=15,
+            )
+            await ws.send({"id": 4, "cmd": "alarm.history", "node": IO, "source": "master"})
+            rows = (await ws.reply())["result"]
+            row = next(r for r in rows if r["code"] == alarm["code"])
+            assert row["acknowledged_by"] == "Anna" and row["cleared_at"] is not None
+            await ws.send({"id": 5, "cmd": "alarm.history", "active": True, "node": IO})
+            assert all(r["cleared_at"] is None for r in (await ws.reply())["result"])
+            async with http.get(base(panel) + f"/alarms.csv?node={IO}&source=master") as r:
+                assert r.status == 200 and r.content_type == "text/csv"
+                text = await r.text()
+                assert "Anna" in text and text.count("\n") >= 2
+            async with http.get(base(panel) + "/alarms.csv?node=nine") as r:
+                assert r.status == 400
+
+    run(main())

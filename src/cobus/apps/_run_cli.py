@@ -8,7 +8,8 @@
 
 The master boots the network the CiA 302 way and supervises it until Ctrl-C (or
 ``--duration``); each of its events is printed as a line on stderr (``--quiet``: none). On
-stop it ends supervision and leaves every node in the NMT state it is in.
+stop it ends supervision and leaves every node in the NMT state it is in. An alarm handler
+takes the master's alarms (with ``--panel`` or ``--history FILE``, where it keeps them).
 
 The panel (``--panel``) runs in the master's own loop and binds 127.0.0.1:8047 unless
 ``--listen`` says otherwise; bound to another address, every command that writes to the bus
@@ -78,6 +79,12 @@ def register(sub: Any) -> None:
         help="the token the panel's commands need (default: a random one, needed only when "
         "it listens beyond 127.0.0.1)",
     )
+    p.add_argument(
+        "--history",
+        type=Path,
+        metavar="FILE",
+        help="keep the alarm history in this SQLite file (the panel's Alarms page shows it)",
+    )
     p.add_argument("--duration", type=seconds, help="stop after this many seconds")
     p.add_argument("--quiet", "-q", action="store_true", help="do not print the master's events")
     add_bus_options(p)
@@ -110,7 +117,8 @@ def _run(args: argparse.Namespace) -> int:
 
 
 async def _serve(args: argparse.Namespace, config: Any, done: list[str]) -> int:
-    from cobus.apps.panel import Panel, PanelError, serve_master
+    from cobus.apps.panel import Panel, PanelError, serve_alarms, serve_master
+    from cobus.blocks.alarms import AlarmHandler
     from cobus.errors import CobusError
     from cobus.master import Master, MasterEvent
     from cobus.runtime import AsyncNetwork
@@ -129,7 +137,20 @@ async def _serve(args: argparse.Namespace, config: Any, done: list[str]) -> int:
     if not args.quiet:
         master.add_listener(said)
     panel = None
+    alarms = None
     try:
+        if args.panel or args.history is not None:
+            try:
+                alarms = AlarmHandler(args.history, clock=network.time)
+            except CobusError as exc:
+                await network.disconnect()
+                return _fail(str(exc), _EXIT_USAGE)
+            alarms.attach_master(master)
+            if alarms.history_moved is not None:
+                print(
+                    f"cobus run: the alarm history was damaged; moved to {alarms.history_moved}",
+                    file=sys.stderr,
+                )
         if args.panel:
             host, port = args.listen
             panel = Panel(
@@ -141,6 +162,8 @@ async def _serve(args: argparse.Namespace, config: Any, done: list[str]) -> int:
                 title=args.network.stem,
             )
             serve_master(panel, master)
+            assert alarms is not None
+            serve_alarms(panel, alarms)
             try:
                 await panel.start()
             except PanelError as exc:
@@ -170,4 +193,6 @@ async def _serve(args: argparse.Namespace, config: Any, done: list[str]) -> int:
             done.append("the panel closed")
         await master.stop()
         done.append("supervision ended, every node left in its NMT state")
+        if alarms is not None:
+            alarms.close()
         await network.disconnect()

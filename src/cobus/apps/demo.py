@@ -21,10 +21,15 @@ a small application in the spirit of the thesis's PLC program:
 At the end (``--duration``, Ctrl-C) it shuts down in order: the application, the drives
 (switched off, their adapters closed), the master, the rig, the networks.
 
-A live table shows each node: NMT state, the master's node state, heartbeat age (or why
-there is none), EMCY count and speed, and in its note the drive's state, the newest error
-(alarm, EMCY with its text) or the master's last event about the node. The operator panel
-will replace the table once it exists.
+An alarm handler (:class:`cobus.blocks.AlarmHandler`, its history in the demo's working
+folder) takes the master's and the ZAPI adapter's alarms.
+
+The operator panel (:mod:`cobus.apps.panel`) serves the network, the alarms and the demo's
+fault buttons on http://127.0.0.1:8047/ (another free port if that one is taken; a browser
+opens where there is a display). A live table on the terminal shows each node too: NMT state,
+the master's node state, heartbeat age (or why there is none), EMCY count and speed, and in
+its note the drive's state, the newest error (alarm, EMCY with its text) or the master's last
+event about the node.
 """
 
 from __future__ import annotations
@@ -36,11 +41,13 @@ import math
 import os
 import sys
 import tempfile
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable, Mapping
 from pathlib import Path
 from typing import Any, TextIO
 
 from cobus._args import seconds
+from cobus.apps._run_cli import listen_address
+from cobus.blocks.alarms import AlarmHandler
 from cobus.device import export_eds
 from cobus.errors import CobusError
 from cobus.master import Master, loads_network
@@ -62,7 +69,7 @@ from cobus.runtime.emcy import Emergency
 from cobus.runtime.remote import RemoteNode
 from cobus.sim.rig import Rig, ready_rig
 
-__all__ = ["Demo", "register", "run"]
+__all__ = ["DEMO_FAULTS", "Demo", "register", "run"]
 
 IO, SERVO, ZAPI = 9, 10, 8
 SYNC_PERIOD = 0.020
@@ -74,6 +81,27 @@ SERVO_MAX_SPEED = 40_000  # increments/s at either end of the potentiometer
 ZAPI_MAX_HZ = 50.0  # the thesis's example speed: 50 Hz clockwise
 POT_PERIOD = 20.0  # seconds for one sweep of the potentiometer
 
+
+#: The faults the demo's panel offers (name -> what happens), so that a new user sees the
+#: master's supervision and the alarm handling at work.
+DEMO_FAULTS: Mapping[str, str] = {
+    "unplug_io": "the I/O module loses its power: its heartbeat stops",
+    "replug_io": "the I/O module's power returns: it boots and the master configures it again",
+    "servo_fault": "the servo reports a drive fault (EMCY 7305h) and switches its power off",
+    "servo_reset": "the servo's fault is reset and the servo enabled again: it moves",
+    "zapi_handshake": "the application misses the ZAPI handshake for a moment: alarm 248",
+    "bus_off": "the rig's CAN controller goes bus-off for 3 s: every node falls silent",
+}
+
+#: The panel's button for each of :data:`DEMO_FAULTS`.
+FAULT_LABELS: Mapping[str, str] = {
+    "unplug_io": "Unplug the I/O module",
+    "replug_io": "Plug it back",
+    "servo_fault": "Servo drive fault",
+    "servo_reset": "Reset the servo and enable it",
+    "zapi_handshake": "Break the ZAPI handshake",
+    "bus_off": "Rig bus-off (3 s)",
+}
 
 #: The thesis bench's network file (also ``examples/networks/thesis.yml``); its EDS files are
 #: exported from the simulated devices into the demo's working folder.
@@ -87,7 +115,8 @@ class Demo:
         self.workdir = workdir
         self.channel = channel or f"cobus-demo-{os.getpid()}-{id(self):x}"
         self.rig = Rig.load(ready_rig("thesis"))
-        self.rig_net = AsyncNetwork(interface="virtual", channel=self.channel)
+        # (through the rig's FaultyBus: its controller can go bus-off)
+        self.rig_net = self.rig.create_network(interface="virtual", channel=self.channel)
         self.master_net = AsyncNetwork(interface="virtual", channel=self.channel)
         self.master: Master | None = None
         #: Every rig node as the master's network sees it: heartbeats and emergencies.
@@ -102,11 +131,18 @@ class Demo:
         #: Times the ZAPI handshake was lost (a cycle unanswered: a busy machine) and the
         #: application acknowledged the alarm and restarted the inverter.
         self.zapi_restarts = 0
+        #: The alarms of the master and of the ZAPI adapter (history in ``workdir``).
+        self.alarms: AlarmHandler | None = None
+        #: The operator panel (:func:`run_demo` with ``panel``) and its address.
+        self.panel: Any = None
+        self.panel_url = ""
         self._tasks: list[asyncio.Task[None]] = []
 
     # -- life cycle
-    async def start(self) -> None:
-        """Connect both networks, start the rig, boot it with the master, start the application."""
+    async def start(self, before_boot: Callable[[Demo], Awaitable[None]] | None = None) -> None:
+        """Connect both networks, start the rig, boot it with the master, start the
+        application; ``before_boot`` runs once the master exists, before it boots (the panel
+        attaches there)."""
         await self.rig_net.connect()
         await self.master_net.connect()
         await self.rig.start(self.rig_net)
@@ -118,8 +154,13 @@ class Demo:
         self.started_at = self.master_net.time()
         self.master = Master(self.master_net, config)
         self.master.add_listener(self._on_master_event)
+        self.alarms = AlarmHandler(self.workdir / "alarms.sqlite", clock=self.master_net.time)
+        self.alarms.attach_master(self.master, emcy_tables={"servo": "cia402"})
+        if before_boot is not None:
+            await before_boot(self)
         await self.master.boot(timeout=10)
         self.zapi = AsyncZapiDrive(self.master, "zapi")
+        self.alarms.attach_zapi(self.zapi)
         self._tasks = [
             asyncio.create_task(self._sweep_potentiometer()),
             asyncio.create_task(self._run_servo()),
@@ -147,9 +188,38 @@ class Demo:
             self.servo.close()
         if self.master is not None:
             await self.master.stop()
+        if self.alarms is not None:
+            self.alarms.close()
         await self.rig.stop()
         await self.master_net.disconnect()
         await self.rig_net.disconnect()
+        self.rig.close_bus()
+
+    # -- the faults
+    async def fault(self, name: str) -> str:
+        """Inject one of :data:`DEMO_FAULTS`; what was done. ValueError for another name."""
+        if name not in DEMO_FAULTS:
+            raise ValueError(f"fault {name!r}: one of {', '.join(DEMO_FAULTS)}")
+        if name == "unplug_io":
+            self.rig.inject(IO, "power_loss")
+        elif name == "replug_io":
+            self.rig.inject(IO, "power_return")
+        elif name == "servo_fault":
+            self.rig.inject(SERVO, "drive_fault", code=0x7305)
+        elif name == "servo_reset":
+            if self.servo is None:
+                raise ValueError("the servo's application has not started yet")
+            await self.servo.fault_reset(timeout=2.0)
+            await self.servo.enable(timeout=2.0)
+        elif name == "zapi_handshake":
+            if self.zapi is None:
+                raise ValueError("the ZAPI adapter has not started yet")
+            self.zapi.answering = False
+            await asyncio.sleep(0.2)  # ten SYNC periods unanswered
+            self.zapi.answering = True
+        elif name == "bus_off":
+            self.rig.inject(None, "bus_off", duration=3.0)
+        return DEMO_FAULTS[name]
 
     # -- the application
     def _pot(self) -> float:
@@ -324,6 +394,54 @@ def render(
     return "\n".join(lines)
 
 
+async def start_panel(demo: Demo, host: str, port: int, out: TextIO, **options: Any) -> Any:
+    """The operator panel for ``demo`` (its master, alarms and fault buttons), started on
+    ``host``:``port``, or on any free port if that one is taken (``out`` is told);
+    ``options`` go to :class:`~cobus.apps.panel.Panel` (``token``...)."""
+    from cobus.apps.panel import Panel, PanelError, serve_alarms, serve_master
+
+    assert demo.master is not None and demo.alarms is not None
+
+    async def fault(message: Mapping[str, Any]) -> str:
+        name = message.get("fault")
+        if not isinstance(name, str):
+            raise ValueError(f"fault: one of {', '.join(DEMO_FAULTS)}")
+        return await demo.fault(name)
+
+    def build(port: int) -> Panel:
+        panel = Panel(
+            host=host, port=port, clock=demo.master_net.time, title="cobus demo", **options
+        )
+        serve_master(panel, demo.master)  # type: ignore[arg-type]
+        serve_alarms(panel, demo.alarms)  # type: ignore[arg-type]
+        panel.command("demo.fault", fault, writes=True, help="inject one of the demo's faults")
+        panel.hub.info["faults"] = [
+            {"name": name, "label": FAULT_LABELS[name], "text": text}
+            for name, text in DEMO_FAULTS.items()
+        ]
+        return panel
+
+    panel = build(port)
+    try:
+        await panel.start()
+    except PanelError as exc:
+        if port == 0:
+            raise
+        out.write(f"cobus demo: {exc}; the panel takes another port\n")
+        panel = build(0)
+        await panel.start()
+    return panel
+
+
+def _display() -> bool:
+    """Whether a browser can be opened here (a desktop session)."""
+    return bool(
+        os.environ.get("DISPLAY")
+        or os.environ.get("WAYLAND_DISPLAY")
+        or sys.platform in ("darwin", "win32")
+    )
+
+
 async def run_demo(
     *,
     duration: float | None,
@@ -332,20 +450,41 @@ async def run_demo(
     clear: bool,
     workdir: Path,
     on_tick: Callable[[Demo], None] | None = None,
+    panel: tuple[str, int] | None = None,
+    open_browser: bool = False,
 ) -> Demo:
-    """Run the demo until ``duration`` seconds have passed (None: until cancelled)."""
+    """Run the demo until ``duration`` seconds have passed (None: until cancelled), with the
+    operator panel on ``panel`` (host, port) if given (``demo.panel`` then)."""
     demo = Demo(workdir)
-    await demo.start()
+    served: list[Any] = []
+
+    async def attach(d: Demo) -> None:
+        assert panel is not None
+        served.append(await start_panel(d, panel[0], panel[1], out))
+        url = served[0].url
+        demo.panel_url = url
+        out.write(f"cobus demo: the operator panel is at {url}\n")
+        out.flush()
+        if open_browser and _display():
+            import webbrowser
+
+            await asyncio.get_running_loop().run_in_executor(None, webbrowser.open, url)
+
     try:
+        await demo.start(before_boot=attach if panel is not None else None)
+        demo.panel = served[0] if served else None
         end = None if duration is None else demo.master_net.time() + duration - 1e-6
         while end is None or demo.master_net.time() < end:
             await asyncio.sleep(refresh)
-            text = render(demo.rows(), demo.elapsed(), status=demo.sync_status())
+            title = "cobus demo" + (f" — panel {demo.panel_url}" if demo.panel_url else "")
+            text = render(demo.rows(), demo.elapsed(), title=title, status=demo.sync_status())
             out.write(("\x1b[H\x1b[2J" if clear else "\n") + text + "\n")
             out.flush()
             if on_tick is not None:
                 on_tick(demo)
     finally:
+        for server in served:
+            await server.stop()
         await demo.stop()
     return demo
 
@@ -360,7 +499,9 @@ def register(sub: Any) -> None:
             "simulated rig (ZAPI ACE2 inverter, remote I/O with a speed potentiometer, CiA 402 "
             "servo, EC motor, STÖBER MDS 5000); the cobus master boots and supervises it, and a "
             "small application runs the servo and the ZAPI inverter at a speed that follows the "
-            "potentiometer. A live table shows every node."
+            "potentiometer. The operator panel (http://127.0.0.1:8047/) shows the network and "
+            "the alarms, with buttons that inject faults; a live table shows every node on the "
+            "terminal too."
         ),
     )
     parser.add_argument("--duration", type=seconds, help="stop after this many seconds")
@@ -371,6 +512,18 @@ def register(sub: Any) -> None:
         help="run on the simulated clock (as fast as the machine goes; for tests)",
     )
     parser.add_argument("--no-clear", action="store_true", help="print tables one after the other")
+    parser.add_argument(
+        "--listen",
+        type=listen_address,
+        default=("127.0.0.1", 8047),
+        metavar="HOST:PORT",
+        help="where the operator panel listens (default 127.0.0.1:8047, another free port if "
+        "taken; beyond 127.0.0.1 its buttons need the token its address carries)",
+    )
+    parser.add_argument("--no-panel", action="store_true", help="no operator panel")
+    parser.add_argument(
+        "--no-browser", action="store_true", help="do not open the panel in a browser"
+    )
     parser.set_defaults(handler=run)
 
 
@@ -387,6 +540,9 @@ def run(args: argparse.Namespace) -> int:
             out=sys.stdout,
             clear=clear,
             workdir=Path(tmp),
+            # (on the simulated clock the panel would see time race: none there)
+            panel=None if args.no_panel or args.simulated else args.listen,
+            open_browser=not args.no_browser and sys.stdout.isatty(),
         )
         if args.simulated:
             if args.duration is None:

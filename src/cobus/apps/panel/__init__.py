@@ -2,6 +2,7 @@
 
     panel = Panel(port=8047)             # 127.0.0.1 unless told otherwise
     serve_master(panel, master)          # the Network page: nodes, LEDs, NMT buttons, bus load
+    serve_alarms(panel, alarm_handler)   # the Alarms page and the rotating current-alarm line
     await panel.start()                  # aiohttp in this loop: no thread, no signal handlers
     print(panel.url)
 
@@ -10,11 +11,13 @@ files (package data, no build step; uPlot vendored) talking to the server over o
 :mod:`cobus.apps.panel.server` tells the protocol, :mod:`cobus.apps.panel.hub` the queues.
 """
 
+from cobus.apps.panel.alarms import AlarmView, serve_alarms
 from cobus.apps.panel.hub import Client, Hub
 from cobus.apps.panel.network import MasterView, serve_master
 from cobus.apps.panel.server import Command, CommandError, Panel, PanelError
 
 __all__ = [
+    "AlarmView",
     "Client",
     "Command",
     "CommandError",
@@ -22,5 +25,6 @@ __all__ = [
     "MasterView",
     "Panel",
     "PanelError",
+    "serve_alarms",
     "serve_master",
 ]

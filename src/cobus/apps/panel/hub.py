@@ -133,6 +133,8 @@ class Hub:
         self.info: dict[str, Any] = {}
         #: Clients dropped because they stalled, since start.
         self.dropped = 0
+        #: Called before each snapshot, so that it carries the state as it is now.
+        self.before_snapshot: Callable[[], None] | None = None
         self._names = 0
 
     # ------------------------------------------------------------------ clients
@@ -145,6 +147,8 @@ class Hub:
 
     def snapshot(self) -> dict[str, Any]:
         """Everything a page needs to draw itself: state, recent events, plotted series."""
+        if self.before_snapshot is not None:
+            self.before_snapshot()
         return {
             "type": "snapshot",
             "seq": self.seq,

@@ -133,8 +133,10 @@ class Panel:
         self._clock = clock
         self.hub = Hub(self._now, max_events=max_events, stall=stall)
         self.hub.info.update({"title": title, "needs_token": self.needs_token})
+        self.hub.before_snapshot = self._sample
         self.commands: dict[str, Command] = {}
         self._samplers: list[Callable[[], Mapping[str, Any]]] = []
+        self._routes: list[tuple[str, str, Any]] = []
         self._runner: web.AppRunner | None = None
         self._ticker: asyncio.Task[None] | None = None
         self._sockets: set[web.WebSocketResponse] = set()
@@ -152,6 +154,18 @@ class Panel:
         if name in self.commands or name == "resync":
             raise ValueError(f"the panel already has a command {name!r}")
         self.commands[name] = Command(name, handler, writes, help)
+
+    def route(
+        self,
+        method: str,
+        path: str,
+        handler: Callable[[web.Request], Awaitable[web.StreamResponse]],
+    ) -> None:
+        """Serve ``path`` (read-only things: a CSV export...) with ``handler``; before
+        :meth:`start`. It gets the same Host check and headers as every page."""
+        if self._runner is not None:
+            raise PanelError(f"add {path} before the panel starts")
+        self._routes.append((method, path, handler))
 
     def sample(self, sampler: Callable[[], Mapping[str, Any]]) -> None:
         """Call ``sampler`` ``rate`` times a second; the keys it returns update the state."""
@@ -174,6 +188,8 @@ class Panel:
         app.router.add_get("/", self._index)
         app.router.add_get("/ws", self._websocket)
         app.router.add_static("/static/", STATIC, follow_symlinks=False)
+        for method, path, handler in self._routes:
+            app.router.add_route(method, path, handler)
         app.on_shutdown.append(self._close_sockets)
         return app
 
@@ -217,7 +233,12 @@ class Panel:
         await self.stop()
 
     def refresh(self) -> None:
-        """Take a sample now (the ticker does so ``rate`` times a second)."""
+        """Take a sample now (the ticker does so ``rate`` times a second) and drop the
+        clients that stalled."""
+        self._sample()
+        self.hub.check()
+
+    def _sample(self) -> None:
         for sampler in self._samplers:
             try:
                 values = sampler()
@@ -225,7 +246,6 @@ class Panel:
                 log.exception("a panel sampler failed")
                 continue
             self.hub.update(values)
-        self.hub.check()
 
     async def _tick(self) -> None:
         while True:

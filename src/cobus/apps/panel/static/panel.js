@@ -45,6 +45,7 @@ class NetworkPage {
     this.busLoad = [[], []];
     this.plot = null;
     $("#all-nodes").addEventListener("click", (e) => this.nmtButton(e));
+    $("#demo-faults").addEventListener("click", (e) => this.faultButton(e));
     $("#nodes tbody").addEventListener("click", (e) => this.nmtButton(e));
     setInterval(() => this.tick(), 250);
   }
@@ -67,6 +68,29 @@ class NetworkPage {
     }
   }
 
+  async faultButton(e) {
+    const button = e.target.closest("button[data-fault]");
+    if (!button) return;
+    button.disabled = true;
+    try {
+      const said = await this.link.command("demo.fault", {fault: button.dataset.fault});
+      notice(`Fault injected: ${said}`, "info");
+    } catch (err) {
+      notice(err.text || String(err));
+    } finally {
+      button.disabled = !this.writable();
+    }
+  }
+
+  faults(faults) {
+    const bar = $("#demo-faults");
+    bar.hidden = !faults;
+    if (!faults) return;
+    bar.replaceChildren(el("span", {class: "label"}, "Demo faults:"),
+      ...faults.map((f) => el("button", {"data-fault": f.name, title: f.text, class: "fault"},
+                              f.label)));
+  }
+
   writable() {
     return !this.link.info.needs_token || Boolean(this.link.token);
   }
@@ -76,6 +100,7 @@ class NetworkPage {
     body.replaceChildren();
     this.rows.clear();
     for (const info of msg.info.nodes || []) this.addRow(body, info);
+    this.faults(msg.info.faults);
     for (const [key, value] of Object.entries(msg.state)) this.update(key, value);
     // the plot's x axis is wall-clock time here: the panel's clock moved by their offset
     const offset = Date.now() / 1000 - this.link.now();
@@ -201,6 +226,160 @@ class NetworkPage {
   }
 }
 
+// ----------------------------------------------------------------------------- Alarms page
+function dateTime(epoch) {
+  if (epoch == null) return "";
+  const d = new Date(epoch * 1000);
+  const pad = (n) => String(n).padStart(2, "0");
+  return `${d.getFullYear()}-${pad(d.getMonth() + 1)}-${pad(d.getDate())} ` +
+         `${pad(d.getHours())}:${pad(d.getMinutes())}:${pad(d.getSeconds())}`;
+}
+
+const nodeText = (node) => (node == null ? "—" : String(node));
+// EMCY codes as the documents write them (7305h), other codes in decimal
+const codeText = (source, code) =>
+  source === "emcy" ? `${code.toString(16).toUpperCase().padStart(4, "0")}h` : String(code);
+
+class AlarmsPage {
+  constructor(link) {
+    this.link = link;
+    this.historyDue = null;
+    $("#ack-all").addEventListener("click", () => this.ack({all: true}, $("#ack-all")));
+    $("#active-alarms tbody").addEventListener("click", (e) => {
+      const button = e.target.closest("button[data-ack]");
+      if (button) this.ack(JSON.parse(button.dataset.ack), button);
+    });
+    const form = $("#history-filter");
+    form.addEventListener("submit", (e) => { e.preventDefault(); this.history(); });
+    form.addEventListener("input", () => this.csvLink());
+    window.addEventListener("hashchange", () => { if (this.visible()) this.history(); });
+  }
+
+  visible() { return location.hash === "#alarms"; }
+
+  enabled(info) { return Boolean(info.alarms); }
+
+  snapshot(msg) {
+    const on = this.enabled(msg.info);
+    $('#pages a[data-page="alarms"]').hidden = !on;
+    $("#current-alarm").hidden = !on;
+    if (!on) return;
+    $("#ack-all").disabled = !pages.network.writable();
+    this.update("alarms/current", msg.state["alarms/current"]);
+    this.update("alarms/active", msg.state["alarms/active"] || []);
+    this.update("alarms/summary", msg.state["alarms/summary"] || {});
+    this.csvLink();
+    if (this.visible()) this.history();
+  }
+
+  update(key, value) {
+    if (key === "alarms/current") this.current(value);
+    else if (key === "alarms/active") {
+      this.active(value);
+      this.current(this.link.state["alarms/current"]);  // its "n of m" follows the list
+    }
+    else if (key === "alarms/summary") {
+      const count = $("#alarm-count");
+      count.textContent = String(value.unacknowledged || 0);
+      count.hidden = !value.unacknowledged;
+    }
+  }
+
+  current(alarm) {
+    const line = $("#current-alarm");
+    if (!alarm) {
+      line.className = "alarm-line none";
+      line.textContent = "no active alarm";
+      return;
+    }
+    const active = this.link.state["alarms/active"] || [];
+    const position = active.findIndex((a) => a.source === alarm.source &&
+                                              a.node === alarm.node && a.code === alarm.code);
+    const node = alarm.node == null ? "" : `node ${alarm.node} `;
+    line.className = `alarm-line ${alarm.severity}`;
+    line.replaceChildren(
+      `${node}${alarm.source} ${alarm.code_text}: ${alarm.text} `,
+      el("span", {class: "which"},
+         `${position + 1} of ${active.length} · since ${dateTime(alarm.raised_at)}` +
+         (alarm.acknowledged_by ? ` · acknowledged by ${alarm.acknowledged_by}` : " · not acknowledged")));
+  }
+
+  active(alarms) {
+    const body = $("#active-alarms tbody");
+    const writable = pages.network.writable();
+    body.replaceChildren(...alarms.map((a) => {
+      const key = JSON.stringify({source: a.source, node: a.node, code: a.code});
+      const button = a.acknowledged_by ? "" :
+        el("button", {"data-ack": key, ...(writable ? {} : {disabled: ""})}, "Acknowledge");
+      return el("tr", {class: `sev-${a.severity}${a.acknowledged_by ? "" : " unacked"}`},
+        el("td", {}, dateTime(a.raised_at)), el("td", {class: "num"}, nodeText(a.node)),
+        el("td", {}, a.source), el("td", {}, a.code_text), el("td", {}, a.text),
+        el("td", {class: "sev"}, a.severity), el("td", {}, a.acknowledged_by || ""),
+        el("td", {}, button));
+    }));
+    $("#no-active").hidden = alarms.length > 0;
+  }
+
+  async ack(args, button) {
+    button.disabled = true;
+    try {
+      await this.link.command("alarm.ack", args);
+      notice("");
+    } catch (err) {
+      notice(err.text || String(err));
+    } finally {
+      button.disabled = !pages.network.writable();  // (a row's button goes with its row)
+    }
+  }
+
+  filters() {
+    const form = new FormData($("#history-filter"));
+    const out = {};
+    const node = form.get("node");
+    if (node !== "") out.node = Number(node);
+    const source = String(form.get("source") || "").trim();
+    if (source) out.source = source;
+    const active = form.get("active");
+    if (active) out.active = active === "true";
+    const since = form.get("since");
+    if (since) out.since = new Date(since).getTime() / 1000;
+    return out;
+  }
+
+  csvLink() {
+    const query = new URLSearchParams();
+    for (const [k, v] of Object.entries(this.filters())) query.set(k, String(v));
+    const text = query.toString();
+    $("#history-csv").href = `/alarms.csv${text ? `?${text}` : ""}`;
+  }
+
+  async history() {
+    if (!this.enabled(this.link.info)) return;
+    const note = $("#history-note");
+    try {
+      const rows = await this.link.command("alarm.history", {...this.filters(), limit: 500});
+      note.hidden = rows.length > 0;
+      note.textContent = "No alarm in the history matches.";
+      $("#alarm-history tbody").replaceChildren(...rows.map((r) => el("tr",
+        {class: `sev-${r.severity}`, "data-id": String(r.id)},
+        el("td", {}, dateTime(r.raised_at)), el("td", {class: "num"}, nodeText(r.node)),
+        el("td", {}, r.source), el("td", {}, codeText(r.source, r.code)), el("td", {}, r.text),
+        el("td", {class: "sev"}, r.severity),
+        el("td", {}, r.cleared_at == null ? "active" : dateTime(r.cleared_at)),
+        el("td", {}, r.acknowledged_by ? `${dateTime(r.acknowledged_at)} by ${r.acknowledged_by}` : ""))));
+    } catch (err) {
+      note.hidden = false;
+      note.textContent = err.text || String(err);
+    }
+  }
+
+  event(ev) {
+    if (ev.kind !== "alarm" || !this.visible()) return;
+    clearTimeout(this.historyDue);  // several changes at once: one read of the history
+    this.historyDue = setTimeout(() => this.history(), 200);
+  }
+}
+
 // ----------------------------------------------------------------------------- the pages
 const pages = {};
 const link = new Link({
@@ -223,6 +402,7 @@ const link = new Link({
   },
 });
 pages.network = new NetworkPage(link);
+pages.alarms = new AlarmsPage(link);
 
 function show() {
   const name = (location.hash || "#network").slice(1);
