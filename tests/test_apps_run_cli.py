@@ -136,3 +136,32 @@ def test_a_panel_address_in_use_exits_3(tmp_path: Path, capsys: pytest.CaptureFi
         )
     assert code == 3
     assert "cannot serve the panel on 127.0.0.1:" in capsys.readouterr().err
+
+
+def test_sigterm_stops_the_run_in_order_and_says_so(tmp_path: Path) -> None:
+    import signal
+    import subprocess
+    import sys
+
+    with Network(interface="virtual", channel=f"cli-run-term-{os.getpid()}") as net:
+        servo = start_rig(net, Rig.loads(RIG)).aio.devices[10]
+        (tmp_path / "servo.eds").write_text(export_eds(servo.od))
+    (tmp_path / "line.yml").write_text(NETWORK)
+    sock = str(tmp_path / "panel.sock")
+    command = [sys.executable, "-m", "cobus", "run", str(tmp_path / "line.yml"), "--panel"]
+    command += ["--listen", "127.0.0.1:0", "--unix", sock, "-i", "virtual", "-c", "term"]
+    with subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    ) as child:
+        try:
+            assert child.stdout is not None
+            line = child.stdout.readline()
+            assert "the panel is at http://127.0.0.1:" in line, line
+            child.send_signal(signal.SIGTERM)
+            _out, err = child.communicate(timeout=20)
+        finally:
+            child.kill()
+    assert child.returncode == 0, err
+    assert "stopped by SIGTERM" in err
+    assert "the panel closed" in err and "supervision ended" in err
+    assert not Path(sock).exists()  # its socket file went with it

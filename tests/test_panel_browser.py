@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import re
 import shutil
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -127,6 +128,50 @@ def test_the_network_page_shows_the_rig_and_its_buttons_reach_the_nodes(tmp_path
                 await expect(history).to_have_count(1)
                 csv = await page.locator("#history-csv").get_attribute("href")
                 assert csv == "/alarms.csv?active=true"
+
+                # the servo's Drive page (it is faulted: reset it, take it over, run it)
+                await page.get_by_role("link", name="Drive: servo").click()
+                state = page.locator("#drive-state")
+                await expect(state).to_have_text("fault")
+                await expect(page.locator("#drive-alarm")).to_contain_text("7305h")
+                await expect(page.locator("#drive-holder")).to_have_text(
+                    "commanded by the application"
+                )
+                buttons = page.locator("#drive-buttons")
+                await expect(buttons.get_by_role("button", name="Enable")).to_be_disabled()
+                await page.get_by_role("button", name="Take over").click()
+                await expect(page.locator("#drive-holder")).to_have_text(
+                    "commanded from this panel"
+                )
+                await buttons.get_by_role("button", name="Fault reset").click()
+                await expect(state).to_have_text("switch on disabled")
+                await buttons.get_by_role("button", name="Enable").click()  # (confirmed)
+                await expect(state).to_have_text("operation enabled")
+                await page.locator('#drive-setpoint input[name="speed"]').fill("20000")
+                await page.locator('#drive-setpoint input[value="-1"]').check()
+                await page.locator("#drive-setpoint").get_by_role("button", name="Set").click()
+                speed = page.locator('#drive-plots [data-plot="speed"]')
+                await expect(speed).to_be_visible()
+
+                def fast(text: str | None) -> bool:
+                    return text is not None and float(text) < -15_000
+
+                for _ in range(100):  # the plotted speed follows: reverse, near the set-point
+                    values = await page.locator("#drive-values dd").all_text_contents()
+                    if values and fast(values[0]):
+                        break
+                    await asyncio.sleep(0.05)
+                else:
+                    raise AssertionError(f"the servo never ran at -20000: {values}")
+                await page.screenshot(path=str(artifacts() / "panel-drive.png"), full_page=True)
+                await page.get_by_role("button", name="QUICK STOP").click()
+                # (quick stop active, then - its option code 605Ah - switch on disabled)
+                await expect(state).to_have_text(re.compile("quick stop active|switch on disabled"))
+                assert demo.rig.devices[SERVO].status()["state"] != "operation_enabled"
+                await page.get_by_role("button", name="Give back to the application").click()
+                await expect(page.locator("#drive-holder")).to_have_text(
+                    "commanded by the application"
+                )
             finally:
                 await browser.close()
 

@@ -116,3 +116,12 @@ def test_recent_events_are_bounded() -> None:
 def test_bad_limits_are_refused(options: dict[str, float], text: str) -> None:
     with pytest.raises(ValueError, match=text):
         Hub(Clock(), **options)  # type: ignore[arg-type]
+
+
+def test_values_json_cannot_carry_become_null() -> None:
+    hub = Hub(Clock())
+    hub.update({"x": float("nan"), "y": {"a": [1.0, float("inf")]}})
+    assert hub.state == {"x": None, "y": {"a": [1.0, None]}}
+    client = hub.connect()
+    client.messages()
+    assert hub.update({"x": float("nan")}) == {}  # not sent again every tick

@@ -20,7 +20,7 @@ from typing import Any
 import aiohttp
 import pytest
 
-from cobus.apps.demo import IO, SERVO, Demo, start_panel
+from cobus.apps.demo import IO, SERVO, Demo, attach_drives, start_panel
 from cobus.apps.panel import CommandError, Panel, PanelError
 from cobus.apps.panel.server import CSP, STATIC
 
@@ -44,6 +44,7 @@ async def served(workdir: Path, **options: Any) -> AsyncIterator[tuple[Demo, Pan
 
     try:
         await demo.start(before_boot=attach)
+        attach_drives(demo, panels[0])
         yield demo, panels[0]
     finally:
         for panel in panels:
@@ -207,6 +208,10 @@ def test_nmt_buttons_reach_the_node_and_are_acknowledged(tmp_path: Path) -> None
         ('{"id": 8, "cmd": "alarm.history", "node": "9"}', "bad-argument", "node"),
         ('{"id": 8, "cmd": "alarm.history", "since": "yesterday"}', "bad-argument", "1970"),
         ('{"id": 9, "cmd": "demo.fault", "fault": "meteor"}', "bad-argument", "unplug_io"),
+        ('{"id": 10, "cmd": "nmt", "node": 9, "action": []}', "bad-argument", "action"),
+        ('{"id": 11, "cmd": "drive", "drive": "servo", "action": {}}', "bad-argument", "action"),
+        ('{"id": 12, "cmd": "drive", "drive": "pump", "action": "halt"}', "no-drive", "servo"),
+        ("[" * 30000 + "]" * 30000, "malformed", ""),
         ('{"id": 2, "cmd": "nmt", "node": 9, "action": "explode"}', "bad-argument", "preop"),
         ('{"id": 3, "cmd": "nmt", "node": "9", "action": "stop"}', "bad-argument", "node-ID"),
         ('{"id": 4, "cmd": "nmt", "node": true, "action": "stop"}', "bad-argument", "node-ID"),
@@ -240,13 +245,13 @@ def test_a_malformed_command_gets_a_typed_error_and_the_page_stays_connected(
 
 def test_a_panel_with_a_token_refuses_commands_without_it(tmp_path: Path) -> None:
     async def main() -> None:
-        async with served(tmp_path, token="s3cret") as (demo, panel):
-            assert panel.needs_token and panel.url.endswith("/?token=s3cret")
+        async with served(tmp_path, token="s3cret-token") as (demo, panel):
+            assert panel.needs_token and panel.url.endswith("/?token=s3cret-token")
             async with aiohttp.ClientSession() as http, page(http, base(panel) + "/ws") as ws:
                 snapshot = await ws.receive()
                 await running(demo)
                 assert snapshot["info"]["needs_token"] is True  # reading needs none
-                for given in (None, "wrong", 12):
+                for given in (None, "wrong", 12, "\ud800"):
                     command = {"id": 1, "cmd": "nmt", "node": IO, "action": "stop"}
                     if given is not None:
                         command["token"] = given
@@ -255,7 +260,7 @@ def test_a_panel_with_a_token_refuses_commands_without_it(tmp_path: Path) -> Non
                     assert error["code"] == "token" and "token" in error["text"]
                 assert nmt_of(demo, IO) == "OPERATIONAL"
                 await ws.send(
-                    {"id": 2, "cmd": "nmt", "node": IO, "action": "stop", "token": "s3cret"}
+                    {"id": 2, "cmd": "nmt", "node": IO, "action": "stop", "token": "s3cret-token"}
                 )
                 ack = await ws.reply()
                 assert ack["type"] == "ack"
@@ -351,14 +356,29 @@ def test_a_stuck_browser_is_dropped_and_the_others_go_on() -> None:
                     seen += message["type"] == "delta"
                 assert panel.hub.dropped == 1, "the stuck client was never dropped"
                 assert len(panel.hub.clients) == 1  # the reading one stays
+                # and its connection is cut, not left to the WebSocket heartbeat
+                stuck.settimeout(0)
+                cut = False
+                for _ in range(200):
+                    try:
+                        while stuck.recv(1 << 20):
+                            pass
+                        cut = True
+                    except BlockingIOError:
+                        await asyncio.sleep(0.01)
+                        continue
+                    except ConnectionError:
+                        cut = True
+                    break
+                assert cut, "the stalled connection stays open"
                 before = seen
                 for _ in range(5):
                     message = await ws.receive()
                     seen += message["type"] == "delta"
                 assert seen > before
         finally:
+            await asyncio.wait_for(panel.stop(), 5.0)  # a stuck page never holds the stop
             stuck.close()
-            await panel.stop()
 
     run(main())
 
@@ -481,5 +501,162 @@ def test_a_fault_raises_an_alarm_that_is_acknowledged_cleared_and_kept(tmp_path:
                 assert "Anna" in text and text.count("\n") >= 2
             async with http.get(base(panel) + "/alarms.csv?node=nine") as r:
                 assert r.status == 400
+
+    run(main())
+
+
+def test_a_page_that_stops_reading_never_holds_the_panel_stop() -> None:
+    async def main() -> None:
+        panel = Panel(port=0, stall=60)  # not dropped as stalled: the stop must cut it off
+        panel.sample(lambda: {"blob": "x" * 200_000 + str(asyncio.get_running_loop().time())})
+        await panel.start()
+        assert panel.bound is not None
+        stuck = socket.socket()
+        stuck.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        stuck.connect(("127.0.0.1", panel.bound[1]))
+        key = base64.b64encode(os.urandom(16)).decode()
+        stuck.sendall(
+            (
+                f"GET /ws HTTP/1.1\r\nHost: 127.0.0.1:{panel.bound[1]}\r\nUpgrade: websocket\r\n"
+                f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+                "Sec-WebSocket-Version: 13\r\n\r\n"
+            ).encode()
+        )
+        await asyncio.sleep(1.5)
+        assert len(panel.hub.clients) == 1
+        await asyncio.wait_for(panel.stop(), 5.0)
+        stuck.close()
+
+    run(main())
+
+
+def test_too_many_pages_are_refused(monkeypatch: pytest.MonkeyPatch) -> None:
+    from cobus.apps.panel import server
+
+    monkeypatch.setattr(server, "MAX_CLIENTS", 2)
+
+    async def main() -> None:
+        async with Panel(port=0) as panel, aiohttp.ClientSession() as http:
+            assert panel.bound is not None
+            url = f"http://127.0.0.1:{panel.bound[1]}/ws"
+            async with page(http, url) as one, page(http, url) as two:
+                await one.receive()
+                await two.receive()
+                with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
+                    await http.ws_connect(url)
+                assert refused.value.status == 503
+
+    run(main())
+
+
+def test_the_unix_socket_is_this_users_and_goes_with_the_panel(tmp_path: Path) -> None:
+    path = str(tmp_path / "panel.sock")
+    stale = socket.socket(socket.AF_UNIX)
+    stale.bind(path)  # left behind by a server that is gone
+    stale.close()
+
+    async def main() -> None:
+        async with Panel(port=0, unix=path) as panel:
+            assert not panel.needs_token
+            assert os.stat(path).st_mode & 0o777 == 0o600
+            connector = aiohttp.UnixConnector(path=path)
+            async with (
+                aiohttp.ClientSession(connector=connector) as http,
+                http.get("http://localhost/") as r,
+            ):
+                assert r.status == 200
+            with pytest.raises(PanelError, match="another server listens there"):
+                await Panel(port=0, unix=path).start()
+        assert not os.path.exists(path)
+
+    run(main())
+
+
+def test_tokens_are_long_enough_and_quoted_in_the_address() -> None:
+    with pytest.raises(PanelError, match="8 characters"):
+        Panel(token="")
+    panel = Panel(port=0, token="a+b&c#d%e")
+
+    async def main() -> None:
+        async with panel:
+            assert panel.url.endswith("/?token=a%2Bb%26c%23d%25e")
+
+    run(main())
+
+
+def test_drive_commands_carry_the_safety_a_drive_needs(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with (
+            served(tmp_path) as (demo, panel),
+            aiohttp.ClientSession() as http,
+            page(http, base(panel) + "/ws") as ws,
+        ):
+            snapshot = await ws.receive()
+            await running(demo)
+            for _ in range(300):  # the application enables the servo
+                if demo.servo.status.state.name == "OPERATION_ENABLED":  # type: ignore[union-attr]
+                    break
+                await asyncio.sleep(0.01)
+            drives = {d["name"]: d for d in snapshot["info"]["drives"]}
+            assert drives["servo"] == {
+                "name": "servo",
+                "kind": "cia402",
+                "node": SERVO,
+                "unit": "inc/s",
+            }
+            assert drives["zapi"]["kind"] == "zapi"
+            servo = snapshot["state"]["drive/servo"]
+            assert servo["holder"] == "application" and servo["kind"] == "cia402"
+
+            async def drive(action: str, **args: Any) -> dict[str, Any]:
+                await ws.send(
+                    {"id": action, "cmd": "drive", "drive": "servo", "action": action, **args}
+                )
+                return await ws.reply()
+
+            # while the application runs it: no set-point, no enable - but stopping, always
+            refused = await drive("speed", value=100)
+            assert (
+                refused["code"] == "not-holder" and "stopping is always allowed" in refused["text"]
+            )
+            halted = await drive("halt")
+            assert halted["type"] == "ack", halted
+            assert (await drive("take"))["result"] == {"holder": "panel"}
+            assert demo.panel_holds["servo"]()
+            assert (await drive("quick_stop"))["type"] == "ack"
+            state = demo.servo.status.state.name  # type: ignore[union-attr]
+            assert state in ("QUICK_STOP_ACTIVE", "SWITCH_ON_DISABLED")
+            refused = await drive("speed", value=100)
+            assert refused["code"] == "not-enabled"  # a set-point never enables a drive
+            refused = await drive("enable")
+            assert refused["code"] == "confirm" and "speed 0" in refused["text"]
+            enabled = await drive("enable", confirm=True)
+            assert enabled["type"] == "ack", enabled
+            assert demo.servo.status.state.name == "OPERATION_ENABLED"  # type: ignore[union-attr]
+            for value, text in ((1.5, "whole number"), ("fast", "signed speed"), (10**10, "..")):
+                refused = await drive("speed", value=value)
+                assert refused["code"] == "bad-argument" and text in refused["text"], refused
+            assert (await drive("speed", value=-5000))["result"] == {
+                "action": "speed",
+                "value": -5000,
+            }
+            assert (await drive("give"))["result"] == {"holder": "application"}
+            assert not demo.panel_holds["servo"]()
+
+            # the ZAPI inverter: the same rules
+            await ws.send({"id": "z", "cmd": "drive", "drive": "zapi", "action": "take"})
+            await ws.reply()
+            await ws.send({"id": "z1", "cmd": "drive", "drive": "zapi", "action": "enable"})
+            assert (await ws.reply())["code"] == "confirm"
+            await ws.send(
+                {"id": "z2", "cmd": "drive", "drive": "zapi", "action": "speed", "value": 500}
+            )
+            refused = await ws.reply()
+            assert (refused["type"] == "error" and "327.67" in refused["text"]) or refused[
+                "code"
+            ] == "not-enabled"
+            await ws.send({"id": "z3", "cmd": "drive", "drive": "zapi", "action": "release"})
+            assert (await ws.reply())["type"] == "ack"
+            assert demo.zapi is not None and demo.zapi.setpoint == 0.0
 
     run(main())

@@ -23,12 +23,15 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
+import signal
 import sys
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
 from cobus._args import add_bus_options, bus_options, seconds
+from cobus.errors import CobusError
 
 __all__ = ["listen_address", "register"]
 
@@ -117,10 +120,6 @@ def _run(args: argparse.Namespace) -> int:
 
 
 async def _serve(args: argparse.Namespace, config: Any, done: list[str]) -> int:
-    from cobus.apps.panel import Panel, PanelError, serve_alarms, serve_master
-    from cobus.blocks.alarms import AlarmHandler
-    from cobus.errors import CobusError
-    from cobus.master import Master, MasterEvent
     from cobus.runtime import AsyncNetwork
 
     network = AsyncNetwork(**bus_options(args))
@@ -128,7 +127,52 @@ async def _serve(args: argparse.Namespace, config: Any, done: list[str]) -> int:
         await network.connect()
     except (CobusError, OSError, ValueError) as exc:
         return _fail(f"cannot open the bus: {exc}", _EXIT_BUS)
+    # SIGTERM (systemd, docker stop) ends the run as Ctrl-C does: every step below undone
+    loop = asyncio.get_running_loop()
+    main = asyncio.current_task()
+    terminated: list[bool] = []
+
+    def terminate() -> None:
+        terminated.append(True)
+        if main is not None:
+            main.cancel()
+
+    with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
+        loop.add_signal_handler(signal.SIGTERM, terminate)
+    try:
+        async with contextlib.AsyncExitStack() as undo:
+            undo.push_async_callback(network.disconnect)
+            return await _supervise(args, config, network, undo, done)
+    except asyncio.CancelledError:
+        if not terminated:
+            raise  # Ctrl-C: asyncio.run turns it into KeyboardInterrupt, _run says what was done
+        print("cobus run: stopped by SIGTERM: " + "; ".join(done), file=sys.stderr)
+        return _EXIT_OK
+    finally:
+        with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
+            loop.remove_signal_handler(signal.SIGTERM)
+
+
+async def _supervise(
+    args: argparse.Namespace,
+    config: Any,
+    network: Any,
+    undo: contextlib.AsyncExitStack,
+    done: list[str],
+) -> int:
+    """Start the master (and the alarm handler, the panel), each undone by ``undo`` in the
+    reverse order, whatever fails; run until the duration is over or the task is cancelled."""
+    from cobus.apps.panel import Panel, PanelError, serve_alarms, serve_master
+    from cobus.blocks.alarms import AlarmHandler
+    from cobus.master import Master, MasterEvent
+
     master = Master(network, config)
+
+    async def stop_master() -> None:
+        await master.stop()
+        done.append("supervision ended, every node left in its NMT state")
+
+    undo.push_async_callback(stop_master)
     started = network.time()
 
     def said(event: MasterEvent) -> None:
@@ -136,23 +180,23 @@ async def _serve(args: argparse.Namespace, config: Any, done: list[str]) -> int:
 
     if not args.quiet:
         master.add_listener(said)
-    panel = None
     alarms = None
-    try:
-        if args.panel or args.history is not None:
-            try:
-                alarms = AlarmHandler(args.history, clock=network.time)
-            except CobusError as exc:
-                await network.disconnect()
-                return _fail(str(exc), _EXIT_USAGE)
-            alarms.attach_master(master)
-            if alarms.history_moved is not None:
-                print(
-                    f"cobus run: the alarm history was damaged; moved to {alarms.history_moved}",
-                    file=sys.stderr,
-                )
-        if args.panel:
-            host, port = args.listen
+    if args.panel or args.history is not None:
+        try:
+            alarms = AlarmHandler(args.history, clock=network.time)
+        except CobusError as exc:
+            return _fail(str(exc), _EXIT_USAGE)
+        undo.callback(alarms.close)
+        alarms.attach_master(master)
+        if alarms.history_moved is not None:
+            print(
+                f"cobus run: the alarm history was damaged; moved to {alarms.history_moved}",
+                file=sys.stderr,
+            )
+    if args.panel:
+        assert alarms is not None
+        host, port = args.listen
+        try:
             panel = Panel(
                 host=host,
                 port=port,
@@ -161,38 +205,33 @@ async def _serve(args: argparse.Namespace, config: Any, done: list[str]) -> int:
                 clock=network.time,
                 title=args.network.stem,
             )
-            serve_master(panel, master)
-            assert alarms is not None
-            serve_alarms(panel, alarms)
-            try:
-                await panel.start()
-            except PanelError as exc:
-                return _fail(str(exc), _EXIT_PANEL)
-            print(f"cobus run: the panel is at {panel.url}", flush=True)
-            if panel.needs_token:
-                print(
-                    "cobus run: commands from the panel need the token in that address",
-                    flush=True,
-                )
-        master.start()
-        done.append(f"the master supervised {len(master.nodes)} node(s)")
-        print(
-            f"cobus run: booting {len(master.nodes)} node(s) of {args.network} "
-            "(Ctrl-C stops supervision; nodes stay in their states)",
-            file=sys.stderr,
-            flush=True,
-        )
-        if args.duration is None:
-            await asyncio.Event().wait()  # until Ctrl-C
-        else:
-            await asyncio.sleep(args.duration)
-        return _EXIT_OK
-    finally:
-        if panel is not None:
+        except PanelError as exc:
+            return _fail(str(exc), _EXIT_USAGE)
+        undo.callback(serve_master(panel, master).close)
+        undo.callback(serve_alarms(panel, alarms).close)
+        try:
+            await panel.start()
+        except PanelError as exc:
+            return _fail(str(exc), _EXIT_PANEL)
+
+        async def stop_panel() -> None:
             await panel.stop()
             done.append("the panel closed")
-        await master.stop()
-        done.append("supervision ended, every node left in its NMT state")
-        if alarms is not None:
-            alarms.close()
-        await network.disconnect()
+
+        undo.push_async_callback(stop_panel)
+        print(f"cobus run: the panel is at {panel.url}", flush=True)
+        if panel.needs_token:
+            print("cobus run: commands from the panel need the token in that address", flush=True)
+    master.start()
+    done.append(f"the master supervised {len(master.nodes)} node(s)")
+    print(
+        f"cobus run: booting {len(master.nodes)} node(s) of {args.network} "
+        "(Ctrl-C stops supervision; nodes stay in their states)",
+        file=sys.stderr,
+        flush=True,
+    )
+    if args.duration is None:
+        await asyncio.Event().wait()  # until Ctrl-C or SIGTERM
+    else:
+        await asyncio.sleep(args.duration)
+    return _EXIT_OK

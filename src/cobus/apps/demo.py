@@ -136,7 +136,10 @@ class Demo:
         #: The operator panel (:func:`run_demo` with ``panel``) and its address.
         self.panel: Any = None
         self.panel_url = ""
+        #: For each drive the panel shows: whether the operator holds it (see ``_held``).
+        self.panel_holds: dict[str, Callable[[], bool]] = {}
         self._tasks: list[asyncio.Task[None]] = []
+        self._views: list[Any] = []  # the panel's drive views (closed with the drives)
 
     # -- life cycle
     async def start(self, before_boot: Callable[[Demo], Awaitable[None]] | None = None) -> None:
@@ -161,6 +164,7 @@ class Demo:
         await self.master.boot(timeout=10)
         self.zapi = AsyncZapiDrive(self.master, "zapi")
         self.alarms.attach_zapi(self.zapi)
+        self.servo = AsyncDrive402(self.master.node("servo"))  # RPDO4: controlword + velocity
         self._tasks = [
             asyncio.create_task(self._sweep_potentiometer()),
             asyncio.create_task(self._run_servo()),
@@ -177,6 +181,8 @@ class Demo:
             with contextlib.suppress(asyncio.CancelledError):
                 await task
         self._tasks = []
+        for view in self._views:
+            view.close()
         if self.zapi is not None:
             self.zapi.release()  # set-point 0, power stage off, contactor open
             self.zapi.close()
@@ -243,12 +249,20 @@ class Demo:
         """The ZAPI handshake cycles answered so far."""
         return self.zapi.cycles if self.zapi is not None else 0
 
+    def _held(self, name: str) -> bool:
+        """Whether the operator took the drive ``name`` over on the panel (the application
+        then leaves it alone until it is given back)."""
+        holds = self.panel_holds.get(name)
+        return holds is not None and holds()
+
     async def _run_servo(self) -> None:
-        assert self.master is not None
-        servo = AsyncDrive402(self.master.node("servo"))  # RPDO4: controlword + velocity
-        self.servo = servo
+        servo = self.servo
+        assert servo is not None
         await servo.enable()
         while True:
+            if self._held("servo"):
+                await asyncio.sleep(0.1)
+                continue
             velocity = round((self._pot() - 0.5) * 2 * SERVO_MAX_SPEED)
             # a faulted drive stays so (the table shows its EMCY): no reset behind the user
             with contextlib.suppress(DriveError):
@@ -263,6 +277,9 @@ class Demo:
         zapi = self.zapi
         assert zapi is not None
         while True:
+            if self._held("zapi"):
+                await asyncio.sleep(0.1)
+                continue
             if zapi.alarm or (zapi.cycles and not zapi.handshake_running):
                 why = f"alarm {zapi.alarm} {zapi.alarm_text}" if zapi.alarm else "no TPDO1"
                 self.events[ZAPI] = f"handshake lost ({why}): acknowledging, restarting"
@@ -433,6 +450,27 @@ async def start_panel(demo: Demo, host: str, port: int, out: TextIO, **options: 
     return panel
 
 
+#: The servo's motor temperature: 2000h in 0.1 degC (the simulated drive's object).
+SERVO_TEMPERATURE = (0x2000, 0, 0.1)
+
+
+def attach_drives(demo: Demo, panel: Any) -> None:
+    """The servo's and the ZAPI inverter's Drive pages; the application commands both until
+    the operator takes one over there."""
+    from cobus.apps.panel import serve_drive
+
+    for name, drive, temperature in (
+        ("servo", demo.servo, SERVO_TEMPERATURE),
+        ("zapi", demo.zapi, None),
+    ):
+        if drive is None:
+            continue
+        view = serve_drive(panel, name, drive, holder="application", temperature=temperature)
+        view.start()
+        demo.panel_holds[name] = view.panel_holds
+        demo._views.append(view)
+
+
 def _display() -> bool:
     """Whether a browser can be opened here (a desktop session)."""
     return bool(
@@ -473,6 +511,8 @@ async def run_demo(
     try:
         await demo.start(before_boot=attach if panel is not None else None)
         demo.panel = served[0] if served else None
+        if served:
+            attach_drives(demo, served[0])
         end = None if duration is None else demo.master_net.time() + duration - 1e-6
         while end is None or demo.master_net.time() < end:
             await asyncio.sleep(refresh)

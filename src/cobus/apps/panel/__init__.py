@@ -12,6 +12,7 @@ files (package data, no build step; uPlot vendored) talking to the server over o
 """
 
 from cobus.apps.panel.alarms import AlarmView, serve_alarms
+from cobus.apps.panel.drives import DriveView, serve_drive
 from cobus.apps.panel.hub import Client, Hub
 from cobus.apps.panel.network import MasterView, serve_master
 from cobus.apps.panel.server import Command, CommandError, Panel, PanelError
@@ -21,10 +22,12 @@ __all__ = [
     "Client",
     "Command",
     "CommandError",
+    "DriveView",
     "Hub",
     "MasterView",
     "Panel",
     "PanelError",
     "serve_alarms",
+    "serve_drive",
     "serve_master",
 ]

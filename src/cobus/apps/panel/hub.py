@@ -56,6 +56,9 @@ class Client:
         self.overflows = 0
         #: Why the client was closed ("" while it is open).
         self.closed = ""
+        #: Ends the client's connection at once (the server sets it; a stalled client's
+        #: send never finishes, so closing it politely would wait for ever).
+        self.abort: Callable[[], None] | None = None
 
     def __repr__(self) -> str:
         return f"<panel client {self.name} {len(self.events)} events {len(self.values)} values>"
@@ -171,7 +174,17 @@ class Hub:
         for client in stuck:
             self.dropped += 1
             client.close(f"stalled: a send took more than {self.stall:g} s")
+            if client.abort is not None:
+                client.abort()
         return stuck
+
+    def set_info(self, key: str, value: Any) -> None:
+        """Change one of the static facts; every client gets a new snapshot with it (a view
+        added after pages connected, e.g. a drive once the network booted)."""
+        self.info[key] = value
+        for client in self.clients:
+            client.resync = True
+            client.ready.set()
 
     # ------------------------------------------------------------------ publishing
     def plot(self, key: str) -> None:
@@ -181,7 +194,11 @@ class Hub:
     def update(self, values: Mapping[str, Any]) -> dict[str, Any]:
         """Set keys to new values; the ones that changed go to every client (conflated).
         Returns the changed ones."""
-        changed = {k: v for k, v in values.items() if k not in self.state or self.state[k] != v}
+        changed = {
+            k: v
+            for k, v in map(_finite, values.items())
+            if k not in self.state or self.state[k] != v
+        }
         if not changed:
             return changed
         now = self.clock()
@@ -215,3 +232,20 @@ class Hub:
                 client.events.append(event)
             client.ready.set()
         return event
+
+
+def _finite(item: tuple[str, Any]) -> tuple[str, Any]:
+    """A value as JSON carries it: NaN and infinities (which JSON has not) become None,
+    in lists and mappings too (and NaN, never equal to itself, is not sent every tick)."""
+    key, value = item
+    return key, _clean(value)
+
+
+def _clean(value: Any) -> Any:
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _clean(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_clean(v) for v in value]
+    return value

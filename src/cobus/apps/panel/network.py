@@ -173,7 +173,7 @@ class MasterView:
     # ------------------------------------------------------------------ commands
     async def _nmt(self, message: Mapping[str, Any]) -> dict[str, Any]:
         action = message.get("action")
-        if action not in NMT_ACTIONS:
+        if not isinstance(action, str) or action not in NMT_ACTIONS:
             raise ValueError(f"action {action!r}: one of {', '.join(NMT_ACTIONS)}")
         target = message.get("node")
         nmt = self.master.network.nmt

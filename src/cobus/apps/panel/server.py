@@ -32,12 +32,15 @@ import hmac
 import ipaddress
 import json
 import logging
+import os
 import secrets
+import socket
+import stat
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlsplit
+from urllib.parse import quote, urlsplit
 
 from aiohttp import WSMsgType, web
 
@@ -55,6 +58,10 @@ MAX_MESSAGE = 64 * 1024
 MAX_PENDING = 16
 #: Replies a page has not taken before it counts as not reading (it is dropped).
 MAX_REPLIES = 256
+#: Pages connected at once; more are refused (each costs the bus loop some work per tick).
+MAX_CLIENTS = 32
+#: The shortest token a panel takes.
+MIN_TOKEN = 8
 _LOOPBACK_NAMES = {"localhost", "127.0.0.1", "::1"}
 CSP = (
     "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'; base-uri 'none'; "
@@ -128,6 +135,8 @@ class Panel:
         self.port = port
         self.unix = unix
         self.rate = rate
+        if token is not None and len(token) < MIN_TOKEN:
+            raise PanelError(f"a token of {MIN_TOKEN} characters at least (or none: a random one)")
         self.needs_token = token is not None or not is_loopback(host)
         self.token = token if token is not None else secrets.token_urlsafe(18)
         self._clock = clock
@@ -135,11 +144,14 @@ class Panel:
         self.hub.info.update({"title": title, "needs_token": self.needs_token})
         self.hub.before_snapshot = self._sample
         self.commands: dict[str, Command] = {}
+        #: What the views keep on the panel (the drives' command router...), by name.
+        self.views: dict[str, Any] = {}
         self._samplers: list[Callable[[], Mapping[str, Any]]] = []
         self._routes: list[tuple[str, str, Any]] = []
         self._runner: web.AppRunner | None = None
         self._ticker: asyncio.Task[None] | None = None
-        self._sockets: set[web.WebSocketResponse] = set()
+        #: The open WebSockets, each with what cuts its connection off.
+        self._sockets: dict[web.WebSocketResponse, Callable[[], None]] = {}
         self.bound: tuple[str, int] | None = None
 
     def _now(self) -> float:
@@ -179,7 +191,7 @@ class Panel:
             raise PanelError("the panel is not started")
         host, port = self.bound
         shown = f"[{host}]" if ":" in host else host
-        query = f"?token={self.token}" if self.needs_token else ""
+        query = f"?token={quote(self.token, safe='')}" if self.needs_token else ""
         return f"http://{shown}:{port}/{query}"
 
     def app(self) -> web.Application:
@@ -195,16 +207,20 @@ class Panel:
 
     async def start(self) -> None:
         """Serve in the running loop; :class:`PanelError` if the address cannot be bound."""
+        if self.unix is not None:
+            _free_unix_path(self.unix)
         runner = web.AppRunner(self.app(), handle_signals=False, access_log=None)
         await runner.setup()
+        where = f"{self.host}:{self.port}"
         try:
             site = web.TCPSite(runner, self.host, self.port)
             await site.start()
             if self.unix is not None:
+                where = self.unix
                 await web.UnixSite(runner, self.unix).start()
+                os.chmod(self.unix, 0o600)  # this user's only: it needs no token
         except OSError as exc:
             await runner.cleanup()
-            where = f"{self.host}:{self.port}" if self.unix is None else self.unix
             raise PanelError(
                 f"cannot serve the panel on {where}: {exc.strerror or exc} (give another "
                 "--listen address, or port 0 for any free one)"
@@ -224,6 +240,9 @@ class Panel:
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None
+            if self.unix is not None:
+                with contextlib.suppress(OSError):
+                    os.unlink(self.unix)
 
     async def __aenter__(self) -> Panel:
         await self.start()
@@ -253,9 +272,14 @@ class Panel:
             await asyncio.sleep(1.0 / self.rate)
 
     async def _close_sockets(self, _app: web.Application) -> None:
-        for ws in list(self._sockets):
-            with contextlib.suppress(Exception):
-                await ws.close(code=1001, message=b"the panel stops")
+        async def close(ws: web.WebSocketResponse) -> None:
+            try:
+                await asyncio.wait_for(ws.close(code=1001, message=b"the panel stops"), 1.0)
+            except Exception:  # (a page that does not read: cut it off)
+                with contextlib.suppress(Exception):
+                    self._sockets.get(ws, _nothing)()
+
+        await asyncio.gather(*(close(ws) for ws in list(self._sockets)))
 
     # ------------------------------------------------------------------ HTTP
     @web.middleware
@@ -283,10 +307,14 @@ class Panel:
         origin = request.headers.get("Origin")
         if origin is not None and urlsplit(origin).netloc != request.host:
             return _refused(403, f"a page from {clip(origin)} may not use this panel")
+        if len(self.hub.clients) >= MAX_CLIENTS:
+            return _refused(503, f"{MAX_CLIENTS} pages are open on this panel already")
         ws = web.WebSocketResponse(max_msg_size=MAX_MESSAGE, heartbeat=20.0)
         await ws.prepare(request)
         client = self.hub.connect()
-        self._sockets.add(ws)
+        transport = request.transport
+        client.abort = transport.abort if transport is not None else _nothing
+        self._sockets[ws] = client.abort
         sender = asyncio.create_task(self._send(ws, client), name=f"cobus panel {client.name}")
         pending: set[asyncio.Task[None]] = set()
         try:
@@ -301,7 +329,7 @@ class Panel:
                     break
         finally:
             client.close(client.closed or "disconnected")
-            self._sockets.discard(ws)
+            self._sockets.pop(ws, None)
             for task in pending:
                 task.cancel()
             sender.cancel()
@@ -332,26 +360,28 @@ class Panel:
                     await self._put(ws, client, client.delta())
         except (ConnectionError, RuntimeError):
             client.close("connection lost")
-        if client.closed.startswith("stalled"):
-            # the browser stopped reading: end the connection without waiting for it
-            with contextlib.suppress(Exception):
-                ws._writer.transport.abort()  # type: ignore[union-attr]
-            with contextlib.suppress(Exception):
-                await asyncio.wait_for(ws.close(code=1008, message=b"stalled"), 0.5)
 
     async def _put(self, ws: web.WebSocketResponse, client: Client, message: Any) -> None:
         client.sending_since = self.hub.clock()
         try:
-            await ws.send_str(json.dumps(message, separators=(",", ":"), default=str))
+            await ws.send_str(
+                json.dumps(message, separators=(",", ":"), default=str, allow_nan=False)
+            )
         finally:
             client.sending_since = None
 
     # ------------------------------------------------------------------ commands
     def _receive(self, client: Client, text: str, pending: set[asyncio.Task[None]]) -> None:
         try:
+            self._take(client, text, pending)
+        except Exception as exc:  # (whatever a page sends, the connection stays)
+            client.reply(_error(None, "malformed", f"cannot take that message: {clip(str(exc))}"))
+
+    def _take(self, client: Client, text: str, pending: set[asyncio.Task[None]]) -> None:
+        try:
             message = json.loads(text)
-        except ValueError as exc:
-            client.reply(_error(None, "malformed", f"not JSON: {exc}"))
+        except (ValueError, RecursionError) as exc:
+            client.reply(_error(None, "malformed", f"not JSON: {clip(str(exc))}"))
             return
         if not isinstance(message, dict):
             client.reply(_error(None, "malformed", 'send a JSON object: {"id": 1, "cmd": ...}'))
@@ -377,7 +407,7 @@ class Panel:
         if command.writes and self.needs_token:
             given = message.get("token")
             if not isinstance(given, str) or not hmac.compare_digest(
-                given.encode(), self.token.encode()
+                given.encode("utf-8", "surrogatepass"), self.token.encode()
             ):
                 client.reply(
                     _error(
@@ -416,6 +446,27 @@ class Panel:
         else:
             reply = {"type": "ack", "id": ident, "result": result}
         client.reply(reply)
+
+
+def _nothing() -> None:
+    pass
+
+
+def _free_unix_path(path: str) -> None:
+    """Refuse a Unix socket path another live server listens on; remove a stale one."""
+    if not os.path.exists(path):
+        return
+    if not stat.S_ISSOCK(os.stat(path).st_mode):
+        raise PanelError(f"cannot serve the panel on {path}: it exists and is no socket")
+    probe = socket.socket(socket.AF_UNIX)
+    try:
+        probe.connect(path)
+    except OSError:
+        os.unlink(path)  # left behind by a server that is gone
+        return
+    finally:
+        probe.close()
+    raise PanelError(f"cannot serve the panel on {path}: another server listens there")
 
 
 def _secure(headers: Any) -> None:

@@ -30,7 +30,16 @@ export class Link {
     const ws = new WebSocket(`${scheme}://${location.host}/ws`);
     this.ws = ws;
     ws.onopen = () => { this.pause = 500; this.handlers.status(true, "connected"); };
-    ws.onmessage = (e) => this.receive(JSON.parse(e.data));
+    ws.onmessage = (e) => {
+      let msg;
+      try {
+        msg = JSON.parse(e.data);
+      } catch (err) {
+        console.warn("cobus panel: a message that is not JSON", err);
+        return;
+      }
+      this.receive(msg);
+    };
     ws.onclose = (e) => {
       for (const [, p] of this.pending) p.reject({code: "disconnected", text: "the panel went away"});
       this.pending.clear();

@@ -127,7 +127,8 @@ class NetworkPage {
     const row = el("tr", {"data-node": String(id)},
       el("td", {class: "num"}, String(id)),
       el("td", {}, info.name + (info.mandatory ? " *" : "")),
-      el("td", {class: "device muted", title: "from the EDS until the node answers 1008h"}, device),
+      el("td", {class: "device muted", title: "from the EDS until the node answers 1008h",
+                "data-eds": device}, device),
       el("td", {class: "leds"},
          el("span", {class: "led run off", title: "run LED"}),
          el("span", {class: "led error off", title: "error LED"})),
@@ -169,7 +170,7 @@ class NetworkPage {
       const ids = d.vendor_id !== undefined
         ? ` (vendor 0x${d.vendor_id.toString(16).toUpperCase()}, product 0x${(d.product_code ?? 0).toString(16).toUpperCase()})`
         : "";
-      cell.textContent = (d.name || cell.textContent) + ids;
+      cell.textContent = (d.name || cell.dataset.eds) + ids;
       cell.classList.remove("muted");
       cell.title = "1008h and 1018h as the node answered";
     }
@@ -380,6 +381,191 @@ class AlarmsPage {
   }
 }
 
+// ----------------------------------------------------------------------------- Drive pages
+const PLOTTED = [["speed", "speed"], ["position", "position"], ["current", "current"],
+                 ["temperature", "temperature °C"]];
+
+class DrivePage {
+  constructor(link) {
+    this.link = link;
+    this.name = null;
+    this.series = {};   // "drive/<name>/<key>" -> [[t...], [v...]]
+    this.plots = {};
+    this.confirmed = new Set();  // drives whose first enable the operator confirmed
+    $("#page-drive").addEventListener("click", (e) => {
+      const button = e.target.closest("button[data-action]");
+      if (button) this.action(button.dataset.action, button);
+    });
+    $("#drive-setpoint").addEventListener("submit", (e) => { e.preventDefault(); this.setpoint(); });
+    setInterval(() => this.tick(), 250);
+  }
+
+  current() {
+    const m = /^#drive-(.+)$/.exec(location.hash);
+    return m ? decodeURIComponent(m[1]) : null;
+  }
+
+  drives() { return this.link.info.drives || []; }
+
+  snapshot(msg) {
+    $("#drive-links").replaceChildren(...this.drives().map((d) =>
+      el("a", {href: `#drive-${encodeURIComponent(d.name)}`, "data-page": `drive-${d.name}`},
+         `Drive: ${d.name}`)));
+    const offset = Date.now() / 1000 - this.link.now();
+    for (const [key, samples] of Object.entries(msg.series)) {
+      if (key.startsWith("drive/")) {
+        this.series[key] = [samples.map((x) => x[0] + offset), samples.map((x) => x[1])];
+      }
+    }
+    this.show();
+  }
+
+  show() {
+    const name = this.current();
+    if (name === this.name && this.name !== null) return this.render();
+    this.name = name;
+    $("#drive-plots").replaceChildren();
+    this.plots = {};
+    if (name !== null) this.render();
+  }
+
+  info() { return this.drives().find((d) => d.name === this.name); }
+
+  render() {
+    const info = this.info();
+    const d = this.link.state[`drive/${this.name}`];
+    if (!info || !d) return;
+    const writable = pages.network.writable();
+    $("#drive-title").textContent = `${info.name} (node ${info.node}, ${info.kind === "zapi" ? "ZAPI" : "CiA 402"})`;
+    const state = $("#drive-state");
+    state.textContent = d.kind === "zapi" ? d.state : d.state_text;
+    state.className = `drive-state${d.fault ? " fault" : d.enabled ? " enabled" : ""}`;
+    const panelHolds = d.holder === "panel";
+    $("#drive-holder").textContent = panelHolds ? "commanded from this panel" : "commanded by the application";
+    $("#drive-take").hidden = panelHolds;
+    $("#drive-give").hidden = !panelHolds;
+    for (const b of document.querySelectorAll("#drive-buttons button")) {
+      b.hidden = Boolean(b.dataset.kind) && b.dataset.kind !== info.kind;
+      const stop = ["disable", "halt", "stop", "release"].includes(b.dataset.action);
+      b.disabled = !writable || (!panelHolds && !stop);
+    }
+    $("#quick-stop").hidden = info.kind !== "cia402";
+    for (const b of ["#quick-stop", "#drive-take", "#drive-give"]) $(b).disabled = !writable;
+    $("#drive-setpoint button").disabled = !writable || !panelHolds || !d.enabled;
+    $("#drive-unit").textContent = info.unit;
+    $("#drive-limits").textContent = d.max_velocity ? `at most ${d.max_velocity} ${info.unit}` :
+      info.kind === "zapi" ? "at most 327.67 Hz" : "";
+    const rows = [];
+    for (const [key, label] of PLOTTED) {
+      const v = d.actual[key];
+      if (v !== undefined) rows.push([label, v === null ? "—" : Number(v).toFixed(key === "temperature" ? 1 : 0)]);
+    }
+    if (d.setpoint !== undefined) rows.push(["set-point", `${d.setpoint} Hz`]);
+    if (d.controlword !== undefined) rows.push(["controlword", `0x${d.controlword.toString(16).toUpperCase().padStart(4, "0")}`]);
+    $("#drive-values").replaceChildren(...rows.flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, String(v))]));
+    if (d.statusword !== undefined) {
+      $("#drive-statusword").textContent = `0x${d.statusword.toString(16).toUpperCase().padStart(4, "0")} ${d.state}`;
+      $("#drive-flags").replaceChildren(...d.flags.map((f) => el("li", {}, f)));
+    } else {
+      $("#drive-statusword").textContent = d.kind === "zapi" ? `handshake cycles ${d.cycles}` : "—";
+      $("#drive-flags").replaceChildren();
+    }
+    const alarms = (this.link.state["alarms/active"] || []).filter((a) => a.node === info.node);
+    const texts = alarms.map((a) => `${a.source} ${a.code_text}: ${a.text}`);
+    if (d.alarm) texts.unshift(`alarm ${d.alarm}: ${d.alarm_text}`);
+    $("#drive-alarm").textContent = texts.length ? [...new Set(texts)].join("; ") : "none";
+    $("#drive-alarm").className = texts.length ? "problem" : "muted";
+  }
+
+  async action(action, button) {
+    const info = this.info();
+    if (!info) return;
+    const args = {drive: info.name, action};
+    if (action === "enable") {
+      if (!this.confirmed.has(info.name)) {
+        const text = info.kind === "zapi"
+          ? `Enable ${info.name}? Its main contactor closes and it runs at the set-point.`
+          : `Enable ${info.name}? Its power stage switches on and it follows its set-point.`;
+        if (!confirm(text)) return;
+        this.confirmed.add(info.name);
+      }
+      args.confirm = true;
+    }
+    button.disabled = true;
+    try {
+      await this.link.command("drive", args);
+      notice("");
+    } catch (err) {
+      notice(err.text || String(err));
+    } finally {
+      button.disabled = false;
+      this.render();
+    }
+  }
+
+  async setpoint() {
+    const info = this.info();
+    if (!info) return;
+    const form = new FormData($("#drive-setpoint"));
+    const magnitude = Number(form.get("speed"));
+    const value = Number(form.get("direction")) * magnitude;
+    try {
+      await this.link.command("drive", {drive: info.name, action: "speed", value});
+      notice("");
+    } catch (err) {
+      notice(err.text || String(err));
+    }
+  }
+
+  tick() {
+    const wall = Date.now() / 1000;
+    for (const d of this.drives()) {
+      const state = this.link.state[`drive/${d.name}`];
+      if (!state) continue;
+      for (const [key] of PLOTTED) {
+        const v = state.actual[key];
+        if (v === undefined || v === null) continue;
+        const id = `drive/${d.name}/${key}`;
+        const s = this.series[id] || (this.series[id] = [[], []]);
+        s[0].push(wall); s[1].push(v);
+        const cut = s[0].findIndex((t) => t >= wall - 60);
+        if (cut > 0) { s[0].splice(0, cut); s[1].splice(0, cut); }
+      }
+    }
+    if (this.name !== null && location.hash.startsWith("#drive-")) this.draw();
+  }
+
+  draw() {
+    if (typeof uPlot === "undefined") return;
+    const info = this.info();
+    if (!info) return;
+    for (const [key, label] of PLOTTED) {
+      const id = `drive/${info.name}/${key}`;
+      const data = this.series[id];
+      if (!data || data[0].length === 0) continue;
+      if (!this.plots[key]) {
+        const box = el("div", {class: "plot", "data-plot": key},
+                       el("h3", {}, key === "speed" ? `speed (${info.unit})` : label));
+        $("#drive-plots").append(box);
+        this.plots[key] = new uPlot({
+          width: Math.max(300, $("#drive-plots").clientWidth || 500), height: 130,
+          scales: {x: {time: true}},
+          series: [{}, {label, stroke: "#0b63c5", width: 1.5, points: {show: false}}],
+          legend: {show: false},
+        }, data, box);
+      } else {
+        this.plots[key].setData(data);
+      }
+    }
+  }
+
+  update(key) {
+    if (this.name !== null && (key === `drive/${this.name}` || key === "alarms/active")) this.render();
+  }
+
+  event() {}
+}
+
 // ----------------------------------------------------------------------------- the pages
 const pages = {};
 const link = new Link({
@@ -387,6 +573,7 @@ const link = new Link({
     $("#title").textContent = msg.info.title || "cobus";
     document.title = `${msg.info.title || "cobus"} panel`;
     for (const page of Object.values(pages)) page.snapshot(msg);
+    show();
   },
   delta(values) {
     for (const page of Object.values(pages)) {
@@ -403,15 +590,18 @@ const link = new Link({
 });
 pages.network = new NetworkPage(link);
 pages.alarms = new AlarmsPage(link);
+pages.drive = new DrivePage(link);
 
 function show() {
   const name = (location.hash || "#network").slice(1);
+  const page = name.startsWith("drive-") ? "drive" : name;
   for (const section of document.querySelectorAll(".page")) {
-    section.hidden = section.id !== `page-${name}`;
+    section.hidden = section.id !== `page-${page}`;
   }
   for (const a of document.querySelectorAll("#pages a")) {
     a.classList.toggle("current", a.dataset.page === name);
   }
+  if (page === "drive") pages.drive.show();
 }
 window.addEventListener("hashchange", show);
 show();

@@ -1,0 +1,340 @@
+"""The Drive pages' data: CiA 402 drives and the ZAPI inverter, and who commands them.
+
+:func:`serve_drive` shows a :class:`~cobus.profiles.AsyncDrive402` or a
+:class:`~cobus.profiles.zapi.AsyncZapiDrive` on a :class:`~cobus.apps.panel.Panel`:
+
+- state key ``drive/<name>``: its kind, node, power state, statusword decoded (CiA 402) or
+  the ZAPI's alarm and handshake, the set-point, the actual values, and who commands it;
+- plotted keys ``drive/<name>/speed`` (and, for CiA 402, ``position``, ``current`` and
+  ``temperature`` where the drive has them), read by SDO ``rate`` times a second when no PDO
+  brings them (an object the drive refuses is not asked again);
+- the command ``drive`` (it writes): ``{"cmd": "drive", "drive": NAME, "action": ...}``.
+
+Safety — nothing moves a drive unless the operator asked for exactly that:
+
+- ``enable`` needs ``"confirm": true`` (the page asks the operator first); it writes the
+  speed set-point 0 (CiA 402 60FFh; the ZAPI's RPDO) before it switches the power stage on,
+  so that a set-point an application left behind never moves the drive;
+- ``speed`` sets exactly the signed value given, checked against the drive's limits (CiA 402:
+  INTEGER32 and its max profile velocity 607Fh where it has one; ZAPI: ±327.67 Hz); it never
+  enables a drive that is off;
+- ``quick_stop``, ``halt``, ``disable`` (and the ZAPI's ``stop`` and ``release``) are always
+  accepted, also while the application commands the drive — a page is never kept from
+  stopping it;
+- while the application commands a drive (``holder`` "application"), ``enable``, ``speed``
+  and ``fault_reset`` are refused until the operator takes it over (``take``); ``give``
+  hands it back. The application asks :meth:`DriveView.panel_holds` before it writes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from cobus.apps.panel.server import CommandError, Panel
+from cobus.errors import CobusError
+from cobus.proto.sdo.errors import SdoAbortedError
+
+__all__ = ["DriveView", "serve_drive"]
+
+#: Who may command a drive.
+HOLDERS = ("panel", "application")
+_STOPS = frozenset({"quick_stop", "halt", "disable", "stop", "release"})
+_INT32 = (-(2**31), 2**31 - 1)
+#: CiA 402 actual values read by SDO when no PDO brings them: key -> (index, sub, scale).
+_ACTUALS_402 = {
+    "speed": (0x606C, 0, 1.0),
+    "position": (0x6064, 0, 1.0),
+    "current": (0x6078, 0, 1.0),
+}
+
+
+class DriveView:
+    """One drive on the panel (see the module text). ``kind``: "cia402" or "zapi".
+    ``temperature``: (index, subindex, scale) of a manufacturer temperature object.
+    ``holder``: who commands the drive at first ("panel", or "application" when a program
+    drives it)."""
+
+    def __init__(
+        self,
+        panel: Panel,
+        name: str,
+        drive: Any,
+        *,
+        kind: str,
+        holder: str = "panel",
+        temperature: tuple[int, int, float] | None = None,
+        rate: float = 4.0,
+    ) -> None:
+        if kind not in ("cia402", "zapi"):
+            raise ValueError(f"kind {kind!r}: cia402 or zapi")
+        if holder not in HOLDERS:
+            raise ValueError(f"holder {holder!r}: one of {', '.join(HOLDERS)}")
+        if not rate > 0:
+            raise ValueError(f"rate {rate}: reads per second above 0")
+        self.panel = panel
+        self.name = name
+        self.drive = drive
+        self.kind = kind
+        self.holder = holder
+        #: Whether an enable was confirmed on the page since the panel started.
+        self.enabled_once = False
+        self.actual: dict[str, float | None] = {}
+        self.max_velocity: int | None = None
+        self._objects = dict(_ACTUALS_402) if kind == "cia402" else {}
+        if temperature is not None:
+            self._objects["temperature"] = temperature
+        self._period = 1.0 / rate
+        self._task: asyncio.Task[None] | None = None
+        drives = [
+            *panel.hub.info.get("drives", []),
+            {"name": name, "kind": kind, "node": drive.node_id, "unit": self._unit()},
+        ]
+        panel.hub.set_info("drives", drives)
+        for key in ("speed", *self._objects):
+            self.panel.hub.plot(f"drive/{name}/{key}")
+        panel.sample(self.sample)
+
+    def _unit(self) -> str:
+        return "Hz" if self.kind == "zapi" else f"{self.drive.unit}/s"
+
+    def panel_holds(self) -> bool:
+        """Whether the panel commands the drive (the application then leaves it alone)."""
+        return self.holder == "panel"
+
+    def start(self) -> None:
+        """Start reading the actual values (once the loop runs)."""
+        if self._task is None and self._objects:
+            self._task = asyncio.create_task(self._read(), name=f"cobus panel drive {self.name}")
+
+    def close(self) -> None:
+        """Stop reading."""
+        if self._task is not None:
+            self._task.cancel()
+            self._task = None
+
+    # ------------------------------------------------------------------ samples
+    def sample(self) -> dict[str, Any]:
+        """The drive's key and its plotted values."""
+        drive = self.drive
+        values: dict[str, Any] = {}
+        if self.kind == "cia402":
+            status = drive.status
+            state = status.state
+            actual = dict(self.actual)
+            record: dict[str, Any] = {
+                "state": state.name,
+                "state_text": state.value,
+                "statusword": status.value,
+                "flags": status.flags(),
+                "fault": state.name in ("FAULT", "FAULT_REACTION_ACTIVE"),
+                "enabled": state.name == "OPERATION_ENABLED",
+                "controlword": drive.controlword,
+            }
+        else:
+            actual = {"speed": drive.speed}
+            record = {
+                "state": "RUNNING" if drive.handshake_running else "NO HANDSHAKE",
+                "alarm": drive.alarm,
+                "alarm_text": drive.alarm_text,
+                "fault": bool(drive.alarm),
+                "enabled": bool(drive.command),
+                "setpoint": drive.setpoint,
+                "cycles": drive.cycles,
+            }
+        record.update(
+            {
+                "name": self.name,
+                "kind": self.kind,
+                "node": drive.node_id,
+                "holder": self.holder,
+                "actual": actual,
+                "max_velocity": self.max_velocity,
+            }
+        )
+        values[f"drive/{self.name}"] = record
+        for key, value in actual.items():
+            if value is not None:
+                values[f"drive/{self.name}/{key}"] = value
+        return values
+
+    async def _read(self) -> None:
+        """Read the actual values the drive has, ``rate`` times a second."""
+        drive = self.drive
+        with contextlib.suppress(CobusError, TimeoutError, ValueError):
+            self.max_velocity = int(await drive.read(0x607F)) or None
+        while self._objects:
+            for key, (index, sub, scale) in list(self._objects.items()):
+                try:
+                    raw = await asyncio.wait_for(drive.read(index, sub), 2.0)
+                    self.actual[key] = float(raw) * scale
+                except (SdoAbortedError, ValueError):
+                    del self._objects[key]  # the drive has no such object: not asked again
+                    self.actual.pop(key, None)
+                except CobusError:
+                    self.actual[key] = None
+                except TimeoutError:
+                    self.actual[key] = None
+            await asyncio.sleep(self._period)
+
+    # ------------------------------------------------------------------ commands
+    async def command(self, message: Mapping[str, Any]) -> Any:
+        """Carry out one ``drive`` command (see the module text)."""
+        action = message.get("action")
+        actions = _ACTIONS[self.kind]
+        if not isinstance(action, str) or action not in actions:
+            raise ValueError(f"action {action!r}: one of {', '.join(actions)}")
+        if action == "take":
+            self.holder = "panel"
+            return {"holder": self.holder}
+        if action == "give":
+            self.holder = "application"
+            return {"holder": self.holder}
+        if action not in _STOPS and self.holder != "panel":
+            raise CommandError(
+                "not-holder",
+                f"the application commands {self.name}: take it over first (stopping is "
+                "always allowed)",
+            )
+        drive = self.drive
+        if self.kind == "zapi":
+            return await self._zapi(drive, action, message)
+        if action == "enable":
+            if message.get("confirm") is not True:
+                raise CommandError(
+                    "confirm",
+                    f"enabling {self.name} switches its power stage on (at speed 0): send "
+                    '"confirm": true once the operator has agreed',
+                )
+            await drive.write(0x60FF, 0, 0)  # the set-point an application left: 0
+            await drive.enable()
+            self.enabled_once = True
+        elif action == "disable":
+            await drive.disable()
+        elif action == "quick_stop":
+            await drive.quick_stop()
+        elif action == "halt":
+            if drive.status.state.name != "OPERATION_ENABLED":
+                return {"action": action, "state": drive.status.state.name, "moving": False}
+            await drive.halt()
+        elif action == "fault_reset":
+            await drive.fault_reset()
+        elif action == "speed":
+            value = self._speed(message.get("value"))
+            if drive.status.state.name != "OPERATION_ENABLED":
+                raise CommandError(
+                    "not-enabled",
+                    f"{self.name} is {drive.status.state.value}: enable it first (a set-point "
+                    "never enables a drive)",
+                )
+            await drive.set_velocity(value, wait=False)
+            return {"action": action, "value": value}
+        return {"action": action, "state": drive.status.state.name}
+
+    def _speed(self, value: Any) -> int:
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int | float)
+            or not math.isfinite(value)
+        ):
+            raise ValueError(f"value {value!r}: a signed speed in {self._unit()}")
+        if value != int(value):
+            raise ValueError(f"value {value}: a whole number of {self._unit()}")
+        low, high = _INT32
+        if self.max_velocity is not None:
+            low, high = -self.max_velocity, self.max_velocity
+        if not low <= value <= high:
+            limit = "its max profile velocity 607Fh" if self.max_velocity else "INTEGER32"
+            raise ValueError(f"value {int(value)}: {low}..{high} {self._unit()} ({limit})")
+        return int(value)
+
+    async def _zapi(self, drive: Any, action: str, message: Mapping[str, Any]) -> Any:
+        if action == "speed":
+            value = message.get("value")
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ValueError(f"value {value!r}: a signed speed in Hz (clockwise positive)")
+            if not drive.command:
+                raise CommandError(
+                    "not-enabled",
+                    f"{self.name} is released: enable it first (a set-point never enables a drive)",
+                )
+            drive.run(float(value))  # ValueError beyond +-327.67 Hz
+            return {"action": action, "value": float(value)}
+        if action == "enable":
+            if message.get("confirm") is not True:
+                raise CommandError(
+                    "confirm",
+                    f"enabling {self.name} closes its main contactor and enables it at 0 Hz: "
+                    'send "confirm": true once the operator has agreed',
+                )
+            drive.run(0.0)
+            self.enabled_once = True
+        elif action == "stop":
+            drive.stop()
+        elif action == "release":
+            drive.release()
+        elif action == "acknowledge":
+            await drive.acknowledge()
+        return {"action": action}
+
+
+_ACTIONS = {
+    "cia402": (
+        "enable",
+        "disable",
+        "quick_stop",
+        "halt",
+        "fault_reset",
+        "speed",
+        "take",
+        "give",
+    ),
+    "zapi": ("enable", "stop", "release", "acknowledge", "speed", "take", "give"),
+}
+
+
+class _Drives:
+    """The ``drive`` command of a panel, routed to its views by name."""
+
+    def __init__(self, panel: Panel) -> None:
+        self.views: dict[str, DriveView] = {}
+        panel.command(
+            "drive",
+            self.command,
+            writes=True,
+            help="command a drive: drive, action (enable + confirm, speed + value, quick_stop...)",
+        )
+
+    async def command(self, message: Mapping[str, Any]) -> Any:
+        name = message.get("drive")
+        view = self.views.get(name) if isinstance(name, str) else None
+        if view is None:
+            known = ", ".join(self.views) or "none"
+            raise CommandError("no-drive", f"drive {name!r}: one of {known}")
+        return await view.command(message)
+
+
+def serve_drive(
+    panel: Panel,
+    name: str,
+    drive: Any,
+    *,
+    kind: str | None = None,
+    holder: str = "panel",
+    temperature: tuple[int, int, float] | None = None,
+) -> DriveView:
+    """Show ``drive`` as ``name`` on ``panel`` (a Drive page); ``kind`` defaults from its
+    class (an AsyncZapiDrive is "zapi", else "cia402"). Call ``view.start()`` in the loop."""
+    if kind is None:
+        kind = "zapi" if type(drive).__name__.endswith("ZapiDrive") else "cia402"
+    drives = panel.views.get("drives")
+    if drives is None:
+        drives = panel.views["drives"] = _Drives(panel)
+    if name in drives.views:
+        raise ValueError(f"the panel already shows a drive {name!r}")
+    view = DriveView(panel, name, drive, kind=kind, holder=holder, temperature=temperature)
+    drives.views[name] = view
+    return view
