@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import asyncio
 import os
 import socket
 import threading
 import time
 import urllib.request
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -65,13 +67,24 @@ def test_the_master_runs_the_network_with_its_panel(
     port = free_port()
     fetched: dict[str, object] = {}
 
+    async def snapshot() -> dict[str, Any]:
+        import aiohttp
+
+        async with (
+            aiohttp.ClientSession() as http,
+            http.ws_connect(f"http://127.0.0.1:{port}/ws") as ws,
+        ):
+            message: dict[str, Any] = await ws.receive_json(timeout=5)
+            return message
+
     def fetch() -> None:
         for _ in range(400):
             try:
                 with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=2) as r:
                     fetched["status"] = r.status
                     fetched["csp"] = r.headers["Content-Security-Policy"]
-                    return
+                fetched["snapshot"] = asyncio.run(snapshot())
+                return
             except OSError:
                 time.sleep(0.01)
 
@@ -106,6 +119,9 @@ def test_the_master_runs_the_network_with_its_panel(
     assert "node 10: configured -> operational" in err
     assert fetched["status"] == 200 and "default-src 'self'" in str(fetched["csp"])
     assert (tmp_path / "alarms.sqlite").stat().st_size > 0
+    info = fetched["snapshot"]["info"]  # type: ignore[index]
+    assert info["drives"] == [{"name": "servo", "kind": "cia402", "node": 10, "unit": "inc/s"}]
+    assert info["alarms"]["history"] is True
 
 
 def test_bad_usage_and_files_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -172,6 +172,34 @@ def test_the_network_page_shows_the_rig_and_its_buttons_reach_the_nodes(tmp_path
                 await expect(page.locator("#drive-holder")).to_have_text(
                     "commanded by the application"
                 )
+
+                # Parameters: search, read, write (typed, checked), diff against the file
+                await page.get_by_role("link", name="Parameters").click()
+                form = page.locator("#param-search")
+                await form.locator("select").select_option(str(SERVO))
+                await form.locator('input[name="query"]').fill("device name")
+                await form.get_by_role("button", name="Search").click()
+                row = page.locator('#param-list tr[data-index="4104"]')  # 1008h
+                await row.get_by_role("button", name="Read").click()
+                await expect(row.locator("td.value")).to_have_text("cobus CiA 402 drive")
+                await form.locator('input[name="query"]').fill("0x6083")
+                await form.get_by_role("button", name="Search").click()
+                row = page.locator('#param-list tr[data-index="24707"]')  # 6083h
+                await row.locator("input").fill("-5")
+                await row.get_by_role("button", name="Write").click()
+                await expect(page.locator("#notice")).to_contain_text("UNSIGNED32")
+                await row.locator("input").fill("12345")
+                await row.get_by_role("button", name="Write").click()
+                await expect(page.locator("#notice")).to_contain_text("= 12345 written")
+                await row.locator("input").fill("")
+                await row.get_by_role("button", name="Read").click()
+                await expect(row.locator("input")).to_have_value("12345")
+                await page.get_by_role("button", name="Diff against the network file").click()
+                diff = page.locator("#param-diff-table tbody tr")
+                await expect(diff.filter(has_text="6060h:00")).to_contain_text("same")
+                await page.screenshot(
+                    path=str(artifacts() / "panel-parameters.png"), full_page=True
+                )
             finally:
                 await browser.close()
 

@@ -660,3 +660,56 @@ def test_drive_commands_carry_the_safety_a_drive_needs(tmp_path: Path) -> None:
             assert demo.zapi is not None and demo.zapi.setpoint == 0.0
 
     run(main())
+
+
+def test_parameters_are_listed_read_written_checked_and_diffed(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with (
+            served(tmp_path) as (demo, panel),
+            aiohttp.ClientSession() as http,
+            page(http, base(panel) + "/ws") as ws,
+        ):
+            snapshot = await ws.receive()
+            await running(demo)
+            nodes = snapshot["info"]["parameters"]["nodes"]
+            assert {n["id"] for n in nodes} == {8, IO, SERVO}
+
+            async def ask(cmd: str, **args: Any) -> dict[str, Any]:
+                await ws.send({"id": cmd, "cmd": cmd, "node": SERVO, **args})
+                return await ws.reply()
+
+            found = (await ask("param.list", query="controlword"))["result"]["objects"]
+            control = next(o for o in found if o["index"] == 0x6040)
+            assert control["command"] and control["access"] == "rww"
+            found = (await ask("param.list", query="0x1018:02"))["result"]["objects"]
+            assert [(o["index"], o["subindex"]) for o in found] == [(0x1018, 2)]
+            assert (await ask("param.list", query="1008h"))["result"]["objects"][0][
+                "index"
+            ] == 0x1008
+            listing = (await ask("param.list", limit=3))["result"]
+            assert len(listing["objects"]) == 3 and listing["more"] > 0
+
+            name = (await ask("param.read", index=0x1008))["result"]
+            assert name["value"] == "cobus CiA 402 drive" and name["type"] == "VISIBLE_STRING"
+
+            refused = await ask("param.write", index=0x1000, value=1)
+            assert refused["code"] == "read-only"
+            refused = await ask("param.write", index=0x6040, value=0x0F)
+            assert refused["code"] == "command" and "controlword" in refused["text"].lower()
+            refused = await ask("param.write", index=0x6083, value="fast")
+            assert refused["code"] == "bad-argument" and "UNSIGNED32" in refused["text"]
+            refused = await ask("param.write", index=0x6083, value=-1)
+            assert refused["code"] == "bad-argument"
+            refused = await ask("param.write", index=0x7777, value=1)
+            assert refused["code"] == "no-object"
+            written = await ask("param.write", index=0x6083, value="0x3000")
+            assert written["result"]["value"] == 0x3000, written
+            assert (await ask("param.read", index=0x6083))["result"]["value"] == 0x3000
+
+            diff = (await ask("param.diff"))["result"]
+            mode = next(r for r in diff["rows"] if r["index"] == 0x6060)
+            assert mode["file"] == 3 and mode["node"] == 3 and mode["same"] is True
+            saved = await ask("param.save")
+            assert saved["type"] == "ack", saved
+
+    run(main())

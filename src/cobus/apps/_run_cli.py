@@ -13,7 +13,10 @@ takes the master's alarms (with ``--panel`` or ``--history FILE``, where it keep
 
 The panel (``--panel``) runs in the master's own loop and binds 127.0.0.1:8047 unless
 ``--listen`` says otherwise; bound to another address, every command that writes to the bus
-(NMT buttons...) needs the token the URL it prints carries.
+(NMT buttons, drive commands...) needs the token the URL it prints carries. It shows the
+network, the alarms, and a Drive page for each CiA 402 drive of the network file (its device
+type 0x...0192): nothing is written to a drive until the operator asks, and its first enable
+asks for a confirmation.
 
 Exit codes: 0 ran until stopped, 1 the bus cannot be used, 2 bad usage or a bad network file,
 3 the panel cannot listen there.
@@ -162,7 +165,8 @@ async def _supervise(
 ) -> int:
     """Start the master (and the alarm handler, the panel), each undone by ``undo`` in the
     reverse order, whatever fails; run until the duration is over or the task is cancelled."""
-    from cobus.apps.panel import Panel, PanelError, serve_alarms, serve_master
+    from cobus.apps.panel import Panel, PanelError, serve_alarms, serve_master, serve_parameters
+    from cobus.apps.panel.drives import serve_cia402_drives
     from cobus.blocks.alarms import AlarmHandler
     from cobus.master import Master, MasterEvent
 
@@ -209,6 +213,10 @@ async def _supervise(
             return _fail(str(exc), _EXIT_USAGE)
         undo.callback(serve_master(panel, master).close)
         undo.callback(serve_alarms(panel, alarms).close)
+        serve_parameters(panel, master)
+        for view in serve_cia402_drives(panel, master):
+            view.start()
+            undo.callback(view.close)
         try:
             await panel.start()
         except PanelError as exc:

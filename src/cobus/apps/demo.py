@@ -415,7 +415,7 @@ async def start_panel(demo: Demo, host: str, port: int, out: TextIO, **options: 
     """The operator panel for ``demo`` (its master, alarms and fault buttons), started on
     ``host``:``port``, or on any free port if that one is taken (``out`` is told);
     ``options`` go to :class:`~cobus.apps.panel.Panel` (``token``...)."""
-    from cobus.apps.panel import Panel, PanelError, serve_alarms, serve_master
+    from cobus.apps.panel import Panel, PanelError, serve_alarms, serve_master, serve_parameters
 
     assert demo.master is not None and demo.alarms is not None
 
@@ -431,6 +431,7 @@ async def start_panel(demo: Demo, host: str, port: int, out: TextIO, **options: 
         )
         serve_master(panel, demo.master)  # type: ignore[arg-type]
         serve_alarms(panel, demo.alarms)  # type: ignore[arg-type]
+        serve_parameters(panel, demo.master)
         panel.command("demo.fault", fault, writes=True, help="inject one of the demo's faults")
         panel.hub.info["faults"] = [
             {"name": name, "label": FAULT_LABELS[name], "text": text}

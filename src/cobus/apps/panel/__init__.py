@@ -15,6 +15,7 @@ from cobus.apps.panel.alarms import AlarmView, serve_alarms
 from cobus.apps.panel.drives import DriveView, serve_drive
 from cobus.apps.panel.hub import Client, Hub
 from cobus.apps.panel.network import MasterView, serve_master
+from cobus.apps.panel.parameters import ParameterView, serve_parameters
 from cobus.apps.panel.server import Command, CommandError, Panel, PanelError
 
 __all__ = [
@@ -27,7 +28,9 @@ __all__ = [
     "MasterView",
     "Panel",
     "PanelError",
+    "ParameterView",
     "serve_alarms",
     "serve_drive",
     "serve_master",
+    "serve_parameters",
 ]

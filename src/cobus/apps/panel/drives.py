@@ -31,14 +31,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from cobus.apps.panel.server import CommandError, Panel
 from cobus.errors import CobusError
 from cobus.proto.sdo.errors import SdoAbortedError
 
-__all__ = ["DriveView", "serve_drive"]
+__all__ = ["DriveView", "is_cia402", "serve_cia402_drives", "serve_drive"]
 
 #: Who may command a drive.
 HOLDERS = ("panel", "application")
@@ -68,6 +68,7 @@ class DriveView:
         holder: str = "panel",
         temperature: tuple[int, int, float] | None = None,
         rate: float = 4.0,
+        ready: Callable[[], bool] | None = None,
     ) -> None:
         if kind not in ("cia402", "zapi"):
             raise ValueError(f"kind {kind!r}: cia402 or zapi")
@@ -88,6 +89,7 @@ class DriveView:
         if temperature is not None:
             self._objects["temperature"] = temperature
         self._period = 1.0 / rate
+        self._ready = ready
         self._task: asyncio.Task[None] | None = None
         drives = [
             *panel.hub.info.get("drives", []),
@@ -164,6 +166,8 @@ class DriveView:
     async def _read(self) -> None:
         """Read the actual values the drive has, ``rate`` times a second."""
         drive = self.drive
+        while self._ready is not None and not self._ready():
+            await asyncio.sleep(self._period)  # (no SDO while the master boots the node)
         with contextlib.suppress(CobusError, TimeoutError, ValueError):
             self.max_velocity = int(await drive.read(0x607F)) or None
         while self._objects:
@@ -317,6 +321,34 @@ class _Drives:
         return await view.command(message)
 
 
+def is_cia402(node: Any) -> bool:
+    """Whether a master's node is a CiA 402 drive: the device type (1000h) its network file
+    or, failing that, its EDS gives names profile 402."""
+    device_type = node.config.device_type
+    if not device_type:
+        var = node.config.od.get_variable(0x1000, 0)
+        default = var.default if var is not None else None
+        device_type = default if isinstance(default, int) else 0
+    return bool(device_type & 0xFFFF == 402)
+
+
+def serve_cia402_drives(panel: Panel, master: Any) -> list[DriveView]:
+    """A Drive page for each CiA 402 drive of ``master``'s network, commanded from the panel
+    only (nothing is written until the operator asks), read once the master started it."""
+    from cobus.master.states import NodeState
+    from cobus.profiles import AsyncDrive402
+
+    views = []
+    for node in master.nodes.values():
+        if is_cia402(node):
+
+            def ready(node: Any = node) -> bool:
+                return bool(node.state is NodeState.OPERATIONAL)
+
+            views.append(serve_drive(panel, node.name, AsyncDrive402(node), ready=ready))
+    return views
+
+
 def serve_drive(
     panel: Panel,
     name: str,
@@ -325,9 +357,11 @@ def serve_drive(
     kind: str | None = None,
     holder: str = "panel",
     temperature: tuple[int, int, float] | None = None,
+    ready: Callable[[], bool] | None = None,
 ) -> DriveView:
     """Show ``drive`` as ``name`` on ``panel`` (a Drive page); ``kind`` defaults from its
-    class (an AsyncZapiDrive is "zapi", else "cia402"). Call ``view.start()`` in the loop."""
+    class (an AsyncZapiDrive is "zapi", else "cia402"); ``ready`` tells when the drive may be
+    read (e.g. once the master started it). Call ``view.start()`` in the loop."""
     if kind is None:
         kind = "zapi" if type(drive).__name__.endswith("ZapiDrive") else "cia402"
     drives = panel.views.get("drives")
@@ -335,6 +369,8 @@ def serve_drive(
         drives = panel.views["drives"] = _Drives(panel)
     if name in drives.views:
         raise ValueError(f"the panel already shows a drive {name!r}")
-    view = DriveView(panel, name, drive, kind=kind, holder=holder, temperature=temperature)
+    view = DriveView(
+        panel, name, drive, kind=kind, holder=holder, temperature=temperature, ready=ready
+    )
     drives.views[name] = view
     return view

@@ -566,6 +566,147 @@ class DrivePage {
   event() {}
 }
 
+// ----------------------------------------------------------------------------- Parameters
+const hex = (n, w) => n.toString(16).toUpperCase().padStart(w, "0");
+const address = (o) => `${hex(o.index, 4)}h:${hex(o.subindex, 2)}`;
+
+class ParametersPage {
+  constructor(link) {
+    this.link = link;
+    this.loaded = null;
+    $("#param-search").addEventListener("submit", (e) => { e.preventDefault(); this.search(); });
+    $("#param-search select").addEventListener("change", () => this.search());
+    $("#param-diff").addEventListener("click", () => this.diff());
+    $("#param-save").addEventListener("click", () => this.save());
+    $("#param-list tbody").addEventListener("click", (e) => {
+      const button = e.target.closest("button[data-do]");
+      if (button) this[button.dataset.do](button.closest("tr"), button);
+    });
+    window.addEventListener("hashchange", () => this.shown());
+  }
+
+  node() { return Number(new FormData($("#param-search")).get("node")); }
+
+  snapshot(msg) {
+    const info = msg.info.parameters;
+    $('#pages a[data-page="parameters"]').hidden = !info;
+    if (!info) return;
+    const select = $("#param-search select");
+    const was = select.value;
+    select.replaceChildren(...info.nodes.map((n) =>
+      el("option", {value: String(n.id)}, `${n.id} ${n.name} (${n.eds})`)));
+    if (was) select.value = was;
+    const writable = pages.network.writable();
+    $("#param-save").disabled = !writable;
+    this.shown();
+  }
+
+  shown() {
+    if (location.hash === "#parameters" && this.loaded === null) this.search();
+  }
+
+  async search() {
+    const form = new FormData($("#param-search"));
+    const node = this.node();
+    try {
+      const found = await this.link.command("param.list", {node, query: String(form.get("query") || "")});
+      this.loaded = node;
+      const writable = pages.network.writable();
+      $("#param-list tbody").replaceChildren(...found.objects.map((o) => this.row(o, writable)));
+      $("#param-note").textContent = found.more ? `${found.more} more objects match: search for fewer.`
+        : `${found.objects.length} object(s).`;
+    } catch (err) {
+      $("#param-note").textContent = err.text || String(err);
+    }
+  }
+
+  row(o, writable) {
+    const limits = o.low == null && o.high == null ? "" : `${o.low ?? ""} .. ${o.high ?? ""}`;
+    const name = el("td", {}, o.name);
+    if (o.command) name.append(el("span", {class: "badge", title: o.command}, "command"));
+    const value = el("td", {class: "value"});
+    const buttons = el("td", {});
+    if (o.access !== "wo") buttons.append(el("button", {"data-do": "read"}, "Read"), " ");
+    if (["rw", "wo", "rww", "rwr"].includes(o.access)) {
+      value.append(el("input", {name: "value", "aria-label": `value of ${o.name}`,
+                                placeholder: o.type}));
+      buttons.append(el("button", {"data-do": "write", ...(writable ? {} : {disabled: ""})}, "Write"));
+    }
+    const row = el("tr", {"data-index": String(o.index), "data-subindex": String(o.subindex)},
+      el("td", {class: "mono"}, address(o)), name, el("td", {}, o.type), el("td", {}, o.access),
+      el("td", {}, limits), el("td", {}, o.default == null ? "" : String(o.default)), value, buttons);
+    row.info = o;
+    return row;
+  }
+
+  async read(row) {
+    const o = row.info;
+    try {
+      const got = await this.link.command("param.read", {node: this.loaded, index: o.index, subindex: o.subindex});
+      const input = $("input", row);
+      if (input) input.value = String(got.value);
+      else $("td.value", row).textContent = String(got.value);
+      row.title = `raw ${got.raw}`;
+      notice("");
+    } catch (err) {
+      notice(err.text || String(err));
+    }
+  }
+
+  async write(row, button) {
+    const o = row.info;
+    const text = $("input", row).value.trim();
+    const args = {node: this.loaded, index: o.index, subindex: o.subindex,
+                  value: text === "" ? null : text};
+    if (o.command) {
+      if (!confirm(`Writing ${o.name} is a command (${o.command}): it can switch the device on or move it. Write ${text}?`)) return;
+      args.command = true;
+    }
+    button.disabled = true;
+    try {
+      const done = await this.link.command("param.write", args);
+      notice(`${done.name} = ${done.value} written`, "info");
+    } catch (err) {
+      notice(err.text || String(err));
+    } finally {
+      button.disabled = false;
+    }
+  }
+
+  async save() {
+    const node = this.node();
+    if (!confirm(`Save node ${node}'s parameters (1010h sub 1)? They survive its next power cycle.`)) return;
+    try {
+      await this.link.command("param.save", {node});
+      notice(`node ${node}: parameters saved`, "info");
+    } catch (err) {
+      notice(err.text || String(err));
+    }
+  }
+
+  async diff() {
+    const node = this.node();
+    const box = $("#param-diff-box");
+    try {
+      const got = await this.link.command("param.diff", {node});
+      box.hidden = false;
+      $("#param-diff-table tbody").replaceChildren(...got.rows.map((r) =>
+        el("tr", {class: r.same === false ? "differs" : ""},
+          el("td", {class: "mono"}, address(r)), el("td", {}, r.name), el("td", {}, String(r.file)),
+          el("td", {}, r.node == null ? "—" : String(r.node)),
+          el("td", {}, r.same === true ? "same" : r.same === false ? "differs" : r.note))));
+      $("#param-note").textContent = got.rows.length
+        ? `${got.differ} of ${got.rows.length} object(s) of the network file differ on node ${node}.`
+        : `The network file writes nothing to node ${node}.`;
+    } catch (err) {
+      notice(err.text || String(err));
+    }
+  }
+
+  update() {}
+  event() {}
+}
+
 // ----------------------------------------------------------------------------- the pages
 const pages = {};
 const link = new Link({
@@ -591,6 +732,7 @@ const link = new Link({
 pages.network = new NetworkPage(link);
 pages.alarms = new AlarmsPage(link);
 pages.drive = new DrivePage(link);
+pages.parameters = new ParametersPage(link);
 
 function show() {
   const name = (location.hash || "#network").slice(1);

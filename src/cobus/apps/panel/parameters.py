@@ -1,0 +1,268 @@
+"""The Parameters page's data: each node's dictionary from its EDS, read and written by SDO.
+
+:func:`serve_parameters` adds these commands for the nodes of a
+:class:`~cobus.master.Master` (through each node's own SDO channel, ``node.sdo``):
+
+- ``param.list {node, query, limit}`` — the node's objects from its EDS (index, sub-index,
+  name, type, access, default, limits, unit, whether writing it is a command), those whose
+  name contains ``query`` or whose address it gives (``6040``, ``0x6040``, ``6040:00``,
+  ``6040h``);
+- ``param.read {node, index, subindex}`` — the value the node holds, decoded with its type;
+- ``param.write {node, index, subindex, value}`` (writes) — checked here before anything is
+  sent: the object must be in the EDS and writable, the value of its type and within its
+  limits. An object whose writing is a command (a controlword, a set-point, a mode, an
+  output, what an RPDO carries: :class:`cobus.od.CommandObjects`) is refused unless the
+  message says ``"command": true`` — the page asks the operator first, saying why;
+- ``param.save {node}`` (writes) — "save" to 1010h sub-index 1 (all parameters);
+- ``param.diff {node}`` — the node's values against the network file: each object of its
+  start-up list read back and compared with what the file says.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import re
+from collections.abc import Mapping
+from typing import Any
+
+from cobus.apps.panel.server import CommandError, Panel
+from cobus.errors import clip
+from cobus.od import CommandObjects, DataType, ObjectDictionary, Variable, decode, encode
+
+__all__ = ["ParameterView", "serve_parameters"]
+
+#: The most objects one ``param.list`` answer carries.
+MAX_LIST = 2000
+#: 1010h sub 1 "save all parameters": the signature "save" (CiA 301).
+SAVE_SIGNATURE = 0x65766173
+_ADDRESS = re.compile(r"^(?:0x)?([0-9a-f]{1,4})h?(?:[:.sub ]+(?:0x)?([0-9a-f]{1,2})h?)?$", re.I)
+
+
+def _label(var: Variable) -> str:
+    parent = var.parent
+    if parent is not None and getattr(parent, "name", None) and parent.name != var.name:
+        return f"{parent.name}.{var.name}"
+    return var.name
+
+
+def _shown(value: Any) -> Any:
+    """A value as JSON carries it (bytes as hex)."""
+    if isinstance(value, bytes | bytearray):
+        return bytes(value).hex(" ").upper()
+    return value
+
+
+class ParameterView:
+    """What :func:`serve_parameters` attaches (see the module text)."""
+
+    def __init__(self, panel: Panel, master: Any) -> None:
+        self.panel = panel
+        self.master = master
+        self._commands: dict[int, CommandObjects] = {}
+        panel.hub.set_info(
+            "parameters",
+            {
+                "nodes": [
+                    {"id": n.node_id, "name": n.name, "eds": n.config.eds_path.name}
+                    for n in master.nodes.values()
+                ]
+            },
+        )
+        panel.command("param.list", self._list, writes=False, help="a node's objects (EDS)")
+        panel.command("param.read", self._read, writes=False, help="read an object by SDO")
+        panel.command("param.write", self._write, writes=True, help="write an object by SDO")
+        panel.command("param.save", self._save, writes=True, help="save the parameters (1010h)")
+        panel.command("param.diff", self._diff, writes=False, help="the node against its file")
+
+    # ------------------------------------------------------------------ helpers
+    def _node(self, message: Mapping[str, Any]) -> Any:
+        key = message.get("node")
+        if isinstance(key, bool) or not isinstance(key, int):
+            raise ValueError(f"node {key!r}: a node-ID of this network")
+        node = self.master.nodes.get(key)
+        if node is None:
+            known = ", ".join(str(n) for n in sorted(self.master.nodes)) or "none"
+            raise CommandError("no-node", f"node {key} is not in this network (nodes: {known})")
+        return node
+
+    def _variable(self, node: Any, message: Mapping[str, Any]) -> Variable:
+        index, sub = message.get("index"), message.get("subindex", 0)
+        for what, value, top in (("index", index, 0xFFFF), ("subindex", sub, 0xFF)):
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= top:
+                raise ValueError(f"{what} {value!r}: 0-{top:#x}")
+        od: ObjectDictionary = node.config.od
+        var = od.get_variable(int(index), int(sub))  # type: ignore[arg-type]
+        if var is None:
+            raise CommandError(
+                "no-object",
+                f"{index:04X}h:{sub:02X} is not in {node.name}'s EDS ({node.config.eds_path.name})",
+            )
+        return var
+
+    def _describe(self, node: Any, var: Variable) -> dict[str, Any]:
+        commands = self._commands.get(node.node_id)
+        if commands is None:
+            commands = self._commands[node.node_id] = CommandObjects(node.config.od)
+        return {
+            "index": var.index,
+            "subindex": var.subindex,
+            "name": _label(var),
+            "type": var.data_type.name,
+            "access": str(var.access),
+            "default": _shown(var.default),
+            "low": _shown(var.low_limit),
+            "high": _shown(var.high_limit),
+            "unit": var.unit,
+            "pdo": var.pdo_mappable,
+            "command": commands.reason(var.index, var.subindex),
+        }
+
+    # ------------------------------------------------------------------ commands
+    async def _list(self, message: Mapping[str, Any]) -> dict[str, Any]:
+        node = self._node(message)
+        query = message.get("query", "")
+        if not isinstance(query, str) or len(query) > 100:
+            raise ValueError("query: a name or an address (6040, 0x6040:00) of 100 characters")
+        limit = message.get("limit", 500)
+        if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_LIST:
+            raise ValueError(f"limit {limit!r}: 1-{MAX_LIST} objects")
+        wanted = query.strip().lower()
+        address = _ADDRESS.match(wanted) if wanted else None
+        rows: list[dict[str, Any]] = []
+        more = 0
+        for var in node.config.od.variables():
+            if wanted:
+                by_name = wanted in _label(var).lower()
+                by_address = (
+                    address is not None
+                    and var.index == int(address.group(1), 16)
+                    and (address.group(2) is None or var.subindex == int(address.group(2), 16))
+                )
+                if not (by_name or by_address):
+                    continue
+            if len(rows) >= limit:
+                more += 1
+                continue
+            rows.append(self._describe(node, var))
+        return {"node": node.node_id, "objects": rows, "more": more}
+
+    async def _read(self, message: Mapping[str, Any]) -> dict[str, Any]:
+        node = self._node(message)
+        var = self._variable(node, message)
+        if not var.access.readable:
+            raise CommandError("write-only", f"{_label(var)} is write-only ({var.access})")
+        data = await node.sdo.upload(var.index, var.subindex)
+        try:
+            value = decode(var.data_type, data)
+        except (ValueError, TypeError):
+            value = None
+        return {**self._describe(node, var), "value": _shown(value), "raw": data.hex(" ").upper()}
+
+    async def _write(self, message: Mapping[str, Any]) -> dict[str, Any]:
+        node = self._node(message)
+        var = self._variable(node, message)
+        name = _label(var)
+        if not var.access.writable:
+            raise CommandError("read-only", f"{name} is {var.access}: it cannot be written")
+        value = _typed(var, message.get("value"))
+        for limit, beyond in ((var.low_limit, "below"), (var.high_limit, "above")):
+            if limit is None or not isinstance(value, int | float):
+                continue
+            if (beyond == "below" and value < limit) or (beyond == "above" and value > limit):
+                raise ValueError(
+                    f"{name}: {value} is {beyond} the EDS's limit {limit} "
+                    f"({var.low_limit}..{var.high_limit})"
+                )
+        try:
+            data = encode(var.data_type, value)
+        except (ValueError, TypeError, OverflowError) as exc:
+            raise ValueError(f"{name}: {exc}") from None
+        why = self._describe(node, var)["command"]
+        if why is not None and message.get("command") is not True:
+            raise CommandError(
+                "command",
+                f"writing {name} is a command ({why}): it can switch the device on or move it; "
+                'send "command": true once the operator has agreed',
+            )
+        await node.sdo.download(var.index, var.subindex, data)
+        return {"index": var.index, "subindex": var.subindex, "name": name, "value": _shown(value)}
+
+    async def _save(self, message: Mapping[str, Any]) -> dict[str, Any]:
+        node = self._node(message)
+        if node.config.od.get_variable(0x1010, 1) is None:
+            raise CommandError(
+                "no-object", f"{node.name}'s EDS has no 1010h sub-index 1: it cannot save"
+            )
+        await node.sdo.download(0x1010, 1, SAVE_SIGNATURE.to_bytes(4, "little"))
+        return {"node": node.node_id, "saved": True}
+
+    async def _diff(self, message: Mapping[str, Any]) -> dict[str, Any]:
+        node = self._node(message)
+        rows = []
+        for entry in node.config.startup:
+            var = node.config.od.get_variable(entry.index, entry.subindex)
+            row: dict[str, Any] = {
+                "index": entry.index,
+                "subindex": entry.subindex,
+                "name": entry.name,
+                "file": _shown(entry.value),
+            }
+            if var is not None and not var.access.readable:
+                row.update(node=None, same=None, note="write-only: not read")
+            else:
+                try:
+                    data = await node.sdo.upload(entry.index, entry.subindex)
+                except Exception as exc:  # (an abort, a timeout: said in the row)
+                    row.update(node=None, same=None, note=clip(str(exc)))
+                else:
+                    shown: Any = data.hex(" ").upper()
+                    if var is not None:
+                        with contextlib.suppress(ValueError, TypeError):
+                            shown = _shown(decode(var.data_type, data))
+                    row.update(node=shown, same=data == entry.data, note="")
+            rows.append(row)
+        differ = sum(1 for r in rows if r["same"] is False)
+        return {"node": node.node_id, "rows": rows, "differ": differ}
+
+
+def _typed(var: Variable, value: Any) -> Any:
+    """The page's value as the object's type wants it (ValueError says what to give)."""
+    dt = var.data_type
+    name = _label(var)
+    if value is None or isinstance(value, list | dict):
+        raise ValueError(f"{name}: give a value of type {dt.name}")
+    if dt is DataType.BOOLEAN:
+        if isinstance(value, bool):
+            return value
+        if str(value).strip().lower() in ("1", "true", "on", "yes"):
+            return True
+        if str(value).strip().lower() in ("0", "false", "off", "no"):
+            return False
+        raise ValueError(f"{name}: {value!r} is no BOOLEAN (true or false)")
+    if dt.is_integer:
+        if isinstance(value, bool):
+            raise ValueError(f"{name}: {value!r} is no {dt.name}")
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+        if isinstance(value, int):
+            return value
+        try:
+            return int(str(value).strip(), 0)
+        except ValueError:
+            raise ValueError(f"{name}: {clip(repr(value))} is no {dt.name} (42, 0x2A)") from None
+    if dt.is_real:
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name}: {clip(repr(value))} is no {dt.name}") from None
+    if dt in (DataType.OCTET_STRING, DataType.DOMAIN):
+        try:
+            return bytes.fromhex(str(value))
+        except ValueError:
+            raise ValueError(f"{name}: give hex bytes (01 02 AB) for {dt.name}") from None
+    return str(value)
+
+
+def serve_parameters(panel: Panel, master: Any) -> ParameterView:
+    """The Parameters page for ``master``'s nodes."""
+    return ParameterView(panel, master)
