@@ -200,6 +200,25 @@ def test_the_network_page_shows_the_rig_and_its_buttons_reach_the_nodes(tmp_path
                 await page.screenshot(
                     path=str(artifacts() / "panel-parameters.png"), full_page=True
                 )
+
+                # Trace: the live bus decoded, filtered by node and service, paused
+                await page.get_by_role("link", name="Trace").click()
+                records = page.locator("#trace-records tbody tr")
+                await expect(records.first).to_be_visible()
+                await page.locator('#trace-filter input[name="node"]').fill(str(IO))
+                for kind in ("sync", "pdo", "sdo", "nmt"):
+                    await page.locator(f'#trace-kinds input[value="{kind}"]').uncheck()
+                await expect(records.first).to_contain_text(f"node {IO} heartbeat")
+                texts = (await records.all_text_contents())[:20]
+                assert all(f"node {IO}" in t for t in texts), texts
+                await page.get_by_role("button", name="Pause").click()
+                frozen = await records.first.text_content()
+                await asyncio.sleep(0.5)
+                assert await records.first.text_content() == frozen
+                await expect(page.locator("#trace-note")).to_contain_text("paused")
+                await page.get_by_role("button", name="Resume").click()
+                await expect(records.first).not_to_have_text(frozen or "")
+                await page.screenshot(path=str(artifacts() / "panel-trace.png"))
             finally:
                 await browser.close()
 

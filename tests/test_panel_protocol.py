@@ -713,3 +713,33 @@ def test_parameters_are_listed_read_written_checked_and_diffed(tmp_path: Path) -
             assert saved["type"] == "ack", saved
 
     run(main())
+
+
+def test_the_trace_comes_decoded_in_numbered_batches(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with (
+            served(tmp_path) as (_demo, panel),
+            aiohttp.ClientSession() as http,
+            page(http, base(panel) + "/ws") as ws,
+        ):
+            snapshot = await ws.receive()
+            assert snapshot["info"]["trace"] == {"max_batch": 300}
+            batches = []
+            while len(batches) < 5:
+                message = await ws.until(lambda m: m["type"] == "delta")
+                if "trace/batch" in message["values"]:
+                    batches.append(message["values"]["trace/batch"])
+            records = [r for b in batches for r in b["records"]]
+            numbers = [r["n"] for r in records]
+            assert numbers == sorted(numbers) and len(set(numbers)) == len(numbers)
+            for batch in batches:  # each batch is a run of numbers, save for those skipped
+                first = batch["records"][0]["n"]
+                assert batch["first"] == first
+                assert batch["records"][-1]["n"] == first + len(batch["records"]) - 1
+            kinds = {r["kind"] for r in records}
+            assert {"hb", "sync", "pdo"} <= kinds, kinds
+            beat = next(r for r in records if r["kind"] == "hb" and r["node"] == IO)
+            assert beat["cob_id"] == 0x700 + IO and "heartbeat" in beat["text"]
+            assert all(isinstance(r["time"], float) for r in records)
+
+    run(main())

@@ -165,7 +165,14 @@ async def _supervise(
 ) -> int:
     """Start the master (and the alarm handler, the panel), each undone by ``undo`` in the
     reverse order, whatever fails; run until the duration is over or the task is cancelled."""
-    from cobus.apps.panel import Panel, PanelError, serve_alarms, serve_master, serve_parameters
+    from cobus.apps.panel import (
+        Panel,
+        PanelError,
+        serve_alarms,
+        serve_master,
+        serve_parameters,
+        serve_trace,
+    )
     from cobus.apps.panel.drives import serve_cia402_drives
     from cobus.blocks.alarms import AlarmHandler
     from cobus.master import Master, MasterEvent
@@ -214,6 +221,7 @@ async def _supervise(
         undo.callback(serve_master(panel, master).close)
         undo.callback(serve_alarms(panel, alarms).close)
         serve_parameters(panel, master)
+        undo.callback(serve_trace(panel, network, config).close)
         for view in serve_cia402_drives(panel, master):
             view.start()
             undo.callback(view.close)

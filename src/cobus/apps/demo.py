@@ -415,7 +415,14 @@ async def start_panel(demo: Demo, host: str, port: int, out: TextIO, **options: 
     """The operator panel for ``demo`` (its master, alarms and fault buttons), started on
     ``host``:``port``, or on any free port if that one is taken (``out`` is told);
     ``options`` go to :class:`~cobus.apps.panel.Panel` (``token``...)."""
-    from cobus.apps.panel import Panel, PanelError, serve_alarms, serve_master, serve_parameters
+    from cobus.apps.panel import (
+        Panel,
+        PanelError,
+        serve_alarms,
+        serve_master,
+        serve_parameters,
+        serve_trace,
+    )
 
     assert demo.master is not None and demo.alarms is not None
 
@@ -425,29 +432,37 @@ async def start_panel(demo: Demo, host: str, port: int, out: TextIO, **options: 
             raise ValueError(f"fault: one of {', '.join(DEMO_FAULTS)}")
         return await demo.fault(name)
 
-    def build(port: int) -> Panel:
+    master, alarms = demo.master, demo.alarms
+
+    def build(port: int) -> tuple[Panel, list[Any]]:
         panel = Panel(
             host=host, port=port, clock=demo.master_net.time, title="cobus demo", **options
         )
-        serve_master(panel, demo.master)  # type: ignore[arg-type]
-        serve_alarms(panel, demo.alarms)  # type: ignore[arg-type]
-        serve_parameters(panel, demo.master)
+        views = [
+            serve_master(panel, master),
+            serve_alarms(panel, alarms),
+            serve_trace(panel, demo.master_net, master.config),
+        ]
+        serve_parameters(panel, master)
         panel.command("demo.fault", fault, writes=True, help="inject one of the demo's faults")
         panel.hub.info["faults"] = [
             {"name": name, "label": FAULT_LABELS[name], "text": text}
             for name, text in DEMO_FAULTS.items()
         ]
-        return panel
+        return panel, views
 
-    panel = build(port)
+    panel, views = build(port)
     try:
         await panel.start()
     except PanelError as exc:
+        for view in views:
+            view.close()
         if port == 0:
             raise
         out.write(f"cobus demo: {exc}; the panel takes another port\n")
-        panel = build(0)
+        panel, views = build(0)
         await panel.start()
+    demo._views.extend(views)
     return panel
 
 

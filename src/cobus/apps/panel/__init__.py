@@ -17,6 +17,7 @@ from cobus.apps.panel.hub import Client, Hub
 from cobus.apps.panel.network import MasterView, serve_master
 from cobus.apps.panel.parameters import ParameterView, serve_parameters
 from cobus.apps.panel.server import Command, CommandError, Panel, PanelError
+from cobus.apps.panel.trace import TraceView, serve_trace
 
 __all__ = [
     "AlarmView",
@@ -29,8 +30,10 @@ __all__ = [
     "Panel",
     "PanelError",
     "ParameterView",
+    "TraceView",
     "serve_alarms",
     "serve_drive",
     "serve_master",
     "serve_parameters",
+    "serve_trace",
 ]

@@ -707,6 +707,94 @@ class ParametersPage {
   event() {}
 }
 
+// ----------------------------------------------------------------------------- Trace
+const KINDS = ["nmt", "hb", "sync", "time", "emcy", "sdo", "pdo", "lss", "other"];
+const KEEP = 1000;  // records the page keeps (newest first)
+
+class TracePage {
+  constructor(link) {
+    this.link = link;
+    this.records = [];      // newest first
+    this.waiting = [];      // while paused
+    this.paused = false;
+    this.last = 0;          // the number of the last record taken
+    this.missed = 0;        // records the page never got (it fell behind a batch)
+    $("#trace-kinds").replaceChildren(...KINDS.map((k) =>
+      el("label", {}, el("input", {type: "checkbox", name: "kind", value: k, checked: ""}), ` ${k}`)));
+    $("#trace-pause").addEventListener("click", () => this.pause());
+    $("#trace-clear").addEventListener("click", () => { this.records = []; this.draw(); });
+    $("#trace-filter").addEventListener("input", () => this.draw());
+    $("#trace-filter").addEventListener("submit", (e) => e.preventDefault());
+  }
+
+  snapshot(msg) {
+    $('#pages a[data-page="trace"]').hidden = !msg.info.trace;
+    const batch = msg.state["trace/batch"];
+    if (batch) this.take(batch);
+  }
+
+  update(key, value) {
+    if (key === "trace/batch") this.take(value);
+  }
+
+  take(batch) {
+    const fresh = batch.records.filter((r) => r.n > this.last);
+    if (!fresh.length) return;
+    if (this.last && fresh[0].n > this.last + 1) this.missed += fresh[0].n - this.last - 1;
+    this.last = fresh[fresh.length - 1].n;
+    if (this.paused) {
+      this.waiting.push(...fresh);
+      if (this.waiting.length > KEEP) this.waiting.splice(0, this.waiting.length - KEEP);
+    } else {
+      this.records.unshift(...fresh.reverse());
+      if (this.records.length > KEEP) this.records.length = KEEP;
+      if (location.hash === "#trace") this.draw();
+    }
+    this.note();
+  }
+
+  pause() {
+    this.paused = !this.paused;
+    $("#trace-pause").textContent = this.paused ? "Resume" : "Pause";
+    if (!this.paused) {
+      this.records.unshift(...this.waiting.reverse());
+      this.waiting = [];
+      if (this.records.length > KEEP) this.records.length = KEEP;
+      this.draw();
+    }
+    this.note();
+  }
+
+  filter() {
+    const form = new FormData($("#trace-filter"));
+    const node = form.get("node");
+    const kinds = new Set(form.getAll("kind"));
+    const text = String(form.get("text") || "").toLowerCase();
+    return (r) => kinds.has(r.kind) && (node === "" || r.node === Number(node)) &&
+                  (!text || r.text.toLowerCase().includes(text));
+  }
+
+  draw() {
+    const keep = this.filter();
+    const shown = this.records.filter(keep).slice(0, 500);
+    $("#trace-records tbody").replaceChildren(...shown.map((r) => el("tr", {class: r.kind},
+      el("td", {}, timeOfDay(this.link, r.time)), el("td", {}, r.kind),
+      el("td", {}, r.node == null ? "" : String(r.node)),
+      el("td", {}, hex(r.cob_id, 3)), el("td", {}, r.text))));
+    this.note(shown.length);
+  }
+
+  note(shown) {
+    const parts = [`${this.last} records decoded`];
+    if (shown !== undefined) parts.push(`${shown} shown`);
+    if (this.paused) parts.push(`paused: ${this.waiting.length} waiting`);
+    if (this.missed) parts.push(`${this.missed} not shown (the bus was faster than the page)`);
+    $("#trace-note").textContent = parts.join(" · ");
+  }
+
+  event() {}
+}
+
 // ----------------------------------------------------------------------------- the pages
 const pages = {};
 const link = new Link({
@@ -733,6 +821,7 @@ pages.network = new NetworkPage(link);
 pages.alarms = new AlarmsPage(link);
 pages.drive = new DrivePage(link);
 pages.parameters = new ParametersPage(link);
+pages.trace = new TracePage(link);
 
 function show() {
   const name = (location.hash || "#network").slice(1);
@@ -744,6 +833,7 @@ function show() {
     a.classList.toggle("current", a.dataset.page === name);
   }
   if (page === "drive") pages.drive.show();
+  if (page === "trace") pages.trace.draw();
 }
 window.addEventListener("hashchange", show);
 show();
