@@ -295,3 +295,11 @@ def test_the_demo_serves_its_panel_and_takes_another_port_when_8047_is_taken(
     assert f"cobus demo — panel {demo.panel_url}" in text
     assert seen and set(seen) == {200}
     assert demo.panel is not None and demo.panel.bound is not None  # stopped with the demo
+
+
+def test_a_panel_address_that_is_not_this_machines_is_one_line_and_exit_2(capsys):
+    code = main(["demo", "--listen", "192.0.2.1:8047", "--duration", "1", "--no-clear"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("cobus demo: cannot serve the panel on 192.0.2.1:8047")
+    assert "Traceback" not in err and "--no-panel" in err

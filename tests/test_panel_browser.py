@@ -12,31 +12,24 @@ from __future__ import annotations
 import asyncio
 import os
 import re
-import shutil
 from pathlib import Path
 from urllib.parse import urlsplit
 
 import pytest
 
 from cobus.apps.demo import IO, SERVO
+from tests.browser import (
+    CHROMIUM,
+    CHROMIUM_ARGS,
+    BrowserWatchdog,
+    capped,
+    chromium_wrapper,
+    scratch,
+)
 from tests.test_panel_protocol import running, served
 from tests.util import need, need_module
 
 pytestmark = pytest.mark.slow
-
-CHROMIUM = os.environ.get("COBUS_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
-#: Chromium's own network off: on a closed machine its background requests are refused.
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--disable-default-apps",
-    "--disable-dev-shm-usage",
-]
 
 
 def artifacts() -> Path:
@@ -56,7 +49,7 @@ def test_the_network_page_shows_the_rig_and_its_buttons_reach_the_nodes(tmp_path
     async def main() -> None:
         async with served(tmp_path) as (demo, panel), async_playwright() as pw:
             browser = await pw.chromium.launch(
-                executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS
+                executable_path=chromium_wrapper(Path(folder)), headless=True, args=CHROMIUM_ARGS
             )
             try:
                 page = await browser.new_page(viewport={"width": 1400, "height": 900})
@@ -222,7 +215,11 @@ def test_the_network_page_shows_the_rig_and_its_buttons_reach_the_nodes(tmp_path
             finally:
                 await browser.close()
 
-    asyncio.run(asyncio.wait_for(main(), 90))
+    # (the server side capped, the browser watched: neither can run away)
+    with scratch() as folder, capped(2000), BrowserWatchdog(max_rss_mb=3000) as watchdog:
+        asyncio.run(asyncio.wait_for(main(), 90))
+    assert not watchdog.killed, f"chromium used {watchdog.peak_mb:.0f} MB"
+    assert watchdog.peak_mb > 0  # (it did watch the browser)
     hosts = {urlsplit(u).hostname for u in requests}
     assert hosts == {"127.0.0.1"}, requests
     assert problems == [], problems

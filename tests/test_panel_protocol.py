@@ -206,6 +206,16 @@ def test_nmt_buttons_reach_the_node_and_are_acknowledged(tmp_path: Path) -> None
         ('{"id": 6, "cmd": "alarm.ack", "all": true, "by": ""}', "bad-argument", "by"),
         ('{"id": 8, "cmd": "alarm.history", "limit": 0}', "bad-argument", "1-1000"),
         ('{"id": 8, "cmd": "alarm.history", "node": "9"}', "bad-argument", "node"),
+        (
+            '{"id": 8, "cmd": "alarm.history", "node": 1180591620717411303424}',
+            "bad-argument",
+            "0-127",
+        ),
+        (
+            '{"id": 9, "cmd": "param.write", "node": 10, "index": 24707, "value": 1e999}',
+            "bad-argument",
+            "UNSIGNED32",
+        ),
         ('{"id": 8, "cmd": "alarm.history", "since": "yesterday"}', "bad-argument", "1970"),
         ('{"id": 9, "cmd": "demo.fault", "fault": "meteor"}', "bad-argument", "unplug_io"),
         ('{"id": 10, "cmd": "nmt", "node": 9, "action": []}', "bad-argument", "action"),
@@ -499,8 +509,9 @@ def test_a_fault_raises_an_alarm_that_is_acknowledged_cleared_and_kept(tmp_path:
                 assert r.status == 200 and r.content_type == "text/csv"
                 text = await r.text()
                 assert "Anna" in text and text.count("\n") >= 2
-            async with http.get(base(panel) + "/alarms.csv?node=nine") as r:
-                assert r.status == 400
+            for query in ("node=nine", "node=0xfffffffffffffffffffffff", "since=soon"):
+                async with http.get(base(panel) + f"/alarms.csv?{query}") as r:
+                    assert r.status == 400, query
 
     run(main())
 
@@ -621,6 +632,8 @@ def test_drive_commands_carry_the_safety_a_drive_needs(tmp_path: Path) -> None:
             )
             halted = await drive("halt")
             assert halted["type"] == "ack", halted
+            # a stop lasts: the operator holds the drive now, the application leaves it be
+            assert demo.panel_holds["servo"]()
             assert (await drive("take"))["result"] == {"holder": "panel"}
             assert demo.panel_holds["servo"]()
             assert (await drive("quick_stop"))["type"] == "ack"
@@ -633,7 +646,12 @@ def test_drive_commands_carry_the_safety_a_drive_needs(tmp_path: Path) -> None:
             enabled = await drive("enable", confirm=True)
             assert enabled["type"] == "ack", enabled
             assert demo.servo.status.state.name == "OPERATION_ENABLED"  # type: ignore[union-attr]
-            for value, text in ((1.5, "whole number"), ("fast", "signed speed"), (10**10, "..")):
+            for value, text in (
+                (1.5, "whole number"),
+                ("fast", "signed speed"),
+                (10**10, ".."),
+                (10**400, ".."),
+            ):
                 refused = await drive("speed", value=value)
                 assert refused["code"] == "bad-argument" and text in refused["text"], refused
             assert (await drive("speed", value=-5000))["result"] == {

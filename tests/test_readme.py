@@ -64,3 +64,11 @@ def test_readme_snippet_runs(heading, code, tmp_path, monkeypatch):
         "Network variables between controllers": "12.5 2.5 17",
     }
     assert expected.get(heading, "") in out.getvalue(), out.getvalue()
+
+
+def test_every_picture_of_the_readme_is_there():
+    text = (ROOT / "README.md").read_text()
+    pictures = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", text)
+    assert pictures, "the README shows the panel"
+    for picture in pictures:
+        assert (ROOT / picture).is_file(), picture

@@ -47,6 +47,7 @@ from typing import Any, TextIO
 
 from cobus._args import seconds
 from cobus.apps._run_cli import listen_address
+from cobus.apps.panel.server import PanelError
 from cobus.blocks.alarms import AlarmHandler
 from cobus.device import export_eds
 from cobus.errors import CobusError
@@ -215,6 +216,11 @@ class Demo:
         elif name == "servo_reset":
             if self.servo is None:
                 raise ValueError("the servo's application has not started yet")
+            if self._held("servo"):
+                raise ValueError(
+                    "the operator holds the servo: reset and enable it on its Drive page (or "
+                    "give it back to the application first)"
+                )
             await self.servo.fault_reset(timeout=2.0)
             await self.servo.enable(timeout=2.0)
         elif name == "zapi_handshake":
@@ -264,9 +270,11 @@ class Demo:
                 await asyncio.sleep(0.1)
                 continue
             velocity = round((self._pot() - 0.5) * 2 * SERVO_MAX_SPEED)
-            # a faulted drive stays so (the table shows its EMCY): no reset behind the user
-            with contextlib.suppress(DriveError):
-                await servo.set_velocity(velocity, wait=False)
+            # a faulted drive stays so (the table shows its EMCY): no reset behind the user;
+            # and the operator may have taken the servo over meanwhile: asked again right here
+            if not self._held("servo"):
+                with contextlib.suppress(DriveError):
+                    await servo.set_velocity(velocity, wait=False)
             await asyncio.sleep(0.1)
 
     async def _run_zapi(self) -> None:
@@ -293,7 +301,8 @@ class Demo:
                 self.events[ZAPI] = (
                     f"handshake lost {self.zapi_restarts}x, restarted at t = {self.elapsed():.1f} s"
                 )
-            zapi.run(round(self._pot() * ZAPI_MAX_HZ, 2))
+            if not self._held("zapi"):  # (the acknowledge above may take seconds)
+                zapi.run(round(self._pot() * ZAPI_MAX_HZ, 2))
             await asyncio.sleep(0.1)
 
     def _on_master_event(self, event: MasterEvent) -> None:
@@ -457,13 +466,33 @@ async def start_panel(demo: Demo, host: str, port: int, out: TextIO, **options: 
     except PanelError as exc:
         for view in views:
             view.close()
-        if port == 0:
+        if port == 0 or not _in_use(host, port):
             raise
         out.write(f"cobus demo: {exc}; the panel takes another port\n")
         panel, views = build(0)
-        await panel.start()
+        try:
+            await panel.start()
+        except PanelError:
+            for view in views:
+                view.close()
+            raise
     demo._views.extend(views)
     return panel
+
+
+def _in_use(host: str, port: int) -> bool:
+    """Whether ``host``:``port`` cannot be bound because something else has it (and not
+    because the address is not this machine's)."""
+    import errno
+    import socket
+
+    try:
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        with socket.socket(family) as probe:
+            probe.bind((host, port))
+    except OSError as exc:
+        return exc.errno == errno.EADDRINUSE
+    return False
 
 
 #: The servo's motor temperature: 2000h in 0.1 degC (the simulated drive's object).
@@ -615,4 +644,7 @@ def run(args: argparse.Namespace) -> int:
                 asyncio.run(coro)
             except KeyboardInterrupt:
                 print("\ncobus demo: stopped")
+            except PanelError as exc:
+                print(f"cobus demo: {exc} (--no-panel runs without it)", file=sys.stderr)
+                return 2
     return 0

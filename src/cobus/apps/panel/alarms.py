@@ -12,7 +12,8 @@
   token needs it here too) and ``alarm.history`` (the history's activations, newest first,
   filtered by ``node``, ``source``, ``code``, ``active``, ``since`` / ``until`` in seconds
   since the epoch, at most ``limit`` rows, 1000 at most);
-- ``GET /alarms.csv`` with the same filters as query parameters: the history as CSV.
+- ``GET /alarms.csv`` with the same filters as query parameters: the history as CSV, newest
+  first, at most ``MAX_CSV`` rows (narrow it with ``since``).
 
 History reads run in a worker thread (SQLite): a long history never holds the bus loop.
 """
@@ -36,11 +37,14 @@ from cobus.blocks.alarms import (
     AlarmHandler,
     AlarmRaised,
 )
+from cobus.errors import clip
 
 __all__ = ["AlarmView", "serve_alarms"]
 
 #: The most history rows one ``alarm.history`` answer carries.
 MAX_ROWS = 1000
+#: The most rows one CSV export carries (the newest).
+MAX_CSV = 20_000
 #: Who acknowledged, when the page does not say (at most this many characters if it does).
 DEFAULT_BY = "panel"
 MAX_BY = 40
@@ -187,10 +191,14 @@ class AlarmView:
                 elif key == "source":
                     query[key] = value
             filters = _filters(query)
-        except ValueError as exc:
-            raise web.HTTPBadRequest(text=f"{exc}\n") from None
+        except (ValueError, OverflowError) as exc:
+            raise web.HTTPBadRequest(text=f"{clip(str(exc))}\n") from None
         out = io.StringIO()
-        await asyncio.to_thread(history.export_csv, out, **filters)
+        # (bounded: the history's lock is held while it is read, and an alarm raised
+        # meanwhile waits for it)
+        await asyncio.to_thread(
+            history.export_csv, out, limit=MAX_CSV, newest_first=True, **filters
+        )
         return web.Response(
             text=out.getvalue(),
             content_type="text/csv",
@@ -201,11 +209,11 @@ class AlarmView:
 def _filters(message: Mapping[str, Any]) -> dict[str, Any]:
     """The history filters of a command or query, checked (ValueError says which is wrong)."""
     filters: dict[str, Any] = {}
-    for key in ("node", "code"):
+    for key, top in (("node", 127), ("code", 2**32 - 1)):
         value = message.get(key)
         if value is not None:
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise ValueError(f"{key} {value!r}: a number")
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= top:
+                raise ValueError(f"{key} {clip(repr(value))}: a number 0-{top}")
             filters[key] = value
     source = message.get("source")
     if source is not None:

@@ -35,7 +35,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from cobus.apps.panel.server import CommandError, Panel
-from cobus.errors import CobusError
+from cobus.errors import CobusError, clip
 from cobus.proto.sdo.errors import SdoAbortedError
 
 __all__ = ["DriveView", "is_cia402", "serve_cia402_drives", "serve_drive"]
@@ -43,7 +43,13 @@ __all__ = ["DriveView", "is_cia402", "serve_cia402_drives", "serve_drive"]
 #: Who may command a drive.
 HOLDERS = ("panel", "application")
 _STOPS = frozenset({"quick_stop", "halt", "disable", "stop", "release"})
+_PROFILE_VELOCITY = 3
+#: The modes the panel enables a drive in, and the set-point it zeroes first (profile
+#: position moves only on a new set-point bit: nothing to zero).
+_ENABLE_MODES: dict[int, int | None] = {1: None, 3: 0x60FF, 4: 0x6071}
 _INT32 = (-(2**31), 2**31 - 1)
+#: SDO abort codes that say the object is not there (it is not asked again).
+_NO_OBJECT = frozenset({0x06020000, 0x06090011, 0x06010001})
 #: CiA 402 actual values read by SDO when no PDO brings them: key -> (index, sub, scale).
 _ACTUALS_402 = {
     "speed": (0x606C, 0, 1.0),
@@ -109,7 +115,7 @@ class DriveView:
 
     def start(self) -> None:
         """Start reading the actual values (once the loop runs)."""
-        if self._task is None and self._objects:
+        if self._task is None and (self._objects or self.kind == "cia402"):
             self._task = asyncio.create_task(self._read(), name=f"cobus panel drive {self.name}")
 
     def close(self) -> None:
@@ -197,6 +203,10 @@ class DriveView:
         if action == "give":
             self.holder = "application"
             return {"holder": self.holder}
+        if action in _STOPS and self.holder != "panel":
+            # a stop from the panel lasts: the application must not undo it, so the operator
+            # holds the drive from now on (give hands it back)
+            self.holder = "panel"
         if action not in _STOPS and self.holder != "panel":
             raise CommandError(
                 "not-holder",
@@ -213,7 +223,17 @@ class DriveView:
                     f"enabling {self.name} switches its power stage on (at speed 0): send "
                     '"confirm": true once the operator has agreed',
                 )
-            await drive.write(0x60FF, 0, 0)  # the set-point an application left: 0
+            mode = await self._mode(drive)
+            if mode not in _ENABLE_MODES:
+                raise CommandError(
+                    "mode",
+                    f"{self.name} is in mode {_mode_name(mode)}: the panel enables a drive only "
+                    "in profile position, velocity or torque mode (6060h 1, 3 or 4), where it "
+                    "can zero the set-point first",
+                )
+            zero = _ENABLE_MODES[mode]
+            if zero is not None:
+                await drive.write(zero, 0, 0)  # the set-point an application left: 0
             await drive.enable()
             self.enabled_once = True
         elif action == "disable":
@@ -221,45 +241,74 @@ class DriveView:
         elif action == "quick_stop":
             await drive.quick_stop()
         elif action == "halt":
-            if drive.status.state.name != "OPERATION_ENABLED":
-                return {"action": action, "state": drive.status.state.name, "moving": False}
+            status = await drive.read_statusword()  # (not a stale one: it may be moving)
+            if status.state.name != "OPERATION_ENABLED":
+                return {"action": action, "state": status.state.name, "moving": False}
             await drive.halt()
         elif action == "fault_reset":
             await drive.fault_reset()
         elif action == "speed":
             value = self._speed(message.get("value"))
-            if drive.status.state.name != "OPERATION_ENABLED":
+            mode = await self._mode(drive)
+            if mode != _PROFILE_VELOCITY:
+                raise CommandError(
+                    "mode",
+                    f"{self.name} is in mode {_mode_name(mode)}: the panel sets a speed only in "
+                    "profile velocity mode (6060h = 3); it never changes the mode itself",
+                )
+            status = await drive.read_statusword()
+            if status.state.name != "OPERATION_ENABLED":
                 raise CommandError(
                     "not-enabled",
-                    f"{self.name} is {drive.status.state.value}: enable it first (a set-point "
+                    f"{self.name} is {status.state.value}: enable it first (a set-point "
                     "never enables a drive)",
                 )
             await drive.set_velocity(value, wait=False)
             return {"action": action, "value": value}
         return {"action": action, "state": drive.status.state.name}
 
-    def _speed(self, value: Any) -> int:
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, int | float)
-            or not math.isfinite(value)
-        ):
-            raise ValueError(f"value {value!r}: a signed speed in {self._unit()}")
-        if value != int(value):
-            raise ValueError(f"value {value}: a whole number of {self._unit()}")
-        low, high = _INT32
+    async def _mode(self, drive: Any) -> int:
+        """The mode 6061h shows now (-1 when the drive cannot say)."""
+        try:
+            return int(await drive.read_mode())
+        except (CobusError, ValueError, TimeoutError):
+            return -1
+
+    def _speed(self, value: Any) -> Any:
+        """The signed speed asked for, checked: finite, within INTEGER32 and the drive's max
+        profile velocity 607Fh (both in increments: the limits are turned into user units)."""
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ValueError(f"value {clip(repr(value))}: a signed speed in {self._unit()}")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"value {value}: a finite speed in {self._unit()}")
+        scale = self.drive.scale
+        low, high = _INT32[0] / scale, _INT32[1] / scale
+        limit = "INTEGER32"
         if self.max_velocity is not None:
-            low, high = -self.max_velocity, self.max_velocity
-        if not low <= value <= high:
-            limit = "its max profile velocity 607Fh" if self.max_velocity else "INTEGER32"
-            raise ValueError(f"value {int(value)}: {low}..{high} {self._unit()} ({limit})")
-        return int(value)
+            low, high = -self.max_velocity / scale, self.max_velocity / scale
+            limit = "its max profile velocity 607Fh"
+        if not low <= value <= high:  # (an int beyond any float compares right too)
+            raise ValueError(
+                f"value {clip(repr(value))}: {low:g}..{high:g} {self._unit()} ({limit})"
+            )
+        if scale == 1.0:
+            if value != int(value):
+                raise ValueError(f"value {value}: a whole number of {self._unit()}")
+            return int(value)
+        return value
 
     async def _zapi(self, drive: Any, action: str, message: Mapping[str, Any]) -> Any:
         if action == "speed":
             value = message.get("value")
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ValueError(f"value {value!r}: a signed speed in Hz (clockwise positive)")
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, int | float)
+                or not -327.67 <= value <= 327.67
+            ):
+                raise ValueError(
+                    f"value {clip(repr(value))}: a signed speed in Hz, -327.67..327.67 "
+                    "(clockwise positive)"
+                )
             if not drive.command:
                 raise CommandError(
                     "not-enabled",
@@ -319,6 +368,15 @@ class _Drives:
             known = ", ".join(self.views) or "none"
             raise CommandError("no-drive", f"drive {name!r}: one of {known}")
         return await view.command(message)
+
+
+def _mode_name(mode: int) -> str:
+    from cobus.profiles.cia402 import OperationMode
+
+    try:
+        return f"{OperationMode(mode).name} ({mode})"
+    except ValueError:
+        return "unknown (6061h unreadable)" if mode == -1 else str(mode)
 
 
 def is_cia402(node: Any) -> bool:

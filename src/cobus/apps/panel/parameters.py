@@ -21,6 +21,7 @@
 from __future__ import annotations
 
 import contextlib
+import math
 import re
 from collections.abc import Mapping
 from typing import Any
@@ -103,6 +104,9 @@ class ParameterView:
         commands = self._commands.get(node.node_id)
         if commands is None:
             commands = self._commands[node.node_id] = CommandObjects(node.config.od)
+        why = commands.reason(var.index, var.subindex)
+        if why is None:
+            why = _rpdo_carried(node).get((var.index, var.subindex))
         return {
             "index": var.index,
             "subindex": var.subindex,
@@ -114,7 +118,7 @@ class ParameterView:
             "high": _shown(var.high_limit),
             "unit": var.unit,
             "pdo": var.pdo_mappable,
-            "command": commands.reason(var.index, var.subindex),
+            "command": why,
         }
 
     # ------------------------------------------------------------------ commands
@@ -225,6 +229,18 @@ class ParameterView:
         return {"node": node.node_id, "rows": rows, "differ": differ}
 
 
+def _rpdo_carried(node: Any) -> dict[tuple[int, int], str]:
+    """The objects the network file maps into the node's RPDOs: process data the master
+    sends, so a write is a command."""
+    carried = {}
+    for layout in node.config.rpdos:
+        for signal in layout.signals:
+            carried[(signal.index, signal.subindex)] = (
+                f"process data: RPDO {layout.number} of the network file carries it"
+            )
+    return carried
+
+
 def _typed(var: Variable, value: Any) -> Any:
     """The page's value as the object's type wants it (ValueError says what to give)."""
     dt = var.data_type
@@ -252,9 +268,12 @@ def _typed(var: Variable, value: Any) -> Any:
             raise ValueError(f"{name}: {clip(repr(value))} is no {dt.name} (42, 0x2A)") from None
     if dt.is_real:
         try:
-            return float(value)
-        except (TypeError, ValueError):
+            number = float(value)
+        except (TypeError, ValueError, OverflowError):
             raise ValueError(f"{name}: {clip(repr(value))} is no {dt.name}") from None
+        if not math.isfinite(number):
+            raise ValueError(f"{name}: {clip(repr(value))}: give a finite number")
+        return number
     if dt in (DataType.OCTET_STRING, DataType.DOMAIN):
         try:
             return bytes.fromhex(str(value))

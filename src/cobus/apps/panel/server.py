@@ -44,7 +44,7 @@ from urllib.parse import quote, urlsplit
 
 from aiohttp import WSMsgType, web
 
-from cobus.apps.panel.hub import Client, Hub
+from cobus.apps.panel.hub import Client, Hub, _clean
 from cobus.errors import CobusError, clip
 
 __all__ = ["Command", "CommandError", "Panel", "PanelError"]
@@ -364,9 +364,7 @@ class Panel:
     async def _put(self, ws: web.WebSocketResponse, client: Client, message: Any) -> None:
         client.sending_since = self.hub.clock()
         try:
-            await ws.send_str(
-                json.dumps(message, separators=(",", ":"), default=str, allow_nan=False)
-            )
+            await ws.send_str(_json(message))
         finally:
             client.sending_since = None
 
@@ -434,8 +432,8 @@ class Panel:
             result = await command.handler(message)
         except CommandError as exc:
             reply = _error(ident, exc.code, exc.text)
-        except ValueError as exc:
-            reply = _error(ident, "bad-argument", f"{command.name}: {exc}")
+        except (ValueError, OverflowError) as exc:
+            reply = _error(ident, "bad-argument", f"{command.name}: {clip(str(exc))}")
         except CobusError as exc:
             reply = _error(ident, "failed", f"{command.name}: {exc}")
         except TimeoutError as exc:
@@ -446,6 +444,14 @@ class Panel:
         else:
             reply = {"type": "ack", "id": ident, "result": result}
         client.reply(reply)
+
+
+def _json(message: Any) -> str:
+    """``message`` as JSON text; NaN and infinities (which JSON has not) as null."""
+    try:
+        return json.dumps(message, separators=(",", ":"), default=str, allow_nan=False)
+    except ValueError:
+        return json.dumps(_clean(message), separators=(",", ":"), default=str, allow_nan=False)
 
 
 def _nothing() -> None:

@@ -484,12 +484,16 @@ class DrivePage {
     if (action === "enable") {
       if (!this.confirmed.has(info.name)) {
         const text = info.kind === "zapi"
-          ? `Enable ${info.name}? Its main contactor closes and it runs at the set-point.`
-          : `Enable ${info.name}? Its power stage switches on and it follows its set-point.`;
+          ? `Enable ${info.name}? Its main contactor closes; it stands at 0 Hz until you set a speed.`
+          : `Enable ${info.name}? Its power stage switches on with the set-point 0; it moves once you set a speed.`;
         if (!confirm(text)) return;
         this.confirmed.add(info.name);
       }
       args.confirm = true;
+    }
+    if (action === "give" &&
+        !confirm(`Give ${info.name} back to the application? It commands the drive again and may start it.`)) {
+      return;
     }
     button.disabled = true;
     try {
@@ -498,7 +502,7 @@ class DrivePage {
     } catch (err) {
       notice(err.text || String(err));
     } finally {
-      button.disabled = false;
+      button.disabled = !pages.network.writable();
       this.render();
     }
   }
@@ -738,6 +742,10 @@ class TracePage {
   }
 
   take(batch) {
+    if (batch.records.length && batch.records[batch.records.length - 1].n < this.last) {
+      this.last = 0;  // the panel started again: its numbers too
+      this.missed = 0;
+    }
     const fresh = batch.records.filter((r) => r.n > this.last);
     if (!fresh.length) return;
     if (this.last && fresh[0].n > this.last + 1) this.missed += fresh[0].n - this.last - 1;
