@@ -23,6 +23,7 @@ import pytest
 from cobus.apps.demo import IO, SERVO, Demo, attach_drives, start_panel
 from cobus.apps.panel import CommandError, Panel, PanelError
 from cobus.apps.panel.server import CSP, STATIC
+from cobus.apps.panel.trace import TraceView
 
 
 def run(coro: Awaitable[Any], timeout: float = 60.0) -> Any:
@@ -50,6 +51,19 @@ async def served(workdir: Path, **options: Any) -> AsyncIterator[tuple[Demo, Pan
         for panel in panels:
             await panel.stop()
         await demo.stop()
+
+
+@contextlib.asynccontextmanager
+async def connected(
+    workdir: Path, **options: Any
+) -> AsyncIterator[tuple[Demo, Panel, aiohttp.ClientSession, Page]]:
+    """:func:`served`, with an HTTP session and one page's WebSocket open on it."""
+    async with (
+        served(workdir, **options) as (demo, panel),
+        aiohttp.ClientSession() as http,
+        page(http, base(panel) + "/ws") as ws,
+    ):
+        yield demo, panel, http, ws
 
 
 def base(panel: Panel) -> str:
@@ -123,11 +137,7 @@ def nmt_of(demo: Demo, node_id: int) -> str:
 
 def test_a_page_gets_a_snapshot_then_deltas_then_numbered_events(tmp_path: Path) -> None:
     async def main() -> None:
-        async with (
-            served(tmp_path) as (demo, panel),
-            aiohttp.ClientSession() as http,
-            page(http, base(panel) + "/ws") as ws,
-        ):
+        async with connected(tmp_path) as (demo, _panel, _http, ws):
             snapshot = await ws.receive()
             assert snapshot["type"] == "snapshot"
             assert snapshot["info"]["title"] == "cobus demo"
@@ -171,11 +181,7 @@ def test_a_page_gets_a_snapshot_then_deltas_then_numbered_events(tmp_path: Path)
 
 def test_nmt_buttons_reach_the_node_and_are_acknowledged(tmp_path: Path) -> None:
     async def main() -> None:
-        async with (
-            served(tmp_path) as (demo, panel),
-            aiohttp.ClientSession() as http,
-            page(http, base(panel) + "/ws") as ws,
-        ):
+        async with connected(tmp_path) as (demo, _panel, _http, ws):
             await ws.receive()
             await ws.send({"id": 7, "cmd": "nmt", "node": IO, "action": "stop"})
             ack = await ws.reply()
@@ -232,11 +238,7 @@ def test_a_malformed_command_gets_a_typed_error_and_the_page_stays_connected(
     tmp_path: Path, message: str, code: str, text: str
 ) -> None:
     async def main() -> None:
-        async with (
-            served(tmp_path) as (demo, panel),
-            aiohttp.ClientSession() as http,
-            page(http, base(panel) + "/ws") as ws,
-        ):
+        async with connected(tmp_path) as (demo, _panel, _http, ws):
             await ws.receive()
             await running(demo)
             await ws.send(message)
@@ -287,11 +289,7 @@ def test_a_panel_bound_beyond_loopback_needs_a_token() -> None:
 
 def test_a_gap_is_closed_by_a_resync(tmp_path: Path) -> None:
     async def main() -> None:
-        async with (
-            served(tmp_path) as (_demo, panel),
-            aiohttp.ClientSession() as http,
-            page(http, base(panel) + "/ws") as ws,
-        ):
+        async with connected(tmp_path) as (_demo, panel, _http, ws):
             first = await ws.receive()
             panel.hub.event("test", text="one")
             await ws.until(lambda m: m["type"] == "event")
@@ -464,11 +462,7 @@ def test_the_vendored_files_are_the_pinned_ones() -> None:
 
 def test_a_fault_raises_an_alarm_that_is_acknowledged_cleared_and_kept(tmp_path: Path) -> None:
     async def main() -> None:
-        async with (
-            served(tmp_path) as (_demo, panel),
-            aiohttp.ClientSession() as http,
-            page(http, base(panel) + "/ws") as ws,
-        ):
+        async with connected(tmp_path) as (_demo, panel, http, ws):
             snapshot = await ws.receive()
             assert snapshot["info"]["alarms"] == {"view_time": 3.0, "history": True}
             assert [f["name"] for f in snapshot["info"]["faults"]][:2] == ["unplug_io", "replug_io"]
@@ -597,11 +591,7 @@ def test_tokens_are_long_enough_and_quoted_in_the_address() -> None:
 
 def test_drive_commands_carry_the_safety_a_drive_needs(tmp_path: Path) -> None:
     async def main() -> None:
-        async with (
-            served(tmp_path) as (demo, panel),
-            aiohttp.ClientSession() as http,
-            page(http, base(panel) + "/ws") as ws,
-        ):
+        async with connected(tmp_path) as (demo, _panel, _http, ws):
             snapshot = await ws.receive()
             await running(demo)
             for _ in range(300):  # the application enables the servo
@@ -682,11 +672,7 @@ def test_drive_commands_carry_the_safety_a_drive_needs(tmp_path: Path) -> None:
 
 def test_parameters_are_listed_read_written_checked_and_diffed(tmp_path: Path) -> None:
     async def main() -> None:
-        async with (
-            served(tmp_path) as (demo, panel),
-            aiohttp.ClientSession() as http,
-            page(http, base(panel) + "/ws") as ws,
-        ):
+        async with connected(tmp_path) as (demo, _panel, _http, ws):
             snapshot = await ws.receive()
             await running(demo)
             nodes = snapshot["info"]["parameters"]["nodes"]
@@ -735,13 +721,18 @@ def test_parameters_are_listed_read_written_checked_and_diffed(tmp_path: Path) -
 
 def test_the_trace_comes_decoded_in_numbered_batches(tmp_path: Path) -> None:
     async def main() -> None:
-        async with (
-            served(tmp_path) as (_demo, panel),
-            aiohttp.ClientSession() as http,
-            page(http, base(panel) + "/ws") as ws,
-        ):
+        async with connected(tmp_path) as (_demo, panel, _http, ws):
             snapshot = await ws.receive()
-            assert snapshot["info"]["trace"] == {"max_batch": 300}
+            assert snapshot["info"]["trace"] == {"max_batch": 300, "watch": 6.0}
+            view = next(v for v in _demo._views if isinstance(v, TraceView))
+
+            def decoding() -> bool:
+                return view.decoding
+
+            assert not decoding()  # nobody watches: nothing decoded
+            await ws.send({"id": 1, "cmd": "trace.watch"})
+            assert (await ws.reply())["result"] == {"decoding": True, "for": 6.0}
+            assert decoding()
             batches = []
             while len(batches) < 5:
                 message = await ws.until(lambda m: m["type"] == "delta")
@@ -759,5 +750,8 @@ def test_the_trace_comes_decoded_in_numbered_batches(tmp_path: Path) -> None:
             beat = next(r for r in records if r["kind"] == "hb" and r["node"] == IO)
             assert beat["cob_id"] == 0x700 + IO and "heartbeat" in beat["text"]
             assert all(isinstance(r["time"], float) for r in records)
+            view._until = 0.0  # (as if the last watch was long ago)
+            panel.refresh()
+            assert not decoding()
 
     run(main())

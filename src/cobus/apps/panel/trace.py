@@ -13,6 +13,11 @@ records in batches, at most ``rate`` times a second:
 - state key ``trace/counts``: records per kind since the start.
 
 Pausing and filtering (by node and by service) happen on the page: the decoding goes on.
+
+Decoding costs the bus loop a few microseconds a frame (and a network with a frame monitor
+leaves its fast path), so it runs only while a page shows the Trace: such a page sends
+``{"cmd": "trace.watch"}`` every few seconds, and decoding stops ``WATCH`` seconds after the
+last one (it starts afresh with the next).
 """
 
 from __future__ import annotations
@@ -28,6 +33,8 @@ __all__ = ["TraceView", "serve_trace"]
 
 #: The most records one batch carries (the newest; the others are counted as skipped).
 MAX_BATCH = 300
+#: Seconds decoding goes on after the last ``trace.watch``.
+WATCH = 6.0
 
 
 class TraceView:
@@ -36,18 +43,37 @@ class TraceView:
     def __init__(self, panel: Panel, network: Any, config: Any = None) -> None:
         self.panel = panel
         self.network = network
+        self.config = config
         self.decoder = Decoder(network=config)
         self.count = 0
         self.counts: Counter[str] = Counter()
         self._batch: list[dict[str, Any]] = []
         self._skipped = 0
-        self._subscription = network.subscribe_all(self._on_frame)
-        panel.hub.set_info("trace", {"max_batch": MAX_BATCH})
+        self._subscription: Any = None
+        self._until = 0.0
+        panel.hub.set_info("trace", {"max_batch": MAX_BATCH, "watch": WATCH})
         panel.sample(self.sample)
+        panel.command(
+            "trace.watch", self._watch, writes=False, help="decode the bus for a few seconds"
+        )
+
+    @property
+    def decoding(self) -> bool:
+        """Whether frames are decoded now (a page showed the Trace lately)."""
+        return self._subscription is not None
+
+    async def _watch(self, _message: Any) -> dict[str, Any]:
+        self._until = self.network.time() + WATCH
+        if self._subscription is None:
+            self.decoder = Decoder(network=self.config)  # (afresh: no half transfer kept)
+            self._subscription = self.network.subscribe_all(self._on_frame)
+        return {"decoding": True, "for": WATCH}
 
     def close(self) -> None:
         """Stop decoding."""
-        self._subscription.cancel()
+        if self._subscription is not None:
+            self._subscription.cancel()
+            self._subscription = None
 
     def _on_frame(self, frame: Frame, now: float) -> None:
         try:
@@ -75,6 +101,8 @@ class TraceView:
 
     def sample(self) -> dict[str, Any]:
         """The records decoded since the last sample (see the module text)."""
+        if self._subscription is not None and self.network.time() > self._until:
+            self.close()  # nobody watches: the bus loop is spared the decoding
         if not self._batch:
             return {"trace/counts": dict(self.counts)}
         pending, self._batch = self._batch, []

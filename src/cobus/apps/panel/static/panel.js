@@ -729,6 +729,13 @@ class TracePage {
     $("#trace-clear").addEventListener("click", () => { this.records = []; this.draw(); });
     $("#trace-filter").addEventListener("input", () => this.draw());
     $("#trace-filter").addEventListener("submit", (e) => e.preventDefault());
+    // the panel decodes only while a page shows the trace: say so every two seconds
+    setInterval(() => this.watch(), 2000);
+  }
+
+  watch() {
+    if (location.hash !== "#trace" || !this.link.info.trace) return;
+    this.link.command("trace.watch").catch(() => {});
   }
 
   snapshot(msg) {
@@ -841,7 +848,10 @@ function show() {
     a.classList.toggle("current", a.dataset.page === name);
   }
   if (page === "drive") pages.drive.show();
-  if (page === "trace") pages.trace.draw();
+  if (page === "trace") {
+    pages.trace.watch();
+    pages.trace.draw();
+  }
 }
 window.addEventListener("hashchange", show);
 show();
