@@ -6,6 +6,7 @@ the same run twice, in real time, ``--seconds`` each (60 by default; "minutes" w
 ``--seconds 300``):
 
 - without the panel;
+- with the panel read by a WebSocket client that draws nothing (the panel's own cost);
 - with the panel and Debian's chromium (Playwright, headless) showing it: the Network page,
   then each Drive page in turn, at the panel's 10 updates a second.
 
@@ -44,6 +45,9 @@ from cobus.od import DataType, ObjectDictionary  # noqa: E402
 from cobus.runtime import AsyncNetwork  # noqa: E402
 from cobus.sim import Rig  # noqa: E402
 
+#: The runs side by side: no panel, the panel read by a client that draws nothing (its own
+#: cost), the panel shown in chromium (with the browser's CPU on the same machine).
+MODES = ("none", "socket", "browser")
 IO_NODES = range(1, 120)
 DRIVES = range(120, 128)
 IO_NODE = """  io{n}:
@@ -76,12 +80,15 @@ def _rss_mb() -> float:
     return 0.0
 
 
-async def _run(folder: Path, seconds: float, with_panel: bool) -> dict[str, Any]:
+async def _run(folder: Path, seconds: float, mode: str) -> dict[str, Any]:
+    """One run: ``mode`` "none" (no panel), "socket" (the panel, read by a WebSocket client
+    that draws nothing: the panel's own cost) or "browser" (chromium showing it)."""
+    with_panel = mode != "none"
     rig = Rig.loads(
         "bus: embedded\ndevices:\n"
         + "".join(f"  - {{node: {n}, kind: cia402_drive, name: drive{n}}}\n" for n in DRIVES)
     )
-    channel = f"bench-panel-{os.getpid()}-{with_panel}"
+    channel = f"bench-panel-{os.getpid()}-{mode}"
     devices_net = AsyncNetwork(interface="virtual", channel=channel)
     master_net = AsyncNetwork(interface="virtual", channel=channel)
     await devices_net.connect()
@@ -115,8 +122,12 @@ async def _run(folder: Path, seconds: float, with_panel: bool) -> dict[str, Any]
     deepest = 0
     browser_peak = 0.0
     start = time.perf_counter()
-    if panel is not None:
+    if mode == "browser":
+        assert panel is not None
         deepest, browser_peak = await _browse(panel, seconds, [d.name for d in drives])
+    elif mode == "socket":
+        assert panel is not None
+        deepest = await _read_socket(panel, seconds)
     else:
         await asyncio.sleep(seconds)
     elapsed = time.perf_counter() - start
@@ -141,6 +152,22 @@ async def _run(folder: Path, seconds: float, with_panel: bool) -> dict[str, Any]
     await master_net.disconnect()
     await devices_net.disconnect()
     return figures
+
+
+async def _read_socket(panel: Panel, seconds: float) -> int:
+    """A WebSocket client on the panel for ``seconds`` that reads everything and draws
+    nothing; the deepest client queue seen."""
+    import aiohttp
+
+    deepest = 0
+    loop = asyncio.get_running_loop()
+    end = loop.time() + seconds
+    async with aiohttp.ClientSession() as http, http.ws_connect(panel.url + "ws") as ws:
+        while loop.time() < end:
+            with contextlib.suppress(TimeoutError):
+                await ws.receive(timeout=0.1)
+            deepest = max([deepest, *(c.depth for c in panel.hub.clients)])
+    return deepest
 
 
 _BROWSER = """
@@ -207,9 +234,11 @@ def main(argv: list[str] | None = None) -> None:
     if not Path(CHROMIUM).exists():
         print("  (no chromium: apt install chromium; skipped)")
         return
-    with tempfile.TemporaryDirectory() as tmp, capped(3000):
-        plain = asyncio.run(_run(Path(tmp), args.seconds, with_panel=False))
-        shown = asyncio.run(_run(Path(tmp), args.seconds, with_panel=True))
+    runs = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for mode in MODES:
+            with capped(3000):  # (each run capped anew: 3 GB beyond what the last one left)
+                runs.append(asyncio.run(_run(Path(tmp), args.seconds, mode)))
     rows = [
         ("SYNC: worst delay (with boot)", "sync_late_ms", "ms", ".1f"),
         ("SYNC: periods missed", "sync_missed", "", ".0f"),
@@ -220,9 +249,10 @@ def main(argv: list[str] | None = None) -> None:
         ("clients dropped", "dropped", "", ".0f"),
         ("browser peak memory", "browser_mb", "MB", ".0f"),
     ]
-    print(f"  {'':<28} {'no panel':>12} {'panel + chromium':>18}")
+    print(f"  {'':<28} {'no panel':>12} {'panel + socket':>16} {'panel + chromium':>18}")
     for label, key, unit, fmt in rows:
-        print(f"  {label:<28} {plain[key]:>12{fmt}} {shown[key]:>18{fmt}} {unit}")
+        a, b, c = (run[key] for run in runs)
+        print(f"  {label:<28} {a:>12{fmt}} {b:>16{fmt}} {c:>18{fmt}} {unit}")
 
 
 if __name__ == "__main__":
