@@ -648,6 +648,14 @@ def test_drive_commands_carry_the_safety_a_drive_needs(tmp_path: Path) -> None:
                 "action": "speed",
                 "value": -5000,
             }
+            # a faulted drive cannot move: a quick stop is answered at once
+            await demo.fault("servo_fault")
+            for _ in range(200):
+                if (await demo.servo.read_statusword()).state.name == "FAULT":  # type: ignore[union-attr]
+                    break
+                await asyncio.sleep(0.01)
+            stopped = await drive("quick_stop")
+            assert stopped["result"] == {"action": "quick_stop", "state": "FAULT", "moving": False}
             assert (await drive("give"))["result"] == {"holder": "application"}
             assert not demo.panel_holds["servo"]()
 

@@ -44,6 +44,8 @@ __all__ = ["DriveView", "is_cia402", "serve_cia402_drives", "serve_drive"]
 HOLDERS = ("panel", "application")
 _STOPS = frozenset({"quick_stop", "halt", "disable", "stop", "release"})
 _PROFILE_VELOCITY = 3
+#: Power states in which a drive cannot move: a quick stop there is answered at once.
+_STANDING = frozenset({"NOT_READY_TO_SWITCH_ON", "SWITCH_ON_DISABLED", "FAULT"})
 #: The modes the panel enables a drive in, and the set-point it zeroes first (profile
 #: position moves only on a new set-point bit: nothing to zero).
 _ENABLE_MODES: dict[int, int | None] = {1: None, 3: 0x60FF, 4: 0x6071}
@@ -239,6 +241,9 @@ class DriveView:
         elif action == "disable":
             await drive.disable()
         elif action == "quick_stop":
+            status = await drive.read_statusword()
+            if status.state.name in _STANDING:  # (it cannot move: answered at once)
+                return {"action": action, "state": status.state.name, "moving": False}
             await drive.quick_stop()
         elif action == "halt":
             status = await drive.read_statusword()  # (not a stale one: it may be moving)
