@@ -612,8 +612,10 @@ class ParametersPage {
   async search() {
     const form = new FormData($("#param-search"));
     const node = this.node();
+    const asked = (this.asked = (this.asked || 0) + 1);
     try {
       const found = await this.link.command("param.list", {node, query: String(form.get("query") || "")});
+      if (asked !== this.asked) return;  // a newer search was sent meanwhile: its list counts
       this.loaded = node;
       const writable = pages.network.writable();
       $("#param-list tbody").replaceChildren(...found.objects.map((o) => this.row(o, writable)));
@@ -647,6 +649,8 @@ class ParametersPage {
     const o = row.info;
     try {
       const got = await this.link.command("param.read", {node: this.loaded, index: o.index, subindex: o.subindex});
+      // (the list may have been drawn again meanwhile: the value goes to the row shown now)
+      row = $(`#param-list tr[data-index="${o.index}"][data-subindex="${o.subindex}"]`) || row;
       const input = $("input", row);
       if (input) input.value = String(got.value);
       else $("td.value", row).textContent = String(got.value);
