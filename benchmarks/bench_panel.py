@@ -121,6 +121,7 @@ async def _run(folder: Path, seconds: float, mode: str) -> dict[str, Any]:
     frames0 = master_net.frames_sent + master_net.frames_received
     deepest = 0
     browser_peak = 0.0
+    events0 = panel.hub.seq if panel is not None else 0
     start = time.perf_counter()
     if mode == "browser":
         assert panel is not None
@@ -141,6 +142,7 @@ async def _run(folder: Path, seconds: float, mode: str) -> dict[str, Any]:
         heap_growth_mb=(heap1 - heap0) / 2**20,
         deepest_queue=deepest,
         dropped=panel.hub.dropped if panel is not None else 0,
+        events=panel.hub.seq - events0 if panel is not None else 0,
         browser_mb=browser_peak,
     )
     if panel is not None:
@@ -154,19 +156,47 @@ async def _run(folder: Path, seconds: float, mode: str) -> dict[str, Any]:
     return figures
 
 
+_SOCKET = """
+import asyncio, sys, aiohttp
+url, seconds = {url!r}, {seconds!r}
+
+async def main():
+    loop = asyncio.get_running_loop()
+    async with aiohttp.ClientSession() as http, http.ws_connect(url + "ws") as ws:
+        print("ready", flush=True)
+        end = loop.time() + seconds
+        async for _msg in ws:
+            if loop.time() > end:
+                break
+
+asyncio.run(main())
+"""
+
+
 async def _read_socket(panel: Panel, seconds: float) -> int:
     """A WebSocket client on the panel for ``seconds`` that reads everything and draws
-    nothing; the deepest client queue seen."""
-    import aiohttp
+    nothing, in a process of its own (its reading is not the panel's cost); the deepest
+    client queue seen."""
+    code = _SOCKET.format(url=panel.url, seconds=seconds)
+    return await _watch_child(panel, [sys.executable, "-c", code])
 
+
+async def _watch_child(panel: Panel, command: list[str]) -> int:
+    """Run ``command`` (which prints a line once it reads the panel) to its end; the deepest
+    client queue, sampled 10 times a second meanwhile."""
     deepest = 0
-    loop = asyncio.get_running_loop()
-    end = loop.time() + seconds
-    async with aiohttp.ClientSession() as http, http.ws_connect(panel.url + "ws") as ws:
-        while loop.time() < end:
-            with contextlib.suppress(TimeoutError):
-                await ws.receive(timeout=0.1)
+    child = await asyncio.create_subprocess_exec(*command, stdout=asyncio.subprocess.PIPE)
+    assert child.stdout is not None
+    try:
+        await asyncio.wait_for(child.stdout.readline(), 120)
+        while child.returncode is None:
             deepest = max([deepest, *(c.depth for c in panel.hub.clients)])
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(child.wait(), 0.1)
+    finally:
+        if child.returncode is None:
+            child.kill()
+            await child.wait()
     return deepest
 
 
@@ -201,32 +231,23 @@ async def _browse(panel: Panel, seconds: float, drives: list[str]) -> tuple[int,
     page, two seconds each; the client queues sampled 10 times a second meanwhile."""
     from tests.browser import BrowserWatchdog, scratch
 
-    deepest = 0
     hashes = ["#network", *(f"#drive-{d}" for d in drives)]
     with scratch() as folder, BrowserWatchdog(max_rss_mb=3000) as watchdog:
         code = _BROWSER.format(
             root=str(HERE.parent), url=panel.url, seconds=seconds, hashes=hashes, folder=folder
         )
-        child = await asyncio.create_subprocess_exec(
-            sys.executable, "-c", code, stdout=asyncio.subprocess.PIPE
-        )
-        assert child.stdout is not None
-        try:
-            await asyncio.wait_for(child.stdout.readline(), 120)
-            while child.returncode is None:
-                deepest = max([deepest, *(c.depth for c in panel.hub.clients)])
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(child.wait(), 0.1)
-        finally:
-            if child.returncode is None:
-                child.kill()
-                await child.wait()
+        deepest = await _watch_child(panel, [sys.executable, "-c", code])
     return deepest, watchdog.peak_mb
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0, help="seconds per run")
+    parser.add_argument(
+        "--modes",
+        default=",".join(MODES),
+        help=f"the runs, comma-separated (default: {','.join(MODES)})",
+    )
     args = parser.parse_args(argv if argv is not None else [])
     from tests.browser import CHROMIUM, capped
 
@@ -234,9 +255,13 @@ def main(argv: list[str] | None = None) -> None:
     if not Path(CHROMIUM).exists():
         print("  (no chromium: apt install chromium; skipped)")
         return
+    modes = [m.strip() for m in args.modes.split(",") if m.strip()]
+    wrong = [m for m in modes if m not in MODES]
+    if wrong or not modes:
+        parser.error(f"--modes {args.modes}: some of {', '.join(MODES)}")
     runs = []
     with tempfile.TemporaryDirectory() as tmp:
-        for mode in MODES:
+        for mode in modes:
             with capped(3000):  # (each run capped anew: 3 GB beyond what the last one left)
                 runs.append(asyncio.run(_run(Path(tmp), args.seconds, mode)))
     rows = [
@@ -245,14 +270,16 @@ def main(argv: list[str] | None = None) -> None:
         ("frames on the bus", "frames_per_s", "/s", ",.0f"),
         ("resident memory growth", "rss_growth_mb", "MB", ".1f"),
         ("Python heap growth", "heap_growth_mb", "MB", ".2f"),
+        ("panel events", "events", "", ",.0f"),
         ("deepest client queue", "deepest_queue", "entries", ".0f"),
         ("clients dropped", "dropped", "", ".0f"),
         ("browser peak memory", "browser_mb", "MB", ".0f"),
     ]
-    print(f"  {'':<28} {'no panel':>12} {'panel + socket':>16} {'panel + chromium':>18}")
+    titles = {"none": "no panel", "socket": "panel + socket", "browser": "panel + chromium"}
+    print(f"  {'':<30}" + "".join(f"{titles[m]:>18}" for m in modes))
     for label, key, unit, fmt in rows:
-        a, b, c = (run[key] for run in runs)
-        print(f"  {label:<28} {a:>12{fmt}} {b:>16{fmt}} {c:>18{fmt}} {unit}")
+        cells = "".join(f"{run[key]:>18{fmt}}" for run in runs)
+        print(f"  {label:<30}{cells} {unit}")
 
 
 if __name__ == "__main__":

@@ -83,7 +83,9 @@ class Page:
     async def _read(self) -> None:
         async for msg in self.ws:
             if msg.type is aiohttp.WSMsgType.TEXT:
-                self.queue.put_nowait(json.loads(msg.data))
+                data = json.loads(msg.data)  # one message or several queued together
+                for message in data if isinstance(data, list) else [data]:
+                    self.queue.put_nowait(message)
 
     async def send(self, message: Any) -> None:
         if isinstance(message, str):
@@ -175,6 +177,55 @@ def test_a_page_gets_a_snapshot_then_deltas_then_numbered_events(tmp_path: Path)
                 events.append(event)
             assert [e["seq"] for e in events] == list(range(seq + 1, seq + 1 + len(events)))
             assert event["text"] and event["level"] == "problem"  # an unexpected state
+
+    run(main())
+
+
+def test_a_burst_of_events_goes_out_in_a_few_messages_in_order() -> None:
+    async def main() -> None:
+        async with (
+            Panel(port=0) as panel,
+            aiohttp.ClientSession() as http,
+            http.ws_connect(base(panel) + "/ws") as ws,
+        ):
+            first = json.loads((await ws.receive(5)).data)
+            assert first["type"] == "snapshot" and first["seq"] == 0
+            for n in range(400):  # an EMCY storm: 400 events at once
+                panel.hub.event("master", name="NodeEmergency", text=f"EMCY {n}")
+            panel.hub.update({"load": 1})
+            events: list[dict[str, Any]] = []
+            frames = 0
+            while len(events) < 400:
+                data = json.loads((await ws.receive(5)).data)
+                frames += 1
+                for message in data if isinstance(data, list) else [data]:
+                    assert message["type"] in ("event", "delta"), message
+                    if message["type"] == "event":
+                        events.append(message)
+            assert [e["seq"] for e in events] == list(range(1, 401))
+            assert [e["text"] for e in events[:2]] == ["EMCY 0", "EMCY 1"]
+            assert frames <= 3  # (one, unless the sender woke in the middle of the burst)
+
+    run(main())
+
+
+def test_the_network_sample_builds_only_the_nodes_that_changed(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with served(tmp_path) as (demo, panel):
+            await running(demo)
+            view = panel.views["network"]
+            view.sample()
+            again = view.sample()  # (nothing can change between the two: no await)
+            assert not [k for k in again if k.startswith(("node/", "heard/"))]
+            assert "master" in again and "bus_load" in again
+            demo.rig_net.nmt.send(0x02, IO)  # someone stops the I/O module
+            for _ in range(200):
+                await asyncio.sleep(0.01)
+                changed = view.sample()
+                if f"node/{IO}" in changed:
+                    break
+            assert changed[f"node/{IO}"]["nmt"] == "STOPPED"
+            assert f"node/{SERVO}" not in changed
 
     run(main())
 

@@ -79,10 +79,11 @@ class Client:
         out = list(self.replies)
         self.replies.clear()
         if self.resync:
+            snapshot = self.hub.snapshot()  # (what its sample changes is in it already)
             self.resync = False
             self.events.clear()
             self.values = {}
-            out.append(self.hub.snapshot())
+            out.append(snapshot)
         else:
             out.extend({"type": "event", **e} for e in self.events)
             self.events.clear()

@@ -65,6 +65,9 @@ class MasterView:
         #: What the nodes said of themselves by SDO (1008h, 1018h), by node-ID.
         self.device: dict[int, dict[str, Any]] = {}
         self._reading: set[int] = set()
+        #: What each node's key was built from at the last sample (unchanged: not built).
+        self._last: dict[int, tuple[Any, ...]] = {}
+        self._heard: dict[int, float | None] = {}
         self._tasks: set[asyncio.Task[None]] = set()
         panel.hub.info["nodes"] = [
             {
@@ -86,6 +89,7 @@ class MasterView:
             help="NMT command to a node or all: node, action (start, stop, preop, reset...)",
         )
         master.add_listener(self._on_event)
+        panel.views["network"] = self
 
     def close(self) -> None:
         """Stop listening to the master and cancel the identity reads under way."""
@@ -95,30 +99,50 @@ class MasterView:
 
     # ------------------------------------------------------------------ samples
     def sample(self) -> dict[str, Any]:
-        """The master and its nodes as state keys (see the module text)."""
+        """The master and its nodes as state keys (see the module text): the nodes whose
+        state changed since the last sample (all of them the first time), and the master."""
         master = self.master
         diag = master.diagnostics
         values: dict[str, Any] = {}
+        last = self._last
         for node_id, node in master.nodes.items():
             leds = node.led
-            diagnostic = node.diagnostic
-            values[f"node/{node_id}"] = {
-                "id": node_id,
-                "name": node.name,
-                "nmt": None if node.nmt_state is None else node.nmt_state.name,
-                "state": int(node.state),
-                "state_text": node.state.text,
-                "diagnostic": int(diagnostic),
-                "diagnostic_text": diagnostic.text,
-                "run_led": leds.run.value,
-                "error_led": leds.error.value,
-                "emcy": node.emcy_count,
-                "error_control": node.error_control,
-                "problem": node.problem,
-                "device": self.device.get(node_id, {}),
-            }
-            values[f"heard/{node_id}"] = node.heard_at
-            if node.state is NodeState.OPERATIONAL and node_id not in self._reading:
+            state = node.state
+            nmt = node.nmt_state
+            seen = (
+                nmt,
+                state,
+                node.diagnostic,
+                leds.run,
+                leds.error,
+                node.emcy_count,
+                node.error_control,
+                node.problem,
+                self.device.get(node_id),
+            )
+            if last.get(node_id) != seen:
+                last[node_id] = seen
+                diagnostic = node.diagnostic
+                values[f"node/{node_id}"] = {
+                    "id": node_id,
+                    "name": node.name,
+                    "nmt": None if nmt is None else nmt.name,
+                    "state": int(state),
+                    "state_text": state.text,
+                    "diagnostic": int(diagnostic),
+                    "diagnostic_text": diagnostic.text,
+                    "run_led": leds.run.value,
+                    "error_led": leds.error.value,
+                    "emcy": node.emcy_count,
+                    "error_control": node.error_control,
+                    "problem": node.problem,
+                    "device": self.device.get(node_id, {}),
+                }
+            heard = node.heard_at
+            if heard != self._heard.get(node_id, -1.0):
+                self._heard[node_id] = heard
+                values[f"heard/{node_id}"] = heard
+            if state is NodeState.OPERATIONAL and node_id not in self._reading:
                 self._read_device(node_id)
         values["master"] = {
             "state": master.state.name,

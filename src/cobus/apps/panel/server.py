@@ -11,6 +11,11 @@ says ``Content-Security-Policy: default-src 'self'``) and ``/ws``, over which a 
 - ``{"type": "ack", "id", "result"}`` or ``{"type": "error", "id", "code", "text"}`` for
   each command ``{"id": ..., "cmd": NAME, ...arguments, "token": ...}`` it sends.
 
+A WebSocket message carries one of these, or a JSON array of several in the order they were
+queued: what gathered since the last send goes out as one message, at most ``ROUNDS`` times
+a second, so that a burst of events (an EMCY storm) costs the bus loop and the browser a few
+messages rather than one each.
+
 Safety: it binds 127.0.0.1 unless told otherwise. Bound anywhere else (or with ``token=``
 given), every command that writes to the bus needs the token printed at start. A request
 whose ``Host`` is not a loopback name while bound to loopback (DNS rebinding) and a WebSocket
@@ -58,6 +63,8 @@ MAX_MESSAGE = 64 * 1024
 MAX_PENDING = 16
 #: Replies a page has not taken before it counts as not reading (it is dropped).
 MAX_REPLIES = 256
+#: Messages to one page a second at most (each carries what gathered since the last).
+ROUNDS = 50.0
 #: Pages connected at once; more are refused (each costs the bus loop some work per tick).
 MAX_CLIENTS = 32
 #: The shortest token a panel takes.
@@ -349,15 +356,15 @@ class Panel:
                 await client.ready.wait()
                 if client.closed:
                     break
-                for message in client.messages():
-                    await self._put(ws, client, message)
-                if client.values:
-                    wait = last_delta + period - loop.time()
-                    if wait > 0:
-                        await asyncio.sleep(wait)
-                        continue
+                batch = client.messages()
+                if client.values and loop.time() >= last_delta + period:
                     last_delta = loop.time()
-                    await self._put(ws, client, client.delta())
+                    batch.append(client.delta())
+                if batch:
+                    await self._put(ws, client, batch[0] if len(batch) == 1 else batch)
+                    await asyncio.sleep(1.0 / ROUNDS)  # (what comes meanwhile goes together)
+                elif client.values:
+                    await asyncio.sleep(last_delta + period - loop.time())
         except (ConnectionError, RuntimeError):
             client.close("connection lost")
 

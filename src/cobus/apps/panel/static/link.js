@@ -38,7 +38,8 @@ export class Link {
         console.warn("cobus panel: a message that is not JSON", err);
         return;
       }
-      this.receive(msg);
+      // one message, or several queued together (in order)
+      for (const one of Array.isArray(msg) ? msg : [msg]) this.receive(one);
     };
     ws.onclose = (e) => {
       for (const [, p] of this.pending) p.reject({code: "disconnected", text: "the panel went away"});

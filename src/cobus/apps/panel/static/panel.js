@@ -44,6 +44,8 @@ class NetworkPage {
     this.rows = new Map();
     this.busLoad = [[], []];
     this.plot = null;
+    this.incoming = [];     // events not drawn yet
+    this.drawDue = false;
     $("#all-nodes").addEventListener("click", (e) => this.nmtButton(e));
     $("#demo-faults").addEventListener("click", (e) => this.faultButton(e));
     $("#nodes tbody").addEventListener("click", (e) => this.nmtButton(e));
@@ -107,6 +109,7 @@ class NetworkPage {
     const series = msg.series.bus_load || [];
     this.busLoad = [series.map((s) => s[0] + offset), series.map((s) => s[1])];
     $("#events").replaceChildren();
+    this.incoming = [];
     for (const ev of msg.events) this.event(ev);
     for (const b of document.querySelectorAll("button[data-nmt]")) b.disabled = !this.writable();
     if (!this.writable()) {
@@ -218,11 +221,25 @@ class NetworkPage {
     }
   }
 
+  // Events are listed newest first, the last 200; a burst of them (an EMCY storm) is drawn
+  // once, after the messages that brought it.
   event(ev) {
+    this.incoming.push(ev);
+    if (this.incoming.length > 200) this.incoming.splice(0, this.incoming.length - 200);
+    if (!this.drawDue) {
+      this.drawDue = true;
+      setTimeout(() => this.drawEvents(), 0);
+    }
+  }
+
+  drawEvents() {
+    this.drawDue = false;
     const list = $("#events");
-    const item = el("li", {class: ev.level || "info", "data-seq": String(ev.seq)},
-      el("time", {}, timeOfDay(this.link, ev.time)), ev.text);
-    list.prepend(item);
+    const items = this.incoming.reverse().map((ev) =>
+      el("li", {class: ev.level || "info", "data-seq": String(ev.seq)},
+        el("time", {}, timeOfDay(this.link, ev.time)), ev.text));
+    this.incoming = [];
+    list.prepend(...items);
     while (list.children.length > 200) list.lastChild.remove();
   }
 }
