@@ -329,6 +329,15 @@ class AsyncDrive402:
             return None
         return value
 
+    async def read_fresh(self, index: int, subindex: int = 0, max_age: float | None = None) -> Any:
+        """An object's value: the newest TPDO value where a TPDO maps it and one came within
+        ``max_age`` seconds (this drive's ``max_age`` by default), else read by SDO."""
+        got = self._port.input(index, subindex)
+        age = self.max_age if max_age is None else max_age
+        if got is not None and self._port.network.time() - got[1] <= age:
+            return got[0]
+        return await self.read(index, subindex)
+
     def _on_input(self, number: int, now: float) -> None:
         self._updated.set()
 

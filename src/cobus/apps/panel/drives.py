@@ -6,9 +6,16 @@
 - state key ``drive/<name>``: its kind, node, power state, statusword decoded (CiA 402) or
   the ZAPI's alarm and handshake, the set-point, the actual values, and who commands it;
 - plotted keys ``drive/<name>/speed`` (and, for CiA 402, ``position``, ``current`` and
-  ``temperature`` where the drive has them), read by SDO ``rate`` times a second when no PDO
-  brings them (an object the drive refuses is not asked again);
-- the command ``drive`` (it writes): ``{"cmd": "drive", "drive": NAME, "action": ...}``.
+  ``temperature`` where the drive has them);
+- the command ``drive`` (it writes): ``{"cmd": "drive", "drive": NAME, "action": ...}``;
+- the command ``drive.watch`` (it reads): ``{"cmd": "drive.watch", "drive": NAME}``, sent
+  every few seconds by a page that shows the drive.
+
+What it costs the bus: a CiA 402 drive's statusword is read once a second (by SDO where no
+TPDO brings it); its actual values, its mode and the statusword ``rate`` times a second only
+while a page watches it (``WATCH`` seconds after the last ``drive.watch``), each taken from a
+TPDO that maps it where one is fresh, else read by SDO (an object the drive refuses is not
+asked again).
 
 Safety — nothing moves a drive unless the operator asked for exactly that:
 
@@ -18,6 +25,10 @@ Safety — nothing moves a drive unless the operator asked for exactly that:
 - ``speed`` sets exactly the signed value given, checked against the drive's limits (CiA 402:
   INTEGER32 and its max profile velocity 607Fh where it has one; ZAPI: ±327.67 Hz); it never
   enables a drive that is off;
+- ``position`` (CiA 402) starts a profile position move to ``value`` (``"relative": true``:
+  by ``value`` from the last target), checked against INTEGER32 and the software position
+  limits 607Dh where the drive has them; like ``speed`` only in the drive's mode (profile
+  position) and only while it is enabled - the panel never writes the mode 6060h;
 - ``quick_stop``, ``halt``, ``disable`` (and the ZAPI's ``stop`` and ``release``) are always
   accepted, also while the application commands the drive — a page is never kept from
   stopping it;
@@ -46,6 +57,13 @@ _STOPS = frozenset({"quick_stop", "halt", "disable", "stop", "release"})
 _PROFILE_VELOCITY = 3
 #: Power states in which a drive cannot move: a quick stop there is answered at once.
 _STANDING = frozenset({"NOT_READY_TO_SWITCH_ON", "SWITCH_ON_DISABLED", "FAULT"})
+_PROFILE_POSITION = 1
+#: Seconds a page's ``drive.watch`` keeps the actual values read.
+WATCH = 6.0
+#: Seconds between statusword reads while no page watches the drive.
+IDLE_PERIOD = 1.0
+#: Seconds between reads of the mode (6061h) while a page watches.
+MODE_PERIOD = 1.0
 #: The modes the panel enables a drive in, and the set-point it zeroes first (profile
 #: position moves only on a new set-point bit: nothing to zero).
 _ENABLE_MODES: dict[int, int | None] = {1: None, 3: 0x60FF, 4: 0x6071}
@@ -93,6 +111,12 @@ class DriveView:
         self.enabled_once = False
         self.actual: dict[str, float | None] = {}
         self.max_velocity: int | None = None
+        #: The software position limits 607Dh (increments; None: the drive has none).
+        self.position_limits: tuple[int, int] | None = None
+        #: Why the last statusword read failed ("" when it worked).
+        self.read_error = ""
+        self._until = 0.0
+        self._wake = asyncio.Event()
         self._objects = dict(_ACTUALS_402) if kind == "cia402" else {}
         if temperature is not None:
             self._objects["temperature"] = temperature
@@ -114,6 +138,17 @@ class DriveView:
     def panel_holds(self) -> bool:
         """Whether the panel commands the drive (the application then leaves it alone)."""
         return self.holder == "panel"
+
+    @property
+    def watched(self) -> bool:
+        """Whether a page showed the drive within the last ``WATCH`` seconds."""
+        return self.panel.hub.clock() < self._until
+
+    def watch(self) -> dict[str, Any]:
+        """A page shows the drive: read its actual values for ``WATCH`` seconds more."""
+        self._until = self.panel.hub.clock() + WATCH
+        self._wake.set()
+        return {"drive": self.name, "watching": True, "for": WATCH}
 
     def start(self) -> None:
         """Start reading the actual values (once the loop runs)."""
@@ -143,6 +178,14 @@ class DriveView:
                 "fault": state.name in ("FAULT", "FAULT_REACTION_ACTIVE"),
                 "enabled": state.name == "OPERATION_ENABLED",
                 "controlword": drive.controlword,
+                "mode": status.mode or None,
+                "mode_text": _mode_name(status.mode) if status.mode else "",
+                "position_limits": (
+                    None
+                    if self.position_limits is None
+                    else [limit / drive.scale for limit in self.position_limits]
+                ),
+                "read_error": self.read_error,
             }
         else:
             actual = {"speed": drive.speed}
@@ -172,25 +215,58 @@ class DriveView:
         return values
 
     async def _read(self) -> None:
-        """Read the actual values the drive has, ``rate`` times a second."""
+        """Read the drive (see the module text): its statusword each ``IDLE_PERIOD``; its
+        actual values and mode ``rate`` times a second while a page watches it."""
         drive = self.drive
         while self._ready is not None and not self._ready():
             await asyncio.sleep(self._period)  # (no SDO while the master boots the node)
-        with contextlib.suppress(CobusError, TimeoutError, ValueError):
-            self.max_velocity = int(await drive.read(0x607F)) or None
-        while self._objects:
-            for key, (index, sub, scale) in list(self._objects.items()):
+        cia402 = self.kind == "cia402"
+        if cia402:
+            with contextlib.suppress(CobusError, TimeoutError, ValueError):
+                self.max_velocity = int(await drive.read(0x607F)) or None
+            with contextlib.suppress(CobusError, TimeoutError, ValueError):
+                low, high = int(await drive.read(0x607D, 1)), int(await drive.read(0x607D, 2))
+                self.position_limits = (low, high) if low < high else None
+        mode_read_at = -math.inf
+        was_watched = False
+        while True:
+            watched = self.watched
+            if cia402:
                 try:
-                    raw = await asyncio.wait_for(drive.read(index, sub), 2.0)
-                    self.actual[key] = float(raw) * scale
-                except (SdoAbortedError, ValueError):
-                    del self._objects[key]  # the drive has no such object: not asked again
-                    self.actual.pop(key, None)
-                except CobusError:
-                    self.actual[key] = None
+                    await asyncio.wait_for(drive.read_statusword(), 2.0)
+                    self.read_error = ""
+                except (CobusError, ValueError) as exc:
+                    self.read_error = clip(str(exc))
                 except TimeoutError:
+                    self.read_error = "the drive did not answer within 2 s"
+                now = self.panel.hub.clock()
+                if watched and now - mode_read_at >= MODE_PERIOD:
+                    mode_read_at = now
+                    await self._mode(drive)
+            if watched:
+                await self._read_actuals(drive)
+            elif was_watched:
+                for key in self.actual:  # (nobody looks: no value is shown as current)
                     self.actual[key] = None
-            await asyncio.sleep(self._period)
+            was_watched = watched
+            self._wake.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._wake.wait(), self._period if watched else IDLE_PERIOD)
+
+    async def _read_actuals(self, drive: Any) -> None:
+        fresh = 2 * self._period  # (a TPDO younger than two reads is as good as one)
+        for key, (index, sub, scale) in list(self._objects.items()):
+            try:
+                if self.kind == "cia402":
+                    raw = await asyncio.wait_for(drive.read_fresh(index, sub, fresh), 2.0)
+                else:
+                    raw = await asyncio.wait_for(drive.read(index, sub), 2.0)
+                self.actual[key] = float(raw) * scale
+            except (SdoAbortedError, ValueError):
+                del self._objects[key]  # the drive has no such object: not asked again
+                self.actual.pop(key, None)
+            except (CobusError, TimeoutError):
+                self.actual[key] = None
 
     # ------------------------------------------------------------------ commands
     async def command(self, message: Mapping[str, Any]) -> Any:
@@ -270,6 +346,32 @@ class DriveView:
                 )
             await drive.set_velocity(value, wait=False)
             return {"action": action, "value": value}
+        elif action == "position":
+            relative = message.get("relative", False)
+            if not isinstance(relative, bool):
+                raise ValueError(f"relative {clip(repr(relative))}: true or false")
+            value = self._target(message.get("value"), relative)
+            mode = await self._mode(drive)
+            if mode != _PROFILE_POSITION:
+                raise CommandError(
+                    "mode",
+                    f"{self.name} is in mode {_mode_name(mode)}: the panel moves to a position "
+                    "only in profile position mode (6060h = 1); it never changes the mode itself",
+                )
+            status = await drive.read_statusword()
+            if status.state.name != "OPERATION_ENABLED":
+                raise CommandError(
+                    "not-enabled",
+                    f"{self.name} is {status.state.value}: enable it first (a set-point "
+                    "never enables a drive)",
+                )
+            if relative and self.position_limits is not None:
+                here = float(await drive.read_fresh(0x6064, 0, 2 * self._period))
+                self._within_limits(
+                    here / drive.scale + value, f"{here / drive.scale:g} + {value:g}"
+                )
+            await drive.move_to(value, relative=relative, wait=False)
+            return {"action": action, "value": value, "relative": relative}
         return {"action": action, "state": drive.status.state.name}
 
     async def _mode(self, drive: Any) -> int:
@@ -301,6 +403,38 @@ class DriveView:
                 raise ValueError(f"value {value}: a whole number of {self._unit()}")
             return int(value)
         return value
+
+    def _target(self, value: Any, relative: bool) -> Any:
+        """The position (or, ``relative``, the distance) asked for, checked: finite, within
+        INTEGER32 and (a position) the software position limits 607Dh, in user units."""
+        unit = self.drive.unit
+        what = "distance" if relative else "position"
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ValueError(f"value {clip(repr(value))}: a signed {what} in {unit}")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"value {value}: a finite {what} in {unit}")
+        scale = self.drive.scale
+        low, high = _INT32[0] / scale, _INT32[1] / scale
+        if not low <= value <= high:
+            raise ValueError(f"value {clip(repr(value))}: {low:g}..{high:g} {unit} (INTEGER32)")
+        if not relative:
+            self._within_limits(value, f"{value:g}")
+        if scale == 1.0:
+            if value != int(value):
+                raise ValueError(f"value {value}: a whole number of {unit}")
+            return int(value)
+        return value
+
+    def _within_limits(self, target: float, shown: str) -> None:
+        if self.position_limits is None:
+            return
+        scale, unit = self.drive.scale, self.drive.unit
+        low, high = (limit / scale for limit in self.position_limits)
+        if not low <= target <= high:
+            raise ValueError(
+                f"position {shown} {unit}: {low:g}..{high:g} {unit} (its software position "
+                "limits 607Dh)"
+            )
 
     async def _zapi(self, drive: Any, action: str, message: Mapping[str, Any]) -> Any:
         if action == "speed":
@@ -347,6 +481,7 @@ _ACTIONS = {
         "halt",
         "fault_reset",
         "speed",
+        "position",
         "take",
         "give",
     ),
@@ -365,14 +500,26 @@ class _Drives:
             writes=True,
             help="command a drive: drive, action (enable + confirm, speed + value, quick_stop...)",
         )
+        panel.command(
+            "drive.watch",
+            self.watch,
+            writes=False,
+            help="read a drive's actual values for a few seconds: drive",
+        )
 
-    async def command(self, message: Mapping[str, Any]) -> Any:
+    def view(self, message: Mapping[str, Any]) -> DriveView:
         name = message.get("drive")
         view = self.views.get(name) if isinstance(name, str) else None
         if view is None:
             known = ", ".join(self.views) or "none"
-            raise CommandError("no-drive", f"drive {name!r}: one of {known}")
-        return await view.command(message)
+            raise CommandError("no-drive", f"drive {clip(repr(name))}: one of {known}")
+        return view
+
+    async def watch(self, message: Mapping[str, Any]) -> Any:
+        return self.view(message).watch()
+
+    async def command(self, message: Mapping[str, Any]) -> Any:
+        return await self.view(message).command(message)
 
 
 def _mode_name(mode: int) -> str:

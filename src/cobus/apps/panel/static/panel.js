@@ -414,7 +414,16 @@ class DrivePage {
       if (button) this.action(button.dataset.action, button);
     });
     $("#drive-setpoint").addEventListener("submit", (e) => { e.preventDefault(); this.setpoint(); });
+    $("#drive-position").addEventListener("submit", (e) => { e.preventDefault(); this.position(); });
     setInterval(() => this.tick(), 250);
+    // the panel reads a drive's actual values only while a page shows it: say so
+    setInterval(() => this.watch(), 2000);
+  }
+
+  watch() {
+    const name = this.current();
+    if (name === null || !this.drives().some((d) => d.name === name)) return;
+    this.link.command("drive.watch", {drive: name}).catch(() => {});
   }
 
   current() {
@@ -443,7 +452,10 @@ class DrivePage {
     this.name = name;
     $("#drive-plots").replaceChildren();
     this.plots = {};
-    if (name !== null) this.render();
+    if (name !== null) {
+      this.watch();
+      this.render();
+    }
   }
 
   info() { return this.drives().find((d) => d.name === this.name); }
@@ -456,6 +468,7 @@ class DrivePage {
     $("#drive-title").textContent = `${info.name} (node ${info.node}, ${info.kind === "zapi" ? "ZAPI" : "CiA 402"})`;
     const state = $("#drive-state");
     state.textContent = d.kind === "zapi" ? d.state : d.state_text;
+    if (d.read_error) state.textContent += ` (not read: ${d.read_error})`;
     state.className = `drive-state${d.fault ? " fault" : d.enabled ? " enabled" : ""}`;
     const panelHolds = d.holder === "panel";
     $("#drive-holder").textContent = panelHolds ? "commanded from this panel" : "commanded by the application";
@@ -468,16 +481,27 @@ class DrivePage {
     }
     $("#quick-stop").hidden = info.kind !== "cia402";
     for (const b of ["#quick-stop", "#drive-take", "#drive-give"]) $(b).disabled = !writable;
-    $("#drive-setpoint button").disabled = !writable || !panelHolds || !d.enabled;
+    // a set-point goes only to an enabled drive in its mode (the panel never sets the mode)
+    const canCommand = writable && panelHolds && d.enabled;
+    $("#drive-setpoint button").disabled = !canCommand || (info.kind === "cia402" && d.mode !== 3);
+    $("#drive-position").hidden = info.kind !== "cia402";
+    $("#drive-position button").disabled = !canCommand || d.mode !== 1;
     $("#drive-unit").textContent = info.unit;
     $("#drive-limits").textContent = d.max_velocity ? `at most ${d.max_velocity} ${info.unit}` :
       info.kind === "zapi" ? "at most 327.67 Hz" : "";
+    if (info.kind === "cia402") {
+      const unit = info.unit.replace(/\/s$/, "");
+      $(".drive-position-unit").textContent = unit;
+      $("#drive-position-limits").textContent = d.position_limits
+        ? `within ${d.position_limits[0]}..${d.position_limits[1]} ${unit}` : "";
+    }
     const rows = [];
     for (const [key, label] of PLOTTED) {
       const v = d.actual[key];
       if (v !== undefined) rows.push([label, v === null ? "—" : Number(v).toFixed(key === "temperature" ? 1 : 0)]);
     }
     if (d.setpoint !== undefined) rows.push(["set-point", `${d.setpoint} Hz`]);
+    if (d.mode_text) rows.push(["mode", d.mode_text]);
     if (d.controlword !== undefined) rows.push(["controlword", `0x${d.controlword.toString(16).toUpperCase().padStart(4, "0")}`]);
     $("#drive-values").replaceChildren(...rows.flatMap(([k, v]) => [el("dt", {}, k), el("dd", {}, String(v))]));
     if (d.statusword !== undefined) {
@@ -532,6 +556,20 @@ class DrivePage {
     const value = Number(form.get("direction")) * magnitude;
     try {
       await this.link.command("drive", {drive: info.name, action: "speed", value});
+      notice("");
+    } catch (err) {
+      notice(err.text || String(err));
+    }
+  }
+
+  async position() {
+    const info = this.info();
+    if (!info) return;
+    const form = new FormData($("#drive-position"));
+    const value = Number(form.get("position"));
+    const relative = form.get("relative") === "on";
+    try {
+      await this.link.command("drive", {drive: info.name, action: "position", value, relative});
       notice("");
     } catch (err) {
       notice(err.text || String(err));

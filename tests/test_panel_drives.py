@@ -1,0 +1,199 @@
+"""A CiA 402 drive's page under ``cobus run`` (no application beside the panel): what the
+panel reads of it and when, and the position set-point with its safety, over a real
+WebSocket, a simulated drive and the cobus master on python-can's virtual bus."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import os
+from collections import Counter
+from collections.abc import AsyncIterator, Awaitable
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+
+from cobus.apps.panel import Panel
+from cobus.apps.panel.drives import DriveView, serve_cia402_drives
+from cobus.device import export_eds
+from cobus.master import Master, loads_network
+from cobus.runtime import AsyncNetwork
+from cobus.sim import Rig
+
+RIG = """
+bus: embedded
+devices:
+  - {node: 10, kind: cia402_drive, name: servo}
+"""
+
+NETWORK = """
+master: {node_id: 127, heartbeat_time: 100}
+nodes:
+  servo: {node_id: 10, eds: servo.eds, mandatory: true, heartbeat_time: 100}
+"""
+
+
+def run(coro: Awaitable[Any], timeout: float = 60.0) -> Any:
+    async def bounded() -> Any:
+        return await asyncio.wait_for(coro, timeout)
+
+    return asyncio.run(bounded())
+
+
+class Reads:
+    """The SDO uploads the drive is asked for, by object (index, subindex)."""
+
+    def __init__(self) -> None:
+        self.count: Counter[tuple[int, int]] = Counter()
+
+    def __call__(self, frame: Any, _now: float) -> None:
+        data = bytes(frame.data)
+        if frame.cob_id == 0x60A and len(data) == 8 and data[0] == 0x40:
+            self.count[(int.from_bytes(data[1:3], "little"), data[3])] += 1
+
+
+@contextlib.asynccontextmanager
+async def drive_page(
+    tmp_path: Path,
+) -> AsyncIterator[tuple[Panel, DriveView, Reads, AsyncNetwork]]:
+    """The servo booted by the master, a panel with its Drive page (not started: the test
+    calls ``view.start()``), and the SDO reads counted."""
+    rig = Rig.loads(RIG)
+    channel = f"panel-drives-{os.getpid()}-{id(tmp_path):x}"
+    devices = AsyncNetwork(interface="virtual", channel=channel)
+    net = AsyncNetwork(interface="virtual", channel=channel)
+    await devices.connect()
+    await net.connect()
+    reads = Reads()
+    subscription = devices.subscribe_all(reads)
+    await rig.start(devices)
+    (tmp_path / "servo.eds").write_text(export_eds(rig.devices[10].od))  # type: ignore[attr-defined]
+    master = Master(net, loads_network(NETWORK, base_dir=tmp_path))
+    panel = Panel(port=0, clock=net.time)
+    [view] = serve_cia402_drives(panel, master)
+    try:
+        await master.boot(timeout=10)
+        await panel.start()
+        yield panel, view, reads, net
+    finally:
+        view.close()
+        await panel.stop()
+        await master.stop()
+        subscription.cancel()
+        await rig.stop()
+        await net.disconnect()
+        await devices.disconnect()
+
+
+async def until(check: Any, seconds: float = 5.0) -> None:
+    for _ in range(int(seconds / 0.02)):
+        if check():
+            return
+        await asyncio.sleep(0.02)
+    raise AssertionError(f"not within {seconds} s: {check}")
+
+
+def test_a_drive_page_nobody_watches_costs_a_statusword_a_second(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with drive_page(tmp_path) as (_panel, view, reads, _net):
+            view.start()
+            # nobody watches: the statusword (the state is right without any application)
+            await until(lambda: reads.count[(0x6041, 0)] >= 1)
+            await asyncio.sleep(1.2)
+            assert 2 <= reads.count[(0x6041, 0)] <= 3
+            assert view.drive.status.state.name == "SWITCH_ON_DISABLED"
+            assert view.read_error == ""
+            assert reads.count[(0x606C, 0)] == reads.count[(0x6061, 0)] == 0
+            assert view.sample()["drive/servo"]["actual"] == {}
+            # a page shows it: the actual values, the mode, and the statusword 4 times a second
+            assert view.watch() == {"drive": "servo", "watching": True, "for": 6.0}
+            await until(lambda: view.actual.get("speed") is not None)
+            await asyncio.sleep(1.0)
+            assert 3 <= reads.count[(0x606C, 0)] <= 6
+            assert reads.count[(0x6064, 0)] >= 3 and reads.count[(0x6061, 0)] >= 1
+            record = view.sample()["drive/servo"]
+            assert record["actual"]["position"] == 0.0 and record["mode_text"]
+            # the page went away: its values are no longer shown as current, nor read
+            view._until = 0.0
+            await until(lambda: view.actual.get("speed", 0) is None)
+            asked = reads.count[(0x606C, 0)]
+            await asyncio.sleep(1.2)
+            assert reads.count[(0x606C, 0)] == asked
+            assert view.sample()["drive/servo"]["actual"]["speed"] is None
+
+    run(main())
+
+
+def test_a_drive_that_stops_answering_is_said_so(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with drive_page(tmp_path) as (_panel, view, _reads, net):
+            view.start()
+            await until(lambda: view.drive.status.state.name == "SWITCH_ON_DISABLED")
+            net.nmt.send(0x02, 10)  # stopped: no SDO server answers
+            await until(lambda: view.read_error != "", 8.0)
+            assert view.sample()["drive/servo"]["read_error"] == view.read_error
+
+    run(main())
+
+
+def test_position_set_points_move_a_drive_only_as_asked(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with drive_page(tmp_path) as (panel, view, _reads, _net):
+            drive = view.drive
+            await drive.write(0x607D, 1, -5000)  # software position limits
+            await drive.write(0x607D, 2, 5000)
+            view.start()
+            await until(lambda: view.position_limits == (-5000, 5000))
+            assert view.sample()["drive/servo"]["position_limits"] == [-5000.0, 5000.0]
+            async with (
+                aiohttp.ClientSession() as http,
+                http.ws_connect(panel.url + "ws") as ws,
+            ):
+
+                async def drive_command(action: str, **args: Any) -> dict[str, Any]:
+                    await ws.send_json(
+                        {"id": action, "cmd": "drive", "drive": "servo", "action": action, **args}
+                    )
+                    while True:
+                        data = (await ws.receive_json(timeout=10)) or []
+                        for message in data if isinstance(data, list) else [data]:
+                            if message.get("id") == action:
+                                return dict(message)
+
+                for value, relative, text in (
+                    (True, False, "signed position"),
+                    ("far", False, "signed position"),
+                    (math.inf, False, "finite"),
+                    (1.5, False, "whole number"),
+                    (2**31, False, "INTEGER32"),
+                    (6000, False, "software position limits 607Dh"),
+                    (100, "yes", "true or false"),
+                ):
+                    refused = await drive_command("position", value=value, relative=relative)
+                    assert refused["code"] == "bad-argument" and text in refused["text"], refused
+                await drive.set_mode(3)  # (the mode is the operator's choice, made elsewhere)
+                refused = await drive_command("position", value=1000)
+                assert refused["code"] == "mode", refused
+                assert "never changes the mode" in refused["text"]
+                assert int(await drive.read_mode()) == 3
+                await drive.set_mode(1)
+                refused = await drive_command("position", value=1000)
+                assert refused["code"] == "not-enabled", refused
+                assert (await drive_command("enable", confirm=True))["type"] == "ack"
+                moved = await drive_command("position", value=1000)
+                assert moved["result"] == {"action": "position", "value": 1000, "relative": False}
+                assert await drive.read(0x607A) == 1000
+                await drive.wait_for_target(10)
+                assert abs(await drive.read(0x6064) - 1000) <= 10
+                # relative: checked from where the drive is
+                refused = await drive_command("position", value=4500, relative=True)
+                assert " + 4500 inc: -5000..5000 inc" in refused["text"], refused
+                moved = await drive_command("position", value=-500, relative=True)
+                assert moved["result"]["relative"] is True
+                await drive.wait_for_target(10)
+                assert abs(await drive.read(0x6064) - 500) <= 10
+                assert (await drive_command("quick_stop"))["type"] == "ack"
+
+    run(main())
