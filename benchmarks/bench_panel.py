@@ -11,8 +11,10 @@ the same run twice, in real time, ``--seconds`` each (60 by default; "minutes" w
   then each Drive page in turn, at the panel's 10 updates a second.
 
 Printed side by side: the master's SYNC timing (its worst delay and the periods it missed),
-frames on the bus, this process's resident memory and Python heap growth, and - with the
-panel - the deepest client queue seen, the clients dropped, the browser's peak memory.
+frames on the bus, the CPU this process used (the rig, the master and the panel: not the
+browser's nor the reading client's), its resident memory and Python heap growth, and - with
+the panel - the events it published, the deepest client queue seen, the clients dropped, the
+browser's peak memory.
 The browser runs through tests/browser.py's guard (this process capped, chromium watched).
 No other CANopen tool has a web panel to compare with.
 
@@ -103,6 +105,7 @@ async def _run(folder: Path, seconds: float, mode: str) -> dict[str, Any]:
     master = Master(master_net, loads_network(text, base_dir=folder))
     await master.boot(timeout=60)
     panel = None
+    drives: list[Any] = []
     figures: dict[str, Any] = {}
     if with_panel:
         panel = Panel(port=0, clock=master_net.time)
@@ -123,6 +126,7 @@ async def _run(folder: Path, seconds: float, mode: str) -> dict[str, Any]:
     browser_peak = 0.0
     events0 = panel.hub.seq if panel is not None else 0
     start = time.perf_counter()
+    cpu0 = time.process_time()
     if mode == "browser":
         assert panel is not None
         deepest, browser_peak = await _browse(panel, seconds, [d.name for d in drives])
@@ -132,11 +136,13 @@ async def _run(folder: Path, seconds: float, mode: str) -> dict[str, Any]:
     else:
         await asyncio.sleep(seconds)
     elapsed = time.perf_counter() - start
+    cpu = time.process_time() - cpu0
     heap1 = tracemalloc.get_traced_memory()[0]
     tracemalloc.stop()
     figures.update(
         sync_late_ms=sync.late_max * 1000,
         sync_missed=sync.skipped - skipped0,
+        cpu_percent=100 * cpu / elapsed,
         frames_per_s=(master_net.frames_sent + master_net.frames_received - frames0) / elapsed,
         rss_growth_mb=_rss_mb() - rss0,
         heap_growth_mb=(heap1 - heap0) / 2**20,
@@ -146,6 +152,8 @@ async def _run(folder: Path, seconds: float, mode: str) -> dict[str, Any]:
         browser_mb=browser_peak,
     )
     if panel is not None:
+        for view in drives:
+            view.close()
         await panel.stop()
     await master.stop()
     for io in ios:
@@ -268,6 +276,7 @@ def main(argv: list[str] | None = None) -> None:
         ("SYNC: worst delay (with boot)", "sync_late_ms", "ms", ".1f"),
         ("SYNC: periods missed", "sync_missed", "", ".0f"),
         ("frames on the bus", "frames_per_s", "/s", ",.0f"),
+        ("CPU of this process", "cpu_percent", "%", ".0f"),
         ("resident memory growth", "rss_growth_mb", "MB", ".1f"),
         ("Python heap growth", "heap_growth_mb", "MB", ".2f"),
         ("panel events", "events", "", ",.0f"),
