@@ -93,6 +93,7 @@ def test_the_master_runs_the_network_with_its_panel(
         rig = start_rig(net, Rig.loads(RIG))
         (tmp_path / "servo.eds").write_text(export_eds(rig.aio.devices[10].od))
         (tmp_path / "line.yml").write_text(NETWORK)
+        (tmp_path / "servo.yml").write_text('parameters:\n  "0x6083:00": 1234\n')
         reader = threading.Thread(target=fetch)
         reader.start()
         code = main(
@@ -106,6 +107,8 @@ def test_the_master_runs_the_network_with_its_panel(
                 "1.5",
                 "--history",
                 str(tmp_path / "alarms.sqlite"),
+                "--parameters",
+                f"servo={tmp_path / 'servo.yml'}",
                 "-i",
                 "virtual",
                 "-c",
@@ -118,11 +121,13 @@ def test_the_master_runs_the_network_with_its_panel(
     assert code == 0, err
     assert f"the panel is at http://127.0.0.1:{port}/\n" in out
     assert "node 10: configured -> operational" in err
+    assert "re-parameterised, 1 of 1 written, saved and verified" in err
     assert fetched["status"] == 200 and "default-src 'self'" in str(fetched["csp"])
     assert (tmp_path / "alarms.sqlite").stat().st_size > 0
     info = fetched["snapshot"]["info"]  # type: ignore[index]
     assert info["drives"] == [{"name": "servo", "kind": "cia402", "node": 10, "unit": "inc/s"}]
     assert info["alarms"]["history"] is True
+    assert info["parameters"]["nodes"][0]["set"] == "servo.yml"
 
 
 def test_bad_usage_and_files_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -134,6 +139,34 @@ def test_bad_usage_and_files_exit_2(tmp_path: Path, capsys: pytest.CaptureFixtur
     (tmp_path / "ok.yml").write_text("nodes: {}\n")
     assert main(["run", str(tmp_path / "ok.yml"), "--unix", "/tmp/x.sock"]) == 2
     assert "add --panel" in capsys.readouterr().err
+
+
+def test_bad_parameter_files_exit_2_before_the_bus_is_opened(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with Network(interface="virtual", channel="cli-run-parameters") as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        (tmp_path / "servo.eds").write_text(export_eds(rig.aio.devices[10].od))
+    (tmp_path / "line.yml").write_text(NETWORK)
+    (tmp_path / "good.yml").write_text('parameters:\n  "0x6083:00": 1234\n')
+    (tmp_path / "command.yml").write_text('parameters:\n  "0x6040:00": 15\n')
+    (tmp_path / "unknown.yml").write_text("parameters:\n  no_such_object: 1\n")
+    line = str(tmp_path / "line.yml")
+    for given, text in (
+        ("servo", "give NODE=FILE"),
+        ("=good.yml", "give NODE=FILE"),
+        (f"pump={tmp_path / 'good.yml'}", "no node 'pump' in the network (servo (10))"),
+        (f"servo={tmp_path / 'missing.yml'}", "missing.yml"),
+        (f"10={tmp_path / 'command.yml'}", "configuration only"),
+        (f"servo={tmp_path / 'unknown.yml'}", "no_such_object"),
+    ):
+        code = main(["run", line, "--parameters", given, "-i", "virtual", "-c", "nowhere"])
+        err = capsys.readouterr().err
+        assert code == 2 and text in err, (given, err)
+        assert err.startswith("cobus run: ") and "Traceback" not in err, err
+    good = f"servo={tmp_path / 'good.yml'}"
+    code = main(["run", line, "--parameters", good, "--parameters", "10=x.yml"])
+    assert code == 2 and "servo is given twice" in capsys.readouterr().err
 
 
 def test_a_panel_address_in_use_exits_3(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

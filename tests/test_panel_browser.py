@@ -17,7 +17,7 @@ from urllib.parse import urlsplit
 
 import pytest
 
-from cobus.apps.demo import IO, SERVO
+from cobus.apps.demo import IO, SERVO, ZAPI
 from tests.browser import (
     CHROMIUM,
     CHROMIUM_ARGS,
@@ -194,6 +194,19 @@ def test_the_network_page_shows_the_rig_and_its_buttons_reach_the_nodes(tmp_path
                 await page.get_by_role("button", name="Diff against the network file").click()
                 diff = page.locator("#param-diff-table tbody tr")
                 await expect(diff.filter(has_text="6060h:00")).to_contain_text("same")
+                set_diff = page.get_by_role("button", name="Diff against the parameter file")
+                await expect(set_diff).to_be_hidden()  # (the servo has no parameter file)
+                # the ZAPI: the parameter manager brought it to its file at boot
+                await form.locator("select").select_option(str(ZAPI))
+                status = page.locator("#param-status")
+                await expect(status).to_contain_text("zapi-parameters.yml")
+                await expect(status).to_contain_text("re-parameterised")
+                await set_diff.click()
+                await expect(page.locator("#param-diff-title")).to_contain_text(
+                    "the parameter file zapi-parameters.yml"
+                )
+                await expect(diff.filter(has_text="20A8h:00")).to_contain_text("same")
+                await expect(page.locator("#param-note")).to_contain_text("0 of 1 object(s)")
                 await page.screenshot(
                     path=str(artifacts() / "panel-parameters.png"), full_page=True
                 )

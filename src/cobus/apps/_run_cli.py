@@ -5,6 +5,8 @@
     cobus run line.yml --panel --listen 0.0.0.0:8047     # reachable from other machines:
                                                          # commands then need the printed token
     cobus run line.yml --panel --unix /run/cobus.sock    # also on a Unix socket
+    cobus run line.yml --parameters zapi=zapi.yml        # ZAPI's parameters brought to the
+                                                         # file at each of its boots
 
 The master boots the network the CiA 302 way and supervises it until Ctrl-C (or
 ``--duration``); each of its events is printed as a line on stderr (``--quiet``: none). On
@@ -17,6 +19,13 @@ The panel (``--panel``) runs in the master's own loop and binds 127.0.0.1:8047 u
 network, the alarms, and a Drive page for each CiA 402 drive of the network file (its device
 type 0x...0192): nothing is written to a drive until the operator asks, and its first enable
 asks for a confirmation.
+
+``--parameters NODE=FILE`` (by node name or ID, once per node) is the parameter manager at
+boot: before the master starts the node, each parameter of FILE (YAML, CSV or DCF, named by
+the node's EDS) is read, the ones that differ are written, saved (1010h) and verified; a
+failure holds the node back. It writes configuration only: a file that holds a command (a
+controlword, a mode, a set-point, an output, what an RPDO carries) is refused. The panel's
+Parameters page shows each node's result and a diff against the file.
 
 Exit codes: 0 ran until stopped, 1 the bus cannot be used, 2 bad usage or a bad network file,
 3 the panel cannot listen there.
@@ -91,6 +100,14 @@ def register(sub: Any) -> None:
         metavar="FILE",
         help="keep the alarm history in this SQLite file (the panel's Alarms page shows it)",
     )
+    p.add_argument(
+        "--parameters",
+        action="append",
+        default=[],
+        metavar="NODE=FILE",
+        help="bring NODE's parameters to FILE each time it boots (writes what differs, saves; "
+        "commands refused); repeat per node",
+    )
     p.add_argument("--duration", type=seconds, help="stop after this many seconds")
     p.add_argument("--quiet", "-q", action="store_true", help="do not print the master's events")
     add_bus_options(p)
@@ -113,6 +130,10 @@ def _run(args: argparse.Namespace) -> int:
         return _fail(f"cannot read {args.network}: {exc.strerror or exc}", _EXIT_USAGE)
     except NetworkConfigError as exc:
         return _fail(str(exc), _EXIT_USAGE)
+    try:
+        args.parameter_sets = _parameter_sets(args.parameters, config)
+    except ValueError as exc:
+        return _fail(str(exc), _EXIT_USAGE)
     done: list[str] = []
     try:
         return asyncio.run(_serve(args, config, done))
@@ -120,6 +141,50 @@ def _run(args: argparse.Namespace) -> int:
         said = "; ".join(done) or "nothing had started"
         print(f"\ncobus run: stopped by Ctrl-C: {said}", file=sys.stderr)
         return _EXIT_OK
+
+
+def _parameter_sets(given: list[str], config: Any) -> dict[int, Any]:
+    """``NODE=FILE`` options as parameter sets by node-ID, each read with the node's EDS
+    (ValueError says what is wrong: the node, the file, every problem in it)."""
+    from cobus.blocks.parameters import ParameterFileError, load_parameters
+    from cobus.od import CommandObjects
+
+    by_name = {node.name: node for node in config.nodes.values()}
+    sets: dict[int, Any] = {}
+    for text in given:
+        key, sep, file = text.partition("=")
+        if not sep or not key.strip() or not file.strip():
+            raise ValueError(f"--parameters {text!r}: give NODE=FILE (zapi=zapi.yml, 8=zapi.yml)")
+        key = key.strip()
+        node = by_name.get(key)
+        if node is None and key.isdigit():
+            node = config.nodes.get(int(key))
+        if node is None:
+            known = ", ".join(f"{n.name} ({n.node_id})" for n in config.nodes.values())
+            raise ValueError(f"--parameters {text}: no node {key!r} in the network ({known})")
+        if node.node_id in sets:
+            raise ValueError(f"--parameters: {node.name} is given twice")
+        try:
+            sets[node.node_id] = load_parameters(file.strip(), od=node.od)
+        except OSError as exc:
+            raise ValueError(
+                f"--parameters {text}: cannot read {file}: {exc.strerror or exc}"
+            ) from None
+        except ParameterFileError as exc:
+            raise ValueError(str(exc)) from None
+        commands = CommandObjects(node.od)
+        found = [
+            f"{param.address} {param.name} ({why})"
+            for param in sets[node.node_id]
+            if (why := commands.reason(param.index, param.subindex)) is not None
+        ]
+        if found:
+            raise ValueError(
+                f"--parameters {text}: writing it would command {node.name} ("
+                + "; ".join(found)
+                + "): a parameter file holds configuration only - take these out"
+            )
+    return sets
 
 
 async def _serve(args: argparse.Namespace, config: Any, done: list[str]) -> int:
@@ -175,9 +240,12 @@ async def _supervise(
     )
     from cobus.apps.panel.drives import serve_cia402_drives
     from cobus.blocks.alarms import AlarmHandler
+    from cobus.blocks.param_manager import Parameterise
     from cobus.master import Master, MasterEvent
 
     master = Master(network, config)
+    for node_id, chosen in args.parameter_sets.items():
+        master.add_boot_step(node_id, Parameterise(chosen))
 
     async def stop_master() -> None:
         await master.stop()

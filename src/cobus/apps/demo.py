@@ -49,6 +49,7 @@ from cobus._args import seconds
 from cobus.apps._run_cli import listen_address
 from cobus.apps.panel.server import PanelError
 from cobus.blocks.alarms import AlarmHandler
+from cobus.blocks.param_manager import Parameterise
 from cobus.device import export_eds
 from cobus.errors import CobusError
 from cobus.master import Master, loads_network
@@ -107,6 +108,12 @@ FAULT_LABELS: Mapping[str, str] = {
 #: The thesis bench's network file (also ``examples/networks/thesis.yml``); its EDS files are
 #: exported from the simulated devices into the demo's working folder.
 NETWORK_FILE = Path(__file__).with_name("thesis.yml")
+#: The ZAPI inverter's parameters, brought to it at each boot as the thesis's parameter
+#: manager did (it keeps them only when told "save" on 1010h sub 0).
+ZAPI_PARAMETERS = """save: {subindex: 0}
+parameters:
+  main contactor voltage: 90   # % (20A8h)
+"""
 
 
 class Demo:
@@ -160,6 +167,8 @@ class Demo:
         self.master.add_listener(self._on_master_event)
         self.alarms = AlarmHandler(self.workdir / "alarms.sqlite", clock=self.master_net.time)
         self.alarms.attach_master(self.master, emcy_tables={"servo": "cia402"})
+        (self.workdir / "zapi-parameters.yml").write_text(ZAPI_PARAMETERS)
+        self.master.add_boot_step("zapi", Parameterise(self.workdir / "zapi-parameters.yml"))
         if before_boot is not None:
             await before_boot(self)
         await self.master.boot(timeout=10)

@@ -822,15 +822,23 @@ class Parameterise:
         """Node-ID → "up to date" / "re-parameterised ..." / "failed ..."."""
         return {n: r.summary for n, r in self.reports.items()}
 
+    def set_for(self, node: Any) -> ParameterSet:
+        """The set as ``node``'s EDS names its objects (a file is read once per node);
+        :class:`~cobus.blocks.ParameterFileError` when the file does not fit the node."""
+        known = self._sets.get(node.node_id)
+        if known is None:
+            source = self.parameters
+            if not isinstance(source, ParameterSet):
+                source = load_parameters(source, od=_od_of(node))
+            known = self._sets[node.node_id] = source
+        return known
+
     async def __call__(self, node: Any) -> str:
         self.reports.pop(node.node_id, None)
         try:
-            source = self._sets.get(node.node_id, self.parameters)
-            manager = AsyncParameterManager(node, source, **self.options)
+            manager = AsyncParameterManager(node, self.set_for(node), **self.options)
         except (ParameterFileError, ValueError, TypeError) as exc:
             raise BootStepError(str(exc)) from None
-        if manager.parameters is not None:
-            self._sets[node.node_id] = manager.parameters
         try:
             report = await manager.apply()
         except CommandsInSetError as exc:

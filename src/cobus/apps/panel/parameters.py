@@ -14,19 +14,28 @@
   output, what an RPDO carries: :class:`cobus.od.CommandObjects`) is refused unless the
   message says ``"command": true`` — the page asks the operator first, saying why;
 - ``param.save {node}`` (writes) — "save" to 1010h sub-index 1 (all parameters);
-- ``param.diff {node}`` — the node's values against the network file: each object of its
-  start-up list read back and compared with what the file says.
+- ``param.diff {node, against}`` — the node's values against the network file
+  (``"network"``, the default: each object of its start-up list) or against its parameter
+  file (``"parameters"``: each parameter of the set a :class:`~cobus.blocks.Parameterise`
+  boot step brings it to), read back and compared with what the file says.
+
+The state key ``parameters/status`` gives, for each node the master parameterises at boot
+(a :class:`~cobus.blocks.Parameterise` boot step), its file and the last run's summary
+("up to date", "re-parameterised: ...", "failed: ...").
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
+import os
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from cobus.apps.panel.server import CommandError, Panel
+from cobus.blocks.param_manager import Parameterise
+from cobus.blocks.parameters import ParameterFileError, ParameterSet
 from cobus.errors import clip
 from cobus.od import CommandObjects, DataType, ObjectDictionary, Variable, decode, encode
 
@@ -60,20 +69,57 @@ class ParameterView:
         self.panel = panel
         self.master = master
         self._commands: dict[int, CommandObjects] = {}
+        #: The Parameterise boot step of each node that has one, by node-ID.
+        self.steps: dict[int, Parameterise] = {
+            node.node_id: step
+            for node in master.nodes.values()
+            for _name, step in node.boot_steps
+            if isinstance(step, Parameterise)
+        }
         panel.hub.set_info(
             "parameters",
             {
                 "nodes": [
-                    {"id": n.node_id, "name": n.name, "eds": n.config.eds_path.name}
+                    {
+                        "id": n.node_id,
+                        "name": n.name,
+                        "eds": n.config.eds_path.name,
+                        "set": self._set_name(n.node_id),
+                    }
                     for n in master.nodes.values()
                 ]
             },
         )
+        panel.sample(self.sample)
+        panel.views["parameters"] = self
         panel.command("param.list", self._list, writes=False, help="a node's objects (EDS)")
         panel.command("param.read", self._read, writes=False, help="read an object by SDO")
         panel.command("param.write", self._write, writes=True, help="write an object by SDO")
         panel.command("param.save", self._save, writes=True, help="save the parameters (1010h)")
         panel.command("param.diff", self._diff, writes=False, help="the node against its file")
+
+    def _set_name(self, node_id: int) -> str | None:
+        step = self.steps.get(node_id)
+        if step is None:
+            return None
+        source = step.parameters
+        path = source.path if isinstance(source, ParameterSet) else source
+        return os.path.basename(path) if path else "(a set given in code)"
+
+    def sample(self) -> dict[str, Any]:
+        """The parameter manager's word on each node it parameterises at boot."""
+        status = []
+        for node_id, step in self.steps.items():
+            report = step.reports.get(node_id)
+            status.append(
+                {
+                    "node": node_id,
+                    "set": self._set_name(node_id),
+                    "summary": "not run yet" if report is None else report.summary,
+                    "ok": None if report is None else report.ok,
+                }
+            )
+        return {"parameters/status": status}
 
     # ------------------------------------------------------------------ helpers
     def _node(self, message: Mapping[str, Any]) -> Any:
@@ -202,31 +248,89 @@ class ParameterView:
 
     async def _diff(self, message: Mapping[str, Any]) -> dict[str, Any]:
         node = self._node(message)
-        rows = []
-        for entry in node.config.startup:
-            var = node.config.od.get_variable(entry.index, entry.subindex)
-            row: dict[str, Any] = {
-                "index": entry.index,
-                "subindex": entry.subindex,
-                "name": entry.name,
-                "file": _shown(entry.value),
-            }
-            if var is not None and not var.access.readable:
-                row.update(node=None, same=None, note="write-only: not read")
-            else:
-                try:
-                    data = await node.sdo.upload(entry.index, entry.subindex)
-                except Exception as exc:  # (an abort, a timeout: said in the row)
-                    row.update(node=None, same=None, note=clip(str(exc)))
-                else:
-                    shown: Any = data.hex(" ").upper()
-                    if var is not None:
-                        with contextlib.suppress(ValueError, TypeError):
-                            shown = _shown(decode(var.data_type, data))
-                    row.update(node=shown, same=data == entry.data, note="")
-            rows.append(row)
+        against = message.get("against", "network")
+        if against == "network":
+            rows = [
+                await self._compare(
+                    node,
+                    entry.index,
+                    entry.subindex,
+                    entry.name,
+                    entry.value,
+                    entry.data.__eq__,
+                )
+                for entry in node.config.startup
+            ]
+            source = None
+        elif against == "parameters":
+            step = self.steps.get(node.node_id)
+            if step is None:
+                raise CommandError(
+                    "no-set",
+                    f"{node.name} has no parameter file (cobus run --parameters "
+                    f"{node.name}=FILE, or a Parameterise boot step)",
+                )
+            try:
+                chosen = step.set_for(node)
+            except ParameterFileError as exc:
+                raise CommandError("bad-file", clip(str(exc), 400)) from None
+            rows = [
+                await self._compare(
+                    node,
+                    param.index,
+                    param.subindex,
+                    param.name,
+                    param.value,
+                    param.matches,
+                    readable=param.readable,
+                )
+                for param in chosen
+            ]
+            source = self._set_name(node.node_id)
+        else:
+            raise ValueError(f"against {clip(repr(against))}: network or parameters")
         differ = sum(1 for r in rows if r["same"] is False)
-        return {"node": node.node_id, "rows": rows, "differ": differ}
+        return {
+            "node": node.node_id,
+            "against": against,
+            "file": source,
+            "rows": rows,
+            "differ": differ,
+        }
+
+    async def _compare(
+        self,
+        node: Any,
+        index: int,
+        subindex: int,
+        name: str,
+        wanted: Any,
+        same: Callable[[bytes], bool],
+        *,
+        readable: bool = True,
+    ) -> dict[str, Any]:
+        """One row of a diff: the object read from the node and compared by ``same``."""
+        var = node.config.od.get_variable(index, subindex)
+        row: dict[str, Any] = {
+            "index": index,
+            "subindex": subindex,
+            "name": name or (_label(var) if var is not None else ""),
+            "file": _shown(wanted),
+        }
+        if not readable or (var is not None and not var.access.readable):
+            row.update(node=None, same=None, note="write-only: not read")
+            return row
+        try:
+            data = await node.sdo.upload(index, subindex)
+        except Exception as exc:  # (an abort, a timeout: said in the row)
+            row.update(node=None, same=None, note=clip(str(exc)))
+            return row
+        shown: Any = data.hex(" ").upper()
+        if var is not None:
+            with contextlib.suppress(ValueError, TypeError):
+                shown = _shown(decode(var.data_type, data))
+        row.update(node=shown, same=same(data), note="")
+        return row
 
 
 def _rpdo_carried(node: Any) -> dict[tuple[int, int], str]:

@@ -634,8 +634,9 @@ class ParametersPage {
     this.link = link;
     this.loaded = null;
     $("#param-search").addEventListener("submit", (e) => { e.preventDefault(); this.search(); });
-    $("#param-search select").addEventListener("change", () => this.search());
-    $("#param-diff").addEventListener("click", () => this.diff());
+    $("#param-search select").addEventListener("change", () => { this.status(); this.search(); });
+    $("#param-diff").addEventListener("click", () => this.diff("network"));
+    $("#param-diff-set").addEventListener("click", () => this.diff("parameters"));
     $("#param-save").addEventListener("click", () => this.save());
     $("#param-list tbody").addEventListener("click", (e) => {
       const button = e.target.closest("button[data-do]");
@@ -657,7 +658,21 @@ class ParametersPage {
     if (was) select.value = was;
     const writable = pages.network.writable();
     $("#param-save").disabled = !writable;
+    this.status();
     this.shown();
+  }
+
+  // The parameter manager's word on the node shown (when it parameterises it at boot).
+  status() {
+    const node = this.node();
+    const info = (this.link.info.parameters?.nodes || []).find((n) => n.id === node);
+    $("#param-diff-set").hidden = !(info && info.set);
+    const line = $("#param-status");
+    const status = (this.link.state["parameters/status"] || []).find((s) => s.node === node);
+    line.hidden = !status;
+    if (!status) return;
+    line.textContent = `Parameter file ${status.set}: ${status.summary}`;
+    line.className = status.ok === false ? "problem" : "muted";
   }
 
   shown() {
@@ -747,11 +762,13 @@ class ParametersPage {
     }
   }
 
-  async diff() {
+  async diff(against) {
     const node = this.node();
     const box = $("#param-diff-box");
     try {
-      const got = await this.link.command("param.diff", {node});
+      const got = await this.link.command("param.diff", {node, against});
+      const file = against === "network" ? "the network file" : `the parameter file ${got.file}`;
+      $("#param-diff-title").textContent = `Against ${file}`;
       box.hidden = false;
       $("#param-diff-table tbody").replaceChildren(...got.rows.map((r) =>
         el("tr", {class: r.same === false ? "differs" : ""},
@@ -759,14 +776,17 @@ class ParametersPage {
           el("td", {}, r.node == null ? "—" : String(r.node)),
           el("td", {}, r.same === true ? "same" : r.same === false ? "differs" : r.note))));
       $("#param-note").textContent = got.rows.length
-        ? `${got.differ} of ${got.rows.length} object(s) of the network file differ on node ${node}.`
-        : `The network file writes nothing to node ${node}.`;
+        ? `${got.differ} of ${got.rows.length} object(s) of ${file} differ on node ${node}.`
+        : `${file[0].toUpperCase()}${file.slice(1)} sets nothing on node ${node}.`;
     } catch (err) {
       notice(err.text || String(err));
     }
   }
 
-  update() {}
+  update(key) {
+    if (key === "parameters/status") this.status();
+  }
+
   event() {}
 }
 

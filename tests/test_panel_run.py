@@ -1,6 +1,7 @@
-"""A CiA 402 drive's page under ``cobus run`` (no application beside the panel): what the
-panel reads of it and when, and the position set-point with its safety, over a real
-WebSocket, a simulated drive and the cobus master on python-can's virtual bus."""
+"""The panel over a master with no application beside it, as ``cobus run`` has it: what a
+Drive page reads of a CiA 402 drive and when, the position set-point with its safety, and
+the parameter manager on the Parameters page - over a real WebSocket, a simulated drive and
+the cobus master on python-can's virtual bus."""
 
 from __future__ import annotations
 
@@ -14,9 +15,11 @@ from pathlib import Path
 from typing import Any
 
 import aiohttp
+import pytest
 
-from cobus.apps.panel import Panel
+from cobus.apps.panel import CommandError, Panel, serve_parameters
 from cobus.apps.panel.drives import DriveView, serve_cia402_drives
+from cobus.blocks import Parameterise
 from cobus.device import export_eds
 from cobus.master import Master, loads_network
 from cobus.runtime import AsyncNetwork
@@ -56,10 +59,11 @@ class Reads:
 
 @contextlib.asynccontextmanager
 async def drive_page(
-    tmp_path: Path,
+    tmp_path: Path, parameters: str | None = None
 ) -> AsyncIterator[tuple[Panel, DriveView, Reads, AsyncNetwork]]:
     """The servo booted by the master, a panel with its Drive page (not started: the test
-    calls ``view.start()``), and the SDO reads counted."""
+    calls ``view.start()``) and its Parameters page, and the SDO reads counted.
+    ``parameters``: a parameter file's text, brought to the servo at boot."""
     rig = Rig.loads(RIG)
     channel = f"panel-drives-{os.getpid()}-{id(tmp_path):x}"
     devices = AsyncNetwork(interface="virtual", channel=channel)
@@ -71,8 +75,12 @@ async def drive_page(
     await rig.start(devices)
     (tmp_path / "servo.eds").write_text(export_eds(rig.devices[10].od))  # type: ignore[attr-defined]
     master = Master(net, loads_network(NETWORK, base_dir=tmp_path))
+    if parameters is not None:
+        (tmp_path / "servo.yml").write_text(parameters)
+        master.add_boot_step(10, Parameterise(tmp_path / "servo.yml"))
     panel = Panel(port=0, clock=net.time)
     [view] = serve_cia402_drives(panel, master)
+    serve_parameters(panel, master)
     try:
         await master.boot(timeout=10)
         await panel.start()
@@ -195,5 +203,67 @@ def test_position_set_points_move_a_drive_only_as_asked(tmp_path: Path) -> None:
                 await drive.wait_for_target(10)
                 assert abs(await drive.read(0x6064) - 500) <= 10
                 assert (await drive_command("quick_stop"))["type"] == "ack"
+
+    run(main())
+
+
+def test_the_parameters_page_shows_the_parameter_manager_and_diffs_against_its_file(
+    tmp_path: Path,
+) -> None:
+    wanted = 'parameters:\n  "0x6083:00": 1234\n  "0x6084:00": 2345\n'
+
+    async def main() -> None:
+        async with (
+            drive_page(tmp_path, parameters=wanted) as (panel, _view, _reads, _net),
+            aiohttp.ClientSession() as http,
+            http.ws_connect(panel.url + "ws") as ws,
+        ):
+            messages: list[dict[str, Any]] = []
+
+            async def receive() -> dict[str, Any]:
+                while not messages:
+                    data = await ws.receive_json(timeout=10)
+                    messages.extend(data if isinstance(data, list) else [data])
+                return messages.pop(0)
+
+            async def ask(**message: Any) -> dict[str, Any]:
+                await ws.send_json({"id": 1, "node": 10, **message})
+                while True:
+                    got = await receive()
+                    if got.get("id") == 1:
+                        return got
+
+            snapshot = await receive()
+            [node] = snapshot["info"]["parameters"]["nodes"]
+            assert node["set"] == "servo.yml"
+            [status] = snapshot["state"]["parameters/status"]
+            assert status["node"] == 10 and status["set"] == "servo.yml" and status["ok"] is True
+            assert "re-parameterised, 2 of 2 written, saved and verified" in status["summary"]
+            same = await ask(cmd="param.diff", against="parameters")
+            result = same["result"]
+            assert result["against"] == "parameters" and result["file"] == "servo.yml"
+            assert result["differ"] == 0 and [r["same"] for r in result["rows"]] == [True, True]
+            assert result["rows"][0]["name"] and result["rows"][0]["file"] == 1234
+            # someone changes a parameter: the diff says which, and what each side holds
+            written = await ask(cmd="param.write", index=0x6083, subindex=0, value=99)
+            assert written["type"] == "ack", written
+            differs = (await ask(cmd="param.diff", against="parameters"))["result"]
+            assert differs["differ"] == 1
+            assert (differs["rows"][0]["file"], differs["rows"][0]["node"]) == (1234, 99)
+            network = (await ask(cmd="param.diff"))["result"]
+            assert network["against"] == "network" and network["file"] is None
+            refused = await ask(cmd="param.diff", against="yesterday")
+            assert refused["code"] == "bad-argument" and "network or parameters" in refused["text"]
+
+    run(main())
+
+
+def test_a_node_without_a_parameter_file_says_how_to_give_one(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with drive_page(tmp_path) as (panel, _view, _reads, _net):
+            view = panel.views["parameters"]
+            assert view.sample() == {"parameters/status": []}
+            with pytest.raises(CommandError, match=r"--parameters servo=FILE"):
+                await view._diff({"node": 10, "against": "parameters"})
 
     run(main())
