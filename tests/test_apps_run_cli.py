@@ -125,7 +125,9 @@ def test_the_master_runs_the_network_with_its_panel(
     assert fetched["status"] == 200 and "default-src 'self'" in str(fetched["csp"])
     assert (tmp_path / "alarms.sqlite").stat().st_size > 0
     info = fetched["snapshot"]["info"]  # type: ignore[index]
-    assert info["drives"] == [{"name": "servo", "kind": "cia402", "node": 10, "unit": "inc/s"}]
+    assert info["drives"] == [
+        {"name": "servo", "kind": "cia402", "node": 10, "unit": "inc/s", "on_demand": False}
+    ]
     assert info["alarms"]["history"] is True
     assert info["parameters"]["nodes"][0]["set"] == "servo.yml"
 
@@ -167,6 +169,26 @@ def test_bad_parameter_files_exit_2_before_the_bus_is_opened(
     good = f"servo={tmp_path / 'good.yml'}"
     code = main(["run", line, "--parameters", good, "--parameters", "10=x.yml"])
     assert code == 2 and "servo is given twice" in capsys.readouterr().err
+
+
+def test_a_zapi_page_needs_the_panel_and_a_zapi(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with Network(interface="virtual", channel="cli-run-zapi") as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        (tmp_path / "servo.eds").write_text(export_eds(rig.aio.devices[10].od))
+    (tmp_path / "line.yml").write_text(NETWORK)
+    line = str(tmp_path / "line.yml")
+    assert main(["run", line, "--zapi", "servo"]) == 2
+    assert "add --panel" in capsys.readouterr().err
+    bus = ["-i", "virtual", "-c", "cli-run-zapi", "--listen", "127.0.0.1:0", "-q"]
+    for key, text in (
+        ("pump", "--zapi pump: no node 'pump' in this network; the nodes are: servo (10)"),
+        ("10", "--zapi 10: node 10: no RPDO of the network file maps 0x"),
+    ):
+        assert main(["run", line, "--panel", "--zapi", key, *bus]) == 2
+        err = capsys.readouterr().err
+        assert text in err and "Traceback" not in err, err
 
 
 def test_a_panel_address_in_use_exits_3(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

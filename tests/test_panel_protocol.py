@@ -655,6 +655,7 @@ def test_drive_commands_carry_the_safety_a_drive_needs(tmp_path: Path) -> None:
                 "kind": "cia402",
                 "node": SERVO,
                 "unit": "inc/s",
+                "on_demand": False,
             }
             assert drives["zapi"]["kind"] == "zapi"
             servo = snapshot["state"]["drive/servo"]

@@ -17,13 +17,15 @@ from typing import Any
 import aiohttp
 import pytest
 
-from cobus.apps.panel import CommandError, Panel, serve_parameters
+from cobus.apps.demo import IO, NETWORK_FILE, SERVO, ZAPI
+from cobus.apps.panel import CommandError, Panel, serve_parameters, serve_zapi
 from cobus.apps.panel.drives import DriveView, serve_cia402_drives
 from cobus.blocks import Parameterise
 from cobus.device import export_eds
 from cobus.master import Master, loads_network
 from cobus.runtime import AsyncNetwork
 from cobus.sim import Rig
+from cobus.sim.rig import ready_rig
 
 RIG = """
 bus: embedded
@@ -265,5 +267,107 @@ def test_a_node_without_a_parameter_file_says_how_to_give_one(tmp_path: Path) ->
             assert view.sample() == {"parameters/status": []}
             with pytest.raises(CommandError, match=r"--parameters servo=FILE"):
                 await view._diff({"node": 10, "against": "parameters"})
+
+    run(main())
+
+
+@contextlib.asynccontextmanager
+async def thesis_master(tmp_path: Path) -> AsyncIterator[tuple[Master, AsyncNetwork, Counter[int]]]:
+    """The thesis rig booted by the master of the demo's network file, with no application
+    (as ``cobus run thesis.yml`` has it); the frames the master sends, counted by COB-ID."""
+    rig = Rig.load(ready_rig("thesis"))
+    channel = f"panel-zapi-{os.getpid()}-{id(tmp_path):x}"
+    devices = rig.create_network(interface="virtual", channel=channel)
+    net = AsyncNetwork(interface="virtual", channel=channel)
+    await devices.connect()
+    await net.connect()
+    sent: Counter[int] = Counter()
+
+    def count(frame: Any, _now: float) -> None:
+        sent[frame.cob_id] += 1
+
+    subscription = devices.subscribe_all(count)
+    await rig.start(devices)
+    for node_id, name in ((IO, "io"), (SERVO, "servo"), (ZAPI, "zapi")):
+        od = rig.devices[node_id].od  # type: ignore[attr-defined]
+        (tmp_path / f"{name}.eds").write_text(export_eds(od))
+    master = Master(net, loads_network(NETWORK_FILE.read_text(), base_dir=tmp_path))
+    try:
+        await master.boot(timeout=10)
+        yield master, net, sent
+    finally:
+        await master.stop()
+        subscription.cancel()
+        await rig.stop()
+        await net.disconnect()
+        await devices.disconnect()
+
+
+def adapter_of(view: DriveView) -> Any:
+    """The view's adapter now (a function: mypy would keep an earlier narrowing)."""
+    return view.drive
+
+
+def test_a_zapi_handshake_starts_only_when_the_operator_starts_it(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with thesis_master(tmp_path) as (master, net, sent):
+            panel = Panel(port=0, clock=net.time)
+            started: list[Any] = []
+            view = serve_zapi(panel, master, "zapi", on_start=started.append)
+            assert panel.hub.info["drives"] == [
+                {"name": "zapi", "kind": "zapi", "node": ZAPI, "unit": "Hz", "on_demand": True}
+            ]
+            with pytest.raises(ValueError, match="already shows a drive 'zapi'"):
+                serve_zapi(panel, master, ZAPI)
+            with pytest.raises(KeyError, match="no node 'pump'"):
+                serve_zapi(panel, master, "pump")
+
+            async def drive(action: str, **args: Any) -> Any:
+                handler = panel.commands["drive"].handler
+                return await handler({"drive": "zapi", "action": action, **args})
+
+            rpdo1 = 0x200 + ZAPI
+            await asyncio.sleep(0.1)
+            before = sent[rpdo1]  # (the master sends each RPDO once as it starts)
+            await asyncio.sleep(0.3)
+            assert sent[rpdo1] == before  # nothing answers the inverter until the operator asks
+            record = view.sample()["drive/zapi"]
+            assert record["state"] == "HANDSHAKE NOT STARTED" and record["handshake"] is False
+            with pytest.raises(CommandError, match="start it first") as refused:
+                await drive("enable", confirm=True)
+            assert refused.value.code == "no-handshake"
+            assert await drive("stop") == {"action": "stop", "handshake": False, "moving": False}
+            # the operator starts it: an RPDO1 every cycle, released, at 0 Hz
+            # (the inverter lost its handshake long ago - alarm 248, pre-operational - so it is
+            # started again and acknowledged, the motor still off)
+            assert await drive("handshake") == {
+                "action": "handshake",
+                "handshake": True,
+                "started": True,
+                "restarted": True,
+            }
+            assert view.drive.alarm == 0
+            assert len(started) == 1 and started[0] is view.drive
+            assert (await drive("handshake"))["started"] is False  # (once)
+            await until(lambda: view.drive.cycles >= 10)
+            assert sent[rpdo1] >= before + 10
+            assert view.sample()["drive/zapi"]["handshake"] is True
+            assert not view.drive.command and view.drive.setpoint == 0.0
+            await drive("enable", confirm=True)
+            assert (await drive("speed", value=12.5))["value"] == 12.5
+            assert view.drive.setpoint == 12.5
+            # ended from the page: released first, then no more answers
+            adapter = view.drive
+            assert await drive("end_handshake") == {"action": "end_handshake", "handshake": False}
+            assert view.drive is None and adapter.setpoint == 0.0 and not adapter.command
+            await asyncio.sleep(0.1)
+            answered = sent[rpdo1]
+            await asyncio.sleep(0.3)
+            assert sent[rpdo1] == answered
+            # started again, and ended by closing the view (the run's end)
+            await drive("handshake")
+            await until(lambda: adapter_of(view) is not None and adapter_of(view).cycles >= 3)
+            view.close()
+            assert adapter_of(view) is None
 
     run(main())

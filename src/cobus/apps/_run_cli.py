@@ -7,6 +7,7 @@
     cobus run line.yml --panel --unix /run/cobus.sock    # also on a Unix socket
     cobus run line.yml --parameters zapi=zapi.yml        # ZAPI's parameters brought to the
                                                          # file at each of its boots
+    cobus run thesis.yml --panel --zapi zapi             # a Drive page for the ZAPI inverter
 
 The master boots the network the CiA 302 way and supervises it until Ctrl-C (or
 ``--duration``); each of its events is printed as a line on stderr (``--quiet``: none). On
@@ -17,8 +18,9 @@ The panel (``--panel``) runs in the master's own loop and binds 127.0.0.1:8047 u
 ``--listen`` says otherwise; bound to another address, every command that writes to the bus
 (NMT buttons, drive commands...) needs the token the URL it prints carries. It shows the
 network, the alarms, and a Drive page for each CiA 402 drive of the network file (its device
-type 0x...0192): nothing is written to a drive until the operator asks, and its first enable
-asks for a confirmation.
+type 0x...0192) and each ZAPI inverter ``--zapi NODE`` names: nothing is written to a drive
+until the operator asks, and its first enable asks for a confirmation. A ZAPI inverter's
+handshake (an RPDO1 every SYNC cycle) starts only when the operator starts it on its page.
 
 ``--parameters NODE=FILE`` (by node name or ID, once per node) is the parameter manager at
 boot: before the master starts the node, each parameter of FILE (YAML, CSV or DCF, named by
@@ -108,6 +110,14 @@ def register(sub: Any) -> None:
         help="bring NODE's parameters to FILE each time it boots (writes what differs, saves; "
         "commands refused); repeat per node",
     )
+    p.add_argument(
+        "--zapi",
+        action="append",
+        default=[],
+        metavar="NODE",
+        help="show NODE (name or ID) as a ZAPI inverter on the panel: its handshake starts "
+        "when the operator starts it there; repeat per inverter",
+    )
     p.add_argument("--duration", type=seconds, help="stop after this many seconds")
     p.add_argument("--quiet", "-q", action="store_true", help="do not print the master's events")
     add_bus_options(p)
@@ -122,8 +132,10 @@ def _fail(message: str, code: int) -> int:
 def _run(args: argparse.Namespace) -> int:
     from cobus.master import NetworkConfigError, load_network
 
-    if (args.unix or args.token is not None) and not args.panel:
-        return _fail("--unix and --token are options of the panel: add --panel", _EXIT_USAGE)
+    if (args.unix or args.token is not None or args.zapi) and not args.panel:
+        return _fail(
+            "--unix, --token and --zapi are options of the panel: add --panel", _EXIT_USAGE
+        )
     try:
         config = load_network(args.network)
     except OSError as exc:
@@ -238,10 +250,11 @@ async def _supervise(
         serve_parameters,
         serve_trace,
     )
-    from cobus.apps.panel.drives import serve_cia402_drives
+    from cobus.apps.panel.drives import serve_cia402_drives, serve_zapi
     from cobus.blocks.alarms import AlarmHandler
     from cobus.blocks.param_manager import Parameterise
     from cobus.master import Master, MasterEvent
+    from cobus.profiles.zapi import AsyncZapiDrive, ZapiError
 
     master = Master(network, config)
     for node_id, chosen in args.parameter_sets.items():
@@ -292,6 +305,15 @@ async def _supervise(
         undo.callback(serve_trace(panel, network, config).close)
         for view in serve_cia402_drives(panel, master):
             view.start()
+            undo.callback(view.close)
+        for key in args.zapi:
+            try:
+                node = master.node(int(key) if key.isdigit() else key)
+                AsyncZapiDrive(master, node.node_id).close()  # (its PDOs checked, nothing sent)
+                view = serve_zapi(panel, master, node.node_id, on_start=alarms.attach_zapi)
+            except (KeyError, ValueError, ZapiError) as exc:
+                why = exc.args[0] if exc.args else exc  # (a KeyError's text, unquoted)
+                return _fail(f"--zapi {key}: {why}", _EXIT_USAGE)
             undo.callback(view.close)
         try:
             await panel.start()

@@ -12,7 +12,7 @@ files (package data, no build step; uPlot vendored) talking to the server over o
 """
 
 from cobus.apps.panel.alarms import AlarmView, serve_alarms
-from cobus.apps.panel.drives import DriveView, serve_drive
+from cobus.apps.panel.drives import DriveView, serve_drive, serve_zapi
 from cobus.apps.panel.hub import Client, Hub
 from cobus.apps.panel.network import MasterView, serve_master
 from cobus.apps.panel.parameters import ParameterView, serve_parameters
@@ -36,4 +36,5 @@ __all__ = [
     "serve_master",
     "serve_parameters",
     "serve_trace",
+    "serve_zapi",
 ]

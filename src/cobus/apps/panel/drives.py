@@ -34,7 +34,11 @@ Safety — nothing moves a drive unless the operator asked for exactly that:
   stopping it;
 - while the application commands a drive (``holder`` "application"), ``enable``, ``speed``
   and ``fault_reset`` are refused until the operator takes it over (``take``); ``give``
-  hands it back. The application asks :meth:`DriveView.panel_holds` before it writes.
+  hands it back. The application asks :meth:`DriveView.panel_holds` before it writes;
+- a ZAPI inverter served by :func:`serve_zapi` has no handshake until the operator starts
+  it (``handshake``: its adapter then answers every TPDO1 with an RPDO1, released and at
+  0 Hz); ``end_handshake`` releases it and ends the handshake (the inverter then raises
+  its "CAN BUS KO" alarm, as it does when a controller goes away).
 """
 
 from __future__ import annotations
@@ -49,11 +53,11 @@ from cobus.apps.panel.server import CommandError, Panel
 from cobus.errors import CobusError, clip
 from cobus.proto.sdo.errors import SdoAbortedError
 
-__all__ = ["DriveView", "is_cia402", "serve_cia402_drives", "serve_drive"]
+__all__ = ["DriveView", "is_cia402", "serve_cia402_drives", "serve_drive", "serve_zapi"]
 
 #: Who may command a drive.
 HOLDERS = ("panel", "application")
-_STOPS = frozenset({"quick_stop", "halt", "disable", "stop", "release"})
+_STOPS = frozenset({"quick_stop", "halt", "disable", "stop", "release", "end_handshake"})
 _PROFILE_VELOCITY = 3
 #: Power states in which a drive cannot move: a quick stop there is answered at once.
 _STANDING = frozenset({"NOT_READY_TO_SWITCH_ON", "SWITCH_ON_DISABLED", "FAULT"})
@@ -95,7 +99,12 @@ class DriveView:
         temperature: tuple[int, int, float] | None = None,
         rate: float = 4.0,
         ready: Callable[[], bool] | None = None,
+        node_id: int | None = None,
+        factory: Callable[[], Any] | None = None,
+        on_start: Callable[[Any], object] | None = None,
     ) -> None:
+        if drive is None and (factory is None or node_id is None):
+            raise ValueError("a drive, or a factory and the node_id of the drive it makes")
         if kind not in ("cia402", "zapi"):
             raise ValueError(f"kind {kind!r}: cia402 or zapi")
         if holder not in HOLDERS:
@@ -104,8 +113,12 @@ class DriveView:
             raise ValueError(f"rate {rate}: reads per second above 0")
         self.panel = panel
         self.name = name
+        #: The drive's adapter (None while a ``factory`` has not made it: no handshake).
         self.drive = drive
+        self.node_id: int = drive.node_id if drive is not None else node_id or 0
         self.kind = kind
+        self._factory = factory
+        self._on_start = on_start
         self.holder = holder
         #: Whether an enable was confirmed on the page since the panel started.
         self.enabled_once = False
@@ -125,7 +138,13 @@ class DriveView:
         self._task: asyncio.Task[None] | None = None
         drives = [
             *panel.hub.info.get("drives", []),
-            {"name": name, "kind": kind, "node": drive.node_id, "unit": self._unit()},
+            {
+                "name": name,
+                "kind": kind,
+                "node": self.node_id,
+                "unit": self._unit(),
+                "on_demand": factory is not None,
+            },
         ]
         panel.hub.set_info("drives", drives)
         for key in ("speed", *self._objects):
@@ -156,10 +175,17 @@ class DriveView:
             self._task = asyncio.create_task(self._read(), name=f"cobus panel drive {self.name}")
 
     def close(self) -> None:
-        """Stop reading."""
+        """Stop reading; end a handshake the view started (the drive released first)."""
         if self._task is not None:
             self._task.cancel()
             self._task = None
+        if self._factory is not None and self.drive is not None:
+            self._end_handshake()
+
+    def _end_handshake(self) -> None:
+        drive, self.drive = self.drive, None
+        drive.release()  # set-point 0, power stage off, contactor open: sent at once
+        drive.close()
 
     # ------------------------------------------------------------------ samples
     def sample(self) -> dict[str, Any]:
@@ -187,6 +213,17 @@ class DriveView:
                 ),
                 "read_error": self.read_error,
             }
+        elif drive is None:
+            actual = {"speed": None}
+            record = {
+                "state": "HANDSHAKE NOT STARTED",
+                "alarm": 0,
+                "alarm_text": "",
+                "fault": False,
+                "enabled": False,
+                "setpoint": 0.0,
+                "cycles": 0,
+            }
         else:
             actual = {"speed": drive.speed}
             record = {
@@ -202,8 +239,9 @@ class DriveView:
             {
                 "name": self.name,
                 "kind": self.kind,
-                "node": drive.node_id,
+                "node": self.node_id,
                 "holder": self.holder,
+                "handshake": drive is not None,
                 "actual": actual,
                 "max_velocity": self.max_velocity,
             }
@@ -293,6 +331,23 @@ class DriveView:
             )
         drive = self.drive
         if self.kind == "zapi":
+            if action == "handshake":
+                return await self._start_handshake()
+            if drive is None:
+                if action in _STOPS:  # (no handshake: the inverter stands, nothing to stop)
+                    return {"action": action, "handshake": False, "moving": False}
+                raise CommandError(
+                    "no-handshake",
+                    f"{self.name} has no handshake: start it first (action handshake)",
+                )
+            if action == "end_handshake":
+                if self._factory is None:
+                    raise CommandError(
+                        "not-yours",
+                        f"the application runs {self.name}'s handshake: the panel cannot end it",
+                    )
+                self._end_handshake()
+                return {"action": action, "handshake": False}
             return await self._zapi(drive, action, message)
         if action == "enable":
             if message.get("confirm") is not True:
@@ -436,6 +491,36 @@ class DriveView:
                 "limits 607Dh)"
             )
 
+    async def _start_handshake(self) -> dict[str, Any]:
+        """Make the adapter (it answers each TPDO1 from now on, released and at 0 Hz); an
+        inverter that lost its handshake before (alarm 248, pre-operational: no TPDO1) is
+        started again and its alarm acknowledged, the motor still off."""
+        if self.drive is not None:
+            return {"action": "handshake", "handshake": True, "started": False}
+        if self._factory is None:  # (a view given its drive always has one)
+            raise CommandError("not-yours", f"{self.name}'s handshake is the application's")
+        try:
+            drive = self.drive = self._factory()
+        except (CobusError, ValueError, TypeError, KeyError) as exc:
+            raise CommandError("failed", f"{self.name}: {clip(str(exc), 400)}") from None
+        if self._on_start is not None:
+            self._on_start(drive)
+        for _ in range(10):  # (a few SYNC cycles: TPDO1 comes each one while it runs)
+            if drive.cycles >= 2:
+                break
+            await asyncio.sleep(max(drive.watchdog / 3, 0.02))
+        restarted = drive.alarm != 0 or drive.cycles < 2
+        if restarted:
+            try:
+                await drive.acknowledge()
+            except CobusError as exc:  # (the handshake stays: acknowledge may be tried again)
+                raise CommandError(
+                    "failed",
+                    f"{self.name}: the handshake runs, but the inverter did not come back: "
+                    f"{clip(str(exc), 300)}",
+                ) from None
+        return {"action": "handshake", "handshake": True, "started": True, "restarted": restarted}
+
     async def _zapi(self, drive: Any, action: str, message: Mapping[str, Any]) -> Any:
         if action == "speed":
             value = message.get("value")
@@ -485,7 +570,17 @@ _ACTIONS = {
         "take",
         "give",
     ),
-    "zapi": ("enable", "stop", "release", "acknowledge", "speed", "take", "give"),
+    "zapi": (
+        "handshake",
+        "end_handshake",
+        "enable",
+        "stop",
+        "release",
+        "acknowledge",
+        "speed",
+        "take",
+        "give",
+    ),
 }
 
 
@@ -559,6 +654,49 @@ def serve_cia402_drives(panel: Panel, master: Any) -> list[DriveView]:
     return views
 
 
+def serve_zapi(
+    panel: Panel,
+    master: Any,
+    node: int | str,
+    *,
+    on_start: Callable[[Any], object] | None = None,
+) -> DriveView:
+    """A Drive page for the ZAPI inverter ``node`` of ``master``'s network, whose handshake
+    adapter (:class:`~cobus.profiles.zapi.AsyncZapiDrive`: an RPDO1 every SYNC cycle) is
+    made only when the operator starts the handshake on the page, and ended by the page or
+    by ``view.close()``; ``on_start(adapter)`` is called once it is made (e.g. an alarm
+    handler's ``attach_zapi``)."""
+    from cobus.profiles.zapi import AsyncZapiDrive
+
+    managed = master.node(node)  # (KeyError, naming the nodes, for one not in the network)
+
+    def make() -> Any:
+        return AsyncZapiDrive(master, managed.node_id)
+
+    drives = _router(panel)
+    if managed.name in drives.views:
+        raise ValueError(f"the panel already shows a drive {managed.name!r}")
+    view = DriveView(
+        panel,
+        managed.name,
+        None,
+        kind="zapi",
+        node_id=managed.node_id,
+        factory=make,
+        on_start=on_start,
+    )
+    drives.views[managed.name] = view
+    return view
+
+
+def _router(panel: Panel) -> _Drives:
+    drives = panel.views.get("drives")
+    if drives is None:
+        drives = panel.views["drives"] = _Drives(panel)
+    assert isinstance(drives, _Drives)
+    return drives
+
+
 def serve_drive(
     panel: Panel,
     name: str,
@@ -574,9 +712,7 @@ def serve_drive(
     read (e.g. once the master started it). Call ``view.start()`` in the loop."""
     if kind is None:
         kind = "zapi" if type(drive).__name__.endswith("ZapiDrive") else "cia402"
-    drives = panel.views.get("drives")
-    if drives is None:
-        drives = panel.views["drives"] = _Drives(panel)
+    drives = _router(panel)
     if name in drives.views:
         raise ValueError(f"the panel already shows a drive {name!r}")
     view = DriveView(

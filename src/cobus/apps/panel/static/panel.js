@@ -474,10 +474,15 @@ class DrivePage {
     $("#drive-holder").textContent = panelHolds ? "commanded from this panel" : "commanded by the application";
     $("#drive-take").hidden = panelHolds;
     $("#drive-give").hidden = !panelHolds;
+    // a ZAPI inverter the panel starts itself: no handshake, nothing but starting it
+    const idle = info.kind === "zapi" && !d.handshake;
     for (const b of document.querySelectorAll("#drive-buttons button")) {
+      const action = b.dataset.action;
       b.hidden = Boolean(b.dataset.kind) && b.dataset.kind !== info.kind;
-      const stop = ["disable", "halt", "stop", "release"].includes(b.dataset.action);
-      b.disabled = !writable || (!panelHolds && !stop);
+      if (action === "handshake") b.hidden = b.hidden || !info.on_demand || d.handshake;
+      if (action === "end_handshake") b.hidden = b.hidden || !info.on_demand || !d.handshake;
+      const stop = ["disable", "halt", "stop", "release", "end_handshake"].includes(action);
+      b.disabled = !writable || (!panelHolds && !stop) || (idle && action !== "handshake");
     }
     $("#quick-stop").hidden = info.kind !== "cia402";
     for (const b of ["#quick-stop", "#drive-take", "#drive-give"]) $(b).disabled = !writable;
@@ -531,6 +536,10 @@ class DrivePage {
         this.confirmed.add(info.name);
       }
       args.confirm = true;
+    }
+    if (action === "end_handshake" &&
+        !confirm(`End ${info.name}'s handshake? It is released first; the inverter then raises its CAN BUS KO alarm.`)) {
+      return;
     }
     if (action === "give" &&
         !confirm(`Give ${info.name} back to the application? It commands the drive again and may start it.`)) {
