@@ -141,6 +141,8 @@ def test_bad_usage_and_files_exit_2(tmp_path: Path, capsys: pytest.CaptureFixtur
     (tmp_path / "ok.yml").write_text("nodes: {}\n")
     assert main(["run", str(tmp_path / "ok.yml"), "--unix", "/tmp/x.sock"]) == 2
     assert "add --panel" in capsys.readouterr().err
+    assert main(["run", str(tmp_path / "ok.yml"), "--open-reads"]) == 2
+    assert "add --panel" in capsys.readouterr().err
 
 
 def test_bad_parameter_files_exit_2_before_the_bus_is_opened(

@@ -306,14 +306,34 @@ def test_a_malformed_command_gets_a_typed_error_and_the_page_stays_connected(
     run(main())
 
 
-def test_a_panel_with_a_token_refuses_commands_without_it(tmp_path: Path) -> None:
+def test_a_panel_with_a_token_refuses_readers_and_commands_without_it(tmp_path: Path) -> None:
     async def main() -> None:
         async with served(tmp_path, token="s3cret-token") as (demo, panel):
             assert panel.needs_token and panel.url.endswith("/?token=s3cret-token")
-            async with aiohttp.ClientSession() as http, page(http, base(panel) + "/ws") as ws:
+            assert panel.reads_need_token
+            url = base(panel)
+            async with aiohttp.ClientSession() as http:
+                # the page itself carries no data: served without the token
+                for path in ("/", "/static/panel.js"):
+                    async with http.get(url + path) as r:
+                        assert r.status == 200
+                # its data is not: the WebSocket and the CSV export need the token
+                for query in ("", "?token=wrong", "?token=s3cret-toke"):
+                    with pytest.raises(aiohttp.WSServerHandshakeError) as refused:
+                        async with http.ws_connect(url + "/ws" + query):
+                            pass
+                    assert refused.value.status == 401
+                    async with http.get(url + "/alarms.csv" + query) as r:
+                        assert r.status == 401 and "?token=" in await r.text()
+                async with http.get(url + "/alarms.csv?token=s3cret-token") as r:
+                    assert r.status == 200
+            async with (
+                aiohttp.ClientSession() as http,
+                page(http, url + "/ws?token=s3cret-token") as ws,
+            ):
                 snapshot = await ws.receive()
                 await running(demo)
-                assert snapshot["info"]["needs_token"] is True  # reading needs none
+                assert snapshot["info"]["needs_token"] is True
                 for given in (None, "wrong", 12, "\ud800"):
                     command = {"id": 1, "cmd": "nmt", "node": IO, "action": "stop"}
                     if given is not None:
@@ -333,9 +353,26 @@ def test_a_panel_with_a_token_refuses_commands_without_it(tmp_path: Path) -> Non
 
 def test_a_panel_bound_beyond_loopback_needs_a_token() -> None:
     panel = Panel(host="0.0.0.0", port=0)
-    assert panel.needs_token and len(panel.token) >= 20
+    assert panel.needs_token and panel.reads_need_token and len(panel.token) >= 20
     assert not Panel(port=0).needs_token
-    assert not Panel(host="::1", port=0).needs_token
+    assert not Panel(host="::1", port=0).reads_need_token
+    # a view-only screen: reads open, commands still need the token
+    screen = Panel(host="0.0.0.0", port=0, open_reads=True)
+    assert screen.needs_token and not screen.reads_need_token
+
+
+def test_open_reads_let_a_screen_watch_but_not_command(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with (
+            connected(tmp_path, token="s3cret-token", open_reads=True) as (demo, _p, _h, ws),
+        ):
+            assert (await ws.receive())["type"] == "snapshot"
+            await running(demo)
+            await ws.send({"id": 1, "cmd": "nmt", "node": IO, "action": "stop"})
+            assert (await ws.reply())["code"] == "token"
+            assert nmt_of(demo, IO) == "OPERATIONAL"
+
+    run(main())
 
 
 def test_a_gap_is_closed_by_a_resync(tmp_path: Path) -> None:

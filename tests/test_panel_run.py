@@ -36,7 +36,14 @@ devices:
 NETWORK = """
 master: {node_id: 127, heartbeat_time: 100}
 nodes:
-  servo: {node_id: 10, eds: servo.eds, mandatory: true, heartbeat_time: 100}
+  servo:
+    node_id: 10
+    eds: servo.eds
+    mandatory: true
+    heartbeat_time: 100
+    tpdo4: {mapping: ["0x2000:00"], transmission_type: 255, event_timer: 100}
+    signals:
+      temperature: {object: "0x2000:00", scale: 0.1, unit: °C}
 """
 
 
@@ -125,6 +132,11 @@ def test_a_drive_page_nobody_watches_costs_a_statusword_a_second(tmp_path: Path)
             assert reads.count[(0x6064, 0)] >= 3 and reads.count[(0x6061, 0)] >= 1
             record = view.sample()["drive/servo"]
             assert record["actual"]["position"] == 0.0 and record["mode_text"]
+            # the temperature: the network file's signal, from its TPDO (never read by SDO)
+            await until(lambda: view.actual.get("temperature") is not None)
+            temperature = view.actual["temperature"]
+            assert temperature is not None and 15.0 <= temperature <= 60.0  # (0.1 °C scaled)
+            assert reads.count[(0x2000, 0)] == 0
             # the page went away: its values are no longer shown as current, nor read
             view._until = 0.0
             await until(lambda: view.actual.get("speed", 0) is None)

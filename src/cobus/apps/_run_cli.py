@@ -15,8 +15,9 @@ stop it ends supervision and leaves every node in the NMT state it is in. An ala
 takes the master's alarms (with ``--panel`` or ``--history FILE``, where it keeps them).
 
 The panel (``--panel``) runs in the master's own loop and binds 127.0.0.1:8047 unless
-``--listen`` says otherwise; bound to another address, every command that writes to the bus
-(NMT buttons, drive commands...) needs the token the URL it prints carries. It shows the
+``--listen`` says otherwise; bound to another address, the token the URL it prints carries is
+needed to read the panel and for every command that writes to the bus (NMT buttons, drive
+commands...); ``--open-reads`` lets a view-only screen read it without the token. It shows the
 network, the alarms, and a Drive page for each CiA 402 drive of the network file (its device
 type 0x...0192) and each ZAPI inverter ``--zapi NODE`` names: nothing is written to a drive
 until the operator asks, and its first enable asks for a confirmation. A ZAPI inverter's
@@ -97,6 +98,12 @@ def register(sub: Any) -> None:
         "it listens beyond 127.0.0.1)",
     )
     p.add_argument(
+        "--open-reads",
+        action="store_true",
+        help="anyone who reaches the panel may read it (a view-only screen); commands still "
+        "need the token",
+    )
+    p.add_argument(
         "--history",
         type=Path,
         metavar="FILE",
@@ -132,9 +139,10 @@ def _fail(message: str, code: int) -> int:
 def _run(args: argparse.Namespace) -> int:
     from cobus.master import NetworkConfigError, load_network
 
-    if (args.unix or args.token is not None or args.zapi) and not args.panel:
+    if (args.unix or args.token is not None or args.zapi or args.open_reads) and not args.panel:
         return _fail(
-            "--unix, --token and --zapi are options of the panel: add --panel", _EXIT_USAGE
+            "--unix, --token, --open-reads and --zapi are options of the panel: add --panel",
+            _EXIT_USAGE,
         )
     try:
         config = load_network(args.network)
@@ -296,6 +304,7 @@ async def _supervise(
                 token=args.token,
                 clock=network.time,
                 title=args.network.stem,
+                open_reads=args.open_reads,
             )
         except PanelError as exc:
             return _fail(str(exc), _EXIT_USAGE)
@@ -326,7 +335,9 @@ async def _supervise(
 
         undo.push_async_callback(stop_panel)
         print(f"cobus run: the panel is at {panel.url}", flush=True)
-        if panel.needs_token:
+        if panel.reads_need_token:
+            print("cobus run: reading the panel needs the token in that address", flush=True)
+        elif panel.needs_token:
             print("cobus run: commands from the panel need the token in that address", flush=True)
     master.start()
     done.append(f"the master supervised {len(master.nodes)} node(s)")

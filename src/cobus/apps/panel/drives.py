@@ -639,10 +639,13 @@ def is_cia402(node: Any) -> bool:
 
 def serve_cia402_drives(panel: Panel, master: Any) -> list[DriveView]:
     """A Drive page for each CiA 402 drive of ``master``'s network, commanded from the panel
-    only (nothing is written until the operator asks), read once the master started it."""
+    only (nothing is written until the operator asks), read once the master started it. A
+    drive's signal named ``temperature`` in the network file (a TPDO of the drive maps it;
+    its scale gives °C) is plotted as its temperature."""
     from cobus.master.states import NodeState
     from cobus.profiles import AsyncDrive402
 
+    signals = master.config.signals
     views = []
     for node in master.nodes.values():
         if is_cia402(node):
@@ -650,7 +653,15 @@ def serve_cia402_drives(panel: Panel, master: Any) -> list[DriveView]:
             def ready(node: Any = node) -> bool:
                 return bool(node.state is NodeState.OPERATIONAL)
 
-            views.append(serve_drive(panel, node.name, AsyncDrive402(node), ready=ready))
+            sig = signals.get(f"{node.name}.temperature")
+            temperature = None
+            if sig is not None and sig.direction == "input" and not sig.offset:
+                temperature = (sig.index, sig.subindex, sig.scale or 1.0)
+            views.append(
+                serve_drive(
+                    panel, node.name, AsyncDrive402(node), ready=ready, temperature=temperature
+                )
+            )
     return views
 
 

@@ -17,7 +17,10 @@ a second, so that a burst of events (an EMCY storm) costs the bus loop and the b
 messages rather than one each.
 
 Safety: it binds 127.0.0.1 unless told otherwise. Bound anywhere else (or with ``token=``
-given), every command that writes to the bus needs the token printed at start. A request
+given), every command that writes to the bus needs the token printed at start, and so does
+reading the panel (``/ws?token=``, the CSV export: the state of the plant, its alarms, the
+bus decoded) unless ``open_reads`` lets a view-only screen in without it. The static files
+(no data in them) and the Unix socket (0600: this user only) need none. A request
 whose ``Host`` is not a loopback name while bound to loopback (DNS rebinding) and a WebSocket
 opened from another origin (another site in the same browser) are refused. Commands are
 checked here, each failure answered with a typed error and a text; a malformed message never
@@ -118,8 +121,9 @@ class Panel:
 
     ``port`` 0 takes a free port (:attr:`url` then tells which); ``unix`` also serves on a
     Unix socket at that path. ``token``: the token writes need (default: a random one, needed
-    only when ``host`` is not loopback; given, it is always needed). ``rate``: deltas per
-    second at most. ``clock``: the time events carry (the network's, for a master)."""
+    only when ``host`` is not loopback; given, it is always needed); reads need it too
+    unless ``open_reads``. ``rate``: deltas per second at most. ``clock``: the time events
+    carry (the network's, for a master)."""
 
     def __init__(
         self,
@@ -133,6 +137,7 @@ class Panel:
         max_events: int = 500,
         clock: Callable[[], float] | None = None,
         title: str = "cobus",
+        open_reads: bool = False,
     ) -> None:
         if not 0 <= port <= 65535:
             raise PanelError(f"port {port}: give 0-65535 (0: any free port)")
@@ -146,6 +151,8 @@ class Panel:
             raise PanelError(f"a token of {MIN_TOKEN} characters at least (or none: a random one)")
         self.needs_token = token is not None or not is_loopback(host)
         self.token = token if token is not None else secrets.token_urlsafe(18)
+        #: Whether reading the panel (its WebSocket, the CSV export) needs the token too.
+        self.reads_need_token = self.needs_token and not open_reads
         self._clock = clock
         self.hub = Hub(self._now, max_events=max_events, stall=stall)
         self.hub.info.update({"title": title, "needs_token": self.needs_token})
@@ -299,6 +306,18 @@ class Panel:
             return _refused(
                 421, f"this panel answers to 127.0.0.1 or localhost only, not {clip(host)}"
             )
+        if (
+            self.reads_need_token
+            and not unix
+            and request.path != "/"
+            and not request.path.startswith("/static/")
+            and not self._token_is(request.query.get("token"))
+        ):
+            return _refused(
+                401,
+                "this panel needs its token to be read: open the address it printed at start "
+                "(with ?token=...)",
+            )
         try:
             response = await handler(request)
         except web.HTTPException as exc:
@@ -375,6 +394,12 @@ class Panel:
         finally:
             client.sending_since = None
 
+    def _token_is(self, given: Any) -> bool:
+        """Whether ``given`` is the panel's token (compared in constant time)."""
+        return isinstance(given, str) and hmac.compare_digest(
+            given.encode("utf-8", "surrogatepass"), self.token.encode()
+        )
+
     # ------------------------------------------------------------------ commands
     def _receive(self, client: Client, text: str, pending: set[asyncio.Task[None]]) -> None:
         try:
@@ -409,20 +434,16 @@ class Panel:
                 _error(ident, "unknown-command", f"cmd {clip(repr(name))}: one of {known}")
             )
             return
-        if command.writes and self.needs_token:
-            given = message.get("token")
-            if not isinstance(given, str) or not hmac.compare_digest(
-                given.encode("utf-8", "surrogatepass"), self.token.encode()
-            ):
-                client.reply(
-                    _error(
-                        ident,
-                        "token",
-                        f"{name} writes to the bus: this panel needs the token it printed at "
-                        "start (open the address it printed, with ?token=...)",
-                    )
+        if command.writes and self.needs_token and not self._token_is(message.get("token")):
+            client.reply(
+                _error(
+                    ident,
+                    "token",
+                    f"{name} writes to the bus: this panel needs the token it printed at "
+                    "start (open the address it printed, with ?token=...)",
                 )
-                return
+            )
+            return
         if len(pending) >= MAX_PENDING:
             client.reply(
                 _error(ident, "busy", f"{MAX_PENDING} commands are still running: wait for one")

@@ -27,9 +27,14 @@ export class Link {
 
   connect() {
     const scheme = location.protocol === "https:" ? "wss" : "ws";
-    const ws = new WebSocket(`${scheme}://${location.host}/ws`);
+    const query = this.token ? `?token=${encodeURIComponent(this.token)}` : "";
+    const ws = new WebSocket(`${scheme}://${location.host}/ws${query}`);
     this.ws = ws;
-    ws.onopen = () => { this.pause = 500; this.handlers.status(true, "connected"); };
+    ws.onopen = () => {
+      this.pause = 500;
+      this.opened = true;
+      this.handlers.status(true, "connected");
+    };
     ws.onmessage = (e) => {
       let msg;
       try {
@@ -46,7 +51,13 @@ export class Link {
       this.pending.clear();
       this.syncing = true;
       const why = e.reason ? `: ${e.reason}` : "";
-      this.handlers.status(false, `disconnected${why}; trying again`);
+      if (!this.opened && !this.token) {
+        // (refused before it ever opened: a panel reached from elsewhere needs its token)
+        this.handlers.status(false, "cannot connect: if this panel was started with a token, " +
+          "open the address it printed (with ?token=...); trying again");
+      } else {
+        this.handlers.status(false, `disconnected${why}; trying again`);
+      }
       setTimeout(() => this.connect(), this.pause);
       this.pause = Math.min(this.pause * 2, 5000);
     };

@@ -367,6 +367,7 @@ class AlarmsPage {
   csvLink() {
     const query = new URLSearchParams();
     for (const [k, v] of Object.entries(this.filters())) query.set(k, String(v));
+    if (this.link.token) query.set("token", this.link.token);  // (reading may need it)
     const text = query.toString();
     $("#history-csv").href = `/alarms.csv${text ? `?${text}` : ""}`;
   }
