@@ -155,6 +155,9 @@ def test_bad_parameter_files_exit_2_before_the_bus_is_opened(
     (tmp_path / "good.yml").write_text('parameters:\n  "0x6083:00": 1234\n')
     (tmp_path / "command.yml").write_text('parameters:\n  "0x6040:00": 15\n')
     (tmp_path / "unknown.yml").write_text("parameters:\n  no_such_object: 1\n")
+    (tmp_path / "save.yml").write_text(
+        'save: {index: 0x60FF, subindex: 0, signature: 123456}\nparameters:\n  "0x6083:00": 1\n'
+    )
     line = str(tmp_path / "line.yml")
     for given, text in (
         ("servo", "give NODE=FILE"),
@@ -163,6 +166,7 @@ def test_bad_parameter_files_exit_2_before_the_bus_is_opened(
         (f"servo={tmp_path / 'missing.yml'}", "missing.yml"),
         (f"10={tmp_path / 'command.yml'}", "configuration only"),
         (f"servo={tmp_path / 'unknown.yml'}", "no_such_object"),
+        (f"servo={tmp_path / 'save.yml'}", "its save command writes 0x60FF"),
     ):
         code = main(["run", line, "--parameters", given, "-i", "virtual", "-c", "nowhere"])
         err = capsys.readouterr().err
@@ -186,11 +190,15 @@ def test_a_zapi_page_needs_the_panel_and_a_zapi(
     bus = ["-i", "virtual", "-c", "cli-run-zapi", "--listen", "127.0.0.1:0", "-q"]
     for key, text in (
         ("pump", "--zapi pump: no node 'pump' in this network; the nodes are: servo (10)"),
-        ("10", "--zapi 10: node 10: no RPDO of the network file maps 0x"),
+        ("10", "--zapi 10: servo does not look like a ZAPI inverter in the network file: "),
     ):
         assert main(["run", line, "--panel", "--zapi", key, *bus]) == 2
         err = capsys.readouterr().err
         assert text in err and "Traceback" not in err, err
+    assert main(["run", line, "--panel", "--zapi", "10", "--zapi", "servo", *bus]) == 2
+    assert "--zapi: servo is given twice" in capsys.readouterr().err
+    assert main(["run", line, "--listen", "127.0.0.1:0"]) == 2  # (without --panel)
+    assert "add --panel" in capsys.readouterr().err
 
 
 def test_a_panel_address_in_use_exits_3(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

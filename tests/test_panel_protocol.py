@@ -371,6 +371,10 @@ def test_open_reads_let_a_screen_watch_but_not_command(tmp_path: Path) -> None:
             await ws.send({"id": 1, "cmd": "nmt", "node": IO, "action": "stop"})
             assert (await ws.reply())["code"] == "token"
             assert nmt_of(demo, IO) == "OPERATIONAL"
+            # nor does it ask the bus anything (an SDO read costs the master's channel)
+            await ws.send({"id": 2, "cmd": "param.read", "node": IO, "index": 0x1008})
+            refused = await ws.reply()
+            assert refused["code"] == "token" and "param.read asks the bus" in refused["text"]
 
     run(main())
 

@@ -173,16 +173,21 @@ def test_position_set_points_move_a_drive_only_as_asked(tmp_path: Path) -> None:
                 aiohttp.ClientSession() as http,
                 http.ws_connect(panel.url + "ws") as ws,
             ):
+                replies: dict[str, dict[str, Any]] = {}
+
+                async def reply(ident: str) -> dict[str, Any]:
+                    while ident not in replies:
+                        data = (await ws.receive_json(timeout=10)) or []
+                        for message in data if isinstance(data, list) else [data]:
+                            if message.get("id") is not None:
+                                replies[message["id"]] = message
+                    return replies.pop(ident)
 
                 async def drive_command(action: str, **args: Any) -> dict[str, Any]:
                     await ws.send_json(
                         {"id": action, "cmd": "drive", "drive": "servo", "action": action, **args}
                     )
-                    while True:
-                        data = (await ws.receive_json(timeout=10)) or []
-                        for message in data if isinstance(data, list) else [data]:
-                            if message.get("id") == action:
-                                return dict(message)
+                    return await reply(action)
 
                 for value, relative, text in (
                     (True, False, "signed position"),
@@ -216,6 +221,69 @@ def test_position_set_points_move_a_drive_only_as_asked(tmp_path: Path) -> None:
                 assert moved["result"]["relative"] is True
                 await drive.wait_for_target(10)
                 assert abs(await drive.read(0x6064) - 500) <= 10
+                # commands to one drive run in the order they came: a set-point sent before
+                # "give" reaches the drive before the application has it back
+                for ident, action, args in (
+                    ("p", "position", {"value": 0}),
+                    ("g", "give", {}),
+                ):
+                    await ws.send_json(
+                        {"id": ident, "cmd": "drive", "drive": "servo", "action": action, **args}
+                    )
+                order = []
+                while len(order) < 2:
+                    data = await ws.receive_json(timeout=10)
+                    for message in data if isinstance(data, list) else [data]:
+                        if message.get("id") in ("p", "g"):
+                            assert message["type"] == "ack", message
+                            order.append(message["id"])
+                assert order == ["p", "g"]
+                assert (await drive_command("take"))["type"] == "ack"
+                # relative moves are checked from the last target too (the drive may still
+                # be on its way there)
+                assert (await drive_command("position", value=4000))["type"] == "ack"
+                refused = await drive_command("position", value=3000, relative=True)
+                assert "4000 + 3000 inc: -5000..5000 inc" in refused["text"], refused
+                await drive.wait_for_target(10)
+                # limits are read at each move: changed meanwhile, the new ones hold
+                await drive.write(0x607D, 2, 3000)
+                refused = await drive_command("position", value=3500)
+                assert "-5000..3000 inc" in refused["text"], refused
+                # the mode is never written: changed behind the panel's back, the move fails
+                # instead of switching it back
+                real_read_mode = drive.read_mode
+                reads = 0
+
+                async def mode_changes_after_the_check() -> Any:
+                    nonlocal reads
+                    reads += 1
+                    if reads == 2:  # (move_to's own look, after the panel's check)
+                        await drive.write(0x6060, 0, 3)
+                        await asyncio.sleep(0.1)
+                    return await real_read_mode()
+
+                drive.read_mode = mode_changes_after_the_check
+                failed = await drive_command("position", value=100)
+                drive.read_mode = real_read_mode
+                assert failed["code"] == "failed" and "6060h is not written" in failed["text"]
+                assert await drive.read(0x6060) == 3  # (as the test set it: not switched back)
+                await drive.set_mode(1)
+                # a stop cuts short a move still under way (its controlwords never follow)
+                held = asyncio.Event()
+
+                async def waits_for_room(*_args: Any, **_options: Any) -> None:
+                    held.set()
+                    await asyncio.Event().wait()  # (as a drive with no room for a set-point)
+
+                drive.move_to = waits_for_room
+                await ws.send_json(
+                    {"id": "m", "cmd": "drive", "drive": "servo", "action": "position", "value": 1}
+                )
+                await held.wait()
+                halted = await drive_command("halt")
+                assert halted["type"] == "ack", halted
+                cut = await reply("m")
+                assert cut["code"] == "stopped" and "cut position short" in cut["text"], cut
                 assert (await drive_command("quick_stop"))["type"] == "ack"
 
     run(main())

@@ -3,11 +3,13 @@
     cobus run line.yml -i socketcan -c can0              # boot, supervise, print the events
     cobus run line.yml --panel                           # and serve the operator panel
     cobus run line.yml --panel --listen 0.0.0.0:8047     # reachable from other machines:
-                                                         # commands then need the printed token
+                                                         # reading it and its commands then
+                                                         # need the token the address carries
     cobus run line.yml --panel --unix /run/cobus.sock    # also on a Unix socket
-    cobus run line.yml --parameters zapi=zapi.yml        # ZAPI's parameters brought to the
-                                                         # file at each of its boots
+    cobus run thesis.yml --parameters zapi=zapi.yml      # the ZAPI's parameters brought to
+                                                         # the file at each of its boots
     cobus run thesis.yml --panel --zapi zapi             # a Drive page for the ZAPI inverter
+                                                         # (examples/networks/thesis.yml)
 
 The master boots the network the CiA 302 way and supervises it until Ctrl-C (or
 ``--duration``); each of its events is printed as a line on stderr (``--quiet``: none). On
@@ -21,7 +23,9 @@ commands...); ``--open-reads`` lets a view-only screen read it without the token
 network, the alarms, and a Drive page for each CiA 402 drive of the network file (its device
 type 0x...0192) and each ZAPI inverter ``--zapi NODE`` names: nothing is written to a drive
 until the operator asks, and its first enable asks for a confirmation. A ZAPI inverter's
-handshake (an RPDO1 every SYNC cycle) starts only when the operator starts it on its page.
+handshake (an RPDO1 every SYNC cycle) starts only when the operator starts it on its page;
+until then the inverter, which no controller answers, raises alarm 248 CAN BUS KO and waits
+in pre-operational (the master, with no heartbeat from it, cannot tell).
 
 ``--parameters NODE=FILE`` (by node name or ID, once per node) is the parameter manager at
 boot: before the master starts the node, each parameter of FILE (YAML, CSV or DCF, named by
@@ -40,6 +44,7 @@ import argparse
 import asyncio
 import contextlib
 import signal
+import socket
 import sys
 from pathlib import Path
 from typing import Any
@@ -87,15 +92,15 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--listen",
         type=listen_address,
-        default=("127.0.0.1", DEFAULT_PORT),
+        default=None,
         metavar="HOST:PORT",
         help="where the panel listens (default 127.0.0.1:8047; port 0: any free one)",
     )
     p.add_argument("--unix", metavar="PATH", help="the panel also listens on this Unix socket")
     p.add_argument(
         "--token",
-        help="the token the panel's commands need (default: a random one, needed only when "
-        "it listens beyond 127.0.0.1)",
+        help="the token the panel needs, to be read and for its commands (default: a random "
+        "one, needed only when it listens beyond 127.0.0.1)",
     )
     p.add_argument(
         "--open-reads",
@@ -139,11 +144,15 @@ def _fail(message: str, code: int) -> int:
 def _run(args: argparse.Namespace) -> int:
     from cobus.master import NetworkConfigError, load_network
 
-    if (args.unix or args.token is not None or args.zapi or args.open_reads) and not args.panel:
+    panel_options = (args.listen, args.unix, args.token, args.zapi or None, args.open_reads or None)
+    if any(option is not None for option in panel_options) and not args.panel:
         return _fail(
-            "--unix, --token, --open-reads and --zapi are options of the panel: add --panel",
+            "--listen, --unix, --token, --open-reads and --zapi are options of the panel: "
+            "add --panel",
             _EXIT_USAGE,
         )
+    if args.listen is None:
+        args.listen = ("127.0.0.1", DEFAULT_PORT)
     try:
         config = load_network(args.network)
     except OSError as exc:
@@ -191,7 +200,13 @@ def _parameter_sets(given: list[str], config: Any) -> dict[int, Any]:
                 f"--parameters {text}: cannot read {file}: {exc.strerror or exc}"
             ) from None
         except ParameterFileError as exc:
-            raise ValueError(str(exc)) from None
+            raise ValueError(f"--parameters {text}: {exc}") from None
+        save = sets[node.node_id].save
+        if save is not None and save.index != 0x1010:
+            raise ValueError(
+                f"--parameters {text}: its save command writes 0x{save.index:04X}; a node is "
+                "told to save on 1010h (store parameters) only"
+            )
         commands = CommandObjects(node.od)
         found = [
             f"{param.address} {param.name} ({why})"
@@ -315,14 +330,26 @@ async def _supervise(
         for view in serve_cia402_drives(panel, master):
             view.start()
             undo.callback(view.close)
+        zapis: dict[int, str] = {}
         for key in args.zapi:
             try:
                 node = master.node(int(key) if key.isdigit() else key)
+            except KeyError as exc:
+                return _fail(f"--zapi {key}: {exc.args[0] if exc.args else exc}", _EXIT_USAGE)
+            if node.node_id in zapis:
+                return _fail(f"--zapi: {node.name} is given twice", _EXIT_USAGE)
+            zapis[node.node_id] = key
+        for node_id, key in zapis.items():
+            node = master.nodes[node_id]
+            try:
                 AsyncZapiDrive(master, node.node_id).close()  # (its PDOs checked, nothing sent)
-                view = serve_zapi(panel, master, node.node_id, on_start=alarms.attach_zapi)
-            except (KeyError, ValueError, ZapiError) as exc:
-                why = exc.args[0] if exc.args else exc  # (a KeyError's text, unquoted)
-                return _fail(f"--zapi {key}: {why}", _EXIT_USAGE)
+            except ZapiError as exc:
+                return _fail(
+                    f"--zapi {key}: {node.name} does not look like a ZAPI inverter in the "
+                    f"network file: {str(exc).split(' (', 1)[0]}",
+                    _EXIT_USAGE,
+                )
+            view = serve_zapi(panel, master, node.node_id, on_start=alarms.attach_zapi)
             undo.callback(view.close)
         try:
             await panel.start()
@@ -335,6 +362,14 @@ async def _supervise(
 
         undo.push_async_callback(stop_panel)
         print(f"cobus run: the panel is at {panel.url}", flush=True)
+        if host in ("0.0.0.0", "::", ""):
+            print(
+                f"cobus run: ({host or '*'} is every interface: from another machine, open it "
+                f"with this machine's name or address, e.g. {socket.gethostname()})",
+                flush=True,
+            )
+        if args.unix:
+            print(f"cobus run: and on the Unix socket {args.unix}", flush=True)
         if panel.reads_need_token:
             print("cobus run: reading the panel needs the token in that address", flush=True)
         elif panel.needs_token:

@@ -556,6 +556,8 @@ async def run_demo(
         url = served[0].url
         demo.panel_url = url
         out.write(f"cobus demo: the operator panel is at {url}\n")
+        if served[0].reads_need_token:
+            out.write("cobus demo: reading it needs the token in that address\n")
         out.flush()
         if open_browser and _display():
             import webbrowser
@@ -612,7 +614,8 @@ def register(sub: Any) -> None:
         default=("127.0.0.1", 8047),
         metavar="HOST:PORT",
         help="where the operator panel listens (default 127.0.0.1:8047, another free port if "
-        "taken; beyond 127.0.0.1 its buttons need the token its address carries)",
+        "taken; beyond 127.0.0.1, reading it and its buttons need the token its address "
+        "carries)",
     )
     parser.add_argument("--no-panel", action="store_true", help="no operator panel")
     parser.add_argument(

@@ -829,7 +829,7 @@ class Parameterise:
         if known is None:
             source = self.parameters
             if not isinstance(source, ParameterSet):
-                source = load_parameters(source, od=_od_of(node))
+                source = load_parameters(source, od=self.options.get("od") or _od_of(node))
             known = self._sets[node.node_id] = source
         return known
 

@@ -572,6 +572,19 @@ class AsyncDrive402:
         if back_to is not None:
             await self.set_state(back_to, timeout)
 
+    async def _enter(self, mode: OperationMode, switch: bool, doing: str) -> None:
+        """Be in ``mode``: switched to it (``switch``), or checked to be in it."""
+        if switch:
+            await self.set_mode(mode)
+            return
+        shown = await self.read_mode()
+        if shown != mode:
+            raise DriveStateError(
+                f"drive {self.node_id} cannot {doing}: 6061h shows mode "
+                f"{getattr(shown, 'name', shown)}, not {mode.name}, and the mode is not to be "
+                "changed here (6060h is not written)"
+            )
+
     async def read_mode(self) -> OperationMode | int:
         """The mode 6061h shows now."""
         shown = int(await self.read(0x6061))
@@ -632,6 +645,7 @@ class AsyncDrive402:
         wait: bool = True,
         timeout: float = 60.0,
         progress: Callable[[Statusword], object] | None = None,
+        switch_mode: bool = True,
     ) -> None:
         """Move to ``position`` (user units) in profile position mode, with the profile
         ``velocity``, ``acceleration`` and ``deceleration`` when given (else the drive's).
@@ -641,11 +655,12 @@ class AsyncDrive402:
         buffers one set-point; the call waits for room). ``wait=False`` returns once the
         drive took the set-point; :meth:`wait_for_target` waits for the end. ``progress`` is
         called with each statusword read while waiting, on the event loop (in blocking code
-        too: it must not call the drive's blocking methods)."""
+        too: it must not call the drive's blocking methods). ``switch_mode=False``: never
+        write the mode 6060h - :class:`DriveStateError` when 6061h shows another mode."""
         target = self._inc("position", position)
         profile = self._profile(velocity, acceleration, deceleration)
         _seconds("timeout", timeout)
-        await self.set_mode(OperationMode.PROFILE_POSITION)
+        await self._enter(OperationMode.PROFILE_POSITION, switch_mode, "move")
         await self.read_statusword()
         self._require_enabled("move")
         for index, value in profile:
@@ -759,14 +774,16 @@ class AsyncDrive402:
         *,
         wait: bool = True,
         timeout: float = 30.0,
+        switch_mode: bool = True,
     ) -> None:
         """Run at ``velocity`` (user units per second) in profile velocity mode; with ``wait``
         return when the actual velocity 606Ch is within the velocity window 606Dh of it and
-        the drive reports target reached."""
+        the drive reports target reached. ``switch_mode=False``: never write the mode 6060h -
+        :class:`DriveStateError` when 6061h shows another mode."""
         target = self._inc("velocity", velocity)
         profile = self._profile(None, acceleration, deceleration)
         _seconds("timeout", timeout)
-        await self.set_mode(OperationMode.PROFILE_VELOCITY)
+        await self._enter(OperationMode.PROFILE_VELOCITY, switch_mode, "run at a velocity")
         await self.read_statusword()
         self._require_enabled("run at a velocity")
         for index, value in profile:

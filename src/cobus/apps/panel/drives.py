@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import math
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -55,6 +56,8 @@ from cobus.proto.sdo.errors import SdoAbortedError
 
 __all__ = ["DriveView", "is_cia402", "serve_cia402_drives", "serve_drive", "serve_zapi"]
 
+log = logging.getLogger(__name__)
+
 #: Who may command a drive.
 HOLDERS = ("panel", "application")
 _STOPS = frozenset({"quick_stop", "halt", "disable", "stop", "release", "end_handshake"})
@@ -62,6 +65,8 @@ _PROFILE_VELOCITY = 3
 #: Power states in which a drive cannot move: a quick stop there is answered at once.
 _STANDING = frozenset({"NOT_READY_TO_SWITCH_ON", "SWITCH_ON_DISABLED", "FAULT"})
 _PROFILE_POSITION = 1
+#: The ZAPI's alarm for a missed handshake answer.
+_CAN_BUS_KO = 248
 #: Seconds a page's ``drive.watch`` keeps the actual values read.
 WATCH = 6.0
 #: Seconds between statusword reads while no page watches the drive.
@@ -130,6 +135,10 @@ class DriveView:
         self.read_error = ""
         self._until = 0.0
         self._wake = asyncio.Event()
+        self._order = asyncio.Lock()
+        #: The command under way (not a stop), and those a stop cut short.
+        self._running: asyncio.Task[Any] | None = None
+        self._cut: set[asyncio.Task[Any]] = set()
         self._objects = dict(_ACTUALS_402) if kind == "cia402" else {}
         if temperature is not None:
             self._objects["temperature"] = temperature
@@ -223,10 +232,17 @@ class DriveView:
                 "enabled": False,
                 "setpoint": 0.0,
                 "cycles": 0,
+                "handshake": False,
+                "note": (
+                    "No controller answers the inverter's TPDO1: it raises alarm 248 CAN BUS "
+                    "KO and waits in pre-operational (the master, with no heartbeat from it, "
+                    "cannot tell). Starting the handshake restarts it, released, motor off."
+                ),
             }
         else:
             actual = {"speed": drive.speed}
             record = {
+                "handshake": True,
                 "state": "RUNNING" if drive.handshake_running else "NO HANDSHAKE",
                 "alarm": drive.alarm,
                 "alarm_text": drive.alarm_text,
@@ -241,7 +257,6 @@ class DriveView:
                 "kind": self.kind,
                 "node": self.node_id,
                 "holder": self.holder,
-                "handshake": drive is not None,
                 "actual": actual,
                 "max_velocity": self.max_velocity,
             }
@@ -262,12 +277,14 @@ class DriveView:
         if cia402:
             with contextlib.suppress(CobusError, TimeoutError, ValueError):
                 self.max_velocity = int(await drive.read(0x607F)) or None
-            with contextlib.suppress(CobusError, TimeoutError, ValueError):
-                low, high = int(await drive.read(0x607D, 1)), int(await drive.read(0x607D, 2))
-                self.position_limits = (low, high) if low < high else None
+            with contextlib.suppress(CommandError):
+                self.position_limits = await self._read_limits(drive)
         mode_read_at = -math.inf
         was_watched = False
         while True:
+            if self._ready is not None and not self._ready():
+                await asyncio.sleep(self._period)  # (the master boots it again: no SDO)
+                continue
             watched = self.watched
             if cia402:
                 try:
@@ -277,6 +294,8 @@ class DriveView:
                     self.read_error = clip(str(exc))
                 except TimeoutError:
                     self.read_error = "the drive did not answer within 2 s"
+                except Exception as exc:  # (whatever it is, the reading goes on)
+                    self.read_error = clip(f"{type(exc).__name__}: {exc}")
                 now = self.panel.hub.clock()
                 if watched and now - mode_read_at >= MODE_PERIOD:
                     mode_read_at = now
@@ -305,10 +324,45 @@ class DriveView:
                 self.actual.pop(key, None)
             except (CobusError, TimeoutError):
                 self.actual[key] = None
+            except Exception:  # (a value of a type that is no number: not plotted)
+                log.exception("panel: %s's %s cannot be read", self.name, key)
+                del self._objects[key]
+                self.actual.pop(key, None)
 
     # ------------------------------------------------------------------ commands
     async def command(self, message: Mapping[str, Any]) -> Any:
-        """Carry out one ``drive`` command (see the module text)."""
+        """Carry out one ``drive`` command (see the module text). Commands other than stops
+        run one at a time in the order they came, so that a set-point sent before ``give``
+        reaches the drive before the application has it back; a stop never waits behind
+        them."""
+        action = message.get("action")
+        if isinstance(action, str) and action in _STOPS:
+            # a move or a set-point still under way would send its controlwords after the
+            # stop and undo it: it is cut short first (nothing more of it is sent)
+            running = self._running
+            if running is not None and not running.done():
+                self._cut.add(running)
+                running.cancel()
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await running
+            return await self._command(message)
+        async with self._order:
+            task = asyncio.create_task(self._command(message))
+            self._running = task
+            try:
+                return await task
+            except asyncio.CancelledError:
+                if task not in self._cut:
+                    raise  # (the panel stops: not a stop's doing)
+                raise CommandError(
+                    "stopped",
+                    f"a stop cut {message.get('action')} short: nothing more of it was sent",
+                ) from None
+            finally:
+                self._cut.discard(task)
+                self._running = None
+
+    async def _command(self, message: Mapping[str, Any]) -> Any:
         action = message.get("action")
         actions = _ACTIONS[self.kind]
         if not isinstance(action, str) or action not in actions:
@@ -399,13 +453,16 @@ class DriveView:
                     f"{self.name} is {status.state.value}: enable it first (a set-point "
                     "never enables a drive)",
                 )
-            await drive.set_velocity(value, wait=False)
+            await drive.set_velocity(value, wait=False, switch_mode=False)
             return {"action": action, "value": value}
         elif action == "position":
             relative = message.get("relative", False)
             if not isinstance(relative, bool):
                 raise ValueError(f"relative {clip(repr(relative))}: true or false")
             value = self._target(message.get("value"), relative)
+            self.position_limits = await self._read_limits(drive)  # (now: they may change)
+            if self.position_limits is not None and not relative:
+                self._within_limits(value, f"{value:g}")
             mode = await self._mode(drive)
             if mode != _PROFILE_POSITION:
                 raise CommandError(
@@ -420,12 +477,11 @@ class DriveView:
                     f"{self.name} is {status.state.value}: enable it first (a set-point "
                     "never enables a drive)",
                 )
-            if relative and self.position_limits is not None:
-                here = float(await drive.read_fresh(0x6064, 0, 2 * self._period))
-                self._within_limits(
-                    here / drive.scale + value, f"{here / drive.scale:g} + {value:g}"
-                )
-            await drive.move_to(value, relative=relative, wait=False)
+            if self.position_limits is not None and relative:
+                for index in (0x607A, 0x6064):  # (from the last target, or from where it is)
+                    start = float(await drive.read(index)) / drive.scale
+                    self._within_limits(start + value, f"{start:g} + {value:g}")
+            await drive.move_to(value, relative=relative, wait=False, switch_mode=False)
             return {"action": action, "value": value, "relative": relative}
         return {"action": action, "state": drive.status.state.name}
 
@@ -472,13 +528,31 @@ class DriveView:
         low, high = _INT32[0] / scale, _INT32[1] / scale
         if not low <= value <= high:
             raise ValueError(f"value {clip(repr(value))}: {low:g}..{high:g} {unit} (INTEGER32)")
-        if not relative:
-            self._within_limits(value, f"{value:g}")
         if scale == 1.0:
             if value != int(value):
                 raise ValueError(f"value {value}: a whole number of {unit}")
             return int(value)
         return value
+
+    async def _read_limits(self, drive: Any) -> tuple[int, int] | None:
+        """The software position limits 607Dh now (increments; None: the drive has none -
+        an abort saying there is no such object, or min >= max). Any other failure refuses
+        the move: the limits cannot be checked."""
+        try:
+            low, high = int(await drive.read(0x607D, 1)), int(await drive.read(0x607D, 2))
+        except SdoAbortedError as exc:
+            if exc.code in _NO_OBJECT:
+                return None
+            raise CommandError(
+                "limits", f"{self.name}: its position limits 607Dh cannot be read ({exc})"
+            ) from None
+        except (CobusError, TimeoutError, ValueError) as exc:
+            raise CommandError(
+                "limits",
+                f"{self.name}: its position limits 607Dh cannot be read ({exc or 'no answer'}): "
+                "no move without them",
+            ) from None
+        return (low, high) if low < high else None
 
     def _within_limits(self, target: float, shown: str) -> None:
         if self.position_limits is None:
@@ -509,7 +583,11 @@ class DriveView:
             if drive.cycles >= 2:
                 break
             await asyncio.sleep(max(drive.watchdog / 3, 0.02))
-        restarted = drive.alarm != 0 or drive.cycles < 2
+            if self.drive is not drive:  # (ended meanwhile: nothing more is done)
+                return {"action": "handshake", "handshake": False, "started": False}
+        # only a lost handshake (alarm 248 CAN BUS KO, no TPDO1) is acknowledged here; any
+        # other alarm is the operator's to acknowledge once its cause is gone
+        restarted = drive.alarm == _CAN_BUS_KO or drive.cycles < 2
         if restarted:
             try:
                 await drive.acknowledge()
@@ -519,7 +597,13 @@ class DriveView:
                     f"{self.name}: the handshake runs, but the inverter did not come back: "
                     f"{clip(str(exc), 300)}",
                 ) from None
-        return {"action": "handshake", "handshake": True, "started": True, "restarted": restarted}
+        result: dict[str, Any] = {"action": "handshake", "handshake": True, "started": True}
+        result["restarted"] = restarted
+        if drive.alarm:
+            result["alarm"] = (
+                f"{drive.alarm} {drive.alarm_text}: acknowledge it once its cause is gone"
+            )
+        return result
 
     async def _zapi(self, drive: Any, action: str, message: Mapping[str, Any]) -> Any:
         if action == "speed":
@@ -607,7 +691,8 @@ class _Drives:
         view = self.views.get(name) if isinstance(name, str) else None
         if view is None:
             known = ", ".join(self.views) or "none"
-            raise CommandError("no-drive", f"drive {clip(repr(name))}: one of {known}")
+            given = "no drive given" if name is None else f"drive {clip(repr(name))}"
+            raise CommandError("no-drive", f"{given}: name one of {known}")
         return view
 
     async def watch(self, message: Mapping[str, Any]) -> Any:

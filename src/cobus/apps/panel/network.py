@@ -105,6 +105,7 @@ class MasterView:
         diag = master.diagnostics
         values: dict[str, Any] = {}
         last = self._last
+        seen_now: dict[int, tuple[Any, ...]] = {}
         for node_id, node in master.nodes.items():
             leds = node.led
             state = node.state
@@ -121,7 +122,7 @@ class MasterView:
                 self.device.get(node_id),
             )
             if last.get(node_id) != seen:
-                last[node_id] = seen
+                seen_now[node_id] = seen
                 diagnostic = node.diagnostic
                 values[f"node/{node_id}"] = {
                     "id": node_id,
@@ -144,6 +145,7 @@ class MasterView:
                 values[f"heard/{node_id}"] = heard
             if state is NodeState.OPERATIONAL and node_id not in self._reading:
                 self._read_device(node_id)
+        last.update(seen_now)  # (only once all is built: a failed sample sends them next time)
         values["master"] = {
             "state": master.state.name,
             "status": master.status.name,

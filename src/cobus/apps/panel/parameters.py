@@ -124,12 +124,17 @@ class ParameterView:
     # ------------------------------------------------------------------ helpers
     def _node(self, message: Mapping[str, Any]) -> Any:
         key = message.get("node")
-        if isinstance(key, bool) or not isinstance(key, int):
-            raise ValueError(f"node {key!r}: a node-ID of this network")
-        node = self.master.nodes.get(key)
+        if isinstance(key, bool) or not isinstance(key, int | str):
+            raise ValueError(f"node {clip(repr(key))}: give a node-ID or name of this network")
+        node = self.master.nodes.get(key) if isinstance(key, int) else None
         if node is None:
-            known = ", ".join(str(n) for n in sorted(self.master.nodes)) or "none"
-            raise CommandError("no-node", f"node {key} is not in this network (nodes: {known})")
+            node = next((n for n in self.master.nodes.values() if n.name == key), None)
+        if node is None:
+            known = ", ".join(f"{n.name} ({n.node_id})" for n in self.master.nodes.values())
+            raise CommandError(
+                "no-node",
+                f"node {clip(repr(key))} is not in this network (nodes: {known or 'none'})",
+            )
         return node
 
     def _variable(self, node: Any, message: Mapping[str, Any]) -> Variable:
@@ -249,7 +254,21 @@ class ParameterView:
     async def _diff(self, message: Mapping[str, Any]) -> dict[str, Any]:
         node = self._node(message)
         against = message.get("against", "network")
-        if against == "network":
+        if against == "network" and node.config.do_not_initialise:
+            rows = [
+                {
+                    "index": entry.index,
+                    "subindex": entry.subindex,
+                    "name": entry.name,
+                    "file": _shown(entry.value),
+                    "node": None,
+                    "same": None,
+                    "note": "not written: the master leaves this node as it is (do_not_initialise)",
+                }
+                for entry in node.config.startup
+            ]
+            source = None
+        elif against == "network":
             rows = [
                 await self._compare(
                     node,
@@ -281,7 +300,7 @@ class ParameterView:
                     param.subindex,
                     param.name,
                     param.value,
-                    param.matches,
+                    _holds(param),
                     readable=param.readable,
                 )
                 for param in chosen
@@ -331,6 +350,18 @@ class ParameterView:
                 shown = _shown(decode(var.data_type, data))
         row.update(node=shown, same=same(data), note="")
         return row
+
+
+def _holds(param: Any) -> Callable[[bytes], bool]:
+    """How the parameter manager decides a node holds ``param`` (REAL -0.0 is 0.0)."""
+
+    def same(data: bytes) -> bool:
+        try:
+            return bool(param.holds(param.decode(data)))
+        except (ValueError, TypeError):
+            return False
+
+    return same
 
 
 def _rpdo_carried(node: Any) -> dict[tuple[int, int], str]:

@@ -235,9 +235,13 @@ class Panel:
                 os.chmod(self.unix, 0o600)  # this user's only: it needs no token
         except OSError as exc:
             await runner.cleanup()
+            advice = (
+                "give a path in a folder that exists and you may write to"
+                if where == self.unix
+                else "give another --listen address, or port 0 for any free one"
+            )
             raise PanelError(
-                f"cannot serve the panel on {where}: {exc.strerror or exc} (give another "
-                "--listen address, or port 0 for any free one)"
+                f"cannot serve the panel on {where}: {exc.strerror or exc} ({advice})"
             ) from None
         port = next((a[1] for a in runner.addresses if isinstance(a, tuple)), self.port)
         self.bound = (self.host, int(port))
@@ -434,13 +438,16 @@ class Panel:
                 _error(ident, "unknown-command", f"cmd {clip(repr(name))}: one of {known}")
             )
             return
-        if command.writes and self.needs_token and not self._token_is(message.get("token")):
+        # (a view-only screen let in without the token watches: it asks nothing of the bus)
+        asks = command.writes or not self.reads_need_token
+        if asks and self.needs_token and not self._token_is(message.get("token")):
             client.reply(
                 _error(
                     ident,
                     "token",
-                    f"{name} writes to the bus: this panel needs the token it printed at "
-                    "start (open the address it printed, with ?token=...)",
+                    f"{name} {'writes to' if command.writes else 'asks'} the bus: send the "
+                    'panel\'s token with it ("token": ...; the page does so when opened by '
+                    "the address the panel printed)",
                 )
             )
             return

@@ -470,6 +470,8 @@ class DrivePage {
     const state = $("#drive-state");
     state.textContent = d.kind === "zapi" ? d.state : d.state_text;
     if (d.read_error) state.textContent += ` (not read: ${d.read_error})`;
+    $("#drive-note").hidden = !d.note;
+    $("#drive-note").textContent = d.note || "";
     state.className = `drive-state${d.fault ? " fault" : d.enabled ? " enabled" : ""}`;
     const panelHolds = d.holder === "panel";
     $("#drive-holder").textContent = panelHolds ? "commanded from this panel" : "commanded by the application";
@@ -562,7 +564,12 @@ class DrivePage {
     const info = this.info();
     if (!info) return;
     const form = new FormData($("#drive-setpoint"));
-    const magnitude = Number(form.get("speed"));
+    const text = String(form.get("speed") || "").trim();
+    const magnitude = Number(text);
+    if (text === "" || !Number.isFinite(magnitude)) {
+      notice("Give the speed as a number.");
+      return;
+    }
     const value = Number(form.get("direction")) * magnitude;
     try {
       await this.link.command("drive", {drive: info.name, action: "speed", value});
@@ -576,7 +583,12 @@ class DrivePage {
     const info = this.info();
     if (!info) return;
     const form = new FormData($("#drive-position"));
-    const value = Number(form.get("position"));
+    const text = String(form.get("position") || "").trim();
+    const value = Number(text);
+    if (text === "" || !Number.isFinite(value)) {  // (never 0 for a field left unreadable)
+      notice("Give the position as a number.");
+      return;
+    }
     const relative = form.get("relative") === "on";
     try {
       await this.link.command("drive", {drive: info.name, action: "position", value, relative});
