@@ -816,6 +816,14 @@ def test_parameters_are_listed_read_written_checked_and_diffed(tmp_path: Path) -
             assert mode["file"] == 3 and mode["node"] == 3 and mode["same"] is True
             saved = await ask("param.save")
             assert saved["type"] == "ack", saved
+            # nodes by name too; one the master leaves as it is has nothing to differ
+            await ws.send({"id": "z", "cmd": "param.diff", "node": "zapi"})
+            rows = (await ws.reply())["result"]["rows"]
+            assert rows and all(r["same"] is None for r in rows)
+            assert "do_not_initialise" in rows[0]["note"]
+            await ws.send({"id": "p", "cmd": "param.diff", "node": "pump"})
+            refused = await ws.reply()
+            assert refused["code"] == "no-node" and "zapi (8)" in refused["text"], refused
 
     run(main())
 
