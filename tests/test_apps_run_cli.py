@@ -145,13 +145,18 @@ def test_bad_usage_and_files_exit_2(tmp_path: Path, capsys: pytest.CaptureFixtur
     assert "add --panel" in capsys.readouterr().err
 
 
+def write_network(folder: Path) -> None:
+    """line.yml and the simulated servo's EDS beside it, in ``folder``."""
+    with Network(interface="virtual", channel=f"cli-run-eds-{os.getpid()}") as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        (folder / "servo.eds").write_text(export_eds(rig.aio.devices[10].od))
+    (folder / "line.yml").write_text(NETWORK)
+
+
 def test_bad_parameter_files_exit_2_before_the_bus_is_opened(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    with Network(interface="virtual", channel="cli-run-parameters") as net:
-        rig = start_rig(net, Rig.loads(RIG))
-        (tmp_path / "servo.eds").write_text(export_eds(rig.aio.devices[10].od))
-    (tmp_path / "line.yml").write_text(NETWORK)
+    write_network(tmp_path)
     (tmp_path / "good.yml").write_text('parameters:\n  "0x6083:00": 1234\n')
     (tmp_path / "command.yml").write_text('parameters:\n  "0x6040:00": 15\n')
     (tmp_path / "unknown.yml").write_text("parameters:\n  no_such_object: 1\n")
@@ -180,10 +185,7 @@ def test_bad_parameter_files_exit_2_before_the_bus_is_opened(
 def test_a_zapi_page_needs_the_panel_and_a_zapi(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    with Network(interface="virtual", channel="cli-run-zapi") as net:
-        rig = start_rig(net, Rig.loads(RIG))
-        (tmp_path / "servo.eds").write_text(export_eds(rig.aio.devices[10].od))
-    (tmp_path / "line.yml").write_text(NETWORK)
+    write_network(tmp_path)
     line = str(tmp_path / "line.yml")
     assert main(["run", line, "--zapi", "servo"]) == 2
     assert "add --panel" in capsys.readouterr().err

@@ -439,20 +439,7 @@ class DriveView:
             await drive.fault_reset()
         elif action == "speed":
             value = self._speed(message.get("value"))
-            mode = await self._mode(drive)
-            if mode != _PROFILE_VELOCITY:
-                raise CommandError(
-                    "mode",
-                    f"{self.name} is in mode {_mode_name(mode)}: the panel sets a speed only in "
-                    "profile velocity mode (6060h = 3); it never changes the mode itself",
-                )
-            status = await drive.read_statusword()
-            if status.state.name != "OPERATION_ENABLED":
-                raise CommandError(
-                    "not-enabled",
-                    f"{self.name} is {status.state.value}: enable it first (a set-point "
-                    "never enables a drive)",
-                )
+            await self._ready_for(drive, _PROFILE_VELOCITY, "sets a speed", "velocity")
             await drive.set_velocity(value, wait=False, switch_mode=False)
             return {"action": action, "value": value}
         elif action == "position":
@@ -463,20 +450,7 @@ class DriveView:
             self.position_limits = await self._read_limits(drive)  # (now: they may change)
             if self.position_limits is not None and not relative:
                 self._within_limits(value, f"{value:g}")
-            mode = await self._mode(drive)
-            if mode != _PROFILE_POSITION:
-                raise CommandError(
-                    "mode",
-                    f"{self.name} is in mode {_mode_name(mode)}: the panel moves to a position "
-                    "only in profile position mode (6060h = 1); it never changes the mode itself",
-                )
-            status = await drive.read_statusword()
-            if status.state.name != "OPERATION_ENABLED":
-                raise CommandError(
-                    "not-enabled",
-                    f"{self.name} is {status.state.value}: enable it first (a set-point "
-                    "never enables a drive)",
-                )
+            await self._ready_for(drive, _PROFILE_POSITION, "moves to a position", "position")
             if self.position_limits is not None and relative:
                 for index in (0x607A, 0x6064):  # (from the last target, or from where it is)
                     start = float(await drive.read(index)) / drive.scale
@@ -484,6 +458,24 @@ class DriveView:
             await drive.move_to(value, relative=relative, wait=False, switch_mode=False)
             return {"action": action, "value": value, "relative": relative}
         return {"action": action, "state": drive.status.state.name}
+
+    async def _ready_for(self, drive: Any, mode: int, doing: str, profile: str) -> None:
+        """Refuse a set-point unless the drive is in ``mode`` (never changed here) and
+        enabled (a set-point never enables a drive)."""
+        shown = await self._mode(drive)
+        if shown != mode:
+            raise CommandError(
+                "mode",
+                f"{self.name} is in mode {_mode_name(shown)}: the panel {doing} only in profile "
+                f"{profile} mode (6060h = {mode}); it never changes the mode itself",
+            )
+        status = await drive.read_statusword()
+        if status.state.name != "OPERATION_ENABLED":
+            raise CommandError(
+                "not-enabled",
+                f"{self.name} is {status.state.value}: enable it first (a set-point never "
+                "enables a drive)",
+            )
 
     async def _mode(self, drive: Any) -> int:
         """The mode 6061h shows now (-1 when the drive cannot say)."""
