@@ -280,10 +280,16 @@ def test_position_set_points_move_a_drive_only_as_asked(tmp_path: Path) -> None:
                     {"id": "m", "cmd": "drive", "drive": "servo", "action": "position", "value": 1}
                 )
                 await held.wait()
+                await ws.send_json(  # (sent before the stop, waiting its turn)
+                    {"id": "n", "cmd": "drive", "drive": "servo", "action": "position", "value": 2}
+                )
+                await asyncio.sleep(0.05)
                 halted = await drive_command("halt")
                 assert halted["type"] == "ack", halted
                 cut = await reply("m")
                 assert cut["code"] == "stopped" and "cut position short" in cut["text"], cut
+                dropped = await reply("n")
+                assert dropped["code"] == "stopped" and "not carried out" in dropped["text"]
                 assert (await drive_command("quick_stop"))["type"] == "ack"
 
     run(main())

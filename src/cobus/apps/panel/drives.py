@@ -139,6 +139,8 @@ class DriveView:
         #: The command under way (not a stop), and those a stop cut short.
         self._running: asyncio.Task[Any] | None = None
         self._cut: set[asyncio.Task[Any]] = set()
+        #: Stops sent so far (a command waiting its turn when one came is dropped).
+        self._stops = 0
         self._objects = dict(_ACTUALS_402) if kind == "cia402" else {}
         if temperature is not None:
             self._objects["temperature"] = temperature
@@ -338,7 +340,9 @@ class DriveView:
         action = message.get("action")
         if isinstance(action, str) and action in _STOPS:
             # a move or a set-point still under way would send its controlwords after the
-            # stop and undo it: it is cut short first (nothing more of it is sent)
+            # stop and undo it: it is cut short first (nothing more of it is sent), and those
+            # sent before the stop that still wait their turn are not carried out
+            self._stops += 1
             running = self._running
             if running is not None and not running.done():
                 self._cut.add(running)
@@ -346,7 +350,12 @@ class DriveView:
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await running
             return await self._command(message)
+        stops = self._stops
         async with self._order:
+            if self._stops != stops:
+                raise CommandError(
+                    "stopped", f"a stop came after {action} was sent: it is not carried out"
+                )
             task = asyncio.create_task(self._command(message))
             self._running = task
             try:
@@ -508,8 +517,8 @@ class DriveView:
         return value
 
     def _target(self, value: Any, relative: bool) -> Any:
-        """The position (or, ``relative``, the distance) asked for, checked: finite, within
-        INTEGER32 and (a position) the software position limits 607Dh, in user units."""
+        """The position (or, ``relative``, the distance) asked for in user units, checked:
+        a finite number within INTEGER32 (the limits 607Dh are checked by the caller)."""
         unit = self.drive.unit
         what = "distance" if relative else "position"
         if isinstance(value, bool) or not isinstance(value, int | float):
