@@ -24,6 +24,7 @@ from cobus.device.events import EntryWritten
 from cobus.errors import CobusError
 from cobus.od import Access, NodeRelative, ObjectDictionary, Record
 from cobus.proto import Frame
+from cobus.proto.connection_set import SDO_RX_BASE, SDO_TX_BASE
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer
 
 __all__ = ["SdoBackend", "SdoServerService", "define_objects"]
@@ -165,7 +166,10 @@ def define_objects(od: ObjectDictionary, *, servers: int) -> None:
         if n == 0:
             server = Record(index, "SDO server parameter")
             server.add(var(index, 0, "Highest sub-index supported", U8, RO, 2))
-            for sub, name, base in ((1, "client to server", 0x600), (2, "server to client", 0x580)):
+            for sub, name, base in (
+                (1, "client to server", SDO_RX_BASE),
+                (2, "server to client", SDO_TX_BASE),
+            ):
                 server.add(var(index, sub, f"COB-ID {name}", U32, RO, NodeRelative(base)))
             od.add(server)
             continue
@@ -192,8 +196,8 @@ class SdoServerService:
         self._channels: dict[int, _Channel] = {}
         for index in range(0x1200, 0x1280):
             core.handle(index, self._w_server)
-        core.follows_node_id(0x1200, 1, 0x600)  # the default channel of the connection set
-        core.follows_node_id(0x1200, 2, 0x580)
+        core.follows_node_id(0x1200, 1, SDO_RX_BASE)  # the default channel of the connection set
+        core.follows_node_id(0x1200, 2, SDO_TX_BASE)
 
     def build(self) -> None:
         """(Re)build every valid channel; transfers in progress end silently."""
@@ -206,8 +210,8 @@ class SdoServerService:
             if n and index not in core.indices:
                 continue
             if n == 0:
-                rx = int(core.value(index, 1, 0x600 + core.node_id)) & 0x7FF
-                tx = int(core.value(index, 2, 0x580 + core.node_id)) & 0x7FF
+                rx = int(core.value(index, 1, SDO_RX_BASE + core.node_id)) & 0x7FF
+                tx = int(core.value(index, 2, SDO_TX_BASE + core.node_id)) & 0x7FF
             else:
                 try:
                     rx_value = core.cob_id("sdo_rx", n + 1, int(core.value(index, 1, INVALID)))

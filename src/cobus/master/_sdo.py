@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 from cobus.od import ObjectDictionary, Variable
 from cobus.proto import Event
+from cobus.proto.connection_set import SDO_TX_BASE, sdo_cob_ids
 from cobus.proto.sdo import DownloadDone, SdoAbortCode, SdoClient, TransferFailed, UploadDone
 
 if TYPE_CHECKING:
@@ -35,8 +36,8 @@ class SdoLink:
         self.node_id = node_id
         self.od = od
         self._network = network
-        self.client = SdoClient(0x600 + node_id, 0x580 + node_id, timeout=timeout, node=node_id)
-        self._host = network.attach(self.client, [0x580 + node_id], self._on_event)
+        self.client = SdoClient(*sdo_cob_ids(node_id), timeout=timeout, node=node_id)
+        self._host = network.attach(self.client, [SDO_TX_BASE + node_id], self._on_event)
         self._lock = asyncio.Lock()
         self._pending: asyncio.Future[Event] | None = None
         #: Transfers done and failed, for the diagnostics.

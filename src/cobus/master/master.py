@@ -32,6 +32,7 @@ from cobus.master.image import Inputs, Outputs, ProcessImage
 from cobus.master.node import ManagedNode
 from cobus.master.states import MasterState, MasterStatus, NodeState
 from cobus.proto import NOTHING, Event, Frame
+from cobus.proto.connection_set import emcy_cob_id
 from cobus.proto.emcy import EmcyConsumer, EmcyReceived
 from cobus.proto.heartbeat import (
     BootupReceived,
@@ -302,7 +303,7 @@ class Master:
                 continue
             var = node.config.od.get_variable(0x1014, 0)
             cob = var.value if var is not None and isinstance(var.value, int) else None
-            can_id = 0x80 + node.node_id
+            can_id = emcy_cob_id(node.node_id)
             if cob is not None and not cob & (_INVALID | _EXTENDED):
                 can_id = cob & 0x7FF
                 emcy.set_cob_id(node.node_id, can_id)

@@ -43,6 +43,7 @@ from cobus.master.events import (
 from cobus.master.states import Diagnostic, EmcyRecord, LedPattern, Leds, MasterStatus, NodeState
 from cobus.proto import Event, Frame
 from cobus.proto import guarding as _guarding
+from cobus.proto.connection_set import error_control_cob_id
 from cobus.proto.emcy import EmcyReceived
 from cobus.proto.nmt import NmtState
 from cobus.proto.pdo import RpdoResumed, RpdoTimeout, RpdoWatchdog
@@ -682,7 +683,7 @@ class ManagedNode:
         """Subscribe what the node's supervision needs (called once by the master)."""
         master = self.master
         net = master.network
-        master._subs.append(net.subscribe(0x700 + self.node_id, self._on_ec_frame))
+        master._subs.append(net.subscribe(error_control_cob_id(self.node_id), self._on_ec_frame))
         for layout in self.config.tpdos:
             master._subs.append(
                 net.subscribe(

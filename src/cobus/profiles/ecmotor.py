@@ -24,6 +24,7 @@ from typing import Any
 from cobus.errors import CobusError
 from cobus.profiles._tables import table
 from cobus.proto import Frame
+from cobus.proto.connection_set import EMCY_BASE, RPDO_BASE, SDO_RX_BASE, SDO_TX_BASE, TPDO_BASE
 from cobus.runtime._service import Callbacks
 from cobus.runtime._twin import BlockingTwin
 
@@ -272,9 +273,9 @@ class AsyncEcMotorDrive:
             self._network, f"EC motor {address} emergencies"
         )
         self._subscriptions = [
-            self._network.subscribe(0x580 + address, self._on_answer),
-            self._network.subscribe(0x180 + address, self._on_status),
-            self._network.subscribe(0x080 + address, self._on_emcy),
+            self._network.subscribe(SDO_TX_BASE + address, self._on_answer),
+            self._network.subscribe(TPDO_BASE + address, self._on_status),
+            self._network.subscribe(EMCY_BASE + address, self._on_emcy),
         ]
 
     def __repr__(self) -> str:
@@ -333,7 +334,7 @@ class AsyncEcMotorDrive:
             future: asyncio.Future[Frame | EcEmergency] = self._network.loop.create_future()
             self._pending = (request, future)
             try:
-                self._network.send(Frame(0x600 + self.address, request))
+                self._network.send(Frame(SDO_RX_BASE + self.address, request))
                 answer = await asyncio.wait_for(future, self.timeout)
             except TimeoutError:
                 raise EcTimeoutError(
@@ -413,7 +414,7 @@ class AsyncEcMotorDrive:
         async with self._lock:
             self._status = self._network.loop.create_future()
             try:
-                self._network.send(Frame(0x200 + self.address, b""))
+                self._network.send(Frame(RPDO_BASE + self.address, b""))
                 return await asyncio.wait_for(self._status, self.timeout)
             except TimeoutError:
                 raise EcTimeoutError(

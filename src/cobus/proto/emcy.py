@@ -17,6 +17,7 @@ from typing import NamedTuple
 from cobus.errors import CobusError
 from cobus.proto._base import NOTHING, Event, Out
 from cobus.proto._cobid import split_cob_id
+from cobus.proto.connection_set import EMCY_BASE
 from cobus.proto.frame import Frame
 
 __all__ = [
@@ -35,7 +36,6 @@ __all__ = [
     "parse_emcy",
 ]
 
-EMCY_BASE = 0x080
 _INVALID = 1 << 31
 _EXTENDED = 1 << 29
 _FRAME = struct.Struct("<HB5s")

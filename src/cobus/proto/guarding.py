@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 from cobus.errors import CobusError
 from cobus.proto._base import NOTHING, Event, Out
+from cobus.proto.connection_set import ERROR_CONTROL_BASE as _BASE
 from cobus.proto.frame import Frame
 from cobus.proto.heartbeat import BootupReceived
 from cobus.proto.nmt import NmtState
@@ -37,7 +38,6 @@ __all__ = [
     "MalformedGuardingReply",
 ]
 
-_BASE = 0x700
 _TOGGLE = 0x80
 _STATES: dict[int, NmtState] = {int(s): s for s in NmtState}
 

@@ -19,6 +19,7 @@ from typing import NamedTuple
 
 from cobus.errors import CobusError
 from cobus.proto._base import NOTHING, Event, Out
+from cobus.proto.connection_set import ERROR_CONTROL_BASE as _BASE
 from cobus.proto.frame import Frame
 from cobus.proto.nmt import NmtState
 
@@ -38,7 +39,6 @@ __all__ = [
     "heartbeat_frame",
 ]
 
-_BASE = 0x700
 _STATES: dict[int, NmtState] = {int(s): s for s in NmtState}
 # A global, asked for every heartbeat: an Enum class attribute costs ~0.5 us in Python 3.11.
 _INITIALISING = NmtState.INITIALISING

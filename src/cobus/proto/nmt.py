@@ -15,6 +15,7 @@ from typing import NamedTuple
 from cobus._enum import NamedIntEnum
 from cobus.errors import CobusError
 from cobus.proto._base import NOTHING, Event, Out
+from cobus.proto.connection_set import ERROR_CONTROL_BASE, NMT_COB_ID
 from cobus.proto.frame import Frame
 
 __all__ = [
@@ -36,9 +37,6 @@ __all__ = [
     "nmt_command_frame",
     "parse_nmt",
 ]
-
-NMT_COB_ID = 0x000
-ERROR_CONTROL_BASE = 0x700
 
 
 class NmtError(CobusError, ValueError):

@@ -18,6 +18,7 @@ from typing import Any, NamedTuple, Protocol
 from cobus.errors import CobusError
 from cobus.proto._base import NOTHING, Event, Out
 from cobus.proto._cobid import split_cob_id
+from cobus.proto.connection_set import PDO_STEP, RPDO_BASE, TPDO_BASE
 from cobus.proto.frame import Frame
 
 __all__ = [
@@ -408,17 +409,17 @@ def _default_can_id(base: int, number: int, node_id: int) -> int:
         raise PdoError(f"the pre-defined connection set covers PDO 1..4, not {number!r}")
     if not isinstance(node_id, int) or not 1 <= node_id <= 127:
         raise PdoError(f"node-ID {node_id!r} is out of range: use 1..127")
-    return base + 0x100 * (number - 1) + node_id
+    return base + PDO_STEP * (number - 1) + node_id
 
 
 def tpdo_default_can_id(number: int, node_id: int) -> int:
     """The pre-defined identifier of TPDO ``number`` (1..4): 180h/280h/380h/480h + id."""
-    return _default_can_id(0x180, number, node_id)
+    return _default_can_id(TPDO_BASE, number, node_id)
 
 
 def rpdo_default_can_id(number: int, node_id: int) -> int:
     """The pre-defined identifier of RPDO ``number`` (1..4): 200h/300h/400h/500h + id."""
-    return _default_can_id(0x200, number, node_id)
+    return _default_can_id(RPDO_BASE, number, node_id)
 
 
 # --- transmission types -------------------------------------------------------------------

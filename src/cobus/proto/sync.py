@@ -13,6 +13,7 @@ from typing import NamedTuple
 from cobus.errors import CobusError
 from cobus.proto._base import NOTHING, Event, Out
 from cobus.proto._cobid import split_cob_id
+from cobus.proto.connection_set import SYNC_COB_ID
 from cobus.proto.frame import Frame
 
 __all__ = [
@@ -28,7 +29,6 @@ __all__ = [
     "check_overflow",
 ]
 
-SYNC_COB_ID = 0x080
 _GENERATE = 1 << 30
 _EXTENDED = 1 << 29
 _MAX_US = 0xFFFFFFFF

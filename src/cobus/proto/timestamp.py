@@ -19,6 +19,7 @@ from typing import NamedTuple
 from cobus.errors import CobusError
 from cobus.proto._base import NOTHING, Event, Out
 from cobus.proto._cobid import split_cob_id
+from cobus.proto.connection_set import TIME_COB_ID
 from cobus.proto.frame import Frame
 
 __all__ = [
@@ -34,7 +35,6 @@ __all__ = [
     "encode_time_of_day",
 ]
 
-TIME_COB_ID = 0x100
 EPOCH = datetime(1984, 1, 1, tzinfo=UTC)
 _LAST = EPOCH + timedelta(days=0xFFFF, milliseconds=86_399_999)
 _MS_PER_DAY = 86_400_000

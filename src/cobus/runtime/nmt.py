@@ -18,6 +18,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Final
 
 from cobus.proto import NOTHING, Event, Frame
+from cobus.proto.connection_set import ERROR_CONTROL_BASE as _HEARTBEAT
 from cobus.proto.heartbeat import (
     BootupReceived,
     HeartbeatMonitor,
@@ -33,7 +34,6 @@ if TYPE_CHECKING:
 
 __all__ = ["NmtTimeoutError", "RemoteNmt"]
 
-_HEARTBEAT = 0x700
 _STATES = frozenset(int(s) for s in NmtState)
 _BOOTUP = int(NmtState.INITIALISING)  # a global: asked for every heartbeat
 _RESETS = (NmtCommand.RESET_NODE, NmtCommand.RESET_COMMUNICATION)

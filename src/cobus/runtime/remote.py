@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, Final
 
 from cobus.od import did_you_mean, match_name
 from cobus.proto import NOTHING, Event, Frame, Out
+from cobus.proto.connection_set import SDO_RX_BASE, SDO_TX_BASE
 from cobus.proto.nmt import NmtCommand, check_node_id, nmt_command_frame
 from cobus.proto.sdo import (
     DownloadDone,
@@ -100,8 +101,8 @@ class SdoChannel:
         self.od = od
         self._network = network
         self.client = SdoClient(
-            0x600 + node_id if rx_cob_id is None else rx_cob_id,
-            0x580 + node_id if tx_cob_id is None else tx_cob_id,
+            SDO_RX_BASE + node_id if rx_cob_id is None else rx_cob_id,
+            SDO_TX_BASE + node_id if tx_cob_id is None else tx_cob_id,
             timeout=timeout,
         )
         self._host: MachineHost = network.attach(

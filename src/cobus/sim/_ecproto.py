@@ -26,6 +26,7 @@ from typing import Protocol
 
 from cobus.errors import CobusError
 from cobus.proto import NOTHING, Event, Frame, Out
+from cobus.proto.connection_set import EMCY_BASE, RPDO_BASE, SDO_RX_BASE, SDO_TX_BASE, TPDO_BASE
 from cobus.proto.sdo import SdoAbortCode
 from cobus.sim.base import SimulationError
 
@@ -101,7 +102,7 @@ class FrameRejected(Event):
 
 def status_frame(address: int, h_poz: int, m_eci: int, m_ssm: int) -> Frame:
     """The status reply ``180+a [8] h_poz(I32) m_eci(B16) m_ssm(B16)``."""
-    return Frame(0x180 + address, struct.pack("<iHH", h_poz, m_eci & 0xFFFF, m_ssm & 0xFFFF))
+    return Frame(TPDO_BASE + address, struct.pack("<iHH", h_poz, m_eci & 0xFFFF, m_ssm & 0xFFFF))
 
 
 def emcy_frame(
@@ -112,7 +113,7 @@ def emcy_frame(
     ``code_as_printed`` sends the code bytes as the document prints them (``10 00``); False
     sends CiA 301's generic error 1000h little-endian (``00 10``)."""
     code = b"\x10\x00" if code_as_printed else b"\x00\x10"
-    return Frame(0x80 + address, code + struct.pack("<HHH", m_sss, c_sss, m_ssm))
+    return Frame(EMCY_BASE + address, code + struct.pack("<HHH", m_sss, c_sss, m_ssm))
 
 
 class EcDialect:
@@ -154,9 +155,9 @@ class EcDialect:
         self.cia_length = cia_length
         self.cia_aborts = cia_aborts
         self.cia_requests = cia_requests
-        self.rx_cob_id = 0x600 + address
-        self.tx_cob_id = 0x580 + address
-        self.status_cob_id = 0x200 + address
+        self.rx_cob_id = SDO_RX_BASE + address
+        self.tx_cob_id = SDO_TX_BASE + address
+        self.status_cob_id = RPDO_BASE + address
 
     @property
     def deadline(self) -> float | None:

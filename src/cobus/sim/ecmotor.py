@@ -52,6 +52,7 @@ from typing import Any, ClassVar
 
 from cobus.profiles.ecmotor import MODES, UNITS
 from cobus.proto import Event, Frame
+from cobus.proto.connection_set import ERROR_CONTROL_BASE
 from cobus.proto.sdo import SdoAbortCode
 from cobus.runtime.network import AsyncNetwork, MachineHost, Subscription
 from cobus.sim._ecproto import (
@@ -299,7 +300,7 @@ class EcMotor(SimulatedDevice):
 
     def _bootup(self) -> None:
         if not self.quirks["no_bootup"]:
-            self._send(Frame(0x700 + self.address, b"\x00"))
+            self._send(Frame(ERROR_CONTROL_BASE + self.address, b"\x00"))
 
     def _send(self, frame: Frame) -> None:
         self.network.send(frame)

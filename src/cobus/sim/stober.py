@@ -75,6 +75,14 @@ from cobus.od import Access, DataType, ObjectDictionary, Record, Variable
 from cobus.profiles.stober import EVENTS, STATES, StoberError
 from cobus.profiles.stober import parameter_index as _parameter_index
 from cobus.proto import Frame
+from cobus.proto.connection_set import (
+    PDO_STEP,
+    RPDO_BASE,
+    SDO_RX_BASE,
+    SDO_TX_BASE,
+    TPDO_BASE,
+    sdo_cob_ids,
+)
 from cobus.proto.nmt import NmtState
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServer, SdoServerBackend
 from cobus.runtime.events import BusState
@@ -166,8 +174,8 @@ MAPPED_LENGTHS: Mapping[int, int] = {
 }
 _AXIS_AREA = range(0x2200, 0x5400)  # groups B..Z: the parameters of an axis
 
-_SDO_FUNCTION = {(n, 1): 0x600 + 0x20 * (n - 1) for n in (2, 3, 4)} | {
-    (n, 2): 0x580 + 0x20 * (n - 1) for n in (2, 3, 4)
+_SDO_FUNCTION = {(n, 1): SDO_RX_BASE + 0x20 * (n - 1) for n in (2, 3, 4)} | {
+    (n, 2): SDO_TX_BASE + 0x20 * (n - 1) for n in (2, 3, 4)
 }
 _INVALID = 1 << 31
 
@@ -437,13 +445,17 @@ class StoberMds5000(SimulatedDevice):
             od.remove(rx)
             rec = Record(rx, f"RPDO communication parameter {n + 1}")
             rec.add(_var(rx, 0, "Highest sub-index supported", u8, "ro", 2))
-            rec.add(_var(rx, 1, "COB-ID used by RPDO", u32, "rw", self._bare(0x200 + 0x100 * n)))
+            rec.add(
+                _var(rx, 1, "COB-ID used by RPDO", u32, "rw", self._bare(RPDO_BASE + PDO_STEP * n))
+            )
             rec.add(_var(rx, 2, "Transmission type", u8, "rw", 254))
             od.add(rec)
             od.remove(tx)
             rec = Record(tx, f"TPDO communication parameter {n + 1}")
             rec.add(_var(tx, 0, "Highest sub-index supported", u8, "ro", 5))
-            rec.add(_var(tx, 1, "COB-ID used by TPDO", u32, "rw", self._bare(0x180 + 0x100 * n)))
+            rec.add(
+                _var(tx, 1, "COB-ID used by TPDO", u32, "rw", self._bare(TPDO_BASE + PDO_STEP * n))
+            )
             rec.add(_var(tx, 2, "Transmission type", u8, "rw", 254))
             rec.add(_var(tx, 3, "Inhibit time", u16, "rw", 0))
             rec.add(_var(tx, 5, "Event timer", u16, "rw", 0))
@@ -485,7 +497,7 @@ class StoberMds5000(SimulatedDevice):
         elif kind == "emcy":
             function = 0x80
         else:
-            function = (0x180 if kind == "tpdo" else 0x200) + 0x100 * (number - 1)
+            function = (TPDO_BASE if kind == "tpdo" else RPDO_BASE) + PDO_STEP * (number - 1)
         if bare and function is not None and value & 0x1FFFFFFF == function:
             value += self.node_id
         return value
@@ -557,7 +569,7 @@ class StoberMds5000(SimulatedDevice):
             return
         for number in (1, 2, 3, 4):
             if number == 1:
-                rx, tx = 0x600 + self.node_id, 0x580 + self.node_id
+                rx, tx = sdo_cob_ids(self.node_id)
             else:
                 index = 0x1200 + number - 1
                 rx_value = self._cob_id_rule("sdo_rx", number, device.get(index, 1))

@@ -59,6 +59,7 @@ from cobus.device.device import Deviations
 from cobus.od import DataType, ObjectDictionary
 from cobus.profiles.zapi import ALARM_TEXTS, alarm_text
 from cobus.proto import Frame
+from cobus.proto.connection_set import tpdo_cob_id
 from cobus.proto.nmt import NmtCommand, NmtState
 from cobus.runtime.network import AsyncNetwork, Subscription
 from cobus.sim.base import SimulatedDevice, SimulationError
@@ -266,7 +267,7 @@ class ZapiAce2(SimulatedDevice):
         od = b.build()
         comm3 = od.get_variable(0x1802, 1)
         assert comm3 is not None
-        comm3.default = 0x80000000 | (0x380 + self.node_id)  # TPDO3 is not used
+        comm3.default = 0x80000000 | tpdo_cob_id(3, self.node_id)  # TPDO3 is not used
         return od
 
     # ------------------------------------------------------------------ life cycle

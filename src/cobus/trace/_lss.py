@@ -11,9 +11,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from cobus.proto.connection_set import LSS_MASTER_COB_ID as MASTER
+
 __all__ = ["LssSessions", "describe"]
 
-MASTER = 0x7E5
 SLAVE = 0x7E4
 
 _FIELDS = ("vendor-ID", "product code", "revision", "serial")

@@ -27,6 +27,14 @@ from typing import Any
 from cobus.od import DataType, ObjectDictionary, Variable, decode
 from cobus.profiles.cia402 import PowerState, error_text
 from cobus.proto import Frame
+from cobus.proto.connection_set import (
+    ERROR_CONTROL_BASE,
+    LSS_MASTER_COB_ID,
+    LSS_SLAVE_COB_ID,
+    SDO_RX_BASE,
+    SDO_TX_BASE,
+    TPDO_BASE,
+)
 from cobus.proto.emcy import ErrorRegister, describe
 from cobus.proto.sdo import SdoAbortCode, crc16
 from cobus.trace._lss import LssSessions
@@ -64,6 +72,8 @@ _NMT = {
 _EPOCH = dt.datetime(1984, 1, 1, tzinfo=dt.UTC)
 _SHOWN = 64  # characters of a value in a record's text
 _GUARD_ANSWER = 1.0  # seconds within which a state frame answers a guarding request
+#: A PDO's mapping object is its communication object + 200h (1600h/1A00h to 1400h/1800h).
+_MAPPING = 0x200
 
 
 @dataclass(frozen=True)
@@ -592,9 +602,9 @@ class Decoder:
                 cob = params.get((base + n, 1))
                 if cob is None or cob & (1 << 31):
                     continue
-                count = params.get((base + 0x200 + n, 0), 0)
+                count = params.get((base + _MAPPING + n, 0), 0)
                 mapped = [
-                    params.get((base + 0x200 + n, k), 0) for k in range(1, min(count, 64) + 1)
+                    params.get((base + _MAPPING + n, k), 0) for k in range(1, min(count, 64) + 1)
                 ]
                 configured = self._layouts.get((node, tpdo, n + 1))
                 if configured is not None:
@@ -610,7 +620,7 @@ class Decoder:
                 statusword: str | None = None
                 axis = 1
                 for sub in range(1, min(count, 64) + 1):
-                    raw = params.get((base + 0x200 + n, sub), 0)
+                    raw = params.get((base + _MAPPING + n, sub), 0)
                     index, subindex, bits = raw >> 16, (raw >> 8) & 0xFF, raw & 0xFF
                     if index < 0x1000:  # a dummy entry (a data type index): a gap
                         entries.append((None, DataType.UNSIGNED8, bits))
@@ -646,11 +656,11 @@ class Decoder:
         records = self._decode(frame, now)
         cob = frame.cob_id
         if 0x581 <= cob <= 0x5FF and not frame.rtr:
-            asked = self._requested.pop(cob - 0x580, None)
+            asked = self._requested.pop(cob - SDO_TX_BASE, None)
             if asked is not None:
-                self.node_stats(cob - 0x580).sdo_latencies.append(now - asked)
+                self.node_stats(cob - SDO_TX_BASE).sdo_latencies.append(now - asked)
         elif 0x601 <= cob <= 0x67F and not frame.rtr:
-            self._requested[cob - 0x600] = now
+            self._requested[cob - SDO_RX_BASE] = now
         for rec in records:
             if isinstance(rec, Heartbeat | GuardResponse):
                 stats = self.node_stats(rec.node)
@@ -684,7 +694,7 @@ class Decoder:
         out: list[Record] = []
         for node in sorted(self._sdo):
             t = self._sdo.pop(node)
-            cob = (0x600 if t.write else 0x580) + node
+            cob = (SDO_RX_BASE if t.write else SDO_TX_BASE) + node
             name = self._object_name(node, t.index, t.subindex)
             out.append(
                 SdoTransfer(
@@ -726,7 +736,7 @@ class Decoder:
             profile = self._profiles.get(node)
             extra = data[3:8].ljust(5, b"\0")
             return [Emergency(now, cob, node, code, data[2], extra, profile)]
-        if func == 0x700 and node:
+        if func == ERROR_CONTROL_BASE and node:
             if frame.rtr:
                 self._guard_asked[node] = now
                 return [GuardRequest(now, cob, node)]
@@ -745,15 +755,15 @@ class Decoder:
                     return [GuardResponse(now, cob, node, name, toggle, wrong)]
                 self._toggle.pop(node, None)  # a heartbeat (or a late answer): start afresh
                 return [Heartbeat(now, cob, node, name)]
-        if cob in (0x7E4, 0x7E5) and data:
+        if cob in (LSS_SLAVE_COB_ID, LSS_MASTER_COB_ID) and data:
             said = self.lss.feed(cob, data, now)
             return [LssFrame(now, cob, data[0], data), *(LssSession(now, cob, x) for x in said)]
-        if func == 0x600 and node and len(data) == 8:
+        if func == SDO_RX_BASE and node and len(data) == 8:
             return self._sdo_request(now, cob, node, data)
-        if func == 0x580 and node and len(data) == 8:
+        if func == SDO_TX_BASE and node and len(data) == 8:
             return self._sdo_response(now, cob, node, data)
         if 0x180 <= cob <= 0x57F and not frame.rtr:
-            k = (cob - 0x180) >> 7
+            k = (cob - TPDO_BASE) >> 7
             number, tpdo = k // 2 + 1, k % 2 == 0
             return [PdoRecord(now, cob, cob & 0x7F, number, tpdo, data)]
         return [Unknown(now, cob, data, frame.rtr)]

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from cobus._args import add_bus_options, bus_options, seconds
+from cobus.proto.connection_set import ERROR_CONTROL_BASE
 
 __all__ = ["FoundNode", "FoundObject", "register", "scan", "scan_objects"]
 
@@ -94,7 +95,9 @@ async def scan(
     def on_frame(frame: Any, now: float) -> None:
         cob = frame.cob_id
         if 0x701 <= cob <= 0x77F and len(frame.data) == 1 and not frame.rtr:
-            heard[cob - 0x700] = _STATES.get(frame.data[0] & 0x7F, f"{frame.data[0]:02X}h")
+            heard[cob - ERROR_CONTROL_BASE] = _STATES.get(
+                frame.data[0] & 0x7F, f"{frame.data[0]:02X}h"
+            )
 
     sub = network.subscribe_all(on_frame)
     try:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import struct
 
+from cobus.proto.connection_set import SDO_RX_BASE, SDO_TX_BASE
 from cobus.proto.frame import Frame
 from cobus.proto.sdo.errors import SdoParameterError
 
@@ -99,8 +100,8 @@ def check_object(index: int, subindex: int) -> None:
 
 def node_of(rx_cob_id: int, tx_cob_id: int) -> int | None:
     """The node-ID of the default SDO channel (600h+id / 580h+id), else ``None``."""
-    node = rx_cob_id - 0x600
-    if 1 <= node <= 127 and tx_cob_id == 0x580 + node:
+    node = rx_cob_id - SDO_RX_BASE
+    if 1 <= node <= 127 and tx_cob_id == SDO_TX_BASE + node:
         return node
     return None
 

@@ -1,0 +1,70 @@
+"""The shape of the code base, guarded: the pre-defined connection set is spelled in one
+module (issue 41; more guards join as the rest of that issue lands)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from cobus.proto import connection_set as cs
+
+SRC = Path(__file__).resolve().parent.parent / "src" / "cobus"
+#: A connection-set base added to or taken from a node-ID (or a COB-ID) as a literal.
+PLUS = re.compile(r"0x0*(80|180|200|280|300|380|400|480|500|580|600|700)\s*\+\s*[A-Za-z_(]")
+MINUS = re.compile(r"[A-Za-z_)\]]\s*-\s*0x0*(80|180|200|580|600|700)\b")
+
+
+def test_no_connection_set_literal_outside_its_module() -> None:
+    found = [
+        f"{path.relative_to(SRC)}:{n}: {line.strip()}"
+        for path in sorted(SRC.rglob("*.py"))
+        if path.name != "connection_set.py"
+        for n, line in enumerate(path.read_text().splitlines(), 1)
+        if PLUS.search(line) or MINUS.search(line)
+    ]
+    assert not found, "use cobus.proto.connection_set:\n" + "\n".join(found)
+
+
+def test_the_guard_sees_what_it_guards_against() -> None:
+    for line in ("Frame(0x580 + node, data)", "heard[cob - 0x700] = x", "0x80 + (n)"):
+        assert PLUS.search(line) or MINUS.search(line), line
+    for line in ("0x2000 + 0x200 * group", 'b"0x180+$NODEID"', "mask = 0x7FF"):
+        assert not (PLUS.search(line) or MINUS.search(line)), line
+
+
+def test_the_connection_set() -> None:
+    assert cs.sdo_cob_ids(10) == (0x60A, 0x58A)
+    assert cs.emcy_cob_id(1) == 0x081 and cs.error_control_cob_id(127) == 0x77F
+    assert [cs.tpdo_cob_id(n, 5) for n in (1, 2, 3, 4)] == [0x185, 0x285, 0x385, 0x485]
+    assert [cs.rpdo_cob_id(n, 5) for n in (1, 2, 3, 4)] == [0x205, 0x305, 0x405, 0x505]
+    for cob_id, service in (
+        (0x000, ("nmt", None)),
+        (0x080, ("sync", None)),
+        (0x100, ("time", None)),
+        (0x7E5, ("lss_master", None)),
+        (0x7E4, ("lss_slave", None)),
+        (0x08A, ("emcy", 10)),
+        (0x38A, ("tpdo3", 10)),
+        (0x50A, ("rpdo4", 10)),
+        (0x58A, ("sdo_tx", 10)),
+        (0x60A, ("sdo_rx", 10)),
+        (0x70A, ("error_control", 10)),
+        (0x680, ("other", None)),
+        (0x700, ("other", None)),
+        (0x123 | 0x800, ("other", None)),
+    ):
+        assert cs.service_of(cob_id) == service, hex(cob_id)
+
+
+@pytest.mark.parametrize("node", [0, 128, True, "10"])
+def test_the_connection_set_covers_node_ids_1_to_127(node: object) -> None:
+    with pytest.raises(ValueError, match=r"1\.\.127"):
+        cs.sdo_cob_ids(node)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("number", [0, 5, True])
+def test_the_connection_set_covers_pdo_1_to_4(number: object) -> None:
+    with pytest.raises(ValueError, match=r"PDO 1\.\.4"):
+        cs.tpdo_cob_id(number, 1)  # type: ignore[arg-type]
