@@ -419,6 +419,9 @@ def test_bus_load_sync_toggle_and_pdo_counters(tmp_path):
 
 
 def test_frame_bits_and_the_bus_load_window():
+    from cobus.proto.frame import frame_bits as in_proto
+
+    assert frame_bits is in_proto  # (its home is proto: trace needs it too)
     assert frame_bits(Frame(0x80)) == 47 + 8  # worst-case stuffing of 34 bits: 8
     assert frame_bits(Frame(0x181, bytes(8))) == 135  # the classic maximum
     assert frame_bits(Frame(0x1234567, bytes(8), extended=True)) == 67 + 64 + 29

@@ -13,27 +13,10 @@ from dataclasses import dataclass, field
 
 from cobus.master.errors import MasterValueError
 from cobus.proto import Frame
+from cobus.proto.frame import frame_bits  # (its home; kept importable from here)
 from cobus.runtime.events import BusState
 
 __all__ = ["BusLoadMeter", "MasterDiagnostics", "frame_bits"]
-
-# Bits of a classic frame without data and stuffing: SOF 1, identifier 11 (29 + SRR + IDE for
-# extended), RTR 1, IDE/r1 + r0 2, DLC 4, CRC 15, CRC delimiter 1, ACK 2, EOF 7, IFS 3.
-_STD_OVERHEAD = 47
-_EXT_OVERHEAD = 67
-# The part where stuffing applies: SOF through CRC.
-_STD_STUFFED = 34
-_EXT_STUFFED = 54
-
-
-def frame_bits(frame: Frame) -> int:
-    """Bits ``frame`` takes on the bus, with the worst-case stuff bits."""
-    data_bits = 0 if frame.rtr else 8 * len(frame.data)
-    if frame.extended:
-        stuffed = _EXT_STUFFED + data_bits
-        return _EXT_OVERHEAD + data_bits + (stuffed - 1) // 4
-    stuffed = _STD_STUFFED + data_bits
-    return _STD_OVERHEAD + data_bits + (stuffed - 1) // 4
 
 
 class BusLoadMeter:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from cobus.errors import CobusError
 
-__all__ = ["Frame", "FrameError"]
+__all__ = ["Frame", "FrameError", "frame_bits"]
 
 _MAX_STD = 0x7FF
 _MAX_EXT = 0x1FFFFFFF
@@ -130,3 +130,23 @@ class Frame:
         except ValueError:
             raise FrameError(f"frame text {text!r} is not hex") from None
         return cls(cob_id, data, rtr=rtr, extended=len(ident) > 3, dlc=dlc)
+
+
+# Bits of a classic frame without data and stuffing: SOF 1, identifier 11 (29 + SRR + IDE for
+# extended), RTR 1, IDE/r1 + r0 2, DLC 4, CRC 15, CRC delimiter 1, ACK 2, EOF 7, IFS 3.
+_STD_OVERHEAD = 47
+_EXT_OVERHEAD = 67
+# The part where stuffing applies: SOF through CRC.
+_STD_STUFFED = 34
+_EXT_STUFFED = 54
+
+
+def frame_bits(frame: Frame) -> int:
+    """Bits ``frame`` takes on the bus (start of frame to the end of the interframe space),
+    with the worst-case number of stuff bits ISO 11898 allows: what a bus load counts."""
+    data_bits = 0 if frame.rtr else 8 * len(frame.data)
+    if frame.extended:
+        stuffed = _EXT_STUFFED + data_bits
+        return _EXT_OVERHEAD + data_bits + (stuffed - 1) // 4
+    stuffed = _STD_STUFFED + data_bits
+    return _STD_OVERHEAD + data_bits + (stuffed - 1) // 4

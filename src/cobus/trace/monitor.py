@@ -227,7 +227,7 @@ def _run(args: argparse.Namespace) -> int:
     from rich.markup import escape
     from rich.text import Text
 
-    from cobus.master.diagnostics import frame_bits
+    from cobus.proto.frame import frame_bits
     from cobus.trace.decoder import Decoder
 
     try:
