@@ -383,7 +383,8 @@ def test_every_async_operation_has_its_blocking_twin():
     from cobus.profiles.io401 import AsyncIo401, Io401
     from cobus.profiles.stober import AsyncStoberDrive, StoberDrive
     from cobus.profiles.zapi import AsyncZapiDrive, ZapiDrive
-    from cobus.runtime import _twin, blocking, emcy, nmt, pdo, remote
+    from cobus.runtime import blocking, emcy, nmt, pdo, remote
+    from cobus.runtime import twin as twin_module
     from cobus.sim import Rig, SimulatedDevice
 
     expected = {
@@ -416,13 +417,13 @@ def test_every_async_operation_has_its_blocking_twin():
     }
     expected[remote.NmtMaster] = blocking.BlockingNmt
     expected[remote.SyncService] = blocking.BlockingSync
-    assert dict(_twin._TWINS) == expected
+    assert dict(twin_module._TWINS) == expected
     for async_cls, twin in expected.items():
-        missing = _twin.public_names(async_cls) - _twin.public_names(twin)
-        extra = _twin.public_names(twin) - _twin.public_names(async_cls)
+        missing = twin_module.public_names(async_cls) - twin_module.public_names(twin)
+        extra = twin_module.public_names(twin) - twin_module.public_names(async_cls)
         assert not missing and extra == added.get(twin, set()), (async_cls, missing, extra)
         assert twin.__doc__
-        for name in _twin.public_names(twin):
+        for name in twin_module.public_names(twin):
             if not name.startswith("_"):
                 assert getattr(twin, name).__doc__, f"{twin.__name__}.{name} has no docstring"
 
@@ -659,7 +660,7 @@ def test_what_a_blocking_node_is_made_of_is_read_without_the_loop():
     node reads them in the calling thread, once: ``node.sdo.upload(...)`` in a loop costs no
     trip to the network's loop for ``node.sdo``. They cannot be set; the rest still can."""
     from cobus.runtime import blocking
-    from cobus.runtime._twin import _Fixed
+    from cobus.runtime.twin import _Fixed
 
     assert isinstance(vars(blocking.RemoteNode)["sdo"], _Fixed)
     assert isinstance(vars(blocking.RemotePdo)["number"], _Fixed)
@@ -695,7 +696,7 @@ def test_the_blocking_network_has_what_the_async_one_has():
     """Network is written by hand (it owns the loop); it has every operation of AsyncNetwork
     but the plumbing for code that runs on the loop, which blocking code does through
     ``run()`` and ``close()``."""
-    from cobus.runtime import _twin
+    from cobus.runtime import twin
 
     plumbing = {
         "attach",
@@ -707,9 +708,9 @@ def test_the_blocking_network_has_what_the_async_one_has():
         "on_connect",
         "on_disconnect",
     }
-    missing = _twin.public_names(AsyncNetwork) - _twin.public_names(Network)
+    missing = twin.public_names(AsyncNetwork) - twin.public_names(Network)
     assert missing == plumbing
-    assert _twin.public_names(Network) - _twin.public_names(AsyncNetwork) == {"close", "run"}
+    assert twin.public_names(Network) - twin.public_names(AsyncNetwork) == {"close", "run"}
     with Network(simulated=True) as net:
         net.sync.start(0.01)
         assert net.sync is net.sync and net.sync.running and net.sync.period == 0.01

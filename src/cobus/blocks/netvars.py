@@ -23,8 +23,8 @@ from typing import Any
 
 from cobus.blocks.netvar_lists import NetVarDefinition, VarList
 from cobus.proto import Event, Frame
-from cobus.runtime._twin import BlockingTwin
 from cobus.runtime.errors import NetworkClosedError
+from cobus.runtime.twin import BlockingTwin
 
 __all__ = [
     "AsyncNetworkVariables",

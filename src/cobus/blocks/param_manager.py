@@ -40,7 +40,7 @@ from cobus.blocks.parameters import (
 from cobus.errors import CobusError
 from cobus.master.errors import BootStepError
 from cobus.od import CommandObjects, DataType, ObjectDictionary, Variable, process_data_of
-from cobus.runtime._twin import BlockingTwin
+from cobus.runtime.twin import BlockingTwin
 
 log = logging.getLogger(__name__)
 

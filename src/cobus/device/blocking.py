@@ -1,6 +1,6 @@
 """The blocking face of a :class:`~cobus.device.Device` (``add_device(network, ...)``).
 
-It is generated from :class:`~cobus.device.Device` (see :mod:`cobus.runtime._twin`): every
+It is generated from :class:`~cobus.device.Device` (see :mod:`cobus.runtime.twin`): every
 method runs on the network's event loop and returns its result. Read and write callbacks
 (``on_read``, ``on_write``) run on the loop itself, because the device needs their answer at
 once: keep them short and thread-safe. Listeners (``add_listener``) run where the network runs
@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 from cobus.device.device import Device
 from cobus.device.simulation import Simulation
-from cobus.runtime._twin import BlockingTwin
+from cobus.runtime.twin import BlockingTwin
 
 if TYPE_CHECKING:
     from cobus.device.device import Key

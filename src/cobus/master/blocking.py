@@ -16,7 +16,7 @@ from cobus.master.diagnostics import MasterDiagnostics
 from cobus.master.master import Master
 from cobus.master.node import ManagedNode
 from cobus.master.states import MasterState, MasterStatus
-from cobus.runtime._twin import BlockingTwin
+from cobus.runtime.twin import BlockingTwin
 
 if TYPE_CHECKING:
     from cobus.runtime import Network

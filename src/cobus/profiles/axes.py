@@ -13,7 +13,7 @@ from typing import Any
 
 from cobus.profiles.cia402 import Command, PowerState, command_towards
 from cobus.profiles.drive402 import AsyncDrive402, Drive402, DriveStateError, _left
-from cobus.runtime._twin import BlockingTwin
+from cobus.runtime.twin import BlockingTwin
 
 __all__ = ["AsyncAxes", "Axes"]
 

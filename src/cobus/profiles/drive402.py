@@ -46,7 +46,7 @@ from cobus.profiles.cia402 import (
 from cobus.profiles.trajectory import Trajectory
 from cobus.proto import Frame
 from cobus.proto.sdo import SdoAbortedError
-from cobus.runtime._twin import BlockingTwin
+from cobus.runtime.twin import BlockingTwin
 
 __all__ = [
     "AsyncDrive402",

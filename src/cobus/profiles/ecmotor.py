@@ -26,7 +26,7 @@ from cobus.profiles._tables import table
 from cobus.proto import Frame
 from cobus.proto.connection_set import EMCY_BASE, RPDO_BASE, SDO_RX_BASE, SDO_TX_BASE, TPDO_BASE
 from cobus.runtime._service import Callbacks
-from cobus.runtime._twin import BlockingTwin
+from cobus.runtime.twin import BlockingTwin
 
 __all__ = [
     "COMMANDS",

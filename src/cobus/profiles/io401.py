@@ -27,7 +27,7 @@ from cobus.errors import CobusError
 from cobus.od import DataType, decode, encode
 from cobus.profiles._port import DrivePort, port_for
 from cobus.runtime._service import Callbacks
-from cobus.runtime._twin import BlockingTwin
+from cobus.runtime.twin import BlockingTwin
 
 __all__ = ["AnalogChannel", "AsyncIo401", "Io401", "IoChange", "IoError"]
 

@@ -18,7 +18,7 @@ from typing import Any
 from cobus.errors import CobusError
 from cobus.od import DataType, decode, encode
 from cobus.profiles._tables import table
-from cobus.runtime._twin import BlockingTwin
+from cobus.runtime.twin import BlockingTwin
 
 __all__ = [
     "EVENTS",

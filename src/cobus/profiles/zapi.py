@@ -28,7 +28,7 @@ from cobus.errors import CobusError
 from cobus.profiles._port import ManagedNodePort, port_for
 from cobus.profiles._tables import table as data_table
 from cobus.runtime._service import Callbacks
-from cobus.runtime._twin import BlockingTwin
+from cobus.runtime.twin import BlockingTwin
 
 __all__ = [
     "ALARM_TEXTS",

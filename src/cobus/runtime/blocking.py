@@ -30,13 +30,13 @@ from cobus.runtime import nmt as _nmt
 from cobus.runtime import pdo as _pdo
 from cobus.runtime import remote as _remote
 from cobus.runtime._sigint import ASIDE, MAIN, SigintDeferred
-from cobus.runtime._twin import BlockingTwin, twin_of
 from cobus.runtime.errors import ReentrantCallError
 from cobus.runtime.events import BusState
 from cobus.runtime.loop import RealTimeLoop, SimulatedEventLoop, new_event_loop
 from cobus.runtime.network import AsyncNetwork, FrameHandler, NetworkClosedError, Subscription
 from cobus.runtime.remote import NmtMaster, SdoChannel, SyncService
 from cobus.runtime.remote import RemoteNode as AsyncRemoteNode
+from cobus.runtime.twin import BlockingTwin, twin_of
 
 if TYPE_CHECKING:
     from collections.abc import Iterator

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from cobus.runtime._twin import BlockingTwin
+from cobus.runtime.twin import BlockingTwin
 from cobus.sim.base import SimulatedDevice
 from cobus.sim.rig import Rig, ready_rig
 
