@@ -90,3 +90,16 @@ def test_error_codes_have_the_cia402_text_or_their_class() -> None:
     assert error_text(0x8611) == "Following error"
     assert error_text(0x2310) == "Continuous over-current"
     assert error_text(0x4321) == "Temperature (4321h)"  # no CiA 402 text: the CiA 301 class
+
+
+def test_each_state_s_statusword_bits_decode_back_to_it() -> None:
+    """One encoding of the power states: what the simulated drive sends is what the master
+    side decodes (with or without bit 4, voltage enabled, and the mode bits above)."""
+    from cobus.profiles.cia402 import STATE_BITS
+    from cobus.sim import drive402 as simulated
+
+    assert set(STATE_BITS) == set(PowerState)
+    assert simulated._STATE_BITS is STATE_BITS
+    for state, bits in STATE_BITS.items():
+        for extra in (0x0000, 0x0010, 0x0200, 0xFC10):
+            assert PowerState.from_statusword(bits | extra) is state, (state, hex(extra))

@@ -8,6 +8,7 @@ Nothing here touches a bus; :mod:`cobus.profiles.drive402` runs a drive with it.
 from __future__ import annotations
 
 import enum
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from cobus._enum import NamedIntEnum
@@ -15,6 +16,7 @@ from cobus.profiles._tables import table
 from cobus.proto.emcy import describe as _describe_emcy
 
 __all__ = [
+    "STATE_BITS",
     "Command",
     "OperationMode",
     "PowerState",
@@ -62,6 +64,9 @@ _DECODE: tuple[tuple[int, int, PowerState], ...] = (
     (0x4F, 0x0F, _P.FAULT_REACTION_ACTIVE),
     (0x4F, 0x08, _P.FAULT),
 )
+#: The statusword bits (0-3, 5, 6) each state is reported with: what a drive sends, the
+#: other side of the decoding above (the simulated drive builds its statusword from it).
+STATE_BITS: Mapping[PowerState, int] = {state: value for _mask, value, state in _DECODE}
 
 
 class Command(NamedIntEnum):

@@ -75,7 +75,7 @@ from cobus.device import (
 )
 from cobus.device.events import Booted
 from cobus.od import DataType, ObjectDictionary
-from cobus.profiles.cia402 import PowerState
+from cobus.profiles.cia402 import STATE_BITS, PowerState
 from cobus.proto import Frame
 from cobus.proto.emcy import EmcyCode, ErrorRegister
 from cobus.proto.nmt import NmtCommand, NmtState
@@ -110,17 +110,9 @@ class Mode(NamedIntEnum):
 
 
 _S = DriveState
-#: Statusword bits 0-3, 5, 6 of each state (bit 4 "voltage enabled" is added separately).
-_STATE_BITS = {
-    _S.NOT_READY_TO_SWITCH_ON: 0x0000,
-    _S.SWITCH_ON_DISABLED: 0x0040,
-    _S.READY_TO_SWITCH_ON: 0x0021,
-    _S.SWITCHED_ON: 0x0023,
-    _S.OPERATION_ENABLED: 0x0027,
-    _S.QUICK_STOP_ACTIVE: 0x0007,
-    _S.FAULT_REACTION_ACTIVE: 0x000F,
-    _S.FAULT: 0x0008,
-}
+#: Statusword bits 0-3, 5, 6 of each state, as the master side decodes them (bit 4 "voltage
+#: enabled" is added separately).
+_STATE_BITS = STATE_BITS
 _VOLTAGE = frozenset(
     (
         _S.READY_TO_SWITCH_ON,
