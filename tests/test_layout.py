@@ -1,5 +1,7 @@
-"""The shape of the code base, guarded: the pre-defined connection set is spelled in one
-module (issue 41; more guards join as the rest of that issue lands)."""
+"""The shape of the code base, guarded (issue 41): the pre-defined connection set is spelled
+in one module; no new public class takes a name another one has; no new module builds its
+own SDO client. The names and modules allowed today are the issue's debt: each entry goes
+as that issue lands, and none may be added."""
 
 from __future__ import annotations
 
@@ -25,6 +27,38 @@ def test_no_connection_set_literal_outside_its_module() -> None:
         if PLUS.search(line) or MINUS.search(line)
     ]
     assert not found, "use cobus.proto.connection_set:\n" + "\n".join(found)
+
+
+#: Class names defined more than once today (issue 41 gives each idea one name).
+SHARED_NAMES_TODAY = {
+    "Command", "Drive402", "Emergency", "Io401", "NmtCommand", "NodeIdInUseError",
+    "PdoLengthError", "PdoSet", "Record", "RemoteEmcy", "RemoteNmt", "RemoteNode", "RemotePdo",
+    "SdoRecord", "SdoVariable", "Severity", "SignalError", "StateChanged", "SyncLost",
+    "SyncService", "TimeReceived",
+}  # fmt: skip
+#: The modules that build an SDO client today (issue 41: one channel registry).
+SDO_CLIENT_BUILDERS_TODAY = {"master/_sdo.py", "runtime/remote.py"}
+
+
+def test_no_new_class_name_is_defined_twice() -> None:
+    where: dict[str, list[str]] = {}
+    for path in sorted(SRC.rglob("*.py")):
+        for name in re.findall(r"^class ([A-Z][A-Za-z0-9]*)", path.read_text(), re.M):
+            where.setdefault(name, []).append(str(path.relative_to(SRC)))
+    shared = {name: files for name, files in where.items() if len(files) > 1}
+    new = {name: files for name, files in shared.items() if name not in SHARED_NAMES_TODAY}
+    assert not new, f"one name per idea: {new}"
+    gone = SHARED_NAMES_TODAY - set(shared)
+    assert not gone, f"no longer shared: take {sorted(gone)} out of SHARED_NAMES_TODAY"
+
+
+def test_no_new_module_builds_an_sdo_client() -> None:
+    builders = {
+        str(path.relative_to(SRC))
+        for path in SRC.rglob("*.py")
+        if re.search(r"(?<!class )\bSdoClient\(", path.read_text())
+    }
+    assert builders == SDO_CLIENT_BUILDERS_TODAY
 
 
 def test_the_guard_sees_what_it_guards_against() -> None:
