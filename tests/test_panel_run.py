@@ -26,12 +26,7 @@ from cobus.master import Master, loads_network
 from cobus.runtime import AsyncNetwork
 from cobus.sim import Rig
 from cobus.sim.rig import ready_rig
-
-RIG = """
-bus: embedded
-devices:
-  - {node: 10, kind: cia402_drive, name: servo}
-"""
+from tests.test_apps_run_cli import RIG  # (the same single servo)
 
 NETWORK = """
 master: {node_id: 127, heartbeat_time: 100}

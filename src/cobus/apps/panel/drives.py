@@ -125,8 +125,6 @@ class DriveView:
         self._factory = factory
         self._on_start = on_start
         self.holder = holder
-        #: Whether an enable was confirmed on the page since the panel started.
-        self.enabled_once = False
         self.actual: dict[str, float | None] = {}
         self.max_velocity: int | None = None
         #: The software position limits 607Dh (increments; None: the drive has none).
@@ -431,7 +429,6 @@ class DriveView:
             if zero is not None:
                 await drive.write(zero, 0, 0)  # the set-point an application left: 0
             await drive.enable()
-            self.enabled_once = True
         elif action == "disable":
             await drive.disable()
         elif action == "quick_stop":
@@ -633,7 +630,6 @@ class DriveView:
                     'send "confirm": true once the operator has agreed',
                 )
             drive.run(0.0)
-            self.enabled_once = True
         elif action == "stop":
             drive.stop()
         elif action == "release":
