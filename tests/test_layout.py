@@ -36,8 +36,8 @@ SHARED_NAMES_TODAY = {
     "SdoRecord", "SdoVariable", "Severity", "SignalError", "StateChanged", "SyncLost",
     "SyncService", "TimeReceived",
 }  # fmt: skip
-#: The modules that build an SDO client today (issue 41: one channel registry).
-SDO_CLIENT_BUILDERS_TODAY = {"master/_sdo.py", "runtime/remote.py"}
+#: The one module that builds an SDO client: the network's transports, shared per COB-ID pair.
+SDO_CLIENT_BUILDERS = {"runtime/sdo_transport.py"}
 
 
 def test_no_new_class_name_is_defined_twice() -> None:
@@ -58,7 +58,26 @@ def test_no_new_module_builds_an_sdo_client() -> None:
         for path in SRC.rglob("*.py")
         if re.search(r"(?<!class )\bSdoClient\(", path.read_text())
     }
-    assert builders == SDO_CLIENT_BUILDERS_TODAY
+    assert builders == SDO_CLIENT_BUILDERS
+
+
+def test_no_private_name_of_the_remote_node_is_used_from_another_file() -> None:
+    """The blocking facade and the master use the SDO channel's public face."""
+    private = set(
+        re.findall(r"^\s*(?:def|class) (_[a-z]\w*)", (SRC / "runtime/remote.py").read_text(), re.M)
+    )
+    private |= set(re.findall(r"^(_[A-Za-z]\w*)\b", (SRC / "runtime/remote.py").read_text(), re.M))
+    users = {}
+    for path in sorted(SRC.rglob("*.py")):
+        if path.name == "remote.py" and path.parent.name == "runtime":
+            continue
+        text = path.read_text()
+        used = sorted(
+            n for n in private if re.search(rf"(?:_remote|remote)\.{n}\b|\.aio\.{n}\b", text)
+        )
+        if used:
+            users[str(path.relative_to(SRC))] = used
+    assert not users, users
 
 
 def test_the_guard_sees_what_it_guards_against() -> None:

@@ -648,7 +648,7 @@ def test_a_finished_transfer_leaves_its_timeout_armed_so_the_next_does_not_wake_
         server = Network(interface="virtual", channel="rt-lazy-sdo")
         add_device(server, 5, _device_od())
         sdo = client.add_remote(5, sdo_timeout=0.5).sdo
-        host = sdo.aio._host
+        host = sdo.aio.transport._host
         assert sdo.upload(0x1000)
         assert host.machine.deadline is None and _armed(host) is not None  # kept
         loop = client.aio.loop

@@ -237,7 +237,7 @@ def test_blocking_node_on_a_device_with_names_as_people_type_them():
         node.sdo["Producer heartbeat time"].raw = 0
         assert node.sdo.read(0x1017) == 0
         node.sdo.timeout = 2.5
-        assert node.sdo.aio.client.timeout == 2.5
+        assert node.sdo.aio.timeout == 2.5  # (the shared client takes it per transfer)
         with pytest.raises(ObjectNotFoundError, match="did you mean 'Producer heartbeat time'"):
             node.sdo["Producr heartbeat"]
         with pytest.raises(
@@ -707,6 +707,7 @@ def test_the_blocking_network_has_what_the_async_one_has():
         "loop",
         "on_connect",
         "on_disconnect",
+        "sdo_transport",
     }
     missing = twin.public_names(AsyncNetwork) - twin.public_names(Network)
     assert missing == plumbing

@@ -17,7 +17,6 @@ from collections.abc import Awaitable, Callable
 from functools import partial
 from typing import TYPE_CHECKING, Any
 
-from cobus.master._sdo import SdoLink
 from cobus.master.config import NodeConfig, PdoLayout, SdoEntry
 from cobus.master.errors import BootStepError
 from cobus.master.events import (
@@ -49,6 +48,7 @@ from cobus.proto.nmt import NmtState
 from cobus.proto.pdo import RpdoResumed, RpdoTimeout, RpdoWatchdog
 from cobus.proto.sdo import SdoAbortedError, SdoError, SdoProtocolError, SdoTimeoutError
 from cobus.runtime.events import BusState, HandlerFailed
+from cobus.runtime.remote import SdoChannel
 
 if TYPE_CHECKING:
     from cobus.master.master import Master
@@ -87,7 +87,8 @@ class ManagedNode:
     ``state`` is the Lenze node state code, ``diagnostic`` the Beckhoff diagnostic code,
     ``nmt_state`` the NMT state last reported (or commanded), ``emcy_history`` the last 8
     emergencies (newest first), ``led`` the CiA 303-3 indicators, ``sdo`` an SDO channel to
-    the node (``await node.sdo.read(0x1008)``).
+    the node (``await node.sdo.read(0x1008)``), on the network's one SDO transport to it:
+    a remote node or gateway asking the same node waits for its turn.
     """
 
     def __init__(self, master: Master, config: NodeConfig) -> None:
@@ -95,7 +96,10 @@ class ManagedNode:
         self.config = config
         self.node_id = config.node_id
         self.name = config.name
-        self.sdo = SdoLink(master.network, self.node_id, config.od, config.sdo_timeout)
+        # the master's transfers stay off the network's event stream, as its own events say
+        self.sdo = SdoChannel(
+            master.network, self.node_id, config.od, timeout=config.sdo_timeout, emit=False
+        )
         self._state = NodeState.UNDEFINED
         #: The NMT state last reported by heartbeat, guarding or boot-up (or commanded).
         self.nmt_state: NmtState | None = None

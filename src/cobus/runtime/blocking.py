@@ -36,6 +36,7 @@ from cobus.runtime.loop import RealTimeLoop, SimulatedEventLoop, new_event_loop
 from cobus.runtime.network import AsyncNetwork, FrameHandler, NetworkClosedError, Subscription
 from cobus.runtime.remote import NmtMaster, SdoChannel, SyncService
 from cobus.runtime.remote import RemoteNode as AsyncRemoteNode
+from cobus.runtime.sdo_transport import downloaded, refused_block, uploaded
 from cobus.runtime.twin import BlockingTwin, twin_of
 
 if TYPE_CHECKING:
@@ -672,15 +673,15 @@ class Network:
 
 # One SDO transfer from blocking code is begun in the caller's thread when the channel is
 # free (the answer wakes the caller directly), else awaited on the loop in its turn:
-# ``runner.run_direct(channel._begin, channel._transfer, start)``.
+# ``runner.run_direct(channel.begin, channel.transfer, start)``.
 
 
 def _upload(runner: Runner, channel: SdoChannel, index: int, subindex: int, block: bool) -> bytes:
-    start = channel._upload_start(index, subindex, block)
-    event = runner.run_direct(channel._begin, channel._transfer, start)
-    if block and _remote._refused_block(event):
+    start = channel.transport.upload_call(index, subindex, block)
+    event = runner.run_direct(channel.begin, channel.transfer, start)
+    if block and refused_block(event):
         return _upload(runner, channel, index, subindex, False)
-    return _remote._uploaded(event)
+    return uploaded(event)
 
 
 def _download(
@@ -692,12 +693,12 @@ def _download(
     block: bool,
     size_indicated: bool,
 ) -> None:
-    start = channel._download_start(index, subindex, data, block, size_indicated)
-    event = runner.run_direct(channel._begin, channel._transfer, start)
-    if block and _remote._refused_block(event):
+    start = channel.transport.download_call(index, subindex, data, block, size_indicated)
+    event = runner.run_direct(channel.begin, channel.transfer, start)
+    if block and refused_block(event):
         _download(runner, channel, index, subindex, data, False, size_indicated)
         return
-    _remote._downloaded(event)
+    downloaded(event)
 
 
 class BlockingSdo(BlockingTwin, twin_of=SdoChannel):
@@ -731,15 +732,15 @@ class BlockingSdo(BlockingTwin, twin_of=SdoChannel):
     def read(self, index: Any, subindex: Any = 0) -> Any:
         """Read an entry and decode it with its data type (see
         :meth:`cobus.runtime.remote.SdoChannel.read`)."""
-        var = self.aio._readable(index, subindex)
+        var = self.aio.variable_to_read(index, subindex)
         return var.decode(self.upload(var.index, var.subindex))
 
     def write(
-        self, index: Any, subindex: Any = _remote._NO_VALUE, value: Any = _remote._NO_VALUE
+        self, index: Any, subindex: Any = _remote.NO_VALUE, value: Any = _remote.NO_VALUE
     ) -> None:
         """Encode ``value`` with the entry's data type and write it (see
         :meth:`cobus.runtime.remote.SdoChannel.write`)."""
-        var, data = self.aio._encoded(index, subindex, value)
+        var, data = self.aio.value_to_write(index, subindex, value)
         self.download(var.index, var.subindex, data)
 
     def variable(self, index: Any, subindex: Any = 0) -> Any:
@@ -770,24 +771,24 @@ class SdoVariable(BlockingTwin, twin_of=_remote.SdoVariable):
     def read(self) -> Any:
         """Read the value from the node and decode it."""
         var = self.aio.od
-        _remote._check_access(var, self.aio._channel.node_id, write=False)
+        _remote.check_access(var, self.aio.channel.node_id, write=False)
         return var.decode(self.upload())
 
     def write(self, value: Any) -> None:
         """Check ``value`` against the type, access and limits and write it to the node."""
-        var, channel = self.aio.od, self.aio._channel
-        _remote._check_access(var, channel.node_id, write=True)
+        var, channel = self.aio.od, self.aio.channel
+        _remote.check_access(var, channel.node_id, write=True)
         self.download(_remote.encode_for(var, value, channel.node_id))
 
     def upload(self, *, block: bool = False) -> bytes:
         """The raw bytes of the object."""
         var = self.aio.od
-        return _upload(self._runner, self.aio._channel, var.index, var.subindex, block)
+        return _upload(self._runner, self.aio.channel, var.index, var.subindex, block)
 
     def download(self, data: bytes, *, block: bool = False) -> None:
         """Write raw bytes to the object."""
         var = self.aio.od
-        _download(self._runner, self.aio._channel, var.index, var.subindex, data, block, True)
+        _download(self._runner, self.aio.channel, var.index, var.subindex, data, block, True)
 
 
 class SdoRecord(BlockingTwin, twin_of=_remote.SdoRecord):

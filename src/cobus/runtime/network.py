@@ -22,6 +22,7 @@ import can
 from cobus._moved import Moved
 from cobus.errors import CobusError
 from cobus.proto import NOTHING, Event, Frame, Machine, Out
+from cobus.proto.connection_set import sdo_cob_ids
 from cobus.runtime import bus as _bus
 from cobus.runtime.errors import NetworkClosedError, TxOverflowError
 from cobus.runtime.events import (
@@ -37,6 +38,7 @@ from cobus.runtime.loop import RealTimeLoop, SimulatedEventLoop
 from cobus.runtime.multicast import EchoFreeSender, echo_free_sender
 from cobus.runtime.reading import ReadingRole
 from cobus.runtime.remote import NmtMaster, RemoteNode, SyncService, load_od
+from cobus.runtime.sdo_transport import SdoTransport
 
 if TYPE_CHECKING:
     from cobus.od import ObjectDictionary
@@ -309,6 +311,7 @@ class AsyncNetwork:
         self.frames_sent = 0
         self._failures: dict[tuple[object, ...], int] = {}  # by where they were raised
         self.remotes: dict[int, RemoteNode] = {}
+        self._sdo_transports: dict[tuple[int, int], SdoTransport] = {}
         self.devices = LocalNodes()
         self._nmt: NmtMaster | None = None
         self._sync: SyncService | None = None
@@ -524,6 +527,23 @@ class AsyncNetwork:
         return host
 
     # ------------------------------------------------------------------ nodes and services
+    def sdo_transport(
+        self, node_id: int, *, rx_cob_id: int | None = None, tx_cob_id: int | None = None
+    ) -> SdoTransport:
+        """The one SDO client transport of this network to ``node_id``'s SDO server (default
+        COB-IDs 600h+id / 580h+id, or the pair given), shared by everyone here who asks
+        that server: transfers queue on it in request order instead of aborting each other.
+        Each caller :meth:`~cobus.runtime.sdo_transport.SdoTransport.release` it once."""
+        if rx_cob_id is None or tx_cob_id is None:
+            rx, tx = sdo_cob_ids(node_id)
+            rx_cob_id = rx if rx_cob_id is None else rx_cob_id
+            tx_cob_id = tx if tx_cob_id is None else tx_cob_id
+        key = (rx_cob_id, tx_cob_id)
+        transport = self._sdo_transports.get(key)
+        if transport is None:
+            transport = self._sdo_transports[key] = SdoTransport(self, *key)
+        return transport.take()
+
     def add_remote(
         self,
         node_id: int,

@@ -6,26 +6,14 @@ object dictionary (type, access and limits checked before anything is sent).
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import math
-from collections import deque
-from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
 from cobus.od import did_you_mean, match_name
 from cobus.proto import NOTHING, Event, Frame, Out
-from cobus.proto.connection_set import SDO_RX_BASE, SDO_TX_BASE
 from cobus.proto.nmt import NmtCommand, check_node_id, nmt_command_frame
-from cobus.proto.sdo import (
-    DownloadDone,
-    SdoAbortCode,
-    SdoAbortedError,
-    SdoClient,
-    TransferFailed,
-    UploadDone,
-)
+from cobus.proto.sdo import SdoClient, check_timeout
 from cobus.proto.sync import SyncConfigError, SyncProducer
 from cobus.runtime._service import check_not_bool, parse_nmt_command, removed_error
 from cobus.runtime.emcy import RemoteEmcy
@@ -33,6 +21,7 @@ from cobus.runtime.errors import NetworkClosedError, ObjectAccessError, ObjectNo
 from cobus.runtime.nmt import RemoteNmt
 from cobus.runtime.pdo import PdoSet
 from cobus.runtime.periodic import InterfaceTimer
+from cobus.runtime.sdo_transport import SdoTransport, downloaded, refused_block, uploaded
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -60,9 +49,7 @@ class _NoValue:
         return "<sub-index 0>"
 
 
-_NO_VALUE: Any = _NoValue()
-#: The events that end a transfer (one union, not one made for each event).
-_FINAL = UploadDone | DownloadDone | TransferFailed
+NO_VALUE: Any = _NoValue()
 
 
 def load_od(od: ObjectDictionary | str | Path | None, node_id: int) -> ObjectDictionary | None:
@@ -77,15 +64,20 @@ def load_od(od: ObjectDictionary | str | Path | None, node_id: int) -> ObjectDic
 class SdoChannel:
     """One SDO client channel to a server (default: 600h+id / 580h+id).
 
-    Transfers on one channel run one after the other, in the order they were asked for.
-    ``read``/``write`` and ``sdo[name]`` go through the node's object dictionary;
-    ``upload``/``download`` move raw bytes.
+    Transfers on one channel run one after the other, in the order they were asked for —
+    and with those of everyone else on this network who asks the same server (the master's
+    node, another remote node object): they share one
+    :class:`~cobus.runtime.sdo_transport.SdoTransport`. ``read``/``write`` and
+    ``sdo[name]`` go through the node's object dictionary; ``upload``/``download`` move raw
+    bytes.
     """
 
     #: The node-ID of the server.
     node_id: Final[int]
     #: The node's object dictionary (None: raw transfers only).
     od: Final[ObjectDictionary | None]
+    #: The transport this channel's transfers queue on (shared per COB-ID pair).
+    transport: Final[SdoTransport]
 
     def __init__(
         self,
@@ -96,210 +88,90 @@ class SdoChannel:
         rx_cob_id: int | None = None,
         tx_cob_id: int | None = None,
         timeout: float = 1.0,
+        emit: bool = True,
     ) -> None:
         self.node_id = node_id
         self.od = od
         self._network = network
-        self.client = SdoClient(
-            SDO_RX_BASE + node_id if rx_cob_id is None else rx_cob_id,
-            SDO_TX_BASE + node_id if tx_cob_id is None else tx_cob_id,
-            timeout=timeout,
-        )
-        self._host: MachineHost = network.attach(
-            self.client,
-            [self.client.tx_cob_id],
-            on_event=self._on_event,
-            extended=self.client.tx_cob_id > 0x7FF,
-        )
-        # The channel is held by one transfer at a time; the others wait here, in order.
-        self._busy = False
-        self._waiters: deque[asyncio.Future[None]] = deque()
-        self._finish: Callable[[Event | BaseException], None] | None = None
+        self._timeout = check_timeout(timeout)
+        self._emit = emit
+        self.transport = network.sdo_transport(node_id, rx_cob_id=rx_cob_id, tx_cob_id=tx_cob_id)
         self._removed = False
-        network.on_disconnect(self._on_disconnect)
+
+    @property
+    def client(self) -> SdoClient:
+        """The protocol machine of the shared transport."""
+        return self.transport.client
 
     @property
     def timeout(self) -> float:
         """Seconds to wait for each answer of the server (``sdo.timeout = 3`` for a slow
         device); applies from the next frame sent."""
-        return self.client.timeout
+        return self._timeout
 
     @timeout.setter
     def timeout(self, seconds: float) -> None:
-        self.client.timeout = seconds
+        self._timeout = check_timeout(seconds)
+        self.transport.set_timeout(self, self._timeout)
 
     @property
     def progress(self) -> tuple[int, int | None]:
         """(bytes moved, bytes in all or None while unknown) of the transfer under way, for
         a progress bar; (0, None) between transfers."""
-        return self.client.progress
+        return self.transport.client.progress
 
     def __repr__(self) -> str:
         od = "no dictionary" if self.od is None else f"{len(self.od)} objects"
+        client = self.transport.client
         return (
-            f"<SdoChannel to node {self.node_id} (0x{self.client.rx_cob_id:X}/"
-            f"0x{self.client.tx_cob_id:X}, {od})>"
+            f"<SdoChannel to node {self.node_id} (0x{client.rx_cob_id:X}/"
+            f"0x{client.tx_cob_id:X}, {od})>"
         )
-
-    def _on_event(self, event: Event) -> None:
-        if isinstance(event, _FINAL):
-            self._end(event)
-        self._network.emit(event)
-
-    def _end(self, outcome: Event | BaseException) -> None:
-        finish = self._finish
-        if finish is not None:
-            self._finish = None
-            finish(outcome)
 
     def _close(self) -> None:
         self._removed = True
-        self._end(NetworkClosedError(f"node {self.node_id} was removed during an SDO transfer"))
-        self._cancel()  # after: the abort's own event must not end the transfer first
-        self._host.close()
-        with contextlib.suppress(ValueError):
-            self._network._on_disconnect.remove(self._on_disconnect)
-
-    def _on_disconnect(self) -> None:
-        self._end(
-            NetworkClosedError(
-                f"the network was disconnected during an SDO transfer with node {self.node_id}"
-            )
+        self.transport.interrupt(
+            self, NetworkClosedError(f"node {self.node_id} was removed during an SDO transfer")
         )
-        self._cancel()
+        self.transport.release()
 
-    # -- one transfer at a time: awaited in order, or begun at once by blocking code
-    async def _acquire(self) -> None:
-        if not self._busy and not self._waiters:
-            self._busy = True
-            return
-        turn: asyncio.Future[None] = self._network.loop.create_future()
-        self._waiters.append(turn)
-        try:
-            await turn  # _release hands the channel over by resolving it
-        except BaseException:
-            if turn.done() and not turn.cancelled():
-                self._release()  # handed over, but cancelled before it could run: pass on
-            else:
-                with contextlib.suppress(ValueError):
-                    self._waiters.remove(turn)
-            raise
-
-    def _release(self) -> None:
-        while self._waiters:
-            turn = self._waiters.popleft()
-            if not turn.done():
-                turn.set_result(None)  # the channel stays busy: it is that waiter's now
-                return
-        self._busy = False
-
-    def _check_open(self) -> None:
+    def check_open(self) -> None:
+        """Raise what keeps a transfer from starting: the node was removed from its network,
+        or the network is closed."""
         if self._removed:
             raise removed_error(self.node_id)
         if not self._network.connected:
             raise NetworkClosedError(f"the network is closed: no SDO with node {self.node_id}")
 
-    def _start(self, start: Any, finish: Callable[[Event | BaseException], None]) -> None:
-        """Start a transfer on the held channel; ``finish`` gets its final event or error."""
-        self._finish = finish
-        try:
-            self._host.run(start)
-        except BaseException:
-            self._finish = None
-            self._cancel()
-            raise
-
-    def _cancel(self) -> None:
-        """End the transfer under way (cancelled, failed to start): the channel is free, and
-        the server is told where it still can be."""
-        if self.client.busy:
-            out = self.client.abort(SdoAbortCode.GENERAL_ERROR, self._now())
-            if self._network.connected:
-                self._host.apply(out)
-
-    def _begin(
-        self, start: Any, finish: Callable[[Event | BaseException], None]
+    def begin(
+        self, start: Callable[[float], Out], finish: Callable[[Event | BaseException], None]
     ) -> Callable[[], None] | None:
         """Start a transfer now if the channel is free, for blocking code that holds the
-        loop's protocol lock (it then waits in its own thread, with no hop through the loop).
-
-        ``start(now)`` is the client machine's call; ``finish`` is called once, under the lock,
-        with the final event or the error that ended the transfer. Returns a function that
-        cancels the transfer (to call under the lock), or None when the channel is busy and
-        nothing was started (await the transfer instead).
-        """
+        loop's protocol lock (see :meth:`SdoTransport.begin
+        <cobus.runtime.sdo_transport.SdoTransport.begin>`); None when it is busy."""
         if self._removed or self._network._loop is None:  # (the checks, inline: every call)
-            self._check_open()
-        if self._busy or self._waiters:
-            return None
-        self._busy = True
+            self.check_open()
+        return self.transport.begin(
+            start, finish, timeout=self._timeout, emit=self._emit, owner=self
+        )
 
-        ended = False
-
-        def finished(outcome: Event | BaseException) -> None:
-            nonlocal ended
-            ended = True
-            self._release()
-            finish(outcome)
-
-        try:
-            self._start(start, finished)
-        except BaseException:
-            if not ended:  # (a transfer that ended as it started has freed the channel)
-                self._release()
-            raise
-
-        def cancel() -> None:
-            if self._finish is finished:
-                self._cancel()
-                self._end(asyncio.CancelledError())
-
-        return cancel
-
-    async def _transfer(self, start: Any) -> Event:
-        self._check_open()
-        if self._busy or self._waiters:
-            await self._acquire()
-            waited = True
-        else:  # _acquire() without a coroutine: every transfer on a free channel
-            self._busy = True
-            waited = False
-        try:
-            if waited:
-                self._check_open()  # removed while this transfer waited for the channel
-            done: asyncio.Future[Event] = self._network.loop.create_future()
-
-            def finished(outcome: Event | BaseException) -> None:
-                if done.done():
-                    return
-                if isinstance(outcome, BaseException):
-                    done.set_exception(outcome)
-                else:
-                    done.set_result(outcome)
-
-            self._start(start, finished)
-            try:
-                return await done
-            except BaseException:
-                if self._finish is finished:  # cancelled (wait_for, Ctrl-C): end the transfer
-                    self._finish = None
-                    self._cancel()
-                raise
-        finally:
-            self._release()
-
-    def _now(self) -> float:
-        return self._network.time() if self._network.connected else 0.0
+    async def transfer(self, start: Callable[[float], Out]) -> Event:
+        """Run a transfer in its turn and return its final event (see
+        :meth:`SdoTransport.transfer <cobus.runtime.sdo_transport.SdoTransport.transfer>`)."""
+        self.check_open()
+        return await self.transport.transfer(
+            start, timeout=self._timeout, emit=self._emit, owner=self, check=self.check_open
+        )
 
     async def upload(self, index: int, subindex: int = 0, *, block: bool = False) -> bytes:
         """Read the raw bytes of ``index:subindex`` from the server.
 
         ``block=True`` uses block upload and falls back to segmented if the server refuses it.
         """
-        event = await self._transfer(self._upload_start(index, subindex, block))
-        if block and _refused_block(event):
+        event = await self.transfer(self.transport.upload_call(index, subindex, block))
+        if block and refused_block(event):
             return await self.upload(index, subindex)
-        return _uploaded(event)
+        return uploaded(event)
 
     async def download(
         self,
@@ -311,30 +183,13 @@ class SdoChannel:
         size_indicated: bool = True,
     ) -> None:
         """Write raw bytes to ``index:subindex`` on the server."""
-        event = await self._transfer(
-            self._download_start(index, subindex, data, block, size_indicated)
+        event = await self.transfer(
+            self.transport.download_call(index, subindex, data, block, size_indicated)
         )
-        if block and _refused_block(event):
+        if block and refused_block(event):
             await self.download(index, subindex, data, size_indicated=size_indicated)
             return
-        _downloaded(event)
-
-    # ``start(now)`` of a transfer: a partial is called in C, a lambda would be one more
-    # Python call on every blocking transfer's way to the bus
-    def _upload_start(self, index: int, subindex: int, block: bool) -> Callable[[float], Out]:
-        return partial(self.client.start_upload, index, subindex, block=block)
-
-    def _download_start(
-        self, index: int, subindex: int, data: bytes, block: bool, size_indicated: bool
-    ) -> Callable[[float], Out]:
-        return partial(
-            self.client.start_download,
-            index,
-            subindex,
-            bytes(data),
-            block=block,
-            size_indicated=size_indicated,
-        )
+        downloaded(event)
 
     # -- typed access through the object dictionary
     def variable(self, index: Key | tuple[Key, Key], subindex: Key = 0) -> Variable:
@@ -447,40 +302,43 @@ class SdoChannel:
     async def read(self, index: Key | tuple[Key, Key], subindex: Key = 0) -> Any:
         """Read an entry and decode it with its data type (refused at once when the EDS
         says it cannot be read; ``upload()`` reads the raw bytes regardless)."""
-        var = self._readable(index, subindex)
+        var = self.variable_to_read(index, subindex)
         return var.decode(await self.upload(var.index, var.subindex))
 
     async def write(
-        self, index: Key | tuple[Key, Key], subindex: Any = _NO_VALUE, value: Any = _NO_VALUE
+        self, index: Key | tuple[Key, Key], subindex: Any = NO_VALUE, value: Any = NO_VALUE
     ) -> None:
         """Encode ``value`` with the entry's data type (access and limits checked) and write
         it: ``write(index, subindex, value)``, or ``write(index, value)`` /
         ``write(index, value=v)`` for sub-index 0 (or a ``(index, sub)`` / ``"Record.Sub"``
         index)."""
-        var, data = self._encoded(index, subindex, value)
+        var, data = self.value_to_write(index, subindex, value)
         await self.download(var.index, var.subindex, data)
 
-    def _readable(self, index: Key | tuple[Key, Key], subindex: Key) -> Variable:
+    def variable_to_read(self, index: Key | tuple[Key, Key], subindex: Key = 0) -> Variable:
+        """The entry :meth:`read` names, refused at once when the EDS says it cannot be read
+        (:class:`~cobus.runtime.errors.ObjectAccessError`)."""
         var = self.variable(index, subindex)
-        _check_access(var, self.node_id, write=False)
+        check_access(var, self.node_id, write=False)
         return var
 
-    def _encoded(
+    def value_to_write(
         self, index: Key | tuple[Key, Key], subindex: Any, value: Any
     ) -> tuple[Variable, bytes]:
-        """The entry ``write()`` names and ``value`` encoded for it (see :meth:`write`)."""
-        if value is _NO_VALUE:
-            if subindex is _NO_VALUE:
+        """The entry :meth:`write` names and ``value`` encoded for it: access and limits
+        checked, nothing sent."""
+        if value is NO_VALUE:
+            if subindex is NO_VALUE:
                 raise TypeError("write() needs the value to write")
             subindex, value = 0, subindex
-        elif subindex is _NO_VALUE:
+        elif subindex is NO_VALUE:
             subindex = 0
         var = self.variable(index, subindex)
-        _check_access(var, self.node_id, write=True)
+        check_access(var, self.node_id, write=True)
         return var, encode_for(var, value, self.node_id)
 
 
-def _check_access(var: Variable, node_id: int, *, write: bool) -> None:
+def check_access(var: Variable, node_id: int, *, write: bool) -> None:
     """Refuse before anything is sent what the EDS says the object does not allow."""
     if not (var.writable if write else var.readable):
         raise ObjectAccessError(var, node_id, write=write)
@@ -503,16 +361,18 @@ class SdoVariable:
 
     #: The dictionary entry (name, type, access, limits).
     od: Final[Variable]
+    #: The node's SDO channel it is read and written through.
+    channel: Final[SdoChannel]
 
     def __init__(self, channel: SdoChannel, var: Variable) -> None:
-        self._channel = channel
+        self.channel = channel
         self.od = var
 
     def __repr__(self) -> str:
         var = self.od
         return (
             f"<SdoVariable {var.name!r} 0x{var.index:04X}:{var.subindex:02X} of node "
-            f"{self._channel.node_id}>"
+            f"{self.channel.node_id}>"
         )
 
     @property
@@ -532,22 +392,22 @@ class SdoVariable:
 
     async def read(self) -> Any:
         """Read the value from the node and decode it."""
-        _check_access(self.od, self._channel.node_id, write=False)
-        return self.od.decode(await self._channel.upload(self.od.index, self.od.subindex))
+        check_access(self.od, self.channel.node_id, write=False)
+        return self.od.decode(await self.channel.upload(self.od.index, self.od.subindex))
 
     async def write(self, value: Any) -> None:
         """Check ``value`` against the type, access and limits and write it to the node."""
-        _check_access(self.od, self._channel.node_id, write=True)
-        data = encode_for(self.od, value, self._channel.node_id)
-        await self._channel.download(self.od.index, self.od.subindex, data)
+        check_access(self.od, self.channel.node_id, write=True)
+        data = encode_for(self.od, value, self.channel.node_id)
+        await self.channel.download(self.od.index, self.od.subindex, data)
 
     async def upload(self, *, block: bool = False) -> bytes:
         """The raw bytes of the object."""
-        return await self._channel.upload(self.od.index, self.od.subindex, block=block)
+        return await self.channel.upload(self.od.index, self.od.subindex, block=block)
 
     async def download(self, data: bytes, *, block: bool = False) -> None:
         """Write raw bytes to the object."""
-        await self._channel.download(self.od.index, self.od.subindex, data, block=block)
+        await self.channel.download(self.od.index, self.od.subindex, data, block=block)
 
 
 class SdoRecord:
@@ -555,13 +415,15 @@ class SdoRecord:
 
     #: The dictionary object.
     od: Final[Record | Array]
+    #: The node's SDO channel its sub-objects are read and written through.
+    channel: Final[SdoChannel]
 
     def __init__(self, channel: SdoChannel, obj: Record | Array) -> None:
-        self._channel = channel
+        self.channel = channel
         self.od = obj
 
     def __repr__(self) -> str:
-        return f"<SdoRecord {self.od.name!r} 0x{self.od.index:04X} of node {self._channel.node_id}>"
+        return f"<SdoRecord {self.od.name!r} 0x{self.od.index:04X} of node {self.channel.node_id}>"
 
     @property
     def name(self) -> str:
@@ -569,10 +431,10 @@ class SdoRecord:
         return self.od.name
 
     def __getitem__(self, subindex: Key) -> SdoVariable:
-        return SdoVariable(self._channel, self._channel.variable(self.od.index, subindex))
+        return SdoVariable(self.channel, self.channel.variable(self.od.index, subindex))
 
     def __iter__(self) -> Iterator[SdoVariable]:
-        return iter([SdoVariable(self._channel, var) for var in self.od])
+        return iter([SdoVariable(self.channel, var) for var in self.od])
 
     def __len__(self) -> int:
         return len(self.od)
@@ -582,30 +444,6 @@ class SdoRecord:
         if isinstance(subindex, str):
             return match_name(subindex, [v.name for v in self.od]) is not None
         return subindex in self.od
-
-
-def _uploaded(event: Event) -> bytes:
-    """The bytes of a finished upload, or its error raised."""
-    if isinstance(event, TransferFailed):
-        raise event.error
-    assert isinstance(event, UploadDone)
-    return event.data
-
-
-def _downloaded(event: Event) -> None:
-    """Nothing for a finished download, or its error raised."""
-    if isinstance(event, TransferFailed):
-        raise event.error
-
-
-def _refused_block(event: Event) -> bool:
-    if not isinstance(event, TransferFailed):
-        return False
-    error = event.error
-    return isinstance(error, SdoAbortedError) and error.code in (
-        SdoAbortCode.INVALID_COMMAND,
-        SdoAbortCode.UNSUPPORTED_ACCESS,
-    )
 
 
 def _fmt(key: Key) -> str:

@@ -8,6 +8,7 @@
 - :class:`SdoAbortCode` and :func:`describe` give every abort code its CiA 301 text.
 """
 
+from cobus.proto.sdo._wire import check_timeout
 from cobus.proto.sdo.abort import BECKHOFF_ABORT_TEXTS, SdoAbortCode, as_code, describe
 from cobus.proto.sdo.client import DownloadDone, SdoClient, TransferFailed, UploadDone
 from cobus.proto.sdo.crc import crc16
@@ -50,6 +51,7 @@ __all__ = [
     "TransferFailed",
     "UploadDone",
     "as_code",
+    "check_timeout",
     "crc16",
     "describe",
 ]
