@@ -168,7 +168,15 @@ class SdoChannel:
 
         ``block=True`` uses block upload and falls back to segmented if the server refuses it.
         """
-        event = await self.transfer(self.transport.upload_call(index, subindex, block))
+        self.check_open()  # (transfer(), inline: one coroutine less on every transfer)
+        transport = self.transport
+        event = await transport.transfer(
+            transport.upload_call(index, subindex, block),
+            timeout=self._timeout,
+            emit=self._emit,
+            owner=self,
+            check=self.check_open,
+        )
         if block and refused_block(event):
             return await self.upload(index, subindex)
         return uploaded(event)
@@ -183,8 +191,14 @@ class SdoChannel:
         size_indicated: bool = True,
     ) -> None:
         """Write raw bytes to ``index:subindex`` on the server."""
-        event = await self.transfer(
-            self.transport.download_call(index, subindex, data, block, size_indicated)
+        self.check_open()  # (transfer(), inline)
+        transport = self.transport
+        event = await transport.transfer(
+            transport.download_call(index, subindex, data, block, size_indicated),
+            timeout=self._timeout,
+            emit=self._emit,
+            owner=self,
+            check=self.check_open,
         )
         if block and refused_block(event):
             await self.download(index, subindex, data, size_indicated=size_indicated)
