@@ -163,3 +163,73 @@ def test_the_last_user_detaches_the_transport() -> None:
                 await one.upload(0x1000)
 
     simulate(main())
+
+
+def test_a_timeout_changed_while_a_transfer_waits_applies_when_its_turn_comes() -> None:
+    async def main() -> list[float]:
+        async with AsyncNetwork() as net:
+            channel = SdoChannel(net, 20, None, timeout=1.0)  # node 20 is silent
+            first = asyncio.ensure_future(channel.upload(0x1000))
+            second = asyncio.ensure_future(channel.upload(0x1000))
+            await asyncio.sleep(0)  # the first runs, the second waits
+            channel.timeout = 0.2
+            start, ended = net.time(), []
+            for transfer in (first, second):
+                with pytest.raises(SdoTimeoutError):
+                    await transfer
+                ended.append(net.time() - start)
+            return ended
+
+    assert simulate(main()) == pytest.approx([1.0, 1.2], abs=0.01)
+
+
+def test_removal_fails_the_removed_askers_waiting_transfers_at_once() -> None:
+    async def main() -> float:
+        async with AsyncNetwork() as net:
+            other = SdoChannel(net, 20, None, timeout=2.0, emit=False)  # node 20 is silent
+            removed = SdoChannel(net, 20, None, timeout=0.1)
+            running = asyncio.ensure_future(other.upload(0x1000))
+            waiting = asyncio.ensure_future(removed.upload(0x1000))
+            await asyncio.sleep(0)
+            start = net.time()
+            removed._close()
+            removed._close()  # (twice: released once)
+            with pytest.raises(NetworkClosedError, match="removed"):
+                await waiting
+            took = net.time() - start
+            assert other.transport is net.sdo_transport(20)  # still the other's
+            running.cancel()
+            return took
+
+    assert simulate(main()) == 0.0
+
+
+def test_a_disconnect_frees_the_transport_of_turns_that_never_ran() -> None:
+    """A transfer waiting when the network disconnects fails; the next loop finds the
+    transport free (a turn given before the disconnect is void)."""
+    net = AsyncNetwork()
+    kept: list[SdoChannel] = []
+
+    async def first() -> None:
+        await net.connect()
+        add_device(net, 5, io_od())
+        holder, waiter = SdoChannel(net, 5, None, emit=False), SdoChannel(net, 5, None)
+        kept.append(holder)
+        running = asyncio.ensure_future(holder.upload(0x1008))
+        waiting = asyncio.ensure_future(waiter.upload(0x1008))
+        await asyncio.sleep(0)
+        await net.disconnect()
+        for task in (running, waiting):
+            with pytest.raises(NetworkClosedError):
+                await task
+
+    async def second() -> bytes:
+        await net.connect()
+        try:
+            assert SdoChannel(net, 5, None).transport is kept[0].transport
+            return await asyncio.wait_for(SdoChannel(net, 5, None).upload(0x1000), 5)
+        finally:
+            await net.disconnect()
+
+    simulate(first())
+    assert simulate(second()) == (0x191).to_bytes(4, "little")

@@ -50,7 +50,7 @@ from cobus.device.storage import (
 )
 from cobus.device.sync import SyncService
 from cobus.device.timestamp import TimeService
-from cobus.od import ObjectDictionary, Variable
+from cobus.od import NameLookupError, ObjectDictionary, resolve
 from cobus.proto import emcy as _emcy
 from cobus.proto import nmt as _nmt
 from cobus.proto.emcy import ErrorRegister
@@ -460,33 +460,33 @@ class Device:
     # ================================================================== lookups
 
     def _resolve(self, index: Key, subindex: Key) -> Entry:
-        obj = self.od.get(index)
-        if obj is None or obj.index < 0x1000:
-            shown = f"0x{index:04X}" if isinstance(index, int) else repr(index)
+        """The entry ``index``/``subindex`` name, in every form :func:`cobus.od.resolve`
+        takes (names with case and separators ignored, ``"Record.Sub"``, ``"0x1018:01"``)."""
+        try:
+            var = resolve(self.od, index, None if subindex == 0 else subindex)
+        except NameLookupError as exc:
+            obj = exc.found
+            if obj is None:
+                raise EntryNotFoundError(
+                    index if isinstance(index, int) else 0,
+                    0,
+                    _ABORT.NO_OBJECT,
+                    f"{exc} in the dictionary of device {self._core.node_id}",
+                ) from None
             raise EntryNotFoundError(
-                obj.index if obj is not None else (index if isinstance(index, int) else 0),
+                obj.index,
+                subindex if isinstance(subindex, int) else 0,
+                _ABORT.NO_SUBINDEX,
+                str(exc),
+            ) from None
+        if var.index < 0x1000:
+            raise EntryNotFoundError(
+                var.index,
                 0,
                 _ABORT.NO_OBJECT,
-                f"no object {shown} in the dictionary of device {self._core.node_id}",
+                f"no object 0x{var.index:04X} in the dictionary of device {self._core.node_id} "
+                "(below 1000h: data type definitions)",
             )
-        if isinstance(obj, Variable):
-            if subindex not in (0, obj.name):
-                raise EntryNotFoundError(
-                    obj.index, 0, _ABORT.NO_SUBINDEX, f"0x{obj.index:04X} is a VAR; use sub-index 0"
-                )
-            var = obj
-        else:
-            found = obj.subindices.get(subindex) if isinstance(subindex, int) else None
-            if found is None and isinstance(subindex, str) and subindex in obj:
-                found = obj[subindex]
-            if found is None:
-                raise EntryNotFoundError(
-                    obj.index,
-                    subindex if isinstance(subindex, int) else 0,
-                    _ABORT.NO_SUBINDEX,
-                    f"0x{obj.index:04X} ({obj.name!r}) has no sub-index {subindex!r}",
-                )
-            var = found
         entry = self._core.entries.get(var.index << 8 | var.subindex)
         if entry is None:
             raise EntryNotFoundError(

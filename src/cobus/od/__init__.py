@@ -7,6 +7,9 @@
 - :func:`load` / :func:`loads` read EDS and DCF files, tolerant by default: what deviates from
   CiA 306 is listed in ``od.findings``; ``strict=True`` raises :class:`EdsError` instead.
 - ``od.to_eds()`` / ``od.to_dcf(node_id)`` / ``od.save(path)`` write them back.
+- :func:`resolve` finds an object as people name it (name with case and separators ignored,
+  ``"Record.Sub"``, ``0x1018``, ``(0x1018, 1)``, ``"0x1018:01"``), "did you mean" when nothing
+  matches: the one name resolver every part of cobus uses.
 - :class:`CommandObjects` / :func:`process_data_of` — which objects are commands (controlwords,
   modes, set-points, outputs) or process data rather than parameters.
 """
@@ -21,7 +24,17 @@ from cobus.od._errors import (
     Severity,
     ValueRangeError,
 )
-from cobus.od._lookup import did_you_mean, match_name, normalize_name
+from cobus.od._lookup import (
+    NameLookupError,
+    did_you_mean,
+    match_key,
+    match_name,
+    normalize_name,
+    parse_address,
+    resolve,
+    resolve_object,
+    suggestions,
+)
 from cobus.od._model import (
     Access,
     Array,
@@ -61,6 +74,7 @@ __all__ = [
     "EdsError",
     "FileInfo",
     "Finding",
+    "NameLookupError",
     "NodeRelative",
     "Object",
     "ObjectDictionary",
@@ -81,9 +95,14 @@ __all__ = [
     "load",
     "loads",
     "mapping_entries",
+    "match_key",
     "match_name",
     "normalize_name",
+    "parse_address",
     "process_data_of",
+    "resolve",
+    "resolve_object",
     "struct_unpacker",
+    "suggestions",
     "validate",
 ]

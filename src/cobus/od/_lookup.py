@@ -11,7 +11,19 @@ import difflib
 import re
 from collections.abc import Iterable
 
-__all__ = ["did_you_mean", "match_name", "normalize_name"]
+from cobus.od._model import Object, ObjectDictionary, ObjectDictionaryError, Variable
+
+__all__ = [
+    "NameLookupError",
+    "did_you_mean",
+    "match_key",
+    "match_name",
+    "normalize_name",
+    "parse_address",
+    "resolve",
+    "resolve_object",
+    "suggestions",
+]
 
 _SEPARATORS = re.compile(r"[\s_\-]+")
 
@@ -43,3 +55,272 @@ def did_you_mean(key: str, names: Iterable[str]) -> str:
     quoted = [repr(by_norm[c]) for c in close]
     listing = quoted[0] if len(quoted) == 1 else f"{', '.join(quoted[:-1])} or {quoted[-1]}"
     return f" (did you mean {listing}?)"
+
+
+# ------------------------------------------------------------------ the one name resolver
+
+#: An address as people write it: ``0x1018``, ``1018h``, ``0x1018:01``, ``1018h sub 1``,
+#: ``6041sub0`` (the sub-index in hex, as EDS files and manuals write it).
+_ADDRESS = re.compile(
+    r"\s*(0x)?([0-9a-f]{1,4})(h)?\s*(?:(?::|sub)\s*(?:0x)?([0-9a-f]{1,2})h?)?\s*\Z", re.I
+)
+# (bounded digits: a sub-index of 5,000 digits is no sub-index, not a crash)
+_SUB_NUMBER = re.compile(r"(.*?)\[\s*(0x[0-9a-fA-F]{1,8}|[0-9]{1,10})\s*\]\s*\Z")
+#: Keys longer than this get no suggestions (a close-match search grows with the product of
+#: the lengths).
+_SUGGEST_LENGTH = 100
+
+
+def match_key(name: str) -> str:
+    """The form two names are compared in: case folded, every run of characters that are
+    not letters or digits one space (``"Vendor-ID"``, ``"vendor id"`` and ``"VENDOR_ID"``
+    are one name)."""
+    return _NOT_WORD.sub(" ", name.casefold()).strip()
+
+
+_NOT_WORD = re.compile(r"[\W_]+")
+
+
+def parse_address(text: str) -> tuple[int, int | None] | None:
+    """``(index, sub-index or None)`` for an address written as text (``"0x1018:01"``,
+    ``"1018h sub 1"``, ``"0x6041"``, ``"6041h"``); None for text that is no address (a bare
+    number without ``0x``, ``h`` or a sub-index is taken for a name)."""
+    match = _ADDRESS.match(text)
+    if match is None:
+        return None
+    prefix, digits, suffix, sub = match.groups()
+    if not (prefix or suffix or sub is not None):
+        return None
+    return int(digits, 16), None if sub is None else int(sub, 16)
+
+
+class _Names:
+    """The name tables of one dictionary, by :func:`match_key` (built when first needed,
+    again when the dictionary grew)."""
+
+    def __init__(self, od: ObjectDictionary) -> None:
+        self.stamp = _stamp(od)
+        self.objects: dict[str, list[Object]] = {}
+        #: A sub-object by its own name alone, where no object has that name.
+        self.subs: dict[str, list[Variable]] = {}
+        #: "Record.Sub" names as the EDS writes them, for suggestions.
+        self.shown: dict[str, str] = {}
+        for obj in od:
+            if obj.index < 0x1000:  # (the data type definitions have type names)
+                continue
+            key = match_key(obj.name)
+            self.objects.setdefault(key, []).append(obj)
+            self.shown.setdefault(key, obj.name)
+            if isinstance(obj, Variable):
+                continue
+            for var in obj:
+                sub = match_key(var.name)
+                self.shown.setdefault(f"{key} . {sub}", f"{obj.name}.{var.name}")
+                if var.subindex:
+                    self.subs.setdefault(sub, []).append(var)
+
+
+def _stamp(od: ObjectDictionary) -> tuple[int, int]:
+    return len(od), sum(1 for _ in od.variables())
+
+
+def _names(od: ObjectDictionary) -> _Names:
+    tables = od._name_tables
+    if not isinstance(tables, _Names) or tables.stamp != _stamp(od):
+        tables = od._name_tables = _Names(od)
+    return tables
+
+
+def suggestions(od: ObjectDictionary, key: str) -> list[str]:
+    """Up to three names of ``od`` close to ``key`` ("Record.Sub" for sub-objects), as the
+    EDS writes them."""
+    if len(key) > _SUGGEST_LENGTH:
+        return []
+    shown = _names(od).shown
+    close = difflib.get_close_matches(match_key(key), list(shown), n=3, cutoff=0.6)
+    return [shown[c] for c in close]
+
+
+def _listing(names: list[str]) -> str:
+    quoted = [repr(n) for n in names]
+    if not quoted:
+        return ""
+    listing = quoted[0] if len(quoted) == 1 else f"{', '.join(quoted[:-1])} or {quoted[-1]}"
+    return f" (did you mean {listing}?)"
+
+
+def resolve_object(od: ObjectDictionary, key: int | str, *, suggest: bool = True) -> Object:
+    """The object ``key`` names: an index, an address as text (``"0x1018"``, ``"1018h"``),
+    or a name with case and separators ignored. :class:`NameLookupError` says why none
+    (with the close names unless ``suggest`` is False), or which several."""
+    if isinstance(key, int) and not isinstance(key, bool):
+        obj = od.get(key)
+        if obj is None:
+            raise NameLookupError(f"no object 0x{key:04X}", key=key)
+        return obj
+    if not isinstance(key, str):
+        raise NameLookupError(
+            f"{key!r} is no object name or index: give a name from the EDS, an index, or an "
+            'address such as "0x1018:01"',
+            key=key,
+        )
+    address = parse_address(key)
+    if address is not None:
+        if address[1] is not None:
+            raise NameLookupError(f"{key!r} names a sub-object, not an object", key=key)
+        return resolve_object(od, address[0])
+    obj = od.get(key)
+    if obj is not None:
+        return obj
+    found = _names(od).objects.get(match_key(key), [])
+    if len(found) == 1:
+        return found[0]
+    if found:
+        where = ", ".join(f"0x{o.index:04X}" for o in found)
+        raise NameLookupError(
+            f"{key!r} names several objects ({where}): use the index", key=key, candidates=found
+        )
+    close = suggestions(od, key) if suggest else []
+    raise NameLookupError(f"no object named {key!r}{_listing(close)}", key=key, suggestions=close)
+
+
+def resolve(
+    od: ObjectDictionary,
+    key: int | str | tuple[int | str, int | str],
+    subindex: int | str | None = None,
+    *,
+    suggest: bool = True,
+) -> Variable:
+    """The variable ``key`` (and ``subindex``) name, in every form people write:
+
+    - ``0x1018, 1`` / ``(0x1018, 1)`` / ``"0x1018:01"`` / ``"1018h sub 1"`` — addresses;
+    - ``"Producer heartbeat time"`` — a name, case and separators ignored;
+    - ``"Identity object", "Vendor-ID"`` / ``"Identity object.Vendor-ID"`` /
+      ``"Identity object[1]"`` — a sub-object of a record or array;
+    - ``"Vendor-ID"`` alone — a sub-object by its own name, where only one has it.
+
+    A record or array named without a sub-index is its sub-index 0. :class:`NameLookupError`
+    (a ``KeyError``) says why nothing matches, with the close names unless ``suggest`` is
+    False, or which several objects a name matches.
+    """
+    if isinstance(key, tuple):
+        if subindex is not None or len(key) != 2:
+            raise NameLookupError(f"{key!r}: give (index, sub-index) once", key=key)
+        key, subindex = key
+    if isinstance(key, str) and subindex is None:
+        address = parse_address(key)
+        if address is not None:
+            key, subindex = address
+        else:
+            split = _split(od, key)
+            if split is not None:
+                return split
+    try:
+        obj = resolve_object(od, key, suggest=suggest)
+    except NameLookupError as exc:
+        if isinstance(key, str) and subindex is None and not exc.candidates:
+            subs = _names(od).subs.get(match_key(key), [])
+            if len(subs) == 1:
+                return subs[0]
+        raise
+    return _sub(obj, 0 if subindex is None else subindex)
+
+
+def _split(od: ObjectDictionary, text: str) -> Variable | None:
+    """The sub-object ``"Record.Sub"`` or ``"Record[n]"`` names, when the whole text names
+    no object (None: it is no such form)."""
+    match = _SUB_NUMBER.match(text)
+    if match is not None:
+        try:
+            obj = resolve_object(od, match.group(1), suggest=False)
+        except NameLookupError:
+            return None
+        return _sub(obj, int(match.group(2), 0))
+    if "." not in text or od.get(text) is not None:
+        return None
+    if _names(od).objects.get(match_key(text)):
+        return None
+    for cut in [i for i, c in enumerate(text) if c == "."]:
+        try:
+            obj = resolve_object(od, text[:cut], suggest=False)
+        except NameLookupError:
+            continue
+        if not isinstance(obj, Variable):
+            return _sub(obj, text[cut + 1 :])
+    return None
+
+
+def _sub(obj: Object, subindex: int | str) -> Variable:
+    where = f"0x{obj.index:04X} ({obj.name!r})"
+    if isinstance(obj, Variable):
+        if subindex == 0 or (
+            isinstance(subindex, str) and match_key(subindex) == match_key(obj.name)
+        ):
+            return obj
+        shown = subindex if isinstance(subindex, int) else repr(subindex)
+        raise NameLookupError(
+            f"{where} is a single variable; it has no sub-index {shown}", key=subindex, found=obj
+        )
+    if isinstance(subindex, str):
+        address = _SUB_TEXT.match(subindex)
+        if address is not None:
+            subindex = int(address.group(1), 0)
+    if isinstance(subindex, int) and not isinstance(subindex, bool):
+        var = obj.get(subindex)
+        if var is None:
+            subs = ", ".join(str(v.subindex) for v in obj)
+            raise NameLookupError(
+                f"{where} has no sub-index {subindex} (it has {subs})", key=subindex, found=obj
+            )
+        return var
+    if not isinstance(subindex, str):
+        raise NameLookupError(
+            f"{subindex!r} is no sub-index or sub-object name", key=subindex, found=obj
+        )
+    if subindex in obj:
+        return obj[subindex]
+    wanted = match_key(subindex)
+    found = [v for v in obj if match_key(v.name) == wanted]
+    if len(found) == 1:
+        return found[0]
+    if found:
+        subs = ", ".join(str(v.subindex) for v in found)
+        raise NameLookupError(
+            f"{where}: {subindex!r} names sub-indices {subs}; use the sub-index",
+            key=subindex,
+            candidates=found,
+            found=obj,
+        )
+    names = [v.name for v in obj]
+    close = difflib.get_close_matches(wanted, [match_key(n) for n in names], n=3, cutoff=0.6)
+    near = [n for n in names if match_key(n) in close][:3]
+    raise NameLookupError(
+        f"{where} has no sub-object {subindex!r}{_listing(near)}",
+        key=subindex,
+        suggestions=near,
+        found=obj,
+    )
+
+
+_SUB_TEXT = re.compile(r"\s*(0x[0-9a-fA-F]{1,2}|[0-9]{1,3})\s*\Z")
+
+
+class NameLookupError(ObjectDictionaryError):
+    """A key names no object of the dictionary (``suggestions``: the close names, as the EDS
+    writes them) or several (``candidates``); ``found`` is the object when only its
+    sub-index is what matches nothing (CiA 301: 06090011h, not 06020000h)."""
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        key: object,
+        suggestions: list[str] | tuple[str, ...] = (),
+        candidates: list[Object] | list[Variable] | tuple[Object, ...] = (),
+        found: Object | None = None,
+    ) -> None:
+        super().__init__(message)
+        self.key = key
+        self.found = found
+        self.suggestions = list(suggestions)
+        self.candidates = list(candidates)

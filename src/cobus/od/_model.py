@@ -751,6 +751,7 @@ class ObjectDictionary:
         self._names: dict[str, Object] = {}
         self._dup_names: dict[str, list[int]] = {}
         self._node_id: int | None = None
+        self._name_tables: Any = None  # cobus.od.resolve's, built when first needed
         #: Bit rate in bit/s from [DeviceComissioning] (None if not given or 0).
         self.bitrate: int | None = None
         self.file_info = FileInfo()

@@ -10,7 +10,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
-from cobus.od import did_you_mean, match_name
+from cobus.od import NameLookupError, match_name, parse_address, resolve, resolve_object
 from cobus.proto import NOTHING, Event, Frame, Out
 from cobus.proto.nmt import NmtCommand, check_node_id, nmt_command_frame
 from cobus.proto.sdo import SdoClient, check_timeout
@@ -116,8 +116,10 @@ class SdoChannel:
 
     @property
     def progress(self) -> tuple[int, int | None]:
-        """(bytes moved, bytes in all or None while unknown) of the transfer under way, for
-        a progress bar; (0, None) between transfers."""
+        """(bytes moved, bytes in all or None while unknown) of this channel's transfer under
+        way, for a progress bar; (0, None) between its transfers."""
+        if self.transport.owner is not self:
+            return 0, None
         return self.transport.client.progress
 
     def __repr__(self) -> str:
@@ -129,11 +131,18 @@ class SdoChannel:
         )
 
     def _close(self) -> None:
+        if self._removed:
+            return
         self._removed = True
         self.transport.interrupt(
-            self, NetworkClosedError(f"node {self.node_id} was removed during an SDO transfer")
+            self,
+            NetworkClosedError(f"node {self.node_id} was removed during an SDO transfer"),
+            removed_error(self.node_id),
         )
         self.transport.release()
+
+    def _timeout_now(self) -> float:
+        return self._timeout
 
     def check_open(self) -> None:
         """Raise what keeps a transfer from starting: the node was removed from its network,
@@ -160,7 +169,7 @@ class SdoChannel:
         :meth:`SdoTransport.transfer <cobus.runtime.sdo_transport.SdoTransport.transfer>`)."""
         self.check_open()
         return await self.transport.transfer(
-            start, timeout=self._timeout, emit=self._emit, owner=self, check=self.check_open
+            start, timeout=self._timeout_now, emit=self._emit, owner=self, check=self.check_open
         )
 
     async def upload(self, index: int, subindex: int = 0, *, block: bool = False) -> bytes:
@@ -172,7 +181,7 @@ class SdoChannel:
         transport = self.transport
         event = await transport.transfer(
             transport.upload_call(index, subindex, block),
-            timeout=self._timeout,
+            timeout=self._timeout_now,
             emit=self._emit,
             owner=self,
             check=self.check_open,
@@ -195,7 +204,7 @@ class SdoChannel:
         transport = self.transport
         event = await transport.transfer(
             transport.download_call(index, subindex, data, block, size_indicated),
-            timeout=self._timeout,
+            timeout=self._timeout_now,
             emit=self._emit,
             owner=self,
             check=self.check_open,
@@ -209,78 +218,31 @@ class SdoChannel:
     def variable(self, index: Key | tuple[Key, Key], subindex: Key = 0) -> Variable:
         """The object dictionary entry named by index or name, and subindex or name.
 
-        Names match with case and separators ignored (``"producer heartbeat time"``); a name
-        that matches nothing gets the close names in its error. ``"Record.Sub"`` (as PDOs
-        name their values) and ``(index, subindex)`` name a sub-object too."""
-        from cobus.od import Variable
-
-        if isinstance(index, tuple):
-            index, subindex = index
-        if isinstance(index, str) and subindex == 0 and self._split(index) is not None:
-            index, subindex = self._split(index)  # type: ignore[misc]
-        obj = self._object(index)
-        if isinstance(obj, Variable):
-            if subindex not in (0, obj.name):
-                raise ObjectNotFoundError(
-                    f"node {self.node_id}: {_describe(obj.index, obj.name)} is a single "
-                    f"variable; it has no sub-index {_fmt_sub(subindex)}"
-                )
-            return obj
-        where = _describe(obj.index, obj.name)
-        if isinstance(subindex, str):
-            names = [v.name for v in obj]
-            name = match_name(subindex, names)
-            if name is None:
-                raise ObjectNotFoundError(
-                    f"node {self.node_id}: {where} has no sub-object {subindex!r}"
-                    f"{did_you_mean(subindex, names)}"
-                )
-            subindex = name
+        Every form :func:`cobus.od.resolve` takes: names match with case and separators
+        ignored (``"producer heartbeat time"``), a name that matches nothing gets the close
+        names in its error; ``"Record.Sub"`` (as PDOs name their values), ``(index,
+        subindex)`` and ``"0x1018:01"`` name a sub-object too."""
         try:
-            var = obj[subindex]
-        except KeyError:
-            subs = ", ".join(str(v.subindex) for v in obj)
-            raise ObjectNotFoundError(
-                f"node {self.node_id}: {where} has no sub-index {_fmt_sub(subindex)} "
-                f"(it has {subs})"
-            ) from None
-        assert isinstance(var, Variable)
-        return var
+            return resolve(self._od(), index, None if subindex == 0 else subindex)
+        except NameLookupError as exc:
+            raise self._not_found(exc) from None
 
-    def _split(self, name: str) -> tuple[str, str] | None:
-        """``"Record.Sub"`` as (record name, sub-object name), when it names no object."""
-        if "." not in name or self.od is None:
-            return None
-        names = [obj.name for obj in self.od]
-        if match_name(name, names) is not None:
-            return None
-        for cut in [i for i, c in enumerate(name) if c == "."]:
-            head, tail = name[:cut], name[cut + 1 :]
-            if match_name(head, names) is not None:
-                return head, tail
-        return None
-
-    def _object(self, index: Key) -> Object:
+    def _od(self) -> ObjectDictionary:
         if self.od is None:
             raise ObjectNotFoundError(
                 f"node {self.node_id} has no object dictionary: give one to add_remote() "
                 "or use sdo.upload()/sdo.download() for raw bytes"
             )
-        key: Key = index
-        hint = ""
-        if isinstance(index, str):
-            names = [obj.name for obj in self.od]
-            found = match_name(index, names)
-            if found is None:
-                hint = did_you_mean(index, names)
-            else:
-                key = found
+        return self.od
+
+    def _not_found(self, exc: Exception) -> ObjectNotFoundError:
+        return ObjectNotFoundError(f"node {self.node_id}: {exc}")
+
+    def _object(self, index: Key) -> Object:
         try:
-            return self.od[key]
-        except KeyError:
-            raise ObjectNotFoundError(
-                f"node {self.node_id}: no object {_fmt(index)} in its object dictionary{hint}"
-            ) from None
+            return resolve_object(self._od(), index)
+        except NameLookupError as exc:
+            raise self._not_found(exc) from None
 
     def __contains__(self, key: object) -> bool:
         """Whether the node's dictionary has the object (index, name or ``(index, sub)``)."""
@@ -303,12 +265,25 @@ class SdoChannel:
     def __getitem__(self, key: Key | tuple[Key, Key]) -> SdoVariable | SdoRecord:
         """An object of the node by index or name: ``await sdo["Producer heartbeat
         time"].read()``; a record or array gives its sub-objects by ``[sub]``;
-        ``sdo[0x1018, 1]`` and ``sdo["Identity object.Vendor-ID"]`` give a sub-object."""
+        ``sdo[0x1018, 1]``, ``sdo["0x1018:01"]`` and ``sdo["Identity object.Vendor-ID"]``
+        give a sub-object."""
         from cobus.od import Variable
 
-        if isinstance(key, tuple) or (isinstance(key, str) and self._split(key) is not None):
+        if isinstance(key, tuple):
             return SdoVariable(self, self.variable(key))
-        obj = self._object(key)
+        od = self._od()
+        address = parse_address(key) if isinstance(key, str) else None
+        try:
+            if address is not None and address[1] is not None:
+                return SdoVariable(self, resolve(od, key))
+            obj = resolve_object(od, key)
+        except NameLookupError as exc:
+            if exc.candidates or not isinstance(key, str) or address is not None:
+                raise self._not_found(exc) from None
+            try:  # "Record.Sub", "Record[n]", a sub-object by its own name
+                return SdoVariable(self, resolve(od, key))
+            except NameLookupError as inner:
+                raise self._not_found(inner) from None
         if isinstance(obj, Variable):
             return SdoVariable(self, obj)
         return SdoRecord(self, obj)
@@ -458,18 +433,6 @@ class SdoRecord:
         if isinstance(subindex, str):
             return match_name(subindex, [v.name for v in self.od]) is not None
         return subindex in self.od
-
-
-def _fmt(key: Key) -> str:
-    return f"0x{key:04X}" if isinstance(key, int) else repr(key)
-
-
-def _fmt_sub(key: Key) -> str:
-    return str(key) if isinstance(key, int) else repr(key)
-
-
-def _describe(index: int, name: str) -> str:
-    return f"0x{index:04X} ({name!r})"
 
 
 class NmtCommands:

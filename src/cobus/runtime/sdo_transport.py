@@ -71,7 +71,9 @@ class SdoTransport:
         self._users = 0
         # The transport is held by one transfer at a time; the others wait here, in order.
         self._busy = False
-        self._waiters: deque[asyncio.Future[None]] = deque()
+        self._waiters: deque[tuple[asyncio.Future[None], object]] = deque()
+        # a disconnect voids every turn given before it (their tasks may never run again)
+        self._generation = 0
         self._finish: Callable[[Event | BaseException], None] | None = None
         self._owner: object = None  # who asked for the transfer under way
         self._emit = True  # whether the network hears the events of the latest transfer
@@ -96,10 +98,14 @@ class SdoTransport:
 
     def release(self) -> None:
         """One user fewer; the last one detaches the client from the network."""
+        if self._users <= 0:
+            return
         self._users -= 1
         if self._users > 0:
             return
-        self._network._sdo_transports.pop((self.client.rx_cob_id, self.client.tx_cob_id), None)
+        key = (self.client.rx_cob_id, self.client.tx_cob_id)
+        if self._network._sdo_transports.get(key) is self:
+            del self._network._sdo_transports[key]
         self._host.close()
         self._network._forget(self._on_disconnect)
 
@@ -120,37 +126,50 @@ class SdoTransport:
             self._owner = None
             finish(outcome)
 
-    def interrupt(self, owner: object, error: BaseException) -> None:
-        """End ``owner``'s transfer under way, if any, with ``error``; the server is told."""
+    def interrupt(self, owner: object, error: BaseException, queued: BaseException) -> None:
+        """End ``owner``'s transfer under way, if any, with ``error`` (the server is told),
+        and fail its transfers still waiting for their turn with ``queued``."""
         if self._finish is not None and self._owner is owner:
             self._end(error)
             self._cancel()  # after: the abort's own event must not end the transfer first
+        for entry in [e for e in self._waiters if e[1] is owner]:
+            self._waiters.remove(entry)
+            if not entry[0].done():
+                entry[0].set_exception(queued)
 
     def _on_disconnect(self) -> None:
         node = "" if self.node_id is None else f" with node {self.node_id}"
-        self._end(NetworkClosedError(f"the network was disconnected during an SDO transfer{node}"))
+        error = NetworkClosedError(f"the network was disconnected during an SDO transfer{node}")
+        self._end(error)
         self._cancel()
+        # every turn, waiting or given and not yet taken, is void: the transport starts free
+        self._generation += 1
+        waiters, self._waiters = self._waiters, deque()
+        for turn, _ in waiters:
+            if not turn.done():
+                turn.set_exception(error)
+        self._busy = False
 
     # -- one transfer at a time: awaited in order, or begun at once by blocking code
-    async def _acquire(self) -> None:
-        if not self._busy and not self._waiters:
-            self._busy = True
-            return
+    async def _acquire(self, owner: object) -> None:
         turn: asyncio.Future[None] = self._network.loop.create_future()
-        self._waiters.append(turn)
+        entry = (turn, owner)
+        self._waiters.append(entry)
+        generation = self._generation
         try:
             await turn  # _release hands the transport over by resolving it
         except BaseException:
-            if turn.done() and not turn.cancelled():
+            handed = turn.done() and not turn.cancelled() and turn.exception() is None
+            if handed and generation == self._generation:
                 self._release()  # handed over, but cancelled before it could run: pass on
             else:
                 with contextlib.suppress(ValueError):
-                    self._waiters.remove(turn)
+                    self._waiters.remove(entry)
             raise
 
     def _release(self) -> None:
         while self._waiters:
-            turn = self._waiters.popleft()
+            turn, _ = self._waiters.popleft()
             if not turn.done():
                 turn.set_result(None)  # the transport stays busy: it is that waiter's now
                 return
@@ -233,8 +252,8 @@ class SdoTransport:
 
         def cancel() -> None:
             if self._finish is finished:
-                self._cancel()
                 self._end(asyncio.CancelledError())
+                self._cancel()  # after: the abort's own event is no outcome (nor a failure)
 
         return cancel
 
@@ -242,17 +261,24 @@ class SdoTransport:
         self,
         start: Callable[[float], Out],
         *,
-        timeout: float,
+        timeout: float | Callable[[], float],
         emit: bool = True,
         owner: object = None,
         check: Callable[[], None] | None = None,
     ) -> Event:
         """Run a transfer in its turn and return its final event (a
-        :class:`~cobus.proto.sdo.TransferFailed` is returned, not raised). ``check()`` runs
-        when the turn comes after a wait (it raises to give the turn up: the asker is gone);
-        a cancelled transfer is aborted on the bus."""
+        :class:`~cobus.proto.sdo.TransferFailed` is returned, not raised). ``timeout`` may be
+        a function, asked when the turn comes (the asker may change it while waiting);
+        ``check()`` runs when the turn comes after a wait (it raises to give the turn up:
+        the asker is gone); a cancelled transfer is aborted on the bus."""
+        generation = self._generation
         if self._busy or self._waiters:
-            await self._acquire()
+            await self._acquire(owner)
+            if generation != self._generation:  # given before a disconnect: void
+                node = "" if self.node_id is None else f" with node {self.node_id}"
+                raise NetworkClosedError(
+                    f"the network was disconnected while an SDO transfer{node} waited"
+                )
             waited = True
         else:  # _acquire() without a coroutine: every transfer on a free transport
             self._busy = True
@@ -260,6 +286,8 @@ class SdoTransport:
         try:
             if waited and check is not None:
                 check()
+            if not isinstance(timeout, float | int):
+                timeout = timeout()
             done: asyncio.Future[Event] = self._network.loop.create_future()
 
             def finished(outcome: Event | BaseException) -> None:
@@ -280,7 +308,8 @@ class SdoTransport:
                     self._cancel()
                 raise
         finally:
-            self._release()
+            if generation == self._generation:  # (a disconnect freed the transport itself)
+                self._release()
 
     # ``start(now)`` of a transfer: a partial is called in C, a lambda would be one more
     # Python call on every blocking transfer's way to the bus

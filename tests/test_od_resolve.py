@@ -1,0 +1,131 @@
+"""The one name resolver (issue 41): every form people write an object in, and "did you
+mean" when nothing matches."""
+
+from __future__ import annotations
+
+import pytest
+
+from cobus.od import NameLookupError, ObjectDictionary, parse_address, resolve, resolve_object
+from cobus.od import Variable as OdVariable
+from tests.test_master_support import io_od
+
+
+@pytest.fixture(scope="module")
+def od() -> ObjectDictionary:
+    return io_od()
+
+
+def where(var: OdVariable) -> tuple[int, int]:
+    return var.index, var.subindex
+
+
+@pytest.mark.parametrize(
+    ("key", "subindex", "expected"),
+    [
+        (0x1017, None, (0x1017, 0)),
+        (0x1018, 1, (0x1018, 1)),
+        ((0x1018, 1), None, (0x1018, 1)),
+        ((0x1018, "Vendor-ID"), None, (0x1018, 1)),
+        ("0x1018:01", None, (0x1018, 1)),
+        ("0x1018:0A", None, None),  # (no sub-index 10: an error, below)
+        ("1018h sub 2", None, (0x1018, 2)),
+        ("1018sub3", None, (0x1018, 3)),
+        ("0x1017", None, (0x1017, 0)),
+        ("1017h", None, (0x1017, 0)),
+        ("Producer heartbeat time", None, (0x1017, 0)),
+        ("producer_heartbeat-TIME", None, (0x1017, 0)),
+        ("  Producer   heartbeat time ", None, (0x1017, 0)),
+        ("Identity object", "Vendor-ID", (0x1018, 1)),
+        ("Identity object", "vendor id", (0x1018, 1)),
+        ("Identity object", 4, (0x1018, 4)),
+        ("Identity object", "2", (0x1018, 2)),
+        ("Identity object.Vendor-ID", None, (0x1018, 1)),
+        ("identity_object.product code", None, (0x1018, 2)),
+        ("Identity object[3]", None, (0x1018, 3)),
+        ("Identity object[0x4]", None, (0x1018, 4)),
+        ("Vendor-ID", None, (0x1018, 1)),  # a sub-object by its own name, the only one
+        ("Identity object", None, (0x1018, 0)),
+        ("Setpoint", 0, (0x2001, 0)),
+        ("Setpoint", "Setpoint", (0x2001, 0)),
+        ("COB-ID SYNC", None, (0x1005, 0)),
+        ("cob id sync", None, (0x1005, 0)),
+    ],
+)
+def test_every_form_people_write(
+    od: ObjectDictionary, key: object, subindex: object, expected: tuple[int, int] | None
+) -> None:
+    if expected is None:
+        with pytest.raises(NameLookupError, match="has no sub-index 10"):
+            resolve(od, key, subindex)  # type: ignore[arg-type]
+        return
+    assert where(resolve(od, key, subindex)) == expected  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("key", "subindex", "message"),
+    [
+        ("Producr heartbeat", None, r"no object named 'Producr heartbeat' \(did you mean "),
+        (0x5000, None, "no object 0x5000"),
+        ("0x5000:01", None, "no object 0x5000"),
+        ("Identity object", "Vendor", r"has no sub-object .Vendor. \(did you mean .Vendor-ID.\?\)"),
+        ("Identity object", 9, r"has no sub-index 9 \(it has 0, 1, 2, 3, 4\)"),
+        ("Setpoint", 1, "is a single variable; it has no sub-index 1"),
+        ("Transmission type", None, "no object named 'Transmission type'"),  # 8 of them
+        ("Nothing such", None, "no object named 'Nothing such'$"),
+        (3.5, None, "is no object name or index"),
+        ("Identity object", 2.0, "is no sub-index"),
+        ((1, 2, 3), None, "give \\(index, sub-index\\) once"),
+    ],
+)
+def test_what_matches_nothing_says_why(
+    od: ObjectDictionary, key: object, subindex: object, message: str
+) -> None:
+    with pytest.raises(NameLookupError, match=message) as caught:
+        resolve(od, key, subindex)  # type: ignore[arg-type]
+    assert isinstance(caught.value, KeyError)  # (as a dictionary miss is)
+
+
+def test_suggestions_are_kept_on_the_error_and_can_be_left_out(od: ObjectDictionary) -> None:
+    with pytest.raises(NameLookupError) as caught:
+        resolve(od, "Producr heartbeat time")
+    assert caught.value.suggestions[0] == "Producer heartbeat time"
+    with pytest.raises(NameLookupError) as quiet:
+        resolve(od, "Producr heartbeat time", suggest=False)
+    assert quiet.value.suggestions == [] and "did you mean" not in str(quiet.value)
+    with pytest.raises(NameLookupError) as record:
+        resolve(od, "Identity objekt.Vendor-ID")
+    assert "'Identity object.Vendor-ID'" in str(record.value)
+
+
+def test_a_name_two_objects_share_says_which() -> None:
+    od = io_od()
+    first = od[0x2000]
+    assert isinstance(first, OdVariable)
+    twin = OdVariable(0x2005, 0, "counter", first.data_type)
+    od.add(twin)
+    with pytest.raises(
+        NameLookupError, match=r"names several objects \(0x2000, 0x2005\)"
+    ) as caught:
+        resolve(od, "COUNTER")
+    assert [o.index for o in caught.value.candidates] == [0x2000, 0x2005]
+    assert where(resolve(od, "Counter")) == (0x2000, 0)  # the exact name is the one meant
+
+
+def test_the_tables_follow_a_dictionary_that_grows() -> None:
+    od = io_od()
+    with pytest.raises(NameLookupError):
+        resolve(od, "speed limit")
+    od.add(OdVariable(0x2100, 0, "Speed limit", od[0x2000].data_type))  # type: ignore[union-attr]
+    assert where(resolve(od, "speed limit")) == (0x2100, 0)
+
+
+def test_objects_and_addresses(od: ObjectDictionary) -> None:
+    assert resolve_object(od, "identity OBJECT").index == 0x1018
+    assert resolve_object(od, "0x1018").index == 0x1018
+    assert parse_address("0x6041:00") == (0x6041, 0)
+    assert parse_address("6041h") == (0x6041, None)
+    assert parse_address("6041") is None  # a bare number may be a name
+    assert parse_address("Setpoint") is None
+    with pytest.raises(NameLookupError):
+        resolve_object(od, "DUMMY0005")  # the data type definitions are no names to use
+    assert resolve_object(od, 5).index == 5
