@@ -129,3 +129,59 @@ def test_objects_and_addresses(od: ObjectDictionary) -> None:
     with pytest.raises(NameLookupError):
         resolve_object(od, "DUMMY0005")  # the data type definitions are no names to use
     assert resolve_object(od, 5).index == 5
+
+
+# ------------------------------------------------------------------ the resolver's users
+
+
+def test_the_device_takes_every_form() -> None:
+    from cobus.device import EntryNotFoundError, add_device
+    from cobus.runtime import Network
+
+    with Network(simulated=True) as net:
+        device = add_device(net, 5, io_od())
+        assert device.get("producer heartbeat time") == device.get(0x1017)
+        assert device.get("Identity object.Vendor-ID") == device.get(0x1018, 1)
+        assert device.get("0x1018:02") == device.get("Identity object", "product code")
+        device.set("SETPOINT", 0, 12)
+        assert device.get(0x2001) == 12
+        with pytest.raises(EntryNotFoundError, match="did you mean 'Setpoint'") as unknown:
+            device.get("Setpont")
+        assert unknown.value.code == 0x06020000
+        with pytest.raises(EntryNotFoundError, match="has no sub-index 9") as sub:
+            device.get(0x1018, 9)
+        assert sub.value.code == 0x06090011
+
+
+def test_the_sdo_api_takes_every_form() -> None:
+    from cobus.device import add_device
+    from cobus.runtime import Network
+
+    with Network(simulated=True) as net:
+        add_device(net, 5, io_od())
+        sdo = net.add_remote(5, io_od()).sdo
+        vendor = sdo.read(0x1018, 1)
+        assert sdo["0x1018:01"].read() == vendor
+        assert sdo["1018h sub 1"].read() == vendor
+        assert sdo["Identity object[1]"].read() == vendor
+        assert sdo["vendor id"].read() == vendor
+        assert sdo.read("identity_object", "VENDOR-ID") == vendor
+        assert sdo["0x1018"].name == "Identity object"  # (a record: its sub-objects by [sub])
+
+
+def test_the_files_name_objects_through_it() -> None:
+    from cobus.master.config import ObjectIndex
+
+    od = io_od()
+    index = ObjectIndex(od, "io.eds")
+    for text in ("Identity object[1]", "1018h sub 1", "Vendor-ID", "identity object.vendor id"):
+        assert where(index.resolve(text)) == (0x1018, 1), text
+    with pytest.raises(ValueError, match=r"io\.eds has no object named 'Setpont' \(did you mean"):
+        index.resolve("Setpont")
+    with pytest.raises(ValueError, match=r"io\.eds has no object 0x5000:00"):
+        index.resolve("0x5000")
+    with pytest.raises(ValueError, match=r"io\.eds has no object 0x1018:09"):
+        index.resolve("0x1018:09")
+    with pytest.raises(ValueError, match=r"io\.eds: 0x1018 .* has no sub-object 'Vendor'"):
+        index.resolve("Identity object.Vendor")
+    assert index.canonical(od[0x1018][1]) == "identity_object.vendor_id"  # type: ignore[index]

@@ -372,16 +372,17 @@ def _address(text: str) -> tuple[int, int | None]:
 
 def _record_named(text: str, od: Any) -> int | None:
     """The index of the record or array named ``text`` (None: none is)."""
-    from cobus.master.config import normalise
-    from cobus.od import Variable
+    from cobus.od import NameLookupError, Variable, resolve_object
 
     if od is None:
         from cobus.trace.decoder import _cia301
 
         od = _cia301()
-    key = normalise(text)
-    found = [o.index for o in od if not isinstance(o, Variable) and normalise(o.name) == key]
-    return found[0] if len(found) == 1 else None
+    try:
+        obj = resolve_object(od, text, suggest=False)
+    except NameLookupError:
+        return None
+    return None if isinstance(obj, Variable) else obj.index
 
 
 def _by_name(text: str, od: Any) -> Any:

@@ -76,6 +76,7 @@ from cobus.od import (
     DataType,
     EdsError,
     Finding,
+    NameLookupError,
     ObjectDictionary,
     Record,
     ValueRangeError,
@@ -83,6 +84,9 @@ from cobus.od import (
     encode,
     loads,
     mapping_entries,
+    parse_address,
+    resolve,
+    suggestions,
 )
 from cobus.proto.pdo import (
     Kind,
@@ -218,13 +222,13 @@ def normalise(name: str) -> str:
     return re.sub(r"[^0-9a-z]+", "_", name.lower()).strip("_")
 
 
-_ADDRESS = re.compile(r"\s*(?:0x)?([0-9a-f]{1,4})h?\s*(?:(?::|sub)\s*(0x)?([0-9a-f]{1,2})h?)?\s*\Z")
 _DUMMY = re.compile(r"\s*dummy\s*(8|16|32)\s*\Z")
 _DUMMY_TYPES = {8: 0x0005, 16: 0x0006, 32: 0x0007}
 
 
 class ObjectIndex:
-    """Finds a node's objects by name (case/space-insensitive) or address."""
+    """Finds a node's objects as a file names them (through :func:`cobus.od.resolve`), with
+    the file named in each error, and names its signals (:meth:`canonical`)."""
 
     #: Unknown names that get "did you mean" (a close-match search each); the ones after
     #: them get none, so that a file of 5,000 unknown names costs no minutes.
@@ -237,27 +241,18 @@ class ObjectIndex:
         self.od = od
         self.file = file
         self._suggestions = self.SUGGESTIONS
+        #: The variables by signal-name key (several: the name is shared).
         self._names: dict[str, list[Variable]] = {}
-        #: A sub-object by its own name alone ("Min position limit"), where that is unique.
-        self._subs: dict[str, list[Variable]] = {}
-        #: The names as the file writes them, by lookup key (for "did you mean").
-        self._shown: dict[str, str] = {}
         for obj in od:
             if obj.index < 0x1000:
                 continue
             if isinstance(obj, Variable):
-                key = normalise(obj.name)
-                self._names.setdefault(key, []).append(obj)
-                self._shown.setdefault(key, obj.name)
+                self._names.setdefault(normalise(obj.name), []).append(obj)
                 continue
             parent = normalise(obj.name)
             for var in obj:
-                key = f"{parent}.{normalise(var.name)}"
-                self._names.setdefault(key, []).append(var)
-                self._shown.setdefault(key, f"{obj.name}.{var.name}")
+                self._names.setdefault(f"{parent}.{normalise(var.name)}", []).append(var)
                 self._names.setdefault(f"{parent}[{var.subindex}]", []).append(var)
-                if var.subindex:
-                    self._subs.setdefault(normalise(var.name), []).append(var)
 
     def canonical(self, var: Variable) -> str:
         """The signal name of ``var``: its normalised name (``record.sub`` for sub-objects);
@@ -273,68 +268,44 @@ class ObjectIndex:
         return key if len(self._names.get(key, ())) < 2 else f"{key}_{var.index:04x}"
 
     def resolve(self, text: Any) -> Variable:
-        """The variable ``text`` names; a ValueError says why none (with close names)."""
+        """The variable ``text`` names, in every form :func:`cobus.od.resolve` takes; a
+        ValueError says why none (with close names) or which several."""
         if not isinstance(text, str):
             raise _Bad(
                 f"{text!r} is not an object name or address; write a name from the EDS or an "
                 'address in quotes, e.g. "0x6041:00"'
             )
-        lowered = text.strip().lower()
-        match = _ADDRESS.match(lowered)
-        if match is not None and (lowered.startswith("0x") or ":" in lowered or "sub" in lowered):
-            index = int(match.group(1), 16)
-            sub = int(match.group(3), 16) if match.group(3) is not None else 0
-            var = self.od.get_variable(index, sub)
-            if var is None:
-                raise _Bad(f"{self.file} has no object 0x{index:04X}:{sub:02X}")
-            return var
-        key = normalise(text)
-        found = self._names.get(key)
-        if not found:
-            for candidate in _lookup_forms(text):
-                found = self._names.get(candidate)
-                if found:
-                    break
-        if not found:
-            obj = self.od.get(text)
-            if isinstance(obj, Variable):
-                return obj
-            subs = self._subs.get(key, [])
-            if len(subs) == 1:
-                return subs[0]
-            raise _Bad(f"{self.file} has no object named {clip(repr(text), 120)}{self._hint(key)}")
-        if len(found) > 1:
-            where = ", ".join(f"0x{v.index:04X}:{v.subindex:02X}" for v in found)
-            raise _Bad(f"{text!r} names several objects in {self.file} ({where}); use the address")
-        return found[0]
+        try:
+            return resolve(self.od, text, suggest=False)
+        except NameLookupError as exc:
+            if exc.candidates:
+                where = ", ".join(
+                    f"0x{c.index:04X}:{getattr(c, 'subindex', 0):02X}" for c in exc.candidates
+                )
+                raise _Bad(
+                    f"{text!r} names several objects in {self.file} ({where}); use the address"
+                ) from None
+            address = parse_address(text)
+            if address is not None:
+                index, sub = address
+                raise _Bad(f"{self.file} has no object 0x{index:04X}:{sub or 0:02X}") from None
+            if exc.found is not None:
+                raise _Bad(f"{self.file}: {exc}") from None
+            raise _Bad(
+                f"{self.file} has no object named {clip(repr(text), 120)}{self._hint(text)}"
+            ) from None
 
-    def _hint(self, key: str) -> str:
+    def _hint(self, text: str) -> str:
         """ " (did you mean ...?)" for the first :attr:`SUGGESTIONS` unknown names."""
-        if len(key) > self.SUGGEST_LENGTH:
+        if len(text) > self.SUGGEST_LENGTH:
             return ""
         if self._suggestions <= 0:
             return " (no suggestions after the first ones: fix those first)"
         self._suggestions -= 1
-        close = difflib.get_close_matches(key, list(self._shown), n=3, cutoff=0.6)
+        close = suggestions(self.od, text)
         if not close:
             return ""
-        return f" (did you mean {', '.join(repr(self._shown[c]) for c in close)}?)"
-
-
-# (bounded digits: a sub-index of 5,000 digits is no sub-index, not a crash)
-_SUB_NUMBER = re.compile(r"(.*?)\[\s*(0x[0-9a-fA-F]{1,8}|[0-9]{1,10})\s*\]\s*\Z")
-
-
-def _lookup_forms(text: str) -> list[str]:
-    """The ``record.sub`` and ``record[n]`` keys ``text`` may mean."""
-    forms = []
-    match = _SUB_NUMBER.match(text)
-    if match is not None:
-        forms.append(f"{normalise(match.group(1))}[{int(match.group(2), 0)}]")
-    if "." in text:
-        head, _, tail = text.partition(".")
-        forms.append(f"{normalise(head)}.{normalise(tail)}")
-    return forms
+        return f" (did you mean {', '.join(repr(c) for c in close)}?)"
 
 
 _SECTION = re.compile(r"([0-9A-Fa-f]{4})(?:sub([0-9A-Fa-f]+))?\Z")
