@@ -610,3 +610,69 @@ def test_rpdo_watchdog_validation():
         RpdoWatchdog(0x201, length=9)
     with pytest.raises(PdoError, match="event timer"):
         RpdoWatchdog(0x201, 70000)
+
+
+# ------------------------------------------------------------------ one rule, one order
+
+
+def test_one_rule_says_which_kind_carries_a_data_type() -> None:
+    from cobus.od import DataType
+    from cobus.proto.pdo import kind_of_type
+
+    assert kind_of_type(DataType.BOOLEAN) is Kind.BOOL
+    assert kind_of_type(DataType.INTEGER24) is Kind.SIGNED
+    assert kind_of_type(DataType.UNSIGNED64) is Kind.UNSIGNED
+    assert kind_of_type(DataType.REAL32) is Kind.REAL32
+    assert kind_of_type(DataType.REAL64) is Kind.REAL64
+    assert kind_of_type(DataType.OCTET_STRING) is Kind.BYTES
+    assert kind_of_type(DataType.DOMAIN) is Kind.BYTES
+    for typed in (DataType.VISIBLE_STRING, DataType.TIME_OF_DAY, DataType.TIME_DIFFERENCE):
+        assert kind_of_type(typed) is None  # (the caller's codec)
+
+
+def test_writes_go_in_the_cia_301_order_whatever_order_they_are_made_in() -> None:
+    from cobus.proto.pdo import REMAP_ORDER, RemapStep, in_remap_order
+
+    assert REMAP_ORDER[0] is RemapStep.DISABLE and REMAP_ORDER[-1] is RemapStep.ENABLE
+    made = [
+        (RemapStep.DISABLE, "disable"),
+        (RemapStep.COMMUNICATION, "type"),
+        (RemapStep.COMMUNICATION, "timer"),
+        (RemapStep.CLEAR_MAPPING, "clear"),
+        (RemapStep.MAP, "entry 1"),
+        (RemapStep.MAP, "entry 2"),
+        (RemapStep.COUNT, "count"),
+        (RemapStep.ENABLE, "enable"),
+    ]
+    assert in_remap_order(made) == [
+        "disable", "clear", "entry 1", "entry 2", "count", "type", "timer", "enable"
+    ]  # fmt: skip
+
+
+def test_a_remote_pdo_is_saved_in_the_order_the_master_configures_one() -> None:
+    from cobus.device import add_device
+    from cobus.proto import Frame
+    from cobus.runtime import Network
+    from tests.test_master_support import io_od
+
+    with Network(simulated=True) as net:
+        add_device(net, 5, io_od())
+        node = net.add_remote(5, io_od())
+        written: list[tuple[int, int]] = []
+
+        def request(frame: Frame, now: float) -> None:
+            if frame.data[0] & 0xE0 == 0x20:  # download initiate
+                written.append((int.from_bytes(frame.data[1:3], "little"), frame.data[3]))
+
+        net.subscribe(0x605, request)
+        tpdo = node.tpdo[1]
+        tpdo.read()
+        tpdo.clear()
+        tpdo.add("Counter")
+        tpdo.transmission_type = 1
+        tpdo.event_timer = 50
+        tpdo.save()
+    assert written[:4] == [(0x1800, 1), (0x1A00, 0), (0x1A00, 1), (0x1A00, 0)]
+    assert written[-1] == (0x1800, 1)
+    assert {w for w in written[4:-1]} >= {(0x1800, 2), (0x1800, 5)}
+    assert all(index == 0x1800 for index, _ in written[4:])

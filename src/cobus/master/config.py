@@ -94,8 +94,11 @@ from cobus.proto.pdo import (
     PdoCobId,
     PdoError,
     PdoMap,
+    RemapStep,
     TransmissionType,
+    in_remap_order,
     is_restricted_can_id,
+    kind_of_type,
 )
 
 __all__ = [
@@ -323,18 +326,15 @@ def _dropped_value(od: ObjectDictionary, finding: Finding) -> bool:
 
 
 def _kind(var: Variable, bits: int) -> Kind:
-    dt = var.data_type
-    if dt is DataType.BOOLEAN:
-        return Kind.BOOL
-    if dt.is_integer:
-        return Kind.SIGNED if dt.is_signed else Kind.UNSIGNED
-    if dt is DataType.REAL32 and bits == 32:
-        return Kind.REAL32
-    if dt is DataType.REAL64 and bits == 64:
-        return Kind.REAL64
+    """proto's rule (:func:`~cobus.proto.pdo.kind_of_type`); a type without a Kind (a
+    string, a time) is kept as its bytes in the process image."""
+    kind = kind_of_type(var.data_type)
+    if kind is not None:
+        return kind
     if bits % 8:
         raise _Bad(
-            f"0x{var.index:04X}:{var.subindex:02X} ({dt.name}) cannot be mapped with {bits} bits"
+            f"0x{var.index:04X}:{var.subindex:02X} ({var.data_type.name}) cannot be mapped "
+            f"with {bits} bits"
         )
     return Kind.BYTES
 
@@ -1620,29 +1620,33 @@ def _pdo_steps(
     final = cob.value
     if not isinstance(final, int):
         return
+    step = RemapStep
+    steps: list[tuple[RemapStep, tuple[Variable, int, str]]] = []
     if cob.writable:
-        writes.add(cob, final | _INVALID, f"{label}: disable")
+        steps.append((step.DISABLE, (cob, final | _INVALID, f"{label}: disable")))
     if map_changed and isinstance(mapping, Record | Array):
         count_var = mapping.get(0)
         count = count_var.value if count_var is not None else None
         if count_var is not None and count_var.writable and isinstance(count, int):
-            writes.add(count_var, 0, f"{label}: clear mapping")
+            steps.append((step.CLEAR_MAPPING, (count_var, 0, f"{label}: clear mapping")))
             for sub in sorted(k for k in mapping.subindices if 1 <= k <= count):
                 var = mapping.get(sub)  # (the sub-indexes there are: a count may be damaged)
                 if var is not None and isinstance(var.value, int):
-                    writes.add(var, var.value, f"{label}: map")
-            writes.add(count_var, count, f"{label}: mapped objects")
+                    steps.append((step.MAP, (var, var.value, f"{label}: map")))
+            steps.append((step.COUNT, (count_var, count, f"{label}: mapped objects")))
         elif _direct_mapping(mapping):
             for var in map_vars:
                 if var.subindex and isinstance(var.value, int):
-                    writes.add(var, var.value, f"{label}: map")
+                    steps.append((step.MAP, (var, var.value, f"{label}: map")))
     for var in comm_subs:
         if var is None or not var.writable or not isinstance(var.value, int):
             continue
         if all_pdo or wanted(var):
-            writes.add(var, var.value, f"{label}: {var.name}")
+            steps.append((step.COMMUNICATION, (var, var.value, f"{label}: {var.name}")))
     if cob.writable and not final & _INVALID:
-        writes.add(cob, final, f"{label}: enable")
+        steps.append((step.ENABLE, (cob, final, f"{label}: enable")))
+    for var, value, name in in_remap_order(steps):
+        writes.add(var, value, name)
 
 
 def _read_master(raw: Any, report: _Report) -> MasterConfig:

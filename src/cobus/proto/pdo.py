@@ -13,9 +13,10 @@ import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum
-from typing import Any, NamedTuple, Protocol
+from typing import Any, Final, NamedTuple, Protocol, TypeVar
 
 from cobus.errors import CobusError
+from cobus.od import DataType  # (od is below proto: the data types, no protocol)
 from cobus.proto._base import NOTHING, Event, Out
 from cobus.proto._cobid import split_cob_id
 from cobus.proto.connection_set import PDO_STEP, RPDO_BASE, TPDO_BASE
@@ -24,6 +25,7 @@ from cobus.proto.frame import Frame
 __all__ = [
     "MAX_PDO_BITS",
     "MAX_PDO_ENTRIES",
+    "REMAP_ORDER",
     "FieldCodec",
     "Kind",
     "MappingEntry",
@@ -31,6 +33,7 @@ __all__ = [
     "PdoError",
     "PdoLengthError",
     "PdoMap",
+    "RemapStep",
     "RpdoResumed",
     "RpdoTimeout",
     "RpdoTooLong",
@@ -41,7 +44,9 @@ __all__ = [
     "TpdoSample",
     "TpdoTrigger",
     "TransmissionType",
+    "in_remap_order",
     "is_restricted_can_id",
+    "kind_of_type",
     "rpdo_default_can_id",
     "tpdo_default_can_id",
 ]
@@ -116,6 +121,67 @@ class Kind(Enum):
     REAL32 = "real32"
     REAL64 = "real64"
     BYTES = "bytes"
+
+
+def kind_of_type(data_type: DataType) -> Kind | None:
+    """The :class:`Kind` a mapped object of ``data_type`` is carried as: integers (a
+    truncated mapping too) signed or unsigned, BOOLEAN a bool, REAL32/REAL64 floats (at
+    their own length: :class:`PdoMap` refuses another), OCTET_STRING and DOMAIN bytes.
+
+    None: no Kind carries the type (the strings, TIME_OF_DAY, TIME_DIFFERENCE...); the caller
+    says how: a remote node's PDOs and a device decode it with its type (a
+    :class:`FieldCodec`), the master's process image keeps its bytes. The one rule of remote
+    PDOs, the device's PDOs and the network file."""
+    if data_type is DataType.BOOLEAN:
+        return Kind.BOOL
+    if data_type.is_integer:
+        return Kind.SIGNED if data_type.is_signed else Kind.UNSIGNED
+    return _KIND_OF_TYPE.get(data_type)
+
+
+_KIND_OF_TYPE: Final = {
+    DataType.REAL32: Kind.REAL32,
+    DataType.REAL64: Kind.REAL64,
+    DataType.OCTET_STRING: Kind.BYTES,
+    DataType.DOMAIN: Kind.BYTES,
+}
+
+
+class RemapStep(Enum):
+    """One kind of write of the CiA 301 procedure that (re)configures a PDO over SDO."""
+
+    #: COB-ID with bit 31 set: the PDO no longer exists, its parameters may change.
+    DISABLE = "disable"
+    #: Mapping sub-index 0 = 0: the entries may change.
+    CLEAR_MAPPING = "clear mapping"
+    #: The mapping entries, sub-index 1 on.
+    MAP = "map"
+    #: Mapping sub-index 0 = the number of entries: the mapping is valid again.
+    COUNT = "mapped objects"
+    #: Transmission type, inhibit time, event timer, SYNC start value (while disabled).
+    COMMUNICATION = "communication"
+    #: COB-ID with bit 31 clear: the PDO exists again.
+    ENABLE = "enable"
+
+
+#: The order the writes of a PDO (re)configuration go in: disable, clear the mapping, map,
+#: count, communication parameters, enable (CiA 301 7.5.2.35/36: the mapping changes only
+#: while the PDO is disabled and its count is 0).
+REMAP_ORDER: Final[tuple[RemapStep, ...]] = (
+    RemapStep.DISABLE,
+    RemapStep.CLEAR_MAPPING,
+    RemapStep.MAP,
+    RemapStep.COUNT,
+    RemapStep.COMMUNICATION,
+    RemapStep.ENABLE,
+)
+_RANK: Final = {step: rank for rank, step in enumerate(REMAP_ORDER)}
+_T = TypeVar("_T")
+
+
+def in_remap_order(steps: Sequence[tuple[RemapStep, _T]]) -> list[_T]:
+    """The writes of ``steps`` in :data:`REMAP_ORDER` (writes of one step keep their order)."""
+    return [write for _, write in sorted(steps, key=lambda step: _RANK[step[0]])]
 
 
 class FieldCodec(Protocol):

@@ -44,7 +44,10 @@ from cobus.proto.pdo import (
     PdoError,
     PdoLengthError,
     PdoMap,
+    RemapStep,
     TransmissionType,
+    in_remap_order,
+    kind_of_type,
     rpdo_default_can_id,
     tpdo_default_can_id,
 )
@@ -114,18 +117,11 @@ class _BytesOfType:
 
 
 def field_kind(data_type: DataType) -> Kind | FieldCodec:
-    """How a mapped object of ``data_type`` is packed into a PDO."""
-    if data_type.is_integer:
-        return Kind.SIGNED if data_type.is_signed else Kind.UNSIGNED
-    if data_type is DataType.BOOLEAN:
-        return Kind.BOOL
-    if data_type is DataType.REAL32:
-        return Kind.REAL32
-    if data_type is DataType.REAL64:
-        return Kind.REAL64
-    if data_type in (DataType.OCTET_STRING, DataType.DOMAIN):
-        return Kind.BYTES
-    return _BytesOfType(data_type)
+    """How a mapped object of ``data_type`` is packed into a PDO: proto's rule
+    (:func:`~cobus.proto.pdo.kind_of_type`), and a type without a Kind (a string, a time)
+    decoded with its type."""
+    kind = kind_of_type(data_type)
+    return _BytesOfType(data_type) if kind is None else kind
 
 
 # --------------------------------------------------------------------------- one PDO
@@ -618,9 +614,10 @@ class RemotePdo:
         return True
 
     async def save(self) -> None:
-        """Write this PDO's configuration to the node with the CiA 301 procedure: disable it
-        (COB-ID bit 31), write the parameters, set the mapping count to 0, write the entries,
-        set the count, enable it again."""
+        """Write this PDO's configuration to the node with the CiA 301 procedure
+        (:data:`~cobus.proto.pdo.REMAP_ORDER`): disable it (COB-ID bit 31), set the mapping
+        count to 0, write the entries, set the count, write the parameters, enable it
+        again."""
         sdo = self._pdos._sdo
         comm, mapping = self._comm(), self._map()
         if not self.configured:
@@ -649,26 +646,39 @@ class RemotePdo:
         def u32(v: int) -> bytes:
             return v.to_bytes(4, "little")
 
-        steps: list[tuple[str, int, int, bytes]] = [
-            ("disabling the PDO", comm, 1, u32(self._cob_u32(valid=False))),
-            ("writing the transmission type", comm, 2, u8(self.transmission_type)),
+        step = RemapStep
+        tagged: list[tuple[RemapStep, tuple[str, int, int, bytes]]] = [
+            (step.DISABLE, ("disabling the PDO", comm, 1, u32(self._cob_u32(valid=False)))),
+            (
+                step.COMMUNICATION,
+                ("writing the transmission type", comm, 2, u8(self.transmission_type)),
+            ),
         ]
         if self.inhibit_time is not None:
-            steps.append(("writing the inhibit time", comm, 3, u16(self.inhibit_time)))
-        if self.event_timer is not None:
-            steps.append(("writing the event timer", comm, 5, u16(self.event_timer)))
-        if self.sync_start is not None and self.transmit_by_node:
-            steps.append(("writing the SYNC start value", comm, 6, u8(self.sync_start)))
-        steps.append(("clearing the mapping (sub 0 = 0)", mapping, 0, u8(0)))
-        for n, f in enumerate(self._fields, 1):
-            steps.append(
-                (f"writing mapping entry {n} ({f.name})", mapping, n, u32(f.entry.to_u32()))
+            tagged.append(
+                (step.COMMUNICATION, ("writing the inhibit time", comm, 3, u16(self.inhibit_time)))
             )
-        steps.append(
-            (f"setting the mapping count to {len(self._fields)}", mapping, 0, u8(len(self._fields)))
+        if self.event_timer is not None:
+            tagged.append(
+                (step.COMMUNICATION, ("writing the event timer", comm, 5, u16(self.event_timer)))
+            )
+        if self.sync_start is not None and self.transmit_by_node:
+            tagged.append(
+                (step.COMMUNICATION, ("writing the SYNC start value", comm, 6, u8(self.sync_start)))
+            )
+        tagged.append((step.CLEAR_MAPPING, ("clearing the mapping (sub 0 = 0)", mapping, 0, u8(0))))
+        for n, f in enumerate(self._fields, 1):
+            what = f"writing mapping entry {n} ({f.name})"
+            tagged.append((step.MAP, (what, mapping, n, u32(f.entry.to_u32()))))
+        count = len(self._fields)
+        tagged.append(
+            (step.COUNT, (f"setting the mapping count to {count}", mapping, 0, u8(count)))
         )
         if self.enabled:
-            steps.append(("enabling the PDO", comm, 1, u32(self._cob_u32(valid=True))))
+            tagged.append(
+                (step.ENABLE, ("enabling the PDO", comm, 1, u32(self._cob_u32(valid=True))))
+            )
+        steps = in_remap_order(tagged)  # (CiA 301's order, as the master's start-up list has it)
         for n, (what, index, sub, data) in enumerate(steps):
             try:
                 await sdo.download(index, sub, data)
