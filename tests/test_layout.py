@@ -121,3 +121,11 @@ def test_the_connection_set_covers_node_ids_1_to_127(node: object) -> None:
 def test_the_connection_set_covers_pdo_1_to_4(number: object) -> None:
     with pytest.raises(ValueError, match=r"PDO 1\.\.4"):
         cs.tpdo_cob_id(number, 1)  # type: ignore[arg-type]
+
+
+def test_every_file_the_architecture_map_names_exists() -> None:
+    doc = (SRC.parent.parent / "docs" / "architecture.md").read_text()
+    named = set(re.findall(r"`(src/cobus/[\w/.]+)`", doc))
+    assert len(named) > 40
+    missing = sorted(p for p in named if not (SRC.parent.parent / p).exists())
+    assert not missing, f"docs/architecture.md names files that are not there: {missing}"
