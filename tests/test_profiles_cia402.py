@@ -103,3 +103,58 @@ def test_each_state_s_statusword_bits_decode_back_to_it() -> None:
     for state, bits in STATE_BITS.items():
         for extra in (0x0000, 0x0010, 0x0200, 0xFC10):
             assert PowerState.from_statusword(bits | extra) is state, (state, hex(extra))
+
+
+# ------------------------------------------------------------------ the numbered transitions
+
+
+def test_the_transitions_are_numbered_as_the_standard_numbers_them() -> None:
+    from cobus.profiles.cia402 import TRANSITIONS, Command, PowerState, transition
+
+    assert [t.number for t in TRANSITIONS] == list(range(17))
+    P = PowerState
+    assert transition(P.SWITCH_ON_DISABLED, Command.SHUTDOWN).number == 2  # type: ignore[union-attr]
+    assert transition(P.OPERATION_ENABLED, Command.DISABLE_OPERATION).number == 5  # type: ignore[union-attr]
+    assert transition(P.OPERATION_ENABLED, Command.SHUTDOWN).number == 8  # type: ignore[union-attr]
+    assert transition(P.QUICK_STOP_ACTIVE, Command.ENABLE_OPERATION).number == 16  # type: ignore[union-attr]
+    assert transition(P.FAULT, Command.FAULT_RESET).number == 15  # type: ignore[union-attr]
+    assert transition(P.SWITCH_ON_DISABLED, Command.QUICK_STOP) is None
+    assert transition(P.FAULT_REACTION_ACTIVE, Command.SHUTDOWN) is None
+
+
+@pytest.mark.parametrize(
+    ("controlword", "command"),
+    [
+        (0x00, "DISABLE_VOLTAGE"),
+        (0x0D, "DISABLE_VOLTAGE"),
+        (0x02, "QUICK_STOP"),
+        (0x0B, "QUICK_STOP"),
+        (0x06, "SHUTDOWN"),
+        (0x0E, "SHUTDOWN"),
+        (0x07, "SWITCH_ON"),
+        (0x0F, "ENABLE_OPERATION"),
+        (0x1F, "ENABLE_OPERATION"),  # (bit 4 is the mode's)
+        (0x80, "FAULT_RESET"),
+        (0x8F, "FAULT_RESET"),
+    ],
+)
+def test_a_controlword_gives_one_command(controlword: int, command: str) -> None:
+    from cobus.profiles.cia402 import Command, command_of
+
+    assert command_of(controlword) is Command[command]
+
+
+def test_every_step_of_the_path_table_is_a_numbered_transition() -> None:
+    from cobus.profiles.cia402 import PowerState, command_towards, transition
+
+    targets = (
+        PowerState.OPERATION_ENABLED,
+        PowerState.SWITCHED_ON,
+        PowerState.READY_TO_SWITCH_ON,
+        PowerState.SWITCH_ON_DISABLED,
+    )
+    for target in targets:
+        for current in PowerState:
+            command = command_towards(current, target)
+            if command is not None:
+                assert transition(current, command) is not None, (current, target, command)

@@ -497,3 +497,32 @@ def test_quick_stop_and_fault_reaction_ramps_follow_their_option_codes(index, op
         assert b.net.time() >= t0
 
     drive_run(scenario)
+
+
+@pytest.mark.parametrize("start", ["SWITCH_ON_DISABLED", "READY_TO_SWITCH_ON", "SWITCHED_ON",
+                                   "OPERATION_ENABLED"])  # fmt: skip
+def test_the_simulated_drive_takes_the_numbered_transitions_of_profiles_cia402(start):
+    from cobus.profiles.cia402 import PowerState, command_of, transition
+
+    path = {"SWITCH_ON_DISABLED": (), "READY_TO_SWITCH_ON": (0x06,),
+            "SWITCHED_ON": (0x06, 0x07), "OPERATION_ENABLED": (0x06, 0x07, 0x0F)}  # fmt: skip
+    bits = {SOD: PowerState.SWITCH_ON_DISABLED, RTSO: PowerState.READY_TO_SWITCH_ON,
+            SO: PowerState.SWITCHED_ON, OE: PowerState.OPERATION_ENABLED,
+            QSA: PowerState.QUICK_STOP_ACTIVE}  # fmt: skip
+
+    async def scenario(b: SimBench):
+        for controlword in (0x00, 0x02, 0x06, 0x07, 0x0F):
+            await b.sdo.write(0x6040, 0, 0x00)  # (from anywhere: switch on disabled)
+            for step in path[start]:
+                await b.sdo.write(0x6040, 0, step)
+            current = PowerState[start]
+            assert bits[await state(b)] is current
+            expected, command = current, command_of(controlword)
+            step_ = transition(expected, command)
+            while step_ is not None:  # (3 + 4: the same command leads on)
+                expected = step_.target
+                step_ = transition(expected, command)
+            await b.sdo.write(0x6040, 0, controlword)
+            assert bits[await state(b)] is expected, f"{start} + {controlword:#04x}"
+
+    drive_run(scenario)

@@ -1,8 +1,10 @@
-"""CiA 402 (IEC 61800-7-201) for the master side, sans I/O: the power state machine decoded
-from the statusword (6041h), the controlword (6040h) commands and the path from any state to
-any other, the modes of operation (6060h/6061h), and the texts of the error codes (603Fh).
+"""CiA 402 (IEC 61800-7-201), sans I/O: the power state machine decoded from the statusword
+(6041h), the controlword (6040h) commands, the transitions 0-16 as the standard numbers them,
+the path from any state to any other, the modes of operation (6060h/6061h), and the texts of
+the error codes (603Fh).
 
-Nothing here touches a bus; :mod:`cobus.profiles.drive402` runs a drive with it.
+Nothing here touches a bus; :mod:`cobus.profiles.drive402` runs a drive with it (the master
+side), and the simulated drive (:mod:`cobus.sim.drive402`) follows the same transitions.
 """
 
 from __future__ import annotations
@@ -17,12 +19,16 @@ from cobus.proto.emcy import describe as _describe_emcy
 
 __all__ = [
     "STATE_BITS",
+    "TRANSITIONS",
     "Command",
     "OperationMode",
     "PowerState",
     "Statusword",
+    "Transition",
+    "command_of",
     "command_towards",
     "error_text",
+    "transition",
 ]
 
 
@@ -85,6 +91,83 @@ class Command(NamedIntEnum):
     def mask() -> int:
         """The controlword bits the commands own: 0-3 and 7."""
         return 0x8F
+
+
+def command_of(controlword: int) -> Command | None:
+    """The device-control command a controlword gives (CiA 402 table "device control
+    commands", bits 0-3 and 7); None for the bit patterns that give none. Bit 7 set is a
+    fault reset whatever the other bits (it acts on its rising edge: the drive's part).
+    SWITCH_ON and DISABLE_OPERATION are one pattern (0x07): the state tells them apart."""
+    if controlword & 0x80:
+        return Command.FAULT_RESET
+    if not controlword & 0x02:
+        return Command.DISABLE_VOLTAGE
+    if not controlword & 0x04:
+        return Command.QUICK_STOP
+    if controlword & 0x07 == 0x06:
+        return Command.SHUTDOWN
+    if controlword & 0x0F == 0x07:
+        return Command.SWITCH_ON
+    if controlword & 0x0F == 0x0F:
+        return Command.ENABLE_OPERATION
+    return None
+
+
+@dataclass(frozen=True, slots=True)
+class Transition:
+    """One transition of the power state machine, numbered as CiA 402 numbers it."""
+
+    number: int
+    source: PowerState | None  # None: any state (13, a fault) or power-on (0)
+    target: PowerState
+    #: The commands that cause it (empty: the drive takes it by itself).
+    commands: tuple[Command, ...]
+
+
+#: The transitions 0-16 of the CiA 402 power state machine. 16 (quick stop active ->
+#: operation enabled) is only taken when the quick stop option code (605Ah) is 5-8; 12 is
+#: also taken by the drive when its quick stop is done with option code 1-3.
+TRANSITIONS: tuple[Transition, ...] = (
+    Transition(0, None, _P.NOT_READY_TO_SWITCH_ON, ()),
+    Transition(1, _P.NOT_READY_TO_SWITCH_ON, _P.SWITCH_ON_DISABLED, ()),
+    Transition(2, _P.SWITCH_ON_DISABLED, _P.READY_TO_SWITCH_ON, (Command.SHUTDOWN,)),
+    # (enable operation in ready to switch on: 3, then 4 by itself — CiA 402's "3 + 4")
+    Transition(
+        3, _P.READY_TO_SWITCH_ON, _P.SWITCHED_ON, (Command.SWITCH_ON, Command.ENABLE_OPERATION)
+    ),
+    Transition(4, _P.SWITCHED_ON, _P.OPERATION_ENABLED, (Command.ENABLE_OPERATION,)),
+    Transition(5, _P.OPERATION_ENABLED, _P.SWITCHED_ON, (Command.DISABLE_OPERATION,)),
+    Transition(6, _P.SWITCHED_ON, _P.READY_TO_SWITCH_ON, (Command.SHUTDOWN,)),
+    Transition(
+        7,
+        _P.READY_TO_SWITCH_ON,
+        _P.SWITCH_ON_DISABLED,
+        (Command.QUICK_STOP, Command.DISABLE_VOLTAGE),
+    ),
+    Transition(8, _P.OPERATION_ENABLED, _P.READY_TO_SWITCH_ON, (Command.SHUTDOWN,)),
+    Transition(9, _P.OPERATION_ENABLED, _P.SWITCH_ON_DISABLED, (Command.DISABLE_VOLTAGE,)),
+    Transition(
+        10, _P.SWITCHED_ON, _P.SWITCH_ON_DISABLED, (Command.QUICK_STOP, Command.DISABLE_VOLTAGE)
+    ),
+    Transition(11, _P.OPERATION_ENABLED, _P.QUICK_STOP_ACTIVE, (Command.QUICK_STOP,)),
+    Transition(12, _P.QUICK_STOP_ACTIVE, _P.SWITCH_ON_DISABLED, (Command.DISABLE_VOLTAGE,)),
+    Transition(13, None, _P.FAULT_REACTION_ACTIVE, ()),
+    Transition(14, _P.FAULT_REACTION_ACTIVE, _P.FAULT, ()),
+    Transition(15, _P.FAULT, _P.SWITCH_ON_DISABLED, (Command.FAULT_RESET,)),
+    Transition(16, _P.QUICK_STOP_ACTIVE, _P.OPERATION_ENABLED, (Command.ENABLE_OPERATION,)),
+)
+_BY_COMMAND: dict[tuple[PowerState, Command], Transition] = {
+    (t.source, command): t for t in TRANSITIONS if t.source is not None for command in t.commands
+}
+
+
+def transition(state: PowerState, command: Command | None) -> Transition | None:
+    """The transition ``command`` takes a drive in ``state`` through (None: the command
+    does nothing there). 16 is listed whatever the quick stop option code: the drive
+    checks it."""
+    if command is None:
+        return None
+    return _BY_COMMAND.get((state, command))
 
 
 class OperationMode(NamedIntEnum):

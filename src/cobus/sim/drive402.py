@@ -75,7 +75,14 @@ from cobus.device import (
 )
 from cobus.device.events import Booted
 from cobus.od import DataType, ObjectDictionary
-from cobus.profiles.cia402 import STATE_BITS, PowerState
+from cobus.profiles.cia402 import (
+    STATE_BITS,
+    Command,
+    PowerState,
+    Transition,
+    command_of,
+    transition,
+)
 from cobus.proto import Frame
 from cobus.proto.emcy import EmcyCode, ErrorRegister
 from cobus.proto.nmt import NmtCommand, NmtState
@@ -742,37 +749,39 @@ class Drive402(CanopenSimDevice):
         if state is S.FAULT:
             if cw & _CW_FAULT_RESET and not prev & _CW_FAULT_RESET:
                 self._fault_reset()
-        elif state in (S.FAULT_REACTION_ACTIVE, S.NOT_READY_TO_SWITCH_ON) or cw & _CW_FAULT_RESET:
-            pass  # commands with bit 7 set are fault resets only
-        elif not cw & 0x02:  # disable voltage
-            if state is not S.SWITCH_ON_DISABLED:
-                self._power_stage_off(S.SWITCH_ON_DISABLED)
-        elif not cw & 0x04:  # quick stop
-            if state in (S.READY_TO_SWITCH_ON, S.SWITCHED_ON):
-                self.state = S.SWITCH_ON_DISABLED
-            elif state is S.OPERATION_ENABLED:
-                self._quick_stop()
-        elif (cw & 0x07) == 0x06:  # shutdown
-            if state in (S.SWITCH_ON_DISABLED, S.SWITCHED_ON):
-                self.state = S.READY_TO_SWITCH_ON
-            elif state is S.OPERATION_ENABLED:
-                self._power_stage_off(S.READY_TO_SWITCH_ON)
-        elif (cw & 0x0F) == 0x07:  # switch on / disable operation
-            if state is S.READY_TO_SWITCH_ON:
-                self.state = S.SWITCHED_ON
-            elif state is S.OPERATION_ENABLED:
-                self._power_stage_off(S.SWITCHED_ON)
-        elif (cw & 0x0F) == 0x0F:  # enable operation (from ready to switch on: 3 and 4)
-            if state in (S.READY_TO_SWITCH_ON, S.SWITCHED_ON):
-                self.state = S.OPERATION_ENABLED
-                self._enter_mode()
-            elif state is S.QUICK_STOP_ACTIVE and int(self._od(0x605A, 0, 2)) >= 5:
-                self.state = S.OPERATION_ENABLED
-                self._stop_then = None
-                self._enter_mode()
+        elif state not in (S.FAULT_REACTION_ACTIVE, S.NOT_READY_TO_SWITCH_ON):
+            # the numbered transitions of CiA 402 (profiles.cia402): the one the command
+            # asks for, and on from there while the same command leads further (enable
+            # operation in ready to switch on: 3 and 4 at once)
+            command = command_of(cw)  # (bit 7 set: a fault reset, nothing outside FAULT)
+            step = transition(state, command)
+            while step is not None and self._take(step, command):
+                step = transition(self.state, command)
         if self.state is S.OPERATION_ENABLED and self._stop_then is None:
             self._mode_bits(prev, cw)
         self._publish()
+
+    def _take(self, step: Transition, command: Command | None) -> bool:
+        """Go through transition ``step`` (2-12, 16) with what it does to the power stage;
+        False: not taken (16 with a quick stop option code that keeps the drive stopping)."""
+        S = DriveState
+        number = step.number
+        if number == 11:
+            self._quick_stop()
+        elif number == 16:
+            if int(self._od(0x605A, 0, 2)) < 5:
+                return False
+            self.state = S.OPERATION_ENABLED
+            self._stop_then = None
+            self._enter_mode()
+        elif number == 4:
+            self.state = S.OPERATION_ENABLED
+            self._enter_mode()
+        elif number in (5, 8, 9, 12) or (number in (7, 10) and command is Command.DISABLE_VOLTAGE):
+            self._power_stage_off(step.target)
+        else:  # 2, 3, 6, and 7 / 10 by a quick stop: no power at the motor either way
+            self.state = step.target
+        return True
 
     def _mode_bits(self, prev: int, cw: int) -> None:
         rising = cw & ~prev
