@@ -129,3 +129,22 @@ def test_every_file_the_architecture_map_names_exists() -> None:
     assert len(named) > 40
     missing = sorted(p for p in named if not (SRC.parent.parent / p).exists())
     assert not missing, f"docs/architecture.md names files that are not there: {missing}"
+
+
+def test_an_emergency_is_one_record_and_its_events_name_its_fields_alike() -> None:
+    import warnings
+
+    from cobus.device.events import EmergencySent
+    from cobus.master import EmcyRecord
+    from cobus.master.events import NodeEmergency
+    from cobus.proto.emcy import Emergency
+    from cobus.runtime import Emergency as RuntimeEmergency
+
+    assert RuntimeEmergency is Emergency and EmcyRecord is Emergency
+    node = NodeEmergency(5, 0x2310, 0x03, b"\x01", "Current")
+    sent = EmergencySent(5, 0x2310, 0x03, b"\x02")
+    assert node.manufacturer_data == b"\x01" and sent.manufacturer_data == b"\x02"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert node.data == b"\x01" and sent.manufacturer == b"\x02"  # the old names, a release
+    assert [w.category for w in caught] == [DeprecationWarning, DeprecationWarning]

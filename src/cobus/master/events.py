@@ -6,6 +6,7 @@ They go to the master's listeners (:meth:`Master.add_listener`) and to the netwo
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 from cobus.master.states import MasterState, NodeState
@@ -240,12 +241,24 @@ class StateRestored(NodeEvent):
 
 @dataclass(frozen=True, slots=True)
 class NodeEmergency(NodeEvent):
-    """An emergency of the node; ``text`` is the code's meaning (CiA 301)."""
+    """An emergency of the node; ``text`` is the code's meaning (CiA 301); the fields are
+    named as :class:`cobus.proto.emcy.Emergency` names them."""
 
     code: int
     register: int
-    data: bytes
+    manufacturer_data: bytes
     text: str
+
+    @property
+    def data(self) -> bytes:
+        """Deprecated name of :attr:`manufacturer_data` (one name per idea: as
+        :class:`~cobus.proto.emcy.Emergency` has it); goes in the next release."""
+        warnings.warn(
+            "NodeEmergency.data is now NodeEmergency.manufacturer_data",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return self.manufacturer_data
 
     def __str__(self) -> str:
         return f"node {self.node_id}: EMCY 0x{self.code:04X} {self.text}"

@@ -29,6 +29,7 @@ __all__ = [
     "EmcyProducer",
     "EmcyQueueOverflow",
     "EmcyReceived",
+    "Emergency",
     "ErrorRegister",
     "MalformedEmcy",
     "describe",
@@ -185,6 +186,41 @@ class EmcyReceived(Event):
     def is_reset(self) -> bool:
         """Whether this is an 'error reset or no error' emergency (00xxh)."""
         return self.code >> 8 == 0
+
+
+@dataclass(frozen=True, slots=True)
+class Emergency:
+    """One emergency a node sent, as every part of cobus keeps it (a remote node's
+    ``emcy``, the master's nodes' histories): ``str()`` gives ``"0x8130 Life guard error
+    or heartbeat error (register 0x11)"``."""
+
+    node_id: int
+    time: float
+    code: int
+    register: ErrorRegister
+    manufacturer_data: bytes
+    text: str
+
+    @classmethod
+    def received(cls, event: EmcyReceived, time: float) -> Emergency:
+        """The emergency an :class:`EmcyReceived` event reports, heard at ``time``."""
+        return cls(
+            event.node_id, time, event.code, event.register, event.manufacturer_data, event.text
+        )
+
+    @property
+    def is_reset(self) -> bool:
+        """Whether this is an "error reset or no error" emergency (00xxh)."""
+        return self.code >> 8 == 0
+
+    def __str__(self) -> str:
+        return f"0x{self.code:04X} {self.text} (register 0x{int(self.register):02X})"
+
+    def __repr__(self) -> str:
+        return (
+            f"<Emergency of node {self.node_id} at {self.time:.3f} s: {self}"
+            f"{', data ' + self.manufacturer_data.hex(' ') if any(self.manufacturer_data) else ''}>"
+        )
 
 
 @dataclass(frozen=True, slots=True)

@@ -9,11 +9,10 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Final
 
 from cobus.proto import Frame
-from cobus.proto.emcy import EMCY_BASE, ErrorRegister, MalformedEmcy, parse_emcy
+from cobus.proto.emcy import EMCY_BASE, Emergency, MalformedEmcy, parse_emcy
 from cobus.runtime._service import Callbacks, Waiters, removed_error
 from cobus.runtime.errors import EmcyTimeoutError
 
@@ -21,33 +20,6 @@ if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, Subscription
 
 __all__ = ["EmcyTimeoutError", "Emergency", "RemoteEmcy", "error_still_shown"]
-
-
-@dataclass(frozen=True, slots=True)
-class Emergency:
-    """One emergency a node sent: ``str()`` gives ``"0x8130 Life guard error or heartbeat
-    error (register 0x11)"``."""
-
-    node_id: int
-    time: float
-    code: int
-    register: ErrorRegister
-    manufacturer_data: bytes
-    text: str
-
-    @property
-    def is_reset(self) -> bool:
-        """Whether this is an "error reset or no error" emergency (00xxh)."""
-        return self.code >> 8 == 0
-
-    def __str__(self) -> str:
-        return f"0x{self.code:04X} {self.text} (register 0x{int(self.register):02X})"
-
-    def __repr__(self) -> str:
-        return (
-            f"<Emergency of node {self.node_id} at {self.time:.3f} s: {self}"
-            f"{', data ' + self.manufacturer_data.hex(' ') if any(self.manufacturer_data) else ''}>"
-        )
 
 
 #: Error register bits (1001h) of the emergency code classes that have one.
@@ -153,14 +125,7 @@ class RemoteEmcy:
         if isinstance(parsed, MalformedEmcy):
             self._network.emit(parsed)
             return
-        emcy = Emergency(
-            self.node_id,
-            now,
-            parsed.code,
-            parsed.register,
-            parsed.manufacturer_data,
-            parsed.text,
-        )
+        emcy = Emergency.received(parsed, now)
         self._log.append(emcy)
         self.count += 1
         if emcy.is_reset:
