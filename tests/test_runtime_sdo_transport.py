@@ -12,10 +12,11 @@ from pathlib import Path
 import pytest
 
 from cobus.device import add_device
+from cobus.master import ManagedNode
 from cobus.proto import Event
 from cobus.proto.sdo import SdoTimeoutError, UploadDone
 from cobus.runtime import AsyncNetwork, NetworkClosedError
-from cobus.runtime.remote import SdoChannel
+from cobus.runtime.remote import RemoteNode, SdoChannel
 from tests.test_master_support import Rig, io_od, network, rig_test, simulate
 
 NET = """master: {node_id: 127, heartbeat_time: 100}
@@ -34,18 +35,22 @@ def _aborts(rig: Rig) -> list[bytes]:
     return [d for cob in (0x60A, 0x58A) for d in rig.data(cob) if d[:1] == b"\x80"]
 
 
+async def _booted(rig: Rig) -> tuple[RemoteNode, ManagedNode]:
+    """Node 10 booted by the master, and a remote node for it on the same network."""
+    rig.add(10, io_od())
+    await rig.master.boot(timeout=5)
+    return rig.net.add_remote(10, io_od()), rig.master.nodes[10]
+
+
 def test_a_remote_node_and_the_masters_node_asking_node_10_at_once_queue_on_one_channel(
     tmp_path: Path,
 ) -> None:
     cfg = network(tmp_path, NET)
 
     async def scenario(rig: Rig) -> None:
-        rig.add(10, io_od())
-        await rig.master.boot(timeout=5)
+        remote, managed = await _booted(rig)
         heard: list[Event] = []
         rig.net.add_listener(heard.append)
-        remote = rig.net.add_remote(10, io_od())
-        managed = rig.master.nodes[10]
         assert remote.sdo.transport is managed.sdo.transport
         before = managed.sdo.transport.transfers
         heard.clear()
@@ -79,10 +84,7 @@ def test_removing_the_remote_node_ends_its_own_transfers_only(tmp_path: Path) ->
     cfg = network(tmp_path, NET)
 
     async def scenario(rig: Rig) -> None:
-        rig.add(10, io_od())
-        await rig.master.boot(timeout=5)
-        remote = rig.net.add_remote(10, io_od())
-        managed = rig.master.nodes[10]
+        remote, managed = await _booted(rig)
         transport = managed.sdo.transport
         masters = asyncio.ensure_future(managed.sdo.upload(0x1008))
         remotes = asyncio.ensure_future(remote.sdo.upload(0x1008))  # waits its turn
@@ -106,10 +108,7 @@ def test_the_remote_node_removed_during_its_own_transfer_aborts_it_and_frees_the
     cfg = network(tmp_path, NET)
 
     async def scenario(rig: Rig) -> None:
-        rig.add(10, io_od())
-        await rig.master.boot(timeout=5)
-        remote = rig.net.add_remote(10, io_od())
-        managed = rig.master.nodes[10]
+        remote, managed = await _booted(rig)
         remotes = asyncio.ensure_future(remote.sdo.upload(0x1008))
         await asyncio.sleep(0)  # its request is sent
         assert managed.sdo.transport.owner is remote.sdo

@@ -3,9 +3,10 @@ an unhelpful AttributeError (or, for an attribute, a silent new attribute that d
 
 from __future__ import annotations
 
+import warnings
 from typing import Any, NoReturn
 
-__all__ = ["Moved"]
+__all__ = ["Moved", "Renamed"]
 
 
 class Moved:
@@ -30,3 +31,28 @@ class Moved:
 
     def __set__(self, obj: object, value: object) -> NoReturn:
         raise self._error()
+
+
+class Renamed:
+    """``data = Renamed("manufacturer_data")`` on a class: the old name of an attribute
+    still reads, for one release, with a :class:`DeprecationWarning` that gives the new one
+    (one name per idea, see :mod:`cobus`)."""
+
+    def __init__(self, new: str) -> None:
+        self._new = new
+        self._name = "?"
+        self._owner = "?"
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self._name = name
+        self._owner = owner.__name__
+
+    def __get__(self, obj: object, owner: type | None = None) -> Any:
+        if obj is None:
+            return self
+        warnings.warn(
+            f"{self._owner}.{self._name} is now {self._owner}.{self._new}",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(obj, self._new)

@@ -7,11 +7,11 @@ the device's listeners (:meth:`Device.add_listener`) and to the network's
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
+from cobus._moved import Renamed
 from cobus.proto import Event
 from cobus.proto.nmt import NmtCommand, NmtState
 
@@ -167,17 +167,9 @@ class EmergencySent(DeviceEvent):
     code: int
     register: int
     manufacturer_data: bytes
-
-    @property
-    def manufacturer(self) -> bytes:
-        """Deprecated name of :attr:`manufacturer_data` (one name per idea: as
-        :class:`~cobus.proto.emcy.Emergency` has it); goes in the next release."""
-        warnings.warn(
-            "EmergencySent.manufacturer is now EmergencySent.manufacturer_data",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return self.manufacturer_data
+    #: Deprecated name of :attr:`manufacturer_data` (as :class:`~cobus.proto.emcy.Emergency`
+    #: has it); goes in the next release.
+    manufacturer = Renamed("manufacturer_data")
 
 
 @dataclass(frozen=True, slots=True)

@@ -6,9 +6,9 @@ They go to the master's listeners (:meth:`Master.add_listener`) and to the netwo
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
+from cobus._moved import Renamed
 from cobus.master.states import MasterState, NodeState
 from cobus.proto import Event
 from cobus.proto.nmt import NmtState
@@ -248,17 +248,9 @@ class NodeEmergency(NodeEvent):
     register: int
     manufacturer_data: bytes
     text: str
-
-    @property
-    def data(self) -> bytes:
-        """Deprecated name of :attr:`manufacturer_data` (one name per idea: as
-        :class:`~cobus.proto.emcy.Emergency` has it); goes in the next release."""
-        warnings.warn(
-            "NodeEmergency.data is now NodeEmergency.manufacturer_data",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return self.manufacturer_data
+    #: Deprecated name of :attr:`manufacturer_data` (as :class:`~cobus.proto.emcy.Emergency`
+    #: has it); goes in the next release.
+    data = Renamed("manufacturer_data")
 
     def __str__(self) -> str:
         return f"node {self.node_id}: EMCY 0x{self.code:04X} {self.text}"
