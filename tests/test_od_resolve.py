@@ -185,3 +185,75 @@ def test_the_files_name_objects_through_it() -> None:
     with pytest.raises(ValueError, match=r"io\.eds: 0x1018 .* has no sub-object 'Vendor'"):
         index.resolve("Identity object.Vendor")
     assert index.canonical(od[0x1018][1]) == "identity_object.vendor_id"  # type: ignore[index]
+
+
+# ------------------------------------------------------------------ what a review found
+
+
+def _tricky() -> ObjectDictionary:
+    from cobus.od import Array, DataType, Record
+
+    od = io_od()
+    out = Record(0x2005, "Out")
+    for sub in range(3):
+        out.add(OdVariable(0x2005, sub, f"Out {sub}", DataType.UNSIGNED8))
+    od.add(out)
+    od.add(OdVariable(0x2006, 0, "Out[1]", DataType.UNSIGNED8))  # a name that looks like a form
+    od.add(OdVariable(0x2007, 0, "Each", DataType.UNSIGNED8))  # ... like an address (EACh)
+    dup = Array(0x200C, "Dup")
+    dup.add(OdVariable(0x200C, 0, "Count", DataType.UNSIGNED8))
+    dup.add(OdVariable(0x200C, 1, "Value", DataType.UNSIGNED8))
+    dup.add(OdVariable(0x200C, 2, "Value", DataType.UNSIGNED8))
+    od.add(dup)
+    return od
+
+
+def test_the_exact_eds_name_wins_over_every_form() -> None:
+    od = _tricky()
+    assert where(resolve(od, "Out[1]")) == (0x2006, 0)
+    assert where(resolve(od, "Out[2]")) == (0x2005, 2)
+    assert where(resolve(od, "Each")) == (0x2007, 0)
+    assert parse_address("Each") is None and parse_address("EACAh") == (0xEACA, None)
+
+
+def test_a_name_two_sub_objects_share_is_an_error_that_says_so() -> None:
+    od = _tricky()
+    with pytest.raises(NameLookupError, match="'Value' names sub-indices 1, 2") as caught:
+        resolve(od, "Dup.Value")
+    assert len(caught.value.candidates) == 2
+    assert where(resolve(od, "Dup", "01")) == (0x200C, 1)  # (a leading zero: still a number)
+    assert where(resolve(od, "Dup[02]")) == (0x200C, 2)
+
+
+def test_the_name_tables_follow_a_removed_and_replaced_object() -> None:
+    od = io_od()
+    assert where(resolve(od, "counter")) == (0x2000, 0)
+    old = od.remove(0x2000)
+    od.add(OdVariable(0x2000, 0, "Speed", old.data_type))  # type: ignore[union-attr]
+    assert where(resolve(od, "speed")) == (0x2000, 0)
+    with pytest.raises(NameLookupError):
+        resolve(od, "counter")
+
+
+def test_a_network_file_names_a_sub_object_not_a_record() -> None:
+    from cobus.master.config import ObjectIndex
+
+    index = ObjectIndex(_tricky(), "t.eds")
+    with pytest.raises(ValueError, match=r"'Digital inputs' is an array in t\.eds: name one"):
+        index.resolve("Digital inputs")
+    with pytest.raises(ValueError, match=r"'Dup\.Value' names several objects in t\.eds"):
+        index.resolve("Dup.Value")
+    assert where(index.resolve("0x1018")) == (0x1018, 0)  # (an address: its sub-index 0)
+
+
+def test_membership_takes_what_indexing_takes() -> None:
+    from cobus.device import add_device
+    from cobus.runtime import Network
+
+    with Network(simulated=True) as net:
+        add_device(net, 5, io_od())
+        sdo = net.add_remote(5, io_od()).sdo
+        for key in ("0x1018:01", "Identity object.Vendor-ID", (0x1018, 1), "vendor id"):
+            assert key in sdo, key
+        assert "Nothing such" not in sdo and (0x1018, 9) not in sdo
+        assert "vendor id" in sdo["Identity object"] and 9 not in sdo["Identity object"]

@@ -465,19 +465,19 @@ class Device:
         try:
             var = resolve(self.od, index, None if subindex == 0 else subindex)
         except NameLookupError as exc:
-            obj = exc.found
+            obj, key = exc.found, exc.key
             if obj is None:
                 raise EntryNotFoundError(
-                    index if isinstance(index, int) else 0,
+                    index if isinstance(index, int) and not isinstance(index, bool) else 0,
                     0,
                     _ABORT.NO_OBJECT,
-                    f"{exc} in the dictionary of device {self._core.node_id}",
+                    f"device {self._core.node_id}: {exc}",
                 ) from None
             raise EntryNotFoundError(
                 obj.index,
-                subindex if isinstance(subindex, int) else 0,
-                _ABORT.NO_SUBINDEX,
-                str(exc),
+                key if isinstance(key, int) and not isinstance(key, bool) else 0,
+                _ABORT.NO_OBJECT if obj.index < 0x1000 else _ABORT.NO_SUBINDEX,
+                f"device {self._core.node_id}: {exc}",
             ) from None
         if var.index < 0x1000:
             raise EntryNotFoundError(

@@ -77,6 +77,7 @@ from cobus.od import (
     EdsError,
     Finding,
     NameLookupError,
+    Object,
     ObjectDictionary,
     Record,
     ValueRangeError,
@@ -86,6 +87,7 @@ from cobus.od import (
     mapping_entries,
     parse_address,
     resolve,
+    resolve_object,
     suggestions,
 )
 from cobus.proto.pdo import (
@@ -229,6 +231,14 @@ _DUMMY = re.compile(r"\s*dummy\s*(8|16|32)\s*\Z")
 _DUMMY_TYPES = {8: 0x0005, 16: 0x0006, 32: 0x0007}
 
 
+def _object_named(od: ObjectDictionary, text: str) -> Object | None:
+    """The object ``text`` names as a whole (None: it names none, or a sub-object)."""
+    try:
+        return resolve_object(od, text, suggest=False)
+    except NameLookupError:
+        return None
+
+
 class ObjectIndex:
     """Finds a node's objects as a file names them (through :func:`cobus.od.resolve`), with
     the file named in each error, and names its signals (:meth:`canonical`)."""
@@ -279,7 +289,17 @@ class ObjectIndex:
                 'address in quotes, e.g. "0x6041:00"'
             )
         try:
-            return resolve(self.od, text, suggest=False)
+            var = resolve(self.od, text, suggest=False)
+            if parse_address(text) is None and var.subindex == 0 and var.parent is not None:
+                whole = _object_named(self.od, text)  # (a record's own name?)
+                if whole is var.parent:
+                    subs = ", ".join(repr(f"{whole.name}.{v.name}") for v in list(whole)[1:4])
+                    raise _Bad(
+                        f"{text!r} is {'an array' if isinstance(whole, Array) else 'a record'} "
+                        f"in {self.file}: name one "
+                        f"of its sub-objects ({subs}...) or give the address"
+                    )
+            return var
         except NameLookupError as exc:
             if exc.candidates:
                 where = ", ".join(

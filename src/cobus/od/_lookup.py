@@ -83,15 +83,21 @@ _NOT_WORD = re.compile(r"[\W_]+")
 
 def parse_address(text: str) -> tuple[int, int | None] | None:
     """``(index, sub-index or None)`` for an address written as text (``"0x1018:01"``,
-    ``"1018h sub 1"``, ``"0x6041"``, ``"6041h"``); None for text that is no address (a bare
-    number without ``0x``, ``h`` or a sub-index is taken for a name)."""
+    ``"1018h sub 1"``, ``"0x6041"``, ``"6041h"``); None for text that is no address: a bare
+    number without ``0x`` or a sub-index, or fewer than four digits before an ``h`` ("Each",
+    "Dach" are names)."""
     match = _ADDRESS.match(text)
     if match is None:
         return None
     prefix, digits, suffix, sub = match.groups()
-    if not (prefix or suffix or sub is not None):
+    if not (prefix or sub is not None or (suffix and len(digits) == 4)):
         return None
     return int(digits, 16), None if sub is None else int(sub, 16)
+
+
+def _number(text: str) -> int:
+    """A sub-index written as text: ``0x..`` hexadecimal, else decimal (``"01"`` is 1)."""
+    return int(text, 16) if text[:2].lower() == "0x" else int(text, 10)
 
 
 class _Names:
@@ -121,7 +127,8 @@ class _Names:
 
 
 def _stamp(od: ObjectDictionary) -> tuple[int, int]:
-    return len(od), sum(1 for _ in od.variables())
+    """What the tables follow: objects added or removed, sub-objects added to a record."""
+    return od._version, sum(len(getattr(obj, "subindices", ())) for obj in od._objects.values())
 
 
 def _names(od: ObjectDictionary) -> _Names:
@@ -149,10 +156,16 @@ def _listing(names: list[str]) -> str:
     return f" (did you mean {listing}?)"
 
 
+def _unknown(od: ObjectDictionary, key: str, suggest: bool) -> NameLookupError:
+    close = suggestions(od, key) if suggest else []
+    return NameLookupError(f"no object named {key!r}{_listing(close)}", key=key, suggestions=close)
+
+
 def resolve_object(od: ObjectDictionary, key: int | str, *, suggest: bool = True) -> Object:
-    """The object ``key`` names: an index, an address as text (``"0x1018"``, ``"1018h"``),
-    or a name with case and separators ignored. :class:`NameLookupError` says why none
-    (with the close names unless ``suggest`` is False), or which several."""
+    """The object ``key`` names: an index, its exact EDS name, an address as text
+    (``"0x1018"``, ``"1018h"``), or a name with case and separators ignored.
+    :class:`NameLookupError` says why none (with the close names unless ``suggest`` is
+    False), or which several."""
     if isinstance(key, int) and not isinstance(key, bool):
         obj = od.get(key)
         if obj is None:
@@ -164,14 +177,14 @@ def resolve_object(od: ObjectDictionary, key: int | str, *, suggest: bool = True
             'address such as "0x1018:01"',
             key=key,
         )
+    obj = od.get(key)  # the exact name first: it is what the EDS says
+    if obj is not None:
+        return obj
     address = parse_address(key)
     if address is not None:
         if address[1] is not None:
             raise NameLookupError(f"{key!r} names a sub-object, not an object", key=key)
         return resolve_object(od, address[0])
-    obj = od.get(key)
-    if obj is not None:
-        return obj
     found = _names(od).objects.get(match_key(key), [])
     if len(found) == 1:
         return found[0]
@@ -180,8 +193,7 @@ def resolve_object(od: ObjectDictionary, key: int | str, *, suggest: bool = True
         raise NameLookupError(
             f"{key!r} names several objects ({where}): use the index", key=key, candidates=found
         )
-    close = suggestions(od, key) if suggest else []
-    raise NameLookupError(f"no object named {key!r}{_listing(close)}", key=key, suggestions=close)
+    raise _unknown(od, key, suggest)
 
 
 def resolve(
@@ -194,7 +206,8 @@ def resolve(
     """The variable ``key`` (and ``subindex``) name, in every form people write:
 
     - ``0x1018, 1`` / ``(0x1018, 1)`` / ``"0x1018:01"`` / ``"1018h sub 1"`` — addresses;
-    - ``"Producer heartbeat time"`` — a name, case and separators ignored;
+    - ``"Producer heartbeat time"`` — a name, case and separators ignored (the exact EDS
+      name first, whatever it looks like);
     - ``"Identity object", "Vendor-ID"`` / ``"Identity object.Vendor-ID"`` /
       ``"Identity object[1]"`` — a sub-object of a record or array;
     - ``"Vendor-ID"`` alone — a sub-object by its own name, where only one has it.
@@ -208,6 +221,9 @@ def resolve(
             raise NameLookupError(f"{key!r}: give (index, sub-index) once", key=key)
         key, subindex = key
     if isinstance(key, str) and subindex is None:
+        exact = od.get(key)
+        if exact is not None:
+            return _sub(exact, 0)
         address = parse_address(key)
         if address is not None:
             key, subindex = address
@@ -216,29 +232,32 @@ def resolve(
             if split is not None:
                 return split
     try:
-        obj = resolve_object(od, key, suggest=suggest)
+        obj = resolve_object(od, key, suggest=False)
     except NameLookupError as exc:
-        if isinstance(key, str) and subindex is None and not exc.candidates:
+        if not isinstance(key, str) or exc.candidates or parse_address(key) is not None:
+            raise
+        if subindex is None:
             subs = _names(od).subs.get(match_key(key), [])
             if len(subs) == 1:
                 return subs[0]
-        raise
+        raise _unknown(od, key, suggest) from None
     return _sub(obj, 0 if subindex is None else subindex)
 
 
 def _split(od: ObjectDictionary, text: str) -> Variable | None:
-    """The sub-object ``"Record.Sub"`` or ``"Record[n]"`` names, when the whole text names
+    """The sub-object ``"Record[n]"`` or ``"Record.Sub"`` names, when the whole text names
     no object (None: it is no such form)."""
+    if _names(od).objects.get(match_key(text)):
+        return None  # (a name of an object, case or separators aside)
     match = _SUB_NUMBER.match(text)
-    if match is not None:
+    if match is not None and match.group(1).strip():
         try:
             obj = resolve_object(od, match.group(1), suggest=False)
         except NameLookupError:
-            return None
-        return _sub(obj, int(match.group(2), 0))
-    if "." not in text or od.get(text) is not None:
-        return None
-    if _names(od).objects.get(match_key(text)):
+            obj = None
+        if obj is not None:
+            return _sub(obj, _number(match.group(2)))
+    if "." not in text:
         return None
     for cut in [i for i, c in enumerate(text) if c == "."]:
         try:
@@ -254,7 +273,11 @@ def _sub(obj: Object, subindex: int | str) -> Variable:
     where = f"0x{obj.index:04X} ({obj.name!r})"
     if isinstance(obj, Variable):
         if subindex == 0 or (
-            isinstance(subindex, str) and match_key(subindex) == match_key(obj.name)
+            isinstance(subindex, str)
+            and (
+                subindex.strip() in ("0", "0x0", "0x00")
+                or match_key(subindex) == match_key(obj.name)
+            )
         ):
             return obj
         shown = subindex if isinstance(subindex, int) else repr(subindex)
@@ -262,9 +285,20 @@ def _sub(obj: Object, subindex: int | str) -> Variable:
             f"{where} is a single variable; it has no sub-index {shown}", key=subindex, found=obj
         )
     if isinstance(subindex, str):
-        address = _SUB_TEXT.match(subindex)
-        if address is not None:
-            subindex = int(address.group(1), 0)
+        named = [v for v in obj if v.name == subindex]  # the exact name first
+        if len(named) == 1:
+            return named[0]
+        if named:
+            subs = ", ".join(str(v.subindex) for v in named)
+            raise NameLookupError(
+                f"{where}: {subindex!r} names sub-indices {subs}; use the sub-index",
+                key=subindex,
+                candidates=named,
+                found=obj,
+            )
+        number = _SUB_TEXT.match(subindex)
+        if number is not None:
+            subindex = _number(number.group(1))
     if isinstance(subindex, int) and not isinstance(subindex, bool):
         var = obj.get(subindex)
         if var is None:
@@ -277,8 +311,6 @@ def _sub(obj: Object, subindex: int | str) -> Variable:
         raise NameLookupError(
             f"{subindex!r} is no sub-index or sub-object name", key=subindex, found=obj
         )
-    if subindex in obj:
-        return obj[subindex]
     wanted = match_key(subindex)
     found = [v for v in obj if match_key(v.name) == wanted]
     if len(found) == 1:

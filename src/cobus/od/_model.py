@@ -752,6 +752,7 @@ class ObjectDictionary:
         self._dup_names: dict[str, list[int]] = {}
         self._node_id: int | None = None
         self._name_tables: Any = None  # cobus.od.resolve's, built when first needed
+        self._version = 0  # objects added or removed (the name tables follow it)
         #: Bit rate in bit/s from [DeviceComissioning] (None if not given or 0).
         self.bitrate: int | None = None
         self.file_info = FileInfo()
@@ -849,6 +850,7 @@ class ObjectDictionary:
         if index in self._objects:
             raise ObjectDictionaryError(f"the dictionary already has an object 0x{index:04X}")
         self._objects[index] = obj
+        self._version += 1
         self._sorted = None
         obj._home = self
         name = obj.name
@@ -859,6 +861,7 @@ class ObjectDictionary:
 
     def remove(self, index: int) -> Object:
         obj = self._objects.pop(index)
+        self._version += 1
         obj._home = None
         self._sorted = None
         self._dummies.discard(index)

@@ -10,7 +10,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
-from cobus.od import NameLookupError, match_name, parse_address, resolve, resolve_object
+from cobus.od import NameLookupError, parse_address, resolve, resolve_object
 from cobus.proto import NOTHING, Event, Frame, Out
 from cobus.proto.nmt import NmtCommand, check_node_id, nmt_command_frame
 from cobus.proto.sdo import SdoClient, check_timeout
@@ -245,11 +245,12 @@ class SdoChannel:
             raise self._not_found(exc) from None
 
     def __contains__(self, key: object) -> bool:
-        """Whether the node's dictionary has the object (index, name or ``(index, sub)``)."""
+        """Whether the node's dictionary has what ``sdo[key]`` names (an index, a name,
+        ``(index, sub)``, ``"0x1018:01"``, ``"Record.Sub"``...)."""
         if self.od is None or not isinstance(key, int | str | tuple):
             return False
         try:
-            self.variable(key) if isinstance(key, tuple) else self._object(key)
+            self[key]
         except (ObjectNotFoundError, ValueError, TypeError):
             return False
         return True
@@ -276,7 +277,7 @@ class SdoChannel:
         try:
             if address is not None and address[1] is not None:
                 return SdoVariable(self, resolve(od, key))
-            obj = resolve_object(od, key)
+            obj = resolve_object(od, key, suggest=False)  # ("did you mean": resolve()'s)
         except NameLookupError as exc:
             if exc.candidates or not isinstance(key, str) or address is not None:
                 raise self._not_found(exc) from None
@@ -429,10 +430,14 @@ class SdoRecord:
         return len(self.od)
 
     def __contains__(self, subindex: object) -> bool:
-        """Whether the record has the sub-object (number or name, case ignored)."""
-        if isinstance(subindex, str):
-            return match_name(subindex, [v.name for v in self.od]) is not None
-        return subindex in self.od
+        """Whether the record has the sub-object (number or name, as ``[sub]`` takes it)."""
+        if not isinstance(subindex, int | str):
+            return False
+        try:
+            self.channel.variable(self.od.index, subindex)
+        except ObjectNotFoundError:
+            return False
+        return True
 
 
 class NmtCommands:
