@@ -33,7 +33,7 @@ def test_no_connection_set_literal_outside_its_module() -> None:
 SHARED_NAMES_TODAY = {
     "Command", "Drive402", "Emergency", "Io401", "NmtCommand", "NodeIdInUseError",
     "PdoLengthError", "PdoSet", "Record", "RemoteEmcy", "RemoteNmt", "RemoteNode", "RemotePdo",
-    "SdoRecord", "SdoVariable", "Severity", "SignalError", "StateChanged", "SyncLost",
+    "SdoRecord", "SdoVariable", "Severity", "StateChanged", "SyncLost",
     "SyncService", "TimeReceived",
 }  # fmt: skip
 #: The one module that builds an SDO client: the network's transports, shared per COB-ID pair.

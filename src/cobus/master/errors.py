@@ -84,8 +84,10 @@ class BootTimeoutError(MasterError, TimeoutError):
         )
 
 
-class SignalError(CobusError, KeyError):
-    """A process-image signal name that does not exist (the message lists close names)."""
+class SignalError(CobusError, KeyError, ValueError):
+    """A signal name that does not exist — in a master's process image, or in a trace
+    plotted (:mod:`cobus.trace.plot`); the message lists close names. A ``KeyError`` (a name
+    not found) and a ``ValueError`` (bad input) both."""
 
     def __str__(self) -> str:
         return str(self.args[0]) if self.args else ""

@@ -28,16 +28,13 @@ from pathlib import Path
 from typing import Any
 
 from cobus._args import seconds_or_zero
+from cobus.master.errors import SignalError  # (one name per idea: a signal not found)
 from cobus.od import ObjectDictionary
 from cobus.od._lookup import normalize_name
 from cobus.proto import Frame
 from cobus.trace.decoder import Decoder, PdoRecord
 
 __all__ = ["Series", "SignalError", "collect", "pick", "plot", "register", "window"]
-
-
-class SignalError(ValueError):
-    """A signal asked for is not in the trace (or not a number); the message says which exist."""
 
 
 @dataclass
