@@ -31,7 +31,7 @@ def test_no_connection_set_literal_outside_its_module() -> None:
 
 #: Class names defined more than once today (issue 41 gives each idea one name).
 SHARED_NAMES_TODAY = {
-    "Command", "Drive402", "Emergency", "Io401", "NmtCommand", "NodeIdInUseError",
+    "Drive402", "Emergency", "Io401", "NmtCommand", "NodeIdInUseError",
     "PdoLengthError", "PdoSet", "Record", "RemoteEmcy", "RemoteNmt", "RemoteNode", "RemotePdo",
     "SdoRecord", "SdoVariable", "Severity", "StateChanged", "SyncLost",
     "SyncService", "TimeReceived",
@@ -148,3 +148,17 @@ def test_an_emergency_is_one_record_and_its_events_name_its_fields_alike() -> No
         warnings.simplefilter("always")
         assert node.data == b"\x01" and sent.manufacturer == b"\x02"  # the old names, a release
     assert [w.category for w in caught] == [DeprecationWarning, DeprecationWarning]
+
+
+def test_a_renamed_class_still_imports_with_a_warning() -> None:
+    import warnings
+
+    import cobus.apps.panel as panel
+    from cobus.apps.panel import PanelCommand
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert panel.Command is PanelCommand
+    assert "cobus.apps.panel.Command is now cobus.apps.panel.PanelCommand" in str(caught[0].message)
+    with pytest.raises(AttributeError, match="has no attribute 'Nothing'"):
+        panel.Nothing  # noqa: B018

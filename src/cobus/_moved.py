@@ -6,7 +6,7 @@ from __future__ import annotations
 import warnings
 from typing import Any, NoReturn
 
-__all__ = ["Moved", "Renamed"]
+__all__ = ["Moved", "Renamed", "renamed_names"]
 
 
 class Moved:
@@ -56,3 +56,17 @@ class Renamed:
             stacklevel=2,
         )
         return getattr(obj, self._new)
+
+
+def renamed_names(module: str, names: dict[str, tuple[str, Any]]) -> Any:
+    """A module ``__getattr__`` for public names renamed (old name -> (new name, object)):
+    the old one still imports, for one release, with a :class:`DeprecationWarning`."""
+
+    def __getattr__(name: str) -> Any:
+        if name in names:
+            new, value = names[name]
+            warnings.warn(f"{module}.{name} is now {module}.{new}", DeprecationWarning, 2)
+            return value
+        raise AttributeError(f"module {module!r} has no attribute {name!r}")
+
+    return __getattr__

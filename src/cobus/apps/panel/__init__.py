@@ -11,23 +11,24 @@ files (package data, no build step; uPlot vendored) talking to the server over o
 :mod:`cobus.apps.panel.server` tells the protocol, :mod:`cobus.apps.panel.hub` the queues.
 """
 
+from cobus._moved import renamed_names
 from cobus.apps.panel.alarms import AlarmView, serve_alarms
 from cobus.apps.panel.drives import DriveView, serve_drive, serve_zapi
 from cobus.apps.panel.hub import Client, Hub
 from cobus.apps.panel.network import MasterView, serve_master
 from cobus.apps.panel.parameters import ParameterView, serve_parameters
-from cobus.apps.panel.server import Command, CommandError, Panel, PanelError
+from cobus.apps.panel.server import CommandError, Panel, PanelCommand, PanelError
 from cobus.apps.panel.trace import TraceView, serve_trace
 
 __all__ = [
     "AlarmView",
     "Client",
-    "Command",
     "CommandError",
     "DriveView",
     "Hub",
     "MasterView",
     "Panel",
+    "PanelCommand",
     "PanelError",
     "ParameterView",
     "TraceView",
@@ -38,3 +39,6 @@ __all__ = [
     "serve_trace",
     "serve_zapi",
 ]
+
+# (renamed: cobus.profiles.Command is the CiA 402 controlword command)
+__getattr__ = renamed_names(__name__, {"Command": ("PanelCommand", PanelCommand)})

@@ -52,10 +52,11 @@ from urllib.parse import quote, urlsplit
 
 from aiohttp import WSMsgType, web
 
+from cobus._moved import renamed_names
 from cobus.apps.panel.hub import Client, Hub, _clean
 from cobus.errors import CobusError, clip
 
-__all__ = ["Command", "CommandError", "Panel", "PanelError"]
+__all__ = ["CommandError", "Panel", "PanelCommand", "PanelError"]
 
 log = logging.getLogger(__name__)
 
@@ -96,7 +97,7 @@ Handler = Callable[[Mapping[str, Any]], Awaitable[Any]]
 
 
 @dataclass(frozen=True)
-class Command:
+class PanelCommand:
     """A command pages may send: its handler, and whether it writes to the bus."""
 
     name: str
@@ -157,7 +158,7 @@ class Panel:
         self.hub = Hub(self._now, max_events=max_events, stall=stall)
         self.hub.info.update({"title": title, "needs_token": self.needs_token})
         self.hub.before_snapshot = self._sample
-        self.commands: dict[str, Command] = {}
+        self.commands: dict[str, PanelCommand] = {}
         #: What the views keep on the panel (the drives' command router...), by name.
         self.views: dict[str, Any] = {}
         self._samplers: list[Callable[[], Mapping[str, Any]]] = []
@@ -179,7 +180,7 @@ class Panel:
         value is the ack's result) or raises :class:`CommandError` / ``ValueError``."""
         if name in self.commands or name == "resync":
             raise ValueError(f"the panel already has a command {name!r}")
-        self.commands[name] = Command(name, handler, writes, help)
+        self.commands[name] = PanelCommand(name, handler, writes, help)
 
     def route(
         self,
@@ -461,7 +462,7 @@ class Panel:
         task.add_done_callback(pending.discard)
 
     async def _run(
-        self, client: Client, command: Command, ident: Any, message: Mapping[str, Any]
+        self, client: Client, command: PanelCommand, ident: Any, message: Mapping[str, Any]
     ) -> None:
         try:
             result = await command.handler(message)
@@ -525,3 +526,7 @@ def _error(ident: Any, code: str, text: str) -> dict[str, Any]:
 
 def _refused(status: int, text: str) -> web.Response:
     return web.Response(status=status, text=text + "\n")
+
+
+# (renamed: cobus.profiles.Command is the CiA 402 controlword command)
+__getattr__ = renamed_names(__name__, {"Command": ("PanelCommand", PanelCommand)})
