@@ -11,7 +11,7 @@ import difflib
 import re
 from collections.abc import Iterable
 
-from cobus.od._model import Object, ObjectDictionary, ObjectDictionaryError, Variable
+from cobus.od._model import Array, Object, ObjectDictionary, ObjectDictionaryError, Record, Variable
 
 __all__ = [
     "NameLookupError",
@@ -285,17 +285,9 @@ def _sub(obj: Object, subindex: int | str) -> Variable:
             f"{where} is a single variable; it has no sub-index {shown}", key=subindex, found=obj
         )
     if isinstance(subindex, str):
-        named = [v for v in obj if v.name == subindex]  # the exact name first
-        if len(named) == 1:
-            return named[0]
-        if named:
-            subs = ", ".join(str(v.subindex) for v in named)
-            raise NameLookupError(
-                f"{where}: {subindex!r} names sub-indices {subs}; use the sub-index",
-                key=subindex,
-                candidates=named,
-                found=obj,
-            )
+        named = _one_of(obj, subindex, [v for v in obj if v.name == subindex])  # exact first
+        if named is not None:
+            return named
         number = _SUB_TEXT.match(subindex)
         if number is not None:
             subindex = _number(number.group(1))
@@ -312,17 +304,9 @@ def _sub(obj: Object, subindex: int | str) -> Variable:
             f"{subindex!r} is no sub-index or sub-object name", key=subindex, found=obj
         )
     wanted = match_key(subindex)
-    found = [v for v in obj if match_key(v.name) == wanted]
-    if len(found) == 1:
-        return found[0]
-    if found:
-        subs = ", ".join(str(v.subindex) for v in found)
-        raise NameLookupError(
-            f"{where}: {subindex!r} names sub-indices {subs}; use the sub-index",
-            key=subindex,
-            candidates=found,
-            found=obj,
-        )
+    found = _one_of(obj, subindex, [v for v in obj if match_key(v.name) == wanted])
+    if found is not None:
+        return found
     names = [v.name for v in obj]
     close = difflib.get_close_matches(wanted, [match_key(n) for n in names], n=3, cutoff=0.6)
     near = [n for n in names if match_key(n) in close][:3]
@@ -330,6 +314,19 @@ def _sub(obj: Object, subindex: int | str) -> Variable:
         f"{where} has no sub-object {subindex!r}{_listing(near)}",
         key=subindex,
         suggestions=near,
+        found=obj,
+    )
+
+
+def _one_of(obj: Record | Array, name: str, found: list[Variable]) -> Variable | None:
+    """The one sub-object of ``obj`` that ``name`` matched (None: none did)."""
+    if len(found) < 2:
+        return found[0] if found else None
+    subs = ", ".join(str(v.subindex) for v in found)
+    raise NameLookupError(
+        f"0x{obj.index:04X} ({obj.name!r}): {name!r} names sub-indices {subs}; use the sub-index",
+        key=name,
+        candidates=found,
         found=obj,
     )
 

@@ -26,7 +26,7 @@ from cobus.runtime.sdo_transport import SdoTransport, downloaded, refused_block,
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
 
-    from cobus.od import Array, Object, ObjectDictionary, Record, Variable
+    from cobus.od import Array, ObjectDictionary, Record, Variable
     from cobus.runtime.network import AsyncNetwork, MachineHost
 
 __all__ = [
@@ -237,12 +237,6 @@ class SdoChannel:
 
     def _not_found(self, exc: Exception) -> ObjectNotFoundError:
         return ObjectNotFoundError(f"node {self.node_id}: {exc}")
-
-    def _object(self, index: Key) -> Object:
-        try:
-            return resolve_object(self._od(), index)
-        except NameLookupError as exc:
-            raise self._not_found(exc) from None
 
     def __contains__(self, key: object) -> bool:
         """Whether the node's dictionary has what ``sdo[key]`` names (an index, a name,
