@@ -9,8 +9,8 @@ from cobus.device import (
     SAVE_SIGNATURE,
     DeviceConfigError,
     ParametersStored,
-    PdoLengthError,
     RpdoReceived,
+    WrongLengthRpdoReceived,
 )
 from cobus.device.device import Deviations
 from cobus.proto import Frame
@@ -198,7 +198,7 @@ def test_communication_errors_left_to_the_application():
         await b.start()
         b.send(RPDO1, b"\x01")
         await b.settle()
-        assert len(b.of(PdoLengthError)) == 1
+        assert len(b.of(WrongLengthRpdoReceived)) == 1
         return b.data(EMCY), await b.sdo.read(0x1001, 0)
 
     assert run_bench(scenario, deviations=Deviations(comm_error_emcy=False)) == ([], 0)

@@ -12,10 +12,10 @@ from cobus.device import (
     ConfigurationProblem,
     DeviceConfigError,
     DictionaryBuilder,
-    PdoLengthError,
     RpdoLost,
     RpdoReceived,
     RpdoRestored,
+    WrongLengthRpdoReceived,
     minimal_od,
 )
 from cobus.od import DataType, Variable
@@ -368,7 +368,7 @@ def test_rpdo_of_the_wrong_length():
         await b.settle()
         assert b.device.get(0x2001) == 0
         assert b.data(EMCY) == [bytes.fromhex("1082 11 0000000000")]
-        assert b.of(PdoLengthError) == [PdoLengthError(NODE, 1, 3, 2)]
+        assert b.of(WrongLengthRpdoReceived) == [WrongLengthRpdoReceived(NODE, 1, 3, 2)]
         assert b.device.error_register == 0  # a single event, no lasting error
         b.send(RPDO1, b"\x05\x00\x01\xff")  # one byte long: processed, reported
         await b.settle()

@@ -32,7 +32,7 @@ def test_no_connection_set_literal_outside_its_module() -> None:
 #: Class names defined more than once today (issue 41 gives each idea one name).
 SHARED_NAMES_TODAY = {
     "Drive402", "Emergency", "Io401", "NmtCommand", "NodeIdInUseError",
-    "PdoLengthError", "PdoSet", "Record", "RemoteEmcy", "RemoteNmt", "RemoteNode", "RemotePdo",
+    "PdoSet", "Record", "RemoteEmcy", "RemoteNmt", "RemoteNode", "RemotePdo",
     "SdoRecord", "SdoVariable", "Severity", "StateChanged", "SyncLost",
     "SyncService", "TimeReceived",
 }  # fmt: skip
@@ -162,3 +162,11 @@ def test_a_renamed_class_still_imports_with_a_warning() -> None:
     assert "cobus.apps.panel.Command is now cobus.apps.panel.PanelCommand" in str(caught[0].message)
     with pytest.raises(AttributeError, match="has no attribute 'Nothing'"):
         panel.Nothing  # noqa: B018
+
+    import cobus.device as device
+    import cobus.device.events as events
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert device.PdoLengthError is events.PdoLengthError is device.WrongLengthRpdoReceived
+    assert len(caught) == 2 and "is now" in str(caught[0].message)

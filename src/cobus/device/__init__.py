@@ -33,6 +33,7 @@ no service names another's objects. :class:`Device` (``device.py``) assembles th
 routes the NMT state to them; ``test_device_layout.py`` keeps each index in its service.
 """
 
+from cobus._moved import renamed_names
 from cobus.device.add import add_device
 from cobus.device.blocking import BlockingDevice
 from cobus.device.device import (
@@ -68,7 +69,6 @@ from cobus.device.events import (
     NodeIdChanged,
     ParametersRestored,
     ParametersStored,
-    PdoLengthError,
     RpdoLost,
     RpdoReceived,
     RpdoRestored,
@@ -77,6 +77,7 @@ from cobus.device.events import (
     SyncLost,
     SyncRestored,
     TimeReceived,
+    WrongLengthRpdoReceived,
 )
 from cobus.device.simulation import Simulation
 from cobus.device.storage import FileStorage, MemoryStorage, ParameterStorage
@@ -113,7 +114,6 @@ __all__ = [
     "ParameterStorage",
     "ParametersRestored",
     "ParametersStored",
-    "PdoLengthError",
     "RpdoLost",
     "RpdoReceived",
     "RpdoRestored",
@@ -124,7 +124,13 @@ __all__ = [
     "SyncLost",
     "SyncRestored",
     "TimeReceived",
+    "WrongLengthRpdoReceived",
     "add_device",
     "export_eds",
     "minimal_od",
 ]
+
+
+__getattr__ = renamed_names(
+    __name__, {"PdoLengthError": ("WrongLengthRpdoReceived", WrongLengthRpdoReceived)}
+)

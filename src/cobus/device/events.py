@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
-from cobus._moved import Renamed
+from cobus._moved import Renamed, renamed_names
 from cobus.proto import Event
 from cobus.proto.nmt import NmtCommand, NmtState
 
@@ -29,7 +29,6 @@ __all__ = [
     "NodeIdChanged",
     "ParametersRestored",
     "ParametersStored",
-    "PdoLengthError",
     "RpdoLost",
     "RpdoReceived",
     "RpdoRestored",
@@ -38,6 +37,7 @@ __all__ = [
     "SyncLost",
     "SyncRestored",
     "TimeReceived",
+    "WrongLengthRpdoReceived",
 ]
 
 
@@ -107,8 +107,9 @@ class RpdoRestored(DeviceEvent):
 
 
 @dataclass(frozen=True, slots=True)
-class PdoLengthError(DeviceEvent):
-    """RPDO ``number`` had ``received`` bytes where its mapping takes ``expected``.
+class WrongLengthRpdoReceived(DeviceEvent):
+    """RPDO ``number`` came with ``received`` bytes where its mapping takes ``expected``
+    (an event, named as one: it was ``PdoLengthError``, the name of proto's exception).
 
     Shorter: not processed, EMCY 8210h; longer: processed, EMCY 8220h."""
 
@@ -209,3 +210,8 @@ class NodeIdChanged(DeviceEvent):
     """The device changed its node-ID from ``old`` to ``node_id``."""
 
     old: int
+
+
+__getattr__ = renamed_names(
+    __name__, {"PdoLengthError": ("WrongLengthRpdoReceived", WrongLengthRpdoReceived)}
+)

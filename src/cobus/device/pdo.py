@@ -27,7 +27,7 @@ from cobus.device._objects import RW, U8, U16, U32, composite
 from cobus.device._pdo_machines import Rpdo, Tpdo, check_mapping_entry, compile_mapping
 from cobus.device.emcy import COMM_BIT, EmcyService
 from cobus.device.errors import DeviceConfigError
-from cobus.device.events import PdoLengthError, RpdoLost, RpdoReceived, RpdoRestored
+from cobus.device.events import RpdoLost, RpdoReceived, RpdoRestored, WrongLengthRpdoReceived
 from cobus.errors import CobusError
 from cobus.od import Array, DataType, NodeRelative, ObjectDictionary, Record
 from cobus.proto import NOTHING, Event, Frame
@@ -404,10 +404,14 @@ class PdoService:
         node = self._core.node_id
         if isinstance(event, RpdoTooShort):
             self._emcy.one_shot(EmcyCode.PDO_LENGTH_ERROR, COMM_BIT)
-            self._core.emit(PdoLengthError(node, rpdo.number, event.expected, event.received))
+            self._core.emit(
+                WrongLengthRpdoReceived(node, rpdo.number, event.expected, event.received)
+            )
         elif isinstance(event, RpdoTooLong):
             self._emcy.one_shot(EmcyCode.PDO_LENGTH_EXCEEDED, COMM_BIT)
-            self._core.emit(PdoLengthError(node, rpdo.number, event.expected, event.received))
+            self._core.emit(
+                WrongLengthRpdoReceived(node, rpdo.number, event.expected, event.received)
+            )
         elif isinstance(event, RpdoTimeout):
             self._emcy.raise_error(("rpdo", rpdo.number), EmcyCode.RPDO_TIMEOUT, COMM_BIT)
             self._core.emit(RpdoLost(node, rpdo.number, event.cob_id))
