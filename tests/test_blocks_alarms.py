@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from cobus.blocks.alarm_history import AlarmHistory, AlarmHistoryError
-from cobus.blocks.alarm_texts import MasterAlarm, Severity, table_text
+from cobus.blocks.alarm_texts import AlarmSeverity, MasterAlarm, table_text
 from cobus.blocks.alarms import (
     AlarmAcknowledged,
     AlarmCleared,
@@ -119,7 +119,7 @@ def test_each_activation_and_clearing_is_logged_exactly_once(tmp_path: Path) -> 
 def test_rules_combine_conditions_with_and_or_not() -> None:
     h, _ = handler()
     h.add_rule(101, "overtemp and not fan_ok or door_open", text="cabinet too hot")
-    h.add_rule(102, "estop", text="emergency stop", severity=Severity.WARNING)
+    h.add_rule(102, "estop", text="emergency stop", severity=AlarmSeverity.WARNING)
     assert h.active == ()
     h.set_conditions({"overtemp": True, "fan_ok": True})
     assert h.active == ()
@@ -129,7 +129,7 @@ def test_rules_combine_conditions_with_and_or_not() -> None:
     assert [a.code for a in h.active] == [101]
     h.set_condition("door_open", False)
     h.set_condition("estop", True)
-    assert [(a.code, a.severity) for a in h.active] == [(102, Severity.WARNING)]
+    assert [(a.code, a.severity) for a in h.active] == [(102, AlarmSeverity.WARNING)]
     for bad, reason in (
         ("", "write conditions"),
         ("a and", "does not read"),
@@ -210,13 +210,13 @@ def test_history_queries_csv_and_retention(tmp_path: Path) -> None:
 def test_a_restart_keeps_the_history_and_the_active_alarms(tmp_path: Path) -> None:
     h, clock = handler(tmp_path)
     h.raise_alarm("zapi", 17, node=8)
-    h.raise_alarm("plant", 5, text="low air pressure", severity=Severity.WARNING)
+    h.raise_alarm("plant", 5, text="low air pressure", severity=AlarmSeverity.WARNING)
     h.acknowledge(by="anna")
     h.close()
     again, clock = handler(tmp_path)  # the program starts again
     assert [(a.code, a.acknowledged_by, a.severity) for a in again.active] == [
-        (17, "anna", Severity.ALARM),
-        (5, "anna", Severity.WARNING),
+        (17, "anna", AlarmSeverity.ALARM),
+        (5, "anna", AlarmSeverity.WARNING),
     ]
     again.set_code("zapi", 17, node=8)  # the source reports it again: no new row
     clock.now = 4.0
@@ -448,7 +448,7 @@ def test_a_broken_history_loses_no_alarm_and_says_so(tmp_path: Path) -> None:
     h.raise_alarm("zapi", 17, node=8)
     assert [(a.source, a.code) for a in h.active] == [("zapi", 17), ("history", 1)]
     assert h.history_problem is not None and "cannot be written" in h.history_problem
-    assert h.active[1].severity is Severity.WARNING
+    assert h.active[1].severity is AlarmSeverity.WARNING
     assert h.clear_alarm("zapi", 17, node=8)
     assert [type(e) for e in events] == [AlarmRaised, AlarmRaised, AlarmCleared]
 
@@ -480,14 +480,14 @@ def test_odd_inputs() -> None:
         h.set_conditions({"a": True, "b": 1})
     assert h.conditions == {} and h.active == ()  # nothing half-set
     h.raise_alarm("p", 1, severity="warning")
-    h.raise_alarm("p", 2, severity=Severity.ALARM)
+    h.raise_alarm("p", 2, severity=AlarmSeverity.ALARM)
     clock.now = 100.0
     assert shown(h) == 2  # (2 of 1, 2 after 100 s)
     clock.now = 10.0  # the clock set back: rotation goes on from there
     assert shown(h) == 2
     clock.now = 13.0
     assert shown(h) == 1
-    assert h.highest_severity is Severity.ALARM and h.unacknowledged == 2
+    assert h.highest_severity is AlarmSeverity.ALARM and h.unacknowledged == 2
     assert [a.code for a in h.select(min_severity="alarm")] == [2]
     with pytest.raises(ValueError, match="severity 'loud'"):
         h.raise_alarm("p", 3, severity="loud")
@@ -595,7 +595,7 @@ def test_the_handler_starts_on_a_damaged_history_moving_it_aside(tmp_path: Path)
             assert h.history_moved is not None and h.history_moved.read_bytes() == damaged
             assert h.history_moved.name.startswith(f"{path.name}.damaged-")
             (warning,) = [a for a in h.active if a.source == "history"]
-            assert warning.code == 2 and warning.severity is Severity.WARNING
+            assert warning.code == 2 and warning.severity is AlarmSeverity.WARNING
             assert "was damaged (" in warning.text and h.history_moved.name in warning.text
             assert [r.code for r in h.history.query()] == [17]  # a new file
         else:

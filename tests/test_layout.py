@@ -33,7 +33,7 @@ def test_no_connection_set_literal_outside_its_module() -> None:
 SHARED_NAMES_TODAY = {
     "Drive402", "Emergency", "Io401", "NmtCommand", "NodeIdInUseError",
     "PdoSet", "Record", "RemoteEmcy", "RemoteNmt", "RemoteNode", "RemotePdo",
-    "SdoRecord", "SdoVariable", "Severity", "StateChanged", "SyncLost",
+    "SdoRecord", "SdoVariable", "StateChanged", "SyncLost",
     "SyncService", "TimeReceived",
 }  # fmt: skip
 #: The one module that builds an SDO client: the network's transports, shared per COB-ID pair.
@@ -170,3 +170,10 @@ def test_a_renamed_class_still_imports_with_a_warning() -> None:
         warnings.simplefilter("always")
         assert device.PdoLengthError is events.PdoLengthError is device.WrongLengthRpdoReceived
     assert len(caught) == 2 and "is now" in str(caught[0].message)
+
+    import cobus.blocks as blocks
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert blocks.Severity is blocks.AlarmSeverity
+    assert "cobus.blocks.Severity is now cobus.blocks.AlarmSeverity" in str(caught[0].message)

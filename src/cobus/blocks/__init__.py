@@ -13,13 +13,14 @@ master, the drive profiles and any node with an SDO server.
   ``docs/network-variables.md``).
 """
 
+from cobus._moved import renamed_names
 from cobus.blocks.alarm_history import (
     AlarmHistory,
     AlarmHistoryDamagedError,
     AlarmHistoryError,
     AlarmRecord,
 )
-from cobus.blocks.alarm_texts import MasterAlarm, Severity, table_text
+from cobus.blocks.alarm_texts import AlarmSeverity, MasterAlarm, table_text
 from cobus.blocks.alarms import (
     Alarm,
     AlarmAcknowledged,
@@ -77,6 +78,7 @@ __all__ = [
     "AlarmRaised",
     "AlarmRecord",
     "AlarmRuleError",
+    "AlarmSeverity",
     "AsyncNetworkVariables",
     "AsyncParameterManager",
     "CommandsInSetError",
@@ -100,7 +102,6 @@ __all__ = [
     "ParameterStep",
     "Parameterise",
     "SaveCommand",
-    "Severity",
     "VarList",
     "load_netvars",
     "load_parameters",
@@ -108,3 +109,7 @@ __all__ = [
     "loads_parameters",
     "table_text",
 ]
+
+
+# (renamed: cobus.od.Severity is the severity of an EDS finding)
+__getattr__ = renamed_names(__name__, {"Severity": ("AlarmSeverity", AlarmSeverity)})

@@ -23,12 +23,13 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 from cobus._enum import NamedIntEnum
+from cobus._moved import renamed_names
 from cobus.proto.emcy import describe
 
-__all__ = ["ALIASES", "TABLES", "MasterAlarm", "Severity", "Table", "emcy_text", "table_text"]
+__all__ = ["ALIASES", "TABLES", "AlarmSeverity", "MasterAlarm", "Table", "emcy_text", "table_text"]
 
 
-class Severity(NamedIntEnum):
+class AlarmSeverity(NamedIntEnum):
     """How bad an alarm is (ordered: a higher one is worse)."""
 
     INFO = 0
@@ -36,7 +37,7 @@ class Severity(NamedIntEnum):
     ALARM = 2
 
     @classmethod
-    def of(cls, value: Severity | int | str) -> Severity:
+    def of(cls, value: AlarmSeverity | int | str) -> AlarmSeverity:
         """A severity from itself, its number or its name (``"warning"``)."""
         if isinstance(value, str):
             try:
@@ -84,7 +85,7 @@ class Table:
     description: str
     text: Callable[[int], str]
     #: The severity an alarm of this table gets unless the caller says otherwise.
-    severity: Severity = Severity.ALARM
+    severity: AlarmSeverity = AlarmSeverity.ALARM
     #: The code that means "no alarm" (besides 0).
     no_alarm: int = 0
     #: Whether the table can name an EMCY error code (for :func:`emcy_text`).
@@ -174,3 +175,7 @@ def emcy_text(table: str, code: int) -> str:
                 return f"{text} (E82 {number})"
         return _cia301(code)
     return found.text(code)
+
+
+# (renamed: cobus.od.Severity is the severity of an EDS finding)
+__getattr__ = renamed_names(__name__, {"Severity": ("AlarmSeverity", AlarmSeverity)})

@@ -39,7 +39,14 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from cobus.blocks.alarm_history import AlarmHistory, AlarmHistoryDamagedError, AlarmHistoryError
-from cobus.blocks.alarm_texts import ALIASES, TABLES, MasterAlarm, Severity, emcy_text, table_text
+from cobus.blocks.alarm_texts import (
+    ALIASES,
+    TABLES,
+    AlarmSeverity,
+    MasterAlarm,
+    emcy_text,
+    table_text,
+)
 from cobus.errors import CobusError
 
 __all__ = [
@@ -86,7 +93,7 @@ class Alarm:
     node: int | None
     code: int
     text: str
-    severity: Severity
+    severity: AlarmSeverity
     raised_at: float
     acknowledged_by: str | None = None
     row: int | None = field(default=None, repr=False)
@@ -142,7 +149,7 @@ class _Rule:
     code: Any  # the compiled check
     names: frozenset[str]
     text: str
-    severity: Severity
+    severity: AlarmSeverity
 
 
 _ALLOWED = (ast.Expression, ast.BoolOp, ast.And, ast.Or, ast.UnaryOp, ast.Not, ast.Name, ast.Load)
@@ -251,7 +258,7 @@ class AlarmHandler:
             if self.history_moved is not None:
                 text += f": it was kept as {self.history_moved.name}, a new one started"
             log.warning("%s", text)
-            self._raise_unlogged("history", 2, text, Severity.WARNING)
+            self._raise_unlogged("history", 2, text, AlarmSeverity.WARNING)
         if history is not None:
             self._adopt(history)
 
@@ -261,9 +268,9 @@ class AlarmHandler:
         records = self._log("reading the active alarms", lambda: history.query(active=True))
         for record in reversed(records or []):
             try:
-                severity = Severity.of(record.severity)
+                severity = AlarmSeverity.of(record.severity)
             except ValueError:
-                severity = Severity.ALARM
+                severity = AlarmSeverity.ALARM
             alarm = Alarm(
                 record.source,
                 record.node,
@@ -329,14 +336,14 @@ class AlarmHandler:
             first = self.history_problem is None
             self.history_problem = problem
             if first:
-                self._raise_unlogged("history", 1, problem, Severity.WARNING)
+                self._raise_unlogged("history", 1, problem, AlarmSeverity.WARNING)
             return None
         if self.history_problem is not None:
             self.history_problem = None
             self._clear_unlogged("history", 1)
         return result
 
-    def _raise_unlogged(self, source: str, code: int, text: str, severity: Severity) -> None:
+    def _raise_unlogged(self, source: str, code: int, text: str, severity: AlarmSeverity) -> None:
         key = (source, None, code)
         if key not in self._active:
             alarm = Alarm(source, None, code, text, severity, self.wall_clock())
@@ -382,7 +389,7 @@ class AlarmHandler:
         *,
         node: int | None = None,
         text: str | None = None,
-        severity: Severity | None = None,
+        severity: AlarmSeverity | None = None,
         table: str | None = None,
     ) -> Alarm:
         """Make alarm (``source``, ``node``, ``code``) active (nothing changes if it is);
@@ -400,9 +407,9 @@ class AlarmHandler:
         tab = TABLES.get(ALIASES.get(table or source, table or source))
         if text is None:
             text = tab.text(code) if tab is not None else f"alarm {code}"
-        level = Severity.of(severity) if severity is not None else None
+        level = AlarmSeverity.of(severity) if severity is not None else None
         if level is None:
-            level = tab.severity if tab is not None else Severity.ALARM
+            level = tab.severity if tab is not None else AlarmSeverity.ALARM
         alarm = Alarm(source, node, code, text, level, self.wall_clock())
         self._insert(alarm)  # active and announced first: a history failure loses nothing
         alarm.row = self._log(
@@ -498,7 +505,7 @@ class AlarmHandler:
         when: str,
         *,
         text: str,
-        severity: Severity = Severity.ALARM,
+        severity: AlarmSeverity = AlarmSeverity.ALARM,
     ) -> None:
         """Alarm ``number`` (source ``"rule"``) is active while the conditions ``when``
         holds: names of boolean conditions joined by ``and``, ``or``, ``not`` and brackets,
@@ -508,7 +515,7 @@ class AlarmHandler:
         if number in self._rules:
             raise AlarmRuleError(f"there is a rule {number} already ({self._rules[number].text})")
         code, names = _compile_rule(when)
-        self._rules[number] = _Rule(number, when, code, names, text, Severity.of(severity))
+        self._rules[number] = _Rule(number, when, code, names, text, AlarmSeverity.of(severity))
         self._evaluate([self._rules[number]])
 
     def set_condition(self, name: str, value: bool) -> None:
@@ -603,12 +610,12 @@ class AlarmHandler:
         *,
         node: int | None = None,
         source: str | None = None,
-        min_severity: Severity | int | str | None = None,
+        min_severity: AlarmSeverity | int | str | None = None,
         unacknowledged: bool = False,
     ) -> tuple[Alarm, ...]:
         """The active alarms of ``node``/``source`` (None: any), at least ``min_severity``,
         only those not acknowledged yet (``unacknowledged``), oldest first."""
-        low = Severity.of(min_severity) if min_severity is not None else None
+        low = AlarmSeverity.of(min_severity) if min_severity is not None else None
         return tuple(
             a
             for a in self._active.values()
@@ -619,7 +626,7 @@ class AlarmHandler:
         )
 
     @property
-    def highest_severity(self) -> Severity | None:
+    def highest_severity(self) -> AlarmSeverity | None:
         """The worst severity among the active alarms (None: none active) — for a horn or
         a lamp."""
         return max((a.severity for a in self.active), default=None)
@@ -734,7 +741,7 @@ class AlarmHandler:
                     "master",
                     MasterAlarm.ERROR_PASSIVE,
                     text=table_text("master", MasterAlarm.ERROR_PASSIVE),
-                    severity=Severity.WARNING,
+                    severity=AlarmSeverity.WARNING,
                 )
             else:
                 clear(None, MasterAlarm.BUS_OFF, MasterAlarm.ERROR_PASSIVE)
