@@ -493,40 +493,35 @@ class DriveView:
     def _speed(self, value: Any) -> Any:
         """The signed speed asked for, checked: finite, within INTEGER32 and the drive's max
         profile velocity 607Fh (both in increments: the limits are turned into user units)."""
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ValueError(f"value {clip(repr(value))}: a signed speed in {self._unit()}")
-        if isinstance(value, float) and not math.isfinite(value):
-            raise ValueError(f"value {value}: a finite speed in {self._unit()}")
         scale = self.drive.scale
-        low, high = _INT32[0] / scale, _INT32[1] / scale
-        limit = "INTEGER32"
-        if self.max_velocity is not None:
+        if self.max_velocity is None:
+            low, high, limit = _INT32[0] / scale, _INT32[1] / scale, "INTEGER32"
+        else:
             low, high = -self.max_velocity / scale, self.max_velocity / scale
             limit = "its max profile velocity 607Fh"
-        if not low <= value <= high:  # (an int beyond any float compares right too)
-            raise ValueError(
-                f"value {clip(repr(value))}: {low:g}..{high:g} {self._unit()} ({limit})"
-            )
-        if scale == 1.0:
-            if value != int(value):
-                raise ValueError(f"value {value}: a whole number of {self._unit()}")
-            return int(value)
-        return value
+        return self._number(value, "speed", self._unit(), (low, high), limit)
 
     def _target(self, value: Any, relative: bool) -> Any:
         """The position (or, ``relative``, the distance) asked for in user units, checked:
         a finite number within INTEGER32 (the limits 607Dh are checked by the caller)."""
-        unit = self.drive.unit
+        scale = self.drive.scale
         what = "distance" if relative else "position"
+        bounds = (_INT32[0] / scale, _INT32[1] / scale)
+        return self._number(value, what, self.drive.unit, bounds, "INTEGER32")
+
+    def _number(
+        self, value: Any, what: str, unit: str, bounds: tuple[float, float], limit: str
+    ) -> Any:
+        """``value`` as a signed ``what`` in ``unit``: a finite number within ``bounds``
+        (``limit`` names them), whole where the drive has no scale."""
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ValueError(f"value {clip(repr(value))}: a signed {what} in {unit}")
         if isinstance(value, float) and not math.isfinite(value):
             raise ValueError(f"value {value}: a finite {what} in {unit}")
-        scale = self.drive.scale
-        low, high = _INT32[0] / scale, _INT32[1] / scale
-        if not low <= value <= high:
-            raise ValueError(f"value {clip(repr(value))}: {low:g}..{high:g} {unit} (INTEGER32)")
-        if scale == 1.0:
+        low, high = bounds
+        if not low <= value <= high:  # (an int beyond any float compares right too)
+            raise ValueError(f"value {clip(repr(value))}: {low:g}..{high:g} {unit} ({limit})")
+        if self.drive.scale == 1.0:
             if value != int(value):
                 raise ValueError(f"value {value}: a whole number of {unit}")
             return int(value)
