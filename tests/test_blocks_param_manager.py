@@ -24,7 +24,7 @@ from cobus.od import DataType, ObjectDictionary, loads
 from cobus.proto import Frame
 from cobus.proto.sdo import SdoAbort, SdoAbortCode
 from cobus.runtime import AsyncNetwork
-from cobus.runtime.remote import RemoteNode
+from cobus.runtime.remote import AsyncRemoteNode
 from cobus.sim.zapi import ZapiAce2
 
 from .util import simulate
@@ -46,7 +46,9 @@ parameters:
 
 
 class Bench:
-    def __init__(self, net: AsyncNetwork, zapi: ZapiAce2, node: RemoteNode, od: ObjectDictionary):
+    def __init__(
+        self, net: AsyncNetwork, zapi: ZapiAce2, node: AsyncRemoteNode, od: ObjectDictionary
+    ):
         self.net, self.zapi, self.node, self.od = net, zapi, node, od
         self.frames: list[Frame] = []
         net.subscribe_all(lambda frame, now: self.frames.append(frame))

@@ -1,5 +1,5 @@
 """Shared set-up of the device tests: a test dictionary, a simulated network with the device
-and a cobus RemoteNode as the master, and a log of every frame on the bus."""
+and a cobus AsyncRemoteNode as the master, and a log of every frame on the bus."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from cobus.od import DataType, ObjectDictionary, loads
 from cobus.proto import Event, Frame
 from cobus.proto.nmt import NmtState
 from cobus.runtime import AsyncNetwork, SimulatedEventLoop
-from cobus.runtime.remote import RemoteNode
+from cobus.runtime.remote import AsyncRemoteNode
 
 T = TypeVar("T")
 NODE = 5
@@ -58,7 +58,7 @@ class Bench:
         self,
         net: AsyncNetwork,
         device: Device,
-        master: RemoteNode,
+        master: AsyncRemoteNode,
         frames: list[tuple[float, Frame]],
         events: list[Event],
     ) -> None:

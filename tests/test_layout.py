@@ -32,9 +32,7 @@ def test_no_connection_set_literal_outside_its_module() -> None:
 #: Class names defined more than once today (issue 41 gives each idea one name).
 SHARED_NAMES_TODAY = {
     "Drive402", "Emergency", "Io401", "NmtCommand", "NodeIdInUseError",
-    "PdoSet", "Record", "RemoteEmcy", "RemoteNmt", "RemoteNode", "RemotePdo",
-    "SdoRecord", "SdoVariable", "StateChanged", "SyncLost",
-    "SyncService", "TimeReceived",
+    "Record", "StateChanged", "SyncLost", "SyncService", "TimeReceived",
 }  # fmt: skip
 #: The one module that builds an SDO client: the network's transports, shared per COB-ID pair.
 SDO_CLIENT_BUILDERS = {"runtime/sdo_transport.py"}
@@ -177,3 +175,31 @@ def test_a_renamed_class_still_imports_with_a_warning() -> None:
         warnings.simplefilter("always")
         assert blocks.Severity is blocks.AlarmSeverity
     assert "cobus.blocks.Severity is now cobus.blocks.AlarmSeverity" in str(caught[0].message)
+
+
+#: (module, old name, new name): one name per idea, the old name importable for one release.
+RENAMED_CLASSES = [
+    ("cobus.runtime.remote", "RemoteNode", "AsyncRemoteNode"),
+    ("cobus.runtime.remote", "SdoVariable", "AsyncSdoVariable"),
+    ("cobus.runtime.remote", "SdoRecord", "AsyncSdoRecord"),
+    ("cobus.runtime.nmt", "RemoteNmt", "AsyncRemoteNmt"),
+    ("cobus.runtime.emcy", "RemoteEmcy", "AsyncRemoteEmcy"),
+    ("cobus.runtime.pdo", "RemotePdo", "AsyncRemotePdo"),
+    ("cobus.runtime.pdo", "PdoSet", "AsyncPdoSet"),
+]
+
+
+@pytest.mark.parametrize(("module", "old", "new"), RENAMED_CLASSES)
+def test_an_old_class_name_imports_with_a_warning_naming_the_new_one(
+    module: str, old: str, new: str
+) -> None:
+    import importlib
+    import warnings
+
+    mod = importlib.import_module(module)
+    assert new in mod.__all__ and old not in mod.__all__
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert getattr(mod, old) is getattr(mod, new)
+    assert [w.category for w in caught] == [DeprecationWarning]
+    assert f"{module}.{old} is now {module}.{new}" in str(caught[0].message)

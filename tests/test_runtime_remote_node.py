@@ -388,14 +388,14 @@ def test_every_async_operation_has_its_blocking_twin():
     from cobus.sim import Rig, SimulatedDevice
 
     expected = {
-        remote.RemoteNode: blocking.RemoteNode,
+        remote.AsyncRemoteNode: blocking.RemoteNode,
         remote.SdoChannel: blocking.BlockingSdo,
-        remote.SdoVariable: blocking.SdoVariable,
-        remote.SdoRecord: blocking.SdoRecord,
-        nmt.RemoteNmt: blocking.RemoteNmt,
-        emcy.RemoteEmcy: blocking.RemoteEmcy,
-        pdo.RemotePdo: blocking.RemotePdo,
-        pdo.PdoSet: blocking.PdoSet,
+        remote.AsyncSdoVariable: blocking.SdoVariable,
+        remote.AsyncSdoRecord: blocking.SdoRecord,
+        nmt.AsyncRemoteNmt: blocking.RemoteNmt,
+        emcy.AsyncRemoteEmcy: blocking.RemoteEmcy,
+        pdo.AsyncRemotePdo: blocking.RemotePdo,
+        pdo.AsyncPdoSet: blocking.PdoSet,
         Rig: cobus.sim.blocking.BlockingRig,
         SimulatedDevice: cobus.sim.blocking.BlockingSimulatedDevice,
         Master: BlockingMaster,

@@ -16,7 +16,7 @@ from cobus.master import ManagedNode
 from cobus.proto import Event
 from cobus.proto.sdo import SdoTimeoutError, UploadDone
 from cobus.runtime import AsyncNetwork, NetworkClosedError
-from cobus.runtime.remote import RemoteNode, SdoChannel
+from cobus.runtime.remote import AsyncRemoteNode, SdoChannel
 from tests.test_master_support import Rig, io_od, network, rig_test, simulate
 
 NET = """master: {node_id: 127, heartbeat_time: 100}
@@ -35,7 +35,7 @@ def _aborts(rig: Rig) -> list[bytes]:
     return [d for cob in (0x60A, 0x58A) for d in rig.data(cob) if d[:1] == b"\x80"]
 
 
-async def _booted(rig: Rig) -> tuple[RemoteNode, ManagedNode]:
+async def _booted(rig: Rig) -> tuple[AsyncRemoteNode, ManagedNode]:
     """Node 10 booted by the master, and a remote node for it on the same network."""
     rig.add(10, io_od())
     await rig.master.boot(timeout=5)

@@ -17,7 +17,7 @@ import pytest
 from cobus.proto import Frame
 from cobus.proto.sdo import SdoAbortCode, SdoAbortedError
 from cobus.runtime import AsyncNetwork
-from cobus.runtime.remote import RemoteNode, SdoChannel
+from cobus.runtime.remote import AsyncRemoteNode, SdoChannel
 from cobus.sim import SimulatedDevice, SimulationError, UnknownFaultError
 from cobus.sim.stober import EVENTS, STATES, StoberMds5000, parameter_index
 from tests.golden import Case, load
@@ -59,7 +59,7 @@ class Rig:
         self.drive = drive
         self.frames: list[tuple[float, Frame]] = []
         net.subscribe_all(lambda frame, now: self.frames.append((round(now, 6), frame)))
-        self.master: RemoteNode = net.add_remote(NODE)
+        self.master: AsyncRemoteNode = net.add_remote(NODE)
         self.sdo: SdoChannel = self.master.sdo
 
     def on(self, cob_id: int, since: float = -1.0) -> list[Frame]:

@@ -1,4 +1,4 @@
-"""Shared set-up of the simulation tests: a simulated network with a cobus RemoteNode as the
+"""Shared set-up of the simulation tests: a simulated network with a cobus AsyncRemoteNode as the
 master of a simulated device, a log of every frame, and waiting on the virtual clock."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from cobus.device import export_eds
 from cobus.od import loads
 from cobus.proto import Event, Frame
 from cobus.runtime import AsyncNetwork, SimulatedEventLoop
-from cobus.runtime.remote import RemoteNode
+from cobus.runtime.remote import AsyncRemoteNode
 from cobus.sim.generic import CanopenSimDevice
 
 T = TypeVar("T")
@@ -28,7 +28,7 @@ def simulate(coro: Coroutine[Any, Any, T]) -> T:
 class SimBench:
     """A simulated device, a master for it, and what happened on the network."""
 
-    def __init__(self, net: AsyncNetwork, sim: CanopenSimDevice, master: RemoteNode) -> None:
+    def __init__(self, net: AsyncNetwork, sim: CanopenSimDevice, master: AsyncRemoteNode) -> None:
         self.net = net
         #: the simulated device (typed loosely: each test knows which kind it made)
         self.sim: Any = sim

@@ -68,7 +68,7 @@ from cobus.profiles.zapi import AsyncZapiDrive, ZapiError
 from cobus.proto.nmt import NmtState
 from cobus.runtime import AsyncNetwork, SimulatedEventLoop
 from cobus.runtime.emcy import Emergency
-from cobus.runtime.remote import RemoteNode
+from cobus.runtime.remote import AsyncRemoteNode
 from cobus.sim.rig import Rig, ready_rig
 
 __all__ = ["DEMO_FAULTS", "Demo", "register", "run"]
@@ -128,7 +128,7 @@ class Demo:
         self.master_net = AsyncNetwork(interface="virtual", channel=self.channel)
         self.master: Master | None = None
         #: Every rig node as the master's network sees it: heartbeats and emergencies.
-        self.watch: dict[int, RemoteNode] = {}
+        self.watch: dict[int, AsyncRemoteNode] = {}
         #: The text of the last master event about each node.
         self.events: dict[int, str] = {}
         self.started_at = 0.0
@@ -370,7 +370,7 @@ class Demo:
         return rows
 
 
-def _heartbeat(node: RemoteNode, now: float) -> str:
+def _heartbeat(node: AsyncRemoteNode, now: float) -> str:
     """How recent the node's heartbeat is, or why there is none to show."""
     nmt = node.nmt
     if nmt.last_heard is None:

@@ -1,6 +1,6 @@
 """The narrow port a drive profile talks through: SDO bytes, the newest TPDO value of an
 object, RPDO outputs, the last emergency. One implementation per kind of node: a bare
-:class:`~cobus.runtime.remote.RemoteNode`, or a node the :class:`~cobus.master.Master`
+:class:`~cobus.runtime.remote.AsyncRemoteNode`, or a node the :class:`~cobus.master.Master`
 manages (its process image carries the PDOs)."""
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from cobus.runtime.emcy import Emergency
     from cobus.runtime.network import AsyncNetwork
     from cobus.runtime.pdo import PdoReceived
-    from cobus.runtime.remote import RemoteNode
+    from cobus.runtime.remote import AsyncRemoteNode
 
 __all__ = ["DrivePort", "ManagedNodePort", "RemoteNodePort", "port_for"]
 
@@ -76,7 +76,7 @@ class RemoteNodePort:
     read or loaded (``node.tpdo.read()``); outputs go by SDO (an RPDO of a bare node would
     send its other mapped objects too, with values the drive does not own)."""
 
-    def __init__(self, node: RemoteNode) -> None:
+    def __init__(self, node: AsyncRemoteNode) -> None:
         self.node = node
         self.node_id = node.node_id
         self.network = node.network
@@ -279,13 +279,13 @@ class ManagedNodePort:
 
 
 def port_for(node: Any) -> DrivePort:
-    """The port to a node: a :class:`RemoteNode`, a master's :class:`ManagedNode`, or the
+    """The port to a node: a :class:`AsyncRemoteNode`, a master's :class:`ManagedNode`, or the
     blocking twin of either (its async object is used)."""
     from cobus.master.node import ManagedNode
-    from cobus.runtime.remote import RemoteNode
+    from cobus.runtime.remote import AsyncRemoteNode
 
     aio = getattr(node, "aio", node)
-    if isinstance(aio, RemoteNode):
+    if isinstance(aio, AsyncRemoteNode):
         return RemoteNodePort(aio)
     if isinstance(aio, ManagedNode):
         return ManagedNodePort(aio)

@@ -1,7 +1,7 @@
 """A CiA 402 drive run from the master side: ``await drive.enable()``, ``await
 drive.move_to(1000)``, ``await drive.home()`` — each returns when the drive reports it done.
 
-:class:`AsyncDrive402` runs on a bare :class:`~cobus.runtime.remote.RemoteNode` or on a node
+:class:`AsyncDrive402` runs on a bare :class:`~cobus.runtime.remote.AsyncRemoteNode` or on a node
 the :class:`~cobus.master.Master` manages; :class:`Drive402` is its blocking twin. The
 statusword comes from a TPDO where one maps it (a value that came after the last write and
 is not older than ``max_age``), by SDO otherwise; the controlword and the set-points go

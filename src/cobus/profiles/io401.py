@@ -87,7 +87,7 @@ def _channel(what: str, value: Any) -> int:
 
 
 class AsyncIo401:
-    """A CiA 401 module on ``node`` (a :class:`~cobus.runtime.remote.RemoteNode` or a node the
+    """A CiA 401 module on ``node`` (a :class:`~cobus.runtime.remote.AsyncRemoteNode` or a node the
     master manages); see the module docstring. ``inputs`` / ``outputs`` name digital
     channels, ``analog_inputs`` / ``analog_outputs`` name analogue ones (a channel number,
     or an :class:`AnalogChannel` with its scaling)."""

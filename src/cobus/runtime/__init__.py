@@ -53,13 +53,13 @@ from cobus.runtime.pdo import (
 )
 from cobus.runtime.periodic import InterfaceTimingError
 from cobus.runtime.remote import (
+    AsyncRemoteNode,
     NmtMaster,
     ObjectAccessError,
     ObjectNotFoundError,
     SdoChannel,
     SyncService,
 )
-from cobus.runtime.remote import RemoteNode as AsyncRemoteNode
 
 __all__ = [
     "AsyncNetwork",

@@ -34,8 +34,7 @@ from cobus.runtime.errors import ReentrantCallError
 from cobus.runtime.events import BusState
 from cobus.runtime.loop import RealTimeLoop, SimulatedEventLoop, new_event_loop
 from cobus.runtime.network import AsyncNetwork, FrameHandler, NetworkClosedError, Subscription
-from cobus.runtime.remote import NmtMaster, SdoChannel, SyncService
-from cobus.runtime.remote import RemoteNode as AsyncRemoteNode
+from cobus.runtime.remote import AsyncRemoteNode, NmtMaster, SdoChannel, SyncService
 from cobus.runtime.sdo_transport import downloaded, refused_block, uploaded
 from cobus.runtime.twin import BlockingTwin, twin_of
 
@@ -751,12 +750,12 @@ class BlockingSdo(BlockingTwin, twin_of=SdoChannel):
         return self._wrap(self.aio[key])
 
 
-class SdoVariable(BlockingTwin, twin_of=_remote.SdoVariable):
+class SdoVariable(BlockingTwin, twin_of=_remote.AsyncSdoVariable):
     """One object of a remote node over SDO, for blocking code: ``node.sdo["Device
     type"].read()``."""
 
     if TYPE_CHECKING:
-        aio: _remote.SdoVariable
+        aio: _remote.AsyncSdoVariable
 
     @property
     def raw(self) -> Any:
@@ -791,7 +790,7 @@ class SdoVariable(BlockingTwin, twin_of=_remote.SdoVariable):
         _download(self._runner, self.aio.channel, var.index, var.subindex, data, block, True)
 
 
-class SdoRecord(BlockingTwin, twin_of=_remote.SdoRecord):
+class SdoRecord(BlockingTwin, twin_of=_remote.AsyncSdoRecord):
     """A record or array of a remote node over SDO, for blocking code: ``[sub]`` gives its
     sub-objects (looked up in the calling thread: the dictionary is not protocol state)."""
 
@@ -799,23 +798,24 @@ class SdoRecord(BlockingTwin, twin_of=_remote.SdoRecord):
         return self._wrap(self.aio[subindex])
 
 
-class RemoteNmt(BlockingTwin, twin_of=_nmt.RemoteNmt):
+class RemoteNmt(BlockingTwin, twin_of=_nmt.AsyncRemoteNmt):
     """The NMT state of a remote node, commands to it and its heartbeat supervision, for
-    blocking code (see :class:`cobus.runtime.nmt.RemoteNmt`)."""
+    blocking code (see :class:`cobus.runtime.nmt.AsyncRemoteNmt`)."""
 
 
-class RemoteEmcy(BlockingTwin, twin_of=_emcy.RemoteEmcy):
+class RemoteEmcy(BlockingTwin, twin_of=_emcy.AsyncRemoteEmcy):
     """The emergencies of a remote node, for blocking code (see
-    :class:`cobus.runtime.emcy.RemoteEmcy`)."""
+    :class:`cobus.runtime.emcy.AsyncRemoteEmcy`)."""
 
 
-class RemotePdo(BlockingTwin, twin_of=_pdo.RemotePdo):
-    """One PDO of a remote node, for blocking code (see :class:`cobus.runtime.pdo.RemotePdo`)."""
+class RemotePdo(BlockingTwin, twin_of=_pdo.AsyncRemotePdo):
+    """One PDO of a remote node, for blocking code (see
+    :class:`cobus.runtime.pdo.AsyncRemotePdo`)."""
 
 
-class PdoSet(BlockingTwin, twin_of=_pdo.PdoSet):
+class PdoSet(BlockingTwin, twin_of=_pdo.AsyncPdoSet):
     """The TPDOs or RPDOs of a remote node, for blocking code (see
-    :class:`cobus.runtime.pdo.PdoSet`)."""
+    :class:`cobus.runtime.pdo.AsyncPdoSet`)."""
 
     if TYPE_CHECKING:
 
@@ -828,7 +828,7 @@ class RemoteNode(BlockingTwin, twin_of=AsyncRemoteNode):
 
     ``sdo`` reads and writes its objects, ``nmt`` follows its state and commands it, ``emcy``
     keeps its emergencies, ``tpdo`` / ``rpdo`` receive and send its process data; every call
-    returns once done (see :class:`cobus.runtime.remote.RemoteNode`)."""
+    returns once done (see :class:`cobus.runtime.remote.AsyncRemoteNode`)."""
 
     if TYPE_CHECKING:
         sdo: BlockingSdo

@@ -1,7 +1,7 @@
 """Emergencies of one remote node as its client sees them: ``node.emcy``.
 
 Every emergency the node sends is kept (the last ``history`` ones) as an :class:`Emergency`
-with the time it arrived and the CiA 301 text of its code; :attr:`RemoteEmcy.active` holds
+with the time it arrived and the CiA 301 text of its code; :attr:`AsyncRemoteEmcy.active` holds
 the errors not yet cleared by an "error reset / no error" emergency (00xxh) of the node.
 """
 
@@ -11,6 +11,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Final
 
+from cobus._moved import renamed_names
 from cobus.proto import Frame
 from cobus.proto.emcy import EMCY_BASE, Emergency, MalformedEmcy, parse_emcy
 from cobus.runtime._service import Callbacks, Waiters, removed_error
@@ -19,7 +20,7 @@ from cobus.runtime.errors import EmcyTimeoutError
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, Subscription
 
-__all__ = ["EmcyTimeoutError", "Emergency", "RemoteEmcy", "error_still_shown"]
+__all__ = ["AsyncRemoteEmcy", "EmcyTimeoutError", "Emergency", "error_still_shown"]
 
 
 #: Error register bits (1001h) of the emergency code classes that have one.
@@ -38,7 +39,7 @@ def error_still_shown(code: int, register: int) -> bool:
     return bool(register & bit)
 
 
-class RemoteEmcy:
+class AsyncRemoteEmcy:
     """The emergencies of one remote node (see the module docstring)."""
 
     #: The node-ID.
@@ -145,3 +146,7 @@ class RemoteEmcy:
             self._subscription.cancel()
             self._subscription = None
         self._waiters.fail(removed_error(self.node_id))
+
+
+#: The async classes are AsyncX, their blocking twins X (see :mod:`cobus`).
+__getattr__ = renamed_names(__name__, {"RemoteEmcy": ("AsyncRemoteEmcy", AsyncRemoteEmcy)})

@@ -37,7 +37,7 @@ from cobus.runtime.local_nodes import LocalNodes
 from cobus.runtime.loop import RealTimeLoop, SimulatedEventLoop
 from cobus.runtime.multicast import EchoFreeSender, echo_free_sender
 from cobus.runtime.reading import ReadingRole
-from cobus.runtime.remote import NmtMaster, RemoteNode, SyncService, load_od
+from cobus.runtime.remote import AsyncRemoteNode, NmtMaster, SyncService, load_od
 from cobus.runtime.sdo_transport import SdoTransport
 
 if TYPE_CHECKING:
@@ -236,7 +236,7 @@ class AsyncNetwork:
     #: counted in ``frames_received`` when the network hears them back).
     frames_sent: int
     #: The nodes added with :meth:`add_remote`, by node-ID.
-    remotes: dict[int, RemoteNode]
+    remotes: dict[int, AsyncRemoteNode]
     #: The local devices (:class:`cobus.device.Device`, simulated devices) by node-ID: the
     #: node-IDs this process answers to on this network. Devices claim and release their
     #: node-ID here; read it as a mapping.
@@ -310,7 +310,7 @@ class AsyncNetwork:
         self.frames_received = 0
         self.frames_sent = 0
         self._failures: dict[tuple[object, ...], int] = {}  # by where they were raised
-        self.remotes: dict[int, RemoteNode] = {}
+        self.remotes: dict[int, AsyncRemoteNode] = {}
         self._sdo_transports: dict[tuple[int, int], SdoTransport] = {}
         self.devices = LocalNodes()
         self._nmt: NmtMaster | None = None
@@ -550,14 +550,14 @@ class AsyncNetwork:
         od: ObjectDictionary | str | Path | None = None,
         *,
         sdo_timeout: float = 1.0,
-    ) -> RemoteNode:
+    ) -> AsyncRemoteNode:
         """A node this network talks to as a client; ``od`` may be an EDS/DCF path."""
         if node_id in self.remotes:
             raise ValueError(
                 f"node {node_id} is already on this network: use network.remotes[{node_id}], "
                 f"or remove_remote({node_id}) first to add it again"
             )
-        node = RemoteNode(self, node_id, load_od(od, node_id), sdo_timeout=sdo_timeout)
+        node = AsyncRemoteNode(self, node_id, load_od(od, node_id), sdo_timeout=sdo_timeout)
         self.remotes[node_id] = node
         return node
 

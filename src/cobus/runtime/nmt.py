@@ -7,9 +7,9 @@ node falls silent for ``timeout`` seconds, :class:`~cobus.proto.heartbeat.Heartb
 when it is heard again). The events go to the callbacks of ``node.nmt`` and to the network's
 listeners.
 
-Choice: sending a command does not change :attr:`RemoteNmt.state`: the state is only what the
+Choice: sending a command does not change :attr:`AsyncRemoteNmt.state`: the state is only what the
 node says (python-canopen assumes the commanded state at once; a node that missed the command,
-or refused it, would then be shown wrongly). :attr:`RemoteNmt.commanded` keeps the command.
+or refused it, would then be shown wrongly). :attr:`AsyncRemoteNmt.commanded` keeps the command.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Final
 
+from cobus._moved import renamed_names
 from cobus.proto import NOTHING, Event, Frame
 from cobus.proto.connection_set import ERROR_CONTROL_BASE as _HEARTBEAT
 from cobus.proto.heartbeat import (
@@ -32,7 +33,7 @@ from cobus.runtime.errors import NmtTimeoutError
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, MachineHost, Subscription
 
-__all__ = ["NmtTimeoutError", "RemoteNmt"]
+__all__ = ["AsyncRemoteNmt", "NmtTimeoutError"]
 
 _STATES = frozenset(int(s) for s in NmtState)
 _BOOTUP = int(NmtState.INITIALISING)  # a global: asked for every heartbeat
@@ -56,7 +57,7 @@ def _parse_state(state: NmtState | int | str) -> NmtState:
     return NmtState(state)
 
 
-class RemoteNmt:
+class AsyncRemoteNmt:
     """The NMT state of one remote node, the commands to it, its heartbeat supervision."""
 
     #: The node-ID.
@@ -260,3 +261,6 @@ class _Heard(Event):
 
 
 _HEARD = _Heard()
+
+#: The async classes are AsyncX, their blocking twins X (see :mod:`cobus`).
+__getattr__ = renamed_names(__name__, {"RemoteNmt": ("AsyncRemoteNmt", AsyncRemoteNmt)})

@@ -1,9 +1,10 @@
 """The PDOs of a remote node, as the node's client sees them: ``node.tpdo`` and ``node.rpdo``.
 
 A PDO's configuration (COB-ID, transmission type, inhibit time, event timer, mapping) comes
-from the node itself over SDO (:meth:`PdoSet.read`), from its EDS (:meth:`PdoSet.load_from_od`)
-or from code (:meth:`RemotePdo.clear` / :meth:`RemotePdo.add`), and goes back to the node with
-the CiA 301 mapping procedure (:meth:`PdoSet.save`). Mapped values are named after their
+from the node itself over SDO (:meth:`AsyncPdoSet.read`), from its EDS
+(:meth:`AsyncPdoSet.load_from_od`) or from code (:meth:`AsyncRemotePdo.clear` /
+:meth:`AsyncRemotePdo.add`), and goes back to the node with the CiA 301 mapping procedure
+(:meth:`AsyncPdoSet.save`). Mapped values are named after their
 objects (``"Statusword"``; ``"Parent.Sub"`` for a sub-object of a record or array), looked up
 with case and separators ignored, or addressed as ``(index, subindex)``.
 
@@ -24,6 +25,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Final
 
+from cobus._moved import renamed_names
 from cobus.errors import CobusError
 from cobus.od import (
     DataType,
@@ -61,13 +63,13 @@ if TYPE_CHECKING:
     from cobus.runtime.remote import SdoChannel
 
 __all__ = [
+    "AsyncPdoSet",
+    "AsyncRemotePdo",
     "PdoConfigurationError",
     "PdoField",
     "PdoReceived",
     "PdoRejected",
-    "PdoSet",
     "PdoTimeoutError",
-    "RemotePdo",
     "field_kind",
 ]
 
@@ -149,7 +151,7 @@ def _field_name(var: Variable | None, entry: MappingEntry) -> str:
     return var.name if parent is None else f"{parent.name}.{var.name}"
 
 
-class RemotePdo:
+class AsyncRemotePdo:
     """One PDO of a remote node (see the module docstring).
 
     ``transmit_by_node`` is True for the node's TPDOs (this side receives them) and False for
@@ -177,10 +179,10 @@ class RemotePdo:
     #: How many frames were received (TPDO) or sent (RPDO).
     count: int
     #: Whether the configuration was read, loaded or edited (a PDO only looked at is not
-    #: listed by its set, nor written by :meth:`PdoSet.save`).
+    #: listed by its set, nor written by :meth:`AsyncPdoSet.save`).
     configured: bool
 
-    def __init__(self, pdos: PdoSet, number: int) -> None:
+    def __init__(self, pdos: AsyncPdoSet, number: int) -> None:
         self._pdos = pdos
         self._network = pdos._network
         self.node_id = pdos.node_id
@@ -295,12 +297,12 @@ class RemotePdo:
         return self._values
 
     def clear(self) -> None:
-        """Remove every mapped object (locally; :meth:`PdoSet.save` writes it to the node)."""
+        """Remove every mapped object (locally; :meth:`AsyncPdoSet.save` writes it to the node)."""
         self._set_fields([])
 
     def add(self, key: int | str, subindex: int | str = 0, bits: int | None = None) -> PdoField:
         """Map one more object, named or numbered as in the node's dictionary (locally, until
-        :meth:`PdoSet.save`). ``bits`` defaults to the object's size; a data type index
+        :meth:`AsyncPdoSet.save`). ``bits`` defaults to the object's size; a data type index
         0001h..0007h with ``bits`` maps a dummy."""
         od = self._pdos.od
         if isinstance(key, int) and 1 <= key <= 7:
@@ -746,7 +748,7 @@ def _od_int(obj: Record, sub: int) -> int | None:
 # --------------------------------------------------------------------------- the set
 
 
-class PdoSet:
+class AsyncPdoSet:
     """The TPDOs or RPDOs of a remote node by number: ``node.tpdo[1]``.
 
     Numbers 1..512 can be used; iterating gives the PDOs read, loaded or used so far.
@@ -769,7 +771,7 @@ class PdoSet:
         self.node_id = sdo.node_id
         self.transmit_by_node = transmit_by_node
         self._active = True
-        self._pdos: dict[int, RemotePdo] = {}
+        self._pdos: dict[int, AsyncRemotePdo] = {}
 
     @property
     def od(self) -> ObjectDictionary | None:
@@ -780,15 +782,15 @@ class PdoSet:
         kind = "TPDOs" if self.transmit_by_node else "RPDOs"
         return f"<{kind} of node {self.node_id}: {[p.number for p in self]}>"
 
-    def __getitem__(self, number: int) -> RemotePdo:
+    def __getitem__(self, number: int) -> AsyncRemotePdo:
         if not isinstance(number, int) or not 1 <= number <= MAX_PDOS:
             raise KeyError(f"PDO number {number!r} is out of range: use 1..{MAX_PDOS}")
         pdo = self._pdos.get(number)
         if pdo is None:
-            pdo = self._pdos[number] = RemotePdo(self, number)
+            pdo = self._pdos[number] = AsyncRemotePdo(self, number)
         return pdo
 
-    def __iter__(self) -> Iterator[RemotePdo]:
+    def __iter__(self) -> Iterator[AsyncRemotePdo]:
         """The PDOs read, loaded or edited so far, by number."""
         return iter([self._pdos[n] for n in sorted(self._pdos) if self._pdos[n].configured])
 
@@ -812,7 +814,7 @@ class PdoSet:
             return [1, 2, 3, 4]
         return [i - base + 1 for i in range(base, base + MAX_PDOS) if i in od]
 
-    def load_from_od(self) -> list[RemotePdo]:
+    def load_from_od(self) -> list[AsyncRemotePdo]:
         """Configure every PDO the node's EDS/DCF describes as the file says; returns them."""
         od = self.od
         if od is None:
@@ -822,7 +824,7 @@ class PdoSet:
             )
         return [self[n] for n in self._numbers() if self[n]._load(od)]
 
-    async def read(self) -> list[RemotePdo]:
+    async def read(self) -> list[AsyncRemotePdo]:
         """Read the configuration of the node's PDOs over SDO (those its dictionary lists;
         1..4 without one, skipping PDOs the node does not have); returns them."""
         found = []
@@ -844,7 +846,7 @@ class PdoSet:
         return found
 
     async def save(self) -> None:
-        """Write every PDO of this set to the node (see :meth:`RemotePdo.save`)."""
+        """Write every PDO of this set to the node (see :meth:`AsyncRemotePdo.save`)."""
         for pdo in self:
             await pdo.save()
 
@@ -857,3 +859,10 @@ class PdoSet:
         self._active = False
         for pdo in self._pdos.values():
             pdo._close()
+
+
+#: The async classes are AsyncX, their blocking twins X (see :mod:`cobus`).
+__getattr__ = renamed_names(
+    __name__,
+    {"RemotePdo": ("AsyncRemotePdo", AsyncRemotePdo), "PdoSet": ("AsyncPdoSet", AsyncPdoSet)},
+)

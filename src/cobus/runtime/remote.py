@@ -10,16 +10,17 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
+from cobus._moved import renamed_names
 from cobus.od import NameLookupError, parse_address, resolve, resolve_object
 from cobus.proto import NOTHING, Event, Frame, Out
 from cobus.proto.nmt import NmtCommand, check_node_id, nmt_command_frame
 from cobus.proto.sdo import SdoClient, check_timeout
 from cobus.proto.sync import SyncConfigError, SyncProducer
 from cobus.runtime._service import check_not_bool, parse_nmt_command, removed_error
-from cobus.runtime.emcy import RemoteEmcy
+from cobus.runtime.emcy import AsyncRemoteEmcy
 from cobus.runtime.errors import NetworkClosedError, ObjectAccessError, ObjectNotFoundError
-from cobus.runtime.nmt import RemoteNmt
-from cobus.runtime.pdo import PdoSet
+from cobus.runtime.nmt import AsyncRemoteNmt
+from cobus.runtime.pdo import AsyncPdoSet
 from cobus.runtime.periodic import InterfaceTimer
 from cobus.runtime.sdo_transport import SdoTransport, downloaded, refused_block, uploaded
 
@@ -30,14 +31,14 @@ if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, MachineHost
 
 __all__ = [
+    "AsyncRemoteNode",
+    "AsyncSdoRecord",
+    "AsyncSdoVariable",
     "NmtCommands",
     "NmtMaster",
     "ObjectAccessError",
     "ObjectNotFoundError",
-    "RemoteNode",
     "SdoChannel",
-    "SdoRecord",
-    "SdoVariable",
     "SyncService",
 ]
 
@@ -249,7 +250,7 @@ class SdoChannel:
             return False
         return True
 
-    def __iter__(self) -> Iterator[SdoVariable | SdoRecord]:
+    def __iter__(self) -> Iterator[AsyncSdoVariable | AsyncSdoRecord]:
         """Every object of the node's dictionary, in index order."""
         return iter([self[obj.index] for obj in (self.od or ())])
 
@@ -257,7 +258,7 @@ class SdoChannel:
         """How many objects the node's dictionary has (0 without one)."""
         return 0 if self.od is None else len(self.od)
 
-    def __getitem__(self, key: Key | tuple[Key, Key]) -> SdoVariable | SdoRecord:
+    def __getitem__(self, key: Key | tuple[Key, Key]) -> AsyncSdoVariable | AsyncSdoRecord:
         """An object of the node by index or name: ``await sdo["Producer heartbeat
         time"].read()``; a record or array gives its sub-objects by ``[sub]``;
         ``sdo[0x1018, 1]``, ``sdo["0x1018:01"]`` and ``sdo["Identity object.Vendor-ID"]``
@@ -265,23 +266,23 @@ class SdoChannel:
         from cobus.od import Variable
 
         if isinstance(key, tuple):
-            return SdoVariable(self, self.variable(key))
+            return AsyncSdoVariable(self, self.variable(key))
         od = self._od()
         address = parse_address(key) if isinstance(key, str) else None
         try:
             if address is not None and address[1] is not None:
-                return SdoVariable(self, resolve(od, key))
+                return AsyncSdoVariable(self, resolve(od, key))
             obj = resolve_object(od, key, suggest=False)  # ("did you mean": resolve()'s)
         except NameLookupError as exc:
             if exc.candidates or not isinstance(key, str) or address is not None:
                 raise self._not_found(exc) from None
             try:  # "Record.Sub", "Record[n]", a sub-object by its own name
-                return SdoVariable(self, resolve(od, key))
+                return AsyncSdoVariable(self, resolve(od, key))
             except NameLookupError as inner:
                 raise self._not_found(inner) from None
         if isinstance(obj, Variable):
-            return SdoVariable(self, obj)
-        return SdoRecord(self, obj)
+            return AsyncSdoVariable(self, obj)
+        return AsyncSdoRecord(self, obj)
 
     async def read(self, index: Key | tuple[Key, Key], subindex: Key = 0) -> Any:
         """Read an entry and decode it with its data type (refused at once when the EDS
@@ -340,7 +341,7 @@ def encode_for(var: Variable, value: Any, node_id: int) -> bytes:
         raise ValueRangeError(f"node {node_id}, {var.name!r} ({where}): {exc}") from None
 
 
-class SdoVariable:
+class AsyncSdoVariable:
     """One object of a remote node reached over SDO (``node.sdo["Device type"]``)."""
 
     #: The dictionary entry (name, type, access, limits).
@@ -394,7 +395,7 @@ class SdoVariable:
         await self.channel.download(self.od.index, self.od.subindex, data, block=block)
 
 
-class SdoRecord:
+class AsyncSdoRecord:
     """A record or array of a remote node reached over SDO: ``[sub]`` gives its sub-objects."""
 
     #: The dictionary object.
@@ -414,11 +415,11 @@ class SdoRecord:
         """The record's or array's name in the node's dictionary."""
         return self.od.name
 
-    def __getitem__(self, subindex: Key) -> SdoVariable:
-        return SdoVariable(self.channel, self.channel.variable(self.od.index, subindex))
+    def __getitem__(self, subindex: Key) -> AsyncSdoVariable:
+        return AsyncSdoVariable(self.channel, self.channel.variable(self.od.index, subindex))
 
-    def __iter__(self) -> Iterator[SdoVariable]:
-        return iter([SdoVariable(self.channel, var) for var in self.od])
+    def __iter__(self) -> Iterator[AsyncSdoVariable]:
+        return iter([AsyncSdoVariable(self.channel, var) for var in self.od])
 
     def __len__(self) -> int:
         return len(self.od)
@@ -495,7 +496,7 @@ class NmtMaster(NmtCommands):
             self._observers.remove(callback)
 
 
-class RemoteNode:
+class AsyncRemoteNode:
     """A node on the bus that this network talks to as a client (master side).
 
     ``sdo`` reads and writes its objects, ``nmt`` follows its state and commands it, ``emcy``
@@ -510,13 +511,13 @@ class RemoteNode:
     #: The SDO client channel to the node's default SDO server.
     sdo: Final[SdoChannel]
     #: The node's NMT state, commands to it, heartbeat supervision.
-    nmt: Final[RemoteNmt]
+    nmt: Final[AsyncRemoteNmt]
     #: The node's emergencies.
-    emcy: Final[RemoteEmcy]
+    emcy: Final[AsyncRemoteEmcy]
     #: The node's transmit PDOs (received here).
-    tpdo: Final[PdoSet]
+    tpdo: Final[AsyncPdoSet]
     #: The node's receive PDOs (sent from here).
-    rpdo: Final[PdoSet]
+    rpdo: Final[AsyncPdoSet]
     #: The network the node is on.
     network: Final[AsyncNetwork]
 
@@ -534,10 +535,10 @@ class RemoteNode:
         self.od = od
         self.network = network
         self.sdo = SdoChannel(network, node_id, od, timeout=sdo_timeout)
-        self.nmt = RemoteNmt(network, node_id)
-        self.emcy = RemoteEmcy(network, node_id)
-        self.tpdo = PdoSet(network, self.sdo, transmit_by_node=True)
-        self.rpdo = PdoSet(network, self.sdo, transmit_by_node=False)
+        self.nmt = AsyncRemoteNmt(network, node_id)
+        self.emcy = AsyncRemoteEmcy(network, node_id)
+        self.tpdo = AsyncPdoSet(network, self.sdo, transmit_by_node=True)
+        self.rpdo = AsyncPdoSet(network, self.sdo, transmit_by_node=False)
 
     def __repr__(self) -> str:
         return f"RemoteNode({self.node_id})"
@@ -687,3 +688,14 @@ class SyncService:
         timer = InterfaceTimer(self._network, old.frames, old.period)
         self._timer = timer  # (its send_errors start again)
         timer.start()
+
+
+#: The async classes are AsyncX, their blocking twins X (see :mod:`cobus`).
+__getattr__ = renamed_names(
+    __name__,
+    {
+        "RemoteNode": ("AsyncRemoteNode", AsyncRemoteNode),
+        "SdoRecord": ("AsyncSdoRecord", AsyncSdoRecord),
+        "SdoVariable": ("AsyncSdoVariable", AsyncSdoVariable),
+    },
+)
