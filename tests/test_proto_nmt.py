@@ -9,10 +9,10 @@ from cobus.proto.nmt import (
     NmtRequest,
     NmtSlave,
     NmtState,
+    NmtStateChanged,
     ResetCommunication,
     ResetNode,
     Service,
-    StateChanged,
     bootup_frame,
     check_node_id,
     nmt_command_frame,
@@ -115,7 +115,7 @@ def test_boot_sends_bootup_and_enters_preoperational():
     assert s.state is INIT and s.deadline is None
     out = s.boot(0.5)
     assert out.frames == (Frame.parse("71B [1] 00"),)
-    assert out.events == (StateChanged(INIT, PRE),)
+    assert out.events == (NmtStateChanged(INIT, PRE),)
     assert s.state is PRE
 
 
@@ -147,7 +147,7 @@ def test_transitions(commands, states):
     old = PRE
     for cs, new in zip(commands, states, strict=True):
         out = s.on_frame(nmt(cs, 27), 1.0)
-        assert out.events == (StateChanged(old, new),) and out.frames == ()
+        assert out.events == (NmtStateChanged(old, new),) and out.frames == ()
         assert s.state is new
         old = new
 
@@ -156,7 +156,7 @@ def test_broadcast_applies_and_other_nodes_are_ignored():
     s = booted(27)
     assert s.on_frame(nmt(0x01, 26), 1.0) is NOTHING
     assert s.state is PRE
-    assert s.on_frame(nmt(0x01, 0), 1.0).events == (StateChanged(PRE, OP),)
+    assert s.on_frame(nmt(0x01, 0), 1.0).events == (NmtStateChanged(PRE, OP),)
 
 
 def test_same_state_command_reports_nothing():
@@ -170,18 +170,18 @@ def test_reset_commands_leave_the_boot_up_to_the_owner(cs, event):
     s.on_frame(nmt(0x01, 0), 1.0)
     out = s.on_frame(nmt(cs, 17), 2.0)
     assert out.frames == ()
-    assert out.events == (StateChanged(OP, INIT), event)
+    assert out.events == (NmtStateChanged(OP, INIT), event)
     assert s.state is INIT and s.allowed(Service.BOOTUP)
     # the owner resets, then boots: the boot-up message goes out now
     again = s.boot(2.1)
     assert again.frames == (Frame.parse("711 [1] 00"),)
-    assert again.events == (StateChanged(INIT, PRE),)
+    assert again.events == (NmtStateChanged(INIT, PRE),)
 
 
 def test_reset_in_preoperational_also_resets():
     s = booted(3)
     out = s.on_frame(Frame.parse("000 [2] 82 03"), 1.0)
-    assert out.events == (StateChanged(PRE, INIT), ResetCommunication())
+    assert out.events == (NmtStateChanged(PRE, INIT), ResetCommunication())
 
 
 def test_malformed_frames_become_events():
@@ -210,8 +210,8 @@ def test_apply_for_local_decisions():
     s = booted(27)
     s.apply(NmtCommand.START, 1.0)
     out = s.apply(NmtCommand.ENTER_PREOPERATIONAL, 2.0)  # e.g. life guarding expired
-    assert out.events == (StateChanged(OP, PRE),)
-    assert s.apply(0x01, 3.0).events == (StateChanged(PRE, OP),)
+    assert out.events == (NmtStateChanged(OP, PRE),)
+    assert s.apply(0x01, 3.0).events == (NmtStateChanged(PRE, OP),)
     with pytest.raises(NmtError, match="unknown NMT command"):
         s.apply(0x42, 4.0)
 

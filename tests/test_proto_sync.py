@@ -5,10 +5,10 @@ from cobus.proto.sync import (
     SyncCobId,
     SyncConfigError,
     SyncConsumer,
-    SyncLost,
     SyncProducer,
     SyncReceived,
     SyncResumed,
+    SyncTimedOut,
     UnexpectedSyncLength,
     check_overflow,
 )
@@ -183,7 +183,7 @@ def test_sync_loss_and_resume():
     assert deadline(c) == pytest.approx(1.03)  # 1.5 x 20 ms
     c.on_frame(Frame(0x80), 1.02)
     assert c.on_timer(1.04) is NOTHING
-    assert c.on_timer(1.05).events == (SyncLost(),)
+    assert c.on_timer(1.05).events == (SyncTimedOut(),)
     assert (c.lost, deadline(c), c.on_timer(2.0)) == (True, None, NOTHING)
     out = c.on_frame(Frame(0x80, b"\x05"), 3.0)
     assert out.events == (SyncResumed(), SyncReceived(5))

@@ -12,7 +12,7 @@ from cobus.proto.timestamp import (
     TimeConsumer,
     TimeError,
     TimeProducer,
-    TimeReceived,
+    TimeStampReceived,
     decode_time_of_day,
     encode_time_of_day,
 )
@@ -129,7 +129,7 @@ def test_consumer():
     c = TimeConsumer()
     when = datetime(2030, 6, 1, 8, 0, tzinfo=UTC)
     out = c.on_frame(Frame(0x100, encode_time_of_day(when)), 0.0)
-    assert out.events == (TimeReceived(when),)
+    assert out.events == (TimeStampReceived(when),)
     assert c.on_frame(Frame(0x101, bytes(6)), 0.0) is NOTHING
     assert c.on_frame(Frame(0x100, bytes(6), extended=True), 0.0) is NOTHING
     (event,) = c.on_frame(Frame(0x100, bytes(4)), 0.0).events

@@ -121,7 +121,7 @@ class NmtService:
             self._host.feed(frame, now)
 
     def _on_event(self, event: Event) -> None:
-        if isinstance(event, _nmt.StateChanged):
+        if isinstance(event, _nmt.NmtStateChanged):
             self._on_state_changed(event.old, event.new)
         elif isinstance(event, _nmt.ResetNode):
             self._on_reset(True)

@@ -206,7 +206,7 @@ class SyncService:
         core = self._core
         if isinstance(event, _sync.SyncReceived):
             self._on_sync(event.counter)
-        elif isinstance(event, _sync.SyncLost):
+        elif isinstance(event, _sync.SyncTimedOut):
             self._emcy.raise_error(("sync",), EmcyCode.COMMUNICATION, COMM_BIT)
             core.emit(SyncLost(core.node_id))
         elif isinstance(event, _sync.SyncResumed):

@@ -73,7 +73,7 @@ class TimeService:
             host.feed(frame, now)
 
     def _on_event(self, event: Event) -> None:
-        if isinstance(event, _time.TimeReceived):
+        if isinstance(event, _time.TimeStampReceived):
             self._core.emit(TimeReceived(self._core.node_id, event.time))
 
     def _w_cob_id(self, entry: Entry, value: Any) -> None:

@@ -13,6 +13,7 @@ from enum import Enum
 from typing import NamedTuple
 
 from cobus._enum import NamedIntEnum
+from cobus._moved import renamed_names
 from cobus.errors import CobusError
 from cobus.proto._base import NOTHING, Event, Out
 from cobus.proto.connection_set import ERROR_CONTROL_BASE, NMT_COB_ID
@@ -28,10 +29,10 @@ __all__ = [
     "NmtRequest",
     "NmtSlave",
     "NmtState",
+    "NmtStateChanged",
     "ResetCommunication",
     "ResetNode",
     "Service",
-    "StateChanged",
     "bootup_frame",
     "check_node_id",
     "nmt_command_frame",
@@ -120,7 +121,7 @@ def check_node_id(node_id: int, *, broadcast: bool = False) -> int:
 
 
 @dataclass(frozen=True, slots=True)
-class StateChanged(Event):
+class NmtStateChanged(Event):
     """The local NMT state changed from ``old`` to ``new``."""
 
     old: NmtState
@@ -199,7 +200,7 @@ class NmtSlave:
     """The NMT state machine of one node (sans-I/O).
 
     Start with :meth:`boot`. Commands received with :meth:`on_frame` (or applied locally with
-    :meth:`apply`) move the state and report :class:`StateChanged`. A reset command reports
+    :meth:`apply`) move the state and report :class:`NmtStateChanged`. A reset command reports
     :class:`ResetNode` or :class:`ResetCommunication` and leaves the node in initialisation:
     the owner resets what the command asks, then calls :meth:`boot` again, which sends the
     boot-up message — so the owner decides when the boot-up goes out.
@@ -307,4 +308,8 @@ class NmtSlave:
         old = self._state
         self._state = new
         self._set_services(new)
-        return (StateChanged(old, new),)
+        return (NmtStateChanged(old, new),)
+
+
+#: One name per idea: StateChanged is the device's event (see :mod:`cobus.device.events`).
+__getattr__ = renamed_names(__name__, {"StateChanged": ("NmtStateChanged", NmtStateChanged)})

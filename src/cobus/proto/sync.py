@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from cobus._moved import renamed_names
 from cobus.errors import CobusError
 from cobus.proto._base import NOTHING, Event, Out
 from cobus.proto._cobid import split_cob_id
@@ -21,10 +22,10 @@ __all__ = [
     "SyncCobId",
     "SyncConfigError",
     "SyncConsumer",
-    "SyncLost",
     "SyncProducer",
     "SyncReceived",
     "SyncResumed",
+    "SyncTimedOut",
     "UnexpectedSyncLength",
     "check_overflow",
 ]
@@ -87,13 +88,13 @@ class SyncReceived(Event):
 
 
 @dataclass(frozen=True, slots=True)
-class SyncLost(Event):
+class SyncTimedOut(Event):
     """No SYNC within ``loss_factor`` x the communication cycle period (once per loss)."""
 
 
 @dataclass(frozen=True, slots=True)
 class SyncResumed(Event):
-    """A SYNC arrived again after :class:`SyncLost`."""
+    """A SYNC arrived again after :class:`SyncTimedOut`."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -255,7 +256,7 @@ class SyncConsumer:
     ``overflow`` is the local 1019h value the SYNC length is checked against (0: no data,
     2..240: one counter byte); None accepts both. Loss detection needs the period (1006h)
     and starts with the first SYNC received: no SYNC within ``loss_factor`` x period
-    reports :class:`SyncLost` once, the next SYNC :class:`SyncResumed`.
+    reports :class:`SyncTimedOut` once, the next SYNC :class:`SyncResumed`.
     """
 
     __slots__ = (
@@ -368,4 +369,8 @@ class SyncConsumer:
             return NOTHING
         self._expiry = None
         self._lost = True
-        return Out((), (SyncLost(),))
+        return Out((), (SyncTimedOut(),))
+
+
+#: One name per idea: SyncLost is the device's event (see :mod:`cobus.device.events`).
+__getattr__ = renamed_names(__name__, {"SyncLost": ("SyncTimedOut", SyncTimedOut)})

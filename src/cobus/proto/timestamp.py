@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import NamedTuple
 
+from cobus._moved import renamed_names
 from cobus.errors import CobusError
 from cobus.proto._base import NOTHING, Event, Out
 from cobus.proto._cobid import split_cob_id
@@ -30,7 +31,7 @@ __all__ = [
     "TimeConsumer",
     "TimeError",
     "TimeProducer",
-    "TimeReceived",
+    "TimeStampReceived",
     "decode_time_of_day",
     "encode_time_of_day",
 ]
@@ -101,7 +102,7 @@ def decode_time_of_day(data: bytes) -> datetime:
 
 
 @dataclass(frozen=True, slots=True)
-class TimeReceived(Event):
+class TimeStampReceived(Event):
     """A TIME frame arrived carrying ``time`` (UTC)."""
 
     time: datetime
@@ -176,7 +177,7 @@ class TimeProducer:
 
 
 class TimeConsumer:
-    """Receives TIME frames and reports :class:`TimeReceived`."""
+    """Receives TIME frames and reports :class:`TimeStampReceived`."""
 
     __slots__ = ("can_id", "extended")
 
@@ -198,7 +199,11 @@ class TimeConsumer:
             when = decode_time_of_day(frame.data)
         except TimeError as exc:
             return Out((), (MalformedTime(frame.data, str(exc)),))
-        return Out((), (TimeReceived(when),))
+        return Out((), (TimeStampReceived(when),))
 
     def on_timer(self, now: float) -> Out:
         return NOTHING
+
+
+#: One name per idea: TimeReceived is the device's event (see :mod:`cobus.device.events`).
+__getattr__ = renamed_names(__name__, {"TimeReceived": ("TimeStampReceived", TimeStampReceived)})
