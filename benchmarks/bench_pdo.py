@@ -15,7 +15,7 @@ import canopen
 from benchmarks.common import best_of, cobus_receive_rate, header, row
 from cobus.device import export_eds
 from cobus.runtime import AsyncNetwork, PdoReceived, SimulatedEventLoop
-from cobus.sim import Drive402
+from cobus.sim import SimulatedDrive402
 
 N = 20_000
 NODE = 10
@@ -24,7 +24,7 @@ NODE = 10
 def _eds(tmp: str) -> str:
     async def export() -> str:
         async with AsyncNetwork() as net:
-            return export_eds(Drive402(net, NODE).od)
+            return export_eds(SimulatedDrive402(net, NODE).od)
 
     loop = SimulatedEventLoop()
     text = loop.run_until_complete(export())

@@ -20,7 +20,7 @@ from cobus.device import export_eds
 from cobus.od import ObjectDictionary, loads
 from cobus.proto import Frame
 from cobus.runtime import AsyncNetwork, SimulatedEventLoop
-from cobus.sim.drive402 import Drive402
+from cobus.sim.drive402 import SimulatedDrive402
 from cobus.trace import Decoder
 
 BUS_MAX = 9_000  # frames/s a fully loaded 1 Mbit/s bus carries
@@ -30,7 +30,7 @@ TARGET = 60_000
 def _session() -> tuple[list[tuple[Frame, float]], ObjectDictionary]:
     async def run() -> tuple[list[tuple[Frame, float]], ObjectDictionary]:
         async with AsyncNetwork() as net:
-            servo = Drive402(net, 10)
+            servo = SimulatedDrive402(net, 10)
             od = loads(export_eds(servo.od))
             od.node_id = 10
             frames: list[tuple[Frame, float]] = []

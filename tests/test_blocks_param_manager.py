@@ -361,7 +361,7 @@ def test_a_snapshot_leaves_process_data_out_unless_named() -> None:
 
 
 def test_a_dcf_set_leaves_its_commands_out_and_says_so() -> None:
-    from cobus.sim.drive402 import Drive402 as Servo
+    from cobus.sim.drive402 import SimulatedDrive402 as Servo
 
     async def main() -> ParameterSet:
         async with AsyncNetwork() as net:

@@ -26,7 +26,7 @@ from cobus.master import (
 from cobus.profiles.ecmotor import AsyncEcMotorDrive
 from cobus.proto.sdo import SdoAbort, SdoAbortCode
 from cobus.runtime import AsyncNetwork, Network
-from cobus.sim.drive402 import Drive402 as Servo
+from cobus.sim.drive402 import SimulatedDrive402 as Servo
 from cobus.sim.ecmotor import EcMotor
 
 from .util import simulate

@@ -38,7 +38,7 @@ from cobus.runtime.pdo import (
     PdoRejected,
     PdoTimeoutError,
 )
-from cobus.sim.drive402 import Drive402
+from cobus.sim.drive402 import SimulatedDrive402
 from tests.test_sim_support import SimBench, run_sim
 from tests.util import simulate
 
@@ -47,7 +47,7 @@ EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "networks"
 
 
 def drive_run(scenario):
-    return run_sim(lambda net: Drive402(net, NODE), scenario)
+    return run_sim(lambda net: SimulatedDrive402(net, NODE), scenario)
 
 
 def test_a_drive_as_python_canopen_users_use_it():

@@ -10,7 +10,7 @@ import struct
 import pytest
 
 from cobus.proto.sdo import SdoAbortedError
-from cobus.sim.drive402 import Drive402, DriveState
+from cobus.sim.drive402 import DriveState, SimulatedDrive402
 from tests.test_sim_support import SimBench, run_sim
 
 NODE = 10
@@ -24,7 +24,7 @@ STATE_MASK = 0x027F
 
 
 def drive_run(scenario, **options):
-    return run_sim(lambda net: Drive402(net, NODE, **options), scenario)
+    return run_sim(lambda net: SimulatedDrive402(net, NODE, **options), scenario)
 
 
 async def state(b: SimBench) -> int:

@@ -17,7 +17,7 @@ from cobus.device.device import SAVE_SIGNATURE
 from cobus.proto import Frame
 from cobus.proto.sdo import SdoTimeoutError
 from cobus.runtime import AsyncNetwork, BusState, BusStateChanged, TxQueueFull, TxResumed
-from cobus.sim.drive402 import Drive402
+from cobus.sim.drive402 import SimulatedDrive402
 from cobus.sim.faults import (
     BUS_FAULTS,
     Babbler,
@@ -26,7 +26,7 @@ from cobus.sim.faults import (
     fault_catalogue,
 )
 from cobus.sim.generic import DeviceOffError, FaultParameterError
-from cobus.sim.io401 import Io401
+from cobus.sim.io401 import SimulatedIo401
 from tests.test_sim_support import SimBench, run_sim, simulate
 
 NODE = 20
@@ -36,11 +36,11 @@ WATCHER = 21
 def watched(make_extra=True):
     """An I/O module on NODE with a 50 ms heartbeat; another on WATCHER consuming it (150 ms)."""
 
-    def make(net: AsyncNetwork) -> Io401:
+    def make(net: AsyncNetwork) -> SimulatedIo401:
         if make_extra:
-            watcher = Io401(net, WATCHER, parameters={"0x1016:1": NODE << 16 | 150})
+            watcher = SimulatedIo401(net, WATCHER, parameters={"0x1016:1": NODE << 16 | 150})
             watcher.start()
-        return Io401(net, NODE, heartbeat_ms=50)
+        return SimulatedIo401(net, NODE, heartbeat_ms=50)
 
     return make
 
@@ -347,7 +347,7 @@ def test_fault_settings_out_of_range_and_the_catalogue():
                 Babbler(net, cob_id=0x800)
 
     simulate(main())
-    drive = fault_catalogue(Drive402)
+    drive = fault_catalogue(SimulatedDrive402)
     assert {"power_loss", "power_return", "blocked_rotor", "sdo_delay"} <= set(drive)
     assert all(isinstance(text, str) and text for text in drive.values())
     assert fault_catalogue() == dict(BUS_FAULTS)

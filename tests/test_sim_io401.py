@@ -9,7 +9,7 @@ import struct
 import pytest
 
 from cobus.proto.sdo import SdoAbortedError
-from cobus.sim.io401 import ChannelError, Io401
+from cobus.sim.io401 import ChannelError, SimulatedIo401
 from tests.test_sim_support import SimBench, run_sim
 
 NODE = 20
@@ -18,7 +18,7 @@ RPDO1, RPDO2 = 0x200 + NODE, 0x300 + NODE
 
 
 def io_run(scenario, **options):
-    return run_sim(lambda net: Io401(net, NODE, **options), scenario)
+    return run_sim(lambda net: SimulatedIo401(net, NODE, **options), scenario)
 
 
 async def start(b: SimBench) -> None:
@@ -28,7 +28,7 @@ async def start(b: SimBench) -> None:
 
 def test_an_input_change_sends_the_event_driven_tpdo():
     async def scenario(b: SimBench):
-        io: Io401 = b.sim
+        io: SimulatedIo401 = b.sim
         io.set_digital_input(3, True)  # pre-operational: no PDO
         await b.settle()
         assert b.data(TPDO1) == []
@@ -49,7 +49,7 @@ def test_an_input_change_sends_the_event_driven_tpdo():
 
 def test_interrupt_masks_polarity_and_global_enable_decide_which_changes_are_sent():
     async def scenario(b: SimBench):
-        io: Io401 = b.sim
+        io: SimulatedIo401 = b.sim
         await b.sdo.write(0x6006, 1, 0x00)  # no "any change" on byte 1
         await b.sdo.write(0x6007, 1, 0x01)  # low-to-high of channel 1 only
         await start(b)
@@ -95,7 +95,7 @@ def test_acyclic_synchronous_tpdo_sends_the_change_at_the_next_sync():
 
 def test_analogue_inputs_are_sent_on_a_change_of_at_least_the_delta():
     async def scenario(b: SimBench):
-        io: Io401 = b.sim
+        io: SimulatedIo401 = b.sim
         await start(b)
         io.set_analog_input(1, 500)  # 6423h is off by default (CiA 401)
         await b.settle()
@@ -120,7 +120,7 @@ def test_analogue_inputs_are_sent_on_a_change_of_at_least_the_delta():
 
 def test_speed_potentiometer_is_an_analogue_input():
     async def scenario(b: SimBench):
-        io: Io401 = b.sim
+        io: SimulatedIo401 = b.sim
         assert await b.sdo.read(0x6401, 2) == 8192  # 0.25 of full scale
         await b.sdo.write(0x6423, 0, True)
         await start(b)
@@ -137,7 +137,7 @@ def test_speed_potentiometer_is_an_analogue_input():
 
 def test_outputs_follow_the_rpdos_and_take_their_error_values_when_stopped():
     async def scenario(b: SimBench):
-        io: Io401 = b.sim
+        io: SimulatedIo401 = b.sim
         await b.sdo.write(0x6206, 1, 0x0F)  # error mode for channels 1-4
         await b.sdo.write(0x6207, 1, 0x08)  # channel 4 on in the error state
         await b.sdo.write(0x6202, 1, 0x80)  # channel 8 inverted
@@ -174,7 +174,7 @@ def test_heartbeat_option_and_channel_errors():
         assert [t for t, f in b.on(0x700 + NODE) if f.data == b"\x7f"] == pytest.approx(
             [0.05, 0.10, 0.15, 0.20, 0.25]
         )
-        io: Io401 = b.sim
+        io: SimulatedIo401 = b.sim
         with pytest.raises(ChannelError, match=r"digital inputs 1\.\.8"):
             io.set_digital_input(9, True)
         with pytest.raises(ChannelError, match="INTEGER16"):
@@ -191,7 +191,7 @@ def test_heartbeat_option_and_channel_errors():
 
 def test_a_lost_heartbeat_puts_the_outputs_in_their_error_state():
     async def scenario(b: SimBench):
-        io: Io401 = b.sim
+        io: SimulatedIo401 = b.sim
         await b.sdo.write(0x1016, 1, 127 << 16 | 100)
         await b.sdo.write(0x1029, 1, 1)  # communication error: no NMT change
         b.send(0x77F, b"\x05")

@@ -17,9 +17,9 @@ from cobus.proto import Frame
 from cobus.runtime import AsyncNetwork, BusState, BusStateChanged
 from cobus.sim import rig as rig_module
 from cobus.sim._cli import format_table
-from cobus.sim.drive402 import Drive402
+from cobus.sim.drive402 import SimulatedDrive402
 from cobus.sim.faults import BUS_FAULTS
-from cobus.sim.io401 import Io401
+from cobus.sim.io401 import SimulatedIo401
 from cobus.sim.rig import DeviceSpec, KindUnavailableError, Rig, RigError, ready_rig
 from tests.conftest import EDS_DIR
 from tests.test_sim_support import simulate
@@ -67,7 +67,9 @@ def test_a_rig_file_starts_its_devices_on_a_network(tmp_path):
             await net.sleep(0.21)
             remote = net.add_remote(5)
             assert await remote.sdo.upload(0x1018, 1) == struct.pack("<I", 63)
-            assert isinstance(rig.devices[10], Drive402) and isinstance(rig.devices[20], Io401)
+            assert isinstance(rig.devices[10], SimulatedDrive402) and isinstance(
+                rig.devices[20], SimulatedIo401
+            )
             assert rig.device("servo") is rig.devices[10]
             rows = rig.status()
             assert [r["node_id"] for r in rows] == [10, 20, 5]
@@ -268,7 +270,7 @@ def test_the_ready_thesis_rig(tmp_path):
     async def main_():
         async with AsyncNetwork() as net, mine_only.running(net):
             io = mine_only.device("remote I/O")
-            assert isinstance(io, Io401) and io.pot_channel == 1
+            assert isinstance(io, SimulatedIo401) and io.pot_channel == 1
             io.set_potentiometer(0.75)
             remote = net.add_remote(9)
             assert await remote.sdo.upload(0x6401, 1) == struct.pack("<h", 24575)
@@ -288,9 +290,9 @@ def test_a_missing_device_module_is_reported_when_the_rig_starts(tmp_path, monke
             with pytest.raises(KindUnavailableError, match="kind zapi_ace2 is not available"):
                 await rig.start(net)
             assert net.devices == {}  # nothing was started
-            custom = Rig.loads("devices: [{node: 9, kind: 'cobus.sim.io401:Io401'}]")
+            custom = Rig.loads("devices: [{node: 9, kind: 'cobus.sim.io401:SimulatedIo401'}]")
             await custom.start(net)
-            assert isinstance(custom.devices[9], Io401)
+            assert isinstance(custom.devices[9], SimulatedIo401)
             await custom.stop()
             other = Rig.loads("devices: [{node: 9, kind: 'cobus.sim.io401:ChannelError'}]")
             with pytest.raises(KindUnavailableError, match="is not a SimulatedDevice class"):

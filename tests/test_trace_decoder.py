@@ -13,7 +13,7 @@ from cobus.device import export_eds
 from cobus.od import loads
 from cobus.proto import Frame
 from cobus.runtime import AsyncNetwork
-from cobus.sim.drive402 import Drive402 as Servo
+from cobus.sim.drive402 import SimulatedDrive402 as Servo
 from cobus.trace import (
     Bootup,
     Decoder,

@@ -88,12 +88,12 @@ def test_scan_finds_a_python_canopen_local_node(
 
     from cobus.device import export_eds
     from cobus.runtime import AsyncNetwork
-    from cobus.sim.drive402 import Drive402
+    from cobus.sim.drive402 import SimulatedDrive402
     from tests.util import simulate
 
     async def servo_eds() -> str:
         async with AsyncNetwork() as net:
-            return export_eds(Drive402(net, 5).od)
+            return export_eds(SimulatedDrive402(net, 5).od)
 
     eds = tmp_path / "servo.eds"
     eds.write_text(simulate(servo_eds()))

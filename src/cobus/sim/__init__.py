@@ -4,15 +4,16 @@ See :mod:`cobus.sim.base` for what all of them share, :mod:`cobus.sim.generic` f
 simulated CANopen devices share, :mod:`cobus.sim.faults` for the bus faults and
 :mod:`cobus.sim.rig` for rig files (``cobus sim RIG``).
 
-- :class:`Drive402` (kind ``cia402_drive``): a CiA 402 servo drive with a motor model.
-- :class:`Io401` (kind ``cia401_io``): a CiA 401 I/O module with a speed potentiometer.
+- :class:`SimulatedDrive402` (kind ``cia402_drive``): a CiA 402 servo drive with a motor model.
+- :class:`SimulatedIo401` (kind ``cia401_io``): a CiA 401 I/O module with a speed potentiometer.
 - :class:`EdsDevice` (kind ``eds``): the device of any EDS/DCF file.
 - :func:`start_rig` runs a rig from blocking code (``start_rig(net, "thesis")``).
 """
 
+from cobus._moved import renamed_names
 from cobus.sim.base import SimulatedDevice, SimulationError, UnknownFaultError, UnknownQuirkError
 from cobus.sim.blocking import BlockingRig, BlockingSimulatedDevice, start_rig
-from cobus.sim.drive402 import Drive402, DriveState
+from cobus.sim.drive402 import DriveState, SimulatedDrive402
 from cobus.sim.ecmotor import EcMotor
 from cobus.sim.faults import Babbler, FaultConfigError, FaultyBus, fault_catalogue
 from cobus.sim.generic import (
@@ -22,7 +23,7 @@ from cobus.sim.generic import (
     EdsDeviceError,
     FaultParameterError,
 )
-from cobus.sim.io401 import ChannelError, Io401
+from cobus.sim.io401 import ChannelError, SimulatedIo401
 from cobus.sim.rig import KINDS, KindUnavailableError, Rig, RigError, ready_rig, resolve_kind
 from cobus.sim.stober import StoberMds5000
 from cobus.sim.zapi import ZapiAce2
@@ -35,7 +36,6 @@ __all__ = [
     "CanopenSimDevice",
     "ChannelError",
     "DeviceOffError",
-    "Drive402",
     "DriveState",
     "EcMotor",
     "EdsDevice",
@@ -43,11 +43,12 @@ __all__ = [
     "FaultConfigError",
     "FaultParameterError",
     "FaultyBus",
-    "Io401",
     "KindUnavailableError",
     "Rig",
     "RigError",
     "SimulatedDevice",
+    "SimulatedDrive402",
+    "SimulatedIo401",
     "SimulationError",
     "StoberMds5000",
     "UnknownFaultError",
@@ -58,3 +59,12 @@ __all__ = [
     "resolve_kind",
     "start_rig",
 ]
+
+#: One name per idea: cobus.profiles.Drive402 and Io401 drive real ones.
+__getattr__ = renamed_names(
+    __name__,
+    {
+        "Drive402": ("SimulatedDrive402", SimulatedDrive402),
+        "Io401": ("SimulatedIo401", SimulatedIo401),
+    },
+)

@@ -62,6 +62,7 @@ from collections.abc import Mapping
 from typing import Any, ClassVar
 
 from cobus._enum import NamedIntEnum
+from cobus._moved import renamed_names
 from cobus.device import (
     Device,
     DeviceEvent,
@@ -91,7 +92,7 @@ from cobus.runtime.network import AsyncNetwork, Subscription
 from cobus.sim.base import SimulationError
 from cobus.sim.generic import CanopenSimDevice, FaultParameterError, check_fault_params
 
-__all__ = ["Drive402", "DriveState", "Mode"]
+__all__ = ["DriveState", "Mode", "SimulatedDrive402"]
 
 _I32_MIN, _I32_MAX = -(2**31), 2**31 - 1
 _I16_MIN, _I16_MAX = -(2**15), 2**15 - 1
@@ -274,7 +275,7 @@ class _Motor:
             self.temperature = self.ambient + excess * math.exp(-seconds / self.time_constant)
 
 
-class Drive402(CanopenSimDevice):
+class SimulatedDrive402(CanopenSimDevice):
     """A CiA 402 servo drive (see the module docstring).
 
     Model options (SI units; positions in encoder increments): ``inertia`` (kg·m², default
@@ -1329,3 +1330,7 @@ class Drive402(CanopenSimDevice):
     def fault_reason(self) -> str:
         """Why the drive faulted, in words (empty without a fault)."""
         return self._fault_reason
+
+
+#: One name per idea: :class:`cobus.profiles.Drive402` drives a real one.
+__getattr__ = renamed_names(__name__, {"Drive402": ("SimulatedDrive402", SimulatedDrive402)})

@@ -15,16 +15,17 @@ change through (digital: 6005h and the masks; analogue: 6423h and a change of at
 since the value last sent); acyclic synchronous TPDOs (type 0) go out at the next SYNC
 instead.
 
-The physical side: :meth:`Io401.set_digital_input` and :meth:`Io401.set_analog_input` (tests,
-an operator panel; call them on the network's loop), :meth:`Io401.digital_output` and
-:meth:`Io401.analog_output` read what the outputs drive. Channels count from 1: digital
+The physical side: :meth:`SimulatedIo401.set_digital_input` and
+:meth:`SimulatedIo401.set_analog_input` (tests, an operator panel; call them on the network's
+loop), :meth:`SimulatedIo401.digital_output` and :meth:`SimulatedIo401.analog_output` read what
+the outputs drive. Channels count from 1: digital
 channel 1 is bit 0 of 6000h sub 1, channel 9 bit 0 of sub 2; analogue channel n is sub n.
 On a communication error (NMT stopped, heartbeat or life guarding lost) the outputs whose
 error mode bit is set take their error value until the master writes the outputs again.
 
 A **speed potentiometer** (option ``potentiometer``: a channel, or ``{channel, position}``)
-is an analogue input whose knob position 0..1 gives 0..32767 (:meth:`Io401.set_potentiometer`),
-as the thesis rig's speed set-point input.
+is an analogue input whose knob position 0..1 gives 0..32767
+(:meth:`SimulatedIo401.set_potentiometer`), as the thesis rig's speed set-point input.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from collections.abc import Mapping
 from functools import partial
 from typing import Any
 
+from cobus._moved import renamed_names
 from cobus.device import (
     Device,
     DeviceConfigError,
@@ -52,7 +54,7 @@ from cobus.runtime.network import AsyncNetwork
 from cobus.sim.base import SimulationError
 from cobus.sim.generic import CanopenSimDevice
 
-__all__ = ["ChannelError", "Io401"]
+__all__ = ["ChannelError", "SimulatedIo401"]
 
 _DEVICE_TYPE_401 = 0x0191
 _I16_MAX = 0x7FFF
@@ -69,7 +71,7 @@ def _count(value: Any, what: str, high: int) -> int:
     return value
 
 
-class Io401(CanopenSimDevice):
+class SimulatedIo401(CanopenSimDevice):
     """A CiA 401 I/O module (see the module docstring).
 
     Options: ``digital_inputs`` / ``digital_outputs`` (channels, default 16 / 8),
@@ -390,3 +392,7 @@ class Io401(CanopenSimDevice):
         if self.pot_channel is not None:
             out["potentiometer"] = round(self.potentiometer or 0.0, 3)
         return out
+
+
+#: One name per idea: :class:`cobus.profiles.Io401` drives a real one.
+__getattr__ = renamed_names(__name__, {"Io401": ("SimulatedIo401", SimulatedIo401)})

@@ -75,8 +75,8 @@ log = logging.getLogger(__name__)
 
 #: Device kinds of rig files -> "module:Class" of their simulated device.
 KINDS: dict[str, str] = {
-    "cia402_drive": "cobus.sim.drive402:Drive402",
-    "cia401_io": "cobus.sim.io401:Io401",
+    "cia402_drive": "cobus.sim.drive402:SimulatedDrive402",
+    "cia401_io": "cobus.sim.io401:SimulatedIo401",
     "eds": "cobus.sim.generic:EdsDevice",
     "zapi_ace2": "cobus.sim.zapi:ZapiAce2",
     "ec_motor": "cobus.sim.ecmotor:EcMotor",
