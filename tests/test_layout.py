@@ -31,8 +31,7 @@ def test_no_connection_set_literal_outside_its_module() -> None:
 
 #: Class names defined more than once today (issue 41 gives each idea one name).
 SHARED_NAMES_TODAY = {
-    "Emergency", "NmtCommand", "NodeIdInUseError",
-    "Record", "SyncService",
+    "NodeIdInUseError", "SyncService",
 }  # fmt: skip
 #: The one module that builds an SDO client: the network's transports, shared per COB-ID pair.
 SDO_CLIENT_BUILDERS = {"runtime/sdo_transport.py"}
@@ -193,6 +192,10 @@ RENAMED_CLASSES = [
     ("cobus.sim", "Io401", "SimulatedIo401"),
     ("cobus.sim.drive402", "Drive402", "SimulatedDrive402"),
     ("cobus.sim.io401", "Io401", "SimulatedIo401"),
+    ("cobus.trace", "Record", "TraceRecord"),
+    ("cobus.trace", "NmtCommand", "NmtCommandRecord"),
+    ("cobus.trace", "Emergency", "EmergencyRecord"),
+    ("cobus.trace.decoder", "Emergency", "EmergencyRecord"),
 ]
 
 

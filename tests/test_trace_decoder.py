@@ -17,10 +17,10 @@ from cobus.sim.drive402 import SimulatedDrive402 as Servo
 from cobus.trace import (
     Bootup,
     Decoder,
-    Emergency,
+    EmergencyRecord,
     GuardResponse,
     Heartbeat,
-    NmtCommand,
+    NmtCommandRecord,
     PdoRecord,
     SdoTransfer,
     SyncRecord,
@@ -69,10 +69,13 @@ def test_the_documents_frames_decode_to_what_they_mean() -> None:
     assert isinstance(answer, GuardResponse) and answer.toggle == 1
     assert str(answer) == "node 9 guarding OPERATIONAL (toggle 1)"
     (emcy,) = d.feed(frame("08A: 10 43 09 00 00 00 00 00"), 0)
-    assert isinstance(emcy, Emergency) and emcy.register_bits == ["generic", "temperature"]
+    assert isinstance(emcy, EmergencyRecord) and emcy.register_bits == ["generic", "temperature"]
     assert (
         str(emcy) == "node 10 EMCY 4310h Temperature (4310h) (register 09h: generic, temperature)"
     )
+    carried = emcy.emergency  # the one emergency record of cobus (proto's)
+    assert (carried.node_id, carried.code, carried.register) == (10, 0x4310, 0x09)
+    assert carried.manufacturer_data == bytes(5) and carried.text == emcy.text
     assert decoded(d, "08A: 00 00 00 00 00 00 00 00") == [
         "node 10 EMCY 0000h error reset (register 00h)"
     ]
@@ -165,13 +168,13 @@ def test_a_simulated_session_decodes_into_what_happened() -> None:
         in texts[texts.index(str(reads[1]))]
     )
     assert reads[2].abort_code == 0x06020000 and not reads[2].ok
-    assert any(isinstance(r, NmtCommand) and r.target == 10 for r in records)
+    assert any(isinstance(r, NmtCommandRecord) and r.target == 10 for r in records)
     assert any(isinstance(r, Heartbeat) and r.state == "OPERATIONAL" for r in records)
     assert any(isinstance(r, SyncRecord) for r in records)
     tpdos = [r for r in records if isinstance(r, PdoRecord) and r.cob_id == 0x18A]
     assert tpdos and list(tpdos[-1].values) == ["Statusword"]  # the mapping written: learnt
     assert str(tpdos[-1]).startswith("node 10 TPDO1 Statusword=")
-    faults = [r for r in records if isinstance(r, Emergency)]
+    faults = [r for r in records if isinstance(r, EmergencyRecord)]
     assert faults and faults[0].code == 0x7121 and faults[0].kind == "emcy"
 
 
@@ -679,20 +682,20 @@ def test_a_cia402_drive_s_emergencies_have_the_cia402_texts() -> None:
     emcy = Frame(0x08A, bytes([0x05, 0x73, 0x81, 0, 0, 0, 0, 0]))  # 7305h, node 10
     plain = Decoder()
     (generic,) = plain.feed(emcy, 0.0)
-    assert isinstance(generic, Emergency) and generic.text == "Additional modules (7305h)"
+    assert isinstance(generic, EmergencyRecord) and generic.text == "Additional modules (7305h)"
     # the decoder learns the profile from a read of 1000h on the bus ...
     plain.feed(Frame(0x60A, bytes([0x40, 0x00, 0x10, 0, 0, 0, 0, 0])), 0.1)
     plain.feed(Frame(0x58A, bytes([0x43, 0x00, 0x10, 0, 0x92, 0x01, 0x02, 0x00])), 0.2)
     (drive,) = plain.feed(emcy, 0.3)
-    assert isinstance(drive, Emergency) and drive.text == "Incremental sensor 1 fault"
+    assert isinstance(drive, EmergencyRecord) and drive.text == "Incremental sensor 1 fault"
     assert "EMCY 7305h Incremental sensor 1 fault" in str(drive)
     # ... or from the node's EDS
     od = loads(_servo_eds())
     (known,) = Decoder({10: od}).feed(emcy, 0.0)
-    assert isinstance(known, Emergency) and known.text == "Incremental sensor 1 fault"
+    assert isinstance(known, EmergencyRecord) and known.text == "Incremental sensor 1 fault"
     # another node's stays CiA 301's
     (other,) = Decoder({10: od}).feed(Frame(0x08B, emcy.data), 0.0)
-    assert isinstance(other, Emergency) and other.text == "Additional modules (7305h)"
+    assert isinstance(other, EmergencyRecord) and other.text == "Additional modules (7305h)"
 
 
 def _servo_eds() -> str:

@@ -1,23 +1,24 @@
 """Looking at a bus: :class:`~cobus.trace.decoder.Decoder` turns frames into CANopen records
 (NMT, heartbeat, guarding, SYNC, TIME, EMCY, LSS, whole SDO transfers, PDOs by name)."""
 
+from cobus._moved import renamed_names
 from cobus.trace.decoder import (
     Bootup,
     Decoder,
-    Emergency,
+    EmergencyRecord,
     GuardRequest,
     GuardResponse,
     Heartbeat,
     LssFrame,
     LssSession,
-    NmtCommand,
+    NmtCommandRecord,
     NodeStats,
     PdoRecord,
-    Record,
     SdoBlockFrame,
     SdoTransfer,
     SyncRecord,
     TimeRecord,
+    TraceRecord,
     Unknown,
     frame_kind,
 )
@@ -25,20 +26,29 @@ from cobus.trace.decoder import (
 __all__ = [
     "Bootup",
     "Decoder",
-    "Emergency",
+    "EmergencyRecord",
     "GuardRequest",
     "GuardResponse",
     "Heartbeat",
     "LssFrame",
     "LssSession",
-    "NmtCommand",
+    "NmtCommandRecord",
     "NodeStats",
     "PdoRecord",
-    "Record",
     "SdoBlockFrame",
     "SdoTransfer",
     "SyncRecord",
     "TimeRecord",
+    "TraceRecord",
     "Unknown",
     "frame_kind",
 ]
+
+__getattr__ = renamed_names(
+    __name__,
+    {
+        "Record": ("TraceRecord", TraceRecord),
+        "NmtCommand": ("NmtCommandRecord", NmtCommandRecord),
+        "Emergency": ("EmergencyRecord", EmergencyRecord),
+    },
+)

@@ -66,14 +66,14 @@ _WORDS = {
     "lss": "LSS",
 }
 _RECORDS = {
-    "NmtCommand": "NMT",
+    "NmtCommandRecord": "NMT",
     "Bootup": "boot-up",
     "Heartbeat": "heartbeat",
     "GuardRequest": "guarding request",
     "GuardResponse": "guarding",
     "SyncRecord": "SYNC",
     "TimeRecord": "TIME",
-    "Emergency": "EMCY",
+    "EmergencyRecord": "EMCY",
     "SdoTransfer": "SDO",
     "SdoBlockFrame": "SDO block",
     "LssFrame": "LSS",

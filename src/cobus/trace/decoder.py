@@ -24,9 +24,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from cobus._moved import renamed_names
 from cobus.od import DataType, ObjectDictionary, Variable, decode
 from cobus.profiles.cia402 import PowerState, error_text
 from cobus.proto import Frame
+from cobus.proto import emcy as _emcy
 from cobus.proto.connection_set import (
     ERROR_CONTROL_BASE,
     LSS_MASTER_COB_ID,
@@ -43,20 +45,20 @@ from cobus.trace._lss import describe as describe_lss
 __all__ = [
     "Bootup",
     "Decoder",
-    "Emergency",
+    "EmergencyRecord",
     "GuardRequest",
     "GuardResponse",
     "Heartbeat",
     "LssFrame",
     "LssSession",
-    "NmtCommand",
+    "NmtCommandRecord",
     "NodeStats",
     "PdoRecord",
-    "Record",
     "SdoBlockFrame",
     "SdoTransfer",
     "SyncRecord",
     "TimeRecord",
+    "TraceRecord",
     "Unknown",
     "frame_kind",
 ]
@@ -77,7 +79,7 @@ _MAPPING = 0x200
 
 
 @dataclass(frozen=True)
-class Record:
+class TraceRecord:
     """What one or more frames meant: ``time`` of the (last) frame, its ``cob_id``."""
 
     time: float
@@ -93,11 +95,11 @@ class Record:
         all nodes (a filter on one node must still show who stopped it)."""
         if getattr(self, "node", None) == node:
             return True
-        return isinstance(self, NmtCommand) and self.target in (0, node)
+        return isinstance(self, NmtCommandRecord) and self.target in (0, node)
 
 
 @dataclass(frozen=True)
-class NmtCommand(Record):
+class NmtCommandRecord(TraceRecord):
     """An NMT command: ``command`` to ``target`` (0: all nodes)."""
 
     command: str
@@ -109,7 +111,7 @@ class NmtCommand(Record):
 
 
 @dataclass(frozen=True)
-class Bootup(Record):
+class Bootup(TraceRecord):
     """A node's boot-up message."""
 
     node: int
@@ -119,7 +121,7 @@ class Bootup(Record):
 
 
 @dataclass(frozen=True)
-class Heartbeat(Record):
+class Heartbeat(TraceRecord):
     """A heartbeat: the NMT state the node reports."""
 
     node: int
@@ -130,7 +132,7 @@ class Heartbeat(Record):
 
 
 @dataclass(frozen=True)
-class GuardRequest(Record):
+class GuardRequest(TraceRecord):
     """The master's node guarding request (a remote frame)."""
 
     node: int
@@ -140,7 +142,7 @@ class GuardRequest(Record):
 
 
 @dataclass(frozen=True)
-class GuardResponse(Record):
+class GuardResponse(TraceRecord):
     """A node guarding answer: state and toggle bit."""
 
     node: int
@@ -156,7 +158,7 @@ class GuardResponse(Record):
 
 
 @dataclass(frozen=True)
-class SyncRecord(Record):
+class SyncRecord(TraceRecord):
     """A SYNC, with its counter when it has one."""
 
     counter: int | None
@@ -166,7 +168,7 @@ class SyncRecord(Record):
 
 
 @dataclass(frozen=True)
-class TimeRecord(Record):
+class TimeRecord(TraceRecord):
     """A TIME stamp (TIME_OF_DAY)."""
 
     moment: dt.datetime
@@ -176,7 +178,7 @@ class TimeRecord(Record):
 
 
 @dataclass(frozen=True)
-class Emergency(Record):
+class EmergencyRecord(TraceRecord):
     """An emergency: code with its text, the error register and its bits. ``profile``: the
     device profile of the node (1000h), when the decoder knows it: a CiA 402 drive's codes
     have the CiA 402-2 texts."""
@@ -199,6 +201,14 @@ class Emergency(Record):
         """The error register's bits by name (generic, current, voltage...)."""
         return [str(bit.name).lower() for bit in ErrorRegister if self.register & bit]
 
+    @property
+    def emergency(self) -> _emcy.Emergency:
+        """The emergency as the rest of cobus keeps it (a remote node's ``emcy``, the master's
+        histories): :class:`cobus.proto.emcy.Emergency`, ``data`` as its ``manufacturer_data``."""
+        return _emcy.Emergency(
+            self.node, self.time, self.code, ErrorRegister(self.register), self.data, self.text
+        )
+
     def __str__(self) -> str:
         if self.code >> 8 == 0:
             register = f"{self.register:02X}h"
@@ -212,7 +222,7 @@ class Emergency(Record):
 
 
 @dataclass(frozen=True)
-class SdoTransfer(Record):
+class SdoTransfer(TraceRecord):
     """A whole SDO transfer: read (upload) or write (download) of ``index``:``subindex``,
     its data and value (decoded with the node's dictionary, else as a number when short),
     how (expedited, segmented), how long from request to last answer; or its abort."""
@@ -253,7 +263,7 @@ class SdoTransfer(Record):
 
 
 @dataclass(frozen=True)
-class SdoBlockFrame(Record):
+class SdoBlockFrame(TraceRecord):
     """A frame of an SDO block transfer (not reassembled)."""
 
     node: int
@@ -264,7 +274,7 @@ class SdoBlockFrame(Record):
 
 
 @dataclass(frozen=True)
-class PdoRecord(Record):
+class PdoRecord(TraceRecord):
     """A PDO: its number and direction as the node sees it (``tpdo``: sent by the node), the
     data, and its values by name when the mapping is known."""
 
@@ -291,7 +301,7 @@ class PdoRecord(Record):
 
 
 @dataclass(frozen=True)
-class LssFrame(Record):
+class LssFrame(TraceRecord):
     """An LSS frame (master request 7E5h, slave answer 7E4h) by its command specifier."""
 
     command: int
@@ -303,7 +313,7 @@ class LssFrame(Record):
 
 
 @dataclass(frozen=True)
-class LssSession(Record):
+class LssSession(TraceRecord):
     """What an LSS exchange came to, as a sentence: "LSS: serial 0x0000002A (...) got
     node-ID 12", "LSS: fastscan found ...", "... stored its configuration"."""
 
@@ -314,7 +324,7 @@ class LssSession(Record):
 
 
 @dataclass(frozen=True)
-class Unknown(Record):
+class Unknown(TraceRecord):
     """A frame the decoder has no meaning for."""
 
     data: bytes
@@ -325,14 +335,14 @@ class Unknown(Record):
 
 
 _KINDS = {
-    "NmtCommand": "nmt",
+    "NmtCommandRecord": "nmt",
     "Bootup": "hb",
     "Heartbeat": "hb",
     "GuardRequest": "hb",
     "GuardResponse": "hb",
     "SyncRecord": "sync",
     "TimeRecord": "time",
-    "Emergency": "emcy",
+    "EmergencyRecord": "emcy",
     "SdoTransfer": "sdo",
     "SdoBlockFrame": "sdo",
     "PdoRecord": "pdo",
@@ -651,7 +661,7 @@ class Decoder:
             found = self.stats[node] = NodeStats(node)
         return found
 
-    def feed(self, frame: Frame, now: float) -> list[Record]:
+    def feed(self, frame: Frame, now: float) -> list[TraceRecord]:
         """The records ``frame`` completes (none while an SDO transfer is under way)."""
         records = self._decode(frame, now)
         cob = frame.cob_id
@@ -681,17 +691,17 @@ class Decoder:
                     if value is None and len(rec.data) == 2:
                         value = int.from_bytes(rec.data, "little")
                     self.node_stats(rec.node)._statusword(now, value, _axis(rec.index))
-            elif isinstance(rec, Emergency):
+            elif isinstance(rec, EmergencyRecord):
                 stats = self.node_stats(rec.node)
                 stats.emcy_count += 1
                 stats.last_emcy = str(rec).split(" ", 2)[2]
                 stats.timeline.append((now, f"EMCY {rec.code:04X}h"))
         return records
 
-    def flush(self, now: float) -> list[Record]:
+    def flush(self, now: float) -> list[TraceRecord]:
         """The SDO transfers still open (a trace that ended mid-transfer), as records of
         mode "incomplete" with the data seen so far."""
-        out: list[Record] = []
+        out: list[TraceRecord] = []
         for node in sorted(self._sdo):
             t = self._sdo.pop(node)
             cob = (SDO_RX_BASE if t.write else SDO_TX_BASE) + node
@@ -712,7 +722,7 @@ class Decoder:
             )
         return out
 
-    def _decode(self, frame: Frame, now: float) -> list[Record]:
+    def _decode(self, frame: Frame, now: float) -> list[TraceRecord]:
         cob, data = frame.cob_id, bytes(frame.data)
         if frame.extended:
             return [Unknown(now, cob, data, frame.rtr)]
@@ -723,7 +733,9 @@ class Decoder:
             if data[0] in (0x81, 0x82):  # a reset: the next guarding answer carries toggle 0
                 for target in list(self._toggle) if data[1] == 0 else [data[1]]:
                     self._toggle[target] = 0
-            return [NmtCommand(now, cob, _NMT.get(data[0], f"command {data[0]:02X}h"), data[1])]
+            return [
+                NmtCommandRecord(now, cob, _NMT.get(data[0], f"command {data[0]:02X}h"), data[1])
+            ]
         if cob == 0x080:
             return [SyncRecord(now, cob, data[0] if data else None)]
         if cob == 0x100 and len(data) >= 6:
@@ -735,7 +747,7 @@ class Decoder:
             code = int.from_bytes(data[:2], "little")
             profile = self._profiles.get(node)
             extra = data[3:8].ljust(5, b"\0")
-            return [Emergency(now, cob, node, code, data[2], extra, profile)]
+            return [EmergencyRecord(now, cob, node, code, data[2], extra, profile)]
         if func == ERROR_CONTROL_BASE and node:
             if frame.rtr:
                 self._guard_asked[node] = now
@@ -822,7 +834,7 @@ class Decoder:
 
     # ------------------------------------------------------------------ SDO
 
-    def _sdo_request(self, now: float, cob: int, node: int, data: bytes) -> list[Record]:
+    def _sdo_request(self, now: float, cob: int, node: int, data: bytes) -> list[TraceRecord]:
         ccs = data[0] >> 5
         index, sub = int.from_bytes(data[1:3], "little"), data[3]
         t0 = self._sdo.get(node)
@@ -878,7 +890,7 @@ class Decoder:
             return self._abort(now, cob, node, data)
         return []
 
-    def _sdo_response(self, now: float, cob: int, node: int, data: bytes) -> list[Record]:
+    def _sdo_response(self, now: float, cob: int, node: int, data: bytes) -> list[TraceRecord]:
         scs = data[0] >> 5
         t = self._sdo.get(node)
         if t is not None and t.block == "segments" and not t.write and data[0] != 0x80:
@@ -939,7 +951,7 @@ class Decoder:
                 return self._done(now, cob, node, "segmented")
         return []
 
-    def _block_segment(self, t: _Sdo, data: bytes) -> list[Record]:
+    def _block_segment(self, t: _Sdo, data: bytes) -> list[TraceRecord]:
         seq = data[0] & 0x7F
         t.segments[seq] = data[1:8]
         if data[0] & 0x80:
@@ -960,7 +972,7 @@ class Decoder:
             t.last_segment = False  # (the rest of the sub-block comes again)
             t.block = "segments"
 
-    def _abort(self, now: float, cob: int, node: int, data: bytes) -> list[Record]:
+    def _abort(self, now: float, cob: int, node: int, data: bytes) -> list[TraceRecord]:
         t = self._sdo.pop(node, None)
         index, sub = int.from_bytes(data[1:3], "little"), data[3]
         code = int.from_bytes(data[4:8], "little")
@@ -973,7 +985,7 @@ class Decoder:
             )
         ]
 
-    def _done(self, now: float, cob: int, node: int, mode: str) -> list[Record]:
+    def _done(self, now: float, cob: int, node: int, mode: str) -> list[TraceRecord]:
         t = self._sdo.pop(node)
         data = bytes(t.data)
         if t.block and t.size is not None:
@@ -1078,3 +1090,15 @@ def _name(var: Variable) -> str:
     if var.parent is None:
         return var.name
     return f"{var.parent.name}.{var.name}"
+
+
+#: One name per idea: cobus.od.Record is a RECORD object, cobus.proto.nmt.NmtCommand the
+#: command itself and cobus.proto.emcy.Emergency the emergency (:attr:`EmergencyRecord.emergency`).
+__getattr__ = renamed_names(
+    __name__,
+    {
+        "Record": ("TraceRecord", TraceRecord),
+        "NmtCommand": ("NmtCommandRecord", NmtCommandRecord),
+        "Emergency": ("EmergencyRecord", EmergencyRecord),
+    },
+)
