@@ -187,7 +187,7 @@ def test_a_device_holds_its_node_id_from_creation_to_close():
             assert net.devices == {5: first}  # attached, not started yet
             with pytest.raises(NodeIdInUseError, match="node-ID 5 is used by another device"):
                 Device(net, 5, test_od())
-            assert issubclass(NodeIdInUseError, RuntimeNodeIdInUseError)
+            assert NodeIdInUseError is RuntimeNodeIdInUseError  # one class per idea
             first.start()
             first.node_id = 9
             assert net.devices == {9: first}

@@ -30,23 +30,30 @@ def test_no_connection_set_literal_outside_its_module() -> None:
 
 
 #: Class names defined more than once today (issue 41 gives each idea one name).
-SHARED_NAMES_TODAY = {
-    "NodeIdInUseError", "SyncService",
-}  # fmt: skip
 #: The one module that builds an SDO client: the network's transports, shared per COB-ID pair.
 SDO_CLIENT_BUILDERS = {"runtime/sdo_transport.py"}
 
 
-def test_no_new_class_name_is_defined_twice() -> None:
+def test_no_class_name_is_defined_twice() -> None:
     where: dict[str, list[str]] = {}
     for path in sorted(SRC.rglob("*.py")):
         for name in re.findall(r"^class ([A-Z][A-Za-z0-9]*)", path.read_text(), re.M):
             where.setdefault(name, []).append(str(path.relative_to(SRC)))
     shared = {name: files for name, files in where.items() if len(files) > 1}
-    new = {name: files for name, files in shared.items() if name not in SHARED_NAMES_TODAY}
-    assert not new, f"one name per idea: {new}"
-    gone = SHARED_NAMES_TODAY - set(shared)
-    assert not gone, f"no longer shared: take {sorted(gone)} out of SHARED_NAMES_TODAY"
+    assert not shared, f"one name per idea: {shared}"
+
+
+def test_a_blocking_twin_is_named_after_its_async_class() -> None:
+    """X is the twin of AsyncX; BlockingX the twin of an async class named X (see cobus)."""
+    twins = []
+    for path in sorted(SRC.rglob("*.py")):
+        found = re.findall(
+            r"^class (\w+)\(BlockingTwin, twin_of=([\w.]+)\)", path.read_text(), re.M
+        )
+        twins += [(name, of.rpartition(".")[2]) for name, of in found]
+    assert len(twins) > 20
+    wrong = [(n, of) for n, of in twins if of != f"Async{n}" and n != f"Blocking{of}"]
+    assert not wrong, wrong
 
 
 def test_no_new_module_builds_an_sdo_client() -> None:
@@ -196,6 +203,11 @@ RENAMED_CLASSES = [
     ("cobus.trace", "NmtCommand", "NmtCommandRecord"),
     ("cobus.trace", "Emergency", "EmergencyRecord"),
     ("cobus.trace.decoder", "Emergency", "EmergencyRecord"),
+    ("cobus.runtime", "SyncService", "NetworkSync"),
+    ("cobus.runtime.remote", "SyncService", "NetworkSync"),
+    ("cobus.runtime.blocking", "BlockingSdo", "BlockingSdoChannel"),
+    ("cobus.runtime.blocking", "BlockingNmt", "BlockingNmtMaster"),
+    ("cobus.runtime.blocking", "BlockingSync", "BlockingNetworkSync"),
 ]
 
 

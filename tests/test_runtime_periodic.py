@@ -19,7 +19,7 @@ from cobus.proto import Frame
 from cobus.proto.sync import SyncConfigError
 from cobus.runtime import AsyncNetwork, HandlerFailed, Network
 from cobus.runtime.periodic import InterfaceTimer, InterfaceTimingError, interface_timing
-from cobus.runtime.remote import SyncService
+from cobus.runtime.remote import NetworkSync
 from tests.test_runtime_fd_read import _multicast_or_skip, _until
 from tests.test_runtime_fd_read import _on_real_time_loop as _real_time
 
@@ -33,7 +33,7 @@ def _group_or_skip() -> tuple[str, int]:
     return group, port
 
 
-def _state(sync: SyncService) -> tuple[bool, bool, float | None]:
+def _state(sync: NetworkSync) -> tuple[bool, bool, float | None]:
     """running, by_interface, period (read through a call: mypy would keep an earlier
     assert's narrowing of the properties)"""
     return sync.running, sync.by_interface, sync.period

@@ -389,7 +389,7 @@ def test_every_async_operation_has_its_blocking_twin():
 
     expected = {
         remote.AsyncRemoteNode: blocking.RemoteNode,
-        remote.SdoChannel: blocking.BlockingSdo,
+        remote.SdoChannel: blocking.BlockingSdoChannel,
         remote.AsyncSdoVariable: blocking.SdoVariable,
         remote.AsyncSdoRecord: blocking.SdoRecord,
         nmt.AsyncRemoteNmt: blocking.RemoteNmt,
@@ -415,8 +415,8 @@ def test_every_async_operation_has_its_blocking_twin():
         BlockingMaster: {"sleep"},
         blocking.SdoVariable: {"raw"},  # python-canopen's habit; a property cannot await
     }
-    expected[remote.NmtMaster] = blocking.BlockingNmt
-    expected[remote.SyncService] = blocking.BlockingSync
+    expected[remote.NmtMaster] = blocking.BlockingNmtMaster
+    expected[remote.NetworkSync] = blocking.BlockingNetworkSync
     assert dict(twin_module._TWINS) == expected
     for async_cls, twin in expected.items():
         missing = twin_module.public_names(async_cls) - twin_module.public_names(twin)

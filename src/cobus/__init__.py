@@ -14,10 +14,15 @@ One naming rule, for every public name:
   ``EmergencySent``, ``TransferFailed``;
 - an exception ends in ``Error``: ``SdoTimeoutError``, ``NameLookupError``;
 - ``AsyncX`` is the asyncio class and ``X`` its blocking twin (``AsyncNetwork`` /
-  ``Network``, ``AsyncDrive402`` / ``Drive402``);
-- one idea has one name, and no two public classes share one (``tests/test_layout.py``
-  keeps a shrinking list of those that still do); one field has one name wherever the idea
-  travels (an emergency's bytes are ``manufacturer_data`` in the record and its events);
+  ``Network``, ``AsyncDrive402`` / ``Drive402``, ``AsyncRemoteNode`` / ``RemoteNode``); where
+  the asyncio class has long had the plain name (``Master``, ``Device``, ``Rig``,
+  ``Simulation``, ``SimulatedDevice``, ``NmtMaster``, ``SdoChannel``, ``NetworkSync``) its
+  twin is ``BlockingX``, since turning those names into other classes would break every
+  program that uses them;
+- one idea has one name, and no two classes of cobus share one (a simulated device is
+  ``SimulatedX``, a decoded trace record ``XRecord``); one field has one name wherever the
+  idea travels (an emergency's bytes are ``manufacturer_data`` in the record and its events);
+  ``tests/test_layout.py`` checks both rules;
 - a renamed public name keeps working for one release and warns with the new one
   (:class:`cobus._moved.Renamed`); a moved one says where it went.
 """

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from cobus.errors import CobusError
 from cobus.proto.sdo import SdoAbortCode, describe
-from cobus.runtime import errors as _runtime
+from cobus.runtime.errors import NodeIdInUseError
 
 __all__ = [
     "DeviceConfigError",
@@ -23,10 +23,6 @@ class DeviceError(CobusError):
 
 class DeviceConfigError(DeviceError, ValueError):
     """The object dictionary or an option cannot run as a device (says what to add or fix)."""
-
-
-class NodeIdInUseError(DeviceError, _runtime.NodeIdInUseError):
-    """Another device of the same network already has this node-ID."""
 
 
 class EntryError(DeviceError):

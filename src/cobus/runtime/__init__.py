@@ -12,6 +12,7 @@
 The errors a user of a remote node meets are importable from here as well.
 """
 
+from cobus._moved import renamed_names
 from cobus.od import ValueRangeError
 from cobus.proto.sdo import SdoAbortCode, SdoAbortedError, SdoError, SdoTimeoutError
 from cobus.runtime.blocking import Network, ReentrantCallError, RemoteNode
@@ -54,11 +55,11 @@ from cobus.runtime.pdo import (
 from cobus.runtime.periodic import InterfaceTimingError
 from cobus.runtime.remote import (
     AsyncRemoteNode,
+    NetworkSync,
     NmtMaster,
     ObjectAccessError,
     ObjectNotFoundError,
     SdoChannel,
-    SyncService,
 )
 
 __all__ = [
@@ -76,6 +77,7 @@ __all__ = [
     "MachineHost",
     "Network",
     "NetworkClosedError",
+    "NetworkSync",
     "NmtMaster",
     "NmtTimeoutError",
     "NodeIdInUseError",
@@ -98,7 +100,6 @@ __all__ = [
     "SimulatedEventLoop",
     "SimulationStalledError",
     "Subscription",
-    "SyncService",
     "TxBufferOverflow",
     "TxOverflowError",
     "TxQueueFull",
@@ -108,3 +109,5 @@ __all__ = [
     "open_bus",
     "run",
 ]
+
+__getattr__ = renamed_names(__name__, {"SyncService": ("NetworkSync", NetworkSync)})

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import can
 
-from cobus._moved import Moved
+from cobus._moved import Moved, renamed_names
 from cobus.proto import Event, Frame
 from cobus.runtime import emcy as _emcy
 from cobus.runtime import nmt as _nmt
@@ -34,7 +34,7 @@ from cobus.runtime.errors import ReentrantCallError
 from cobus.runtime.events import BusState
 from cobus.runtime.loop import RealTimeLoop, SimulatedEventLoop, new_event_loop
 from cobus.runtime.network import AsyncNetwork, FrameHandler, NetworkClosedError, Subscription
-from cobus.runtime.remote import AsyncRemoteNode, NmtMaster, SdoChannel, SyncService
+from cobus.runtime.remote import AsyncRemoteNode, NetworkSync, NmtMaster, SdoChannel
 from cobus.runtime.sdo_transport import downloaded, refused_block, uploaded
 from cobus.runtime.twin import BlockingTwin, twin_of
 
@@ -46,9 +46,9 @@ if TYPE_CHECKING:
     from cobus.runtime.reading import ReadingRole
 
 __all__ = [
-    "BlockingNmt",
-    "BlockingSdo",
-    "BlockingSync",
+    "BlockingNetworkSync",
+    "BlockingNmtMaster",
+    "BlockingSdoChannel",
     "BlockingTwin",
     "Network",
     "PdoSet",
@@ -650,15 +650,15 @@ class Network:
         self._remote_twins.pop(node_id, None)
 
     @property
-    def nmt(self) -> BlockingNmt:
+    def nmt(self) -> BlockingNmtMaster:
         """The NMT master service: ``net.nmt.start(2)``, ``net.nmt.reset_node()``..."""
-        twin: BlockingNmt = self._service(self.aio.nmt)
+        twin: BlockingNmtMaster = self._service(self.aio.nmt)
         return twin
 
     @property
-    def sync(self) -> BlockingSync:
+    def sync(self) -> BlockingNetworkSync:
         """The SYNC producer: ``net.sync.start(0.01)``, ``net.sync.stop()``."""
-        twin: BlockingSync = self._service(self.aio.sync)
+        twin: BlockingNetworkSync = self._service(self.aio.sync)
         return twin
 
     def _service(self, aio: Any) -> Any:
@@ -700,7 +700,7 @@ def _download(
     downloaded(event)
 
 
-class BlockingSdo(BlockingTwin, twin_of=SdoChannel):
+class BlockingSdoChannel(BlockingTwin, twin_of=SdoChannel):
     """The blocking face of an :class:`~cobus.runtime.remote.SdoChannel`: the same methods,
     each waiting for its transfer.
 
@@ -831,17 +831,28 @@ class RemoteNode(BlockingTwin, twin_of=AsyncRemoteNode):
     returns once done (see :class:`cobus.runtime.remote.AsyncRemoteNode`)."""
 
     if TYPE_CHECKING:
-        sdo: BlockingSdo
+        sdo: BlockingSdoChannel
         nmt: RemoteNmt
         emcy: RemoteEmcy
         tpdo: PdoSet
         rpdo: PdoSet
 
 
-class BlockingNmt(BlockingTwin, twin_of=NmtMaster):
+class BlockingNmtMaster(BlockingTwin, twin_of=NmtMaster):
     """NMT commands from blocking code (``net.nmt.start(2)``); each call returns once the
     frame is handed over."""
 
 
-class BlockingSync(BlockingTwin, twin_of=SyncService):
+class BlockingNetworkSync(BlockingTwin, twin_of=NetworkSync):
     """The SYNC producer from blocking code (``net.sync.start(0.01)``)."""
+
+
+#: A blocking twin is X of AsyncX, or BlockingX of X (see :mod:`cobus`).
+__getattr__ = renamed_names(
+    __name__,
+    {
+        "BlockingSdo": ("BlockingSdoChannel", BlockingSdoChannel),
+        "BlockingNmt": ("BlockingNmtMaster", BlockingNmtMaster),
+        "BlockingSync": ("BlockingNetworkSync", BlockingNetworkSync),
+    },
+)

@@ -100,4 +100,5 @@ class PdoTimeoutError(CobusError, TimeoutError):
 
 class NodeIdInUseError(CobusError, ValueError):
     """A node-ID this process already answers to on the network (another local device holds
-    it); give each local device a node-ID of its own."""
+    it); give each local device a node-ID of its own. The device layer raises this one too
+    (``cobus.device.NodeIdInUseError`` is the same class; it is no ``DeviceError``)."""

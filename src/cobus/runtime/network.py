@@ -37,7 +37,7 @@ from cobus.runtime.local_nodes import LocalNodes
 from cobus.runtime.loop import RealTimeLoop, SimulatedEventLoop
 from cobus.runtime.multicast import EchoFreeSender, echo_free_sender
 from cobus.runtime.reading import ReadingRole
-from cobus.runtime.remote import AsyncRemoteNode, NmtMaster, SyncService, load_od
+from cobus.runtime.remote import AsyncRemoteNode, NetworkSync, NmtMaster, load_od
 from cobus.runtime.sdo_transport import SdoTransport
 
 if TYPE_CHECKING:
@@ -314,7 +314,7 @@ class AsyncNetwork:
         self._sdo_transports: dict[tuple[int, int], SdoTransport] = {}
         self.devices = LocalNodes()
         self._nmt: NmtMaster | None = None
-        self._sync: SyncService | None = None
+        self._sync: NetworkSync | None = None
 
     # ------------------------------------------------------------------ life cycle
     async def connect(self) -> AsyncNetwork:
@@ -577,10 +577,10 @@ class AsyncNetwork:
         return self._nmt
 
     @property
-    def sync(self) -> SyncService:
+    def sync(self) -> NetworkSync:
         """The SYNC producer: ``net.sync.start(period)``, ``net.sync.stop()``."""
         if self._sync is None:
-            self._sync = SyncService(self)
+            self._sync = NetworkSync(self)
         return self._sync
 
     # ------------------------------------------------------------------ events

@@ -34,12 +34,12 @@ __all__ = [
     "AsyncRemoteNode",
     "AsyncSdoRecord",
     "AsyncSdoVariable",
+    "NetworkSync",
     "NmtCommands",
     "NmtMaster",
     "ObjectAccessError",
     "ObjectNotFoundError",
     "SdoChannel",
-    "SyncService",
 ]
 
 Key = int | str
@@ -551,7 +551,7 @@ class AsyncRemoteNode:
         self.sdo._close()
 
 
-class SyncService:
+class NetworkSync:
     """The SYNC producer of this network: ``net.sync.start(0.01)`` sends SYNC every 10 ms.
 
     The network's loop times it, or, with ``start(..., by_interface=True)``, the CAN interface
@@ -697,5 +697,6 @@ __getattr__ = renamed_names(
         "RemoteNode": ("AsyncRemoteNode", AsyncRemoteNode),
         "SdoRecord": ("AsyncSdoRecord", AsyncSdoRecord),
         "SdoVariable": ("AsyncSdoVariable", AsyncSdoVariable),
+        "SyncService": ("NetworkSync", NetworkSync),
     },
 )
