@@ -16,6 +16,10 @@ SRC = Path(__file__).resolve().parent.parent / "src" / "cobus"
 #: A connection-set base added to or taken from a node-ID (or a COB-ID) as a literal.
 PLUS = re.compile(r"0x0*(80|180|200|280|300|380|400|480|500|580|600|700)\s*\+\s*[A-Za-z_(]")
 MINUS = re.compile(r"[A-Za-z_)\]]\s*-\s*0x0*(80|180|200|580|600|700)\b")
+#: A chained comparison with an edge of the set as a literal (``0x581 <= cob <= 0x5FF``).
+_EDGE = r"0x(080|081|0FF|17F|180|181|1FF|57F|580|581|5FF|600|601|67F|700|701|77F)\b"
+_COB = r"[\w.]*(?:cob|can_id|ident)[\w.]*"
+RANGE = re.compile(rf"{_EDGE}\s*<=?\s*{_COB}\s*<=?|<=?\s*{_COB}\s*<=?\s*{_EDGE}", re.I)
 
 
 def test_no_connection_set_literal_outside_its_module() -> None:
@@ -24,7 +28,7 @@ def test_no_connection_set_literal_outside_its_module() -> None:
         for path in sorted(SRC.rglob("*.py"))
         if path.name != "connection_set.py"
         for n, line in enumerate(path.read_text().splitlines(), 1)
-        if PLUS.search(line) or MINUS.search(line)
+        if PLUS.search(line) or MINUS.search(line) or RANGE.search(line)
     ]
     assert not found, "use cobus.proto.connection_set:\n" + "\n".join(found)
 

@@ -47,13 +47,14 @@ from typing import Any
 
 from cobus._yaml import DataFileError, FileProblem, LineMap, line_of, milliseconds, read_yaml
 from cobus.od import DataType, data_type_named, decode, encode
+from cobus.proto.connection_set import SYNC_COB_ID, TIME_COB_ID
 from cobus.proto.pdo import is_restricted_can_id
 
 
 def _reserved(can_id: int) -> bool:
     """CiA 301's restricted identifiers, and those of SYNC (080h), EMCY (081h-0FFh) and
     TIME (100h), which a PDO may take over but a variable list must not."""
-    return is_restricted_can_id(can_id) or 0x080 <= can_id <= 0x100
+    return is_restricted_can_id(can_id) or SYNC_COB_ID <= can_id <= TIME_COB_ID
 
 
 __all__ = [

@@ -20,6 +20,7 @@ __all__ = [
     "ERROR_CONTROL_BASE",
     "LSS_MASTER_COB_ID",
     "LSS_SLAVE_COB_ID",
+    "MAX_NODE_ID",
     "NMT_COB_ID",
     "RPDO_BASE",
     "SDO_RX_BASE",
@@ -54,6 +55,8 @@ ERROR_CONTROL_BASE = 0x700
 #: LSS (CiA 305): the slaves answer on 7E4h, the master asks on 7E5h.
 LSS_SLAVE_COB_ID = 0x7E4
 LSS_MASTER_COB_ID = 0x7E5
+#: The highest node-ID: a base + node-ID stays below base + 80h.
+MAX_NODE_ID = 0x7F
 
 _FUNCTIONS = {
     EMCY_BASE: "emcy",

@@ -30,9 +30,11 @@ from cobus.profiles.cia402 import PowerState, error_text
 from cobus.proto import Frame
 from cobus.proto import emcy as _emcy
 from cobus.proto.connection_set import (
+    EMCY_BASE,
     ERROR_CONTROL_BASE,
     LSS_MASTER_COB_ID,
     LSS_SLAVE_COB_ID,
+    MAX_NODE_ID,
     SDO_RX_BASE,
     SDO_TX_BASE,
     TPDO_BASE,
@@ -363,17 +365,19 @@ def frame_kind(frame: Frame) -> str:
         return "nmt"
     if cob == 0x080:
         return "sync"
-    if 0x081 <= cob <= 0x0FF:
+    if EMCY_BASE < cob <= EMCY_BASE + MAX_NODE_ID:
         return "emcy"
     if cob == 0x100:
         return "time"
     if cob < 0x180:
         return "other"
-    if 0x180 <= cob <= 0x57F:
+    if TPDO_BASE <= cob < SDO_TX_BASE:
         return "pdo"
-    if (0x581 <= cob <= 0x5FF) or (0x601 <= cob <= 0x67F):
+    if (SDO_TX_BASE < cob <= SDO_TX_BASE + MAX_NODE_ID) or (
+        SDO_RX_BASE < cob <= SDO_RX_BASE + MAX_NODE_ID
+    ):
         return "sdo"
-    if 0x701 <= cob <= 0x77F:
+    if ERROR_CONTROL_BASE < cob <= ERROR_CONTROL_BASE + MAX_NODE_ID:
         return "hb"
     if cob in (0x7E4, 0x7E5):
         return "lss"
@@ -665,11 +669,11 @@ class Decoder:
         """The records ``frame`` completes (none while an SDO transfer is under way)."""
         records = self._decode(frame, now)
         cob = frame.cob_id
-        if 0x581 <= cob <= 0x5FF and not frame.rtr:
+        if SDO_TX_BASE < cob <= SDO_TX_BASE + MAX_NODE_ID and not frame.rtr:
             asked = self._requested.pop(cob - SDO_TX_BASE, None)
             if asked is not None:
                 self.node_stats(cob - SDO_TX_BASE).sdo_latencies.append(now - asked)
-        elif 0x601 <= cob <= 0x67F and not frame.rtr:
+        elif SDO_RX_BASE < cob <= SDO_RX_BASE + MAX_NODE_ID and not frame.rtr:
             self._requested[cob - SDO_RX_BASE] = now
         for rec in records:
             if isinstance(rec, Heartbeat | GuardResponse):
@@ -774,7 +778,7 @@ class Decoder:
             return self._sdo_request(now, cob, node, data)
         if func == SDO_TX_BASE and node and len(data) == 8:
             return self._sdo_response(now, cob, node, data)
-        if 0x180 <= cob <= 0x57F and not frame.rtr:
+        if TPDO_BASE <= cob < SDO_TX_BASE and not frame.rtr:
             k = (cob - TPDO_BASE) >> 7
             number, tpdo = k // 2 + 1, k % 2 == 0
             return [PdoRecord(now, cob, cob & 0x7F, number, tpdo, data)]

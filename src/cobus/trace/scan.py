@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from cobus._args import add_bus_options, bus_options, seconds
-from cobus.proto.connection_set import ERROR_CONTROL_BASE
+from cobus.proto.connection_set import ERROR_CONTROL_BASE, MAX_NODE_ID
 
 __all__ = ["FoundNode", "FoundObject", "register", "scan", "scan_objects"]
 
@@ -94,7 +94,11 @@ async def scan(
 
     def on_frame(frame: Any, now: float) -> None:
         cob = frame.cob_id
-        if 0x701 <= cob <= 0x77F and len(frame.data) == 1 and not frame.rtr:
+        if (
+            ERROR_CONTROL_BASE < cob <= ERROR_CONTROL_BASE + MAX_NODE_ID
+            and len(frame.data) == 1
+            and not frame.rtr
+        ):
             heard[cob - ERROR_CONTROL_BASE] = _STATES.get(
                 frame.data[0] & 0x7F, f"{frame.data[0]:02X}h"
             )
