@@ -177,7 +177,7 @@ def test_error_register_without_generic_bit_and_reset_with_manufacturer_data():
         b.device.send_emergency(0x4310, 0x08, b"\x29")
         await b.settle()
         register: int = await b.sdo.read(0x1001, 0)
-        b.device.clear_emergency(manufacturer=b"\x1e")
+        b.device.clear_emergency(manufacturer_data=b"\x1e")
         await b.settle()
         return b.data(EMCY), register
 

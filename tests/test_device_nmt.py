@@ -232,10 +232,27 @@ def test_a_shorter_inhibit_time_releases_a_queued_emergency_sooner():
     run_bench(scenario)
 
 
+def test_the_old_manufacturer_keyword_works_for_a_release_with_a_warning():
+    async def scenario(b: Bench):
+        device = b.device
+        with pytest.warns(DeprecationWarning, match="manufacturer_data"):
+            device.send_emergency(0x4210, manufacturer=b"\x01\x02")
+        await b.settle()
+        assert b.data(EMCY) == [bytes.fromhex("1042 09 0102000000")]
+        with pytest.raises(TypeError, match="give manufacturer_data only"):
+            device.send_emergency(0x4210, manufacturer_data=b"\x01", manufacturer=b"\x02")
+        with pytest.warns(DeprecationWarning, match="clear_emergency"):
+            device.clear_emergency(manufacturer=b"\x07")
+        await b.settle()
+        assert b.data(EMCY)[-1] == bytes.fromhex("0000 00 0700000000")
+
+    run_bench(scenario)
+
+
 def test_emergencies_history_register_and_inhibit_time():
     async def scenario(b: Bench):
         device = b.device
-        device.send_emergency(0x4210, manufacturer=b"\x01\x02")
+        device.send_emergency(0x4210, manufacturer_data=b"\x01\x02")
         await b.settle()
         assert b.data(EMCY) == [bytes.fromhex("1042 09 0102000000")]
         assert device.error_register == 0x09
@@ -272,7 +289,7 @@ def test_emergencies_history_register_and_inhibit_time():
         assert await b.sdo.read(0x1003, 0) == 0
         assert device.error_history == ()
         with pytest.raises(EmcyError):
-            device.send_emergency(0x1000, manufacturer=b"123456")
+            device.send_emergency(0x1000, manufacturer_data=b"123456")
 
     run_bench(scenario)
 

@@ -345,7 +345,7 @@ def test_emergencies_are_counted_and_the_last_8_kept_newest_first(tmp_path):
         device = rig.devices[5]
         node = rig.master.nodes[5]
         for n in range(10):
-            device.send_emergency(0x4200 + n, manufacturer=bytes((n,)))
+            device.send_emergency(0x4200 + n, manufacturer_data=bytes((n,)))
         await rig.settle()
         assert node.emcy_count == 10
         history = node.emcy_history

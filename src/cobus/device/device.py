@@ -13,6 +13,7 @@ the network's event loop: call the device's methods from there (or through
 
 from __future__ import annotations
 
+import warnings
 import weakref
 from collections.abc import Callable
 from pathlib import Path
@@ -96,6 +97,20 @@ class _ObjectView:
     @value.setter
     def value(self, value: Any) -> None:
         self._device.set(self._index, 0, value)
+
+
+def _renamed_keyword(method: str, manufacturer_data: bytes, manufacturer: bytes | None) -> bytes:
+    """The EMCY bytes given under their name, or under the old one with a warning."""
+    if manufacturer is None:
+        return manufacturer_data
+    if manufacturer_data:
+        raise TypeError(f"{method}: give manufacturer_data only (manufacturer is its old name)")
+    warnings.warn(
+        f"Device.{method}(manufacturer=...) is now manufacturer_data=...",
+        DeprecationWarning,
+        stacklevel=3,
+    )
+    return manufacturer
 
 
 class Device:
@@ -306,9 +321,10 @@ class Device:
         self,
         code: int,
         register: int | None = None,
-        manufacturer: bytes = b"",
+        manufacturer_data: bytes = b"",
         *,
         info: int = 0,
+        manufacturer: bytes | None = None,
     ) -> None:
         """Report an application error: EMCY frame, 1003h history, error register.
 
@@ -316,7 +332,10 @@ class Device:
         3xxxh voltage, 4xxxh temperature, 81xxh/82xxh communication, FFxxh manufacturer);
         the generic bit is set while any error is active. The error stays active (and in
         1001h) until :meth:`clear_emergency`. Code 0000h clears every application error.
+        ``manufacturer_data``: up to 5 bytes, the frame's manufacturer-specific field
+        (``manufacturer=``, its old name, still works for one release).
         """
+        manufacturer = _renamed_keyword("send_emergency", manufacturer_data, manufacturer)
         _emcy.emcy_frame_data(code, 0 if register is None else register, manufacturer)
         if not isinstance(info, int) or not 0 <= info <= 0xFFFF:
             raise _emcy.EmcyError(f"1003h additional information {info!r} is not a UNSIGNED16")
@@ -326,10 +345,17 @@ class Device:
         bits = class_bits(code) if register is None else register
         self._emcy.raise_error(("app", code), code, bits, bytes(manufacturer), info)
 
-    def clear_emergency(self, code: int | None = None, *, manufacturer: bytes = b"") -> None:
+    def clear_emergency(
+        self,
+        code: int | None = None,
+        *,
+        manufacturer_data: bytes = b"",
+        manufacturer: bytes | None = None,
+    ) -> None:
         """End application error ``code`` (None: all of them): the error register is updated
-        and the 'error reset' emergency (0000h) is sent, with ``manufacturer`` (up to 5
-        bytes) as its manufacturer-specific field."""
+        and the 'error reset' emergency (0000h) is sent, with ``manufacturer_data`` (up to 5
+        bytes) as its manufacturer-specific field (``manufacturer=`` for one release)."""
+        manufacturer = _renamed_keyword("clear_emergency", manufacturer_data, manufacturer)
         _emcy.emcy_frame_data(0, 0, manufacturer)
         keys = self._emcy.keys("app")
         if code is not None:

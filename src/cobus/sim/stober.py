@@ -761,7 +761,7 @@ class StoberMds5000(SimulatedDevice):
         self.event, self.cause = NO_EVENT, 0
         device = self.device
         if device is not None:
-            device.clear_emergency(manufacturer=bytes((NO_EVENT, 0)))
+            device.clear_emergency(manufacturer_data=bytes((NO_EVENT, 0)))
         return True
 
     def _set_state(self, state: int) -> None:
