@@ -419,13 +419,25 @@ def test_every_async_operation_has_its_blocking_twin():
     expected[remote.NetworkSync] = blocking.BlockingNetworkSync
     assert dict(twin_module._TWINS) == expected
     for async_cls, twin in expected.items():
+        assert issubclass(twin, twin_module.BlockingTwin)
+        assert twin._async_only <= twin_module.public_names(async_cls)
         missing = twin_module.public_names(async_cls) - twin_module.public_names(twin)
+        missing -= twin._async_only  # the steps of a transfer: not for blocking code
         extra = twin_module.public_names(twin) - twin_module.public_names(async_cls)
         assert not missing and extra == added.get(twin, set()), (async_cls, missing, extra)
         assert twin.__doc__
         for name in twin_module.public_names(twin):
             if not name.startswith("_"):
                 assert getattr(twin, name).__doc__, f"{twin.__name__}.{name} has no docstring"
+
+
+def test_a_blocking_sdo_channel_keeps_the_steps_of_a_transfer_to_itself():
+    with Network(simulated=True) as net:
+        node = net.add_remote(5)
+        assert node.sdo.transport.node_id == 5  # its statistics are for everyone
+        for name in ("begin", "transfer", "client", "check_open"):
+            with pytest.raises(AttributeError, match="is for async code"):
+                getattr(node.sdo, name)
 
 
 def test_a_blocking_rig_forwards_what_each_kind_of_device_adds():

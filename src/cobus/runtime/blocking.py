@@ -708,6 +708,10 @@ class BlockingSdoChannel(BlockingTwin, twin_of=SdoChannel):
     python-canopen; dictionary look-ups (``sdo["Device type"]``) run in the calling thread.
     """
 
+    _async_only = frozenset(
+        {"begin", "transfer", "client", "check_open", "variable_to_read", "value_to_write"}
+    )
+
     if TYPE_CHECKING:
         aio: SdoChannel
 

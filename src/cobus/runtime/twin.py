@@ -54,6 +54,9 @@ class BlockingTwin:
     """
 
     __twin_of__: type
+    #: Public names of the async class that mean nothing to blocking code (the steps of a
+    #: transfer the twin's own methods take): the twin does not offer them.
+    _async_only: frozenset[str] = frozenset()
 
     def __init_subclass__(cls, twin_of: type | None = None, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -85,6 +88,11 @@ class BlockingTwin:
             with its own methods): forwarded like the generated members."""
             if name.startswith("_"):
                 raise AttributeError(name)
+            if name in self._async_only:
+                raise AttributeError(
+                    f"{type(self).__name__}.{name} is for async code (the step of a transfer "
+                    "that the blocking methods take themselves)"
+                )
             value = self._runner.call(getattr, self.aio, name)
             if inspect.iscoroutinefunction(value):
                 return lambda *a, **k: self._wrap(self._runner.run(value(*_in(a), **_kin(k))))
@@ -335,6 +343,8 @@ def _fill(twin: type[BlockingTwin], async_cls: type) -> None:
     for attr in sorted(public_names(async_cls)):
         if attr in vars(twin):
             continue  # written out in the twin's body: it knows better
+        if attr in twin._async_only:
+            continue
         member = _member(async_cls, attr)
         if attr in _PROTOCOL:
             made: Any = _PROTOCOL[attr]
