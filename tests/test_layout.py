@@ -229,3 +229,24 @@ def test_an_old_class_name_imports_with_a_warning_naming_the_new_one(
         assert getattr(mod, old) is getattr(mod, new)
     assert [w.category for w in caught] == [DeprecationWarning]
     assert f"{module}.{old} is now {module}.{new}" in str(caught[0].message)
+
+
+def test_a_renamed_name_is_blamed_on_the_users_line_so_python_shows_it() -> None:
+    """Python shows a DeprecationWarning only when it is blamed on the user's code: through a
+    blocking twin or a rig file's class name, the warning still points at the caller."""
+    import warnings
+
+    from cobus.device import add_device
+    from cobus.runtime import Network
+    from cobus.sim.rig import resolve_kind
+    from tests.test_device_support import test_od
+
+    with Network(simulated=True) as net:
+        device = add_device(net, 5, test_od())
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            device.send_emergency(0x4210, manufacturer=b"\x01")  # through the blocking twin
+            resolve_kind("cobus.sim.drive402:Drive402")
+    assert [w.filename for w in caught] == [__file__, __file__]
+    assert "manufacturer_data" in str(caught[0].message)
+    assert "SimulatedDrive402" in str(caught[1].message)

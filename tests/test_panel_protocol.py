@@ -387,8 +387,10 @@ def test_a_gap_is_closed_by_a_resync(tmp_path: Path) -> None:
             await ws.until(lambda m: m["type"] == "event")
             await ws.send({"cmd": "resync"})
             again = await ws.until(lambda m: m["type"] == "snapshot")
-            assert again["seq"] == first["seq"] + 1
-            assert again["events"][-1]["text"] == "one"
+            # numbered on from the first snapshot (the demo's own events may come in between
+            # on a loaded machine), and holding the event the client may have missed
+            assert again["seq"] > first["seq"]
+            assert "one" in [e.get("text") for e in again["events"]]
 
     run(main())
 

@@ -3,10 +3,24 @@ an unhelpful AttributeError (or, for an attribute, a silent new attribute that d
 
 from __future__ import annotations
 
+import sys
 import warnings
+from pathlib import Path
 from typing import Any, NoReturn
 
-__all__ = ["Moved", "Renamed", "renamed_names"]
+__all__ = ["Moved", "Renamed", "renamed_names", "warn_renamed"]
+
+_COBUS = str(Path(__file__).resolve().parent)
+
+
+def warn_renamed(message: str) -> None:
+    """A :class:`DeprecationWarning` blamed on the first caller outside cobus: the user's
+    line, also when the old name is reached through a blocking twin or a rig file (Python
+    shows a DeprecationWarning only when it is blamed on ``__main__`` or the user's code)."""
+    level, frame = 2, sys._getframe(1)
+    while frame.f_back is not None and frame.f_code.co_filename.startswith(_COBUS):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(message, DeprecationWarning, stacklevel=level)
 
 
 class Moved:
@@ -50,11 +64,7 @@ class Renamed:
     def __get__(self, obj: object, owner: type | None = None) -> Any:
         if obj is None:
             return self
-        warnings.warn(
-            f"{self._owner}.{self._name} is now {self._owner}.{self._new}",
-            DeprecationWarning,
-            stacklevel=2,
-        )
+        warn_renamed(f"{self._owner}.{self._name} is now {self._owner}.{self._new}")
         return getattr(obj, self._new)
 
 
@@ -65,7 +75,7 @@ def renamed_names(module: str, names: dict[str, tuple[str, Any]]) -> Any:
     def __getattr__(name: str) -> Any:
         if name in names:
             new, value = names[name]
-            warnings.warn(f"{module}.{name} is now {module}.{new}", DeprecationWarning, 2)
+            warn_renamed(f"{module}.{name} is now {module}.{new}")
             return value
         raise AttributeError(f"module {module!r} has no attribute {name!r}")
 

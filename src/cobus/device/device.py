@@ -13,13 +13,12 @@ the network's event loop: call the device's methods from there (or through
 
 from __future__ import annotations
 
-import warnings
 import weakref
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from cobus._moved import Moved
+from cobus._moved import Moved, warn_renamed
 from cobus.device._core import Core, Listener
 from cobus.device._entries import Entry, check_value
 from cobus.device.eds_export import export_eds
@@ -105,11 +104,7 @@ def _renamed_keyword(method: str, manufacturer_data: bytes, manufacturer: bytes 
         return manufacturer_data
     if manufacturer_data:
         raise TypeError(f"{method}: give manufacturer_data only (manufacturer is its old name)")
-    warnings.warn(
-        f"Device.{method}(manufacturer=...) is now manufacturer_data=...",
-        DeprecationWarning,
-        stacklevel=3,
-    )
+    warn_renamed(f"Device.{method}(manufacturer=...) is now manufacturer_data=...")
     return manufacturer
 
 

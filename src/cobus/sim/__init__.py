@@ -60,7 +60,7 @@ __all__ = [
     "start_rig",
 ]
 
-#: One name per idea: cobus.profiles.Drive402 and Io401 drive real ones.
+#: One name per idea: cobus.profiles.Drive402 and cobus.profiles.io401.Io401 drive real ones.
 __getattr__ = renamed_names(
     __name__,
     {

@@ -394,5 +394,5 @@ class SimulatedIo401(CanopenSimDevice):
         return out
 
 
-#: One name per idea: :class:`cobus.profiles.Io401` drives a real one.
+#: One name per idea: :class:`cobus.profiles.io401.Io401` drives a real one.
 __getattr__ = renamed_names(__name__, {"Io401": ("SimulatedIo401", SimulatedIo401)})
