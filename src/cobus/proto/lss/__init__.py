@@ -1,0 +1,76 @@
+"""LSS (CiA 305), sans-I/O: the slave (:mod:`~cobus.proto.lss.slave`), the master's services
+(:mod:`~cobus.proto.lss.master`) and fastscan (:mod:`~cobus.proto.lss.fastscan`)."""
+
+from cobus.proto.lss._wire import (
+    AUTO_BIT_RATE,
+    BIT_RATES,
+    FIELDS,
+    UNCONFIGURED,
+    LssError,
+    LssIdentity,
+    bit_timing_index,
+)
+from cobus.proto.lss.fastscan import (
+    Fastscan,
+    FastscanFailed,
+    FastscanFieldFound,
+    FastscanFieldRetried,
+    FastscanFound,
+    FastscanNothingFound,
+    FastscanStarted,
+)
+from cobus.proto.lss.master import (
+    LssConfirmed,
+    LssIdentified,
+    LssInquired,
+    LssMaster,
+    LssNoAnswer,
+    LssSelected,
+    LssStrayAnswer,
+    error_text,
+)
+from cobus.proto.lss.slave import (
+    BitTimingActivated,
+    BitTimingConfigured,
+    ConfigurationStored,
+    LssSlave,
+    LssState,
+    LssStateSwitched,
+    NodeIdAssigned,
+    NodeIdConfigured,
+    StoreFailed,
+)
+
+__all__ = [
+    "AUTO_BIT_RATE",
+    "BIT_RATES",
+    "FIELDS",
+    "UNCONFIGURED",
+    "BitTimingActivated",
+    "BitTimingConfigured",
+    "ConfigurationStored",
+    "Fastscan",
+    "FastscanFailed",
+    "FastscanFieldFound",
+    "FastscanFieldRetried",
+    "FastscanFound",
+    "FastscanNothingFound",
+    "FastscanStarted",
+    "LssConfirmed",
+    "LssError",
+    "LssIdentified",
+    "LssIdentity",
+    "LssInquired",
+    "LssMaster",
+    "LssNoAnswer",
+    "LssSelected",
+    "LssSlave",
+    "LssState",
+    "LssStateSwitched",
+    "LssStrayAnswer",
+    "NodeIdAssigned",
+    "NodeIdConfigured",
+    "StoreFailed",
+    "bit_timing_index",
+    "error_text",
+]
