@@ -385,6 +385,7 @@ def test_every_async_operation_has_its_blocking_twin():
     from cobus.profiles.zapi import AsyncZapiDrive, ZapiDrive
     from cobus.runtime import blocking, emcy, nmt, pdo, remote
     from cobus.runtime import twin as twin_module
+    from cobus.runtime.lss import AsyncNetworkLss
     from cobus.sim import Rig, SimulatedDevice
 
     expected = {
@@ -417,6 +418,7 @@ def test_every_async_operation_has_its_blocking_twin():
     }
     expected[remote.NmtMaster] = blocking.BlockingNmtMaster
     expected[remote.NetworkSync] = blocking.BlockingNetworkSync
+    expected[AsyncNetworkLss] = blocking.NetworkLss
     assert dict(twin_module._TWINS) == expected
     for async_cls, twin in expected.items():
         assert issubclass(twin, twin_module.BlockingTwin)

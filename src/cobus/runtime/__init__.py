@@ -18,7 +18,12 @@ from cobus.proto.sdo import SdoAbortCode, SdoAbortedError, SdoError, SdoTimeoutE
 from cobus.runtime.blocking import Network, ReentrantCallError, RemoteNode
 from cobus.runtime.bus import BusOpenError, open_bus
 from cobus.runtime.emcy import EmcyTimeoutError, Emergency
-from cobus.runtime.errors import NodeIdInUseError
+from cobus.runtime.errors import (
+    LssRefusedError,
+    LssScanError,
+    LssTimeoutError,
+    NodeIdInUseError,
+)
 from cobus.runtime.events import (
     BusErrorFrame,
     BusState,
@@ -74,6 +79,9 @@ __all__ = [
     "HandlerFailed",
     "InterfaceTimingError",
     "LocalNodes",
+    "LssRefusedError",
+    "LssScanError",
+    "LssTimeoutError",
     "MachineHost",
     "Network",
     "NetworkClosedError",

@@ -33,6 +33,7 @@ from cobus.runtime._sigint import ASIDE, MAIN, SigintDeferred
 from cobus.runtime.errors import ReentrantCallError
 from cobus.runtime.events import BusState
 from cobus.runtime.loop import RealTimeLoop, SimulatedEventLoop, new_event_loop
+from cobus.runtime.lss import AsyncNetworkLss
 from cobus.runtime.network import AsyncNetwork, FrameHandler, NetworkClosedError, Subscription
 from cobus.runtime.remote import AsyncRemoteNode, NetworkSync, NmtMaster, SdoChannel
 from cobus.runtime.sdo_transport import downloaded, refused_block, uploaded
@@ -51,6 +52,7 @@ __all__ = [
     "BlockingSdoChannel",
     "BlockingTwin",
     "Network",
+    "NetworkLss",
     "PdoSet",
     "ReentrantCallError",
     "RemoteEmcy",
@@ -656,6 +658,12 @@ class Network:
         return twin
 
     @property
+    def lss(self) -> NetworkLss:
+        """The LSS master: ``net.lss.fastscan()``, ``net.lss.configure_node_id(12)``..."""
+        twin: NetworkLss = self._service(self.aio.lss)
+        return twin
+
+    @property
     def sync(self) -> BlockingNetworkSync:
         """The SYNC producer: ``net.sync.start(0.01)``, ``net.sync.stop()``."""
         twin: BlockingNetworkSync = self._service(self.aio.sync)
@@ -845,6 +853,10 @@ class RemoteNode(BlockingTwin, twin_of=AsyncRemoteNode):
 class BlockingNmtMaster(BlockingTwin, twin_of=NmtMaster):
     """NMT commands from blocking code (``net.nmt.start(2)``); each call returns once the
     frame is handed over."""
+
+
+class NetworkLss(BlockingTwin, twin_of=AsyncNetworkLss):
+    """The LSS master for blocking code (see :class:`cobus.runtime.lss.AsyncNetworkLss`)."""
 
 
 class BlockingNetworkSync(BlockingTwin, twin_of=NetworkSync):

@@ -14,6 +14,9 @@ if TYPE_CHECKING:
 __all__ = [
     "BusOpenError",
     "EmcyTimeoutError",
+    "LssRefusedError",
+    "LssScanError",
+    "LssTimeoutError",
     "NetworkClosedError",
     "NmtTimeoutError",
     "NodeIdInUseError",
@@ -83,6 +86,24 @@ class SimulationStalledError(CobusError, RuntimeError):
 
 class EmcyTimeoutError(CobusError, TimeoutError):
     """No emergency arrived within the time waited for one."""
+
+
+class LssTimeoutError(CobusError, TimeoutError):
+    """No LSS slave answered a request in time (none in configuration, or none with that
+    identity)."""
+
+
+class LssRefusedError(CobusError):
+    """An LSS slave answered a configuration request with an error (``service``, ``error``,
+    ``spec``: the answer's bytes; the message says what they mean)."""
+
+    def __init__(self, service: str, error: int, spec: int, text: str) -> None:
+        super().__init__(f"{service}: the slave refused: {text}")
+        self.service, self.error, self.spec = service, error, spec
+
+
+class LssScanError(CobusError):
+    """A fastscan could not settle an identity field (answers too late or missing twice)."""
 
 
 class NmtTimeoutError(CobusError, TimeoutError):

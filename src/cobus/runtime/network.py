@@ -35,6 +35,7 @@ from cobus.runtime.events import (
 )
 from cobus.runtime.local_nodes import LocalNodes
 from cobus.runtime.loop import RealTimeLoop, SimulatedEventLoop
+from cobus.runtime.lss import AsyncNetworkLss
 from cobus.runtime.multicast import EchoFreeSender, echo_free_sender
 from cobus.runtime.reading import ReadingRole
 from cobus.runtime.remote import AsyncRemoteNode, NetworkSync, NmtMaster, load_od
@@ -315,6 +316,7 @@ class AsyncNetwork:
         self.devices = LocalNodes()
         self._nmt: NmtMaster | None = None
         self._sync: NetworkSync | None = None
+        self._lss: AsyncNetworkLss | None = None
 
     # ------------------------------------------------------------------ life cycle
     async def connect(self) -> AsyncNetwork:
@@ -575,6 +577,13 @@ class AsyncNetwork:
         if self._nmt is None:
             self._nmt = NmtMaster(self)
         return self._nmt
+
+    @property
+    def lss(self) -> AsyncNetworkLss:
+        """The LSS master (CiA 305): ``await net.lss.fastscan()``, ``configure_node_id``..."""
+        if self._lss is None:
+            self._lss = AsyncNetworkLss(self)
+        return self._lss
 
     @property
     def sync(self) -> NetworkSync:
