@@ -7,6 +7,7 @@ object dictionary (type, access and limits checked before anything is sent).
 from __future__ import annotations
 
 import math
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
@@ -181,8 +182,8 @@ class SdoChannel:
         self.check_open()  # (transfer(), inline: one coroutine less on every transfer)
         transport = self.transport
         event = await transport.transfer(
-            transport.upload_call(index, subindex, block),
-            timeout=self._timeout_now,
+            partial(transport.client.start_upload, index, subindex, block=block),
+            timeout=self._timeout,  # (re-read from this channel if the transfer had to wait)
             emit=self._emit,
             owner=self,
             check=self.check_open,
@@ -205,7 +206,7 @@ class SdoChannel:
         transport = self.transport
         event = await transport.transfer(
             transport.download_call(index, subindex, data, block, size_indicated),
-            timeout=self._timeout_now,
+            timeout=self._timeout,
             emit=self._emit,
             owner=self,
             check=self.check_open,

@@ -38,6 +38,8 @@ if TYPE_CHECKING:
     from cobus.proto import Event, Out
     from cobus.runtime.network import AsyncNetwork, MachineHost
 
+    _Finish = Callable[[Event | BaseException], None] | asyncio.Future[Event]
+
 __all__ = ["SdoTransport", "downloaded", "refused_block", "uploaded"]
 
 #: The events that end a transfer (one union, not one made for each event).
@@ -74,7 +76,8 @@ class SdoTransport:
         self._waiters: deque[tuple[asyncio.Future[None], object]] = deque()
         # a disconnect voids every turn given before it (their tasks may never run again)
         self._generation = 0
-        self._finish: Callable[[Event | BaseException], None] | None = None
+        # how the transfer under way ends: its waiting future (transfer) or a callback (begin)
+        self._finish: _Finish | None = None
         self._owner: object = None  # who asked for the transfer under way
         self._emit = True  # whether the network hears the events of the latest transfer
         network.on_disconnect(self._on_disconnect)
@@ -124,7 +127,14 @@ class SdoTransport:
         if finish is not None:
             self._finish = None
             self._owner = None
-            finish(outcome)
+            if type(finish) is not asyncio.Future:
+                finish(outcome)  # type: ignore[operator]
+            elif finish.done():
+                pass
+            elif isinstance(outcome, BaseException):
+                finish.set_exception(outcome)
+            else:
+                finish.set_result(outcome)
 
     def interrupt(self, owner: object, error: BaseException, queued: BaseException) -> None:
         """End ``owner``'s transfer under way, if any, with ``error`` (the server is told),
@@ -178,7 +188,7 @@ class SdoTransport:
     def _start(
         self,
         start: Callable[[float], Out],
-        finish: Callable[[Event | BaseException], None],
+        finish: _Finish,
         timeout: float,
         emit: bool,
         owner: object,
@@ -284,25 +294,21 @@ class SdoTransport:
             self._busy = True
             waited = False
         try:
-            if waited and check is not None:
-                check()
+            if waited:
+                if check is not None:
+                    check()
+                # the asker may have changed its timeout while it waited: read it now
+                changed = getattr(owner, "timeout", None)
+                if isinstance(changed, float | int) and not isinstance(changed, bool):
+                    timeout = changed
             if not isinstance(timeout, float | int):
                 timeout = timeout()
             done: asyncio.Future[Event] = self._network.loop.create_future()
-
-            def finished(outcome: Event | BaseException) -> None:
-                if done.done():
-                    return
-                if isinstance(outcome, BaseException):
-                    done.set_exception(outcome)
-                else:
-                    done.set_result(outcome)
-
-            self._start(start, finished, timeout, emit, owner)
+            self._start(start, done, timeout, emit, owner)  # (the future: no closure to call)
             try:
                 return await done
             except BaseException:
-                if self._finish is finished:  # cancelled (wait_for, Ctrl-C): end the transfer
+                if self._finish is done:  # cancelled (wait_for, Ctrl-C): end the transfer
                     self._finish = None
                     self._owner = None
                     self._cancel()
