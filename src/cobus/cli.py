@@ -61,6 +61,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "send": ("cobus.apps._node_cli", "send raw CAN frames: ID#DATA as cansend writes them"),
     "pdo": ("cobus.apps._pdo_cli", "read a node's PDOs, or map one anew, checked against its EDS"),
     "sync": ("cobus.apps._node_cli", "produce SYNC"),
+    "lss": (
+        "cobus.apps._lss_cli",
+        "find devices without a node-ID and give them one (LSS, CiA 305)",
+    ),
     "demo": (
         "cobus.apps.demo",
         "run the simulated thesis rig, booted and supervised by the cobus master",
