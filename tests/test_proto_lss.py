@@ -457,3 +457,39 @@ def test_fastscan_gives_up_on_a_field_it_cannot_confirm_twice() -> None:
     events = wire.run(scan, Out())
     assert isinstance(events[-1], FastscanFailed) and events[-1].field == "vendor"
     assert "got no answer twice" in events[-1].reason and scan.done
+
+
+def test_a_refused_request_leaves_the_pending_one_alone() -> None:
+    m = LssMaster()
+    other = LssIdentity(1, 2, 3, 4)
+    m.switch_selective(ME, 0)
+    with pytest.raises(LssError, match="under way"):
+        m.switch_selective(other, 0)
+    assert m.on_frame(ans("44 00 00 00 00 00 00 00"), 0).events == (LssSelected(ME),)
+    m.inquire("vendor", 0)
+    with pytest.raises(LssError, match="under way"):
+        m.inquire("serial", 0)
+    assert m.on_frame(ans("5a 60 03 00 00 00 00 00"), 0).events == (LssInquired("vendor", 0x360),)
+
+
+@pytest.mark.parametrize(
+    ("said", "answer", "reason"),
+    [
+        (None, 0, None),
+        (True, 0, None),
+        (1, 1, "not supported"),
+        (False, 2, "media access error"),
+        (5, 2, "store returned 5, not 0, 1 or 2"),
+    ],
+)
+def test_what_store_returns_becomes_the_standard_answer(
+    said: object, answer: int, reason: str | None
+) -> None:
+    slave = LssSlave(ME, 5, store=lambda n, b: said)  # type: ignore[arg-type,return-value]
+    configured(slave)
+    out = slave.on_frame(req("17 00 00 00 00 00 00 00"), 0)
+    assert out.frames[0].data[1] == answer
+    if reason is None:
+        assert out.events == (ConfigurationStored(5, None),)
+    else:
+        assert out.events == (StoreFailed(answer, reason),)

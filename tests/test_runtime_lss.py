@@ -3,12 +3,13 @@ machines on the network; and python-canopen's LSS master finding and naming a co
 
 from __future__ import annotations
 
+import asyncio
 import os
 import random
 
 import pytest
 
-from cobus.proto import Event
+from cobus.proto import Event, Frame, Out
 from cobus.proto.connection_set import LSS_MASTER_COB_ID
 from cobus.proto.lss import (
     FastscanFieldFound,
@@ -19,7 +20,14 @@ from cobus.proto.lss import (
     LssStrayAnswer,
     NodeIdAssigned,
 )
-from cobus.runtime import AsyncNetwork, LssRefusedError, LssScanError, LssTimeoutError, Network
+from cobus.runtime import (
+    AsyncNetwork,
+    LssRefusedError,
+    LssScanError,
+    LssTimeoutError,
+    Network,
+    NetworkClosedError,
+)
 from tests.util import simulate
 
 ME = LssIdentity(0x360, 0x1234, 0x0001_0000, 0x2A)
@@ -167,3 +175,59 @@ def test_python_canopen_lss_master_finds_and_names_a_cobus_slave() -> None:
             assert cnet.lss.inquire_lss_address(0x5D) == ME.serial
         finally:
             cnet.disconnect()
+
+
+class _LateOnce(LssSlave):
+    """Answers the probe of the serial's bit 0 later than the scan waits (a slow moment)."""
+
+    def on_frame(self, frame: Frame, now: float) -> Out:
+        d = frame.data
+        late = len(d) == 8 and d[0] == 0x51 and d[5] == 0 and d[6] == 3 and d[7] == 3
+        self.answer_delay = 0.015 if late else 0.0
+        return super().on_frame(frame, now)
+
+
+def test_a_fastscan_misled_by_a_late_answer_is_caught_by_asking_the_slave() -> None:
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            slave = _LateOnce(LssIdentity(1, 2, 3, 0x10))
+            slaves_on(net, slave)
+            with pytest.raises(LssScanError, match="answers came later than the wait"):
+                await net.lss.fastscan(floor=0.01, ceiling=0.5)
+            assert slave.state is LssState.WAITING  # nobody left selected
+            found = await net.lss.fastscan(floor=0.05, ceiling=0.5)  # a longer wait: right
+            assert found == LssIdentity(1, 2, 3, 0x10)
+
+    simulate(main())
+
+
+def test_slaves_of_different_speeds_set_the_window_by_the_slowest() -> None:
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            quick = LssSlave(LssIdentity(1, 2, 3, 0x10), answer_delay=0.001)
+            slow = LssSlave(LssIdentity(1, 2, 3, 0x11), answer_delay=0.03)
+            slaves_on(net, quick, slow)
+            assert await net.lss.fastscan() == quick.identity
+
+    simulate(main())
+
+
+def test_a_disconnect_or_a_failing_callback_never_leaves_lss_hanging() -> None:
+    async def main() -> None:
+        net = AsyncNetwork()
+        await net.connect()
+        slaves_on(net, LssSlave(ME))
+
+        def failing(event: Event) -> None:
+            raise RuntimeError("a bug in the caller's callback")
+
+        assert await net.lss.fastscan(on_event=failing) == ME  # reported, not stuck
+        task = asyncio.ensure_future(net.lss.configure_node_id(5))
+        await net.sleep(0)
+        await net.disconnect()
+        with pytest.raises(NetworkClosedError, match="disconnected during an LSS request"):
+            await task
+        with pytest.raises(NetworkClosedError, match="not connected"):
+            await net.lss.inquire("serial")
+
+    simulate(main())

@@ -32,13 +32,19 @@ from cobus.proto.lss import (
     LssStrayAnswer,
     bit_timing_index,
 )
-from cobus.runtime.errors import LssRefusedError, LssScanError, LssTimeoutError
+from cobus.runtime.errors import (
+    LssRefusedError,
+    LssScanError,
+    LssTimeoutError,
+    NetworkClosedError,
+)
 
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork, MachineHost
 
 __all__ = ["AsyncNetworkLss"]
 
+_IDENTIFIED, _UNCONFIGURED_IDENTIFIED = 0x4F, 0x50  # (answers several slaves give)
 _NO_ANSWER = {
     "switch state selective": "no slave has that identity (or it is not in waiting state)",
     "identify remote slave": "",
@@ -55,7 +61,8 @@ class AsyncNetworkLss:
         self._host: MachineHost | None = None
         self._waiter: asyncio.Future[Event] | None = None
         self._lock: asyncio.Lock | None = None
-        self._scan: MachineHost | None = None
+        self._scan: asyncio.Future[Event] | None = None  # the fastscan under way
+        network.on_disconnect(self._disconnected)
 
     @property
     def timeout(self) -> float:
@@ -135,30 +142,50 @@ class AsyncNetworkLss:
         done: asyncio.Future[Event] = self._network.loop.create_future()
 
         def seen(event: Event) -> None:
-            if on_event is not None:
-                on_event(event)
             final = isinstance(event, FastscanFound | FastscanNothingFound | FastscanFailed)
             if final and not done.done():
                 done.set_result(event)
+            if on_event is not None:
+                try:
+                    on_event(event)
+                except Exception as exc:  # the caller's callback must not stop the scan
+                    self._network._report_failure("fastscan on_event", exc)
 
         async with self._turn():
+            self._check_connected()
             host = self._network.attach(scan, (LSS_SLAVE_COB_ID,), seen)
+            self._scan = done
             try:
                 host.run(scan.start)
                 event = await done
             finally:
+                self._scan = None
                 host.close()
-        if isinstance(event, FastscanFailed):
-            raise LssScanError(f"fastscan: the {event.field} could not be settled: {event.reason}")
-        if isinstance(event, FastscanNothingFound):
-            return None
-        assert isinstance(event, FastscanFound)
-        if event.answers > 1:
-            raise LssScanError(
-                f"fastscan: {event.answers} devices answer as {event.identity}: two devices "
-                "share one identity; give them their node-IDs another way"
-            )
-        return event.identity
+            if isinstance(event, FastscanFailed):
+                raise LssScanError(
+                    f"fastscan: the {event.field} could not be settled: {event.reason}"
+                )
+            if isinstance(event, FastscanNothingFound):
+                return None
+            assert isinstance(event, FastscanFound)
+            identity = event.identity
+            if event.answers > 1:
+                self._machine_out(lambda now: self._machine.switch_global(LssState.WAITING))
+                raise LssScanError(
+                    f"fastscan: {event.answers} devices answer as {identity}: two devices "
+                    "share one identity; give them their node-IDs another way"
+                )
+            # a late answer can make a wrong bit look confirmed: the selected slave says
+            serial = await self._inquired("serial")
+            if serial != identity.serial:
+                self._machine_out(lambda now: self._machine.switch_global(LssState.WAITING))
+                said = "no slave is in configuration" if serial is None else f"0x{serial:08X}"
+                raise LssScanError(
+                    f"fastscan found serial 0x{identity.serial:08X} but the selected slave "
+                    f"says {said}: answers came later than the wait (raise the ceiling, now "
+                    f"{ceiling} s)"
+                )
+        return identity
 
     # ---------------------------------------------------------------- plumbing
 
@@ -174,21 +201,49 @@ class AsyncNetworkLss:
 
     def _on_event(self, event: Event) -> None:
         if isinstance(event, LssStrayAnswer):
-            self._network.emit(event)
+            # several slaves answer an identify request or a fastscan probe: not stray
+            if event.data[0] not in (_IDENTIFIED, _UNCONFIGURED_IDENTIFIED):
+                self._network.emit(event)
             return
         if self._waiter is not None and not self._waiter.done():
             self._waiter.set_result(event)
 
+    def _check_connected(self) -> None:
+        if not self._network.connected:
+            raise NetworkClosedError("the network is not connected: no LSS request can go out")
+
+    def _disconnected(self) -> None:
+        closed = NetworkClosedError("the network was disconnected during an LSS request")
+        for waiting in (self._waiter, self._scan):
+            if waiting is not None and not waiting.done():
+                waiting.set_exception(closed)
+
+    def _machine_out(self, call: Callable[[float], Out]) -> None:
+        self._host_of().run(call)
+
+    async def _inquired(self, what: str) -> int | None:
+        """An inquiry inside a turn already held: the value, or None without an answer."""
+        try:
+            event = await self._exchange(lambda now: self._machine.inquire(what, now))
+        except LssTimeoutError:
+            return None
+        assert isinstance(event, LssInquired)
+        return event.value
+
     async def _ask(self, call: Callable[[float], Out]) -> Event:
         async with self._turn():
-            host = self._host_of()
-            self._waiter = self._network.loop.create_future()
-            try:
-                host.run(call)
-                event = await self._waiter
-            finally:
-                self._waiter = None
-                self._machine.cancel()
+            return await self._exchange(call)
+
+    async def _exchange(self, call: Callable[[float], Out]) -> Event:
+        self._check_connected()
+        host = self._host_of()
+        self._waiter = self._network.loop.create_future()
+        try:
+            host.run(call)
+            event = await self._waiter
+        finally:
+            self._waiter = None
+            self._machine.cancel()
         if isinstance(event, LssNoAnswer):
             why = _NO_ANSWER.get(event.service) or "no slave is in configuration state"
             raise LssTimeoutError(

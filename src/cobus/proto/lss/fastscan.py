@@ -13,6 +13,8 @@ slowest, between ``floor`` and ``ceiling`` seconds; the ceiling until the first 
 whose confirmation gets no answer was misread (an answer later than its window, taken for the
 next probe's): it is scanned again once, waiting the ceiling, before the scan gives up.
 The serial's confirmation counts its answers: two mean two devices share one identity.
+A late answer can still make a wrong last bit look confirmed: ask the selected slave its
+serial before trusting :class:`FastscanFound` (``net.lss.fastscan`` does).
 """
 
 from __future__ import annotations
@@ -145,9 +147,8 @@ class Fastscan:
             return NOTHING
         if self._deadline is None:
             return NOTHING  # late: the scan is over (or not started)
-        if not self._answers:  # the first answer to this probe: the round trip
-            rtt = now - self._sent_at
-            self.slowest = rtt if self.slowest is None else max(self.slowest, rtt)
+        rtt = now - self._sent_at  # every answer: the slowest slave sets the window
+        self.slowest = rtt if self.slowest is None else max(self.slowest, rtt)
         self._answers += 1
         return NOTHING  # decided when the window closes: every slave has had its say
 

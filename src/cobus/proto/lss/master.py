@@ -140,8 +140,9 @@ class LssMaster:
             w.request(cs, w.le32(v))
             for cs, v in zip(w.SWITCH_SELECTIVE, identity.fields, strict=True)
         )
+        out = self._ask("switch state selective", w.SELECTED, now, frames)
         self._asked = identity
-        return self._ask("switch state selective", w.SELECTED, now, frames)
+        return out
 
     def configure_node_id(self, node_id: int, now: float) -> Out:
         """The slave in configuration takes ``node_id`` (1..127, or FFh: none)."""
@@ -155,7 +156,11 @@ class LssMaster:
     def configure_bit_timing(self, index: int, now: float) -> Out:
         """The slaves in configuration take bit timing ``index`` of table 0 (see
         :func:`~cobus.proto.lss.bit_timing_index`)."""
-        if (index not in BIT_RATES and index != AUTO_BIT_RATE) or isinstance(index, bool):
+        if (
+            not isinstance(index, int)
+            or isinstance(index, bool)
+            or (index not in BIT_RATES and index != AUTO_BIT_RATE)
+        ):
             raise LssError(f"bit timing index {index!r}: give 0..4, 6..8 (or 9: automatic)")
         frame = w.request(w.CONFIGURE_BIT_TIMING, bytes((0, index)))
         return self._ask("configure bit timing", w.CONFIGURE_BIT_TIMING, now, (frame,))
@@ -181,8 +186,9 @@ class LssMaster:
             cs = w.INQUIRE[FIELDS.index(what)]
         else:
             raise LssError(f"inquire {what!r}: give one of {', '.join(FIELDS)}, node_id")
+        out = self._ask(f"inquire {what}", cs, now, (w.request(cs),))
         self._what = what
-        return self._ask(f"inquire {what}", cs, now, (w.request(cs),))
+        return out
 
     def identify_remote(
         self,
@@ -194,6 +200,8 @@ class LssMaster:
     ) -> Out:
         """Is there a slave with this vendor and product whose revision and serial lie in the
         ranges (bounds included)?"""
+        if len(revisions) != 2 or len(serials) != 2:
+            raise LssError("identify remote slave: give revisions and serials as (low, high)")
         values = (vendor, product, *revisions, *serials)
         names = "vendor, product, lowest revision, highest revision, lowest serial, highest serial"
         for name, value in zip(names.split(", "), values, strict=True):

@@ -119,7 +119,7 @@ class LssSlave:
         node_id: int = UNCONFIGURED,
         *,
         bit_rates: frozenset[int] | set[int] | None = None,
-        store: Callable[[int, int | None], int] | None = None,
+        store: Callable[[int, int | None], int | bool | None] | None = None,
         answer_delay: float = 0.0,
     ) -> None:
         if not isinstance(identity, LssIdentity):
@@ -304,18 +304,27 @@ class LssSlave:
                 now, w.STORE, b"\x01", (StoreFailed(STORE_UNSUPPORTED, "not supported"),)
             )
         try:
-            code = self.store(self.pending_node_id, self.pending_bit_timing)
+            said = self.store(self.pending_node_id, self.pending_bit_timing)
         except Exception as exc:  # a storage failure is the media's, not the protocol's
             code, reason = STORE_MEDIA_ERROR, f"{type(exc).__name__}: {exc}"
         else:
-            reason = {STORE_UNSUPPORTED: "not supported", STORE_MEDIA_ERROR: "media access"}.get(
-                code, "stored"
-            )
+            code, reason = _store_answer(said)
         if code == STORED:
             event: Event = ConfigurationStored(self.pending_node_id, self.pending_bit_timing)
             return self._send(now, w.STORE, b"\x00", (event,))
-        code = code if code in (STORE_UNSUPPORTED, STORE_MEDIA_ERROR) else STORE_MEDIA_ERROR
         return self._send(now, w.STORE, bytes((code,)), (StoreFailed(code, reason),))
+
+
+def _store_answer(said: object) -> tuple[int, str]:
+    """What ``store`` returned as (error code, reason): 0, None or True stored; 1 not
+    supported; 2 or False a media access error; anything else is a media error too."""
+    if said is None or said is True or (type(said) is int and said == STORED):
+        return STORED, "stored"
+    if type(said) is int and said == STORE_UNSUPPORTED:
+        return STORE_UNSUPPORTED, "not supported"
+    if said is False or (type(said) is int and said == STORE_MEDIA_ERROR):
+        return STORE_MEDIA_ERROR, "media access error"
+    return STORE_MEDIA_ERROR, f"store returned {said!r}, not 0, 1 or 2"
 
 
 def _check_node_id(node_id: object) -> None:
