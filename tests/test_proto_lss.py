@@ -246,6 +246,8 @@ def test_bad_slave_options_are_refused_with_what_to_give() -> None:
         LssIdentity(1, 2, 3, -1)
     with pytest.raises(LssError, match="answer_delay"):
         LssSlave(ME, answer_delay=-1)
+    with pytest.raises(LssError, match="give indices of CiA 305's table"):
+        LssSlave(ME, bit_rates={5})  # reserved
 
 
 # ---------------------------------------------------------------- the master's services

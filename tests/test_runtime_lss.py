@@ -14,6 +14,7 @@ from cobus.proto.connection_set import LSS_MASTER_COB_ID
 from cobus.proto.lss import (
     FastscanFieldFound,
     FastscanStarted,
+    LssError,
     LssIdentity,
     LssSlave,
     LssState,
@@ -222,6 +223,11 @@ def test_a_disconnect_or_a_failing_callback_never_leaves_lss_hanging() -> None:
             raise RuntimeError("a bug in the caller's callback")
 
         assert await net.lss.fastscan(on_event=failing) == ME  # reported, not stuck
+        scan = asyncio.ensure_future(net.lss.fastscan())
+        await net.sleep(0.01)
+        with pytest.raises(LssError, match="an LSS request is under way"):
+            net.lss.switch_global(LssState.WAITING)  # would cut into the scan
+        await scan
         task = asyncio.ensure_future(net.lss.configure_node_id(5))
         await net.sleep(0)
         await net.disconnect()

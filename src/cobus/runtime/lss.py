@@ -22,6 +22,7 @@ from cobus.proto.lss import (
     FastscanFound,
     FastscanNothingFound,
     LssConfirmed,
+    LssError,
     LssIdentified,
     LssIdentity,
     LssInquired,
@@ -77,6 +78,7 @@ class AsyncNetworkLss:
 
     def switch_global(self, state: LssState | int) -> None:
         """Every slave to waiting (0) or configuration (1); no answer."""
+        self._not_during_a_request("switch state global")
         self._host_of().run(lambda now: self._machine.switch_global(state))
 
     async def select(self, identity: LssIdentity) -> None:
@@ -97,6 +99,7 @@ class AsyncNetworkLss:
     def activate_bit_rate(self, delay: float) -> None:
         """The slaves in configuration switch to the configured bit rate: silent for
         ``delay`` seconds, switch, silent for ``delay`` again; no answer."""
+        self._not_during_a_request("activate bit timing")
         self._host_of().run(lambda now: self._machine.activate_bit_timing(delay))
 
     async def store(self) -> None:
@@ -207,6 +210,12 @@ class AsyncNetworkLss:
             return
         if self._waiter is not None and not self._waiter.done():
             self._waiter.set_result(event)
+
+    def _not_during_a_request(self, service: str) -> None:
+        """A request without an answer must not cut into one under way (a fastscan)."""
+        if self._lock is not None and self._lock.locked():
+            raise LssError(f"{service}: an LSS request is under way; await it first")
+        self._check_connected()
 
     def _check_connected(self) -> None:
         if not self._network.connected:

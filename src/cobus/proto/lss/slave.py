@@ -130,6 +130,11 @@ class LssSlave:
         self.pending_node_id = node_id
         #: The table-0 indices this device can run at (default: every rate of the table).
         self.bit_rates = frozenset(BIT_RATES) if bit_rates is None else frozenset(bit_rates)
+        if not self.bit_rates <= set(BIT_RATES) | {AUTO_BIT_RATE}:
+            raise LssError(
+                f"bit_rates {sorted(self.bit_rates)}: give indices of CiA 305's table "
+                "(0-4, 6-8; 9 automatic), e.g. bit_timing_index(250)"
+            )
         self.pending_bit_timing: int | None = None
         self.state = LssState.WAITING
         self.store = store
