@@ -237,3 +237,28 @@ def test_a_disconnect_or_a_failing_callback_never_leaves_lss_hanging() -> None:
             await net.lss.inquire("serial")
 
     simulate(main())
+
+
+def test_the_trace_decoder_follows_what_net_lss_did() -> None:
+    """The bus as a sniffer sees it: cobus's own decoder tells the scan's story."""
+    from cobus.trace import Decoder, LssSession
+
+    async def main() -> list[str]:
+        async with AsyncNetwork() as net:
+            frames: list[tuple[Frame, float]] = []
+            net.subscribe_all(lambda f, now: frames.append((f, now)))
+            slaves_on(net, LssSlave(ME, store=lambda n, b: 0))
+            found = await net.lss.fastscan()
+            assert found == ME
+            await net.lss.configure_node_id(12)
+            await net.lss.store()
+            net.lss.switch_global(LssState.WAITING)
+            await net.sleep(0.01)
+        decoder = Decoder()
+        records = [r for f, t in frames for r in decoder.feed(f, t)]
+        return [r.sentence for r in records if isinstance(r, LssSession)]
+
+    sentences = simulate(main())
+    assert any(s.startswith("fastscan found") and "serial 0x0000002A" in s for s in sentences)
+    assert any("got node-ID 12" in s for s in sentences), sentences
+    assert any("stored its configuration" in s for s in sentences), sentences
