@@ -12,13 +12,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from cobus.proto.connection_set import LSS_MASTER_COB_ID as MASTER
+from cobus.proto.lss import BIT_RATES
 
 __all__ = ["LssSessions", "describe"]
 
-SLAVE = 0x7E4
 
 _FIELDS = ("vendor-ID", "product code", "revision", "serial")
-_KBITS = {0: 1000, 1: 800, 2: 500, 3: 250, 4: 125, 6: 50, 7: 20, 8: 10}
 _ANSWERS = {  # a request's command -> the command of its answer
     0x11: 0x11,
     0x13: 0x13,
@@ -47,7 +46,7 @@ def _bit_timing(data: bytes) -> str:
     index = data[2] if len(data) > 2 else 0
     if index == 9:
         return "automatic bit rate detection"
-    kbits = _KBITS.get(index)
+    kbits = BIT_RATES.get(index)
     return f"{kbits} kbit/s" if kbits else f"index {index} (reserved)"
 
 

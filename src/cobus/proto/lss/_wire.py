@@ -88,6 +88,15 @@ class LssIdentity:
         )
 
 
+def check_node_id(node_id: object) -> int:
+    """A node-ID LSS can give: 1..127, or FFh (none)."""
+    if isinstance(node_id, bool) or not isinstance(node_id, int):
+        raise LssError(f"node-ID {node_id!r}: give 1..127, or 0xFF for none")
+    if not (1 <= node_id <= 127 or node_id == UNCONFIGURED):
+        raise LssError(f"node-ID {node_id}: give 1..127, or 0xFF for none")
+    return node_id
+
+
 def bit_timing_index(kbits: int) -> int:
     """The table-0 index of a bit rate in kbit/s (``bit_timing_index(250) == 3``)."""
     for index, rate in BIT_RATES.items():

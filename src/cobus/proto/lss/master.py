@@ -19,7 +19,6 @@ from cobus.proto.lss._wire import (
     AUTO_BIT_RATE,
     BIT_RATES,
     FIELDS,
-    UNCONFIGURED,
     LssError,
     LssIdentity,
 )
@@ -146,10 +145,7 @@ class LssMaster:
 
     def configure_node_id(self, node_id: int, now: float) -> Out:
         """The slave in configuration takes ``node_id`` (1..127, or FFh: none)."""
-        if isinstance(node_id, bool) or not isinstance(node_id, int):
-            raise LssError(f"node-ID {node_id!r}: give 1..127, or 0xFF to remove it")
-        if not (1 <= node_id <= 127 or node_id == UNCONFIGURED):
-            raise LssError(f"node-ID {node_id}: give 1..127, or 0xFF to remove it")
+        w.check_node_id(node_id)
         frame = w.request(w.CONFIGURE_NODE_ID, bytes((node_id,)))
         return self._ask("configure node-ID", w.CONFIGURE_NODE_ID, now, (frame,))
 

@@ -125,7 +125,7 @@ class LssSlave:
         if not isinstance(identity, LssIdentity):
             raise LssError(f"identity {identity!r}: give an LssIdentity(vendor, product, ...)")
         self.identity = identity
-        _check_node_id(node_id)
+        w.check_node_id(node_id)
         self.active_node_id = node_id
         self.pending_node_id = node_id
         #: The table-0 indices this device can run at (default: every rate of the table).
@@ -330,10 +330,3 @@ def _store_answer(said: object) -> tuple[int, str]:
     if said is False or (type(said) is int and said == STORE_MEDIA_ERROR):
         return STORE_MEDIA_ERROR, "media access error"
     return STORE_MEDIA_ERROR, f"store returned {said!r}, not 0, 1 or 2"
-
-
-def _check_node_id(node_id: object) -> None:
-    if isinstance(node_id, bool) or not isinstance(node_id, int):
-        raise LssError(f"node-ID {node_id!r}: give 1..127, or 0xFF for none")
-    if not (1 <= node_id <= 127 or node_id == UNCONFIGURED):
-        raise LssError(f"node-ID {node_id}: give 1..127, or 0xFF for none")
