@@ -55,6 +55,12 @@ def test_scan_set_id_and_assign_all_from_the_shell(capsys: pytest.CaptureFixture
         assert slaves[1].active_node_id == 13
         assert [e.node_id for e in events if isinstance(e, NodeIdAssigned)] == [12, 13]
 
+        assert main(["lss", "inquire", "--identity", "0x360:0x1234:0x10000:7", *bus]) == 0
+        assert "serial 0x00000007: node-ID 13" in capsys.readouterr().out
+        assert main(["lss", "store", "--identity", "0x360:0x1234:0x10000:42", "--json", *bus]) == 0
+        assert json.loads(capsys.readouterr().out)["node_id"] == 12 and stored == [(12, None)] * 2
+        assert main(["lss", "store", "--identity", "0x360:0x1234:0x10000:7", *bus]) == 1
+        assert "storing is not supported" in capsys.readouterr().err
         assert main(["lss", "scan", *bus]) == 3
         err = capsys.readouterr().err
         assert "every device here has a node-ID" in err and "[12]" in err

@@ -3,6 +3,7 @@
     cobus lss scan                              # fastscan: the first device without a node-ID
     cobus lss set-id 12 --identity 0x360:0x1234:0x10000:42 --store
     cobus lss assign-all --first 20 --store     # every device without one, IDs from 20 up
+    cobus lss inquire --identity 0x360:0x1234:0x10000:42   # its node-ID (store: keep it)
 
 A device without a node-ID (FFh) answers LSS only: no boot-up, no SDO. ``scan`` finds one by
 fastscan (its identity, 1018h sub 1-4) and leaves it as it was. ``set-id`` gives a node-ID to
@@ -54,6 +55,12 @@ def register(sub: Any) -> None:
     actions = lss.add_subparsers(dest="action", metavar="ACTION", required=True)
     scan = actions.add_parser("scan", help="find a device without a node-ID (fastscan)")
     set_id = actions.add_parser("set-id", help="give the device with an identity a node-ID")
+    inquire = actions.add_parser("inquire", help="the node-ID of the device with an identity")
+    store = actions.add_parser("store", help="the device with an identity stores its node-ID")
+    for p in (inquire, store):
+        p.add_argument(
+            "--identity", type=_identity, required=True, help="VENDOR:PRODUCT:REVISION:SERIAL"
+        )
     set_id.add_argument("node", type=node_id, help="the new node-ID, 1-127")
     set_id.add_argument(
         "--identity", type=_identity, required=True, help="VENDOR:PRODUCT:REVISION:SERIAL"
@@ -75,7 +82,7 @@ def register(sub: Any) -> None:
         p.add_argument(
             "--floor", type=seconds, default=0.01, help="shortest wait for an answer (0.01 s)"
         )
-    for p in (scan, set_id, assign):
+    for p in (scan, set_id, assign, inquire, store):
         p.add_argument("--json", action="store_true", help="the result as JSON")
         p.epilog = "Exit codes: 0 done, 1 refused / no answer / bus, 2 bad usage, 3 none found."
         add_bus_options(p)
@@ -98,6 +105,9 @@ def _run(args: argparse.Namespace) -> int:
                 net.lss.timeout = 0.2
                 _set_id(net, args.identity, args.node, args.store)
                 done.append(_row(args.identity, args.node, args.store))
+            elif args.action in ("inquire", "store"):
+                net.lss.timeout = 0.2
+                done.append(_one(net, args.identity, args.action == "store"))
             else:
                 code = _scan(net, args, done)
                 if code:
@@ -149,6 +159,21 @@ def _scan(net: Any, args: argparse.Namespace, done: list[dict[str, Any]]) -> int
 def _set_id(net: Any, identity: Any, node: int, store: bool) -> None:
     net.lss.select(identity)
     _configure(net, node, store)
+
+
+def _one(net: Any, identity: Any, store: bool) -> dict[str, Any]:
+    """Select the device with ``identity``, ask its node-ID (and have it store it), and
+    switch it back to waiting."""
+    from cobus.proto.lss import UNCONFIGURED, LssState
+
+    net.lss.select(identity)
+    try:
+        node = net.lss.inquire("node_id")
+        if store:
+            net.lss.store()
+    finally:
+        net.lss.switch_global(LssState.WAITING)
+    return _row(identity, None if node == UNCONFIGURED else node, store)
 
 
 def _configure(net: Any, node: int, store: bool) -> None:
@@ -209,6 +234,10 @@ def _print(args: argparse.Namespace, done: list[dict[str, Any]]) -> None:
             " ".join(f"{f} 0x{row[f]:08X}" for f in _FIELDS)
             + " (no node-ID; 'cobus lss set-id' gives it one)"
         )
+    elif args.action in ("inquire", "store"):
+        row = done[0]
+        node = "no node-ID" if row["node_id"] is None else f"node-ID {row['node_id']}"
+        print(f"serial 0x{row['serial']:08X}: {node}" + (" (stored)" if row["stored"] else ""))
     elif args.action == "set-id":
         row = done[0]
         print(
