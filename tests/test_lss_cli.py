@@ -68,5 +68,8 @@ def test_scan_set_id_and_assign_all_from_the_shell(capsys: pytest.CaptureFixture
             main(["lss", "set-id", "9", "--identity", "1:2:3", *bus])
         assert usage.value.code == 2
         assert "write VENDOR:PRODUCT:REVISION:SERIAL" in capsys.readouterr().err
+        with pytest.raises(SystemExit):
+            main(["lss", "scan", "--vendor", "acme", *bus])
+        assert "'acme': a number 0 to 0xFFFFFFFF" in capsys.readouterr().err
         assert main(["lss", "set-id", "9", "--identity", "1:2:3:4", *bus]) == 1
         assert "no slave has that identity" in capsys.readouterr().err

@@ -44,6 +44,16 @@ def _identity(text: str) -> Any:
         ) from None
 
 
+def _u32(text: str) -> int:
+    try:
+        value = int(text, 0)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 0xFFFF_FFFF:
+        raise argparse.ArgumentTypeError(f"{text!r}: a number 0 to 0xFFFFFFFF (e.g. 0x360)")
+    return value
+
+
 def register(sub: Any) -> None:
     """Add ``cobus lss``."""
     lss = sub.add_parser(
@@ -57,14 +67,11 @@ def register(sub: Any) -> None:
     set_id = actions.add_parser("set-id", help="give the device with an identity a node-ID")
     inquire = actions.add_parser("inquire", help="the node-ID of the device with an identity")
     store = actions.add_parser("store", help="the device with an identity stores its node-ID")
-    for p in (inquire, store):
+    set_id.add_argument("node", type=node_id, help="the new node-ID, 1-127")
+    for p in (set_id, inquire, store):
         p.add_argument(
             "--identity", type=_identity, required=True, help="VENDOR:PRODUCT:REVISION:SERIAL"
         )
-    set_id.add_argument("node", type=node_id, help="the new node-ID, 1-127")
-    set_id.add_argument(
-        "--identity", type=_identity, required=True, help="VENDOR:PRODUCT:REVISION:SERIAL"
-    )
     assign = actions.add_parser("assign-all", help="give every device without one a node-ID")
     assign.add_argument(
         "--first", type=node_id, default=1, help="the lowest node-ID to give (default 1)"
@@ -73,9 +80,7 @@ def register(sub: Any) -> None:
         p.add_argument("--store", action="store_true", help="the device stores its node-ID")
     for p in (scan, assign):
         for field in _FIELDS[:3]:
-            p.add_argument(
-                f"--{field}", type=lambda t: int(t, 0), help=f"the {field} if known (faster)"
-            )
+            p.add_argument(f"--{field}", type=_u32, help=f"the {field} if known (faster)")
         p.add_argument(
             "--ceiling", type=seconds, default=0.5, help="longest wait for an answer (0.5 s)"
         )
