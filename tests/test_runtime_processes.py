@@ -7,12 +7,10 @@
 """
 
 import asyncio
-import contextlib
 import socket
 import subprocess
 import sys
 import textwrap
-import time
 from collections import deque
 
 import can
@@ -43,48 +41,6 @@ SERVER = textwrap.dedent(
         sys.stdin.read()  # until the test closes our stdin
     """
 )
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _wait_for_port(port: int, deadline: float) -> None:
-    while time.monotonic() < deadline:
-        with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), 0.2):
-            return
-        time.sleep(0.05)
-    raise TimeoutError(f"python-can-remote did not listen on 127.0.0.1:{port}")
-
-
-@pytest.fixture
-def remote_bus_url():
-    port = _free_port()
-    server = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "can_remote",
-            "-i",
-            "virtual",
-            "-c",
-            f"mp{port}",
-            "-H",
-            "127.0.0.1",
-            "-p",
-            str(port),
-        ],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    try:
-        _wait_for_port(port, time.monotonic() + 15)
-        yield f"ws://127.0.0.1:{port}/"
-    finally:
-        server.terminate()
-        server.wait(10)
 
 
 @pytest.mark.parametrize("on_loop", [False, True])

@@ -16,7 +16,7 @@ import can
 import canopen
 import pytest
 
-from tests.test_runtime_processes import _free_port, _wait_for_port
+from tests.conftest import free_port, wait_for_port
 
 pytestmark = pytest.mark.interop
 
@@ -36,14 +36,14 @@ RIG = """
 
 @pytest.fixture
 def bus_url():
-    port = _free_port()
+    port = free_port()
     server = subprocess.Popen(
         [*CAN_REMOTE, "-c", f"sim{port}", "-H", "127.0.0.1", "-p", str(port)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
     try:
-        _wait_for_port(port, time.monotonic() + 15)
+        wait_for_port(port, time.monotonic() + 15)
         yield f"ws://127.0.0.1:{port}/"
     finally:
         server.terminate()

@@ -3,7 +3,7 @@
 - :class:`Device` — a node on an :class:`~cobus.runtime.AsyncNetwork`
   (``add_device(net, node_id, od)``): SDO server on every configured channel, NMT slave,
   heartbeat, node and life guarding, EMCY, SYNC and TIME consumer, PDOs of every transmission
-  type, store/restore of parameters, runtime node-ID change, EDS export.
+  type, store/restore of parameters, runtime node-ID change, an LSS slave, EDS export.
 - :class:`BlockingDevice` — the same for blocking code (``add_device(net, ...)`` on a
   :class:`~cobus.runtime.Network`).
 - :func:`minimal_od` / :class:`DictionaryBuilder` — dictionaries built in code with every
@@ -24,7 +24,8 @@ write handlers, and defines those objects for :func:`minimal_od`):
 - :mod:`~cobus.device.heartbeat` — producer and consumer, 1016h, 1017h;
 - :mod:`~cobus.device.guarding` — node and life guarding, 100Ch, 100Dh;
 - :mod:`~cobus.device.nmt` — the NMT slave, boot-up, error behaviour 1029h;
-- :mod:`~cobus.device.storage` — power-on values, 1010h store, 1011h restore, the stores.
+- :mod:`~cobus.device.storage` — power-on values, 1010h store, 1011h restore, the stores;
+- :mod:`~cobus.device.lss` — the LSS slave (CiA 305): node-ID and bit rate by identity.
 
 They share one port, ``_core.Core``: the entries, how a value is written, the events out, and
 what each service declares there of the objects it owns (write handlers, the pre-defined
@@ -39,6 +40,7 @@ from cobus.device.blocking import BlockingDevice
 from cobus.device.device import (
     LOAD_SIGNATURE,
     SAVE_SIGNATURE,
+    UNCONFIGURED,
     CobIdRule,
     Deviations,
     Device,
@@ -56,6 +58,7 @@ from cobus.device.errors import (
     StorageError,
 )
 from cobus.device.events import (
+    BitRateSwitched,
     Booted,
     ConfigurationProblem,
     DeviceEvent,
@@ -65,6 +68,10 @@ from cobus.device.events import (
     HeartbeatRestored,
     LifeGuardingLost,
     LifeGuardingRestored,
+    LssBitTimingConfigured,
+    LssConfigurationStored,
+    LssNodeIdConfigured,
+    LssStoreFailed,
     NmtCommandReceived,
     NodeIdChanged,
     ParametersRestored,
@@ -86,6 +93,8 @@ __all__ = [
     "DEFAULT_DEVICE_TYPE",
     "LOAD_SIGNATURE",
     "SAVE_SIGNATURE",
+    "UNCONFIGURED",
+    "BitRateSwitched",
     "BlockingDevice",
     "Booted",
     "CobIdRule",
@@ -107,6 +116,10 @@ __all__ = [
     "LifeGuardingLost",
     "LifeGuardingRestored",
     "Listener",
+    "LssBitTimingConfigured",
+    "LssConfigurationStored",
+    "LssNodeIdConfigured",
+    "LssStoreFailed",
     "MemoryStorage",
     "NmtCommandReceived",
     "NodeIdChanged",

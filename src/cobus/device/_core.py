@@ -104,8 +104,20 @@ class Core:
         #: asked of the lists directly, without a call.
         self.heard_by_network = network._listeners
         #: The NMT slave of the current communication (a new one after a node-ID change).
-        self.nmt = NmtSlave(node_id)
+        self.nmt = NmtSlave(self.machine_node_id)
         self.started = False
+
+    @property
+    def machine_node_id(self) -> int:
+        """The node-ID the device's protocol machines are built with: the device's own, or
+        1 while it has none (FFh: unconfigured, the machines stay off the network then)."""
+        node_id = self.node_id
+        return node_id if node_id <= 127 else 1
+
+    @property
+    def unconfigured(self) -> bool:
+        """Whether the device has no node-ID (FFh) and answers LSS only."""
+        return self.node_id > 127
 
     def now(self) -> float:
         """The network's clock."""

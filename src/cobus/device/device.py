@@ -31,11 +31,13 @@ from cobus.device.errors import (
 )
 from cobus.device.events import (
     Booted,
+    ConfigurationProblem,
     NodeIdChanged,
     StateChanged,
 )
 from cobus.device.guarding import GuardingService
 from cobus.device.heartbeat import HeartbeatService
+from cobus.device.lss import LssService
 from cobus.device.nmt import NmtService
 from cobus.device.pdo import PdoService
 from cobus.device.sdo_server import SdoServerService
@@ -54,6 +56,7 @@ from cobus.od import NameLookupError, ObjectDictionary, resolve
 from cobus.proto import emcy as _emcy
 from cobus.proto import nmt as _nmt
 from cobus.proto.emcy import ErrorRegister
+from cobus.proto.lss import BIT_RATES, UNCONFIGURED, LssSlave
 from cobus.proto.nmt import NmtCommand, NmtSlave, NmtState
 from cobus.proto.sdo import SdoAbort, SdoAbortCode, SdoServerBackend
 from cobus.runtime.periodic import check_interface_timing
@@ -61,7 +64,15 @@ from cobus.runtime.periodic import check_interface_timing
 if TYPE_CHECKING:
     from cobus.runtime.network import AsyncNetwork
 
-__all__ = ["LOAD_SIGNATURE", "SAVE_SIGNATURE", "CobIdRule", "Deviations", "Device", "Listener"]
+__all__ = [
+    "LOAD_SIGNATURE",
+    "SAVE_SIGNATURE",
+    "UNCONFIGURED",
+    "CobIdRule",
+    "Deviations",
+    "Device",
+    "Listener",
+]
 
 
 Key = int | str
@@ -122,6 +133,12 @@ class Device:
     times it (SocketCAN: the kernel; see :mod:`cobus.runtime.periodic`); an interface that
     cannot raises :class:`~cobus.runtime.InterfaceTimingError` here.
 
+    ``lss`` — the device is an LSS slave (CiA 305) found by its identity 1018h sub 1-4
+    (:attr:`lss`). A ``node_id`` of :data:`UNCONFIGURED` (FFh) makes one that starts without
+    a node-ID: no boot-up, no SDO, no PDO, LSS only, until an LSS master gives it one; then it
+    boots. ``None`` (the default): LSS when the device starts unconfigured or its storage holds
+    a node-ID an LSS master had it store — that node-ID is the one it starts with.
+
     The device attaches itself to ``network`` (it holds ``node_id`` in ``network.devices``
     until :meth:`close`); :meth:`start` boots it (boot-up message, pre-operational).
     :func:`~cobus.device.add_device` does both. Each device needs a dictionary of its own.
@@ -144,8 +161,18 @@ class Device:
         emcy_queue_size: int = 16,
         deviations: Deviations | None = None,
         sync_by_interface: bool = False,
+        lss: bool | None = None,
     ) -> None:
-        _nmt.check_node_id(node_id)
+        if node_id != UNCONFIGURED or isinstance(node_id, bool):
+            try:
+                _nmt.check_node_id(node_id)
+            except _nmt.NmtError:
+                raise DeviceConfigError(
+                    f"node-ID {node_id!r}: give 1..127, or UNCONFIGURED (FFh) for a device that "
+                    "waits for an LSS master to give it one"
+                ) from None
+        if lss is not None and not isinstance(lss, bool):
+            raise DeviceConfigError(f"lss={lss!r}: give True, False or None (automatic)")
         if sync_by_interface:
             check_interface_timing(network)
         #: What a simulation changes in this device (late answers, a muted heartbeat, the
@@ -179,6 +206,9 @@ class Device:
             self._core, timeout=float(sdo_timeout), max_download=sdo_max_download
         )
         self._storage = StorageService(self._core, storage)
+        self._lss: LssService | None = None
+        if lss is not False:
+            node_id = self._make_lss(node_id, force=bool(lss))
         self._closed = False
         # communication state, rebuilt by every reset communication
         self._nmt = NmtService(
@@ -193,8 +223,9 @@ class Device:
         )
         self._time = TimeService(self._core)
         self._install_handlers()
-        self._check_free(node_id)
-        network.devices.claim(node_id, self)
+        if node_id != UNCONFIGURED:
+            self._check_free(node_id)
+            network.devices.claim(node_id, self)
         _SERVED[id(od)] = weakref.ref(self)
         self._sync.attach()  # (last: a device that failed to be made leaves nothing behind)
 
@@ -202,12 +233,28 @@ class Device:
 
     @property
     def node_id(self) -> int:
-        """The node-ID the device answers to; setting it changes it at run time."""
+        """The node-ID the device answers to (:data:`UNCONFIGURED`, FFh: none yet, it answers
+        LSS only); setting it changes it at run time."""
         return self._core.node_id
 
     @node_id.setter
     def node_id(self, node_id: int) -> None:
         self.set_node_id(node_id)
+
+    @property
+    def lss(self) -> LssSlave | None:
+        """The device's LSS slave (None: the device has none): its ``answer_delay`` (seconds
+        every answer is held back, for slow masters), ``bit_rates`` (the table-0 indices it
+        takes), ``pending_node_id`` and ``state`` may be read and set."""
+        return None if self._lss is None else self._lss.slave
+
+    @property
+    def bit_rate(self) -> int | None:
+        """The bit rate in kbit/s an LSS master switched the device to, or stored for it
+        (None: the one it was started at)."""
+        if self._lss is None or self._lss.bit_timing is None:
+            return None
+        return BIT_RATES.get(self._lss.bit_timing)
 
     @property
     def nmt(self) -> NmtSlave:
@@ -230,6 +277,12 @@ class Device:
         return self._emcy.history
 
     def __repr__(self) -> str:
+        if self._core.unconfigured:
+            return (
+                "Device(unconfigured)"
+                if self._lss is None
+                else (f"Device(unconfigured, serial 0x{self._lss.slave.identity.serial:08X})")
+            )
         return f"Device({self._core.node_id}, {self._core.nmt.state.name})"
 
     def __getitem__(self, index: Key) -> _ObjectView:
@@ -413,6 +466,11 @@ class Device:
         if node_id == old:
             return
         self._check_free(node_id)
+        if self._lss is not None:
+            self._lss.node_id_changed(node_id)
+        if self._core.unconfigured and self._core.started:
+            self._take_node_id(node_id)
+            return
         follow = {}
         for key, entry in self._core.entries.items():
             if entry.index < 0x2000 or entry.var.relative:
@@ -448,6 +506,10 @@ class Device:
             raise DeviceConfigError(f"device {self._core.node_id} was closed; create a new one")
         self._power_on(communication=True, application=True)
         self._core.started = True
+        if self._lss is not None:
+            self._lss.open()
+        if self._core.unconfigured:
+            return  # LSS only, until a master gives it a node-ID (:meth:`_assigned`)
         self._nmt.open()
         self._boot()
         self._report_storage()
@@ -470,6 +532,8 @@ class Device:
         if self._closed:
             return
         self._closed = True
+        if self._lss is not None:
+            self._lss.close()
         self._teardown_comm()
         self._sync.detach()
         self._nmt.close()
@@ -531,18 +595,98 @@ class Device:
     # ================================================================== power-on and resets
 
     def _power_on(self, *, communication: bool, application: bool) -> None:
-        self.od.node_id = self._core.node_id
+        if not self._core.unconfigured:
+            self.od.node_id = self._core.node_id
         self._storage.power_on(communication=communication, application=application)
         self._emcy.power_on(communication=communication, application=application)
 
     def _reset(self, *, application: bool) -> None:
         self._teardown_comm()
+        old = self._core.node_id
+        pending = None if self._lss is None else self._lss.take_pending()
+        if pending == UNCONFIGURED:  # an LSS master took the node-ID away: LSS only now
+            self._nmt.close()
+            self.network.devices.release(old, self)
+            self._set_core_node_id(UNCONFIGURED)
+            self._power_on(communication=True, application=application)
+            self._core.emit(NodeIdChanged(UNCONFIGURED, old))
+            return
+        if pending is not None and not self._move_for_lss(pending):
+            pending = None
         communication = (
-            application or not self.simulation.deviations.reset_communication_keeps_values
+            pending is not None
+            or application
+            or not self.simulation.deviations.reset_communication_keeps_values
         )
         self._power_on(communication=communication, application=application)
         self._boot()
         self._report_storage()
+        if pending is not None:
+            self._core.emit(NodeIdChanged(pending, old))
+
+    # ================================================================== LSS
+
+    def _make_lss(self, node_id: int, *, force: bool) -> int:
+        """The LSS slave, when asked for or needed; the node-ID the device starts with (the
+        one an LSS master had it store wins)."""
+        stored_id, stored_timing = self._storage.stored_lss()
+        if not (force or node_id == UNCONFIGURED or stored_id is not None):
+            return node_id
+        if stored_id is not None:
+            node_id = stored_id
+            self._set_core_node_id(node_id)
+        self._lss = LssService(self._core, self._storage, on_assigned=self._assigned)
+        self._lss.power_on(node_id, stored_timing)
+        return node_id
+
+    def _set_core_node_id(self, node_id: int) -> None:
+        core = self._core
+        core.node_id = node_id
+        if not core.unconfigured:
+            self.od.node_id = node_id
+        if hasattr(self, "_nmt"):
+            self._nmt.renew(node_id)
+            self._emcy.set_node_id(node_id)
+        else:  # (in __init__, before the services exist)
+            core.nmt = NmtSlave(core.machine_node_id)
+
+    def _assigned(self, node_id: int) -> None:
+        """An LSS master gave the unconfigured device ``node_id``: it boots under it."""
+        try:
+            self._check_free(node_id)
+        except NodeIdInUseError as exc:
+            assert self._lss is not None
+            self._lss.unassign()
+            self._core.emit(ConfigurationProblem(UNCONFIGURED, f"LSS node-ID {node_id}: {exc}"))
+            return
+        self._take_node_id(node_id)
+
+    def _take_node_id(self, node_id: int) -> None:
+        """The unconfigured, started device boots under ``node_id`` (a free one)."""
+        self.network.devices.claim(node_id, self)
+        self._set_core_node_id(node_id)
+        self._power_on(communication=True, application=False)
+        self._nmt.open()
+        self._boot()
+        self._report_storage()
+        self._core.emit(NodeIdChanged(node_id, UNCONFIGURED))
+
+    def _move_for_lss(self, node_id: int) -> bool:
+        """At a reset: the node-ID an LSS master configured becomes the device's (False: it
+        is another local device's, the device keeps its own and says so)."""
+        old = self._core.node_id
+        try:
+            self._check_free(node_id)
+        except NodeIdInUseError as exc:
+            assert self._lss is not None
+            self._lss.node_id_changed(old)
+            self._core.emit(ConfigurationProblem(old, f"LSS node-ID {node_id}: {exc}"))
+            return False
+        self._nmt.close()
+        self.network.devices.move(old, node_id, self)
+        self._set_core_node_id(node_id)
+        self._nmt.open()
+        return True
 
     def _boot(self) -> None:
         self._build_comm()

@@ -92,7 +92,7 @@ class EmcyService:
     def __init__(self, core: Core, *, queue_size: int) -> None:
         self._core = core
         self.producer = EmcyProducer(
-            core.node_id, depth=_history_depth(core.od), queue_size=queue_size
+            core.machine_node_id, depth=_history_depth(core.od), queue_size=queue_size
         )
         self._errors: dict[object, int] = {}
         self._host: MachineHost | None = None
@@ -152,7 +152,7 @@ class EmcyService:
 
     def set_node_id(self, node_id: int) -> None:
         """Produce under ``node_id`` from the next build on."""
-        self.producer.node_id = node_id
+        self.producer.node_id = node_id if node_id <= 127 else 1  # (FFh: not built)
 
     def power_on(self, *, communication: bool, application: bool) -> None:
         """A reset: communication clears the device's own errors, reset node all of them and
@@ -164,7 +164,7 @@ class EmcyService:
         if application:
             self._errors.clear()
             self.producer = EmcyProducer(
-                self._core.node_id,
+                self._core.machine_node_id,
                 depth=_history_depth(self._core.od),
                 queue_size=self.producer.queue_size,
             )

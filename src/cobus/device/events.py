@@ -16,6 +16,7 @@ from cobus.proto import Event
 from cobus.proto.nmt import NmtCommand, NmtState
 
 __all__ = [
+    "BitRateSwitched",
     "Booted",
     "ConfigurationProblem",
     "DeviceEvent",
@@ -25,6 +26,10 @@ __all__ = [
     "HeartbeatRestored",
     "LifeGuardingLost",
     "LifeGuardingRestored",
+    "LssBitTimingConfigured",
+    "LssConfigurationStored",
+    "LssNodeIdConfigured",
+    "LssStoreFailed",
     "NmtCommandReceived",
     "NodeIdChanged",
     "ParametersRestored",
@@ -207,9 +212,55 @@ class ConfigurationProblem(DeviceEvent):
 
 @dataclass(frozen=True, slots=True)
 class NodeIdChanged(DeviceEvent):
-    """The device changed its node-ID from ``old`` to ``node_id``."""
+    """The device changed its node-ID from ``old`` to ``node_id`` (FFh: it has none now and
+    answers LSS only, until a master gives it one)."""
 
     old: int
+
+
+@dataclass(frozen=True, slots=True)
+class LssNodeIdConfigured(DeviceEvent):
+    """An LSS master configured node-ID ``pending`` (FFh: none): the device takes it at the
+    next reset of its communication, or at once when it had none and the master switches it
+    back to waiting."""
+
+    pending: int
+
+
+@dataclass(frozen=True, slots=True)
+class LssBitTimingConfigured(DeviceEvent):
+    """An LSS master configured bit timing ``index`` of CiA 305's table (``kbits``; None:
+    automatic detection): the device switches when the master activates it."""
+
+    index: int
+    kbits: int | None
+
+
+@dataclass(frozen=True, slots=True)
+class BitRateSwitched(DeviceEvent):
+    """The device switched to bit timing ``index`` (``kbits``) when an LSS master activated
+    it, one switch delay after the command."""
+
+    index: int
+    kbits: int | None
+
+
+@dataclass(frozen=True, slots=True)
+class LssConfigurationStored(DeviceEvent):
+    """The device stored the node-ID ``pending`` and bit timing ``bit_timing`` (None: the one
+    stored before) an LSS master configured: it starts with them from now on."""
+
+    pending: int
+    bit_timing: int | None
+
+
+@dataclass(frozen=True, slots=True)
+class LssStoreFailed(DeviceEvent):
+    """An LSS master's store request failed: ``error`` 1 not supported, 2 storage media
+    access error (the answer says so), ``reason`` why."""
+
+    error: int
+    reason: str
 
 
 __getattr__ = renamed_names(

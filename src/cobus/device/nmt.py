@@ -77,7 +77,7 @@ class NmtService:
 
     def renew(self, node_id: int) -> None:
         """A new slave machine for ``node_id`` (closed: :meth:`open` follows)."""
-        self._core.nmt = NmtSlave(node_id)
+        self._core.nmt = NmtSlave(node_id if node_id <= 127 else 1)  # (FFh: not opened)
 
     def boot(self) -> None:
         """Enter pre-operational, with the boot-up message (unless the deviations drop it)."""

@@ -4,7 +4,8 @@ What is stored: the writable entries of the communication area (1000h-1FFFh, wit
 objects a service declares never stored: the store and restore commands, the error history)
 and of the application area (2000h-9FFFh), each as its
 encoded bytes; an entry that holds its ``$NODEID`` default is stored relative to the node-ID
-so that it follows a node-ID change.
+so that it follows a node-ID change. Apart from them, the node-ID and bit timing an LSS master
+had the device store (CiA 305 ``store configuration``): 1011h restore leaves them.
 
 :class:`FileStorage` writes the file atomically: a temporary file in the same directory is
 written, flushed and synced, then renamed over the old file, and the directory is synced. A
@@ -51,7 +52,10 @@ __all__ = [
 
 COMMUNICATION = "communication"
 APPLICATION = "application"
+#: The LSS configuration: ``{"node_id": {"value": n}, "bit_timing": {"value": i}}``.
+LSS = "lss"
 _GROUPS = (COMMUNICATION, APPLICATION)
+_ALL_GROUPS = (*_GROUPS, LSS)
 _FORMAT = "cobus device parameters"
 _VERSION = 1
 
@@ -74,7 +78,11 @@ class ParameterStorage(Protocol):
 
 
 def _copy(parameters: Mapping[str, Mapping[str, StoredValue]]) -> Parameters:
-    return {g: {k: dict(v) for k, v in parameters.get(g, {}).items()} for g in _GROUPS}
+    out = {g: {k: dict(v) for k, v in parameters.get(g, {}).items()} for g in _GROUPS}
+    lss = parameters.get(LSS)
+    if lss:
+        out[LSS] = {k: dict(v) for k, v in lss.items()}
+    return out
 
 
 class MemoryStorage:
@@ -140,7 +148,9 @@ class FileStorage:
                 f"(this cobus writes version {_VERSION})"
             )
         out: Parameters = {}
-        for group in _GROUPS:
+        for group in _ALL_GROUPS:
+            if group == LSS and LSS not in doc:
+                continue
             items = doc.get(group, {})
             if not isinstance(items, dict) or not all(isinstance(v, dict) for v in items.values()):
                 raise StorageError(f"{self.path}: group {group!r} is not a table of entries")
@@ -169,8 +179,12 @@ class FileStorage:
 
 
 def _digest(groups: Mapping[str, Any]) -> str:
-    """The SHA-256 of the parameters, over their canonical JSON."""
-    canonical = json.dumps({g: groups.get(g, {}) for g in _GROUPS}, sort_keys=True)
+    """The SHA-256 of the parameters, over their canonical JSON (the LSS group counted when
+    there is one: the files written before it existed keep their digest)."""
+    chosen = {g: groups.get(g, {}) for g in _GROUPS}
+    if groups.get(LSS):
+        chosen[LSS] = groups[LSS]
+    canonical = json.dumps(chosen, sort_keys=True)
     return hashlib.sha256(canonical.encode("utf-8")).hexdigest()
 
 
@@ -343,6 +357,39 @@ class StorageService:
             raise abort(_ABORT.CANNOT_STORE, str(exc)) from None
         self._core.emit(ParametersRestored(self._core.node_id, subindex))
 
+    def stored_lss(self) -> tuple[int | None, int | None]:
+        """The node-ID and bit timing (table index) an LSS master had stored; None for each
+        that was not, or when the store cannot be read (:meth:`power_on` tells why)."""
+        try:
+            lss = self._storage.load().get(LSS, {})
+        except StorageError:
+            return None, None
+        found: list[int | None] = []
+        for key, valid in (("node_id", _lss_node_id), ("bit_timing", _lss_bit_timing)):
+            value = lss.get(key, {}).get("value")
+            if value is not None and not valid(value):
+                self._core.emit(
+                    StorageProblem(self._core.node_id, f"stored LSS {key} {value!r} is not valid")
+                )
+                value = None
+            found.append(value)
+        return found[0], found[1]
+
+    def store_lss(self, node_id: int, bit_timing: int | None) -> None:
+        """Keep the node-ID and bit timing an LSS master configured (``store configuration``);
+        a bit timing of None keeps the one stored before. :class:`StorageError` if the store
+        cannot be written (the LSS answer says "storage media access error")."""
+        try:
+            stored = self._storage.load()
+        except StorageError:
+            stored = {}
+        lss = dict(stored.get(LSS, {}))
+        lss["node_id"] = {"value": node_id}
+        if bit_timing is not None:
+            lss["bit_timing"] = {"value": bit_timing}
+        stored[LSS] = lss
+        self._storage.save(stored)
+
     def _apply_stored(self, group: str, key: str, item: StoredValue) -> None:
         core = self._core
         try:
@@ -419,3 +466,11 @@ class StorageService:
                 f"1011h expects the signature 'load' (0x{LOAD_SIGNATURE:08X}), got 0x{value:08X}",
             )
         self.restore(entry.subindex)
+
+
+def _lss_node_id(value: object) -> bool:
+    return type(value) is int and (1 <= value <= 127 or value == 0xFF)
+
+
+def _lss_bit_timing(value: object) -> bool:
+    return type(value) is int and 0 <= value <= 9 and value != 5

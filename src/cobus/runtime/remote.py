@@ -55,12 +55,13 @@ NO_VALUE: Any = _NoValue()
 
 
 def load_od(od: ObjectDictionary | str | Path | None, node_id: int) -> ObjectDictionary | None:
-    """An object dictionary from an object, or from an EDS/DCF path (``$NODEID`` = node_id)."""
+    """An object dictionary from an object, or from an EDS/DCF path (``$NODEID`` = node_id;
+    left unresolved for a node-ID outside 1..127, an LSS slave's FFh)."""
     if od is None or not isinstance(od, str | Path):
         return od
     from cobus.od import load
 
-    return load(od, node_id=node_id)
+    return load(od, node_id=node_id if 1 <= node_id <= 127 else None)
 
 
 class SdoChannel:
