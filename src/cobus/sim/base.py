@@ -36,6 +36,8 @@ class SimulatedDevice:
     """Base class of the simulated devices (see the module docstring)."""
 
     kind: ClassVar[str] = "device"
+    #: Whether the device can be an LSS slave (a rig's ``node: unconfigured``).
+    LSS: ClassVar[bool] = False
     QUIRKS: ClassVar[Mapping[str, str]] = {}
     FAULTS: ClassVar[Mapping[str, str]] = {}
     #: Per fault, its parameters and their kinds ("int", "node_id", "number", "seconds", "rate",

@@ -9,7 +9,11 @@ builds, and adds what every simulated CANopen device shares:
 - parameters from a rig file (``parameters: {"0x1017": 100, "0x1800:5": 50}``) become the
   dictionary's configured values, so they hold after every reset as well;
 - the faults of :attr:`CanopenSimDevice.FAULTS`: a node-ID change, a heartbeat that stops, SDO
-  answers that come late.
+  answers that come late;
+- LSS (CiA 305): a device made with node-ID :data:`~cobus.device.UNCONFIGURED` (a rig's
+  ``node: unconfigured``) waits for an LSS master to give it one, found by its ``serial``
+  (1018h sub 4; random if not given). A node-ID given by LSS holds until the power goes,
+  unless the master had the device store it.
 
 :class:`EdsDevice` (kind ``eds``) serves the objects of an EDS or DCF with their defaults and
 its PDOs. What the file lacks that the device runtime needs is said clearly: the mandatory
@@ -20,12 +24,14 @@ optional object means for the node (no heartbeat without 1017h, ...) in
 
 from __future__ import annotations
 
+import random
 import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
 from cobus.device import (
+    UNCONFIGURED,
     ConfigurationProblem,
     Device,
     DeviceEvent,
@@ -136,8 +142,13 @@ class CanopenSimDevice(SimulatedDevice):
     Options: ``storage`` (a path or a :class:`~cobus.device.ParameterStorage`; default in
     memory, kept across power cycles), ``parameters`` (object address -> configured value),
     ``heartbeat_ms`` (the producer heartbeat time 1017h), ``sdo_timeout`` (seconds the SDO
-    servers wait within a segmented or block transfer).
+    servers wait within a segmented or block transfer), ``serial`` (1018h sub 4, the serial
+    number LSS finds the device by; random for an unconfigured device if not given), ``lss``
+    (the device is an LSS slave; always when it starts unconfigured).
     """
+
+    #: The device can be an LSS slave (start unconfigured, take a node-ID by LSS).
+    LSS: ClassVar[bool] = True
 
     kind = "canopen"
     FAULTS: ClassVar[Mapping[str, str]] = {
@@ -174,16 +185,34 @@ class CanopenSimDevice(SimulatedDevice):
         parameters: Mapping[int | str, Any] | None = None,
         heartbeat_ms: int | None = None,
         sdo_timeout: float = 1.0,
+        serial: int | None = None,
+        lss: bool | None = None,
     ) -> None:
-        try:
-            check_node_id(node_id)
-        except CobusError as exc:
-            raise SimulationError(f"{self.kind}: {exc}") from None
+        if node_id != UNCONFIGURED or isinstance(node_id, bool):
+            try:
+                check_node_id(node_id)
+            except CobusError as exc:
+                raise SimulationError(f"{self.kind}: {exc} (or unconfigured, FFh)") from None
+        if serial is not None and (
+            isinstance(serial, bool) or not isinstance(serial, int) or not 0 <= serial < 1 << 32
+        ):
+            raise SimulationError(f"{self.kind}: serial {serial!r} is no UNSIGNED32")
+        if lss is not None and not isinstance(lss, bool):
+            raise SimulationError(f"{self.kind}: lss {lss!r}: give true or false")
         super().__init__(network, node_id, quirks=quirks, name=name)
+        #: The node-ID the device has at power-on (FFh: none; an LSS master gives it one).
+        self.power_on_node_id = node_id
+        self._lss = lss
         self._storage = open_storage(storage)
         self._sdo_timeout = sdo_timeout
         self.od = self.build_od()
         settings: dict[int | str, Any] = {}
+        if serial is None and node_id == UNCONFIGURED:
+            serial = random.getrandbits(32)
+        if node_id == UNCONFIGURED and name is None and serial is not None:
+            self.name = f"{self.kind}-{serial:08X}"  # (kind + FFh would name them all alike)
+        if serial is not None:
+            settings["0x1018:4"] = serial
         if heartbeat_ms is not None:
             settings[0x1017] = heartbeat_ms
         settings.update(parameters or {})
@@ -249,6 +278,7 @@ class CanopenSimDevice(SimulatedDevice):
         """Power on: a new device on the dictionary boots (boot-up message, pre-operational)."""
         if self._device is not None:
             return
+        self.node_id = self.power_on_node_id
         other = self.network.devices.get(self.node_id)
         if other is not None:
             raise SimulationError(
@@ -262,7 +292,9 @@ class CanopenSimDevice(SimulatedDevice):
             self.od,
             storage=self._storage,
             sdo_timeout=self._sdo_timeout,
+            lss=self._lss,
         )
+        self.node_id = device.node_id  # (the one an LSS master had it store)
         device.simulation.sdo_response_delay = self.sdo_delay
         self.problems = []
         self._device = device
@@ -328,8 +360,9 @@ class CanopenSimDevice(SimulatedDevice):
                 raise FaultParameterError(
                     f"node_id_change: node-ID {new} is taken by another device on this network"
                 )
+            self.power_on_node_id = new  # and boots under it after a power cycle
             if self._device is None:
-                self.node_id = new  # boots under it when the power returns
+                self.node_id = new
             else:
                 self._device.set_node_id(new)
         elif fault in ("heartbeat_stop", "heartbeat_resume"):
@@ -373,7 +406,7 @@ class EdsDevice(CanopenSimDevice):
         super().__init__(network, node_id, **options)
 
     def build_od(self) -> ObjectDictionary:
-        od = load(self.eds, node_id=self.node_id)
+        od = load(self.eds, node_id=self.node_id if self.node_id <= 127 else None)
         path = str(self.eds)
         missing = [i for i in _MANDATORY if i not in od]
         if missing and not self._complete:

@@ -7,6 +7,9 @@ The file::
       - node: 8
         kind: zapi_ace2        # a kind of KINDS, or "package.module:Class"
         name: traction         # optional; default: kind + node
+      - node: unconfigured     # no node-ID until an LSS master gives it one (CiA 305)
+        kind: cia402_drive
+        serial: 0x1234         # 1018h sub 4, what LSS finds it by (random if left out)
         options: {...}         # keyword arguments of the device class
         quirks: {...}          # quirk name -> on/off
     faults:                    # optional: injected while the rig runs
@@ -41,6 +44,7 @@ from pathlib import Path
 from typing import Any
 
 from cobus._yaml import read_yaml
+from cobus.device import UNCONFIGURED
 from cobus.errors import clip
 from cobus.proto import Event, Frame
 from cobus.proto.nmt import check_node_id
@@ -84,7 +88,7 @@ KINDS: dict[str, str] = {
 }
 
 _PATH_OPTIONS = ("eds", "storage")
-_DEVICE_KEYS = {"node", "kind", "name", "options", "quirks"}
+_DEVICE_KEYS = {"node", "kind", "name", "options", "quirks", "serial"}
 _BUS_KEYS = {"interface", "channel", "bitrate"}
 
 
@@ -156,6 +160,9 @@ class BusSpec:
 
 @dataclass(frozen=True)
 class DeviceSpec:
+    """One device of a rig file; ``node`` :data:`~cobus.device.UNCONFIGURED` (FFh) for one
+    that waits for an LSS master to give it a node-ID."""
+
     node: int
     kind: str
     name: str | None = None
@@ -222,6 +229,8 @@ class Rig:
         where = str(self.path or "rig")
         seen: dict[int, int] = {}
         for i, spec in enumerate(self.specs):
+            if spec.node == UNCONFIGURED:
+                continue  # (as many as there are: LSS tells them apart by their serials)
             if spec.node in seen:
                 raise RigError(
                     f"{where}: devices[{i}]: node {spec.node} is used twice (devices"
@@ -238,7 +247,9 @@ class Rig:
                 raise RigError(f"{where}: faults[{i}]: there is no device with node {fault.node}")
             self._check_params(i, fault, where)
             self._check_new_node(i, fault, where)
-        #: The running devices by the node-ID their spec gives (empty until started).
+        #: The running devices by the node-ID their spec gives (empty until started); an
+        #: unconfigured one by 100h + its place in the file (:meth:`device` finds it by the
+        #: node-ID LSS gave it, or by name).
         self.devices: dict[int, SimulatedDevice] = {}
         self.network: AsyncNetwork | None = None
         self._handles: list[asyncio.TimerHandle] = []
@@ -411,8 +422,14 @@ class Rig:
         self.network = network
         try:
             for i, (spec, cls) in enumerate(zip(self.specs, classes, strict=True)):
-                device = self._create(cls, spec, f"{where}: devices[{i}] ({spec.kind})")
-                self.devices[spec.node] = device
+                here = f"{where}: devices[{i}] ({spec.kind})"
+                if spec.node == UNCONFIGURED and not cls.LSS:
+                    raise RigError(
+                        f"{here}: a {cls.kind} has no LSS slave, so it cannot start "
+                        "unconfigured; give it a node-ID"
+                    )
+                device = self._create(cls, spec, here)
+                self.devices[spec.node if spec.node != UNCONFIGURED else 0x100 + i] = device
                 device.start()
         except Exception:
             await self.stop()
@@ -603,12 +620,15 @@ def _device_spec(raw: Any, where: str, base: Path) -> DeviceSpec:
             f"{', '.join(sorted(_DEVICE_KEYS))} (device settings go under options)"
         )
     node = raw.get("node")
-    if not isinstance(node, int) or isinstance(node, bool):
-        raise RigError(f"{where}: node {node!r} must be a node-ID 1..127")
-    try:
-        check_node_id(node)
-    except ValueError as exc:
-        raise RigError(f"{where}: {exc}") from None
+    if node == "unconfigured":
+        node = UNCONFIGURED
+    elif not isinstance(node, int) or isinstance(node, bool):
+        raise RigError(f"{where}: node {node!r} must be a node-ID 1..127 or unconfigured")
+    else:
+        try:
+            check_node_id(node)
+        except ValueError as exc:
+            raise RigError(f"{where}: {exc}") from None
     kind = raw.get("kind")
     if not isinstance(kind, str):
         raise RigError(f"{where}: kind {kind!r} must name a device kind ({', '.join(KINDS)})")
@@ -627,6 +647,11 @@ def _device_spec(raw: Any, where: str, base: Path) -> DeviceSpec:
     if not isinstance(quirks, dict) or not all(isinstance(v, bool) for v in quirks.values()):
         raise RigError(f"{where}: quirks must map quirk names to true or false")
     options = dict(options)
+    if "serial" in raw:
+        serial = raw["serial"]
+        if not _is_int(serial) or not 0 <= serial < 1 << 32:
+            raise RigError(f"{where}: serial {serial!r} must be a number 0..0xFFFFFFFF")
+        options["serial"] = serial
     for key in _PATH_OPTIONS:
         value = options.get(key)
         if isinstance(value, str) and not Path(value).is_absolute():
