@@ -6,6 +6,7 @@ and against python-canopen's LSS master over python-can-remote."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import random
 import struct
@@ -27,15 +28,17 @@ from cobus.device import (
     LssNodeIdConfigured,
     LssStoreFailed,
     NodeIdChanged,
+    NodeIdInUseError,
     StorageError,
+    StorageProblem,
     add_device,
     minimal_od,
 )
 from cobus.device._objects import U8, U32, composite
-from cobus.od import Record
+from cobus.od import DataType, NodeRelative, Record, Variable
 from cobus.proto import Event, Frame
 from cobus.proto.lss import LssIdentity, LssState
-from cobus.proto.nmt import NmtState
+from cobus.proto.nmt import NmtCommand, NmtState
 from cobus.runtime import AsyncNetwork, LssRefusedError
 from tests.util import simulate
 
@@ -322,3 +325,165 @@ def test_python_canopen_lss_master_finds_names_and_reads_a_cobus_device(
             assert struct.unpack("<I", raw)[0] == 0x5EED
         finally:
             cnet.disconnect()
+
+
+def od_relative(serial: int) -> Any:
+    """A dictionary with application entries whose defaults follow ``$NODEID``."""
+    o = od(serial)
+    o.add(Variable(0x2000, 0, "Station", DataType.UNSIGNED8, default=NodeRelative(1)))
+    o.add(Variable(0x2001, 0, "Reply COB-ID", DataType.UNSIGNED32, default=NodeRelative(0x300)))
+    return o
+
+
+def test_values_that_follow_the_node_id_follow_one_given_by_lss() -> None:
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            ref = add_device(net, 12, od_relative(9))
+            ref.store_parameters()  # 2000h/2001h stored relative to the node-ID
+            storage = ref._storage._storage
+            ref.close()
+            events = events_of(net)
+            for made in (add_device(net, UNCONFIGURED, od_relative(1)), None):
+                dev = made or add_device(net, UNCONFIGURED, od_relative(1), storage=storage)
+                await net.lss.fastscan()
+                await net.lss.configure_node_id(12)
+                net.lss.switch_global(LssState.WAITING)
+                await net.sleep(0.01)
+                assert (dev.get(0x2000), dev.get(0x2001)) == (13, 0x30C)
+                await net.lss.select(identity(1))
+                await net.lss.configure_node_id(20)  # at the next reset: as set_node_id does
+                net.lss.switch_global(LssState.WAITING)
+                net.nmt.reset_communication(12)
+                await net.sleep(0.01)
+                assert (dev.node_id, dev.get(0x2000), dev.get(0x2001)) == (20, 21, 0x314)
+                dev.close()
+            assert not [e for e in events if isinstance(e, StorageProblem)]
+
+    simulate(main())
+
+
+@pytest.mark.parametrize("b_new", [5, UNCONFIGURED])
+def test_two_devices_swap_node_ids_at_one_reset_of_all(b_new: int) -> None:
+    async def configure(net: AsyncNetwork, serial: int, node_id: int) -> None:
+        await net.lss.select(identity(serial))
+        await net.lss.configure_node_id(node_id)
+        net.lss.switch_global(LssState.WAITING)
+
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            events = events_of(net)
+            a = add_device(net, 5, od(1), lss=True)
+            b = add_device(net, 6, od(2), lss=True)
+            await configure(net, 1, 6)
+            await configure(net, 2, b_new)
+            net.nmt.reset_communication(0)
+            await net.sleep(0.01)
+            assert (a.node_id, b.node_id) == (6, b_new)
+            assert net.devices.get(6) is a
+            assert not [e for e in events if isinstance(e, ConfigurationProblem)]
+
+    simulate(main())
+
+
+def test_a_node_id_taken_at_the_reset_stays_pending_and_is_taken_later() -> None:
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            events = events_of(net)
+            dev = add_device(net, 5, od(1), lss=True)
+            other = add_device(net, 6, od(2))
+            await net.lss.select(identity(1))
+            await net.lss.configure_node_id(6)
+            net.lss.switch_global(LssState.WAITING)
+            net.nmt.reset_communication(5)
+            await net.sleep(0.01)
+            assert dev.node_id == 5 and state_of(dev) is NmtState.PRE_OPERATIONAL
+            problems = [e.reason for e in events if isinstance(e, ConfigurationProblem)]
+            assert problems and "6 stays pending" in problems[0]
+            other.close()
+            net.nmt.reset_communication(5)
+            await net.sleep(0.01)
+            assert dev.node_id == 6
+
+    simulate(main())
+
+
+def test_a_pending_node_id_set_out_of_range_is_ignored_and_said() -> None:
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            events = events_of(net)
+            dev = add_device(net, 5, od(1), lss=True)
+            assert dev.lss is not None
+            dev.lss.pending_node_id = 200
+            net.nmt.reset_communication(5)
+            await net.sleep(0.01)
+            assert dev.node_id == 5 and list(net.devices) == [5]
+            assert any("200" in e.reason for e in events if isinstance(e, ConfigurationProblem))
+
+    simulate(main())
+
+
+def test_a_stored_node_id_another_device_holds_is_refused_saying_where_it_came_from(
+    tmp_path: Path,
+) -> None:
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            path = tmp_path / "p.json"
+            dev = add_device(net, UNCONFIGURED, od(1), storage=path)
+            await net.lss.fastscan()
+            await net.lss.configure_node_id(12)
+            await net.lss.store()
+            dev.close()
+            add_device(net, 12, od(2))
+            dictionary = od(1)
+            with pytest.raises(NodeIdInUseError, match="LSS master had this device store"):
+                Device(net, 5, dictionary, storage=path)
+            assert dictionary.node_id is None  # untouched
+
+    simulate(main())
+
+
+def test_an_unreadable_store_is_never_overwritten_by_lss(tmp_path: Path) -> None:
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            path = tmp_path / "p.json"
+            path.write_text("not json")
+            add_device(net, UNCONFIGURED, od(1), storage=path)
+            await net.lss.fastscan()
+            await net.lss.configure_node_id(12)
+            with pytest.raises(LssRefusedError, match="media"):
+                await net.lss.store()
+            assert path.read_text() == "not json"
+
+    simulate(main())
+
+
+def test_a_file_with_lss_keeps_the_digest_a_cobus_before_lss_checks(tmp_path: Path) -> None:
+    """The parameters' SHA-256 covers the communication and application groups as before;
+    the LSS group has its own, so an older cobus reads the file and ignores the LSS part."""
+    path = tmp_path / "p.json"
+    store = FileStorage(path)
+    params = {"communication": {"1017:00": {"data": "e803"}}, "application": {}}
+    store.save({**params, "lss": {"node_id": {"value": 12}}})
+    doc = json.loads(path.read_text())
+    canonical = json.dumps(params, sort_keys=True).encode()
+    assert doc["sha256"] == hashlib.sha256(canonical).hexdigest()
+    assert store.load()["lss"] == {"node_id": {"value": 12}}
+    doc["lss"]["node_id"]["value"] = 13
+    path.write_text(json.dumps(doc))
+    with pytest.raises(StorageError, match="LSS configuration"):
+        store.load()
+
+
+def test_what_an_unconfigured_device_cannot_do_is_said() -> None:
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            with pytest.raises(DeviceConfigError, match="unreachable"):
+                Device(net, UNCONFIGURED, od(1), lss=False)
+            dev = add_device(net, UNCONFIGURED, od(1))
+            for call in (lambda: dev.apply_nmt(NmtCommand.START), lambda: dev.send_tpdo(1)):
+                with pytest.raises(DeviceConfigError, match="has no node-ID"):
+                    call()
+            dev.close()
+            assert await net.lss.identify_unconfigured() is False  # closed: silent
+
+    simulate(main())

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 from cobus._moved import Moved, warn_renamed
 from cobus.device._core import Core, Listener
-from cobus.device._entries import Entry, check_value
+from cobus.device._entries import Entry, check_value, zero_value
 from cobus.device.eds_export import export_eds
 from cobus.device.emcy import ERROR_REGISTER, EmcyService, class_bits
 from cobus.device.errors import (
@@ -173,6 +173,11 @@ class Device:
                 ) from None
         if lss is not None and not isinstance(lss, bool):
             raise DeviceConfigError(f"lss={lss!r}: give True, False or None (automatic)")
+        if lss is False and node_id == UNCONFIGURED:
+            raise DeviceConfigError(
+                "a device without a node-ID (UNCONFIGURED) is reached by LSS only: lss=False "
+                "would leave it unreachable; give it a node-ID or leave lss out"
+            )
         if sync_by_interface:
             check_interface_timing(network)
         #: What a simulation changes in this device (late answers, a muted heartbeat, the
@@ -245,7 +250,7 @@ class Device:
     def lss(self) -> LssSlave | None:
         """The device's LSS slave (None: the device has none): its ``answer_delay`` (seconds
         every answer is held back, for slow masters), ``bit_rates`` (the table-0 indices it
-        takes), ``pending_node_id`` and ``state`` may be read and set."""
+        takes) may be set; ``pending_node_id``, ``state`` and ``identity`` read."""
         return None if self._lss is None else self._lss.slave
 
     @property
@@ -413,6 +418,7 @@ class Device:
     def send_tpdo(self, number: int) -> None:
         """An application event for TPDO ``number``: event-driven types send now (or at the
         end of the inhibit time), acyclic synchronous ones at the next SYNC."""
+        self._check_configured("send a TPDO")
         if not self._pdo.send_tpdo(number):
             raise DeviceConfigError(f"TPDO {number} is not configured (or not valid)")
 
@@ -422,6 +428,7 @@ class Device:
         cmd = _COMMANDS.get(int(command))
         if cmd is None:
             raise _nmt.NmtError(f"unknown NMT command {command!r}: use an NmtCommand member")
+        self._check_configured("apply an NMT command")
         self._nmt.apply(cmd)
 
     def to_eds(self) -> str:
@@ -471,25 +478,13 @@ class Device:
         if self._core.unconfigured and self._core.started:
             self._take_node_id(node_id)
             return
-        follow = {}
-        for key, entry in self._core.entries.items():
-            if entry.index < 0x2000 or entry.var.relative:
-                offset = self._core.node_offset(entry, entry.value)
-                if offset is not None:
-                    follow[key] = offset
-        self._core.node_id = node_id
-        self.od.node_id = node_id
-        for key, offset in follow.items():
-            self._core.entries[key].value = node_id + offset
         self.network.devices.move(old, node_id, self)
         if not self._core.started:
-            self._nmt.renew(node_id)
-            self._emcy.set_node_id(node_id)
+            self._set_core_node_id(node_id)
             return
         self._teardown_comm()
         self._nmt.close()
-        self._nmt.renew(node_id)
-        self._emcy.set_node_id(node_id)
+        self._set_core_node_id(node_id)
         self._nmt.open()
         self._boot()
         self._core.emit(NodeIdChanged(node_id, old))
@@ -513,6 +508,13 @@ class Device:
         self._nmt.open()
         self._boot()
         self._report_storage()
+
+    def _check_configured(self, what: str) -> None:
+        if self._core.unconfigured:
+            raise DeviceConfigError(
+                f"{self!r} has no node-ID (it waits for an LSS master to give it one): it "
+                f"cannot {what} yet"
+            )
 
     def _check_free(self, node_id: int) -> None:
         other = self.network.devices.get(node_id)
@@ -611,18 +613,19 @@ class Device:
             self._power_on(communication=True, application=application)
             self._core.emit(NodeIdChanged(UNCONFIGURED, old))
             return
-        if pending is not None and not self._move_for_lss(pending):
-            pending = None
+        if pending is not None:
+            # Every device this NMT command resets lets go of its node-ID before any takes
+            # a new one: two devices that swap theirs each find the other's free.
+            self._nmt.close()
+            self.network.devices.release(old, self)
+            self.network.loop.call_soon(self._move_for_lss, pending, old, application)
+            return
         communication = (
-            pending is not None
-            or application
-            or not self.simulation.deviations.reset_communication_keeps_values
+            application or not self.simulation.deviations.reset_communication_keeps_values
         )
         self._power_on(communication=communication, application=application)
         self._boot()
         self._report_storage()
-        if pending is not None:
-            self._core.emit(NodeIdChanged(pending, old))
 
     # ================================================================== LSS
 
@@ -632,23 +635,54 @@ class Device:
         stored_id, stored_timing = self._storage.stored_lss()
         if not (force or node_id == UNCONFIGURED or stored_id is not None):
             return node_id
-        if stored_id is not None:
+        if stored_id is not None and stored_id != node_id:
+            other = self.network.devices.get(stored_id)
+            if other is not None:
+                raise NodeIdInUseError(
+                    f"node-ID {stored_id}, which an LSS master had this device store, is used "
+                    f"by another device of this network ({other!r}); give the device another "
+                    "storage, or have the master give it another node-ID"
+                )
             node_id = stored_id
-            self._set_core_node_id(node_id)
+            self._set_core_node_id(node_id, follow=False)
         self._lss = LssService(self._core, self._storage, on_assigned=self._assigned)
         self._lss.power_on(node_id, stored_timing)
         return node_id
 
-    def _set_core_node_id(self, node_id: int) -> None:
+    def _set_core_node_id(self, node_id: int, *, follow: bool = True) -> None:
+        """The device's node-ID becomes ``node_id``; with ``follow`` the values that follow
+        ``$NODEID`` move with it (those that hold their default, their CiA 301 COB-ID)."""
         core = self._core
+        moving = self._following() if follow and node_id != UNCONFIGURED else {}
         core.node_id = node_id
         if not core.unconfigured:
             self.od.node_id = node_id
+        for key, offset in moving.items():
+            entry = core.entries[key]
+            entry.value = entry.var.value if offset is None else node_id + offset
         if hasattr(self, "_nmt"):
             self._nmt.renew(node_id)
             self._emcy.set_node_id(node_id)
         else:  # (in __init__, before the services exist)
             core.nmt = NmtSlave(core.machine_node_id)
+
+    def _following(self) -> dict[int, int | None]:
+        """The entries that follow ``$NODEID`` now: key -> offset from the node-ID, or None
+        for an entry that holds its unresolved default (the device had no node-ID)."""
+        core = self._core
+        out: dict[int, int | None] = {}
+        for key, entry in core.entries.items():
+            var = entry.var
+            if core.unconfigured:
+                if var.relative:
+                    held = zero_value(entry.data_type) if var.value is None else var.value
+                    if entry.value == held:
+                        out[key] = None
+            elif entry.index < 0x2000 or var.relative:
+                offset = core.node_offset(entry, entry.value)
+                if offset is not None:
+                    out[key] = offset
+        return out
 
     def _assigned(self, node_id: int) -> None:
         """An LSS master gave the unconfigured device ``node_id``: it boots under it."""
@@ -666,27 +700,46 @@ class Device:
         self.network.devices.claim(node_id, self)
         self._set_core_node_id(node_id)
         self._power_on(communication=True, application=False)
+        self._storage.apply_node_relative()
         self._nmt.open()
         self._boot()
         self._report_storage()
         self._core.emit(NodeIdChanged(node_id, UNCONFIGURED))
 
-    def _move_for_lss(self, node_id: int) -> bool:
-        """At a reset: the node-ID an LSS master configured becomes the device's (False: it
-        is another local device's, the device keeps its own and says so)."""
-        old = self._core.node_id
-        try:
-            self._check_free(node_id)
-        except NodeIdInUseError as exc:
-            assert self._lss is not None
-            self._lss.node_id_changed(old)
-            self._core.emit(ConfigurationProblem(old, f"LSS node-ID {node_id}: {exc}"))
-            return False
-        self._nmt.close()
-        self.network.devices.move(old, node_id, self)
-        self._set_core_node_id(node_id)
+    def _move_for_lss(self, node_id: int, old: int, application: bool) -> None:
+        """The reset goes on under the node-ID an LSS master configured (every device reset
+        by the same command has let go of its own by now). One another local device holds
+        is not taken: the device goes on under its old one and keeps the new one pending."""
+        if self._closed:
+            return
+        devices = self.network.devices
+        assert self._lss is not None
+        target = node_id
+        if devices.get(node_id) not in (None, self):
+            holder = devices.get(node_id)
+            self._lss.keep_pending(old, node_id)
+            self._core.emit(
+                ConfigurationProblem(
+                    old,
+                    f"LSS node-ID {node_id} is used by another device of this network "
+                    f"({holder!r}): device {old} keeps its node-ID, {node_id} stays pending",
+                )
+            )
+            target = old
+        if devices.get(target) not in (None, self):  # (its old one was taken meanwhile)
+            self._lss.unassign()
+            self._set_core_node_id(UNCONFIGURED)
+            self._core.emit(NodeIdChanged(UNCONFIGURED, old))
+            return
+        devices.claim(target, self)
+        if target != old:
+            self._set_core_node_id(target)
         self._nmt.open()
-        return True
+        self._power_on(communication=True, application=application)
+        self._boot()
+        self._report_storage()
+        if target != old:
+            self._core.emit(NodeIdChanged(target, old))
 
     def _boot(self) -> None:
         self._build_comm()

@@ -23,6 +23,7 @@ from cobus.device._core import Core
 from cobus.device.errors import DeviceConfigError
 from cobus.device.events import (
     BitRateSwitched,
+    ConfigurationProblem,
     LssBitTimingConfigured,
     LssConfigurationStored,
     LssNodeIdConfigured,
@@ -120,10 +121,25 @@ class LssService:
         """At a reset of the communication: the node-ID a master configured since, now the
         active one; None when it is the one the device has."""
         slave = self.slave
-        if slave.pending_node_id == slave.active_node_id:
+        pending = slave.pending_node_id
+        if pending == slave.active_node_id:
+            return None
+        if type(pending) is not int or not (1 <= pending <= 127 or pending == UNCONFIGURED):
+            core = self._core
+            core.emit(
+                ConfigurationProblem(
+                    core.node_id, f"pending LSS node-ID {pending!r} is not 1..127 or FFh: ignored"
+                )
+            )
+            slave.pending_node_id = slave.active_node_id
             return None
         slave.node_id_active()
         return slave.active_node_id
+
+    def keep_pending(self, active: int, pending: int) -> None:
+        """The device could not take ``pending`` and goes on with ``active``."""
+        self.slave.active_node_id = active
+        self.slave.pending_node_id = pending
 
     def unassign(self) -> None:
         """The node-ID the slave reported as assigned could not be taken: none again."""

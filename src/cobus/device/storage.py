@@ -161,6 +161,11 @@ class FileStorage:
                 f"{self.path}: the file is damaged (its SHA-256 does not match the parameters "
                 "it holds); delete it to start with the default values"
             )
+        if LSS in out and doc.get("lss_sha256") != _digest({LSS: out[LSS]}, (LSS,)):
+            raise StorageError(
+                f"{self.path}: the file is damaged (the SHA-256 of its LSS configuration does "
+                "not match); delete it to start with the default values"
+            )
         return out
 
     def save(self, parameters: Parameters) -> None:
@@ -169,6 +174,8 @@ class FileStorage:
         self._clean()
         groups = _copy(parameters)
         doc = {"format": _FORMAT, "version": _VERSION, "sha256": _digest(groups), **groups}
+        if LSS in groups:  # (its own digest: a cobus before LSS reads the file as it was)
+            doc["lss_sha256"] = _digest(groups, (LSS,))
         data = json.dumps(doc, indent=1, sort_keys=True).encode("utf-8")
         try:
             atomic_write(self.path, data)
@@ -178,13 +185,9 @@ class FileStorage:
             ) from None
 
 
-def _digest(groups: Mapping[str, Any]) -> str:
-    """The SHA-256 of the parameters, over their canonical JSON (the LSS group counted when
-    there is one: the files written before it existed keep their digest)."""
-    chosen = {g: groups.get(g, {}) for g in _GROUPS}
-    if groups.get(LSS):
-        chosen[LSS] = groups[LSS]
-    canonical = json.dumps(chosen, sort_keys=True)
+def _digest(groups: Mapping[str, Any], names: tuple[str, ...] = _GROUPS) -> str:
+    """The SHA-256 of the groups ``names`` (the parameters), over their canonical JSON."""
+    canonical = json.dumps({g: groups.get(g, {}) for g in names}, sort_keys=True)
     return hashlib.sha256(canonical.encode("utf-8")).hexdigest()
 
 
@@ -378,11 +381,9 @@ class StorageService:
     def store_lss(self, node_id: int, bit_timing: int | None) -> None:
         """Keep the node-ID and bit timing an LSS master configured (``store configuration``);
         a bit timing of None keeps the one stored before. :class:`StorageError` if the store
-        cannot be written (the LSS answer says "storage media access error")."""
-        try:
-            stored = self._storage.load()
-        except StorageError:
-            stored = {}
+        cannot be read or written (the LSS answer says "storage media access error"): what
+        it holds is never overwritten unread."""
+        stored = self._storage.load()
         lss = dict(stored.get(LSS, {}))
         lss["node_id"] = {"value": node_id}
         if bit_timing is not None:
@@ -390,8 +391,20 @@ class StorageService:
         stored[LSS] = lss
         self._storage.save(stored)
 
+    def apply_node_relative(self) -> None:
+        """The device got its first node-ID: the stored application values that follow it."""
+        try:
+            stored = self._storage.load()
+        except StorageError:
+            return  # (said at the power-on)
+        for key, item in stored.get(APPLICATION, {}).items():
+            if "node_id_offset" in item:
+                self._apply_stored(APPLICATION, key, item)
+
     def _apply_stored(self, group: str, key: str, item: StoredValue) -> None:
         core = self._core
+        if core.unconfigured and "node_id_offset" in item:
+            return  # nothing to add it to yet (:meth:`apply_node_relative`)
         try:
             index_text, _, sub_text = key.partition(":")
             index, subindex = int(index_text, 16), int(sub_text, 16)

@@ -285,15 +285,18 @@ class CanopenSimDevice(SimulatedDevice):
                 f"{self.name}: node-ID {self.node_id} is taken by another device on this "
                 "network; give each simulated device its own node-ID"
             )
+        try:
+            device = Device(
+                self.network,
+                self.node_id,
+                self.od,
+                storage=self._storage,
+                sdo_timeout=self._sdo_timeout,
+                lss=self._lss,
+            )
+        except CobusError as exc:  # (a stored LSS node-ID another device holds)
+            raise SimulationError(f"{self.name}: {exc}") from None
         super().start()
-        device = Device(
-            self.network,
-            self.node_id,
-            self.od,
-            storage=self._storage,
-            sdo_timeout=self._sdo_timeout,
-            lss=self._lss,
-        )
         self.node_id = device.node_id  # (the one an LSS master had it store)
         device.simulation.sdo_response_delay = self.sdo_delay
         self.problems = []
