@@ -4,10 +4,16 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
+from typing import Any
 
 import pytest
 
+from cobus.apps._lss_plan import NetworkPlan, NetworkWriteError
 from cobus.cli import main
+from cobus.device import UNCONFIGURED, add_device, minimal_od
+from cobus.master.config import load_network
+from cobus.od import load, resolve
 from cobus.proto import Event
 from cobus.proto.connection_set import LSS_MASTER_COB_ID
 from cobus.proto.heartbeat import HeartbeatProducer
@@ -49,9 +55,12 @@ def test_scan_set_id_and_assign_all_from_the_shell(capsys: pytest.CaptureFixture
         assert slaves[0].active_node_id == 12 and stored == [(12, None)]
 
         net.run(_beating(net.aio, 12))  # node 12 booted: its heartbeat says 12 is taken
-        assert main(["lss", "assign-all", "--first", "12", "--json", *bus]) == 0
-        rows = json.loads(capsys.readouterr().out)
-        assert [(r["serial"], r["node_id"]) for r in rows] == [(0x07, 13)]
+        # a bare LSS slave takes the node-ID but never boots: said, exit 1
+        assert main(["lss", "assign-all", "--first", "12", "--json", *bus]) == 1
+        out, err = capsys.readouterr()
+        rows = json.loads(out)
+        assert [(r["serial"], r["node_id"], r["booted"]) for r in rows] == [(0x07, 13, False)]
+        assert "node(s) 13 took their node-ID but no boot-up came" in err
         assert slaves[1].active_node_id == 13
         assert [e.node_id for e in events if isinstance(e, NodeIdAssigned)] == [12, 13]
 
@@ -73,3 +82,71 @@ def test_scan_set_id_and_assign_all_from_the_shell(capsys: pytest.CaptureFixture
         assert "'acme': a number 0 to 0xFFFFFFFF" in capsys.readouterr().err
         assert main(["lss", "set-id", "9", "--identity", "1:2:3:4", *bus]) == 1
         assert "no slave has that identity" in capsys.readouterr().err
+
+
+EDS = Path(__file__).resolve().parent.parent / "examples" / "networks" / "devices"
+NETWORK = """\
+master:
+  node_id: 127
+nodes:
+  io1:                       # known by vendor and product: its serial is written here
+    node_id: 2
+    eds: {eds}/cobus_io.eds
+    vendor_id: 0x00000C0B
+    product_code: 0x401
+  io2:
+    node_id: 4
+    eds: {eds}/cobus_io.eds
+    vendor_id: 0x00000C0B
+    product_code: 0x401
+    serial_number: 0x2222
+  drive1:
+    node_id: 3
+    eds: {eds}/cobus_drive.eds
+"""
+
+
+def _io(serial: int) -> Any:
+    od = load(EDS / "cobus_io.eds")
+    resolve(od, 0x1018, 4).value = serial
+    return od
+
+
+def test_assign_all_by_the_network_file_writes_serials_back(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "line.yml"
+    path.write_text(NETWORK.format(eds=EDS))
+    channel = f"cli-lss-net-{os.getpid()}"
+    bus = ["-i", "virtual", "-c", channel]
+    with Network(interface="virtual", channel=channel) as net:
+        for od in (_io(0x2222), _io(0x1111), minimal_od(vendor_id=0xC0B, serial=0x3333)):
+            add_device(net, UNCONFIGURED, od)
+        argv = ["lss", "assign-all", "--network", str(path), "--floor", "0.002", *bus]
+        assert main([*argv, "--json"]) == 0
+        rows = {r["serial"]: r for r in json.loads(capsys.readouterr().out)}
+        assert {s: (r["node_id"], r["network_node"], r["booted"]) for s, r in rows.items()} == {
+            0x1111: (2, "io1", True),
+            0x2222: (4, "io2", True),
+            0x3333: (1, None, True),  # not in the file: a node-ID the file does not use
+        }
+        assert sorted(net.devices) == [1, 2, 4]
+    text = path.read_text()
+    assert "    serial_number: 0x00001111   # by cobus lss assign-all\n" in text
+    assert "# known by vendor and product" in text  # the rest as it was
+    assert load_network(path).node("io1").serial_number == 0x1111
+
+
+def test_a_node_on_one_line_is_not_rewritten_and_says_what_to_add(tmp_path: Path) -> None:
+    path = tmp_path / "n.yml"
+    path.write_text(
+        f"master: {{node_id: 127}}\nnodes:\n  io1: {{node_id: 2, eds: {EDS}/cobus_io.eds, "
+        "vendor_id: 0xC0B, product_code: 0x401}\n"
+    )
+    before = path.read_text()
+    plan = NetworkPlan(path)
+    planned = plan.choose(LssIdentity(0xC0B, 0x401, 0x10000, 5), set())
+    assert planned is not None and planned.write and planned.node_id == 2
+    with pytest.raises(NetworkWriteError, match="serial_number: 0x00000005"):
+        plan.write_back({"io1": 5})
+    assert path.read_text() == before

@@ -3,6 +3,7 @@
     cobus lss scan                              # fastscan: the first device without a node-ID
     cobus lss set-id 12 --identity 0x360:0x1234:0x10000:42 --store
     cobus lss assign-all --first 20 --store     # every device without one, IDs from 20 up
+    cobus lss assign-all --network line.yml     # the IDs the network file gives them
     cobus lss inquire --identity 0x360:0x1234:0x10000:42   # its node-ID (store: keep it)
 
 A device without a node-ID (FFh) answers LSS only: no boot-up, no SDO. ``scan`` finds one by
@@ -12,8 +13,14 @@ the bus are skipped); ``--store`` makes the device keep it over a power cycle. A
 its new node-ID when it is switched back to LSS waiting (one without one before: at once, it
 boots; one that had one: at its next reset). Nothing else is written: no NMT command, no SDO.
 
-Exit codes: 0 done, 1 a device refused or did not answer, or the bus cannot be used, 2 bad
-usage, 3 no device without a node-ID answered.
+``assign-all`` checks that each device boots under its new node-ID (its boot-up message). With
+``--network FILE`` a device gets the node-ID of the file's node with its identity; one the
+file knows by vendor and product only gets the first such node's ID and its serial is
+written into that node's entry (``serial_number``), so that the master finds it by its
+identity; a device the file does not know gets a node-ID the file does not use.
+
+Exit codes: 0 done, 1 a device refused, did not answer or did not boot, or the bus cannot be
+used, 2 bad usage or a network file with errors, 3 no device without a node-ID answered.
 """
 
 from __future__ import annotations
@@ -28,6 +35,8 @@ from cobus._args import add_bus_options, bus_options, node_id, seconds
 __all__ = ["register"]
 
 _FIELDS = ("vendor", "product", "revision", "serial")
+#: Seconds a device given a node-ID has to send its boot-up message.
+_BOOT_WAIT = 1.0
 
 
 def _identity(text: str) -> Any:
@@ -76,6 +85,11 @@ def register(sub: Any) -> None:
     assign.add_argument(
         "--first", type=node_id, default=1, help="the lowest node-ID to give (default 1)"
     )
+    assign.add_argument(
+        "--network",
+        metavar="FILE",
+        help="the network file: its nodes' node-IDs by identity; serials written back",
+    )
     for p in (set_id, assign):
         p.add_argument("--store", action="store_true", help="the device stores its node-ID")
     for p in (scan, assign):
@@ -89,7 +103,10 @@ def register(sub: Any) -> None:
         )
     for p in (scan, set_id, assign, inquire, store):
         p.add_argument("--json", action="store_true", help="the result as JSON")
-        p.epilog = "Exit codes: 0 done, 1 refused / no answer / bus, 2 bad usage, 3 none found."
+        p.epilog = (
+            "Exit codes: 0 done, 1 refused / no answer / no boot-up / bus, 2 bad usage or "
+            "network file, 3 none found."
+        )
         add_bus_options(p)
         p.set_defaults(handler=_run)
 
@@ -101,6 +118,7 @@ def _fail(message: str, code: int = 1) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     from cobus.errors import CobusError
+    from cobus.master.errors import NetworkConfigError
     from cobus.runtime import Network
 
     done: list[dict[str, Any]] = []
@@ -121,6 +139,8 @@ def _run(args: argparse.Namespace) -> int:
         what = ", ".join(f"serial {d['serial']} -> node {d['node_id']}" for d in done)
         print(f"cobus: interrupted; done so far: {what or 'nothing'}", file=sys.stderr)
         return 130
+    except NetworkConfigError as exc:  # (the --network file: input to mend, like usage)
+        return _fail(str(exc), 2)
     except CobusError as exc:
         return _fail(str(exc))
     except Exception as exc:
@@ -132,38 +152,75 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _scan(net: Any, args: argparse.Namespace, done: list[dict[str, Any]]) -> int:
+    from cobus.apps._lss_plan import NetworkPlan
     from cobus.proto.lss import LssState
 
+    assign = args.action == "assign-all"
+    plan = NetworkPlan(args.network) if assign and args.network else None
     known = {f: getattr(args, f) for f in _FIELDS[:3] if getattr(args, f) is not None}
     heard = _heard(net)
     if not net.lss.identify_unconfigured():
         return _fail(_nothing_found(heard), 3)
-    next_id = args.first if args.action == "assign-all" else None
+    next_id = getattr(args, "first", 1)
+    writes: dict[str, int] = {}
     while True:
         found = net.lss.fastscan(known, floor=args.floor, ceiling=args.ceiling)
         if found is None:
             break
-        if next_id is None:  # scan: report it, leave it as it was
+        if not assign:  # scan: report it, leave it as it was
             net.lss.switch_global(LssState.WAITING)
             done.append(_row(found, None, False))
             break
-        while next_id in heard or next_id in {d["node_id"] for d in done}:
-            next_id += 1
-        if next_id > 127:
-            net.lss.switch_global(LssState.WAITING)
-            return _fail(f"no free node-ID left for {found} (heard: {sorted(heard)})")
-        _configure(net, next_id, args.store)
-        done.append(_row(found, next_id, args.store))
+        planned = None if plan is None else plan.choose(found, heard)
+        if planned is not None:
+            target = planned.node_id
+        else:
+            taken = heard | {d["node_id"] for d in done} | (set() if plan is None else plan.used)
+            while next_id in taken:
+                next_id += 1
+            if next_id > 127:
+                net.lss.switch_global(LssState.WAITING)
+                return _fail(f"no free node-ID left for {found} (heard: {sorted(heard)})")
+            target = next_id
+        booted = _configure(net, target, args.store)
+        row = _row(found, target, args.store)
+        row.update(booted=booted, network_node=None if planned is None else planned.name)
+        done.append(row)
+        if planned is not None and planned.write:
+            writes[planned.name or ""] = found.serial
         if not args.json:
-            print(f"{found}: node-ID {next_id}{' (stored)' if args.store else ''}")
+            print(_said(found, row, plan is not None))
     if not done:
         return _fail(_nothing_found(heard), 3)
+    if plan is not None and writes:
+        plan.write_back(writes)
+        if not args.json:
+            names = ", ".join(writes)
+            print(f"{plan.path}: serial_number written for {names}")
+    missing = [d["node_id"] for d in done if assign and not d["booted"]]
+    if missing:
+        _print(args, done)
+        return _fail(
+            f"node(s) {', '.join(map(str, missing))} took their node-ID but no boot-up came "
+            f"within {_BOOT_WAIT} s: check them (power, bit rate, a node-ID used twice)"
+        )
     return 0
+
+
+def _said(found: Any, row: dict[str, Any], with_file: bool) -> str:
+    text = f"{found}: node-ID {row['node_id']}"
+    if row["network_node"] is not None:
+        text += f" ({row['network_node']})"
+    elif with_file:
+        text += " (not in the network file: add it there to keep it)"
+    if row["stored"]:
+        text += ", stored"
+    return text + (", booted" if row["booted"] else ", no boot-up")
 
 
 def _set_id(net: Any, identity: Any, node: int, store: bool) -> None:
     net.lss.select(identity)
-    _configure(net, node, store)
+    _configure(net, node, store, wait=False)  # (it takes it at its next reset)
 
 
 def _one(net: Any, identity: Any, store: bool) -> dict[str, Any]:
@@ -181,16 +238,31 @@ def _one(net: Any, identity: Any, store: bool) -> dict[str, Any]:
     return _row(identity, None if node == UNCONFIGURED else node, store)
 
 
-def _configure(net: Any, node: int, store: bool) -> None:
+def _configure(net: Any, node: int, store: bool, *, wait: bool = True) -> bool:
+    """Give the device in configuration ``node`` (and have it store it), switch it back to
+    waiting; whether its boot-up under ``node`` came within :data:`_BOOT_WAIT` seconds."""
+    from cobus.proto.connection_set import ERROR_CONTROL_BASE
     from cobus.proto.lss import LssState
 
+    booted: list[float] = []
+    sub = net.subscribe(
+        ERROR_CONTROL_BASE + node,
+        lambda frame, now: booted.append(now) if frame.data == b"\x00" else None,
+    )
     try:
-        net.lss.configure_node_id(node)
-        if store:
-            net.lss.store()
+        try:
+            net.lss.configure_node_id(node)
+            if store:
+                net.lss.store()
+        finally:
+            net.lss.switch_global(LssState.WAITING)  # the device takes its node-ID now
+        waited = 0.0
+        while wait and not booted and waited < _BOOT_WAIT:
+            net.sleep(0.01)
+            waited += 0.01
     finally:
-        net.lss.switch_global(LssState.WAITING)  # the device takes its node-ID now
-        net.sleep(0.01)
+        sub.cancel()
+    return bool(booted)
 
 
 def _heard(net: Any) -> set[int]:
