@@ -11,7 +11,7 @@ import pytest
 
 from cobus.apps._lss_plan import NetworkPlan, NetworkWriteError
 from cobus.cli import main
-from cobus.device import UNCONFIGURED, add_device, minimal_od
+from cobus.device import UNCONFIGURED, BitRateSwitched, add_device, minimal_od
 from cobus.master.config import load_network
 from cobus.od import load, resolve
 from cobus.proto import Event
@@ -150,3 +150,50 @@ def test_a_node_on_one_line_is_not_rewritten_and_says_what_to_add(tmp_path: Path
     with pytest.raises(NetworkWriteError, match="serial_number: 0x00000005"):
         plan.write_back({"io1": 5})
     assert path.read_text() == before
+
+
+def _beating_device(net: Network, node: int, serial: int, **options: Any) -> Any:
+    dev = add_device(net, node, minimal_od(vendor_id=0xC0B, serial=serial), lss=True, **options)
+    dev.set(0x1017, 0, 100)  # heartbeat every 100 ms: heard
+    return dev
+
+
+def test_set_bitrate_moves_every_node_heard_or_none(capsys: pytest.CaptureFixture[str]) -> None:
+    channel = f"cli-lss-rate-{os.getpid()}"
+    bus = ["-i", "virtual", "-c", channel]
+    with Network(interface="virtual", channel=channel) as net:
+        devices = [_beating_device(net, n, 0x100 + n) for n in (2, 3, 4)]
+        assert main(["lss", "set-bitrate", "250", "--json", *bus]) == 0
+        assert json.loads(capsys.readouterr().out) == {"kbits": 250, "back": [2, 3, 4],
+                                                       "missing": []}  # fmt: skip
+        assert [d.bit_rate for d in devices] == [250, 250, 250]
+
+        # one that cannot take the rate: nothing switches, it is named
+        assert devices[1].lss is not None
+        devices[1].lss.bit_rates = frozenset({0, 2, 3})  # 1000, 500, 250 only
+        assert main(["lss", "set-bitrate", "125", *bus]) == 1
+        err = capsys.readouterr().err
+        assert "node 3: configure bit timing" in err and "not supported" in err
+        assert "nothing switched: node(s) 3 cannot take 125 kbit/s" in err
+        assert [d.bit_rate for d in devices] == [250, 250, 250]
+
+        # one without LSS, named by --nodes
+        plain = add_device(net, 9, minimal_od(serial=9))
+        plain.set(0x1017, 0, 100)
+        assert main(["lss", "set-bitrate", "500", "--nodes", "2,9", *bus]) == 1
+        assert "node 9: it does not answer LSS" in capsys.readouterr().err
+        plain.close()
+
+        # one that switches but is not heard at the new rate (a wrong table): named
+        def lost(event: object) -> None:
+            if isinstance(event, BitRateSwitched):
+                devices[2].aio.simulation.heartbeat_muted = True
+
+        devices[2].add_listener(lost)
+        assert main(["lss", "set-bitrate", "500", "--wait", "0.5", *bus]) == 1
+        out, err = capsys.readouterr()
+        assert "2 of 3 node(s) back at 500 kbit/s" in out
+        assert "node(s) 4 not heard at 500 kbit/s within 0.5 s" in err
+        with pytest.raises(SystemExit):
+            main(["lss", "set-bitrate", "300", *bus])
+        assert "one of CiA 305's rates" in capsys.readouterr().err

@@ -5,6 +5,7 @@
     cobus lss assign-all --first 20 --store     # every device without one, IDs from 20 up
     cobus lss assign-all --network line.yml     # the IDs the network file gives them
     cobus lss inquire --identity 0x360:0x1234:0x10000:42   # its node-ID (store: keep it)
+    cobus lss set-bitrate 250                   # every node heard to 250 kbit/s, checked
 
 A device without a node-ID (FFh) answers LSS only: no boot-up, no SDO. ``scan`` finds one by
 fastscan (its identity, 1018h sub 1-4) and leaves it as it was. ``set-id`` gives a node-ID to
@@ -18,6 +19,11 @@ boots; one that had one: at its next reset). Nothing else is written: no NMT com
 file knows by vendor and product only gets the first such node's ID and its serial is
 written into that node's entry (``serial_number``), so that the master finds it by its
 identity; a device the file does not know gets a node-ID the file does not use.
+
+``set-bitrate`` moves every node heard (or ``--nodes``) to another bit rate as one step: each
+is given the bit timing by its identity and must accept it, else nothing switches; then all
+switch at once, the interface is opened again at the new rate and every node must be heard
+again (the missing ones are named).
 
 Exit codes: 0 done, 1 a device refused, did not answer or did not boot, or the bus cannot be
 used, 2 bad usage or a network file with errors, 3 no device without a node-ID answered.
@@ -101,14 +107,58 @@ def register(sub: Any) -> None:
         p.add_argument(
             "--floor", type=seconds, default=0.01, help="shortest wait for an answer (0.01 s)"
         )
-    for p in (scan, set_id, assign, inquire, store):
+    rate = actions.add_parser("set-bitrate", help="every node to another bit rate, checked")
+    rate.add_argument("kbits", type=_kbits, help="the new rate in kbit/s (1000, 800, 500...)")
+    rate.add_argument(
+        "--nodes", type=_nodes, help="the nodes to move, e.g. 2,3,5 (default: those heard)"
+    )
+    rate.add_argument("--delay", type=seconds, default=0.1, help="the switch delay (default 0.1 s)")
+    rate.add_argument(
+        "--wait", type=seconds, default=3.0, help="how long the nodes have to come back (3 s)"
+    )
+    rate.set_defaults(handler=_set_bitrate)
+    for p in (scan, set_id, assign, inquire, store, rate):
         p.add_argument("--json", action="store_true", help="the result as JSON")
         p.epilog = (
             "Exit codes: 0 done, 1 refused / no answer / no boot-up / bus, 2 bad usage or "
             "network file, 3 none found."
         )
         add_bus_options(p)
-        p.set_defaults(handler=_run)
+        if p is not rate:
+            p.set_defaults(handler=_run)
+
+
+def _kbits(text: str) -> int:
+    from cobus.proto.lss import BIT_RATES
+
+    rates = sorted(BIT_RATES.values(), reverse=True)
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value not in rates:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: one of CiA 305's rates, in kbit/s: {', '.join(map(str, rates))}"
+        )
+    return value
+
+
+def _nodes(text: str) -> list[int]:
+    out = []
+    for part in text.split(","):
+        try:
+            out.append(node_id(part.strip()))
+        except argparse.ArgumentTypeError:
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: node-IDs 1-127 separated by commas, e.g. 2,3,5"
+            ) from None
+    return out
+
+
+def _set_bitrate(args: argparse.Namespace) -> int:
+    from cobus.apps._lss_bitrate import set_bitrate
+
+    return set_bitrate(args)
 
 
 def _fail(message: str, code: int = 1) -> int:
