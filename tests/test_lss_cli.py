@@ -47,6 +47,12 @@ def test_scan_set_id_and_assign_all_from_the_shell(capsys: pytest.CaptureFixture
         assert main(["lss", "scan", "--vendor", "0x360", "--json", *bus]) == 0
         found = json.loads(capsys.readouterr().out)
         assert found["serial"] == 0x07 and found["node_id"] is None  # the lowest identity
+        assert main(["lss", "scan", "--product", "0x1234", *bus]) == 0
+        out, err = capsys.readouterr()
+        assert "serial 0x00000007 (no node-ID; found in " in out
+        assert "fastscan: a device answers; about " in err
+        assert "  product  0x00001234 known, confirmed at " in err
+        assert "  serial   0x00000007 found at " in err
         assert all(not s.configured for s in slaves)  # scan names nobody
 
         assert main(["lss", "set-id", "12", "--identity", "0x360:0x1234:0x10000:42", "--store",
@@ -64,6 +70,12 @@ def test_scan_set_id_and_assign_all_from_the_shell(capsys: pytest.CaptureFixture
         assert slaves[1].active_node_id == 13
         assert [e.node_id for e in events if isinstance(e, NodeIdAssigned)] == [12, 13]
 
+        find = ["lss", "find", "--vendor", "0x360", "--product", "0x1234", "--timeout", "0.02"]
+        assert main([*find, "--revision", "0x10000", "--json", *bus]) == 0
+        rows = json.loads(capsys.readouterr().out)
+        assert [(r["serial"], r["node_id"]) for r in rows] == [(0x07, 13), (0x2A, 12)]
+        assert main([*find[:-2], "--product", "0x4321", "--timeout", "0.02", *bus]) == 3
+        assert "no device of vendor 0x00000360 and product 0x00004321" in capsys.readouterr().err
         assert main(["lss", "inquire", "--identity", "0x360:0x1234:0x10000:7", *bus]) == 0
         assert "serial 0x00000007: node-ID 13" in capsys.readouterr().out
         assert main(["lss", "store", "--identity", "0x360:0x1234:0x10000:42", "--json", *bus]) == 0
@@ -120,17 +132,21 @@ def test_assign_all_by_the_network_file_writes_serials_back(
     channel = f"cli-lss-net-{os.getpid()}"
     bus = ["-i", "virtual", "-c", channel]
     with Network(interface="virtual", channel=channel) as net:
+        other_vendor = minimal_od(vendor_id=0x999, serial=0x4444)
         for od in (_io(0x2222), _io(0x1111), minimal_od(vendor_id=0xC0B, serial=0x3333)):
             add_device(net, UNCONFIGURED, od)
+        add_device(net, UNCONFIGURED, other_vendor)
         argv = ["lss", "assign-all", "--network", str(path), "--floor", "0.002", *bus]
         assert main([*argv, "--json"]) == 0
-        rows = {r["serial"]: r for r in json.loads(capsys.readouterr().out)}
-        assert {s: (r["node_id"], r["network_node"], r["booted"]) for s, r in rows.items()} == {
-            0x1111: (2, "io1", True),
-            0x2222: (4, "io2", True),
-            0x3333: (1, None, True),  # not in the file: a node-ID the file does not use
-        }
-        assert sorted(net.devices) == [1, 2, 4]
+        rows = json.loads(capsys.readouterr().out)
+        assert [(r["serial"], r["node_id"], r["network_node"], r["booted"]) for r in rows] == [
+            (0x3333, 1, None, True),  # not in the file: a node-ID the file does not use
+            (0x1111, 2, "io1", True),  # (the lowest identity first: product 0 above)
+            (0x2222, 4, "io2", True),
+            (0x4444, 5, None, True),  # another vendor than the file's: found by a whole scan
+        ]
+        assert all(r["seconds"] > 0 for r in rows)
+        assert sorted(net.devices) == [1, 2, 4, 5]
     text = path.read_text()
     assert "    serial_number: 0x00001111   # by cobus lss assign-all\n" in text
     assert "# known by vendor and product" in text  # the rest as it was

@@ -262,3 +262,27 @@ def test_the_trace_decoder_follows_what_net_lss_did() -> None:
     assert any(s.startswith("fastscan found") and "serial 0x0000002A" in s for s in sentences)
     assert any("got node-ID 12" in s for s in sentences), sentences
     assert any("stored its configuration" in s for s in sentences), sentences
+
+
+def test_identify_all_finds_every_device_of_a_product_by_halving_ranges() -> None:
+    """With or without a node-ID: what 'every device here is configured' leaves a user to
+    find before set-id by identity."""
+    mine = [
+        LssIdentity(0x360, 0x1234, 0x0001_0000, 0x2A),
+        LssIdentity(0x360, 0x1234, 0x0001_0000, 0xDEAD_BEEF),
+        LssIdentity(0x360, 0x1234, 0x0002_0001, 0x07),
+    ]
+    other = LssIdentity(0x360, 0x9999, 0x0001_0000, 0x2B)
+
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            slaves_on(net, LssSlave(mine[0], 5), LssSlave(mine[1]), LssSlave(mine[2], 9))
+            slaves_on(net, LssSlave(other, 6))
+            seen: list[LssIdentity] = []
+            found = await net.lss.identify_all(0x360, 0x1234, on_found=seen.append)
+            assert sorted(found, key=lambda i: i.serial) == sorted(mine, key=lambda i: i.serial)
+            assert seen == found
+            assert await net.lss.identify_all(0x360, 0x1234, 0x0002_0001) == [mine[2]]
+            assert await net.lss.identify_all(0x360, 0x4321) == []
+
+    simulate(main())

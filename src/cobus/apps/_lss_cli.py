@@ -6,6 +6,7 @@
     cobus lss assign-all --network line.yml     # the IDs the network file gives them
     cobus lss inquire --identity 0x360:0x1234:0x10000:42   # its node-ID (store: keep it)
     cobus lss set-bitrate 250                   # every node heard to 250 kbit/s, checked
+    cobus lss find --vendor 0x360 --product 0x1234   # every such device, with its node-ID
 
 A device without a node-ID (FFh) answers LSS only: no boot-up, no SDO. ``scan`` finds one by
 fastscan (its identity, 1018h sub 1-4) and leaves it as it was. ``set-id`` gives a node-ID to
@@ -19,6 +20,9 @@ boots; one that had one: at its next reset). Nothing else is written: no NMT com
 file knows by vendor and product only gets the first such node's ID and its serial is
 written into that node's entry (``serial_number``), so that the master finds it by its
 identity; a device the file does not know gets a node-ID the file does not use.
+
+``find`` lists every device of a vendor and product, with a node-ID or without (identify
+remote slave, halving ranges of serials and revisions): the identities ``set-id`` takes.
 
 ``set-bitrate`` moves every node heard (or ``--nodes``) to another bit rate as one step: each
 is given the bit timing by its identity and must accept it, else nothing switches; then all
@@ -34,6 +38,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
+from collections.abc import Callable
 from typing import Any
 
 from cobus._args import add_bus_options, bus_options, node_id, seconds
@@ -107,6 +113,11 @@ def register(sub: Any) -> None:
         p.add_argument(
             "--floor", type=seconds, default=0.01, help="shortest wait for an answer (0.01 s)"
         )
+    find = actions.add_parser("find", help="every device of a vendor and product (by ranges)")
+    find.add_argument("--vendor", type=_u32, required=True, help="the vendor-ID (1018h sub 1)")
+    find.add_argument("--product", type=_u32, required=True, help="the product code (sub 2)")
+    find.add_argument("--revision", type=_u32, help="the revision (sub 3), if known (faster)")
+    find.add_argument("--timeout", type=seconds, default=0.1, help="the wait for an answer (0.1 s)")
     rate = actions.add_parser("set-bitrate", help="every node to another bit rate, checked")
     rate.add_argument("kbits", type=_kbits, help="the new rate in kbit/s (1000, 800, 500...)")
     rate.add_argument(
@@ -117,7 +128,7 @@ def register(sub: Any) -> None:
         "--wait", type=seconds, default=3.0, help="how long the nodes have to come back (3 s)"
     )
     rate.set_defaults(handler=_set_bitrate)
-    for p in (scan, set_id, assign, inquire, store, rate):
+    for p in (scan, set_id, assign, inquire, store, find, rate):
         p.add_argument("--json", action="store_true", help="the result as JSON")
         p.epilog = (
             "Exit codes: 0 done, 1 refused / no answer / no boot-up / bus, 2 bad usage or "
@@ -181,6 +192,17 @@ def _run(args: argparse.Namespace) -> int:
             elif args.action in ("inquire", "store"):
                 net.lss.timeout = 0.2
                 done.append(_one(net, args.identity, args.action == "store"))
+            elif args.action == "find":
+                net.lss.timeout = args.timeout
+                found = net.lss.identify_all(args.vendor, args.product, args.revision)
+                if not found:
+                    return _fail(
+                        f"no device of vendor 0x{args.vendor:08X} and product "
+                        f"0x{args.product:08X} answered"
+                        + ("" if args.revision is None else f" (revision 0x{args.revision:08X})"),
+                        3,
+                    )
+                done.extend(_one(net, identity, False) for identity in found)
             else:
                 code = _scan(net, args, done)
                 if code:
@@ -208,18 +230,30 @@ def _scan(net: Any, args: argparse.Namespace, done: list[dict[str, Any]]) -> int
     assign = args.action == "assign-all"
     plan = NetworkPlan(args.network) if assign and args.network else None
     known = {f: getattr(args, f) for f in _FIELDS[:3] if getattr(args, f) is not None}
+    if plan is not None and not known and plan.vendor is not None:
+        known = {"vendor": plan.vendor}  # (every node of the file has it: not scanned)
     heard = _heard(net)
     if not net.lss.identify_unconfigured():
         return _fail(_nothing_found(heard), 3)
     next_id = getattr(args, "first", 1)
     writes: dict[str, int] = {}
     while True:
-        found = net.lss.fastscan(known, floor=args.floor, ceiling=args.ceiling)
+        started = time.monotonic()
+        found = net.lss.fastscan(
+            known,
+            floor=args.floor,
+            ceiling=args.ceiling,
+            on_event=None if args.json else _progress(started),
+        )
+        if found is None and known and net.lss.identify_unconfigured():
+            known = {}  # one of another vendor than the file's: scanned whole
+            continue
         if found is None:
             break
+        took = round(time.monotonic() - started, 3)
         if not assign:  # scan: report it, leave it as it was
             net.lss.switch_global(LssState.WAITING)
-            done.append(_row(found, None, False))
+            done.append({**_row(found, None, False), "seconds": took})
             break
         planned = None if plan is None else plan.choose(found, heard)
         if planned is not None:
@@ -234,7 +268,9 @@ def _scan(net: Any, args: argparse.Namespace, done: list[dict[str, Any]]) -> int
             target = next_id
         booted = _configure(net, target, args.store)
         row = _row(found, target, args.store)
-        row.update(booted=booted, network_node=None if planned is None else planned.name)
+        row.update(
+            seconds=took, booted=booted, network_node=None if planned is None else planned.name
+        )
         done.append(row)
         if planned is not None and planned.write:
             writes[planned.name or ""] = found.serial
@@ -255,6 +291,27 @@ def _scan(net: Any, args: argparse.Namespace, done: list[dict[str, Any]]) -> int
             f"within {_BOOT_WAIT} s: check them (power, bit rate, a node-ID used twice)"
         )
     return 0
+
+
+def _progress(started: float) -> Callable[[Any], None]:
+    """Print the scan's estimate and each field as it is found (on stderr: the results go
+    to stdout)."""
+    from cobus.proto.lss import FastscanFieldFound, FastscanFieldRetried, FastscanStarted
+
+    def show(event: Any) -> None:
+        at = time.monotonic() - started
+        if isinstance(event, FastscanStarted):
+            text = f"fastscan: a device answers; about {event.estimate:.1f} s"
+        elif isinstance(event, FastscanFieldFound):
+            how = "known, confirmed" if event.known else "found"
+            text = f"  {event.field:<8} 0x{event.value:08X} {how} at {at:.2f} s"
+        elif isinstance(event, FastscanFieldRetried):
+            text = f"  {event.field:<8} 0x{event.value:08X} not confirmed: scanned again"
+        else:
+            return
+        print(text, file=sys.stderr, flush=True)
+
+    return show
 
 
 def _said(found: Any, row: dict[str, Any], with_file: bool) -> str:
@@ -337,7 +394,7 @@ def _nothing_found(heard: set[int]) -> str:
         return (
             f"no device without a node-ID answered, but nodes {sorted(heard)} are heard: every "
             "device here has a node-ID; give one another with 'cobus lss set-id NODE "
-            "--identity V:P:R:S'"
+            "--identity V:P:R:S' (their identities: 'cobus lss find --vendor V --product P')"
         )
     return (
         "no device without a node-ID answered, and no heartbeat is heard: check the bus "
@@ -353,13 +410,19 @@ def _row(identity: Any, node: int | None, stored: bool) -> dict[str, Any]:
 
 def _print(args: argparse.Namespace, done: list[dict[str, Any]]) -> None:
     if args.json:
-        print(json.dumps(done if args.action == "assign-all" else done[0]))
+        print(json.dumps(done if args.action in ("assign-all", "find") else done[0]))
+        return
+    if args.action == "find":
+        for row in done:
+            node = "no node-ID" if row["node_id"] is None else f"node-ID {row['node_id']}"
+            identity = ":".join(f"0x{row[f]:X}" for f in _FIELDS)
+            print(f"{identity}  {node}")
         return
     if args.action == "scan":
         row = done[0]
         print(
             " ".join(f"{f} 0x{row[f]:08X}" for f in _FIELDS)
-            + " (no node-ID; 'cobus lss set-id' gives it one)"
+            + f" (no node-ID; found in {row['seconds']:.2f} s; 'cobus lss set-id' gives it one)"
         )
     elif args.action in ("inquire", "store"):
         row = done[0]

@@ -69,6 +69,10 @@ class NetworkPlan:
         ]
         #: Every node-ID the file gives a node (a device it does not know gets none of them).
         self.used = {n.node_id for n in cfg.nodes.values()}
+        vendors = {n.vendor for n in self.nodes if n.vendor}
+        #: The one vendor the file's nodes give, if they give one: fastscan confirms it
+        #: instead of scanning it (and scans whole when a device of another one remains).
+        self.vendor = vendors.pop() if len(vendors) == 1 else None
         self._given: set[str] = set()
 
     def choose(self, identity: LssIdentity, heard: set[int]) -> Planned | None:

@@ -53,6 +53,9 @@ _NO_ANSWER = {
 }
 
 
+_U32 = 0xFFFF_FFFF
+
+
 class AsyncNetworkLss:
     """The LSS master of a network (``net.lss``)."""
 
@@ -73,6 +76,12 @@ class AsyncNetworkLss:
     @timeout.setter
     def timeout(self, value: float) -> None:
         self._machine.timeout = LssMaster(value).timeout  # (checked there)
+
+    @property
+    def _settle(self) -> float:
+        """Seconds the other answers to one request get to come in (a twentieth of the
+        timeout, at least 2 ms)."""
+        return max(0.002, self._machine.timeout / 20)
 
     # ---------------------------------------------------------------- services
 
@@ -129,6 +138,62 @@ class AsyncNetworkLss:
         return await self._identified(
             lambda now: self._machine.identify_remote(vendor, product, revisions, serials, now)
         )
+
+    async def identify_all(
+        self,
+        vendor: int,
+        product: int,
+        revision: int | None = None,
+        *,
+        on_found: Callable[[LssIdentity], object] | None = None,
+    ) -> list[LssIdentity]:
+        """Every device of ``vendor`` and ``product`` (and ``revision``, if given), with a
+        node-ID or without: their identities, found by halving ranges of serial numbers
+        (then of revisions) with "identify remote slave". A range no device answers costs
+        one timeout; each device about 64 requests per field searched."""
+        full = (0, _U32)
+        revisions = full if revision is None else (revision, revision)
+        found: list[LssIdentity] = []
+        for serial in await self._halve(vendor, product, revisions, None):
+            if revision is not None:
+                revs = [revision]
+            else:
+                revs = await self._halve(vendor, product, None, (serial, serial))
+            for rev in revs:
+                identity = LssIdentity(vendor, product, rev, serial)
+                found.append(identity)
+                if on_found is not None:
+                    on_found(identity)
+        return found
+
+    async def _halve(
+        self,
+        vendor: int,
+        product: int,
+        revisions: tuple[int, int] | None,
+        serials: tuple[int, int] | None,
+    ) -> list[int]:
+        """The revisions (``revisions`` None) or serials (``serials`` None) some device of
+        ``vendor`` and ``product`` answers for, the other field within its range."""
+        out: list[int] = []
+        todo = [(0, _U32)]
+        while todo:
+            span = todo.pop()
+            asked = await self.identify_remote(
+                vendor, product, revisions or span, span if serials is None else serials
+            )
+            if not asked:
+                continue
+            # several devices may answer one request: let the others' answers pass before
+            # the next one, so that none is taken for its answer
+            await asyncio.sleep(self._settle)
+            low, high = span
+            if low == high:
+                out.append(low)
+                continue
+            middle = (low + high) // 2
+            todo += [(middle + 1, high), (low, middle)]
+        return out
 
     async def fastscan(
         self,
