@@ -122,8 +122,9 @@ class Master:
         self._meter = BusLoadMeter(config.master.bitrate, config.master.bus_load_window)
         self._rpdos: dict[tuple[int, int], PdoLayout] = {}
         self.nodes: dict[int, ManagedNode] = {}
+        self._port = _NodePort(self)
         for node_id, node_config in config.nodes.items():
-            self.nodes[node_id] = ManagedNode(self, node_config)
+            self.nodes[node_id] = ManagedNode(self._port, node_config)
             for layout in node_config.rpdos:
                 self._rpdos[(node_id, layout.number)] = layout
         # The NMT commands this process sends (the application's, the master's own) set the
@@ -613,3 +614,83 @@ class Master:
     def summary(self) -> list[dict[str, Any]]:
         """One line of figures per node (state, diagnostic, EMCY count...)."""
         return [n._summary() for n in self.nodes.values()]
+
+
+class _NodePort:
+    """The master as its nodes see it (:class:`~cobus.master._context.NodeContext`)."""
+
+    __slots__ = ("_master",)
+
+    def __init__(self, master: Master) -> None:
+        self._master = master
+
+    @property
+    def master(self) -> Master:
+        return self._master
+
+    @property
+    def network(self) -> AsyncNetwork:
+        return self._master.network
+
+    @property
+    def config(self) -> NetworkConfig:
+        return self._master.config
+
+    @property
+    def image(self) -> ProcessImage:
+        return self._master.image
+
+    @property
+    def diagnostics(self) -> MasterDiagnostics:
+        return self._master.diagnostics
+
+    @property
+    def status(self) -> MasterStatus:
+        return self._master._status
+
+    @property
+    def started(self) -> bool:
+        return self._master.started
+
+    @property
+    def running(self) -> bool:
+        return self._master.running
+
+    def emit(self, event: MasterEvent) -> None:
+        self._master._emit(event)
+
+    def note_configuring(self) -> None:
+        self._master._note_configuring()
+
+    def node_configured(self, node: ManagedNode) -> None:
+        self._master._node_configured(node)
+
+    def node_finished(self, node: ManagedNode) -> None:
+        self._master._node_finished(node)
+
+    def stop_all(self, cause: ManagedNode, reason: str) -> None:
+        self._master._stop_all(cause, reason)
+
+    def send_all_rpdos(self, nodes: list[ManagedNode]) -> None:
+        self._master._send_all_rpdos(nodes)
+
+    def tpdo_taken(self, node_id: int, number: int, now: float) -> None:
+        self._master._tpdo_taken(node_id, number, now)
+
+    def send(self, frame: Frame) -> bool:
+        return self._master._send(frame)
+
+    def keep(self, subscription: Subscription) -> None:
+        self._master._subs.append(subscription)
+
+    def keep_host(self, host: MachineHost) -> None:
+        self._master._hosts.append(host)
+
+    def watch_heartbeat(self, node_id: int, consumer_time: float, now: float) -> None:
+        monitor = self._master._monitor
+        monitor.watch(node_id, consumer_time, now)
+        if consumer_time:
+            self._master._monitor_host.apply(monitor.on_timer(now))
+
+    def heartbeat_frame(self, frame: Frame, now: float) -> None:
+        self._master._monitor_host.feed(frame, now)

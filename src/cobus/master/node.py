@@ -51,6 +51,7 @@ from cobus.runtime.events import BusState, HandlerFailed
 from cobus.runtime.remote import SdoChannel
 
 if TYPE_CHECKING:
+    from cobus.master._context import NodeContext
     from cobus.master.master import Master
     from cobus.runtime import MachineHost
 
@@ -91,14 +92,15 @@ class ManagedNode:
     a remote node or gateway asking the same node waits for its turn.
     """
 
-    def __init__(self, master: Master, config: NodeConfig) -> None:
-        self.master = master
+    def __init__(self, context: NodeContext, config: NodeConfig) -> None:
+        #: The node's port to its master (all it may ask of it).
+        self.context = context
         self.config = config
         self.node_id = config.node_id
         self.name = config.name
         # the master's transfers stay off the network's event stream, as its own events say
         self.sdo = SdoChannel(
-            master.network, self.node_id, config.od, timeout=config.sdo_timeout, emit=False
+            context.network, self.node_id, config.od, timeout=config.sdo_timeout, emit=False
         )
         self._state = NodeState.UNDEFINED
         #: The NMT state last reported by heartbeat, guarding or boot-up (or commanded).
@@ -167,6 +169,11 @@ class ManagedNode:
         return f"<ManagedNode {self.node_id} {self.name!r} {self._state.name}>"
 
     @property
+    def master(self) -> Master:
+        """The master that manages the node (for the application's ports)."""
+        return self.context.master
+
+    @property
     def state(self) -> NodeState:
         """The master's state of the node (the Lenze node state codes)."""
         return self._state
@@ -198,7 +205,7 @@ class ManagedNode:
     @property
     def diagnostic(self) -> Diagnostic:
         """The Beckhoff diagnostic code of the node."""
-        diag = self.master.diagnostics
+        diag = self.context.diagnostics
         state = self._state
         if not self.config.enabled:
             return Diagnostic.DEACTIVATED
@@ -214,7 +221,7 @@ class ManagedNode:
             return Diagnostic.SDO_SYNTAX_ERROR
         if self._mismatch:
             return Diagnostic.SDO_DATA_MISMATCH
-        if state in _BOOTING or (state is NodeState.UNDEFINED and self.master.started):
+        if state in _BOOTING or (state is NodeState.UNDEFINED and self.context.started):
             return Diagnostic.PRE_OPERATIONAL if self._rebooted else Diagnostic.STARTING
         if state is NodeState.OPERATIONAL:
             if self.nmt_state is NmtState.PRE_OPERATIONAL:
@@ -243,7 +250,7 @@ class ManagedNode:
             run = LedPattern.SINGLE_FLASH
         else:
             run = LedPattern.OFF
-        diag = self.master.diagnostics
+        diag = self.context.diagnostics
         if diag.bus_off:
             error = LedPattern.ON
         elif self._ec_lost or self._toggle_fault:
@@ -268,7 +275,7 @@ class ManagedNode:
     async def restart(self) -> None:
         """Boot the node again (reset, check, configure) and start it when the network runs;
         returns when its boot-up sequence is over (see :attr:`state`)."""
-        if not self.master.started:
+        if not self.context.started:
             from cobus.master.errors import MasterError
 
             raise MasterError("the master is not started: call master.start() first")
@@ -288,7 +295,7 @@ class ManagedNode:
         if new is old:
             return
         self._state = new
-        self.master._emit(NodeStateChanged(self.node_id, old, new))
+        self.context.emit(NodeStateChanged(self.node_id, old, new))
 
     def _clear_flags(self) -> None:
         self._not_found = self._sdo_error = self._mismatch = False
@@ -308,7 +315,7 @@ class ManagedNode:
             old.cancel()
         else:
             old = None
-        loop = self.master.network.loop
+        loop = self.context.network.loop
         task = loop.create_task(self._run(old, mode), name=f"cobus-master-node-{self.node_id}")
         task.add_done_callback(self._finished)
         self._task = task
@@ -316,11 +323,11 @@ class ManagedNode:
 
     def _finished(self, task: asyncio.Task[None]) -> None:
         if task is self._task and not task.cancelled():
-            self.master._node_finished(self)
+            self.context.node_finished(self)
 
     def _prepare_bootup(self) -> None:
         """The master is about to reset every node with one broadcast."""
-        self._bootup = self.master.network.loop.create_future()
+        self._bootup = self.context.network.loop.create_future()
         self._set_state(NodeState.RESETTING)
 
     def _cancel(self) -> None:
@@ -341,7 +348,7 @@ class ManagedNode:
         except Exception as exc:  # a failure here must not end silently
             log.exception("master: boot-up of node %d failed", self.node_id)
             self.problem = f"boot-up failed: {exc!r}"
-            self.master.network.emit(HandlerFailed(f"master: node {self.node_id}", repr(exc)))
+            self.context.network.emit(HandlerFailed(f"master: node {self.node_id}", repr(exc)))
 
     async def _sequence(self, mode: str) -> None:
         cfg = self.config
@@ -363,13 +370,13 @@ class ManagedNode:
                 self.problem = "stopped answering SDO while being configured"
                 if not cfg.mandatory and not self._wake(True):
                     self._set_state(NodeState.ABSENT)
-                    self.master._emit(NodeMissing(self.node_id, False, self.problem))
+                    self.context.emit(NodeMissing(self.node_id, False, self.problem))
                     return
                 mode = "poll"
 
     async def _boot_once(self, mode: str) -> None:
         cfg = self.config
-        loop = self.master.network.loop
+        loop = self.context.network.loop
         if mode == "reset":
             await self._reset_and_wait()
         elif mode == "await":
@@ -377,7 +384,7 @@ class ManagedNode:
         if mode != "none":
             self._set_state(NodeState.WAITING)
             if mode != "poll":
-                await asyncio.sleep(self.master.config.master.bootup_delay)
+                await asyncio.sleep(self.context.config.master.bootup_delay)
         else:
             self._set_state(NodeState.WAITING)
         if cfg.sdo_server:
@@ -393,9 +400,9 @@ class ManagedNode:
             )
             await self._reset_and_wait()
             self._set_state(NodeState.WAITING)
-            await asyncio.sleep(self.master.config.master.bootup_delay)
+            await asyncio.sleep(self.context.config.master.bootup_delay)
         self._set_state(NodeState.CONFIGURING)
-        self.master._note_configuring()
+        self.context.note_configuring()
         kind = cfg.error_control
         if mode != "none":
             for entry in cfg.startup:
@@ -414,7 +421,7 @@ class ManagedNode:
         self._configured_at = loop.time()
         self._start_supervision()
         self._set_state(NodeState.CONFIGURED)
-        self.master._node_configured(self)
+        self.context.node_configured(self)
 
     async def _run_boot_steps(self) -> None:
         for name, step in self.boot_steps:
@@ -429,16 +436,16 @@ class ManagedNode:
                 self.step_results[name] = f"failed: {reason}"
                 self._sdo_error = True
                 self.problem = f"boot step {name!r} failed: {reason}"
-                self.master._emit(BootStepFailed(self.node_id, name, reason))
+                self.context.emit(BootStepFailed(self.node_id, name, reason))
                 raise _Held() from None
             text = "done" if detail is None else str(detail)
             self.step_results[name] = text
-            self.master._emit(BootStepDone(self.node_id, name, text))
+            self.context.emit(BootStepDone(self.node_id, name, text))
 
     async def _reset_and_wait(self) -> None:
-        self._bootup = self.master.network.loop.create_future()
+        self._bootup = self.context.network.loop.create_future()
         self._set_state(NodeState.RESETTING)
-        self.master.network.nmt.reset_node(self.node_id)
+        self.context.network.nmt.reset_node(self.node_id)
         await self._wait_bootup()
 
     async def _wait_bootup(self) -> None:
@@ -461,7 +468,7 @@ class ManagedNode:
         (:meth:`_wake`); a protocol error (a reply that makes no sense, as a late reply of
         an earlier transfer may) is asked again before it counts as the node's answer."""
         cfg = self.config
-        loop = self.master.network.loop
+        loop = self.context.network.loop
         reported = False
         silent = garbled = 0
         while True:
@@ -475,12 +482,12 @@ class ManagedNode:
                 woke = self._wake(silent > cfg.sdo_retries)
                 if not cfg.mandatory and not woke:
                     self._set_state(NodeState.ABSENT)
-                    self.master._emit(NodeMissing(self.node_id, False, self.problem))
+                    self.context.emit(NodeMissing(self.node_id, False, self.problem))
                     return False
                 if not reported and cfg.mandatory:
                     reported = True
-                    self.master._note_configuring()
-                    self.master._emit(NodeMissing(self.node_id, True, self.problem))
+                    self.context.note_configuring()
+                    self.context.emit(NodeMissing(self.node_id, True, self.problem))
                 pause = self.HEAL_DELAY if woke else _PRESENCE_RETRY - (loop.time() - began)
                 await asyncio.sleep(max(0.0, pause))
                 continue
@@ -493,7 +500,7 @@ class ManagedNode:
                 self.device_type = None
                 if cfg.device_type:
                     self._mismatched(f"refuses the 1000h read: {exc}")
-                    self.master._emit(DeviceTypeMismatch(self.node_id, cfg.device_type, -1))
+                    self.context.emit(DeviceTypeMismatch(self.node_id, cfg.device_type, -1))
                     raise _Held() from None
                 return True
             self._not_found = False
@@ -513,7 +520,7 @@ class ManagedNode:
                         f"device type 0x{actual:08X}, expected 0x{expected:08X}"
                         + (" (low 16 bits compared)" if cfg.device_type_low16 else "")
                     )
-                    self.master._emit(DeviceTypeMismatch(self.node_id, expected, actual))
+                    self.context.emit(DeviceTypeMismatch(self.node_id, expected, actual))
                     raise _Held()
             return True
 
@@ -530,7 +537,7 @@ class ManagedNode:
         server is silent: it gets reset node. True when a command went out."""
         heard = self._heard
         cfg = self.config
-        network = self.master.network
+        network = self.context.network
         now = network.time()
         recent = max(2.0, 3 * cfg.heartbeat_time / 1000.0)
         if heard is None or now - heard[0] > recent:
@@ -541,7 +548,7 @@ class ManagedNode:
         if state is NmtState.STOPPED and (
             self._last_commanded is NmtState.STOPPED
             or self.expected_nmt is NmtState.STOPPED
-            or self.master._status is MasterStatus.STOP
+            or self.context.status is MasterStatus.STOP
         ):
             return False  # stopped by this process (a reaction, the application): it stays
         if state is NmtState.STOPPED:
@@ -568,13 +575,13 @@ class ManagedNode:
             self.problem = reason
             if self._left_said != reason:  # said once, not at every read
                 self._left_said = reason
-                self.master._emit(SdoUnanswered(self.node_id, state, "", reason))
+                self.context.emit(SdoUnanswered(self.node_id, state, "", reason))
             return False
         self._wakes.append(now)
         self._left_said = None
         reason = f"{said}: {action}"
         self.problem = reason
-        self.master._emit(SdoUnanswered(self.node_id, state, command, reason))
+        self.context.emit(SdoUnanswered(self.node_id, state, command, reason))
         try:
             getattr(network.nmt, command)(self.node_id)
         except Exception as exc:  # (a full transmit backlog, a closed network)
@@ -609,7 +616,7 @@ class ManagedNode:
             if actual != expected:
                 shown = "refused" if actual is None else f"0x{actual:08X}"
                 self._mismatched(f"1018h sub {sub} ({field}) is {shown}, expected 0x{expected:08X}")
-                self.master._emit(IdentityMismatch(self.node_id, field, sub, expected, actual))
+                self.context.emit(IdentityMismatch(self.node_id, field, sub, expected, actual))
                 raise _Held()
 
     async def _write(self, entry: SdoEntry) -> bool:
@@ -628,7 +635,7 @@ class ManagedNode:
                     self.node_id, entry.index, entry.subindex, code, str(exc)
                 )
                 self.config_errors.append(failure)
-                self.master._emit(failure)
+                self.context.emit(failure)
                 if cfg.stop_on_abort:
                     self._sdo_error = True
                     self.problem = f"start-up write {entry} failed: {exc}"
@@ -679,17 +686,17 @@ class ManagedNode:
         self.expected_nmt = NmtState.STOPPED
         self.nmt_state = NmtState.STOPPED
         self._disarm_watchdogs()
-        self.master.image.zero_inputs(self.node_id)
+        self.context.image.zero_inputs(self.node_id)
 
     # ================================================================== supervision
 
     def _install(self) -> None:
         """Subscribe what the node's supervision needs (called once by the master)."""
-        master = self.master
-        net = master.network
-        master._subs.append(net.subscribe(error_control_cob_id(self.node_id), self._on_ec_frame))
+        context = self.context
+        net = context.network
+        context.keep(net.subscribe(error_control_cob_id(self.node_id), self._on_ec_frame))
         for layout in self.config.tpdos:
-            master._subs.append(
+            context.keep(
                 net.subscribe(
                     layout.cob_id, partial(self._on_tpdo, layout), extended=layout.extended
                 )
@@ -697,18 +704,16 @@ class ManagedNode:
             if layout.timeout is not None:
                 watchdog = RpdoWatchdog(layout.cob_id, 0, extended=layout.extended)
                 host = net.attach(watchdog, (), partial(self._on_watchdog, layout.number))
-                master._hosts.append(host)
+                context.keep_host(host)
                 self._watchdogs[layout.number] = (watchdog, host, layout)
 
     def _start_supervision(self) -> None:
-        now = self.master.network.time()
+        now = self.context.network.time()
         kind = self.error_control
         cfg = self.config
-        monitor = self.master._monitor
         if kind == "heartbeat":
-            monitor.watch(self.node_id, cfg.heartbeat_consumer_time, now)
-            self.master._monitor_host.apply(monitor.on_timer(now))
-            self._first_check = self.master.network.loop.call_later(
+            self.context.watch_heartbeat(self.node_id, cfg.heartbeat_consumer_time, now)
+            self._first_check = self.context.network.loop.call_later(
                 cfg.heartbeat_consumer_time, self._check_first_heartbeat, now
             )
         elif kind == "guarding":
@@ -718,7 +723,7 @@ class ManagedNode:
                 else cfg.fallback_guarding
             )
             self._guard = _guarding.GuardingMaster(self.node_id, guard_ms, factor)
-            self._guard_host = self.master.network.attach(self._guard, (), self._on_guard_event)
+            self._guard_host = self.context.network.attach(self._guard, (), self._on_guard_event)
             guard = self._guard
             self._guard_host.run(lambda t: guard.start(t))
 
@@ -729,9 +734,8 @@ class ManagedNode:
         if self._heal is not None:
             self._heal.cancel()
             self._heal = None
-        monitor = self.master._monitor
-        now = self.master.network.time() if self.master.network.connected else 0.0
-        monitor.watch(self.node_id, 0.0, now)
+        now = self.context.network.time() if self.context.network.connected else 0.0
+        self.context.watch_heartbeat(self.node_id, 0.0, now)
         if self._guard_host is not None:
             self._guard_host.close()
         self._guard = None
@@ -739,9 +743,9 @@ class ManagedNode:
         self._disarm_watchdogs()
 
     def _disarm_watchdogs(self) -> None:
-        if not self.master.network.connected:
+        if not self.context.network.connected:
             return
-        now = self.master.network.time()
+        now = self.context.network.time()
         for watchdog, host, _layout in self._watchdogs.values():
             watchdog.set_event_timer(0, now)
             host.apply(watchdog.on_timer(now))
@@ -765,7 +769,7 @@ class ManagedNode:
         if self.error_control != "guarding" or data == b"\x00":
             # A guarding reply is no heartbeat (its toggle bit would read as a malformed
             # one); the monitor only needs a guarded node's boot-up, to see it re-boot.
-            self.master._monitor_host.feed(frame, now)
+            self.context.heartbeat_frame(frame, now)
         if self.error_control == "guarding" and self._guard_host is not None:
             self._guard_bad = False
             self._guard_host.feed(frame, now)
@@ -784,7 +788,7 @@ class ManagedNode:
             self._guard_bad = True
             self._toggle_fault = True
             self.problem = f"guarding toggle {event.received}, expected {event.expected}"
-            self.master._emit(GuardingToggleFault(self.node_id, event.expected, event.received))
+            self.context.emit(GuardingToggleFault(self.node_id, event.expected, event.received))
             self._fault()
         elif isinstance(event, _guarding.MalformedGuardingReply):
             self._guard_bad = True
@@ -801,7 +805,7 @@ class ManagedNode:
             return
         self._ec_lost = True
         self.problem = f"no {kind} within its time"
-        self.master._emit(ErrorControlLost(self.node_id, kind))
+        self.context.emit(ErrorControlLost(self.node_id, kind))
         self._fault()
 
     def _fault(self) -> None:
@@ -810,13 +814,13 @@ class ManagedNode:
         self._set_state(NodeState.ERROR_CONTROL)
         self._disarm_watchdogs()
         if self.config.zero_inputs:
-            self.master.image.zero_inputs(self.node_id)
+            self.context.image.zero_inputs(self.node_id)
         reaction = self.config.error_reaction
         if reaction == "stop_node":
-            self.master.network.nmt.stop(self.node_id)
+            self.context.network.nmt.stop(self.node_id)
             self.expected_nmt = NmtState.STOPPED
-        elif reaction == "stop_all" and (was_running or self.master.running):
-            self.master._stop_all(self, self.problem or "error control fault")
+        elif reaction == "stop_all" and (was_running or self.context.running):
+            self.context.stop_all(self, self.problem or "error control fault")
 
     def _alive(self, kind: str, state: NmtState) -> None:
         """A valid heartbeat or guarding reply: ends a loss or a toggle fault. With a manual
@@ -828,11 +832,11 @@ class ManagedNode:
             if not self._heard_again:
                 self._heard_again = True
                 self.problem = "heard again; waiting for a manual restart"
-                self.master._emit(ErrorControlRestored(self.node_id, kind, state))
+                self.context.emit(ErrorControlRestored(self.node_id, kind, state))
             return
         self._ec_lost = False
         self._toggle_fault = False
-        self.master._emit(ErrorControlRestored(self.node_id, kind, state))
+        self.context.emit(ErrorControlRestored(self.node_id, kind, state))
         if self._state is not NodeState.ERROR_CONTROL:
             return
         if (
@@ -845,9 +849,9 @@ class ManagedNode:
             # so it goes on as it is. Only a real re-boot costs a full reconfiguration:
             # on a lossy bus a node then degrades for a moment instead of collapsing.
             self.problem = None
-            self._started(self.master.network.time())
-            if self.master.running:  # outputs set while it was away reach it now
-                self.master._send_all_rpdos([self])
+            self._started(self.context.network.time())
+            if self.context.running:  # outputs set while it was away reach it now
+                self.context.send_all_rpdos([self])
             return
         self._spawn("reset")
 
@@ -862,11 +866,11 @@ class ManagedNode:
             and state is not old
             and self._state is NodeState.OPERATIONAL
         ):
-            self.master._emit(UnexpectedState(self.node_id, expected, state))
+            self.context.emit(UnexpectedState(self.node_id, expected, state))
             self._unexpected = True
             self._disarm_watchdogs()
             if self.config.zero_inputs:
-                self.master.image.zero_inputs(self.node_id)
+                self.context.image.zero_inputs(self.node_id)
             self._bring_back(expected, state)
         elif (
             state is NmtState.OPERATIONAL
@@ -875,12 +879,12 @@ class ManagedNode:
             and self._state is NodeState.OPERATIONAL
         ):
             # back in operational: supervise the TPDOs again
-            self._started(self.master.network.time())
+            self._started(self.context.network.time())
         if expected is not None and state is expected and old is not None and old is not state:
             self._heal_done()
             if self._unexpected:
                 self._unexpected = False
-                self.master._emit(StateRestored(self.node_id, state))
+                self.context.emit(StateRestored(self.node_id, state))
 
     #: At most this many NMT commands bring a node back within HEAL_WINDOW seconds; a node
     #: that keeps leaving the expected state after that is left as it is (and says so).
@@ -897,7 +901,7 @@ class ManagedNode:
         if self.config.restart == "manual":
             self._say(f"reports {state.name}; waiting for a manual restart")
             return
-        network = self.master.network
+        network = self.context.network
         now = network.time()
         self._heals = [t for t in self._heals if now - t < self.HEAL_WINDOW]
         if len(self._heals) >= self.HEAL_LIMIT:
@@ -931,7 +935,7 @@ class ManagedNode:
         if (
             expected is None
             or self._state is not NodeState.OPERATIONAL
-            or not self.master.network.connected
+            or not self.context.network.connected
         ):
             return
         if self.nmt_state is expected:
@@ -944,7 +948,7 @@ class ManagedNode:
         }.get(expected)
         if command is None:
             return
-        network = self.master.network
+        network = self.context.network
         self._heals.append(network.time())
         try:
             getattr(network.nmt, command)(self.node_id)
@@ -983,7 +987,7 @@ class ManagedNode:
         if wanted is not NmtState.OPERATIONAL:
             self._disarm_watchdogs()
             if self.config.zero_inputs:
-                self.master.image.zero_inputs(self.node_id)
+                self.context.image.zero_inputs(self.node_id)
 
     def _on_bootup(self) -> None:
         """The node sent its boot-up message."""
@@ -992,10 +996,10 @@ class ManagedNode:
         future = self._bootup
         if future is not None and not future.done():
             future.set_result(None)
-            self.master._emit(NodeBooted(self.node_id, True))
+            self.context.emit(NodeBooted(self.node_id, True))
             return
-        self.master._emit(NodeBooted(self.node_id, False))
-        if not self.master.started or not self.config.enabled:
+        self.context.emit(NodeBooted(self.node_id, False))
+        if not self.context.started or not self.config.enabled:
             return
         running = self._task is not None and not self._task.done()
         if running and self._state is NodeState.UNDEFINED:
@@ -1004,7 +1008,7 @@ class ManagedNode:
             self.problem = "booted again; waiting for a manual restart"
             return
         if self._state is NodeState.OPERATIONAL and self.config.zero_inputs:
-            self.master.image.zero_inputs(self.node_id)
+            self.context.image.zero_inputs(self.node_id)
         self._rebooted = True
         self._spawn("booted")
 
@@ -1023,7 +1027,7 @@ class ManagedNode:
             self._rpdo_missing = True
         elif event.is_reset:
             self._rpdo_missing = False
-        self.master._emit(
+        self.context.emit(
             NodeEmergency(
                 self.node_id, event.code, int(event.register), event.manufacturer_data, event.text
             )
@@ -1036,7 +1040,7 @@ class ManagedNode:
             return  # process data is blocked unless the node is operational
         number = layout.number
         self.tpdo_received[number] = self.tpdo_received.get(number, 0) + 1
-        counters = self.master.diagnostics.pdo_counters
+        counters = self.context.diagnostics.pdo_counters
         key = (self.node_id, "tpdo", number)
         counters[key] = counters.get(key, 0) + 1
         watch = self._watchdogs.get(number)
@@ -1046,12 +1050,12 @@ class ManagedNode:
         if len(data) < layout.length:
             if number not in self._tpdos_short:
                 self._tpdos_short.add(number)
-                self.master._emit(TpdoLengthError(self.node_id, number, layout.length, len(data)))
+                self.context.emit(TpdoLengthError(self.node_id, number, layout.length, len(data)))
             return
         self._tpdos_short.discard(number)
         self._tpdos_seen.add(number)
-        self.master.image.update_tpdo(self.node_id, number, layout.codec.unpack(data))
-        self.master._tpdo_taken(self.node_id, number, now)
+        self.context.image.update_tpdo(self.node_id, number, layout.codec.unpack(data))
+        self.context.tpdo_taken(self.node_id, number, now)
 
     def _on_watchdog(self, number: int, event: Event) -> None:
         watch = self._watchdogs.get(number)
@@ -1061,28 +1065,28 @@ class ManagedNode:
         if isinstance(event, RpdoTimeout):
             self._tpdos_missing.add(number)
             if self.config.zero_inputs:
-                self.master.image.zero_inputs(self.node_id, number)
-            self.master._emit(TpdoMissing(self.node_id, number, layout.cob_id))
+                self.context.image.zero_inputs(self.node_id, number)
+            self.context.emit(TpdoMissing(self.node_id, number, layout.cob_id))
         elif isinstance(event, RpdoResumed):
             self._tpdos_missing.discard(number)
-            self.master._emit(TpdoRestored(self.node_id, number, layout.cob_id))
+            self.context.emit(TpdoRestored(self.node_id, number, layout.cob_id))
 
     def _send_rpdo(self, layout: PdoLayout) -> bool:
         """Send RPDO ``layout`` with the current outputs (only while operational); returns
         whether it went out."""
-        if layout.linked or not self.operational or not self.master.running:
+        if layout.linked or not self.operational or not self.context.running:
             return False
-        image = self.master.image
+        image = self.context.image
         if not image.has_rpdo(self.node_id, layout.number):
             return False
         frame = Frame(
             layout.cob_id, image.rpdo_data(self.node_id, layout.number), extended=layout.extended
         )
-        if not self.master._send(frame):
+        if not self.context.send(frame):
             return False
         number = layout.number
         self.rpdo_sent[number] = self.rpdo_sent.get(number, 0) + 1
-        counters = self.master.diagnostics.pdo_counters
+        counters = self.context.diagnostics.pdo_counters
         key = (self.node_id, "rpdo", number)
         counters[key] = counters.get(key, 0) + 1
         return True
