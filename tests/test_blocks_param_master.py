@@ -121,7 +121,7 @@ def test_a_refused_parameter_holds_the_node_back_and_says_why(tmp_path: Path) ->
             await master.boot(timeout=10)
             await asyncio.sleep(1)
             node = master.node(10)
-            result = (events, node.state, node.diagnostic, node.problem, node._summary())
+            result = (events, node.state, node.diagnostic, node.problem, node.summary())
             await master.stop()
             return result
 

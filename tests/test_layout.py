@@ -88,6 +88,31 @@ def test_no_private_name_of_the_remote_node_is_used_from_another_file() -> None:
     assert not users, users
 
 
+#: ``thing._name``: a private name reached through another object than ``self``/``cls``.
+FOREIGN_PRIVATE = re.compile(r"(?<![\w.])(?!self\b|cls\b|cobus\b)[a-z_][a-z_0-9]*\._[a-z]\w*")
+
+
+def test_no_file_of_the_master_uses_another_files_private_names() -> None:
+    """The master and its nodes meet through master/_context.py (issue 43): no file of
+    ``master/`` reaches a private name through another object (imports of modules aside)."""
+    found = {}
+    for path in sorted((SRC / "master").rglob("*.py")):
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            code = line.split("#", 1)[0]
+            if code.lstrip().startswith(("from ", "import ")):
+                continue
+            for hit in FOREIGN_PRIVATE.findall(code):
+                found[f"{path.relative_to(SRC)}:{number}"] = hit
+    assert not found, found
+
+
+def test_the_private_name_guard_sees_what_it_guards_against() -> None:
+    for line in ("node._send_rpdo(layout)", "  network._runner", "x = (master._emit)"):
+        assert FOREIGN_PRIVATE.search(line), line
+    for line in ("self._master._emit(e)", "cls._x", "cobus._files", "a.b._c"):
+        assert not FOREIGN_PRIVATE.search(line), line
+
+
 def test_the_guard_sees_what_it_guards_against() -> None:
     for line in ("Frame(0x580 + node, data)", "heard[cob - 0x700] = x", "0x80 + (n)"):
         assert PLUS.search(line) or MINUS.search(line), line

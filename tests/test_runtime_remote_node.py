@@ -721,6 +721,7 @@ def test_the_blocking_network_has_what_the_async_one_has():
         "loop",
         "on_connect",
         "on_disconnect",
+        "report_failure",
         "sdo_transport",
     }
     missing = twin.public_names(AsyncNetwork) - twin.public_names(Network)

@@ -16,7 +16,7 @@ from cobus.master.diagnostics import MasterDiagnostics
 from cobus.master.master import Master
 from cobus.master.node import ManagedNode
 from cobus.master.states import MasterState, MasterStatus
-from cobus.runtime.twin import BlockingTwin
+from cobus.runtime.twin import BlockingTwin, runner_of
 
 if TYPE_CHECKING:
     from cobus.runtime import Network
@@ -52,7 +52,7 @@ class BlockingMaster(BlockingTwin, twin_of=Master):
         async def create() -> Master:
             return Master(network.aio, config)
 
-        super().__init__(network.run(create()), network._runner)
+        super().__init__(network.run(create()), runner_of(network))
         self._network = network
         self._outputs = _BlockingOutputs(self)
         self.aio: Master

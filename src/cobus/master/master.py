@@ -134,7 +134,7 @@ class Master:
     def _on_nmt_sent(self, command: int, node_id: int) -> None:
         for node in self.nodes.values() if node_id == 0 else [self.nodes.get(node_id)]:
             if node is not None:
-                node._commanded(command)
+                node.commanded(command)
 
     # ================================================================== state
 
@@ -309,7 +309,7 @@ class Master:
                 can_id = cob & 0x7FF
                 emcy.set_cob_id(node.node_id, can_id)
             emcy_ids.append(can_id)
-            node._install()
+            node.install()
         self._hosts.append(net.attach(emcy, emcy_ids, self._on_emcy))
         if cfg.heartbeat_time and cfg.node_id is not None:
             producer = HeartbeatProducer(cfg.node_id, state=NmtState.OPERATIONAL)
@@ -333,11 +333,11 @@ class Master:
         )
         if broadcast and enabled:
             for node in enabled:
-                node._prepare_bootup()
+                node.expect_bootup()
             net.nmt.reset_node(0)
         self._set_state(MasterState.AWAITING_BOOTUP)
         for node in enabled:
-            node._spawn("await" if broadcast else "reset")
+            node.spawn_boot("await" if broadcast else "reset")
         if not enabled:
             loop.call_soon(self._check_boot_complete)
 
@@ -354,7 +354,7 @@ class Master:
         try:
             await asyncio.wait_for(self._running.wait(), timeout)
         except TimeoutError:
-            blockers = [n._describe() for n in self.nodes.values() if not n.settled]
+            blockers = [n.describe() for n in self.nodes.values() if not n.settled]
             if not blockers and self._status is MasterStatus.STOP:
                 blockers = ["the network reaction stopped every node"]
             raise BootTimeoutError(timeout or 0.0, blockers) from None
@@ -367,16 +367,16 @@ class Master:
         net = self.network
         if stop_nodes and net.connected:
             net.nmt.stop(0)
-        tasks = [n._task for n in self.nodes.values() if n._task is not None]
+        tasks = [n.boot_task for n in self.nodes.values() if n.boot_task is not None]
         for node in self.nodes.values():
-            node._cancel()
+            node.cancel_boot()
         for task in tasks:
             if not task.done():
                 with contextlib.suppress(asyncio.CancelledError, Exception):  # ended on purpose
                     await task
         for node in self.nodes.values():
-            node._task = None
-            node._stop_supervision()
+            node.boot_task = None
+            node.stop_supervision()
         for sub in self._subs:
             sub.cancel()
         self._subs.clear()
@@ -394,7 +394,7 @@ class Master:
         self._set_status(MasterStatus.OFFLINE)
         self._set_state(MasterState.INITIALISING)
         for node in self.nodes.values():
-            node._set_state(NodeState.UNDEFINED)
+            node.set_state(NodeState.UNDEFINED)
 
     async def restart_node(self, key: int | str) -> None:
         """Boot a node again (a manual restart after a fault); see :meth:`ManagedNode.restart`."""
@@ -446,7 +446,7 @@ class Master:
         if self.config.master.start == "broadcast" and not left_out and startable:
             self.network.nmt.start(0)
             for node in startable:
-                node._started(now)
+                node.mark_started(now)
             self._send_all_rpdos(startable)
         else:
             self._start_nodes(startable)
@@ -458,14 +458,14 @@ class Master:
             if not node.config.auto_start or node.state is not NodeState.CONFIGURED:
                 continue
             self.network.nmt.start(node.node_id)
-            node._started(now)
+            node.mark_started(now)
             started.append(node)
         self._send_all_rpdos(started)
 
     def _send_all_rpdos(self, nodes: list[ManagedNode]) -> None:
         for node in nodes:
             for layout in node.config.rpdos:
-                node._send_rpdo(layout)
+                node.send_rpdo(layout)
 
     def _stop_all(self, cause: ManagedNode, reason: str) -> None:
         """The network reaction: NMT stop to every node."""
@@ -474,7 +474,7 @@ class Master:
         self.network.nmt.stop(0)
         for node in self.nodes.values():
             if node.config.enabled:
-                node._stopped()
+                node.mark_stopped()
         self._set_status(MasterStatus.STOP)
         self._emit(NetworkStopped(cause.node_id, reason))
 
@@ -492,7 +492,7 @@ class Master:
                 continue
             if node.state in (NodeState.OPERATIONAL, NodeState.CONFIGURED):
                 self.network.nmt.start(node.node_id)
-                node._started(now)
+                node.mark_started(now)
                 resumed.append(node)
         self._send_all_rpdos(resumed)
 
@@ -516,18 +516,18 @@ class Master:
         if node is None or not self._started:
             return
         if isinstance(event, BootupReceived):
-            node._on_bootup()
+            node.on_bootup()
         elif isinstance(event, HeartbeatTimeout):
             if node.error_control == "heartbeat":
-                node._lost("heartbeat")
+                node.error_control_lost("heartbeat")
         elif isinstance(event, RemoteStateChanged) and event.new is not NmtState.INITIALISING:
-            node._on_heartbeat_state(event.new)
+            node.on_heartbeat_state(event.new)
 
     def _on_emcy(self, event: Event) -> None:
         if isinstance(event, EmcyReceived):
             node = self.nodes.get(event.node_id)
             if node is not None:
-                node._on_emcy(event, self.network.time())
+                node.on_emcy(event, self.network.time())
 
     def _on_sync(self, frame: Frame, now: float) -> None:
         diag = self.diagnostics
@@ -551,7 +551,7 @@ class Master:
                 if (node_id, number) not in dirty:
                     continue
                 dirty.discard((node_id, number))
-            node._send_rpdo(layout)
+            node.send_rpdo(layout)
 
     def _refresh(self, node: ManagedNode, layout: PdoLayout) -> None:
         """Event-driven RPDOs with an event timer: send at least every half of it (the
@@ -561,7 +561,7 @@ class Master:
 
         def tick() -> None:
             self._timers[key] = self.network.loop.call_later(period, tick)
-            node._send_rpdo(layout)
+            node.send_rpdo(layout)
 
         self._timers[key] = self.network.loop.call_later(period, tick)
 
@@ -587,7 +587,7 @@ class Master:
             layout = self._rpdos[key]
             if layout.transmission_type >= 254:
                 if changed or always:
-                    self.nodes[key[0]]._send_rpdo(layout)
+                    self.nodes[key[0]].send_rpdo(layout)
             elif layout.transmission_type == 0 and changed:
                 self._dirty.add(key)
 
@@ -609,11 +609,11 @@ class Master:
                 f"node {node.node_id} {node.name!r} has no RPDO {number} the master sends "
                 f"(its RPDOs: {numbers or 'none'})"
             )
-        return node._send_rpdo(layout)
+        return node.send_rpdo(layout)
 
     def summary(self) -> list[dict[str, Any]]:
         """One line of figures per node (state, diagnostic, EMCY count...)."""
-        return [n._summary() for n in self.nodes.values()]
+        return [n.summary() for n in self.nodes.values()]
 
 
 class _NodePort:

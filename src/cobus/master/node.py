@@ -120,7 +120,7 @@ class ManagedNode:
         #: Why the node holds the network back or failed, in words (None: it does not).
         self.problem: str | None = None
         self.boot_count = 0
-        self._task: asyncio.Task[None] | None = None
+        self.boot_task: asyncio.Task[None] | None = None
         self._bootup: asyncio.Future[None] | None = None
         self._restored = False
         self._rebooted = False
@@ -266,7 +266,7 @@ class ManagedNode:
         """Whether the first boot of the network may go on without waiting for this node."""
         if not self.config.enabled:
             return True
-        if self._task is not None and not self._task.done():
+        if self.boot_task is not None and not self.boot_task.done():
             return False
         if self.config.mandatory:
             return self._state is NodeState.CONFIGURED or self._state is NodeState.OPERATIONAL
@@ -281,7 +281,7 @@ class ManagedNode:
             raise MasterError("the master is not started: call master.start() first")
         self._wakes_spent = False  # (the application asks: the wakes may be tried again)
         self._wakes.clear()
-        task = self._spawn("reset")
+        task = self.spawn_boot("reset")
         try:
             await asyncio.shield(task)
         except asyncio.CancelledError:
@@ -290,7 +290,8 @@ class ManagedNode:
 
     # ================================================================== state
 
-    def _set_state(self, new: NodeState) -> None:
+    def set_state(self, new: NodeState) -> None:
+        """The node's state becomes ``new`` (diagnostic and LED follow; the master is told)."""
         old = self._state
         if new is old:
             return
@@ -307,10 +308,10 @@ class ManagedNode:
 
     # ================================================================== the boot-up task
 
-    def _spawn(self, mode: str) -> asyncio.Task[None]:
+    def spawn_boot(self, mode: str) -> asyncio.Task[None]:
         """Start the boot-up sequence (``mode``: reset, await, booted, none), replacing a
         running one."""
-        old = self._task
+        old = self.boot_task
         if old is not None and not old.done():
             old.cancel()
         else:
@@ -318,22 +319,23 @@ class ManagedNode:
         loop = self.context.network.loop
         task = loop.create_task(self._run(old, mode), name=f"cobus-master-node-{self.node_id}")
         task.add_done_callback(self._finished)
-        self._task = task
+        self.boot_task = task
         return task
 
     def _finished(self, task: asyncio.Task[None]) -> None:
-        if task is self._task and not task.cancelled():
+        if task is self.boot_task and not task.cancelled():
             self.context.node_finished(self)
 
-    def _prepare_bootup(self) -> None:
+    def expect_bootup(self) -> None:
         """The master is about to reset every node with one broadcast."""
         self._bootup = self.context.network.loop.create_future()
-        self._set_state(NodeState.RESETTING)
+        self.set_state(NodeState.RESETTING)
 
-    def _cancel(self) -> None:
-        if self._task is not None and not self._task.done():
-            self._task.cancel()
-        self._stop_supervision()
+    def cancel_boot(self) -> None:
+        """Cancel the node's boot task (the master stops)."""
+        if self.boot_task is not None and not self.boot_task.done():
+            self.boot_task.cancel()
+        self.stop_supervision()
 
     async def _run(self, previous: asyncio.Task[None] | None, mode: str) -> None:
         if previous is not None:
@@ -352,7 +354,7 @@ class ManagedNode:
 
     async def _sequence(self, mode: str) -> None:
         cfg = self.config
-        self._stop_supervision()
+        self.stop_supervision()
         self._clear_flags()
         self.expected_nmt = None
         self._heal_done()
@@ -369,7 +371,7 @@ class ManagedNode:
                 self._not_found = True
                 self.problem = "stopped answering SDO while being configured"
                 if not cfg.mandatory and not self._wake(True):
-                    self._set_state(NodeState.ABSENT)
+                    self.set_state(NodeState.ABSENT)
                     self.context.emit(NodeMissing(self.node_id, False, self.problem))
                     return
                 mode = "poll"
@@ -382,11 +384,11 @@ class ManagedNode:
         elif mode == "await":
             await self._wait_bootup()
         if mode != "none":
-            self._set_state(NodeState.WAITING)
+            self.set_state(NodeState.WAITING)
             if mode != "poll":
                 await asyncio.sleep(self.context.config.master.bootup_delay)
         else:
-            self._set_state(NodeState.WAITING)
+            self.set_state(NodeState.WAITING)
         if cfg.sdo_server:
             if not await self._presence():
                 return
@@ -399,9 +401,9 @@ class ManagedNode:
                 SdoEntry(0x1011, 1, LOAD_SIGNATURE.to_bytes(4, "little"), LOAD_SIGNATURE, "load")
             )
             await self._reset_and_wait()
-            self._set_state(NodeState.WAITING)
+            self.set_state(NodeState.WAITING)
             await asyncio.sleep(self.context.config.master.bootup_delay)
-        self._set_state(NodeState.CONFIGURING)
+        self.set_state(NodeState.CONFIGURING)
         self.context.note_configuring()
         kind = cfg.error_control
         if mode != "none":
@@ -420,7 +422,7 @@ class ManagedNode:
         await self._run_boot_steps()
         self._configured_at = loop.time()
         self._start_supervision()
-        self._set_state(NodeState.CONFIGURED)
+        self.set_state(NodeState.CONFIGURED)
         self.context.node_configured(self)
 
     async def _run_boot_steps(self) -> None:
@@ -444,12 +446,12 @@ class ManagedNode:
 
     async def _reset_and_wait(self) -> None:
         self._bootup = self.context.network.loop.create_future()
-        self._set_state(NodeState.RESETTING)
+        self.set_state(NodeState.RESETTING)
         self.context.network.nmt.reset_node(self.node_id)
         await self._wait_bootup()
 
     async def _wait_bootup(self) -> None:
-        self._set_state(NodeState.AWAITING_BOOTUP)
+        self.set_state(NodeState.AWAITING_BOOTUP)
         future = self._bootup
         if future is None:
             return
@@ -481,7 +483,7 @@ class ManagedNode:
                 self.problem = "no boot-up and no answer to the 1000h read"
                 woke = self._wake(silent > cfg.sdo_retries)
                 if not cfg.mandatory and not woke:
-                    self._set_state(NodeState.ABSENT)
+                    self.set_state(NodeState.ABSENT)
                     self.context.emit(NodeMissing(self.node_id, False, self.problem))
                     return False
                 if not reported and cfg.mandatory:
@@ -585,14 +587,14 @@ class ManagedNode:
         try:
             getattr(network.nmt, command)(self.node_id)
         except Exception as exc:  # (a full transmit backlog, a closed network)
-            network._report_failure(f"master: node {self.node_id} NMT {command}", exc)
+            network.report_failure(f"master: node {self.node_id} NMT {command}", exc)
             return False
         return True
 
     def _mismatched(self, reason: str) -> None:
         self._mismatch = True
         self.problem = reason
-        self._set_state(NodeState.WRONG_DEVICE)
+        self.set_state(NodeState.WRONG_DEVICE)
 
     async def _check_identity(self) -> None:
         for sub, (field, expected) in enumerate(
@@ -663,7 +665,7 @@ class ManagedNode:
 
     # ================================================================== start / stop
 
-    def _started(self, now: float) -> None:
+    def mark_started(self, now: float) -> None:
         """The master sent the NMT start (to this node or to all)."""
         self._heal_done()
         self.expected_nmt = NmtState.OPERATIONAL
@@ -678,9 +680,9 @@ class ManagedNode:
             watchdog.set_event_timer(0, now)
             watchdog.set_event_timer(ms, now)
             host.apply(watchdog.on_timer(now))
-        self._set_state(NodeState.OPERATIONAL)
+        self.set_state(NodeState.OPERATIONAL)
 
-    def _stopped(self) -> None:
+    def mark_stopped(self) -> None:
         """The master sent an NMT stop to this node (or to all)."""
         self._heal_done()
         self.expected_nmt = NmtState.STOPPED
@@ -690,7 +692,7 @@ class ManagedNode:
 
     # ================================================================== supervision
 
-    def _install(self) -> None:
+    def install(self) -> None:
         """Subscribe what the node's supervision needs (called once by the master)."""
         context = self.context
         net = context.network
@@ -727,7 +729,8 @@ class ManagedNode:
             guard = self._guard
             self._guard_host.run(lambda t: guard.start(t))
 
-    def _stop_supervision(self) -> None:
+    def stop_supervision(self) -> None:
+        """Stop watching the node (error control, first heartbeat, healing, TPDO watchdogs)."""
         if self._first_check is not None:
             self._first_check.cancel()
             self._first_check = None
@@ -753,7 +756,7 @@ class ManagedNode:
     def _check_first_heartbeat(self, since: float) -> None:
         self._first_check = None
         if self._last_ec is None or self._last_ec < since:
-            self._lost("heartbeat")
+            self.error_control_lost("heartbeat")
 
     def _on_ec_frame(self, frame: Frame, now: float) -> None:
         if frame.rtr:
@@ -793,14 +796,16 @@ class ManagedNode:
         elif isinstance(event, _guarding.MalformedGuardingReply):
             self._guard_bad = True
         elif isinstance(event, _guarding.GuardingNodeLost):
-            self._lost("guarding")
+            self.error_control_lost("guarding")
         elif (
             isinstance(event, _guarding.GuardingStateChanged)
             and event.new is not NmtState.INITIALISING
         ):
             self._reported(event.new)
 
-    def _lost(self, kind: str) -> None:
+    def error_control_lost(self, kind: str) -> None:
+        """The node's error control (``kind``: heartbeat or guarding) was lost: its error
+        reaction."""
         if self._ec_lost:
             return
         self._ec_lost = True
@@ -811,7 +816,7 @@ class ManagedNode:
     def _fault(self) -> None:
         """An error control fault: state 99, inputs 0, the configured reaction."""
         was_running = self._state is NodeState.OPERATIONAL
-        self._set_state(NodeState.ERROR_CONTROL)
+        self.set_state(NodeState.ERROR_CONTROL)
         self._disarm_watchdogs()
         if self.config.zero_inputs:
             self.context.image.zero_inputs(self.node_id)
@@ -849,11 +854,11 @@ class ManagedNode:
             # so it goes on as it is. Only a real re-boot costs a full reconfiguration:
             # on a lossy bus a node then degrades for a moment instead of collapsing.
             self.problem = None
-            self._started(self.context.network.time())
+            self.mark_started(self.context.network.time())
             if self.context.running:  # outputs set while it was away reach it now
                 self.context.send_all_rpdos([self])
             return
-        self._spawn("reset")
+        self.spawn_boot("reset")
 
     def _reported(self, state: NmtState) -> None:
         """The node reports ``state`` by heartbeat or guarding."""
@@ -879,7 +884,7 @@ class ManagedNode:
             and self._state is NodeState.OPERATIONAL
         ):
             # back in operational: supervise the TPDOs again
-            self._started(self.context.network.time())
+            self.mark_started(self.context.network.time())
         if expected is not None and state is expected and old is not None and old is not state:
             self._heal_done()
             if self._unexpected:
@@ -953,7 +958,7 @@ class ManagedNode:
         try:
             getattr(network.nmt, command)(self.node_id)
         except Exception as exc:  # (a full transmit backlog, a closed network)
-            network._report_failure(f"master: node {self.node_id} NMT {command}", exc)
+            network.report_failure(f"master: node {self.node_id} NMT {command}", exc)
         # Did it take? If the node still reports the old state, count it and try again.
         check = max(self.HEAL_DELAY, 2 * (self.config.heartbeat_consumer_time or 0.5))
         self._heal = network.loop.call_later(check, self._check_back)
@@ -968,7 +973,7 @@ class ManagedNode:
         else:
             self._bring_back(expected, state)
 
-    def _commanded(self, command: int) -> None:
+    def commanded(self, command: int) -> None:
         """This process sent NMT ``command`` to the node (the application or the master): the
         state it asks for is the one expected from now on."""
         wanted = {
@@ -989,7 +994,7 @@ class ManagedNode:
             if self.config.zero_inputs:
                 self.context.image.zero_inputs(self.node_id)
 
-    def _on_bootup(self) -> None:
+    def on_bootup(self) -> None:
         """The node sent its boot-up message."""
         self.nmt_state = NmtState.PRE_OPERATIONAL
         self._last_commanded = None
@@ -1001,7 +1006,7 @@ class ManagedNode:
         self.context.emit(NodeBooted(self.node_id, False))
         if not self.context.started or not self.config.enabled:
             return
-        running = self._task is not None and not self._task.done()
+        running = self.boot_task is not None and not self.boot_task.done()
         if running and self._state is NodeState.UNDEFINED:
             return  # a boot-up from before the master's reset, which is on its way
         if self._state is NodeState.ERROR_CONTROL and self.config.restart == "manual":
@@ -1010,13 +1015,15 @@ class ManagedNode:
         if self._state is NodeState.OPERATIONAL and self.config.zero_inputs:
             self.context.image.zero_inputs(self.node_id)
         self._rebooted = True
-        self._spawn("booted")
+        self.spawn_boot("booted")
 
-    def _on_heartbeat_state(self, state: NmtState) -> None:
+    def on_heartbeat_state(self, state: NmtState) -> None:
+        """The master's heartbeat consumer heard the node in ``state``."""
         if self.error_control == "heartbeat" or self.error_control is None:
             self._reported(state)
 
-    def _on_emcy(self, event: EmcyReceived, now: float) -> None:
+    def on_emcy(self, event: EmcyReceived, now: float) -> None:
+        """An emergency of the node (from the master's EMCY consumer) at ``now``."""
         self.emcy_count += 1
         self.error_register = int(event.register)
         record = EmcyRecord(
@@ -1071,7 +1078,7 @@ class ManagedNode:
             self._tpdos_missing.discard(number)
             self.context.emit(TpdoRestored(self.node_id, number, layout.cob_id))
 
-    def _send_rpdo(self, layout: PdoLayout) -> bool:
+    def send_rpdo(self, layout: PdoLayout) -> bool:
         """Send RPDO ``layout`` with the current outputs (only while operational); returns
         whether it went out."""
         if layout.linked or not self.operational or not self.context.running:
@@ -1091,7 +1098,8 @@ class ManagedNode:
         counters[key] = counters.get(key, 0) + 1
         return True
 
-    def _describe(self) -> str:
+    def describe(self) -> str:
+        """What holds the node back, in words (the master's boot report)."""
         role = "mandatory" if self.config.mandatory else "optional"
         text = (
             f"node {self.node_id} {self.name!r} ({role}): {self._state.text} "
@@ -1102,7 +1110,8 @@ class ManagedNode:
             text += f": {self.problem}"
         return text
 
-    def _summary(self) -> dict[str, Any]:
+    def summary(self) -> dict[str, Any]:
+        """The node in one flat mapping, for the master's status display."""
         return {
             "node_id": self.node_id,
             "name": self.name,

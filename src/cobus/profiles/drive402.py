@@ -1114,7 +1114,7 @@ class AsyncDrive402:
             self.jog_ended += f"; the halt could not be sent: {task.exception()}"
             exc = task.exception()
             assert exc is not None
-            self._port.network._report_failure(f"dead-man halt of drive {self.node_id}", exc)
+            self._port.network.report_failure(f"dead-man halt of drive {self.node_id}", exc)
 
     async def stop_jog(self, timeout: float | None = None) -> None:
         """End the jog: halt and wait for standstill."""

@@ -47,7 +47,7 @@ class Callbacks(Generic[E]):
             try:
                 callback(event)
             except Exception as exc:
-                self._network._report_failure(f"callback of {self._where}", exc)
+                self._network.report_failure(f"callback of {self._where}", exc)
 
 
 class Waiters(Generic[E]):

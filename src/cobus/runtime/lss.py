@@ -217,7 +217,7 @@ class AsyncNetworkLss:
                 try:
                     on_event(event)
                 except Exception as exc:  # the caller's callback must not stop the scan
-                    self._network._report_failure("fastscan on_event", exc)
+                    self._network.report_failure("fastscan on_event", exc)
 
         async with self._turn():
             self._check_connected()

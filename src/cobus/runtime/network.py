@@ -144,7 +144,7 @@ class MachineHost:
                     try:
                         send(frame)
                     except CobusError as exc:
-                        network._report_failure(
+                        network.report_failure(
                             f"{type(self.machine).__name__} sending {frame!r}", exc
                         )
             if out.events and self.on_event is not None:
@@ -152,7 +152,7 @@ class MachineHost:
                     try:
                         self.on_event(event)
                     except Exception as exc:
-                        network._report_failure(
+                        network.report_failure(
                             f"event callback of {type(self.machine).__name__}", exc
                         )
         finally:
@@ -197,7 +197,7 @@ class MachineHost:
         try:
             out = self.machine.on_timer(now)
         except Exception as exc:  # a machine bug must not stop the network
-            self._network._report_failure(f"timer of {type(self.machine).__name__}", exc)
+            self._network.report_failure(f"timer of {type(self.machine).__name__}", exc)
             later = self.machine.deadline
             if later is not None and later > deadline:  # never spin on a failing deadline
                 self._rearm(later)
@@ -357,7 +357,7 @@ class AsyncNetwork:
             try:
                 callback()
             except Exception as exc:
-                self._report_failure(f"connect callback {callback!r}", exc)
+                self.report_failure(f"connect callback {callback!r}", exc)
         return self
 
     async def disconnect(self) -> None:
@@ -389,7 +389,7 @@ class AsyncNetwork:
             try:
                 bus.shutdown()
             except (can.CanError, OSError) as exc:  # a driver failing to close: closed anyway
-                self._report_failure("shutting the bus down", exc)
+                self.report_failure("shutting the bus down", exc)
 
     def on_disconnect(self, callback: Callable[[], object]) -> None:
         """Call ``callback()`` when the network disconnects (to fail pending operations)."""
@@ -631,9 +631,9 @@ class AsyncNetwork:
     def _listener_done(self, task: asyncio.Task[Any]) -> None:
         self._listener_tasks.discard(task)
         if not task.cancelled() and task.exception() is not None:
-            self._report_failure(f"listener task {task.get_name()}", task.exception())  # type: ignore[arg-type]
+            self.report_failure(f"listener task {task.get_name()}", task.exception())  # type: ignore[arg-type]
 
-    def _report_failure(self, where: str, exc: BaseException) -> None:
+    def report_failure(self, where: str, exc: BaseException) -> None:
         """Report a failing handler or callback: a :class:`HandlerFailed` event each time; in
         the log, its traceback the first time, then a line at the 10th, 100th, 1000th... time
         (a callback that fails on every frame must not flood the log)."""
@@ -736,7 +736,7 @@ class AsyncNetwork:
             try:
                 targets[0](frame, now)
             except Exception as exc:
-                self._report_failure(f"handler of {frame!r}", exc)
+                self.report_failure(f"handler of {frame!r}", exc)
         else:
             self._call_all(targets, frame, now)
 
@@ -745,7 +745,7 @@ class AsyncNetwork:
             try:
                 handler(frame, now)
             except Exception as exc:
-                self._report_failure(f"handler of {frame!r}", exc)
+                self.report_failure(f"handler of {frame!r}", exc)
 
     def _on_messages(self, messages: Iterable[can.Message]) -> None:
         if self._drain_pending or self._inbound or self._loop is None:
@@ -775,7 +775,7 @@ class AsyncNetwork:
                 try:
                     targets[0](frame, now)
                 except Exception as exc:
-                    self._report_failure(f"handler of {frame!r}", exc)
+                    self.report_failure(f"handler of {frame!r}", exc)
         self.frames_received += received
         if self._inbound and not self._drain_pending:
             # A handler sent frames: their echo is delivered after this batch, in order.
@@ -1074,7 +1074,7 @@ class AsyncNetwork:
         try:
             self._on_messages(batch)
         except Exception as exc:  # a bug here must not end the reader thread
-            self._report_failure("dispatch of received frames", exc)
+            self.report_failure("dispatch of received frames", exc)
 
     def _drain_rx(self) -> None:
         self._rx_posted = False

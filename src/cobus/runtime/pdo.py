@@ -523,7 +523,7 @@ class AsyncRemotePdo:
         try:
             self.transmit()
         except CobusError as exc:
-            self._network._report_failure(f"periodic {self!r}", exc)
+            self._network.report_failure(f"periodic {self!r}", exc)
         later = when + self._period
         now = self._network.time()
         # after a stall, go on one period from now instead of sending the missed ones at once

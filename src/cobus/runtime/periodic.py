@@ -220,7 +220,7 @@ class InterfaceTimer:
             cob_id = self.frames[0].cob_id
             where = f"periodic frame 0x{cob_id:X} sent by the interface ({count} failed)"
             with contextlib.suppress(RuntimeError):  # the loop is closed
-                loop.call_soon_threadsafe(network._report_failure, where, exc)
+                loop.call_soon_threadsafe(network.report_failure, where, exc)
 
     def _refused(self, exc: BaseException) -> InterfaceTimingError:
         return InterfaceTimingError(

@@ -484,7 +484,7 @@ class NmtMaster(NmtCommands):
             try:
                 observer(int(command), node_id)
             except Exception as exc:
-                self._network._report_failure("NMT command observer", exc)
+                self._network.report_failure("NMT command observer", exc)
 
     def add_observer(self, callback: Callable[[int, int], object]) -> None:
         """Call ``callback(command, node_id)`` for each NMT command this network sends (here

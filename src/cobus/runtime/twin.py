@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from cobus.runtime.blocking import Runner
 
-__all__ = ["BlockingTwin", "public_names", "twin_of"]
+__all__ = ["BlockingTwin", "public_names", "runner_of", "twin_of"]
 
 _TWINS: dict[type, type[BlockingTwin]] = {}
 _CALLBACKS: weakref.WeakKeyDictionary[Any, dict[Callable[..., object], Callable[..., None]]] = (
@@ -149,6 +149,13 @@ def _in(args: tuple[Any, ...]) -> list[Any]:
 
 def _kin(kwargs: dict[str, Any]) -> dict[str, Any]:
     return {k: _unwrap(v) for k, v in kwargs.items()}
+
+
+def runner_of(network: Any) -> Runner:
+    """The runner of a blocking :class:`~cobus.runtime.Network`: what a twin made for an
+    object on its loop is given (outside the runtime, instead of its private name)."""
+    runner: Runner = network._runner
+    return runner
 
 
 def twin_of(cls: type) -> type[BlockingTwin] | None:

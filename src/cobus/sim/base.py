@@ -133,7 +133,7 @@ class SimulatedDevice:
             try:
                 tick(dt)
             except Exception as exc:  # a model bug must not stop the network
-                self.network._report_failure(f"{self.name} model", exc)
+                self.network.report_failure(f"{self.name} model", exc)
             if self.powered and key in self._timers:
                 self._timers[key] = loop.call_later(period, fire)
 
