@@ -136,7 +136,7 @@ def test_assign_all_by_the_network_file_writes_serials_back(
         for od in (_io(0x2222), _io(0x1111), minimal_od(vendor_id=0xC0B, serial=0x3333)):
             add_device(net, UNCONFIGURED, od)
         add_device(net, UNCONFIGURED, other_vendor)
-        argv = ["lss", "assign-all", "--network", str(path), "--floor", "0.002", *bus]
+        argv = ["lss", "assign-all", "--network", str(path), *bus]
         assert main([*argv, "--json"]) == 0
         rows = json.loads(capsys.readouterr().out)
         assert [(r["serial"], r["node_id"], r["network_node"], r["booted"]) for r in rows] == [
@@ -213,3 +213,119 @@ def test_set_bitrate_moves_every_node_heard_or_none(capsys: pytest.CaptureFixtur
         with pytest.raises(SystemExit):
             main(["lss", "set-bitrate", "300", *bus])
         assert "one of CiA 305's rates" in capsys.readouterr().err
+
+
+IO_NODE = """\
+  {name}:
+    node_id: {node_id}
+    eds: {eds}/cobus_io.eds
+    vendor_id: 0xC0B
+    product_code: 0x401
+"""
+
+
+def _file(tmp_path: Path, *nodes: str, master: int = 127, end: str = "\n") -> Path:
+    path = tmp_path / "net.yml"
+    text = f"master:\n  node_id: {master}\nnodes:\n" + "".join(nodes)
+    path.write_bytes(text.replace("\n", end).encode())
+    return path
+
+
+def _plan_of(path: Path, serial: int) -> NetworkPlan:
+    plan = NetworkPlan(path)
+    planned = plan.choose(LssIdentity(0xC0B, 0x401, 0x10000, serial), set())
+    assert planned is not None and planned.write
+    return plan
+
+
+def test_the_network_file_keeps_its_form_when_serials_are_written(tmp_path: Path) -> None:
+    # a placeholder serial is given its value, not a second key
+    path = _file(
+        tmp_path,
+        IO_NODE.format(name="io1", node_id=2, eds=EDS) + "    serial_number: 0   # later\n",
+    )
+    _plan_of(path, 0x10).write_back({"io1": 0x10})
+    assert "    serial_number: 0x00000010   # later\n" in path.read_text()
+    assert load_network(path).node("io1").serial_number == 0x10
+    # CRLF line ends, the mode and a link are kept
+    path = _file(tmp_path, IO_NODE.format(name="io1", node_id=2, eds=EDS), end="\r\n")
+    path.chmod(0o640)
+    link = tmp_path / "link.yml"
+    link.symlink_to(path)
+    _plan_of(link, 0x11).write_back({"io1": 0x11})
+    raw = path.read_bytes()
+    assert raw.count(b"\r\n") == raw.count(b"\n") and b"serial_number: 0x00000011" in raw
+    assert link.is_symlink() and (path.stat().st_mode & 0o777) == 0o640
+
+
+@pytest.mark.parametrize(
+    "entry",
+    [
+        "  io1: {{node_id: 2, eds: {eds}/cobus_io.eds,\n"
+        "    vendor_id: 0xC0B, product_code: 0x401}}\n",
+        "  io1:\n    node_id:\n      2\n    eds: {eds}/cobus_io.eds\n    vendor_id: 0xC0B\n"
+        "    product_code: 0x401\n",
+    ],
+)
+def test_a_node_not_written_one_key_per_line_is_left_alone(tmp_path: Path, entry: str) -> None:
+    path = _file(tmp_path, entry.format(eds=EDS))
+    before = path.read_bytes()
+    plan = _plan_of(path, 5)
+    with pytest.raises(NetworkWriteError, match="add by hand: io1: serial_number: 0x00000005"):
+        plan.write_back({"io1": 5})
+    assert path.read_bytes() == before
+
+
+def test_a_file_changed_during_the_scan_is_left_alone(tmp_path: Path) -> None:
+    path = _file(tmp_path, IO_NODE.format(name="io1", node_id=2, eds=EDS))
+    plan = _plan_of(path, 5)
+    path.write_text(path.read_text().replace("node_id: 2", "node_id: 5"))
+    with pytest.raises(NetworkWriteError, match="changed while the scan ran"):
+        plan.write_back({"io1": 5})
+
+
+def test_the_masters_node_id_is_never_given_to_a_device(tmp_path: Path) -> None:
+    path = _file(tmp_path, IO_NODE.format(name="io1", node_id=2, eds=EDS), master=1)
+    assert {1, 2} <= NetworkPlan(path).used
+
+
+def test_a_failure_midway_still_writes_what_was_done(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = _file(
+        tmp_path,
+        IO_NODE.format(name="io1", node_id=2, eds=EDS),
+        IO_NODE.format(name="io2", node_id=3, eds=EDS),
+    )
+    channel = f"cli-lss-midway-{os.getpid()}"
+    bus = ["-i", "virtual", "-c", channel, "--listen", "0.3"]
+    with Network(interface="virtual", channel=channel) as net:
+        for serial in (0x10, 0x20, 0x20):  # two share one identity: the scan fails on them
+            add_device(net, UNCONFIGURED, minimal_od(vendor_id=0xC0B, product_code=0x401,
+                                                     serial=serial))  # fmt: skip
+        argv = ["lss", "assign-all", "--network", str(path), "--json"]
+        assert main([*argv, *bus]) == 1
+        out, err = capsys.readouterr()
+        assert [(r["serial"], r["node_id"]) for r in json.loads(out)] == [(0x10, 2)]
+        assert "two devices share one identity" in err
+    assert load_network(path).node("io1").serial_number == 0x10
+
+
+def test_an_explicit_field_is_kept_and_only_the_named_nodes_switch(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    channel = f"cli-lss-kept-{os.getpid()}"
+    bus = ["-i", "virtual", "-c", channel, "--listen", "0.3"]
+    with Network(interface="virtual", channel=channel) as net:
+        add_device(net, UNCONFIGURED, minimal_od(vendor_id=0x999, serial=1))
+        assert main(["lss", "scan", "--vendor", "0x360", *bus]) == 3  # not the 0x999 one
+        capsys.readouterr()
+        named, other = _beating_device(net, 2, 0x102), _beating_device(net, 3, 0x103)
+        assert main(["lss", "set-bitrate", "250", "--nodes", "2", *bus]) == 0
+        assert (named.bit_rate, other.bit_rate) == (250, None)  # 3 was not asked: stays
+        # a refusal puts back what the others accepted when the rate in use is given (-b)
+        assert other.lss is not None
+        other.lss.bit_rates = frozenset({0, 2})
+        assert main(["lss", "set-bitrate", "125", "--nodes", "2,3", "-b", "250000", *bus]) == 1
+        assert "node(s) 2 were given 250 kbit/s back" in capsys.readouterr().err
+        assert named.lss is not None and named.lss.pending_bit_timing == 3

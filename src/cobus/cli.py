@@ -63,7 +63,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sync": ("cobus.apps._node_cli", "produce SYNC"),
     "lss": (
         "cobus.apps._lss_cli",
-        "find devices without a node-ID and give them one (LSS, CiA 305)",
+        "LSS (CiA 305): give devices node-IDs, find them, change the bit rate",
     ),
     "demo": (
         "cobus.apps.demo",

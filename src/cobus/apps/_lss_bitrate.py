@@ -16,13 +16,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import struct
 import sys
 from typing import Any
 
 from cobus._args import bus_options
 
-__all__ = ["set_bitrate"]
+__all__ = ["heard_nodes", "set_bitrate"]
 
 
 def _fail(message: str, code: int = 1) -> int:
@@ -30,7 +29,7 @@ def _fail(message: str, code: int = 1) -> int:
     return code
 
 
-def _heard(net: Any, seconds: float, until: set[int] | None = None) -> set[int]:
+def heard_nodes(net: Any, seconds: float, until: set[int] | None = None) -> set[int]:
     """The node-IDs whose heartbeat (or boot-up) comes within ``seconds`` (sooner when every
     node of ``until`` has been heard)."""
     from cobus.proto.connection_set import ERROR_CONTROL_BASE, MAX_NODE_ID
@@ -54,11 +53,44 @@ def _heard(net: Any, seconds: float, until: set[int] | None = None) -> set[int]:
 
 
 def _identity(net: Any, node: int) -> Any:
-    from cobus.proto.lss import LssIdentity
+    from cobus.proto.lss import LssError, LssIdentity
 
     remote = net.add_remote(node, sdo_timeout=0.5)
-    fields = [struct.unpack("<I", remote.sdo.upload(0x1018, sub)[:4])[0] for sub in range(1, 5)]
+    fields = []
+    for sub in range(1, 5):
+        data = remote.sdo.upload(0x1018, sub)
+        if len(data) != 4:
+            raise LssError(f"1018h sub {sub} is {len(data)} bytes, not an UNSIGNED32")
+        fields.append(int.from_bytes(data, "little"))
     return LssIdentity(*fields)
+
+
+def _listed(nodes: dict[int, Any]) -> str:
+    return ", ".join(map(str, sorted(nodes))) or "none"
+
+
+def _put_back(net: Any, accepted: dict[int, Any], bitrate: int | None) -> str:
+    """After a refusal: the nodes that took the new bit timing are given the one they run
+    at (``-b``), so that a later activation or store cannot use it; what to say of it."""
+    from cobus.errors import CobusError
+    from cobus.proto.lss import LssState
+
+    if not accepted:
+        return ""
+    if not bitrate:
+        return (
+            f" (node(s) {_listed(accepted)} hold it as pending: run again with -b and the "
+            "rate they run at to undo it, before any store or activation)"
+        )
+    for identity in accepted.values():
+        try:
+            net.lss.select(identity)
+            net.lss.configure_bit_rate(bitrate // 1000)
+        except CobusError:
+            return f" (putting node(s) {_listed(accepted)} back to {bitrate // 1000} kbit/s failed)"
+        finally:
+            net.lss.switch_global(LssState.WAITING)
+    return f" (node(s) {_listed(accepted)} were given {bitrate // 1000} kbit/s back)"
 
 
 def set_bitrate(args: argparse.Namespace) -> int:
@@ -73,10 +105,17 @@ def set_bitrate(args: argparse.Namespace) -> int:
     try:
         with Network(**options) as net:
             net.lss.timeout = 0.2
-            expected = set(args.nodes) if args.nodes else _heard(net, 1.1)
+            expected = set(args.nodes) if args.nodes else heard_nodes(net, args.listen)
             if not expected:
                 return _fail("no heartbeat is heard, so no node to move: name them with --nodes", 3)
+            if not args.nodes and not args.json:
+                print(
+                    f"moving the nodes heard: {', '.join(map(str, sorted(expected)))} (a node "
+                    "not heard is not moved: name every node with --nodes)",
+                    file=sys.stderr,
+                )
             refused: dict[int, str] = {}
+            accepted: dict[int, Any] = {}
             for node in sorted(expected):
                 try:
                     identity = _identity(net, node)
@@ -86,23 +125,28 @@ def set_bitrate(args: argparse.Namespace) -> int:
                 try:
                     net.lss.select(identity)
                     net.lss.configure_bit_rate(kbits)
+                    accepted[node] = identity
                 except LssTimeoutError:
                     refused[node] = "it does not answer LSS (no LSS slave?)"
                 except LssRefusedError as exc:
                     refused[node] = str(exc)
                 finally:
                     net.lss.switch_global(LssState.WAITING)
-                stage = "bit timings configured, none activated (every node keeps its rate)"
+                stage = f"{kbits} kbit/s configured in node(s) {_listed(accepted)}, not activated"
             if refused:
                 for node, why in sorted(refused.items()):
                     print(f"node {node}: {why}", file=sys.stderr)
+                kept = _put_back(net, accepted, args.bitrate)
                 return _fail(
-                    f"nothing switched: node(s) {', '.join(map(str, sorted(refused)))} cannot "
-                    f"take {kbits} kbit/s; every node keeps the rate it has"
+                    f"nothing switched: node(s) {_listed(refused)} cannot take {kbits} kbit/s; "
+                    f"every node keeps the rate it runs at{kept}"
                 )
-            net.lss.switch_global(LssState.CONFIGURATION)
+            # only the nodes asked switch: each is selected (a slave of another rate, or one
+            # not named, stays in waiting and ignores the activation)
+            for identity in accepted.values():
+                net.lss.select(identity)
             net.lss.activate_bit_rate(args.delay)
-            stage = f"every node was told to switch to {kbits} kbit/s"
+            stage = f"node(s) {_listed(accepted)} were told to switch to {kbits} kbit/s"
             net.sleep(2 * args.delay)
         if options.get("interface") == "socketcan":
             channel = options.get("channel") or "can0"
@@ -115,7 +159,7 @@ def set_bitrate(args: argparse.Namespace) -> int:
         options["bitrate"] = kbits * 1000
         with Network(**options) as net:
             net.lss.switch_global(LssState.WAITING)
-            back = _heard(net, args.wait, expected)
+            back = heard_nodes(net, args.wait, expected)
     except KeyboardInterrupt:
         print(f"cobus: interrupted; {stage}", file=sys.stderr)
         return 130

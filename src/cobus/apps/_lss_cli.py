@@ -13,7 +13,8 @@ fastscan (its identity, 1018h sub 1-4) and leaves it as it was. ``set-id`` gives
 the device with that identity, ``assign-all`` to every device without one (node-IDs heard on
 the bus are skipped); ``--store`` makes the device keep it over a power cycle. A device takes
 its new node-ID when it is switched back to LSS waiting (one without one before: at once, it
-boots; one that had one: at its next reset). Nothing else is written: no NMT command, no SDO.
+boots; one that had one: at its next reset). Nothing but LSS is sent (``set-bitrate`` also
+reads each node's identity, 1018h, by SDO): no NMT command, no SDO write.
 
 ``assign-all`` checks that each device boots under its new node-ID (its boot-up message). With
 ``--network FILE`` a device gets the node-ID of the file's node with its identity; one the
@@ -79,7 +80,7 @@ def register(sub: Any) -> None:
     """Add ``cobus lss``."""
     lss = sub.add_parser(
         "lss",
-        help="find devices without a node-ID and give them one (LSS, CiA 305)",
+        help="LSS (CiA 305): give devices node-IDs, find them, change the bit rate",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -123,11 +124,21 @@ def register(sub: Any) -> None:
     rate.add_argument(
         "--nodes", type=_nodes, help="the nodes to move, e.g. 2,3,5 (default: those heard)"
     )
-    rate.add_argument("--delay", type=seconds, default=0.1, help="the switch delay (default 0.1 s)")
+    rate.add_argument(
+        "--delay", type=_switch_delay, default=0.1, help="the switch delay (default 0.1 s)"
+    )
     rate.add_argument(
         "--wait", type=seconds, default=3.0, help="how long the nodes have to come back (3 s)"
     )
     rate.set_defaults(handler=_set_bitrate)
+    for p in (scan, assign, rate):
+        p.add_argument(
+            "--listen",
+            type=seconds,
+            default=2.5,
+            help="how long heartbeats are listened to for the node-IDs in use (2.5 s: give "
+            "more than the slowest heartbeat period)",
+        )
     for p in (scan, set_id, assign, inquire, store, find, rate):
         p.add_argument("--json", action="store_true", help="the result as JSON")
         p.epilog = (
@@ -151,6 +162,13 @@ def _kbits(text: str) -> int:
         raise argparse.ArgumentTypeError(
             f"{text!r}: one of CiA 305's rates, in kbit/s: {', '.join(map(str, rates))}"
         )
+    return value
+
+
+def _switch_delay(text: str) -> float:
+    value = seconds(text)
+    if not value <= 65.535:
+        raise argparse.ArgumentTypeError(f"{text!r}: the switch delay is 0 to 65.535 s")
     return value
 
 
@@ -180,63 +198,100 @@ def _fail(message: str, code: int = 1) -> int:
 def _run(args: argparse.Namespace) -> int:
     from cobus.errors import CobusError
     from cobus.master.errors import NetworkConfigError
-    from cobus.runtime import Network
 
     done: list[dict[str, Any]] = []
     try:
-        with Network(**bus_options(args)) as net:
-            if args.action == "set-id":
-                net.lss.timeout = 0.2
-                _set_id(net, args.identity, args.node, args.store)
-                done.append(_row(args.identity, args.node, args.store))
-            elif args.action in ("inquire", "store"):
-                net.lss.timeout = 0.2
-                done.append(_one(net, args.identity, args.action == "store"))
-            elif args.action == "find":
-                net.lss.timeout = args.timeout
-                found = net.lss.identify_all(args.vendor, args.product, args.revision)
-                if not found:
-                    return _fail(
-                        f"no device of vendor 0x{args.vendor:08X} and product "
-                        f"0x{args.product:08X} answered"
-                        + ("" if args.revision is None else f" (revision 0x{args.revision:08X})"),
-                        3,
-                    )
-                done.extend(_one(net, identity, False) for identity in found)
-            else:
-                code = _scan(net, args, done)
-                if code:
-                    return code
+        code = _session(args, done)
     except KeyboardInterrupt:
         what = ", ".join(f"serial {d['serial']} -> node {d['node_id']}" for d in done)
         print(f"cobus: interrupted; done so far: {what or 'nothing'}", file=sys.stderr)
-        return 130
+        code = 130
     except NetworkConfigError as exc:  # (the --network file: input to mend, like usage)
-        return _fail(str(exc), 2)
+        code = _fail(str(exc), 2)
     except CobusError as exc:
-        return _fail(str(exc))
+        code = _fail(str(exc))
     except Exception as exc:
-        if type(exc).__module__.startswith("can"):
-            return _fail(f"the bus cannot be used: {exc}")
-        raise
-    _print(args, done)
+        if not type(exc).__module__.startswith("can"):
+            raise
+        code = _fail(f"the bus cannot be used: {exc}")
+    if done and (code == 0 or (args.json and args.action in ("assign-all", "find"))):
+        _print(args, done)  # (what was done, also when a later step failed)
+    return code
+
+
+def _session(args: argparse.Namespace, done: list[dict[str, Any]]) -> int:
+    """One ``cobus lss`` command on the bus; ``done`` gathers its rows."""
+    from cobus.runtime import LssTimeoutError, Network
+
+    with Network(**bus_options(args)) as net:
+        if args.action == "set-id":
+            net.lss.timeout = 0.2
+            _set_id(net, args.identity, args.node, args.store)
+            done.append(_row(args.identity, args.node, args.store))
+        elif args.action in ("inquire", "store"):
+            net.lss.timeout = 0.2
+            done.append(_one(net, args.identity, args.action == "store"))
+        elif args.action == "find":
+            net.lss.timeout = args.timeout
+            found = net.lss.identify_all(args.vendor, args.product, args.revision)
+            if not found:
+                return _fail(
+                    f"no device of vendor 0x{args.vendor:08X} and product "
+                    f"0x{args.product:08X} answered"
+                    + ("" if args.revision is None else f" (revision 0x{args.revision:08X})"),
+                    3,
+                )
+            for identity in found:
+                try:
+                    done.append(_one(net, identity, False))
+                except LssTimeoutError:  # (it answered the ranges, not its identity)
+                    done.append({**_row(identity, None, False), "node_id": "?"})
+        else:
+            return _scan(net, args, done)
     return 0
 
 
 def _scan(net: Any, args: argparse.Namespace, done: list[dict[str, Any]]) -> int:
+    from cobus.apps._lss_bitrate import heard_nodes
     from cobus.apps._lss_plan import NetworkPlan
-    from cobus.proto.lss import LssState
 
     assign = args.action == "assign-all"
     plan = NetworkPlan(args.network) if assign and args.network else None
     known = {f: getattr(args, f) for f in _FIELDS[:3] if getattr(args, f) is not None}
-    if plan is not None and not known and plan.vendor is not None:
+    from_file = plan is not None and not known and plan.vendor is not None
+    if from_file:
+        assert plan is not None and plan.vendor is not None
         known = {"vendor": plan.vendor}  # (every node of the file has it: not scanned)
-    heard = _heard(net)
+    heard = heard_nodes(net, args.listen)
     if not net.lss.identify_unconfigured():
         return _fail(_nothing_found(heard), 3)
     next_id = getattr(args, "first", 1)
     writes: dict[str, int] = {}
+    try:
+        return _assign(net, args, done, plan, known, from_file, heard, next_id, writes)
+    finally:
+        if plan is not None and writes:  # (also when a later device failed, or Ctrl-C)
+            plan.write_back(writes)
+            if not args.json:
+                print(f"{plan.path}: serial_number written for {', '.join(writes)}")
+
+
+def _assign(
+    net: Any,
+    args: argparse.Namespace,
+    done: list[dict[str, Any]],
+    plan: Any,
+    known: dict[str, int],
+    from_file: bool,
+    heard: set[int],
+    next_id: int,
+    writes: dict[str, int],
+) -> int:
+    """Scan, and (assign-all) give each device found its node-ID; ``writes`` gathers the
+    serials to write into the network file."""
+    from cobus.proto.lss import LssState
+
+    assign = args.action == "assign-all"
     while True:
         started = time.monotonic()
         found = net.lss.fastscan(
@@ -245,8 +300,8 @@ def _scan(net: Any, args: argparse.Namespace, done: list[dict[str, Any]]) -> int
             ceiling=args.ceiling,
             on_event=None if args.json else _progress(started),
         )
-        if found is None and known and net.lss.identify_unconfigured():
-            known = {}  # one of another vendor than the file's: scanned whole
+        if found is None and from_file and net.lss.identify_unconfigured():
+            known, from_file = {}, False  # one of another vendor than the file's: whole scan
             continue
         if found is None:
             break
@@ -278,14 +333,8 @@ def _scan(net: Any, args: argparse.Namespace, done: list[dict[str, Any]]) -> int
             print(_said(found, row, plan is not None))
     if not done:
         return _fail(_nothing_found(heard), 3)
-    if plan is not None and writes:
-        plan.write_back(writes)
-        if not args.json:
-            names = ", ".join(writes)
-            print(f"{plan.path}: serial_number written for {names}")
     missing = [d["node_id"] for d in done if assign and not d["booted"]]
     if missing:
-        _print(args, done)
         return _fail(
             f"node(s) {', '.join(map(str, missing))} took their node-ID but no boot-up came "
             f"within {_BOOT_WAIT} s: check them (power, bit rate, a node-ID used twice)"
@@ -370,23 +419,6 @@ def _configure(net: Any, node: int, store: bool, *, wait: bool = True) -> bool:
     finally:
         sub.cancel()
     return bool(booted)
-
-
-def _heard(net: Any) -> set[int]:
-    """The node-IDs whose heartbeat or boot-up comes within 1.1 s."""
-    from cobus.proto.connection_set import ERROR_CONTROL_BASE, MAX_NODE_ID
-
-    heard: set[int] = set()
-
-    def beat(frame: Any, now: float) -> None:
-        if len(frame.data) == 1:
-            heard.add(frame.cob_id - ERROR_CONTROL_BASE)
-
-    subs = [net.subscribe(ERROR_CONTROL_BASE + n, beat) for n in range(1, MAX_NODE_ID + 1)]
-    net.sleep(1.1)
-    for s in subs:
-        s.cancel()
-    return heard
 
 
 def _nothing_found(heard: set[int]) -> str:

@@ -12,14 +12,15 @@ comments and layout kept) and replaced atomically.
 
 from __future__ import annotations
 
+import hashlib
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from cobus._files import replace_file
 from cobus._yaml import LineMap, read_yaml
-from cobus.device.storage import atomic_write
 from cobus.errors import CobusError
-from cobus.master.config import load_network
+from cobus.master.config import load_network, loads_network
 from cobus.proto.lss import LssIdentity
 
 __all__ = ["NetworkPlan", "NetworkWriteError", "Planned"]
@@ -54,8 +55,12 @@ class NetworkPlan:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
+        try:
+            self._digest = hashlib.sha256(self.path.read_bytes()).digest()
+        except OSError:
+            self._digest = b""  # (load_network says why it cannot be read)
         cfg = load_network(self.path)  # NetworkConfigError: every problem, with its line
-        self.nodes = [
+        self._all = [
             _Node(
                 n.name,
                 n.node_id,
@@ -65,10 +70,14 @@ class NetworkPlan:
                 n.serial_number,
             )
             for n in cfg.nodes.values()
-            if n.enabled
         ]
-        #: Every node-ID the file gives a node (a device it does not know gets none of them).
+        enabled = {n.name for n in cfg.nodes.values() if n.enabled}
+        self.nodes = [n for n in self._all if n.name in enabled]
+        #: Every node-ID the file gives a node or the master (a device the file does not know
+        #: gets none of them).
         self.used = {n.node_id for n in cfg.nodes.values()}
+        if cfg.master.node_id is not None:
+            self.used.add(cfg.master.node_id)
         vendors = {n.vendor for n in self.nodes if n.vendor}
         #: The one vendor the file's nodes give, if they give one: fastscan confirms it
         #: instead of scanning it (and scans whole when a device of another one remains).
@@ -104,47 +113,100 @@ class NetworkPlan:
         return None
 
     def write_back(self, serials: dict[str, int]) -> None:
-        """Write ``serial_number`` into the entries of the nodes named (name -> serial)."""
+        """Write ``serial_number`` into the entries of the nodes named (name -> serial). The
+        new text must read as the same network with just those serials added, else nothing
+        is written and the message says what to add by hand."""
         if not serials:
             return
+        by_hand = "; ".join(f"{n}: serial_number: 0x{v:08X}" for n, v in serials.items())
+        target = self.path.resolve()  # (a link: the file it names gets the lines)
         try:
-            text = self.path.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise NetworkWriteError(f"{self.path}: cannot read it again: {exc.strerror}") from None
-        data, problems = read_yaml(text)
-        nodes = data.get("nodes") if isinstance(data, dict) and not problems else None
-        if not isinstance(nodes, LineMap):
-            raise NetworkWriteError(f"{self.path}: changed while the scan ran; read it again")
-        lines = text.splitlines(keepends=True)
-        inserts: list[tuple[int, str]] = []
-        for name, serial in serials.items():
-            entry = nodes.get(name)
-            at = entry.lines.get("node_id") if isinstance(entry, LineMap) else None
-            if at is None or not 1 <= at <= len(lines):
-                raise NetworkWriteError(
-                    f"{self.path}: node {name!r} has no node_id line to write its serial beside"
-                )
-            line = lines[at - 1]
-            indent = re.match(r"[ \t]*", line)
-            assert indent is not None
-            if not re.match(r"[ \t]*node_id\s*:", line):
-                raise NetworkWriteError(
-                    f"{self.path}:{at}: node {name!r} is written on one line; add "
-                    f"'serial_number: 0x{serial:08X}' to it yourself"
-                )
-            end = "" if line.endswith("\n") else "\n"
-            inserts.append(
-                (
-                    at,
-                    f"{end}{indent.group(0)}serial_number: 0x{serial:08X}"
-                    "   # by cobus lss assign-all\n",
-                )
-            )
-        for at, added in sorted(inserts, reverse=True):
-            lines.insert(at, added)
-        try:
-            atomic_write(self.path, "".join(lines).encode("utf-8"))
+            raw = target.read_bytes()
         except OSError as exc:
             raise NetworkWriteError(
-                f"{self.path}: cannot write the serial numbers ({exc}); the file is unchanged"
+                f"{self.path}: cannot read it again ({exc.strerror}); add by hand: {by_hand}"
             ) from None
+        if hashlib.sha256(raw).digest() != self._digest:
+            raise NetworkWriteError(
+                f"{self.path}: changed while the scan ran, so it is left alone; add by hand: "
+                f"{by_hand}"
+            )
+        text = raw.decode("utf-8")
+        data, problems = read_yaml(text)
+        nodes = data.get("nodes") if isinstance(data, dict) and not problems else None
+        lines = text.splitlines(keepends=True)
+        edits: list[tuple[int, bool, str]] = []  # (line index, replace?, text)
+        for name, serial in serials.items():
+            entry = nodes.get(name) if isinstance(nodes, LineMap) else None
+            edit = _edit(lines, entry, serial) if isinstance(entry, LineMap) else None
+            if edit is None:
+                raise NetworkWriteError(
+                    f"{self.path}: node {name!r} is not written one key per line, so the file "
+                    f"is left alone; add by hand: {by_hand}"
+                )
+            edits.append(edit)
+        for at, replace, added in sorted(edits, reverse=True):
+            if replace:
+                lines[at] = added
+            else:
+                lines.insert(at, added)
+        new_text = "".join(lines)
+        self._check(new_text, serials, by_hand)
+        try:
+            replace_file(target, new_text.encode("utf-8"))
+        except OSError as exc:
+            raise NetworkWriteError(
+                f"{self.path}: cannot write the serial numbers ({exc}); the file is unchanged; "
+                f"add by hand: {by_hand}"
+            ) from None
+
+    def _check(self, text: str, serials: dict[str, int], by_hand: str) -> None:
+        """``text`` reads as the network read at the start with just ``serials`` added."""
+        try:
+            after = loads_network(text, base_dir=self.path.parent, path=str(self.path))
+        except CobusError:
+            after = None
+        expected = {n.name: n.serial for n in self._all}
+        expected.update(serials)
+        got = None if after is None else {n.name: n.serial_number for n in after.nodes.values()}
+        ids = None if after is None else {n.name: n.node_id for n in after.nodes.values()}
+        if got != expected or ids != {n.name: n.node_id for n in self._all}:
+            raise NetworkWriteError(
+                f"{self.path}: the serials could not be added without changing what else the "
+                f"file says, so it is left alone; add by hand: {by_hand}"
+            )
+
+
+_KEY = r"""[ \t]*["']?{}["']?[ \t]*:"""
+
+
+def _edit(lines: list[str], entry: LineMap, serial: int) -> tuple[int, bool, str] | None:
+    """The line to change for ``entry``'s serial: its ``serial_number`` line given a new
+    value (a placeholder such as 0), or one added after its ``node_id`` line, indented
+    alike and with the same line end; None when the entry is not one key per line."""
+    value = f"0x{serial:08X}"
+    at = entry.lines.get("serial_number")
+    if at is not None and 1 <= at <= len(lines):
+        line = lines[at - 1]
+        match = re.match(
+            rf"({_KEY.format('serial_number')}[ \t]*)[^#\r\n]*?([ \t]*(#[^\r\n]*)?\r?\n?)$",
+            line,
+        )
+        if match is None:
+            return None
+        return at - 1, True, f"{match.group(1)}{value}{match.group(2)}"
+    at = entry.lines.get("node_id")
+    if at is None or not 1 <= at <= len(lines):
+        return None
+    line = lines[at - 1]
+    if not re.match(_KEY.format("node_id") + r"[ \t]*[^\s#]", line):
+        return None  # (flow style, or its value on the next line)
+    indent = re.match(r"[ \t]*", line)
+    assert indent is not None
+    end = "\r\n" if line.endswith("\r\n") else "\n"
+    before = "" if line.endswith("\n") else end
+    return (
+        at,
+        False,
+        f"{before}{indent.group(0)}serial_number: {value}   # by cobus lss assign-all{end}",
+    )

@@ -150,7 +150,8 @@ class AsyncNetworkLss:
         """Every device of ``vendor`` and ``product`` (and ``revision``, if given), with a
         node-ID or without: their identities, found by halving ranges of serial numbers
         (then of revisions) with "identify remote slave". A range no device answers costs
-        one timeout; each device about 64 requests per field searched."""
+        one timeout; each device about 64 requests per field searched, and each value found
+        is asked once more after a quiet timeout (a late answer makes no phantom device)."""
         full = (0, _U32)
         revisions = full if revision is None else (revision, revision)
         found: list[LssIdentity] = []
@@ -189,7 +190,14 @@ class AsyncNetworkLss:
             await asyncio.sleep(self._settle)
             low, high = span
             if low == high:
-                out.append(low)
+                # a late answer to the request before may have looked like this one's: ask
+                # once more after a quiet timeout, and keep what answers again
+                await asyncio.sleep(self._machine.timeout)
+                if await self.identify_remote(
+                    vendor, product, revisions or span, span if serials is None else serials
+                ):
+                    out.append(low)
+                    await asyncio.sleep(self._settle)
                 continue
             middle = (low + high) // 2
             todo += [(middle + 1, high), (low, middle)]
