@@ -286,3 +286,14 @@ def test_identify_all_finds_every_device_of_a_product_by_halving_ranges() -> Non
             assert await net.lss.identify_all(0x360, 0x4321) == []
 
     simulate(main())
+
+
+def test_identify_all_makes_no_phantom_device_of_a_late_answer() -> None:
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            late = LssSlave(LssIdentity(0xC0B, 0x401, 0, 0x1003), answer_delay=0.03)
+            slaves_on(net, LssSlave(LssIdentity(0xC0B, 0x401, 0, 0x1000)), late)
+            found = await net.lss.identify_all(0xC0B, 0x401, 0)
+            assert [i.serial for i in found] == [0x1000, 0x1003]
+
+    simulate(main())
