@@ -16,7 +16,6 @@ import contextlib
 import logging
 import os
 from collections.abc import Awaitable, Callable, Mapping
-from datetime import UTC, datetime
 from typing import Any, Final
 
 from cobus.master.config import NetworkConfig, PdoLayout, load_network
@@ -30,25 +29,23 @@ from cobus.master.errors import (
 from cobus.master.events import MasterEvent, MasterStateChanged, NetworkStopped
 from cobus.master.image import Inputs, Outputs, ProcessImage
 from cobus.master.node import ManagedNode
+from cobus.master.producers import MasterProducers
 from cobus.master.states import MasterState, MasterStatus, NodeState
-from cobus.proto import NOTHING, Event, Frame
+from cobus.proto import Event, Frame
 from cobus.proto.connection_set import emcy_cob_id
 from cobus.proto.emcy import EmcyConsumer, EmcyReceived
 from cobus.proto.heartbeat import (
     BootupReceived,
     HeartbeatMonitor,
-    HeartbeatProducer,
     HeartbeatTimeout,
     RemoteStateChanged,
 )
 from cobus.proto.nmt import NmtState
-from cobus.proto.timestamp import TimeProducer
 from cobus.runtime import (
     AsyncNetwork,
     BusState,
     BusStateChanged,
     HandlerFailed,
-    InterfaceTimingError,
     MachineHost,
     NetworkClosedError,
     RxOverflow,
@@ -117,7 +114,7 @@ class Master:
         self._hosts: list[MachineHost] = []
         self._timers: dict[tuple[int, int], asyncio.TimerHandle] = {}
         self._dirty: set[tuple[int, int]] = set()
-        self._own_sync = False
+        self._producers = MasterProducers(network, config.master)
         self._sync_seen = False
         self._meter = BusLoadMeter(config.master.bitrate, config.master.bus_load_window)
         self._rpdos: dict[tuple[int, int], PdoLayout] = {}
@@ -277,18 +274,7 @@ class Master:
         net = self.network
         loop = net.loop
         cfg = self.config.master
-        if cfg.sync_period:  # first: an interface that cannot time SYNC leaves nothing started
-            try:
-                net.sync.start(
-                    cfg.sync_period,
-                    overflow=cfg.sync_overflow,
-                    cob_id=cfg.sync_cob_id,
-                    # (the simulated clock has no interface: its loop times SYNC)
-                    by_interface=cfg.sync_by_interface and not net.simulated,
-                )
-            except InterfaceTimingError as exc:
-                raise MasterError(f"master.sync_by_interface: {exc} (set it to false)") from exc
-            self._own_sync = True
+        self._producers.start_sync()  # first: an interface that cannot time it stops all
         self._started = True
         self._sync_seen = False
         self._set_status(MasterStatus.RESET)
@@ -311,17 +297,7 @@ class Master:
             emcy_ids.append(can_id)
             node.install()
         self._hosts.append(net.attach(emcy, emcy_ids, self._on_emcy))
-        if cfg.heartbeat_time and cfg.node_id is not None:
-            producer = HeartbeatProducer(cfg.node_id, state=NmtState.OPERATIONAL)
-            producer.set_period(cfg.heartbeat_time, now)
-            host = net.attach(producer)
-            host.apply(NOTHING)
-            self._hosts.append(host)
-        if cfg.time_period:
-            stamp = TimeProducer(cfg.time_cob_id)
-            host = net.attach(stamp)
-            host.apply(stamp.set_interval(cfg.time_period, now, datetime.now(UTC)))
-            self._hosts.append(host)
+        self._producers.start_heartbeat_and_time(now)
         for (node_id, _number), layout in self._rpdos.items():
             if layout.transmission_type >= 254 and layout.event_timer and not layout.linked:
                 self._refresh(self.nodes[node_id], layout)
@@ -386,9 +362,7 @@ class Master:
         for handle in self._timers.values():
             handle.cancel()
         self._timers.clear()
-        if self._own_sync:
-            net.sync.stop()
-            self._own_sync = False
+        self._producers.stop()
         net.remove_listener(self._on_network_event)
         self._started = False
         self._set_status(MasterStatus.OFFLINE)
@@ -422,7 +396,7 @@ class Master:
         if self._status is not MasterStatus.RESET or not self._started:
             return
         if all(n.settled for n in self.nodes.values()):
-            if self._own_sync and not self._sync_seen:
+            if self._producers.own_sync and not self._sync_seen:
                 return  # SYNC runs before the first start: _on_sync starts the network
             self._start_network()
 
