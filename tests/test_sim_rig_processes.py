@@ -16,11 +16,8 @@ import can
 import canopen
 import pytest
 
-from tests.conftest import free_port, wait_for_port
-
 pytestmark = pytest.mark.interop
 
-CAN_REMOTE = [sys.executable, "-m", "can_remote", "-i", "virtual"]
 RIG = """
     bus: embedded
     devices:
@@ -35,19 +32,9 @@ RIG = """
 
 
 @pytest.fixture
-def bus_url():
-    port = free_port()
-    server = subprocess.Popen(
-        [*CAN_REMOTE, "-c", f"sim{port}", "-H", "127.0.0.1", "-p", str(port)],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    try:
-        wait_for_port(port, time.monotonic() + 15)
-        yield f"ws://127.0.0.1:{port}/"
-    finally:
-        server.terminate()
-        server.wait(10)
+def bus_url(remote_bus_url: str) -> str:
+    """The python-can-remote server of tests/conftest.py."""
+    return remote_bus_url
 
 
 def test_python_canopen_masters_a_rig_run_by_cobus_sim_in_another_process(tmp_path, bus_url):
