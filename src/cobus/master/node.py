@@ -131,7 +131,6 @@ class ManagedNode:
         self._toggle_fault = False
         self._heard_again = False
         self._rpdo_missing = False
-        self._configured_at: float | None = None
         self._last_ec: float | None = None
         #: The NMT state the node's last heartbeat (or guarding reply) gave, and when.
         self._heard: tuple[float, NmtState] | None = None
@@ -279,8 +278,7 @@ class ManagedNode:
             from cobus.master.errors import MasterError
 
             raise MasterError("the master is not started: call master.start() first")
-        self._wakes_spent = False  # (the application asks: the wakes may be tried again)
-        self._wakes.clear()
+        self._allow_wakes()  # (the application asks: the wakes may be tried again)
         task = self.spawn_boot("reset")
         try:
             await asyncio.shield(task)
@@ -298,13 +296,21 @@ class ManagedNode:
         self._state = new
         self.context.emit(NodeStateChanged(self.node_id, old, new))
 
-    def _clear_flags(self) -> None:
-        self._not_found = self._sdo_error = self._mismatch = False
+    def _allow_wakes(self) -> None:
+        """The wakes of an absent node may be tried again (a manual restart)."""
+        self._wakes_spent = False
+        self._wakes.clear()
+
+    def _reset_supervision(self) -> None:
+        """A new boot: supervision stopped, its flags and its count of commands back
+        cleared."""
+        self.stop_supervision()
         self._ec_lost = self._toggle_fault = self._heard_again = False
         self._tpdos_missing.clear()
         self._tpdos_short.clear()
         self._tpdos_seen.clear()
-        self.problem = None
+        self._heal_done()
+        self._heals.clear()  # (a new boot: a new count of commands back)
 
     # ================================================================== the boot-up task
 
@@ -354,11 +360,10 @@ class ManagedNode:
 
     async def _sequence(self, mode: str) -> None:
         cfg = self.config
-        self.stop_supervision()
-        self._clear_flags()
+        self._reset_supervision()
+        self._not_found = self._sdo_error = self._mismatch = False
+        self.problem = None
         self.expected_nmt = None
-        self._heal_done()
-        self._heals.clear()  # (a new boot: a new count of commands back)
         self.step_results.clear()  # (what the steps say of this boot only)
         self.boot_count += 1
         if cfg.do_not_initialise:
@@ -378,7 +383,6 @@ class ManagedNode:
 
     async def _boot_once(self, mode: str) -> None:
         cfg = self.config
-        loop = self.context.network.loop
         if mode == "reset":
             await self._reset_and_wait()
         elif mode == "await":
@@ -420,7 +424,6 @@ class ManagedNode:
                 )
         self.error_control = kind
         await self._run_boot_steps()
-        self._configured_at = loop.time()
         self._start_supervision()
         self.set_state(NodeState.CONFIGURED)
         self.context.node_configured(self)
@@ -998,9 +1001,7 @@ class ManagedNode:
         """The node sent its boot-up message."""
         self.nmt_state = NmtState.PRE_OPERATIONAL
         self._last_commanded = None
-        future = self._bootup
-        if future is not None and not future.done():
-            future.set_result(None)
+        if self._take_bootup():
             self.context.emit(NodeBooted(self.node_id, True))
             return
         self.context.emit(NodeBooted(self.node_id, False))
@@ -1016,6 +1017,14 @@ class ManagedNode:
             self.context.image.zero_inputs(self.node_id)
         self._rebooted = True
         self.spawn_boot("booted")
+
+    def _take_bootup(self) -> bool:
+        """The boot waits for this boot-up: it has it now (False: nobody waited)."""
+        future = self._bootup
+        if future is None or future.done():
+            return False
+        future.set_result(None)
+        return True
 
     def on_heartbeat_state(self, state: NmtState) -> None:
         """The master's heartbeat consumer heard the node in ``state``."""
