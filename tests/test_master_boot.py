@@ -345,19 +345,22 @@ def test_heartbeat_refused_falls_back_to_node_guarding(tmp_path):
 
 
 def test_master_stop_ends_supervision_and_can_start_again(tmp_path):
-    cfg = network(tmp_path, "master: {sync_period: 10}\nnodes:\n" + node_block("a", 5))
+    master = "master: {sync_period: 10, node_id: 127, heartbeat_time: 100, time_period: 100}"
+    cfg = network(tmp_path, master + "\nnodes:\n" + node_block("a", 5))
 
     async def scenario(rig: Rig) -> None:
         device = rig.add(5)
         await rig.master.boot(timeout=5)
+        assert rig.data(0x77F) and rig.data(0x100)  # its heartbeat and TIME run
         await rig.master.stop(stop_nodes=True)
         assert status(rig.master) is MasterStatus.OFFLINE
         assert state(rig.master.nodes[5]) is NodeState.UNDEFINED
         await rig.settle()
         assert nmt(device) is NmtState.STOPPED
-        syncs = len(rig.data(0x080))
+        produced = [len(rig.data(cob)) for cob in (0x080, 0x77F, 0x100)]
         await rig.run(1.0)
-        assert len(rig.data(0x080)) == syncs  # SYNC stopped with the master
+        # SYNC, the master's heartbeat and TIME stopped with the master
+        assert [len(rig.data(cob)) for cob in (0x080, 0x77F, 0x100)] == produced
         await rig.master.boot(timeout=5)
         assert nmt(device) is NmtState.OPERATIONAL
 

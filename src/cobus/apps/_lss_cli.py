@@ -1,4 +1,4 @@
-"""cobus lss: find devices without a node-ID and give them one (LSS, CiA 305).
+"""cobus lss: give devices node-IDs, find them, change the bit rate (LSS, CiA 305).
 
     cobus lss scan                              # fastscan: the first device without a node-ID
     cobus lss set-id 12 --identity 0x360:0x1234:0x10000:42 --store
@@ -31,7 +31,8 @@ switch at once, the interface is opened again at the new rate and every node mus
 again (the missing ones are named).
 
 Exit codes: 0 done, 1 a device refused, did not answer or did not boot, or the bus cannot be
-used, 2 bad usage or a network file with errors, 3 no device without a node-ID answered.
+used, 2 bad usage or a network file with errors, 3 nothing found (no device without a
+node-ID answered; find: no device of that product; set-bitrate: no node heard).
 """
 
 from __future__ import annotations
@@ -233,7 +234,12 @@ def _session(args: argparse.Namespace, done: list[dict[str, Any]]) -> int:
             done.append(_one(net, args.identity, args.action == "store"))
         elif args.action == "find":
             net.lss.timeout = args.timeout
-            found = net.lss.identify_all(args.vendor, args.product, args.revision)
+            found = net.lss.identify_all(
+                args.vendor,
+                args.product,
+                args.revision,
+                on_found=None if args.json else _found_line,
+            )
             if not found:
                 return _fail(
                     f"no device of vendor 0x{args.vendor:08X} and product "
@@ -361,6 +367,11 @@ def _progress(started: float) -> Callable[[Any], None]:
         print(text, file=sys.stderr, flush=True)
 
     return show
+
+
+def _found_line(identity: Any) -> None:
+    """The range search's progress: each device as it is found (stderr)."""
+    print(f"find: {identity}", file=sys.stderr, flush=True)
 
 
 def _said(found: Any, row: dict[str, Any], with_file: bool) -> str:

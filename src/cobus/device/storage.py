@@ -32,6 +32,7 @@ from cobus.device._objects import U8, U32, composite
 from cobus.device.errors import StorageError
 from cobus.device.events import ParametersRestored, ParametersStored, StorageProblem
 from cobus.od import Array, ObjectDictionary, encode
+from cobus.proto.lss import AUTO_BIT_RATE, BIT_RATES, UNCONFIGURED
 from cobus.proto.sdo import SdoAbort, SdoAbortCode
 
 __all__ = [
@@ -482,8 +483,8 @@ class StorageService:
 
 
 def _lss_node_id(value: object) -> bool:
-    return type(value) is int and (1 <= value <= 127 or value == 0xFF)
+    return type(value) is int and (1 <= value <= 127 or value == UNCONFIGURED)
 
 
 def _lss_bit_timing(value: object) -> bool:
-    return type(value) is int and 0 <= value <= 9 and value != 5
+    return type(value) is int and (value in BIT_RATES or value == AUTO_BIT_RATE)

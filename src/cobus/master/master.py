@@ -114,7 +114,7 @@ class Master:
         self._hosts: list[MachineHost] = []
         self._timers: dict[tuple[int, int], asyncio.TimerHandle] = {}
         self._dirty: set[tuple[int, int]] = set()
-        self._producers = MasterProducers(network, config.master)
+        self._producers = MasterProducers(network)
         self._sync_seen = False
         self._meter = BusLoadMeter(config.master.bitrate, config.master.bus_load_window)
         self._rpdos: dict[tuple[int, int], PdoLayout] = {}
@@ -274,7 +274,7 @@ class Master:
         net = self.network
         loop = net.loop
         cfg = self.config.master
-        self._producers.start_sync()  # first: an interface that cannot time it stops all
+        self._producers.start_sync(cfg)  # first: an interface that cannot time it stops all
         self._started = True
         self._sync_seen = False
         self._set_status(MasterStatus.RESET)
@@ -297,7 +297,7 @@ class Master:
             emcy_ids.append(can_id)
             node.install()
         self._hosts.append(net.attach(emcy, emcy_ids, self._on_emcy))
-        self._producers.start_heartbeat_and_time(now)
+        self._producers.start_heartbeat_and_time(cfg, now)
         for (node_id, _number), layout in self._rpdos.items():
             if layout.transmission_type >= 254 and layout.event_timer and not layout.linked:
                 self._refresh(self.nodes[node_id], layout)
@@ -620,7 +620,7 @@ class _NodePort:
 
     @property
     def status(self) -> MasterStatus:
-        return self._master._status
+        return self._master.status
 
     @property
     def started(self) -> bool:

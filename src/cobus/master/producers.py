@@ -27,19 +27,18 @@ __all__ = ["MasterProducers"]
 
 
 class MasterProducers:
-    """SYNC, TIME and the heartbeat the master produces on ``network`` (per ``config``)."""
+    """SYNC, TIME and the heartbeat the master produces on ``network`` (each start per the
+    master's configuration as it is then)."""
 
-    def __init__(self, network: AsyncNetwork, config: MasterConfig) -> None:
+    def __init__(self, network: AsyncNetwork) -> None:
         self._network = network
-        self._config = config
         self._hosts: list[MachineHost] = []
         #: Whether the master started the network's SYNC (and stops it).
         self.own_sync = False
 
-    def start_sync(self) -> None:
+    def start_sync(self, cfg: MasterConfig) -> None:
         """SYNC, when the master produces it; :class:`MasterError` if the interface was to
         time it and cannot."""
-        cfg = self._config
         net = self._network
         if not cfg.sync_period:
             return
@@ -55,9 +54,8 @@ class MasterProducers:
             raise MasterError(f"master.sync_by_interface: {exc} (set it to false)") from exc
         self.own_sync = True
 
-    def start_heartbeat_and_time(self, now: float) -> None:
+    def start_heartbeat_and_time(self, cfg: MasterConfig, now: float) -> None:
         """The master's heartbeat (operational) and TIME, when configured."""
-        cfg = self._config
         net = self._network
         if cfg.heartbeat_time and cfg.node_id is not None:
             producer = HeartbeatProducer(cfg.node_id, state=NmtState.OPERATIONAL)
