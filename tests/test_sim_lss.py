@@ -3,8 +3,11 @@ node-IDs by LSS, booted; what a power cycle keeps (only what the master had them
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
+from cobus.cli import main
 from cobus.device import UNCONFIGURED
 from cobus.proto.lss import LssState
 from cobus.proto.nmt import NmtState
@@ -90,3 +93,13 @@ def test_a_device_that_cannot_start_unconfigured_is_told_why(text: str, message:
 
     with pytest.raises(RigError, match=message):
         simulate(main())
+
+
+def test_cobus_sim_lists_an_unconfigured_device_as_such(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "rig.yaml"
+    path.write_text(RIG)
+    assert main(["sim", str(path), "--list-faults"]) == 0
+    out = capsys.readouterr().out
+    assert "unconfigured valves (cia401_io):" in out and "node 255" not in out

@@ -29,6 +29,7 @@ from typing import Any, TextIO
 
 from cobus._args import seconds, seconds_or_zero
 from cobus.errors import CobusError
+from cobus.proto.lss import UNCONFIGURED
 from cobus.runtime.errors import BusOpenError
 from cobus.sim.faults import fault_catalogue
 from cobus.sim.rig import Rig, ready_rig, ready_rigs, resolve_kind
@@ -125,7 +126,8 @@ def _run(args: argparse.Namespace) -> int:
 def _list_faults(rig: Rig, out: TextIO) -> None:
     for spec in rig.specs:
         cls = resolve_kind(spec.kind)
-        print(f"node {spec.node} {spec.name or ''} ({spec.kind}):".replace("  ", " "), file=out)
+        node = "unconfigured" if spec.node == UNCONFIGURED else f"node {spec.node}"
+        print(f"{node} {spec.name or ''} ({spec.kind}):".replace("  ", " "), file=out)
         for name, text in fault_catalogue(cls).items():
             print(f"  {name:18} {text}", file=out)
     print("bus:", file=out)
