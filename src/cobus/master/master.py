@@ -131,7 +131,7 @@ class Master:
     def _on_nmt_sent(self, command: int, node_id: int) -> None:
         for node in self.nodes.values() if node_id == 0 else [self.nodes.get(node_id)]:
             if node is not None:
-                node.commanded(command)
+                node.supervision.commanded(command)
 
     # ================================================================== state
 
@@ -295,7 +295,7 @@ class Master:
                 can_id = cob & 0x7FF
                 emcy.set_cob_id(node.node_id, can_id)
             emcy_ids.append(can_id)
-            node.install()
+            node.supervision.install()
         self._hosts.append(net.attach(emcy, emcy_ids, self._on_emcy))
         self._producers.start_heartbeat_and_time(cfg, now)
         for (node_id, _number), layout in self._rpdos.items():
@@ -352,7 +352,7 @@ class Master:
                     await task
         for node in self.nodes.values():
             node.boot_task = None
-            node.stop_supervision()
+            node.supervision.stop()
         for sub in self._subs:
             sub.cancel()
         self._subs.clear()
@@ -420,7 +420,7 @@ class Master:
         if self.config.master.start == "broadcast" and not left_out and startable:
             self.network.nmt.start(0)
             for node in startable:
-                node.mark_started(now)
+                node.supervision.mark_started(now)
             self._send_all_rpdos(startable)
         else:
             self._start_nodes(startable)
@@ -432,7 +432,7 @@ class Master:
             if not node.config.auto_start or node.state is not NodeState.CONFIGURED:
                 continue
             self.network.nmt.start(node.node_id)
-            node.mark_started(now)
+            node.supervision.mark_started(now)
             started.append(node)
         self._send_all_rpdos(started)
 
@@ -448,7 +448,7 @@ class Master:
         self.network.nmt.stop(0)
         for node in self.nodes.values():
             if node.config.enabled:
-                node.mark_stopped()
+                node.supervision.mark_stopped()
         self._set_status(MasterStatus.STOP)
         self._emit(NetworkStopped(cause.node_id, reason))
 
@@ -466,7 +466,7 @@ class Master:
                 continue
             if node.state in (NodeState.OPERATIONAL, NodeState.CONFIGURED):
                 self.network.nmt.start(node.node_id)
-                node.mark_started(now)
+                node.supervision.mark_started(now)
                 resumed.append(node)
         self._send_all_rpdos(resumed)
 
@@ -490,18 +490,18 @@ class Master:
         if node is None or not self._started:
             return
         if isinstance(event, BootupReceived):
-            node.on_bootup()
+            node.supervision.on_bootup()
         elif isinstance(event, HeartbeatTimeout):
             if node.error_control == "heartbeat":
-                node.error_control_lost("heartbeat")
+                node.supervision.error_control_lost("heartbeat")
         elif isinstance(event, RemoteStateChanged) and event.new is not NmtState.INITIALISING:
-            node.on_heartbeat_state(event.new)
+            node.supervision.on_heartbeat_state(event.new)
 
     def _on_emcy(self, event: Event) -> None:
         if isinstance(event, EmcyReceived):
             node = self.nodes.get(event.node_id)
             if node is not None:
-                node.on_emcy(event, self.network.time())
+                node.supervision.on_emcy(event, self.network.time())
 
     def _on_sync(self, frame: Frame, now: float) -> None:
         diag = self.diagnostics
