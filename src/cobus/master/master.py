@@ -309,11 +309,11 @@ class Master:
         )
         if broadcast and enabled:
             for node in enabled:
-                node.expect_bootup()
+                node.boot.expect_bootup()
             net.nmt.reset_node(0)
         self._set_state(MasterState.AWAITING_BOOTUP)
         for node in enabled:
-            node.spawn_boot("await" if broadcast else "reset")
+            node.boot.spawn("await" if broadcast else "reset")
         if not enabled:
             loop.call_soon(self._check_boot_complete)
 
@@ -345,7 +345,7 @@ class Master:
             net.nmt.stop(0)
         tasks = [n.boot_task for n in self.nodes.values() if n.boot_task is not None]
         for node in self.nodes.values():
-            node.cancel_boot()
+            node.boot.cancel()
         for task in tasks:
             if not task.done():
                 with contextlib.suppress(asyncio.CancelledError, Exception):  # ended on purpose

@@ -354,7 +354,7 @@ class NodeSupervision:
             if self.context.running:  # outputs set while it was away reach it now
                 self.context.send_all_rpdos([self.node])
             return
-        self.node.spawn_boot("reset")
+        self.node.boot.spawn("reset")
 
     def _reported(self, state: NmtState) -> None:
         """The node reports ``state`` by heartbeat or guarding."""
@@ -496,7 +496,7 @@ class NodeSupervision:
         node = self.node
         node.nmt_state = NmtState.PRE_OPERATIONAL
         self._last_commanded = None
-        if node.take_bootup():
+        if node.boot.take_bootup():
             self.context.emit(NodeBooted(self.node_id, True))
             return
         self.context.emit(NodeBooted(self.node_id, False))
@@ -511,7 +511,7 @@ class NodeSupervision:
         if node.state is NodeState.OPERATIONAL and self.config.zero_inputs:
             self.context.image.zero_inputs(self.node_id)
         self._rebooted = True
-        node.spawn_boot("booted")
+        node.boot.spawn("booted")
 
     def on_heartbeat_state(self, state: NmtState) -> None:
         """The master's heartbeat consumer heard the node in ``state``."""
