@@ -51,44 +51,62 @@ one at the start and with its event timer.
 
 from __future__ import annotations
 
-import difflib
-import math
 import os
 import re
-import struct
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field, replace
+from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from cobus._files import replace_file
-from cobus._yaml import line_of, milliseconds, read_yaml
-from cobus.errors import CobusError, clip
+from cobus._yaml import line_of, read_yaml
+from cobus.master.config.model import (
+    BIT_RATES,
+    EXTENDED,
+    IDENTITY_KEYS,
+    INVALID,
+    RESTORE,
+    MasterConfig,
+    NetworkConfig,
+    NodeConfig,
+    PdoLayout,
+    SdoEntry,
+    Signal,
+)
+from cobus.master.config.names import (
+    DUMMY,
+    DUMMY_TYPES,
+    ObjectIndex,
+    dropped_value,
+    mapped_kind,
+    normalise,
+)
+from cobus.master.config.startup import direct_mapping, startup_list, sub_value
+from cobus.master.config.values import (
+    BadValue,
+    Report,
+    as_bool,
+    as_choice,
+    as_int,
+    as_mapping,
+    as_ms,
+    as_number,
+    as_whole_ms,
+    suggest,
+)
 from cobus.master.errors import (
     ConfigProblem,
     NetworkConfigError,
-    NodeNotFoundError,
     Severity,
-    SignalValueError,
 )
 from cobus.od import (
     Array,
     DataType,
     EdsError,
-    Finding,
-    NameLookupError,
-    Object,
     ObjectDictionary,
     Record,
-    ValueRangeError,
     Variable,
-    encode,
     loads,
     mapping_entries,
-    parse_address,
-    resolve,
-    resolve_object,
-    suggestions,
 )
 from cobus.proto.pdo import (
     Kind,
@@ -96,11 +114,8 @@ from cobus.proto.pdo import (
     PdoCobId,
     PdoError,
     PdoMap,
-    RemapStep,
     TransmissionType,
-    in_remap_order,
     is_restricted_can_id,
-    kind_of_type,
 )
 
 __all__ = [
@@ -108,6 +123,7 @@ __all__ = [
     "MasterConfig",
     "NetworkConfig",
     "NodeConfig",
+    "ObjectIndex",
     "PdoLayout",
     "SdoEntry",
     "Signal",
@@ -117,540 +133,6 @@ __all__ = [
     "normalise",
     "parse_network",
 ]
-
-#: The CiA 301 bit rates, in bit/s.
-BIT_RATES = (10_000, 20_000, 50_000, 100_000, 125_000, 250_000, 500_000, 800_000, 1_000_000)
-_INVALID = 1 << 31
-_EXTENDED = 1 << 29
-_SAVE, _RESTORE = 0x1010, 0x1011
-_ERROR_CONTROL = (0x100C, 0x100D, 0x1017)
-_IDENTITY_KEYS = ("vendor_id", "product_code", "revision_number", "serial_number")
-
-# ------------------------------------------------------------------------------- YAML reading
-
-
-# ------------------------------------------------------------------------------- problems
-
-
-class _Report:
-    def __init__(self, path: str) -> None:
-        self.path = path
-        self.problems: list[ConfigProblem] = []
-        self._seen: set[str] = set()
-
-    def add(
-        self,
-        severity: Severity,
-        node: str | None,
-        key: str | None,
-        reason: str,
-        line: int | None = None,
-    ) -> None:
-        problem = ConfigProblem(self.path, line, node, key, severity, reason)
-        text = str(problem)
-        if text not in self._seen:
-            self._seen.add(text)
-            self.problems.append(problem)
-
-    def error(self, node: str | None, key: str | None, reason: str, line: int | None) -> None:
-        self.add(Severity.ERROR, node, key, reason, line)
-
-    def warning(self, node: str | None, key: str | None, reason: str, line: int | None) -> None:
-        self.add(Severity.WARNING, node, key, reason, line)
-
-    @property
-    def errors(self) -> list[ConfigProblem]:
-        return [p for p in self.problems if p.severity is Severity.ERROR]
-
-
-class _Bad(ValueError):
-    """A value that cannot be used; the text says why (a ValueError: what the public
-    :class:`ObjectIndex` raises)."""
-
-
-def _suggest(word: str, choices: Iterable[str]) -> str:
-    close = difflib.get_close_matches(word, list(choices), n=3, cutoff=0.6)
-    return f" (did you mean {', '.join(repr(c) for c in close)}?)" if close else ""
-
-
-# ------------------------------------------------------------------------------- value parsers
-
-
-def _int(value: Any, low: int, high: int, what: str = "value") -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise _Bad(f"{value!r} is not an integer; give a {what} in {low}..{high}")
-    if not low <= value <= high:
-        raise _Bad(f"{value} is out of range: use {low}..{high}")
-    return value
-
-
-def _bool(value: Any) -> bool:
-    if not isinstance(value, bool):
-        raise _Bad(f"{value!r} is not true or false (write them without quotes)")
-    return value
-
-
-def _number(value: Any, low: float, high: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or math.isnan(value):
-        raise _Bad(f"{value!r} is not a number")
-    if not low <= value <= high:
-        raise _Bad(f"{value} is out of range: use {low:g}..{high:g}")
-    return float(value)
-
-
-def _choice(value: Any, options: tuple[str, ...]) -> str:
-    if not isinstance(value, str) or value not in options:
-        raise _Bad(f"{value!r} is not one of {', '.join(options)}")
-    return value
-
-
-def _ms(value: Any, high: float = 1e9) -> float:
-    """A duration in milliseconds: a number (ms) or text with a unit."""
-    try:
-        return milliseconds(value, high)
-    except ValueError as exc:
-        raise _Bad(str(exc)) from None
-
-
-def _whole_ms(value: Any, high: int = 0xFFFF) -> int:
-    ms = _ms(value, high)
-    if ms != int(ms):
-        raise _Bad(f"{ms:g} ms is not a whole number of milliseconds (the object counts ms)")
-    return int(ms)
-
-
-# ------------------------------------------------------------------------------- object names
-
-
-def normalise(name: str) -> str:
-    """The lookup form of a name: lower case, runs of other characters as one ``_``."""
-    return re.sub(r"[^0-9a-z]+", "_", name.lower()).strip("_")
-
-
-_DUMMY = re.compile(r"\s*dummy\s*(8|16|32)\s*\Z")
-_DUMMY_TYPES = {8: 0x0005, 16: 0x0006, 32: 0x0007}
-
-
-def _object_named(od: ObjectDictionary, text: str) -> Object | None:
-    """The object ``text`` names as a whole (None: it names none, or a sub-object)."""
-    try:
-        return resolve_object(od, text, suggest=False)
-    except NameLookupError:
-        return None
-
-
-class ObjectIndex:
-    """Finds a node's objects as a file names them (through :func:`cobus.od.resolve`), with
-    the file named in each error, and names its signals (:meth:`canonical`)."""
-
-    #: Unknown names that get "did you mean" (a close-match search each); the ones after
-    #: them get none, so that a file of 5,000 unknown names costs no minutes.
-    SUGGESTIONS = 20
-    #: Names longer than this get no suggestions (a close-match search grows with the
-    #: product of the lengths).
-    SUGGEST_LENGTH = 100
-
-    def __init__(self, od: ObjectDictionary, file: str) -> None:
-        self.od = od
-        self.file = file
-        self._suggestions = self.SUGGESTIONS
-        #: The variables by signal-name key (several: the name is shared).
-        self._names: dict[str, list[Variable]] = {}
-        for obj in od:
-            if obj.index < 0x1000:
-                continue
-            if isinstance(obj, Variable):
-                self._names.setdefault(normalise(obj.name), []).append(obj)
-                continue
-            parent = normalise(obj.name)
-            for var in obj:
-                self._names.setdefault(f"{parent}.{normalise(var.name)}", []).append(var)
-                self._names.setdefault(f"{parent}[{var.subindex}]", []).append(var)
-
-    def canonical(self, var: Variable) -> str:
-        """The signal name of ``var``: its normalised name (``record.sub`` for sub-objects);
-        ``record[n]`` when sub-objects share a name, ``name_iiii`` when objects do."""
-        if var.parent is None:
-            key = normalise(var.name)
-            return key if len(self._names.get(key, ())) < 2 else f"{key}_{var.index:04x}"
-        parent = normalise(var.parent.name)
-        key = f"{parent}.{normalise(var.name)}"
-        if len(self._names.get(key, ())) < 2:
-            return key
-        key = f"{parent}[{var.subindex}]"
-        return key if len(self._names.get(key, ())) < 2 else f"{key}_{var.index:04x}"
-
-    def resolve(self, text: Any) -> Variable:
-        """The variable ``text`` names, in every form :func:`cobus.od.resolve` takes; a
-        ValueError says why none (with close names) or which several."""
-        if not isinstance(text, str):
-            raise _Bad(
-                f"{text!r} is not an object name or address; write a name from the EDS or an "
-                'address in quotes, e.g. "0x6041:00"'
-            )
-        try:
-            var = resolve(self.od, text, suggest=False)
-            if parse_address(text) is None and var.subindex == 0 and var.parent is not None:
-                whole = _object_named(self.od, text)  # (a record's own name?)
-                if whole is var.parent:
-                    subs = ", ".join(repr(f"{whole.name}.{v.name}") for v in list(whole)[1:4])
-                    raise _Bad(
-                        f"{text!r} is {'an array' if isinstance(whole, Array) else 'a record'} "
-                        f"in {self.file}: name one "
-                        f"of its sub-objects ({subs}...) or give the address"
-                    )
-            return var
-        except NameLookupError as exc:
-            if exc.candidates:
-                where = ", ".join(
-                    f"0x{c.index:04X}:{getattr(c, 'subindex', 0):02X}" for c in exc.candidates
-                )
-                raise _Bad(
-                    f"{text!r} names several objects in {self.file} ({where}); use the address"
-                ) from None
-            address = parse_address(text)
-            if address is not None:
-                index, sub = address
-                raise _Bad(f"{self.file} has no object 0x{index:04X}:{sub or 0:02X}") from None
-            if exc.found is not None:
-                raise _Bad(f"{self.file}: {exc}") from None
-            raise _Bad(
-                f"{self.file} has no object named {clip(repr(text), 120)}{self._hint(text)}"
-            ) from None
-
-    def _hint(self, text: str) -> str:
-        """ " (did you mean ...?)" for the first :attr:`SUGGESTIONS` unknown names."""
-        if len(text) > self.SUGGEST_LENGTH:
-            return ""
-        if self._suggestions <= 0:
-            return " (no suggestions after the first ones: fix those first)"
-        self._suggestions -= 1
-        close = suggestions(self.od, text)
-        if not close:
-            return ""
-        return f" (did you mean {', '.join(repr(c) for c in close)}?)"
-
-
-_SECTION = re.compile(r"([0-9A-Fa-f]{4})(?:sub([0-9A-Fa-f]+))?\Z")
-
-
-def _dropped_value(od: ObjectDictionary, finding: Finding) -> bool:
-    """Whether ``finding`` is a ParameterValue the reader could not keep."""
-    if not finding.reason.startswith("ParameterValue") or finding.section is None:
-        return False
-    match = _SECTION.match(finding.section)
-    if match is None:
-        return False
-    var = od.get_variable(int(match.group(1), 16), int(match.group(2) or "0", 16))
-    return var is not None and var.parameter_value is None
-
-
-def _kind(var: Variable, bits: int) -> Kind:
-    """proto's rule (:func:`~cobus.proto.pdo.kind_of_type`); a type without a Kind (a
-    string, a time) is kept as its bytes in the process image."""
-    kind = kind_of_type(var.data_type)
-    if kind is not None:
-        return kind
-    if bits % 8:
-        raise _Bad(
-            f"0x{var.index:04X}:{var.subindex:02X} ({var.data_type.name}) cannot be mapped "
-            f"with {bits} bits"
-        )
-    return Kind.BYTES
-
-
-# ------------------------------------------------------------------------------- the model
-
-
-@dataclass(frozen=True, slots=True)
-class SdoEntry:
-    """One write of the start-up list: object, encoded data, value and why it is written."""
-
-    index: int
-    subindex: int
-    data: bytes
-    value: Any
-    name: str
-
-    def __str__(self) -> str:
-        shown = f"0x{self.value:X}" if isinstance(self.value, int) else repr(self.value)
-        return f"0x{self.index:04X}:{self.subindex:02X} = {shown} ({self.name})"
-
-
-@dataclass(frozen=True, slots=True)
-class Signal:
-    """A named value of the process image, carried by a PDO of a node."""
-
-    name: str  # "node.signal"
-    node_id: int
-    direction: str  # "input" (from a TPDO of the node) or "output" (to one of its RPDOs)
-    pdo: int
-    position: int  # among the PDO's non-dummy values
-    index: int
-    subindex: int
-    data_type: DataType
-    bits: int
-    kind: Kind
-    scale: float | None = None
-    offset: float = 0.0
-    unit: str | None = None
-    #: LowLimit / HighLimit of the object in the EDS (raw values), if any.
-    low: float | None = None
-    high: float | None = None
-
-    def to_engineering(self, raw: Any) -> Any:
-        """Value of the signal from the raw mapped value (``raw * scale + offset``)."""
-        if self.scale is None:
-            return raw + self.offset if self.offset and isinstance(raw, int | float) else raw
-        return raw * self.scale + self.offset
-
-    def to_raw(self, value: Any) -> Any:
-        """The raw mapped value of an engineering value (rounded for integer objects)."""
-        if self.scale is None and not self.offset:
-            return value
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise SignalValueError(f"{self.name}: {value!r} is not a number")
-        raw = (value - self.offset) / (self.scale if self.scale is not None else 1.0)
-        if self.kind in (Kind.SIGNED, Kind.UNSIGNED):
-            return round(raw)
-        return raw
-
-    @property
-    def zero(self) -> Any:
-        """What the signal reads while its node is faulty (inputs set to 0)."""
-        if self.kind is Kind.BOOL:
-            return False
-        if self.kind is Kind.BYTES:
-            return bytes(self.bits // 8)
-        if self.kind in (Kind.REAL32, Kind.REAL64) or self.scale is not None:
-            return 0.0
-        return 0
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class PdoLayout:
-    """A PDO as the master sees it: a TPDO of the node (master input) or an RPDO (output)."""
-
-    direction: str  # "tpdo" or "rpdo" (the node's point of view)
-    number: int
-    cob_id: int
-    extended: bool
-    transmission_type: int
-    event_timer: int  # ms
-    inhibit_time: int  # 100 µs
-    timeout: float | None  # s: presence supervision of a TPDO (None: not supervised)
-    codec: PdoMap
-    #: One per non-dummy mapped value: the signal, or None when another PDO exposes it.
-    positions: tuple[Signal | None, ...]
-    #: An RPDO fed by another node's TPDO (PDO linking): the master does not send it.
-    linked: bool = False
-
-    @property
-    def signals(self) -> tuple[Signal, ...]:
-        """The process image signals the PDO carries, in mapping order."""
-        return tuple(s for s in self.positions if s is not None)
-
-    @property
-    def synchronous(self) -> bool:
-        """Whether the PDO follows SYNC (transmission types 0..240)."""
-        return self.transmission_type <= 240
-
-    @property
-    def length(self) -> int:
-        """The number of data bytes of the PDO."""
-        return self.codec.length
-
-
-@dataclass
-class MasterConfig:
-    """The ``master`` section."""
-
-    node_id: int | None = None
-    bitrate: int = 500_000
-    sync_period: float = 0.0  # s
-    sync_cob_id: int = 0x80
-    sync_overflow: int = 0
-    sync_by_interface: bool = False  # the CAN interface times SYNC (SocketCAN: the kernel)
-    heartbeat_time: int = 0  # ms
-    time_period: float = 0.0  # s
-    time_cob_id: int = 0x100
-    reset: str = "node"
-    start: str = "node"
-    bootup_delay: float = 0.3  # s
-    pdo_timeout_factor: float = 3.0
-    bus_load_window: float = 0.25  # s
-
-    @property
-    def sync_period_us(self) -> int:
-        """The SYNC period in microseconds (1006h)."""
-        return round(self.sync_period * 1e6)
-
-
-@dataclass
-class NodeConfig:
-    """One node of the network: the ``nodes`` entry and everything derived from its EDS."""
-
-    name: str
-    node_id: int
-    eds_path: Path
-    od: ObjectDictionary
-    bitrate: int = 500_000
-    enabled: bool = True
-    mandatory: bool = False
-    do_not_initialise: bool = False
-    #: False: the node has no CiA 301 SDO server; the master sends it no SDO (see the module).
-    sdo_server: bool = True
-    auto_start: bool = True
-    device_type: int = 0
-    device_type_low16: bool = False
-    vendor_id: int = 0
-    product_code: int = 0
-    revision_number: int = 0
-    serial_number: int = 0
-    heartbeat_time: int = 0  # ms, the node's producer time (1017h)
-    guard_time: int = 0  # ms (100Ch)
-    life_time_factor: int = 0  # (100Dh)
-    consumer_factor: float = 1.5
-    watch_master: bool = False
-    sdo_timeout: float = 1.0  # s
-    sdo_retries: int = 2
-    boot_timeout: float = 2.0  # s
-    restore_defaults: bool = False
-    sdo_from_dcf: bool = True
-    sdo_all_pdo: bool = False
-    stop_on_abort: bool = False
-    set_sync_period: bool = True
-    error_reaction: str = "none"  # none | stop_node | stop_all
-    #: auto: a node back after an error-control fault, re-booted, or put out of the state
-    #: the master expects by someone else is brought back; manual: it waits for
-    #: ``master.restart(node)``.
-    restart: str = "auto"  # auto | manual
-    zero_inputs: bool = True
-    #: The start-up SDO list (without the error control writes, see below).
-    startup: list[SdoEntry] = field(default_factory=list)
-    tpdos: list[PdoLayout] = field(default_factory=list)
-    rpdos: list[PdoLayout] = field(default_factory=list)
-    #: Alias -> canonical signal name (both find the signal).
-    aliases: dict[str, str] = field(default_factory=dict)
-
-    @property
-    def identity(self) -> tuple[int, int, int, int]:
-        """Expected 1018h sub 1..4 (0: not checked)."""
-        return (self.vendor_id, self.product_code, self.revision_number, self.serial_number)
-
-    @property
-    def error_control(self) -> str | None:
-        """``"heartbeat"``, ``"guarding"`` or None (the node is not supervised)."""
-        if self.heartbeat_time:
-            return "heartbeat"
-        if self.guard_time:
-            return "guarding"
-        return None
-
-    @property
-    def heartbeat_consumer_time(self) -> float:
-        """Seconds without heartbeat before the node counts as lost."""
-        return self.heartbeat_time * self.consumer_factor / 1000.0
-
-    @property
-    def fallback_guarding(self) -> tuple[int, int]:
-        """Guard time (ms) and life time factor used when the node refuses heartbeat."""
-        return (self.guard_time or self.heartbeat_time, self.life_time_factor or 3)
-
-    def error_control_entries(self, kind: str | None = None) -> list[SdoEntry]:
-        """The writes that set up ``kind`` (default: the configured error control)."""
-        kind = kind or self.error_control
-        if kind == "heartbeat":
-            return [_entry(self.od, 0x1017, 0, self.heartbeat_time, "producer heartbeat time")]
-        if kind == "guarding":
-            guard, factor = (
-                (self.guard_time, self.life_time_factor or 3)
-                if self.guard_time
-                else self.fallback_guarding
-            )
-            return [
-                _entry(self.od, 0x100C, 0, guard, "guard time"),
-                _entry(self.od, 0x100D, 0, factor, "life time factor"),
-            ]
-        return []
-
-    def concise_dcf(self) -> bytes:
-        """The CiA 302 concise DCF (the format of 1F22h) of what the master downloads:
-        count U32, then per entry index U16, sub-index U8, size U32 and the data."""
-        entries = [*self.startup, *self.error_control_entries()]
-        out = [struct.pack("<I", len(entries))]
-        for e in entries:
-            out.append(struct.pack("<HBI", e.index, e.subindex, len(e.data)))
-            out.append(e.data)
-        return b"".join(out)
-
-    def to_dcf(self) -> str:
-        """The node's DCF: its EDS with every configured value as ParameterValue."""
-        return self.od.to_dcf(self.node_id, self.bitrate)
-
-
-_FIXED_TYPES = {
-    0x1017: DataType.UNSIGNED16,
-    0x100C: DataType.UNSIGNED16,
-    0x100D: DataType.UNSIGNED8,
-}
-
-
-def _entry(od: ObjectDictionary, index: int, sub: int, value: Any, name: str) -> SdoEntry:
-    var = od.get_variable(index, sub)
-    data = var.encode(value) if var is not None else encode(_FIXED_TYPES[index], value)
-    return SdoEntry(index, sub, data, value, name)
-
-
-@dataclass
-class NetworkConfig:
-    """A whole network: the master's settings and the nodes by node-ID (file order)."""
-
-    path: str
-    master: MasterConfig
-    nodes: dict[int, NodeConfig]
-    #: Warnings found while reading (errors raise :class:`NetworkConfigError`).
-    warnings: list[ConfigProblem] = field(default_factory=list)
-
-    def node(self, key: int | str) -> NodeConfig:
-        """A node by node-ID or name."""
-        if isinstance(key, int):
-            found = self.nodes.get(key)
-        else:
-            found = next((n for n in self.nodes.values() if n.name == key), None)
-        if found is None:
-            names = ", ".join(f"{n.name} ({n.node_id})" for n in self.nodes.values())
-            raise NodeNotFoundError(f"no node {key!r} in {self.path}; the nodes are: {names}")
-        return found
-
-    @property
-    def signals(self) -> dict[str, Signal]:
-        """Every signal of the process image by full name (inputs and outputs)."""
-        out: dict[str, Signal] = {}
-        for node in self.nodes.values():
-            for layout in (*node.tpdos, *node.rpdos):
-                for sig in layout.signals:
-                    out.setdefault(sig.name, sig)
-        return out
-
-    def dcf_files(self, outdir: str | os.PathLike[str]) -> list[Path]:
-        """The files :meth:`write_dcfs` writes into ``outdir``."""
-        target = Path(outdir)
-        return [target / f"{n.name}{ext}" for n in self.nodes.values() for ext in (".dcf", ".bin")]
-
-    def write_dcfs(self, outdir: str | os.PathLike[str]) -> list[Path]:
-        """Write ``<node>.dcf`` and the concise ``<node>.bin`` of every node into ``outdir``,
-        each whole or not at all; a symbolic link there is replaced, never written through."""
-        target = Path(outdir)
-        target.mkdir(parents=True, exist_ok=True)
-        written: list[Path] = []
-        for node in self.nodes.values():
-            dcf = target / f"{node.name}.dcf"
-            replace_file(dcf, node.to_dcf().replace("\n", "\r\n").encode("utf-8"))
-            concise = target / f"{node.name}.bin"
-            replace_file(concise, node.concise_dcf())
-            written += [dcf, concise]
-        return written
 
 
 # ------------------------------------------------------------------------------- parsing
@@ -723,12 +205,6 @@ _ALIAS = re.compile(r"[A-Za-z_][A-Za-z0-9_.\[\]]*\Z")
 _U32 = 0xFFFFFFFF
 
 
-def _mapping(value: Any, what: str) -> Mapping[Any, Any]:
-    if not isinstance(value, Mapping):
-        raise _Bad(f"{what} must be a mapping of keys to values, not {type(value).__name__}")
-    return value
-
-
 class _NodeReader:
     """Reads one node entry into a :class:`NodeConfig`, reporting every problem."""
 
@@ -739,7 +215,7 @@ class _NodeReader:
         defaults: Mapping[Any, Any],
         master: MasterConfig,
         base_dir: Path,
-        report: _Report,
+        report: Report,
         texts: dict[Path, str],
     ) -> None:
         self.name = name
@@ -780,7 +256,7 @@ class _NodeReader:
             return default
         try:
             return parse(value)
-        except _Bad as exc:
+        except BadValue as exc:
             self.error(key, str(exc), where)
             return default
 
@@ -790,13 +266,13 @@ class _NodeReader:
         for key in raw:
             skey = str(key)
             if skey not in _NODE_KEYS and not _PDO_KEY.match(skey):
-                self.error(skey, f"unknown key{_suggest(skey, _NODE_KEYS)}")
+                self.error(skey, f"unknown key{suggest(skey, _NODE_KEYS)}")
         if "node_id" not in raw:
             self.error("node_id", "missing: give the node-ID (1..127)", raw, None)
             return None
         try:
-            node_id = _int(raw["node_id"], 1, 127, "node-ID")
-        except _Bad as exc:
+            node_id = as_int(raw["node_id"], 1, 127, "node-ID")
+        except BadValue as exc:
             self.error("node_id", str(exc))
             return None
         if node_id in node_ids:
@@ -814,7 +290,7 @@ class _NodeReader:
         self._explicit_sdo(cfg)
         self._error_control(cfg)
         self._sync(cfg)
-        cfg.startup = _startup(cfg, self.yaml_set, self.explicit, self._unwritable)
+        cfg.startup = startup_list(cfg, self.yaml_set, self.explicit, self._unwritable)
         cfg.tpdos = self._layouts(cfg, transmit=True)
         cfg.rpdos = self._layouts(cfg, transmit=False)
         self._signals(cfg)
@@ -886,7 +362,7 @@ class _NodeReader:
         if not len(od):
             self.error(key, f"{path.name} is not an EDS or DCF: it defines no objects")
             return None, None
-        lost = [f for f in od.errors if _dropped_value(od, f)]
+        lost = [f for f in od.errors if dropped_value(od, f)]
         for finding in lost:
             # a configured value the reader had to drop: the node would not get it
             self.error(key, f"{finding}; the master cannot write it: correct the value")
@@ -901,37 +377,37 @@ class _NodeReader:
 
     def _scalars(self, cfg: NodeConfig) -> None:
         g = self.get
-        cfg.enabled = g("enabled", _bool, True)
-        cfg.mandatory = g("mandatory", _bool, False)
-        cfg.do_not_initialise = g("do_not_initialise", _bool, False)
-        cfg.sdo_server = g("sdo_server", _bool, True)
-        cfg.auto_start = g("auto_start", _bool, True)
-        cfg.device_type = g("device_type", lambda v: _int(v, 0, _U32, "device type"), 0)
-        cfg.device_type_low16 = g("device_type_low16", _bool, False)
-        for key in _IDENTITY_KEYS:
-            setattr(cfg, key, g(key, lambda v: _int(v, 0, _U32, "1018h value"), 0))
-        cfg.heartbeat_time = g("heartbeat_time", _whole_ms, 0)
-        cfg.guard_time = g("guard_time", _whole_ms, 0)
-        cfg.life_time_factor = g("life_time_factor", lambda v: _int(v, 0, 255, "factor"), 0)
-        cfg.consumer_factor = g("consumer_factor", lambda v: _number(v, 1.0, 100.0), 1.5)
-        cfg.watch_master = g("watch_master", _bool, False)
-        cfg.sdo_timeout = g("sdo_timeout", lambda v: _ms(v, 600_000), 1000.0) / 1000.0
+        cfg.enabled = g("enabled", as_bool, True)
+        cfg.mandatory = g("mandatory", as_bool, False)
+        cfg.do_not_initialise = g("do_not_initialise", as_bool, False)
+        cfg.sdo_server = g("sdo_server", as_bool, True)
+        cfg.auto_start = g("auto_start", as_bool, True)
+        cfg.device_type = g("device_type", lambda v: as_int(v, 0, _U32, "device type"), 0)
+        cfg.device_type_low16 = g("device_type_low16", as_bool, False)
+        for key in IDENTITY_KEYS:
+            setattr(cfg, key, g(key, lambda v: as_int(v, 0, _U32, "1018h value"), 0))
+        cfg.heartbeat_time = g("heartbeat_time", as_whole_ms, 0)
+        cfg.guard_time = g("guard_time", as_whole_ms, 0)
+        cfg.life_time_factor = g("life_time_factor", lambda v: as_int(v, 0, 255, "factor"), 0)
+        cfg.consumer_factor = g("consumer_factor", lambda v: as_number(v, 1.0, 100.0), 1.5)
+        cfg.watch_master = g("watch_master", as_bool, False)
+        cfg.sdo_timeout = g("sdo_timeout", lambda v: as_ms(v, 600_000), 1000.0) / 1000.0
         if cfg.sdo_timeout <= 0:
             self.error("sdo_timeout", "must be above 0 ms")
             cfg.sdo_timeout = 1.0
-        cfg.sdo_retries = g("sdo_retries", lambda v: _int(v, 0, 100, "retry count"), 2)
-        cfg.boot_timeout = g("boot_timeout", lambda v: _ms(v, 3_600_000), 2000.0) / 1000.0
-        cfg.restore_defaults = g("restore_defaults", _bool, False)
-        cfg.sdo_from_dcf = g("sdo_from_dcf", _bool, True)
-        cfg.sdo_all_pdo = g("sdo_all_pdo", _bool, False)
-        cfg.stop_on_abort = g("stop_on_abort", _bool, False)
-        cfg.set_sync_period = g("set_sync_period", _bool, True)
+        cfg.sdo_retries = g("sdo_retries", lambda v: as_int(v, 0, 100, "retry count"), 2)
+        cfg.boot_timeout = g("boot_timeout", lambda v: as_ms(v, 3_600_000), 2000.0) / 1000.0
+        cfg.restore_defaults = g("restore_defaults", as_bool, False)
+        cfg.sdo_from_dcf = g("sdo_from_dcf", as_bool, True)
+        cfg.sdo_all_pdo = g("sdo_all_pdo", as_bool, False)
+        cfg.stop_on_abort = g("stop_on_abort", as_bool, False)
+        cfg.set_sync_period = g("set_sync_period", as_bool, True)
         cfg.error_reaction = g(
-            "error_reaction", lambda v: _choice(v, ("none", "stop_node", "stop_all")), "none"
+            "error_reaction", lambda v: as_choice(v, ("none", "stop_node", "stop_all")), "none"
         )
-        cfg.restart = g("restart", lambda v: _choice(v, ("auto", "manual")), "auto")
-        cfg.zero_inputs = g("zero_inputs", _bool, True)
-        if cfg.restore_defaults and cfg.od.get(_RESTORE) is None:
+        cfg.restart = g("restart", lambda v: as_choice(v, ("auto", "manual")), "auto")
+        cfg.zero_inputs = g("zero_inputs", as_bool, True)
+        if cfg.restore_defaults and cfg.od.get(RESTORE) is None:
             self.error("restore_defaults", f"{cfg.eds_path.name} has no 1011h to restore from")
         if cfg.do_not_initialise and cfg.restore_defaults:
             self.error("restore_defaults", "a node that is not initialised cannot be restored")
@@ -942,7 +418,7 @@ class _NodeReader:
                     "the master configures a node by SDO: a node without an SDO server needs "
                     "do_not_initialise: true",
                 )
-            checks = [k for k in ("device_type", *_IDENTITY_KEYS) if getattr(cfg, k)]
+            checks = [k for k in ("device_type", *IDENTITY_KEYS) if getattr(cfg, k)]
             if checks:
                 self.error(
                     "sdo_server",
@@ -990,8 +466,8 @@ class _NodeReader:
     def _pdo(self, cfg: NodeConfig, key: str, tx: bool, number: int, raw: Any) -> None:
         kind = "TPDO" if tx else "RPDO"
         try:
-            spec = _mapping(raw, key)
-        except _Bad as exc:
+            spec = as_mapping(raw, key)
+        except BadValue as exc:
             self.error(key, str(exc))
             return
         if not 1 <= number <= 512:
@@ -1015,20 +491,20 @@ class _NodeReader:
                 fields = [f for f in _PDO_FIELDS if tx or f != "timeout"]
                 self.error(
                     f"{key}.{field_key}",
-                    f"unknown PDO setting{_suggest(str(field_key), fields)}",
+                    f"unknown PDO setting{suggest(str(field_key), fields)}",
                     spec,
                     field_key,
                 )
         if "timeout" in spec:
             try:
-                _ms(spec["timeout"], 0xFFFF)
-            except _Bad as exc:
+                as_ms(spec["timeout"], 0xFFFF)
+            except BadValue as exc:
                 self.error(f"{key}.timeout", str(exc), spec, "timeout")
         enabled = True
         if "enabled" in spec:
             try:
-                enabled = _bool(spec["enabled"])
-            except _Bad as exc:
+                enabled = as_bool(spec["enabled"])
+            except BadValue as exc:
                 self.error(f"{key}.enabled", str(exc), spec, "enabled")
         cob_var = comm.get(1)
         if cob_var is None or not isinstance(cob_var.value, int):
@@ -1037,15 +513,15 @@ class _NodeReader:
         current = cob_var.value
         if "cob_id" in spec:
             try:
-                cob = _int(spec["cob_id"], 1, 0x1FFFFFFF | _EXTENDED, "COB-ID")
-            except _Bad as exc:
+                cob = as_int(spec["cob_id"], 1, 0x1FFFFFFF | EXTENDED, "COB-ID")
+            except BadValue as exc:
                 self.error(f"{key}.cob_id", str(exc), spec, "cob_id")
                 return
         else:
-            cob = current & ~_INVALID
+            cob = current & ~INVALID
         if enabled:
             try:
-                parsed = PdoCobId.from_u32(cob & ~_INVALID)
+                parsed = PdoCobId.from_u32(cob & ~INVALID)
             except PdoError as exc:
                 self.error(f"{key}.cob_id", str(exc), spec, "cob_id")
                 return
@@ -1058,9 +534,9 @@ class _NodeReader:
                     "cob_id" if "cob_id" in spec else None,
                 )
                 return
-            cob &= ~_INVALID
+            cob &= ~INVALID
         else:
-            cob |= _INVALID
+            cob |= INVALID
         self.set_value(cob_var, cob, f"{key}.cob_id", spec, "cob_id" if "cob_id" in spec else None)
         for field_key, sub, check in (
             ("transmission_type", 2, None),
@@ -1080,16 +556,18 @@ class _NodeReader:
                 continue
             try:
                 if field_key == "transmission_type":
-                    tt = TransmissionType(_int(spec[field_key], 0, 255, "transmission type"))
+                    tt = TransmissionType(as_int(spec[field_key], 0, 255, "transmission type"))
                     if not tx and not tt.valid_for_rpdo:
-                        raise _Bad(f"{tt.value} is for TPDOs only (RPDOs take 0..240, 254, 255)")
+                        raise BadValue(
+                            f"{tt.value} is for TPDOs only (RPDOs take 0..240, 254, 255)"
+                        )
                     value = tt.value
                 elif field_key == "event_timer":
-                    value = _whole_ms(spec[field_key])
+                    value = as_whole_ms(spec[field_key])
                 else:
                     assert check is not None
-                    value = _int(spec[field_key], check[0], check[1], field_key.replace("_", " "))
-            except (_Bad, PdoError) as exc:
+                    value = as_int(spec[field_key], check[0], check[1], field_key.replace("_", " "))
+            except (BadValue, PdoError) as exc:
                 self.error(label, str(exc), spec, field_key)
                 continue
             self.set_value(var, value, label, spec, field_key)
@@ -1112,14 +590,14 @@ class _NodeReader:
         ok = True
         for pos, item in enumerate(items):
             where = f"{label}[{pos}]"
-            if isinstance(item, str) and (dummy := _DUMMY.match(item.lower())):
+            if isinstance(item, str) and (dummy := DUMMY.match(item.lower())):
                 bits = int(dummy.group(1))
-                values.append(_DUMMY_TYPES[bits] << 16 | bits)
+                values.append(DUMMY_TYPES[bits] << 16 | bits)
                 bits_total += bits
                 continue
             try:
                 var = index.resolve(item)
-            except _Bad as exc:
+            except BadValue as exc:
                 self.error(where, str(exc), items, pos)
                 ok = False
                 continue
@@ -1163,7 +641,7 @@ class _NodeReader:
         if count_var is None:
             self.error(label, f"0x{mapping.index:04X} has no sub-index 0", spec, "mapping")
             return
-        if _direct_mapping(mapping):
+        if direct_mapping(mapping):
             values += [0] * (slots - len(values))  # direct mapping: 0 = an unused entry
         else:
             self.set_value(count_var, len(values), label, spec, "mapping")
@@ -1195,7 +673,7 @@ class _NodeReader:
                     )
             try:
                 var = index.resolve(item["object"])
-            except _Bad as exc:
+            except BadValue as exc:
                 self.error(f"{label}.object", str(exc), item, "object")
                 continue
             value = item["value"]
@@ -1338,7 +816,7 @@ class _NodeReader:
             fields: list[tuple[MappingEntry, Kind | None]] = []
             variables: list[tuple[Variable, int, Kind]] = []
             broken = False
-            direct = _direct_mapping(mapping)
+            direct = direct_mapping(mapping)
             for _entry_var, index, sub, bits in mapping_entries(mapping):
                 if direct and not (index or sub or bits):
                     continue  # an unused entry of a direct mapping
@@ -1352,8 +830,8 @@ class _NodeReader:
                     broken = True
                     break
                 try:
-                    kind_of = _kind(var, bits)
-                except _Bad as exc:
+                    kind_of = mapped_kind(var, bits)
+                except BadValue as exc:
                     problem(str(exc))
                     broken = True
                     break
@@ -1366,8 +844,8 @@ class _NodeReader:
             except PdoError as exc:
                 problem(str(exc))
                 continue
-            tt = _sub_value(comm, 2, 255)
-            event_timer = _sub_value(comm, 5, 0)
+            tt = sub_value(comm, 2, 255)
+            event_timer = sub_value(comm, 5, 0)
             timeout: float | None = None
             if transmit:
                 timeout = self._tpdo_timeout(cfg, number, tt, event_timer)
@@ -1397,7 +875,7 @@ class _NodeReader:
                     extended=cob.extended,
                     transmission_type=tt,
                     event_timer=event_timer,
-                    inhibit_time=_sub_value(comm, 3, 0),
+                    inhibit_time=sub_value(comm, 3, 0),
                     timeout=timeout,
                     codec=codec,
                     positions=tuple(positions),
@@ -1411,8 +889,8 @@ class _NodeReader:
         spec = self.raw.get(f"tpdo{number}")
         if isinstance(spec, Mapping) and "timeout" in spec:
             try:
-                ms = _ms(spec["timeout"], 0xFFFF)
-            except _Bad:
+                ms = as_ms(spec["timeout"], 0xFFFF)
+            except BadValue:
                 return None
             return ms / 1000.0 if ms else None
         factor = self.master.pdo_timeout_factor
@@ -1471,24 +949,24 @@ class _NodeReader:
             if isinstance(spec, Mapping):
                 for extra in spec:
                     if extra not in ("object", "scale", "offset", "unit"):
-                        hint = _suggest(str(extra), ("object", "scale", "offset", "unit"))
+                        hint = suggest(str(extra), ("object", "scale", "offset", "unit"))
                         self.error(f"{label}.{extra}", f"unknown key{hint}", spec, extra)
                 target = spec.get("object", alias)
                 try:
                     if "scale" in spec:
-                        scale = _number(spec["scale"], -1e12, 1e12)
+                        scale = as_number(spec["scale"], -1e12, 1e12)
                         if scale == 0:
-                            raise _Bad("a scale of 0 loses the value")
+                            raise BadValue("a scale of 0 loses the value")
                     if "offset" in spec:
-                        offset = _number(spec["offset"], -1e12, 1e12)
-                except _Bad as exc:
+                        offset = as_number(spec["offset"], -1e12, 1e12)
+                except BadValue as exc:
                     self.error(label, str(exc), raw, alias)
                     continue
                 if "unit" in spec:
                     unit = str(spec["unit"])
             try:
                 var = index.resolve(target)
-            except _Bad as exc:
+            except BadValue as exc:
                 self.error(label, str(exc), raw, alias)
                 continue
             sig = mapped.get((var.index, var.subindex))
@@ -1529,153 +1007,13 @@ def _limit(value: Any) -> float | None:
     return value
 
 
-def _sub_value(obj: Record | Array, sub: int, default: int) -> int:
-    var = obj.get(sub)
-    value = var.value if var is not None else None
-    return value if isinstance(value, int) else default
-
-
-def _direct_mapping(mapping: Record | Array) -> bool:
-    """Whether a PDO mapping is written directly: sub-index 0 is a read-only constant count
-    and every entry is writable (0 = unused), as the STÖBER MDS 5000 of seed 004 does."""
-    count = mapping.get(0)
-    entries = [v for v in mapping if v.subindex]
-    if count is None or count.writable or not entries:
-        return False
-    return all(v.writable for v in entries)
-
-
-def _differs(var: Variable) -> bool:
-    return var.parameter_value is not None and var.parameter_value != var.default
-
-
-#: ``bad(variable, value, error, fatal)``: a value the object cannot hold (fatal) or that
-#: lies outside its EDS limits (written anyway).
-_Bad_value = Callable[[Variable, Any, Exception, bool], None]
-
-
-class _Writes:
-    """Collects start-up writes; a value the object cannot hold is reported, not written."""
-
-    def __init__(self, bad: _Bad_value) -> None:
-        self.entries: list[SdoEntry] = []
-        self._bad = bad
-
-    def add(self, var: Variable, value: Any, name: str) -> None:
-        try:
-            data = var.encode(value)
-        except ValueRangeError as exc:
-            try:  # within the type but outside the EDS limits: the device decides
-                data = encode(var.data_type, value)
-            except CobusError:
-                self._bad(var, value, exc, True)
-                return
-            self._bad(var, value, exc, False)
-        except CobusError as exc:
-            self._bad(var, value, exc, True)
-            return
-        self.entries.append(SdoEntry(var.index, var.subindex, data, value, name))
-
-
-def _startup(
-    cfg: NodeConfig,
-    yaml_set: set[tuple[int, int]],
-    explicit: list[SdoEntry],
-    bad: _Bad_value,
-) -> list[SdoEntry]:
-    """The start-up SDO list of a node (see the module text)."""
-    od = cfg.od
-    skip = {(e.index, e.subindex) for e in explicit}
-
-    def wanted(var: Variable) -> bool:
-        if (var.index, var.subindex) in skip or not var.writable:
-            return False
-        if not cfg.sdo_from_dcf and (var.index, var.subindex) not in yaml_set:
-            return False
-        return _differs(var)
-
-    plain: list[Variable] = []
-    for var in od.variables():
-        index = var.index
-        if index < 0x1000 or 0x1400 <= index <= 0x1BFF:
-            continue
-        if index in (_SAVE, _RESTORE) or index in _ERROR_CONTROL:
-            continue
-        if wanted(var):
-            plain.append(var)
-    # 1019h may only change while 1006h is 0: write it first
-    plain.sort(key=lambda v: (0x1005 if v.index == 0x1019 else v.index, v.index, v.subindex))
-    writes = _Writes(bad)
-    for var in plain:
-        writes.add(var, var.value, var.name)
-    for comm_base, map_base, kind in ((0x1400, 0x1600, "RPDO"), (0x1800, 0x1A00, "TPDO")):
-        for number in range(1, 513):
-            comm = od.get(comm_base + number - 1)
-            mapping = od.get(map_base + number - 1)
-            if not isinstance(comm, Record | Array):
-                continue
-            _pdo_steps(cfg, comm, mapping, f"{kind} {number}", wanted, writes)
-    return [*writes.entries, *explicit]
-
-
-def _pdo_steps(
-    cfg: NodeConfig,
-    comm: Record | Array,
-    mapping: Any,
-    label: str,
-    wanted: Callable[[Variable], bool],
-    writes: _Writes,
-) -> None:
-    """The writes that (re)configure one PDO in the order CiA 301 wants: disable, clear the
-    mapping, map, count, communication parameters, enable."""
-    all_pdo = cfg.sdo_all_pdo
-    comm_subs = [comm.get(s) for s in (2, 3, 5, 6)]
-    map_vars = list(mapping) if isinstance(mapping, Record | Array) else []
-    cob = comm.get(1)
-    map_changed = all_pdo or any(wanted(v) for v in map_vars)
-    comm_changed = all_pdo or any(v is not None and wanted(v) for v in comm_subs)
-    cob_changed = cob is not None and (all_pdo or wanted(cob))
-    if not (map_changed or comm_changed or cob_changed) or cob is None:
-        return
-    final = cob.value
-    if not isinstance(final, int):
-        return
-    step = RemapStep
-    steps: list[tuple[RemapStep, tuple[Variable, int, str]]] = []
-    if cob.writable:
-        steps.append((step.DISABLE, (cob, final | _INVALID, f"{label}: disable")))
-    if map_changed and isinstance(mapping, Record | Array):
-        count_var = mapping.get(0)
-        count = count_var.value if count_var is not None else None
-        if count_var is not None and count_var.writable and isinstance(count, int):
-            steps.append((step.CLEAR_MAPPING, (count_var, 0, f"{label}: clear mapping")))
-            for sub in sorted(k for k in mapping.subindices if 1 <= k <= count):
-                var = mapping.get(sub)  # (the sub-indexes there are: a count may be damaged)
-                if var is not None and isinstance(var.value, int):
-                    steps.append((step.MAP, (var, var.value, f"{label}: map")))
-            steps.append((step.COUNT, (count_var, count, f"{label}: mapped objects")))
-        elif _direct_mapping(mapping):
-            for var in map_vars:
-                if var.subindex and isinstance(var.value, int):
-                    steps.append((step.MAP, (var, var.value, f"{label}: map")))
-    for var in comm_subs:
-        if var is None or not var.writable or not isinstance(var.value, int):
-            continue
-        if all_pdo or wanted(var):
-            steps.append((step.COMMUNICATION, (var, var.value, f"{label}: {var.name}")))
-    if cob.writable and not final & _INVALID:
-        steps.append((step.ENABLE, (cob, final, f"{label}: enable")))
-    for var, value, name in in_remap_order(steps):
-        writes.add(var, value, name)
-
-
-def _read_master(raw: Any, report: _Report) -> MasterConfig:
+def _read_master(raw: Any, report: Report) -> MasterConfig:
     cfg = MasterConfig()
     if raw is None:
         return cfg
     try:
-        spec = _mapping(raw, "master")
-    except _Bad as exc:
+        spec = as_mapping(raw, "master")
+    except BadValue as exc:
         report.error(None, "master", str(exc), None)
         return cfg
     for key in spec:
@@ -1683,7 +1021,7 @@ def _read_master(raw: Any, report: _Report) -> MasterConfig:
             report.error(
                 None,
                 f"master.{key}",
-                f"unknown key{_suggest(str(key), _MASTER_KEYS)}",
+                f"unknown key{suggest(str(key), _MASTER_KEYS)}",
                 line_of(spec, key),
             )
 
@@ -1692,39 +1030,39 @@ def _read_master(raw: Any, report: _Report) -> MasterConfig:
             return default
         try:
             return parse(spec[key])
-        except _Bad as exc:
+        except BadValue as exc:
             report.error(None, f"master.{key}", str(exc), line_of(spec, key))
             return default
 
     if "node_id" in spec and spec["node_id"] is not None:
-        cfg.node_id = get("node_id", lambda v: _int(v, 1, 127, "node-ID"), None)
+        cfg.node_id = get("node_id", lambda v: as_int(v, 1, 127, "node-ID"), None)
 
     def bitrate(value: Any) -> int:
         if value not in BIT_RATES:
             rates = ", ".join(str(r) for r in BIT_RATES)
-            raise _Bad(f"{value!r} bit/s is no CiA 301 bit rate ({rates})")
+            raise BadValue(f"{value!r} bit/s is no CiA 301 bit rate ({rates})")
         return int(value)
 
     cfg.bitrate = get("bitrate", bitrate, 500_000)
-    cfg.sync_period = get("sync_period", lambda v: _ms(v, 4_294_967.295), 0.0) / 1000.0
-    cfg.sync_cob_id = get("sync_cob_id", lambda v: _int(v, 1, 0x7FF, "COB-ID"), 0x80)
+    cfg.sync_period = get("sync_period", lambda v: as_ms(v, 4_294_967.295), 0.0) / 1000.0
+    cfg.sync_cob_id = get("sync_cob_id", lambda v: as_int(v, 1, 0x7FF, "COB-ID"), 0x80)
 
     def overflow(value: Any) -> int:
-        v = _int(value, 0, 240, "counter overflow")
+        v = as_int(value, 0, 240, "counter overflow")
         if v == 1:
-            raise _Bad("1 is not allowed: use 0 (no counter) or 2..240")
+            raise BadValue("1 is not allowed: use 0 (no counter) or 2..240")
         return v
 
     cfg.sync_overflow = get("sync_overflow", overflow, 0)
-    cfg.sync_by_interface = get("sync_by_interface", _bool, False)
-    cfg.heartbeat_time = get("heartbeat_time", _whole_ms, 0)
-    cfg.time_period = get("time_period", lambda v: _ms(v, 86_400_000), 0.0) / 1000.0
-    cfg.time_cob_id = get("time_cob_id", lambda v: _int(v, 1, 0x7FF, "COB-ID"), 0x100)
-    cfg.reset = get("reset", lambda v: _choice(v, ("node", "broadcast")), "node")
-    cfg.start = get("start", lambda v: _choice(v, ("node", "broadcast")), "node")
-    cfg.bootup_delay = get("bootup_delay", lambda v: _ms(v, 60_000), 300.0) / 1000.0
-    cfg.pdo_timeout_factor = get("pdo_timeout_factor", lambda v: _number(v, 1.0, 100.0), 3.0)
-    cfg.bus_load_window = get("bus_load_window", lambda v: _ms(v, 10_000), 250.0) / 1000.0
+    cfg.sync_by_interface = get("sync_by_interface", as_bool, False)
+    cfg.heartbeat_time = get("heartbeat_time", as_whole_ms, 0)
+    cfg.time_period = get("time_period", lambda v: as_ms(v, 86_400_000), 0.0) / 1000.0
+    cfg.time_cob_id = get("time_cob_id", lambda v: as_int(v, 1, 0x7FF, "COB-ID"), 0x100)
+    cfg.reset = get("reset", lambda v: as_choice(v, ("node", "broadcast")), "node")
+    cfg.start = get("start", lambda v: as_choice(v, ("node", "broadcast")), "node")
+    cfg.bootup_delay = get("bootup_delay", lambda v: as_ms(v, 60_000), 300.0) / 1000.0
+    cfg.pdo_timeout_factor = get("pdo_timeout_factor", lambda v: as_number(v, 1.0, 100.0), 3.0)
+    cfg.bus_load_window = get("bus_load_window", lambda v: as_ms(v, 10_000), 250.0) / 1000.0
     if cfg.bus_load_window < 0.01:
         report.error(
             None, "master.bus_load_window", "use at least 10 ms", line_of(spec, "bus_load_window")
@@ -1749,7 +1087,7 @@ def _read_master(raw: Any, report: _Report) -> MasterConfig:
     return cfg
 
 
-def _cross_checks(network: NetworkConfig, report: _Report) -> None:
+def _cross_checks(network: NetworkConfig, report: Report) -> None:
     producers: dict[int, str] = {}
     for node in network.nodes.values():
         for layout in node.tpdos:
@@ -1807,11 +1145,11 @@ def parse_network(
     """Read a network description already parsed from YAML (or built in code).
 
     Returns the configuration (None when there are errors) and every problem found."""
-    report = _Report(path)
+    report = Report(path)
     return _parse(data, Path(base_dir), report), report.problems
 
 
-def _parse(data: Any, base_dir: Path, report: _Report) -> NetworkConfig | None:
+def _parse(data: Any, base_dir: Path, report: Report) -> NetworkConfig | None:
     if not isinstance(data, Mapping):
         report.error(None, None, "the file must be a mapping with master, defaults and nodes", None)
         return None
@@ -1820,15 +1158,15 @@ def _parse(data: Any, base_dir: Path, report: _Report) -> NetworkConfig | None:
             report.error(
                 None,
                 str(key),
-                f"unknown section{_suggest(str(key), _TOP_KEYS)}",
+                f"unknown section{suggest(str(key), _TOP_KEYS)}",
                 line_of(data, key),
             )
     master = _read_master(data.get("master"), report)
     defaults: Mapping[Any, Any] = {}
     if data.get("defaults") is not None:
         try:
-            defaults = _mapping(data["defaults"], "defaults")
-        except _Bad as exc:
+            defaults = as_mapping(data["defaults"], "defaults")
+        except BadValue as exc:
             report.error(None, "defaults", str(exc), line_of(data, "defaults"))
         for key in defaults:
             if str(key) not in _NODE_KEYS or key in _NOT_DEFAULTABLE:
@@ -1836,7 +1174,7 @@ def _parse(data: Any, base_dir: Path, report: _Report) -> NetworkConfig | None:
                 report.error(
                     None,
                     f"defaults.{key}",
-                    f"not a key nodes can share{_suggest(str(key), allowed)}",
+                    f"not a key nodes can share{suggest(str(key), allowed)}",
                     line_of(defaults, key),
                 )
     nodes_raw = data.get("nodes")
@@ -1878,7 +1216,7 @@ def _parse(data: Any, base_dir: Path, report: _Report) -> NetworkConfig | None:
     return network
 
 
-def _read_text(text: str, path: str, report: _Report) -> Any:
+def _read_text(text: str, path: str, report: Report) -> Any:
     data, problems = read_yaml(text)
     for problem in problems:
         report.error(None, problem.key, problem.reason, problem.line)
@@ -1890,7 +1228,7 @@ def check_network(
 ) -> tuple[NetworkConfig | None, list[ConfigProblem]]:
     """Read ``path`` and list every problem (errors and warnings) without raising."""
     name = os.fspath(path)
-    report = _Report(name)
+    report = Report(name)
     try:
         text = Path(name).read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
@@ -1910,7 +1248,7 @@ def loads_network(
     text: str, *, base_dir: str | os.PathLike[str] = ".", path: str = "<string>"
 ) -> NetworkConfig:
     """Read a network description from YAML text; raise :class:`NetworkConfigError` on errors."""
-    report = _Report(path)
+    report = Report(path)
     data = _read_text(text, path, report)
     cfg = None if report.errors else _parse(data, Path(base_dir), report)
     if cfg is None:
