@@ -18,17 +18,18 @@ import os
 from collections.abc import Awaitable, Callable, Mapping
 from typing import Any, Final
 
-from cobus.master.config import NetworkConfig, PdoLayout, load_network
+from cobus.master.config import NetworkConfig, load_network
+from cobus.master.config.model import EXTENDED, INVALID
 from cobus.master.diagnostics import BusLoadMeter, MasterDiagnostics
 from cobus.master.errors import (
     BootTimeoutError,
     MasterError,
-    MasterValueError,
     NodeNotFoundError,
 )
 from cobus.master.events import MasterEvent, MasterStateChanged, NetworkStopped
 from cobus.master.image import Inputs, Outputs, ProcessImage
 from cobus.master.node import ManagedNode
+from cobus.master.process import MasterRpdos
 from cobus.master.producers import MasterProducers
 from cobus.master.states import MasterState, MasterStatus, NodeState
 from cobus.proto import Event, Frame
@@ -63,8 +64,6 @@ MasterListener = Callable[[MasterEvent], object]
 TpdoListener = Callable[[int, int, float], object]
 #: ``await step(node)`` in a node's boot-up: see :meth:`Master.add_boot_step`.
 BootStep = Callable[[ManagedNode], Awaitable[str | None]]
-_INVALID = 1 << 31
-_EXTENDED = 1 << 29
 
 
 class Master:
@@ -112,18 +111,15 @@ class Master:
         self._monitor_host: MachineHost = network.attach(self._monitor, (), self._on_monitor)
         self._subs: list[Subscription] = []
         self._hosts: list[MachineHost] = []
-        self._timers: dict[tuple[int, int], asyncio.TimerHandle] = {}
-        self._dirty: set[tuple[int, int]] = set()
         self._producers = MasterProducers(network)
         self._sync_seen = False
         self._meter = BusLoadMeter(config.master.bitrate, config.master.bus_load_window)
-        self._rpdos: dict[tuple[int, int], PdoLayout] = {}
         self.nodes: dict[int, ManagedNode] = {}
         self._port = _NodePort(self)
         for node_id, node_config in config.nodes.items():
             self.nodes[node_id] = ManagedNode(self._port, node_config)
-            for layout in node_config.rpdos:
-                self._rpdos[(node_id, layout.number)] = layout
+        #: The RPDOs from the process image (SYNC, events, event timers).
+        self.rpdos = MasterRpdos(network, self.image, self.nodes)
         # The NMT commands this process sends (the application's, the master's own) set the
         # state a node is expected in; a change nobody here asked for is "unexpected".
         network.nmt.add_observer(self._on_nmt_sent)
@@ -291,16 +287,14 @@ class Master:
             var = node.config.od.get_variable(0x1014, 0)
             cob = var.value if var is not None and isinstance(var.value, int) else None
             can_id = emcy_cob_id(node.node_id)
-            if cob is not None and not cob & (_INVALID | _EXTENDED):
+            if cob is not None and not cob & (INVALID | EXTENDED):
                 can_id = cob & 0x7FF
                 emcy.set_cob_id(node.node_id, can_id)
             emcy_ids.append(can_id)
             node.supervision.install()
         self._hosts.append(net.attach(emcy, emcy_ids, self._on_emcy))
         self._producers.start_heartbeat_and_time(cfg, now)
-        for (node_id, _number), layout in self._rpdos.items():
-            if layout.transmission_type >= 254 and layout.event_timer and not layout.linked:
-                self._refresh(self.nodes[node_id], layout)
+        self.rpdos.start()
         # resets and the boot-up tasks
         self._set_state(MasterState.RESETTING)
         enabled = [n for n in self.nodes.values() if n.config.enabled]
@@ -359,9 +353,7 @@ class Master:
         for host in self._hosts:
             host.close()
         self._hosts.clear()
-        for handle in self._timers.values():
-            handle.cancel()
-        self._timers.clear()
+        self.rpdos.stop()
         self._producers.stop()
         net.remove_listener(self._on_network_event)
         self._started = False
@@ -421,7 +413,7 @@ class Master:
             self.network.nmt.start(0)
             for node in startable:
                 node.supervision.mark_started(now)
-            self._send_all_rpdos(startable)
+            self.rpdos.send_all(startable)
         else:
             self._start_nodes(startable)
 
@@ -434,12 +426,7 @@ class Master:
             self.network.nmt.start(node.node_id)
             node.supervision.mark_started(now)
             started.append(node)
-        self._send_all_rpdos(started)
-
-    def _send_all_rpdos(self, nodes: list[ManagedNode]) -> None:
-        for node in nodes:
-            for layout in node.config.rpdos:
-                node.send_rpdo(layout)
+        self.rpdos.send_all(started)
 
     def _stop_all(self, cause: ManagedNode, reason: str) -> None:
         """The network reaction: NMT stop to every node."""
@@ -468,7 +455,7 @@ class Master:
                 self.network.nmt.start(node.node_id)
                 node.supervision.mark_started(now)
                 resumed.append(node)
-        self._send_all_rpdos(resumed)
+        self.rpdos.send_all(resumed)
 
     # ================================================================== frames and events
 
@@ -512,32 +499,8 @@ class Master:
             if self._status is MasterStatus.RESET:
                 self._check_boot_complete()
                 return
-        if not self.running:
-            return
-        dirty = self._dirty
-        for (node_id, number), layout in self._rpdos.items():
-            if layout.transmission_type > 240 or layout.linked:
-                continue
-            node = self.nodes[node_id]
-            if not node.operational:
-                continue
-            if layout.transmission_type == 0:
-                if (node_id, number) not in dirty:
-                    continue
-                dirty.discard((node_id, number))
-            node.send_rpdo(layout)
-
-    def _refresh(self, node: ManagedNode, layout: PdoLayout) -> None:
-        """Event-driven RPDOs with an event timer: send at least every half of it (the
-        node's deadline monitoring expects them)."""
-        period = layout.event_timer / 2000.0
-        key = (node.node_id, layout.number)
-
-        def tick() -> None:
-            self._timers[key] = self.network.loop.call_later(period, tick)
-            node.send_rpdo(layout)
-
-        self._timers[key] = self.network.loop.call_later(period, tick)
+        if self.running:
+            self.rpdos.on_sync()
 
     # ================================================================== process image
 
@@ -553,17 +516,7 @@ class Master:
         once (not once per signal) when one of its values changed, or with ``always=True``
         even when none did (a device such as the ZAPI ACE2 wants an answer every cycle);
         synchronous RPDOs go with the next SYNC."""
-        touched: dict[tuple[int, int], bool] = {}
-        for name, value in values.items():
-            for node_id, number, changed in self.image.set_output(name, value):
-                touched[(node_id, number)] = touched.get((node_id, number), False) or changed
-        for key, changed in touched.items():
-            layout = self._rpdos[key]
-            if layout.transmission_type >= 254:
-                if changed or always:
-                    self.nodes[key[0]].send_rpdo(layout)
-            elif layout.transmission_type == 0 and changed:
-                self._dirty.add(key)
+        self.rpdos.set_outputs(values, always=always)
 
     def send_rpdo(self, key: int | str, number: int) -> bool:
         """Send RPDO ``number`` of a node now with the current outputs, whether they changed
@@ -571,19 +524,7 @@ class Master:
         with the SYNC): for devices that want an RPDO every cycle, such as the ZAPI ACE2
         whose handshake needs an answer to each TPDO1. Returns whether it was sent (not
         while the node is not operational or the network does not run)."""
-        node = self.node(key)
-        layout = self._rpdos.get((node.node_id, number))
-        if layout is None or layout.linked:
-            numbers = ", ".join(
-                str(n)
-                for (nid, n), lay in self._rpdos.items()
-                if nid == node.node_id and not lay.linked
-            )
-            raise MasterValueError(
-                f"node {node.node_id} {node.name!r} has no RPDO {number} the master sends "
-                f"(its RPDOs: {numbers or 'none'})"
-            )
-        return node.send_rpdo(layout)
+        return self.rpdos.send(self.node(key), number)
 
     def summary(self) -> list[dict[str, Any]]:
         """One line of figures per node (state, diagnostic, EMCY count...)."""
@@ -646,7 +587,7 @@ class _NodePort:
         self._master._stop_all(cause, reason)
 
     def send_all_rpdos(self, nodes: list[ManagedNode]) -> None:
-        self._master._send_all_rpdos(nodes)
+        self._master.rpdos.send_all(nodes)
 
     def tpdo_taken(self, node_id: int, number: int, now: float) -> None:
         self._master._tpdo_taken(node_id, number, now)

@@ -227,7 +227,7 @@ class ManagedNodePort:
         self.master.set_outputs(shown, always=always)
         sending = self.managed.operational and self.master.running
         if sending and any(
-            self.master._rpdos[(self.node_id, sig.pdo)].transmission_type <= 240
+            self.master.rpdos.layouts[(self.node_id, sig.pdo)].transmission_type <= 240
             for sig in (self._signal(self.master.image.outputs_by_name, *key) for key in values)
             if sig is not None
         ):
