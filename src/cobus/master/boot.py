@@ -3,6 +3,8 @@
 The boot runs as an asyncio task of its own (all nodes in parallel); its steps, as CiA 302-2
 orders them (the letters are its boot error statuses, named where a step can end in one):
 
+0. For a node with ``lss: true``: the device with the node's identity takes its node-ID by
+   LSS (CiA 305), one node after another, before any reset (:meth:`NodeBoot.assign_by_lss`).
 1. Reset the node (NMT reset node, or the master's one broadcast) and wait for its boot-up;
    a node with "do not initialise" is taken as it is (:meth:`NodeBoot._boot_once`).
 2. Check the device type, 1000h against the configured one (B: no answer, C: it differs;
@@ -37,12 +39,16 @@ from cobus.master.events import (
     ConfigurationFailed,
     DeviceTypeMismatch,
     IdentityMismatch,
+    LssAssigned,
+    LssNotAssigned,
     NodeMissing,
     SdoUnanswered,
 )
 from cobus.master.states import MasterStatus, NodeState
+from cobus.proto.lss import LssIdentity, LssState
 from cobus.proto.nmt import NmtState
 from cobus.proto.sdo import SdoAbortedError, SdoError, SdoProtocolError, SdoTimeoutError
+from cobus.runtime.errors import LssRefusedError, LssTimeoutError, NetworkClosedError
 from cobus.runtime.events import HandlerFailed
 
 if TYPE_CHECKING:
@@ -90,6 +96,9 @@ class NodeBoot:
         #: application restarts it (a hung node is not reset three times a minute for ever).
         self._wakes_spent = False
         self._left_said: str | None = None  # the "left as it is" SdoUnanswered last emitted
+        #: What LSS did for the node at the master's start, when it could not give it its
+        #: node-ID (the node's :meth:`~ManagedNode.describe` says it).
+        self.lss_note: str | None = None
 
     @property
     def not_found(self) -> bool:
@@ -106,6 +115,64 @@ class NodeBoot:
     def mismatch(self) -> bool:
         """The node is not the configured one (device type or identity)."""
         return self._mismatch
+
+    async def assign_by_lss(self) -> bool:
+        """Step 0, before the boot (CiA 302-2 with CiA 305, for a node with ``lss: true``):
+        the device with the node's LSS address (its identity; a revision not given is
+        searched for) takes the node's node-ID - at once when it had none, at a reset under
+        the node-ID it had otherwise - and stores it with ``lss_store``. True when it took it;
+        False (said by :class:`LssNotAssigned`) when no device or several answered or the
+        device refused: the node then boots as it is."""
+        cfg = self.config
+        lss = self.context.network.lss
+        self.lss_note = None
+        vendor, product, revision, serial = cfg.identity
+        try:
+            if revision:
+                revisions = [revision]
+            else:
+                revisions = await lss.find_revisions(vendor, product, serial)
+            if len(revisions) != 1:
+                return self._not_assigned(
+                    f"no device answers to vendor 0x{vendor:08X}, product 0x{product:08X}, "
+                    f"serial 0x{serial:08X}"
+                    if not revisions
+                    else f"{len(revisions)} devices answer to its vendor, product and serial "
+                    "(revisions " + ", ".join(f"0x{r:08X}" for r in revisions) + "): give "
+                    "revision_number"
+                )
+            identity = LssIdentity(vendor, product, revisions[0], serial)
+            try:
+                await lss.select(identity)
+            except LssTimeoutError:
+                return self._not_assigned(f"no device answers to {identity}")
+            try:
+                try:
+                    previous = await lss.inquire("node_id")
+                except LssTimeoutError:  # (an optional service of CiA 305)
+                    previous = -1
+                await lss.configure_node_id(self.node_id)
+                if cfg.lss_store:
+                    await lss.store()
+            finally:
+                if self.context.network.connected:
+                    lss.switch_global(LssState.WAITING)
+        except (LssRefusedError, LssTimeoutError) as exc:
+            return self._not_assigned(f"the device refused: {exc}")
+        except NetworkClosedError:
+            return False
+        network = self.context.network
+        if 1 <= previous <= 127 and previous != self.node_id and network.connected:
+            # a configured device takes a new node-ID at its reset (CiA 305): now, under
+            # the node-ID it still has, so that the master's reset of this node finds it
+            network.nmt.reset_node(previous)
+        self.context.emit(LssAssigned(self.node_id, *identity.fields, previous, cfg.lss_store))
+        return True
+
+    def _not_assigned(self, reason: str) -> bool:
+        self.lss_note = reason
+        self.context.emit(LssNotAssigned(self.node_id, reason))
+        return False
 
     def allow_wakes(self) -> None:
         """The wakes of an absent node may be tried again (a manual restart)."""

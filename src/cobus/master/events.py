@@ -22,6 +22,8 @@ __all__ = [
     "ErrorControlRestored",
     "GuardingToggleFault",
     "IdentityMismatch",
+    "LssAssigned",
+    "LssNotAssigned",
     "MasterEvent",
     "MasterStateChanged",
     "NetworkStopped",
@@ -132,6 +134,43 @@ class IdentityMismatch(NodeEvent):
             f"node {self.node_id}: {self.field} (1018h sub {self.subindex}) {actual}, "
             f"expected 0x{self.expected:08X}"
         )
+
+
+@dataclass(frozen=True, slots=True)
+class LssAssigned(NodeEvent):
+    """Before the node's boot, LSS (CiA 305) gave the device with the node's LSS address
+    (``vendor``, ``product``, ``revision``, ``serial``) the node-ID ``node_id``; it had
+    ``previous`` (0xFF: none; -1: it did not say); ``stored``: the device stored it."""
+
+    vendor: int
+    product: int
+    revision: int
+    serial: int
+    previous: int
+    stored: bool
+
+    def __str__(self) -> str:
+        had = "it had none" if self.previous == 0xFF else f"it had {self.previous}"
+        if self.previous == -1:
+            had = "it did not say which it had"
+        elif self.previous == self.node_id:
+            had = "it had it already"
+        kept = ", stored" if self.stored else ""
+        return (
+            f"node {self.node_id}: LSS gave the device with serial 0x{self.serial:08X} its "
+            f"node-ID ({had}{kept})"
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class LssNotAssigned(NodeEvent):
+    """LSS could not give the node's device its node-ID (``reason`` says why); the node
+    boots as it is."""
+
+    reason: str
+
+    def __str__(self) -> str:
+        return f"node {self.node_id}: no node-ID by LSS: {self.reason}"
 
 
 @dataclass(frozen=True, slots=True)

@@ -107,6 +107,7 @@ class Master:
         self._status = MasterStatus.OFFLINE
         self._started = False
         self._running = asyncio.Event()
+        self._lss_task: asyncio.Task[None] | None = None
         self._monitor = HeartbeatMonitor(track_all=True)
         self._monitor_host: MachineHost = network.attach(self._monitor, (), self._on_monitor)
         self._subs: list[Subscription] = []
@@ -295,21 +296,45 @@ class Master:
         self._hosts.append(net.attach(emcy, emcy_ids, self._on_emcy))
         self._producers.start_heartbeat_and_time(cfg, now)
         self.rpdos.start()
-        # resets and the boot-up tasks
+        # the node-IDs LSS gives (CiA 302-2 with CiA 305), then the resets and the boots
         self._set_state(MasterState.RESETTING)
         enabled = [n for n in self.nodes.values() if n.config.enabled]
-        broadcast = cfg.reset == "broadcast" and not any(
+        by_lss = [n for n in enabled if n.config.lss]
+        if by_lss:
+            self._lss_task = loop.create_task(
+                self._assign_by_lss(by_lss, enabled), name="cobus-master-lss"
+            )
+        else:
+            self._reset_and_boot(enabled)
+
+    #: Seconds between the last LSS step and the resets: the boot-ups of the devices that
+    #: LSS just named come (and are let pass) before the master's own resets.
+    LSS_SETTLE = 0.2
+
+    async def _assign_by_lss(self, nodes: list[ManagedNode], enabled: list[ManagedNode]) -> None:
+        for node in nodes:
+            try:
+                await node.boot.assign_by_lss()
+            except Exception as exc:  # a failure here must not stop the boot
+                self.network.report_failure(f"master: LSS for node {node.node_id}", exc)
+        await asyncio.sleep(self.LSS_SETTLE)
+        if self.network.connected:
+            self._reset_and_boot(enabled)
+
+    def _reset_and_boot(self, enabled: list[ManagedNode]) -> None:
+        """Reset the nodes (one broadcast or each its own) and start their boot tasks."""
+        broadcast = self.config.master.reset == "broadcast" and not any(
             n.config.do_not_initialise for n in enabled
         )
         if broadcast and enabled:
             for node in enabled:
                 node.boot.expect_bootup()
-            net.nmt.reset_node(0)
+            self.network.nmt.reset_node(0)
         self._set_state(MasterState.AWAITING_BOOTUP)
         for node in enabled:
             node.boot.spawn("await" if broadcast else "reset")
         if not enabled:
-            loop.call_soon(self._check_boot_complete)
+            self.network.loop.call_soon(self._check_boot_complete)
 
     async def boot(self, timeout: float | None = None) -> None:
         """Start the network (unless started) and wait until it runs: every mandatory node
@@ -338,6 +363,10 @@ class Master:
         if stop_nodes and net.connected:
             net.nmt.stop(0)
         tasks = [n.boot_task for n in self.nodes.values() if n.boot_task is not None]
+        if self._lss_task is not None:
+            self._lss_task.cancel()
+            tasks.append(self._lss_task)
+            self._lss_task = None
         for node in self.nodes.values():
             node.boot.cancel()
         for task in tasks:
@@ -477,6 +506,8 @@ class Master:
         if node is None or not self._started:
             return
         if isinstance(event, BootupReceived):
+            if self._lss_task is not None and not self._lss_task.done():
+                return  # (a device LSS just named: the master's resets follow)
             node.supervision.on_bootup()
         elif isinstance(event, HeartbeatTimeout):
             if node.error_control == "heartbeat":

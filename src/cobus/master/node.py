@@ -267,6 +267,8 @@ class ManagedNode:
         )
         if self.problem:
             text += f": {self.problem}"
+        if self.boot.lss_note:
+            text += f" (LSS: {self.boot.lss_note})"
         return text
 
     def summary(self) -> dict[str, Any]:

@@ -167,6 +167,12 @@ class AsyncNetworkLss:
                     on_found(identity)
         return found
 
+    async def find_revisions(self, vendor: int, product: int, serial: int) -> list[int]:
+        """The revisions of the devices of ``vendor`` and ``product`` with ``serial``, with
+        a node-ID or without (one, unless two devices differ only in their revision), found
+        by halving ranges with "identify remote slave": about 33 requests for one device."""
+        return await self._halve(vendor, product, None, (serial, serial))
+
     async def _halve(
         self,
         vendor: int,

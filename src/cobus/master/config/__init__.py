@@ -48,6 +48,12 @@ mapping (``rpdo1: {mapping: []}``) is sent with no data (DLC 0), a trigger such 
 answer, e.g. the EC motor's status poll: a synchronous one with every SYNC, an event-driven
 one at the start and with its event timer.
 
+A node with ``lss: true`` and its identity (``vendor_id``, ``product_code``,
+``serial_number``; ``revision_number`` too, or the master searches for it) is named by LSS
+(CiA 305) at the master's start: the device with that identity takes the node's node-ID
+before the node boots, whether it had none or another; ``lss_store: true`` has it store
+the node-ID, so that it boots with it by itself at its next power-on.
+
 The package, one idea per module: :mod:`~cobus.master.config.model` (what the master runs),
 :mod:`~cobus.master.config.reader` (the file, with its report), :mod:`~cobus.master.config.nodes`
 (one node entry), :mod:`~cobus.master.config.pdos` (PDO layouts and signals),

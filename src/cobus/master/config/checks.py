@@ -54,6 +54,20 @@ def cross_checks(network: NetworkConfig, report: Report) -> None:
                 node.rpdos[i] = replace(
                     layout, positions=tuple(None for _ in layout.positions), linked=True
                 )
+    addresses: dict[tuple[int, int, int, int], str] = {}
+    for node in network.nodes.values():
+        if not node.lss:
+            continue
+        other = addresses.get(node.identity)
+        if other is not None:
+            report.error(
+                node.name,
+                "lss",
+                f"node {other!r} has the same LSS address (vendor, product, revision, serial): LSS "
+                "cannot tell the two devices apart",
+                None,
+            )
+        addresses.setdefault(node.identity, node.name)
     master = network.master
     if master.time_period:
         for node in network.nodes.values():

@@ -201,6 +201,11 @@ class NodeConfig:
     product_code: int = 0
     revision_number: int = 0
     serial_number: int = 0
+    #: The master gives the device with this identity (1018h sub 1..4, the LSS address) its
+    #: node-ID by LSS (CiA 305) before the node's boot; ``lss_store``: and the device
+    #: stores it (so it boots with it by itself at its next power-on).
+    lss: bool = False
+    lss_store: bool = False
     heartbeat_time: int = 0  # ms, the node's producer time (1017h)
     guard_time: int = 0  # ms (100Ch)
     life_time_factor: int = 0  # (100Dh)

@@ -52,6 +52,8 @@ NODE_KEYS = (
     "product_code",
     "revision_number",
     "serial_number",
+    "lss",
+    "lss_store",
     "heartbeat_time",
     "guard_time",
     "life_time_factor",
@@ -262,6 +264,8 @@ class NodeReader:
         cfg.device_type_low16 = g("device_type_low16", as_bool, False)
         for key in IDENTITY_KEYS:
             setattr(cfg, key, g(key, lambda v: as_int(v, 0, _U32, "1018h value"), 0))
+        cfg.lss = g("lss", as_bool, False)
+        cfg.lss_store = g("lss_store", as_bool, False)
         cfg.heartbeat_time = g("heartbeat_time", as_whole_ms, 0)
         cfg.guard_time = g("guard_time", as_whole_ms, 0)
         cfg.life_time_factor = g("life_time_factor", lambda v: as_int(v, 0, 255, "factor"), 0)
@@ -287,6 +291,24 @@ class NodeReader:
             self.error("restore_defaults", f"{cfg.eds_path.name} has no 1011h to restore from")
         if cfg.do_not_initialise and cfg.restore_defaults:
             self.error("restore_defaults", "a node that is not initialised cannot be restored")
+        if cfg.lss:
+            missing = [
+                k for k in ("vendor_id", "product_code", "serial_number") if not getattr(cfg, k)
+            ]
+            if missing:
+                self.error(
+                    "lss",
+                    f"the master finds the device by its LSS address: give {', '.join(missing)} "
+                    "(revision_number too, or the master searches for it)",
+                )
+            if cfg.do_not_initialise:
+                self.error(
+                    "lss",
+                    "a node with do_not_initialise: true gets nothing from the master, "
+                    "no LSS either",
+                )
+        elif cfg.lss_store:
+            self.error("lss_store", "stores the node-ID LSS gives: set lss: true too")
         if not cfg.sdo_server:
             if not cfg.do_not_initialise:
                 self.error(

@@ -1,0 +1,229 @@
+"""LSS in the master's boot (CiA 302-2 with CiA 305, issue 42): a node the network file names
+by its LSS address (``lss: true`` with its identity) gets its node-ID from the master before
+the node's boot - a device that had none boots under it at once, one that had another takes
+it at the master's reset - then boots as any node; what LSS could not do is said."""
+
+from __future__ import annotations
+
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+
+import pytest
+
+from cobus.device import UNCONFIGURED, export_eds
+from cobus.master import (
+    BootTimeoutError,
+    LssAssigned,
+    LssNotAssigned,
+    Master,
+    MasterEvent,
+    NetworkConfigError,
+    NodeState,
+    loads_network,
+)
+from cobus.od import ObjectDictionary
+from cobus.proto.nmt import NmtState
+from cobus.runtime import AsyncNetwork
+from cobus.sim import Rig
+from cobus.sim.generic import CanopenSimDevice
+from tests.util import simulate
+
+VENDOR, PRODUCT, REVISION = 0x00C0B005, 0x191, 1
+Scenario = Callable[[AsyncNetwork, Rig, Master], Awaitable[None]]
+
+
+def node_entry(
+    name: str, node_id: int, serial: int, *, revision: bool = True, extra: str = ""
+) -> str:
+    rev = f", revision_number: {REVISION}" if revision else ""
+    return (
+        f"  {name}: {{node_id: {node_id}, eds: io.eds, mandatory: true, heartbeat_time: 100, "
+        f"lss: true, vendor_id: 0x{VENDOR:X}, product_code: 0x{PRODUCT:X}{rev}, "
+        f"serial_number: 0x{serial:X}{extra}}}\n"
+    )
+
+
+def canopen(rig: Rig, node: int | str) -> CanopenSimDevice:
+    device = rig.device(node)
+    assert isinstance(device, CanopenSimDevice)
+    return device
+
+
+def io_od(rig: Rig) -> ObjectDictionary:
+    """The dictionary of the rig's first device (an I/O module), for its EDS."""
+    return canopen(rig, next(iter(rig.devices))).od
+
+
+def state_of(master: Master, node_id: int) -> NodeState:
+    return master.nodes[node_id].state
+
+
+def run(
+    folder: Path, rig_text: str, nodes: str, scenario: Scenario, reset: str = "node"
+) -> list[MasterEvent]:
+    """``scenario(net, rig, master)`` on the rig with a master of ``nodes``; its events."""
+    rig = Rig.loads(rig_text)
+    events: list[MasterEvent] = []
+
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            await rig.start(net)
+            (folder / "io.eds").write_text(export_eds(io_od(rig)))
+            text = f"master: {{node_id: 1, reset: {reset}}}\nnodes:\n{nodes}"
+            config = loads_network(text, base_dir=folder, path=str(folder / "net.yml"))
+            master = Master(net, config)
+            master.add_listener(events.append)
+            await scenario(net, rig, master)
+            await master.stop()
+            await rig.stop()
+
+    simulate(main())
+    return events
+
+
+@pytest.mark.parametrize("reset", ["node", "broadcast"])
+def test_a_device_without_node_id_gets_the_files_and_boots_under_it(
+    tmp_path: Path, reset: str
+) -> None:
+    rig = "devices:\n  - {node: unconfigured, kind: cia401_io, serial: 0x1234}\n"
+
+    async def scenario(net: AsyncNetwork, rig: Rig, master: Master) -> None:
+        await master.boot(timeout=5)
+        assert state_of(master, 5) is NodeState.OPERATIONAL
+        device = canopen(rig, 5)
+        assert device.node_id == 5 and device.device.state is NmtState.OPERATIONAL
+        # not stored: at the next power-on it waits for a node-ID again
+        device.inject("power_loss")
+        device.inject("power_return")
+        await net.sleep(0.1)
+        assert device.device.node_id == UNCONFIGURED
+
+    events = run(tmp_path, rig, node_entry("io", 5, 0x1234), scenario, reset)
+    assigned = [e for e in events if isinstance(e, LssAssigned)]
+    assert assigned == [LssAssigned(5, VENDOR, PRODUCT, REVISION, 0x1234, 0xFF, False)]
+    assert (
+        str(assigned[0])
+        == "node 5: LSS gave the device with serial 0x00001234 its node-ID (it had none)"
+    )
+
+
+def test_lss_store_keeps_the_node_id_through_a_power_cycle(tmp_path: Path) -> None:
+    rig = "devices:\n  - {node: unconfigured, kind: cia401_io, serial: 0x1234}\n"
+
+    async def scenario(net: AsyncNetwork, rig: Rig, master: Master) -> None:
+        await master.boot(timeout=5)
+        device = canopen(rig, 5)
+        device.inject("power_loss")
+        device.inject("power_return")
+        await net.sleep(0.1)
+        assert device.device.node_id == 5
+        assert device.device.state is NmtState.PRE_OPERATIONAL
+
+    events = run(tmp_path, rig, node_entry("io", 5, 0x1234, extra=", lss_store: true"), scenario)
+    assert [e.stored for e in events if isinstance(e, LssAssigned)] == [True]
+
+
+@pytest.mark.parametrize("reset", ["node", "broadcast"])
+def test_a_device_with_another_node_id_takes_the_files_at_the_masters_reset(
+    tmp_path: Path, reset: str
+) -> None:
+    rig = "devices:\n  - {node: 9, kind: cia401_io, serial: 0x5678, options: {lss: true}}\n"
+
+    async def scenario(net: AsyncNetwork, rig: Rig, master: Master) -> None:
+        await master.boot(timeout=5)
+        assert state_of(master, 5) is NodeState.OPERATIONAL
+        device = canopen(rig, 5)
+        assert device.device.node_id == 5 and device.device.state is NmtState.OPERATIONAL
+
+    events = run(tmp_path, rig, node_entry("io", 5, 0x5678), scenario, reset)
+    (assigned,) = [e for e in events if isinstance(e, LssAssigned)]
+    assert assigned.previous == 9
+    assert "(it had 9)" in str(assigned)
+
+
+def test_a_revision_the_file_does_not_give_is_searched_for(tmp_path: Path) -> None:
+    rig = (
+        "devices:\n  - {node: unconfigured, kind: cia401_io, serial: 0x1234}\n"
+        "  - {node: unconfigured, kind: cia401_io, serial: 0x4321}\n"
+    )
+
+    async def scenario(net: AsyncNetwork, rig: Rig, master: Master) -> None:
+        await master.boot(timeout=30)
+        assert state_of(master, 5) is NodeState.OPERATIONAL
+        assert state_of(master, 6) is NodeState.OPERATIONAL
+        serial = canopen(rig, 6).od.get_variable(0x1018, 4)
+        assert serial is not None and serial.value == 0x4321
+
+    nodes = node_entry("a", 5, 0x1234, revision=False) + node_entry("b", 6, 0x4321, revision=False)
+    events = run(tmp_path, rig, nodes, scenario)
+    assert sorted((e.node_id, e.revision) for e in events if isinstance(e, LssAssigned)) == [
+        (5, REVISION),
+        (6, REVISION),
+    ]
+
+
+def test_a_device_nobody_finds_is_said_and_the_node_boots_as_it_is(tmp_path: Path) -> None:
+    rig = "devices:\n  - {node: unconfigured, kind: cia401_io, serial: 0x1234}\n"
+
+    async def scenario(net: AsyncNetwork, rig: Rig, master: Master) -> None:
+        with pytest.raises(BootTimeoutError) as caught:
+            await master.boot(timeout=3)
+        text = str(caught.value)
+        assert "node 5 'io'" in text
+        assert "LSS: no device answers to vendor 0x00C0B005" in text
+        assert master.nodes[5].boot.lss_note is not None
+
+    events = run(tmp_path, rig, node_entry("io", 5, 0x9999), scenario)
+    (missed,) = [e for e in events if isinstance(e, LssNotAssigned)]
+    assert missed.node_id == 5 and "serial 0x00009999" in missed.reason
+    assert str(missed).startswith("node 5: no node-ID by LSS: no device answers")
+
+
+def test_stopping_the_master_during_lss_ends_it_quietly(tmp_path: Path) -> None:
+    rig = "devices:\n  - {node: unconfigured, kind: cia401_io, serial: 0x1234}\n"
+
+    async def scenario(net: AsyncNetwork, rig: Rig, master: Master) -> None:
+        master.start()
+        await net.sleep(0.01)
+        await master.stop()
+        await net.sleep(1.0)
+        assert state_of(master, 5) is NodeState.UNDEFINED
+        assert master.nodes[5].boot_task is None
+
+    run(tmp_path, rig, node_entry("io", 5, 0x1234, revision=False), scenario)
+
+
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        (
+            "  io: {node_id: 5, eds: io.eds, lss: true, vendor_id: 1, product_code: 2}\n",
+            "the master finds the device by its LSS address: give serial_number",
+        ),
+        (
+            "  io: {node_id: 5, eds: io.eds, lss_store: true}\n",
+            "stores the node-ID LSS gives: set lss: true too",
+        ),
+        (
+            node_entry("io", 5, 0x1234, extra=", do_not_initialise: true, sdo_server: false"),
+            "a node with do_not_initialise: true gets nothing from the master",
+        ),
+        (
+            node_entry("a", 5, 0x1234) + node_entry("b", 6, 0x1234),
+            "node 'a' has the same LSS address",
+        ),
+    ],
+)
+def test_what_lss_needs_in_the_network_file(tmp_path: Path, entry: str, message: str) -> None:
+    rig = Rig.loads("devices:\n  - {node: 9, kind: cia401_io}\n")
+
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            await rig.start(net)
+            (tmp_path / "io.eds").write_text(export_eds(io_od(rig)))
+            await rig.stop()
+
+    simulate(main())
+    with pytest.raises(NetworkConfigError) as caught:
+        loads_network(f"nodes:\n{entry}", base_dir=tmp_path, path=str(tmp_path / "net.yml"))
+    assert message in str(caught.value)
