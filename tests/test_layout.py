@@ -126,6 +126,22 @@ def test_no_file_of_the_master_uses_another_files_private_names() -> None:
     assert not found, found
 
 
+def test_a_managed_node_keeps_its_public_face_after_the_split() -> None:
+    """Issue 43 moved the boot and the supervision out of ManagedNode: what applications
+    read and set on a node still works, and the limits are on its parts."""
+    from cobus.master.boot import NodeBoot
+    from cobus.master.node import ManagedNode
+    from cobus.master.supervision import NodeSupervision
+
+    for name in ("emcy_count", "error_register"):
+        prop = getattr(ManagedNode, name)
+        assert isinstance(prop, property) and prop.fset is not None, name
+    for name in ("emcy_history", "heard_at", "diagnostic", "led", "state", "operational"):
+        assert isinstance(getattr(ManagedNode, name), property), name
+    assert (NodeSupervision.HEAL_LIMIT, NodeSupervision.HEAL_DELAY) == (3, 0.2)
+    assert (NodeBoot.WAKE_LIMIT, NodeBoot.WAKE_WINDOW) == (3, 60.0)
+
+
 def test_the_private_name_guard_sees_what_it_guards_against() -> None:
     for line in ("node._send_rpdo(layout)", "network._runner", "self.master._emit(e)",
                  "self.context.master._x"):  # fmt: skip

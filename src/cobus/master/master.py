@@ -89,6 +89,8 @@ class Master:
     outputs: Final[Outputs]
     #: The managed nodes by node-ID.
     nodes: dict[int, ManagedNode]
+    #: The RPDOs the master sends from the process image (SYNC, events, event timers).
+    rpdos: MasterRpdos
 
     def __init__(
         self, network: AsyncNetwork, config: NetworkConfig | str | os.PathLike[str]
@@ -119,7 +121,6 @@ class Master:
         self._port = _NodePort(self)
         for node_id, node_config in config.nodes.items():
             self.nodes[node_id] = ManagedNode(self._port, node_config)
-        #: The RPDOs from the process image (SYNC, events, event timers).
         self.rpdos = MasterRpdos(network, self.image, self.nodes)
         # The NMT commands this process sends (the application's, the master's own) set the
         # state a node is expected in; a change nobody here asked for is "unexpected".

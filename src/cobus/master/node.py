@@ -48,6 +48,12 @@ class ManagedNode:
     emergencies (newest first), ``led`` the CiA 303-3 indicators, ``sdo`` an SDO channel to
     the node (``await node.sdo.read(0x1008)``), on the network's one SDO transport to it:
     a remote node or gateway asking the same node waits for its turn.
+
+    What the master does with the node is in its two parts: ``boot`` (:class:`NodeBoot`,
+    with the wake limits ``WAKE_LIMIT``/``WAKE_WINDOW``) and ``supervision``
+    (:class:`NodeSupervision`, with the heal limits ``HEAL_LIMIT``/``HEAL_WINDOW``/
+    ``HEAL_DELAY``): set those on a node's part (``node.supervision.HEAL_LIMIT = 5``) or
+    on the class for every node.
     """
 
     def __init__(self, context: NodeContext, config: NodeConfig) -> None:
@@ -130,13 +136,22 @@ class ManagedNode:
 
     @property
     def emcy_count(self) -> int:
-        """How many emergencies the node sent since the master was made."""
+        """How many emergencies the node sent since the master was made (the application
+        may set it back to 0)."""
         return self.supervision.emcy_count
+
+    @emcy_count.setter
+    def emcy_count(self, value: int) -> None:
+        self.supervision.emcy_count = value
 
     @property
     def error_register(self) -> int:
         """1001h as the node's last emergency gave it."""
         return self.supervision.error_register
+
+    @error_register.setter
+    def error_register(self, value: int) -> None:
+        self.supervision.error_register = value
 
     @property
     def diagnostic(self) -> Diagnostic:
