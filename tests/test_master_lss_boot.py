@@ -5,6 +5,7 @@ it at the master's reset - then boots as any node; what LSS could not do is said
 
 from __future__ import annotations
 
+import re
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from cobus.master import (
     loads_network,
 )
 from cobus.od import ObjectDictionary
+from cobus.proto.lss import LssState
 from cobus.proto.nmt import NmtState
 from cobus.runtime import AsyncNetwork
 from cobus.sim import Rig
@@ -59,16 +61,29 @@ def state_of(master: Master, node_id: int) -> NodeState:
 
 
 def run(
-    folder: Path, rig_text: str, nodes: str, scenario: Scenario, reset: str = "node"
+    folder: Path,
+    rig_text: str,
+    nodes: str,
+    scenario: Scenario,
+    reset: str = "node",
+    eds_revision: int | None = None,
 ) -> list[MasterEvent]:
-    """``scenario(net, rig, master)`` on the rig with a master of ``nodes``; its events."""
+    """``scenario(net, rig, master)`` on the rig with a master of ``nodes``; its events.
+    ``eds_revision``: the revision the EDS gives (1018h sub 3) instead of the device's."""
     rig = Rig.loads(rig_text)
     events: list[MasterEvent] = []
 
     async def main() -> None:
         async with AsyncNetwork() as net:
             await rig.start(net)
-            (folder / "io.eds").write_text(export_eds(io_od(rig)))
+            eds = export_eds(io_od(rig))
+            if eds_revision is not None:
+                head, tail = eds.split("[1018sub3]")
+                tail = re.sub(
+                    r"DefaultValue=\S+", f"DefaultValue=0x{eds_revision:X}", tail, count=1
+                )
+                eds = head + "[1018sub3]" + tail
+            (folder / "io.eds").write_text(eds)
             text = f"master: {{node_id: 1, reset: {reset}}}\nnodes:\n{nodes}"
             config = loads_network(text, base_dir=folder, path=str(folder / "net.yml"))
             master = Master(net, config)
@@ -141,7 +156,10 @@ def test_a_device_with_another_node_id_takes_the_files_at_the_masters_reset(
     assert "(it had 9)" in str(assigned)
 
 
-def test_a_revision_the_file_does_not_give_is_searched_for(tmp_path: Path) -> None:
+@pytest.mark.parametrize("eds_revision", [REVISION, 7])
+def test_a_revision_the_file_does_not_give_is_the_eds_one_or_searched_for(
+    tmp_path: Path, eds_revision: int | None
+) -> None:
     rig = (
         "devices:\n  - {node: unconfigured, kind: cia401_io, serial: 0x1234}\n"
         "  - {node: unconfigured, kind: cia401_io, serial: 0x4321}\n"
@@ -155,7 +173,7 @@ def test_a_revision_the_file_does_not_give_is_searched_for(tmp_path: Path) -> No
         assert serial is not None and serial.value == 0x4321
 
     nodes = node_entry("a", 5, 0x1234, revision=False) + node_entry("b", 6, 0x4321, revision=False)
-    events = run(tmp_path, rig, nodes, scenario)
+    events = run(tmp_path, rig, nodes, scenario, eds_revision=eds_revision)
     assert sorted((e.node_id, e.revision) for e in events if isinstance(e, LssAssigned)) == [
         (5, REVISION),
         (6, REVISION),
@@ -227,3 +245,51 @@ def test_what_lss_needs_in_the_network_file(tmp_path: Path, entry: str, message:
     with pytest.raises(NetworkConfigError) as caught:
         loads_network(f"nodes:\n{entry}", base_dir=tmp_path, path=str(tmp_path / "net.yml"))
     assert message in str(caught.value)
+
+
+def test_four_devices_with_random_serials_found_then_named_and_booted_by_the_master(
+    tmp_path: Path,
+) -> None:
+    """The whole path of issue 42: a fastscan finds four unconfigured devices whose serials
+    nobody knew; their serials go into the network file; after a power cycle (nothing
+    stored: they wait for a node-ID again) the master names them by LSS and boots them."""
+    rig = Rig.loads("devices:\n" + "  - {node: unconfigured, kind: cia401_io}\n" * 4)
+
+    async def main() -> None:
+        async with AsyncNetwork() as net:
+            await rig.start(net)
+            (tmp_path / "io.eds").write_text(export_eds(io_od(rig)))
+            t0 = net.time()
+            serials = []
+            # each found device gets a node-ID for now (not stored), so that the next
+            # fastscan finds the next one, as `cobus lss assign-all` does
+            while (found := await net.lss.fastscan()) is not None and len(serials) < 5:
+                serials.append(found.serial)
+                await net.lss.configure_node_id(20 + len(serials))
+                net.lss.switch_global(LssState.WAITING)
+            scanned = net.time() - t0
+            assert len(set(serials)) == 4, serials
+            for device in list(rig.devices.values()):  # a power cycle: unconfigured again
+                device.inject("power_loss")
+                device.inject("power_return")
+            await net.sleep(0.1)
+            assert await net.lss.identify_unconfigured()
+            nodes = "".join(
+                node_entry(f"io{i}", 10 + i, serial, revision=False)
+                for i, serial in enumerate(serials)
+            )
+            text = f"master: {{node_id: 1}}\nnodes:\n{nodes}"
+            config = loads_network(text, base_dir=tmp_path, path=str(tmp_path / "net.yml"))
+            master = Master(net, config)
+            t1 = net.time()
+            await master.boot(timeout=60)
+            print(f"found in {scanned:.2f} s, named and booted in {net.time() - t1:.2f} s")
+            for i, serial in enumerate(serials):
+                device = canopen(rig, 10 + i)
+                assert device.device.state is NmtState.OPERATIONAL
+                found_serial = device.od.get_variable(0x1018, 4)
+                assert found_serial is not None and found_serial.value == serial
+            await master.stop()
+            await rig.stop()
+
+    simulate(main())

@@ -118,34 +118,18 @@ class NodeBoot:
 
     async def assign_by_lss(self) -> bool:
         """Step 0, before the boot (CiA 302-2 with CiA 305, for a node with ``lss: true``):
-        the device with the node's LSS address (its identity; a revision not given is
-        searched for) takes the node's node-ID - at once when it had none, at a reset under
-        the node-ID it had otherwise - and stores it with ``lss_store``. True when it took it;
-        False (said by :class:`LssNotAssigned`) when no device or several answered or the
-        device refused: the node then boots as it is."""
+        the device with the node's LSS address (its identity) takes the node's node-ID - at
+        once when it had none, at a reset under the node-ID it had otherwise - and stores
+        it with ``lss_store``. True when it took it; False (said by :class:`LssNotAssigned`)
+        when no device or several answered or the device refused: the node then boots as it
+        is."""
         cfg = self.config
         lss = self.context.network.lss
         self.lss_note = None
-        vendor, product, revision, serial = cfg.identity
         try:
-            if revision:
-                revisions = [revision]
-            else:
-                revisions = await lss.find_revisions(vendor, product, serial)
-            if len(revisions) != 1:
-                return self._not_assigned(
-                    f"no device answers to vendor 0x{vendor:08X}, product 0x{product:08X}, "
-                    f"serial 0x{serial:08X}"
-                    if not revisions
-                    else f"{len(revisions)} devices answer to its vendor, product and serial "
-                    "(revisions " + ", ".join(f"0x{r:08X}" for r in revisions) + "): give "
-                    "revision_number"
-                )
-            identity = LssIdentity(vendor, product, revisions[0], serial)
-            try:
-                await lss.select(identity)
-            except LssTimeoutError:
-                return self._not_assigned(f"no device answers to {identity}")
+            found = await self._select_by_lss()
+            if isinstance(found, str):
+                return self._not_assigned(found)
             try:
                 try:
                     previous = await lss.inquire("node_id")
@@ -166,8 +150,47 @@ class NodeBoot:
             # a configured device takes a new node-ID at its reset (CiA 305): now, under
             # the node-ID it still has, so that the master's reset of this node finds it
             network.nmt.reset_node(previous)
-        self.context.emit(LssAssigned(self.node_id, *identity.fields, previous, cfg.lss_store))
+        self.context.emit(LssAssigned(self.node_id, *found.fields, previous, cfg.lss_store))
         return True
+
+    async def _select_by_lss(self) -> LssIdentity | str:
+        """The device with the node's LSS address, put into configuration state (or why
+        not). A revision the file does not give is first taken from the node's EDS (1018h
+        sub 3: one request when the device is the one the EDS describes), then searched for
+        (about 33 requests)."""
+        lss = self.context.network.lss
+        vendor, product, revision, serial = self.config.identity
+        guesses = [revision]
+        if not revision:
+            var = self.config.od.get_variable(0x1018, 3)
+            guess = var.value if var is not None else None
+            guesses = [guess] if isinstance(guess, int) and 0 < guess <= 0xFFFFFFFF else []
+        for guess in guesses:
+            identity = LssIdentity(vendor, product, guess, serial)
+            try:
+                await lss.select(identity)
+                return identity
+            except LssTimeoutError:
+                if revision:
+                    return f"no device answers to {identity}"
+        revisions = await lss.find_revisions(vendor, product, serial)
+        if not revisions:
+            return (
+                f"no device answers to vendor 0x{vendor:08X}, product 0x{product:08X}, "
+                f"serial 0x{serial:08X}"
+            )
+        if len(revisions) > 1:
+            shown = ", ".join(f"0x{r:08X}" for r in revisions)
+            return (
+                f"{len(revisions)} devices answer to its vendor, product and serial "
+                f"(revisions {shown}): give revision_number"
+            )
+        identity = LssIdentity(vendor, product, revisions[0], serial)
+        try:
+            await lss.select(identity)
+        except LssTimeoutError:
+            return f"no device answers to {identity}"
+        return identity
 
     def _not_assigned(self, reason: str) -> bool:
         self.lss_note = reason
