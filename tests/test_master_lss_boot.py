@@ -8,6 +8,7 @@ from __future__ import annotations
 import re
 from collections.abc import Awaitable, Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -230,6 +231,15 @@ def test_stopping_the_master_during_lss_ends_it_quietly(tmp_path: Path) -> None:
             node_entry("a", 5, 0x1234) + node_entry("b", 6, 0x1234),
             "node 'a' has the same LSS address",
         ),
+        (
+            node_entry("a", 5, 0x1234) + node_entry("b", 6, 0x1234, revision=False),
+            "node 'a' has the same LSS address (vendor, product, serial; a revision_number "
+            "left out matches any)",
+        ),
+        (
+            "defaults: {lss: true}\nnodes:\n  io: {node_id: 5, eds: io.eds}\n",
+            "(lss: true comes from defaults: set lss: false on this node)",
+        ),
     ],
 )
 def test_what_lss_needs_in_the_network_file(tmp_path: Path, entry: str, message: str) -> None:
@@ -243,7 +253,8 @@ def test_what_lss_needs_in_the_network_file(tmp_path: Path, entry: str, message:
 
     simulate(main())
     with pytest.raises(NetworkConfigError) as caught:
-        loads_network(f"nodes:\n{entry}", base_dir=tmp_path, path=str(tmp_path / "net.yml"))
+        text = entry if entry.startswith("defaults") else f"nodes:\n{entry}"
+        loads_network(text, base_dir=tmp_path, path=str(tmp_path / "net.yml"))
     assert message in str(caught.value)
 
 
@@ -293,3 +304,121 @@ def test_four_devices_with_random_serials_found_then_named_and_booted_by_the_mas
             await rig.stop()
 
     simulate(main())
+
+
+def lss_state(rig: Rig) -> dict[int, tuple[int, str]]:
+    """serial -> (node-ID, LSS state) of every rig device."""
+    out = {}
+    for device in rig.devices.values():
+        assert isinstance(device, CanopenSimDevice)
+        slave = device.device.lss
+        serial = device.od.get_variable(0x1018, 4)
+        assert slave is not None and serial is not None
+        out[serial.value] = (device.device.node_id, slave.state.name)
+    return out
+
+
+@pytest.mark.parametrize("delay", [0.0, 0.001, 0.003])
+def test_a_master_stopped_during_lss_leaves_every_device_waiting_and_starts_again_right(
+    tmp_path: Path, delay: float
+) -> None:
+    rig = (
+        "devices:\n  - {node: 9, kind: cia401_io, serial: 0xA, options: {lss: true}}\n"
+        "  - {node: 8, kind: cia401_io, serial: 0xB, options: {lss: true}}\n"
+    )
+
+    async def scenario(net: AsyncNetwork, rig: Rig, master: Master) -> None:
+        master.start()
+        await net.sleep(delay)
+        await master.stop()
+        await net.sleep(0.3)
+        assert all(state == "WAITING" for _, state in lss_state(rig).values())
+        await master.boot(timeout=5)
+        assert lss_state(rig) == {0xA: (5, "WAITING"), 0xB: (6, "WAITING")}
+
+    run(tmp_path, rig, node_entry("a", 5, 0xA) + node_entry("b", 6, 0xB), scenario)
+
+
+def test_a_store_that_fails_keeps_the_node_id_and_says_it_is_not_kept(tmp_path: Path) -> None:
+    rig = "devices:\n  - {node: 9, kind: cia401_io, serial: 0xA, options: {lss: true}}\n"
+
+    async def scenario(net: AsyncNetwork, rig: Rig, master: Master) -> None:
+        for device in rig.devices.values():
+            assert isinstance(device, CanopenSimDevice) and device.device.lss is not None
+            device.device.lss.store = lambda node_id, timing: False
+        await master.boot(timeout=5)
+        assert state_of(master, 5) is NodeState.OPERATIONAL
+
+    events = run(tmp_path, rig, node_entry("a", 5, 0xA, extra=", lss_store: true"), scenario)
+    (assigned,) = [e for e in events if isinstance(e, LssAssigned)]
+    assert not assigned.stored and "media access error" in assigned.problem
+    assert "(it had 9; the device did not store it: store configuration" in str(assigned)
+    assert not [e for e in events if isinstance(e, LssNotAssigned)]
+
+
+def test_a_device_that_does_not_say_its_node_id_is_moved_by_a_reset_communication(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import cobus.proto.lss.slave as slave_module
+    from cobus.proto import Out
+    from cobus.proto.lss._wire import INQUIRE_NODE_ID
+
+    configure = slave_module.LssSlave._configure
+
+    def no_inquire(self: slave_module.LssSlave, cs: int, data: bytes, now: float) -> Out:
+        if cs == INQUIRE_NODE_ID:  # (optional in CiA 305)
+            return Out(())
+        return configure(self, cs, data, now)
+
+    monkeypatch.setattr(slave_module.LssSlave, "_configure", no_inquire)
+    rig = "devices:\n  - {node: 9, kind: cia401_io, serial: 0xA, options: {lss: true}}\n"
+
+    async def scenario(net: AsyncNetwork, rig: Rig, master: Master) -> None:
+        await master.boot(timeout=5)
+        assert lss_state(rig) == {0xA: (5, "WAITING")}
+
+    events = run(tmp_path, rig, node_entry("a", 5, 0xA), scenario)
+    (assigned,) = [e for e in events if isinstance(e, LssAssigned)]
+    assert assigned.previous == -1 and "did not say which it had" in str(assigned)
+
+
+def test_a_device_that_has_its_node_id_already_is_not_asked_to_store_it_again(
+    tmp_path: Path,
+) -> None:
+    rig = "devices:\n  - {node: 5, kind: cia401_io, serial: 0xA, options: {lss: true}}\n"
+    stores: list[int] = []
+
+    async def scenario(net: AsyncNetwork, rig: Rig, master: Master) -> None:
+        for device in rig.devices.values():
+            assert isinstance(device, CanopenSimDevice) and device.device.lss is not None
+            store = device.device.lss.store
+            assert store is not None
+
+            def counted(node_id: int, timing: int | None, store: Any = store) -> bool:
+                stores.append(node_id)
+                return bool(store(node_id, timing))
+
+            device.device.lss.store = counted
+        for _ in range(2):
+            await master.boot(timeout=5)
+            assert state_of(master, 5) is NodeState.OPERATIONAL
+            await master.stop()
+
+    events = run(tmp_path, rig, node_entry("a", 5, 0xA, extra=", lss_store: true"), scenario)
+    assert stores == []
+    said = [str(e) for e in events if isinstance(e, LssAssigned)]
+    assert len(said) == 2 and all(text.endswith("(it had it already)") for text in said)
+
+
+def test_a_boot_that_times_out_during_lss_says_so(tmp_path: Path) -> None:
+    rig = "devices:\n  - {node: unconfigured, kind: cia401_io, serial: 0xA}\n"
+
+    async def scenario(net: AsyncNetwork, rig: Rig, master: Master) -> None:
+        with pytest.raises(BootTimeoutError) as caught:
+            await master.boot(timeout=1)
+        assert "the LSS step (node-IDs before any reset) is still running: 0 of 2 nodes" in str(
+            caught.value
+        )
+
+    nodes = node_entry("a", 5, 0xA, revision=False) + node_entry("b", 6, 0xB, revision=False)
+    run(tmp_path, rig, nodes, scenario, eds_revision=7)

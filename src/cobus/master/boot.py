@@ -99,6 +99,7 @@ class NodeBoot:
         #: What LSS did for the node at the master's start, when it could not give it its
         #: node-ID (the node's :meth:`~ManagedNode.describe` says it).
         self.lss_note: str | None = None
+        self.lss_reset_all = False
 
     @property
     def not_found(self) -> bool:
@@ -120,46 +121,65 @@ class NodeBoot:
         """Step 0, before the boot (CiA 302-2 with CiA 305, for a node with ``lss: true``):
         the device with the node's LSS address (its identity) takes the node's node-ID - at
         once when it had none, at a reset under the node-ID it had otherwise - and stores
-        it with ``lss_store``. True when it took it; False (said by :class:`LssNotAssigned`)
-        when no device or several answered or the device refused: the node then boots as it
-        is."""
+        it with ``lss_store`` (unless it had it already: no wear of its memory at every
+        start). True when it took it (:class:`LssAssigned`); False (said by
+        :class:`LssNotAssigned`) when no device or several answered or the device refused:
+        the node then boots as it is. Every device is back in waiting state after it."""
         cfg = self.config
-        lss = self.context.network.lss
+        network = self.context.network
+        lss = network.lss
         self.lss_note = None
+        #: The device did not say which node-ID it had: a reset communication to all
+        #: moves it (the master sends one after its LSS step).
+        self.lss_reset_all = False
+        previous = -1
+        stored = False
+        kept = ""
         try:
-            found = await self._select_by_lss()
-            if isinstance(found, str):
-                return self._not_assigned(found)
             try:
+                found = await self._select_by_lss()
+                if isinstance(found, str):
+                    return self._not_assigned(found)
                 try:
                     previous = await lss.inquire("node_id")
                 except LssTimeoutError:  # (an optional service of CiA 305)
                     previous = -1
                 await lss.configure_node_id(self.node_id)
-                if cfg.lss_store:
-                    await lss.store()
+                if cfg.lss_store and previous != self.node_id:
+                    try:
+                        await lss.store()
+                        stored = True
+                    except (LssRefusedError, LssTimeoutError) as exc:
+                        kept = f"the device did not store it: {exc}"
             finally:
-                if self.context.network.connected:
+                if network.connected:  # (also when the master stops in the middle)
                     lss.switch_global(LssState.WAITING)
-        except (LssRefusedError, LssTimeoutError) as exc:
-            return self._not_assigned(f"the device refused: {exc}")
+        except LssRefusedError as exc:
+            return self._not_assigned(f"the device refused the node-ID: {exc}")
+        except LssTimeoutError as exc:
+            return self._not_assigned(f"the device stopped answering: {exc}")
         except NetworkClosedError:
-            return False
-        network = self.context.network
-        if 1 <= previous <= 127 and previous != self.node_id and network.connected:
-            # a configured device takes a new node-ID at its reset (CiA 305): now, under
-            # the node-ID it still has, so that the master's reset of this node finds it
-            network.nmt.reset_node(previous)
-        self.context.emit(LssAssigned(self.node_id, *found.fields, previous, cfg.lss_store))
+            return self._not_assigned("the network closed during the LSS step")
+        if previous != self.node_id and network.connected:
+            if 1 <= previous <= 127:
+                # a configured device takes a new node-ID at its reset (CiA 305): now,
+                # under the node-ID it still has, so that the master's reset finds it
+                network.nmt.reset_node(previous)
+            elif previous == -1:
+                self.lss_reset_all = True
+        if kept:
+            self.lss_note = kept
+        self.context.emit(LssAssigned(self.node_id, *found.fields, previous, stored, kept))
         return True
 
     async def _select_by_lss(self) -> LssIdentity | str:
         """The device with the node's LSS address, put into configuration state (or why
         not). A revision the file does not give is first taken from the node's EDS (1018h
         sub 3: one request when the device is the one the EDS describes), then searched for
-        (about 33 requests)."""
+        (about 66 requests, 3.5 s at the default timeout)."""
         lss = self.context.network.lss
         vendor, product, revision, serial = self.config.identity
+        hint = " (is it there, powered, an LSS slave, at this bit rate?)"
         guesses = [revision]
         if not revision:
             var = self.config.od.get_variable(0x1018, 3)
@@ -172,12 +192,13 @@ class NodeBoot:
                 return identity
             except LssTimeoutError:
                 if revision:
-                    return f"no device answers to {identity}"
+                    return f"no device answers to {identity}{hint}"
         revisions = await lss.find_revisions(vendor, product, serial)
         if not revisions:
+            tried = f" (nor with revision 0x{guesses[0]:08X}, the EDS's)" if guesses else ""
             return (
                 f"no device answers to vendor 0x{vendor:08X}, product 0x{product:08X}, "
-                f"serial 0x{serial:08X}"
+                f"serial 0x{serial:08X} with any revision{tried}{hint}"
             )
         if len(revisions) > 1:
             shown = ", ".join(f"0x{r:08X}" for r in revisions)
@@ -189,7 +210,7 @@ class NodeBoot:
         try:
             await lss.select(identity)
         except LssTimeoutError:
-            return f"no device answers to {identity}"
+            return f"no device answers to {identity}{hint}"
         return identity
 
     def _not_assigned(self, reason: str) -> bool:
@@ -315,6 +336,7 @@ class NodeBoot:
         self.node.error_control = kind
         await self._run_boot_steps()
         self.node.supervision.start()
+        self.lss_note = None  # (what LSS could not do did not hold the node back)
         self.node.set_state(NodeState.CONFIGURED)
         self.context.node_configured(self.node)
 

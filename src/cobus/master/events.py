@@ -140,7 +140,8 @@ class IdentityMismatch(NodeEvent):
 class LssAssigned(NodeEvent):
     """Before the node's boot, LSS (CiA 305) gave the device with the node's LSS address
     (``vendor``, ``product``, ``revision``, ``serial``) the node-ID ``node_id``; it had
-    ``previous`` (0xFF: none; -1: it did not say); ``stored``: the device stored it."""
+    ``previous`` (0xFF: none; -1: it did not say); ``stored``: the device stored it (not
+    asked when it had the node-ID already)."""
 
     vendor: int
     product: int
@@ -148,6 +149,9 @@ class LssAssigned(NodeEvent):
     serial: int
     previous: int
     stored: bool
+    #: Why the device does not keep it over a power cycle though ``lss_store`` asked ("":
+    #: it does, or nobody asked).
+    problem: str = ""
 
     def __str__(self) -> str:
         had = "it had none" if self.previous == 0xFF else f"it had {self.previous}"
@@ -156,6 +160,8 @@ class LssAssigned(NodeEvent):
         elif self.previous == self.node_id:
             had = "it had it already"
         kept = ", stored" if self.stored else ""
+        if self.problem:
+            kept = f"; {self.problem}"
         return (
             f"node {self.node_id}: LSS gave the device with serial 0x{self.serial:08X} its "
             f"node-ID ({had}{kept})"

@@ -41,6 +41,7 @@ from cobus.proto.heartbeat import (
     HeartbeatTimeout,
     RemoteStateChanged,
 )
+from cobus.proto.lss import LssState
 from cobus.proto.nmt import NmtState
 from cobus.runtime import (
     AsyncNetwork,
@@ -110,6 +111,7 @@ class Master:
         self._started = False
         self._running = asyncio.Event()
         self._lss_task: asyncio.Task[None] | None = None
+        self._lss_done = 0  # nodes the LSS step is through with
         self._monitor = HeartbeatMonitor(track_all=True)
         self._monitor_host: MachineHost = network.attach(self._monitor, (), self._on_monitor)
         self._subs: list[Subscription] = []
@@ -313,14 +315,31 @@ class Master:
     LSS_SETTLE = 0.2
 
     async def _assign_by_lss(self, nodes: list[ManagedNode], enabled: list[ManagedNode]) -> None:
+        net = self.network
+        named = 0
+        self._lss_done = 0
+        if net.connected:  # (a device left in configuration state by an earlier tool)
+            net.lss.switch_global(LssState.WAITING)
         for node in nodes:
             try:
-                await node.boot.assign_by_lss()
+                named += await node.boot.assign_by_lss()
             except Exception as exc:  # a failure here must not stop the boot
-                self.network.report_failure(f"master: LSS for node {node.node_id}", exc)
-        await asyncio.sleep(self.LSS_SETTLE)
-        if self.network.connected:
-            self._reset_and_boot(enabled)
+                net.report_failure(f"master: LSS for node {node.node_id}", exc)
+            self._lss_done += 1
+        if not net.connected:
+            for node in enabled:
+                node.problem = (
+                    "the network closed during the master's LSS step: stop() and start() "
+                    "the master again"
+                )
+            return
+        if any(n.boot.lss_reset_all for n in nodes):
+            # a device that did not say its node-ID takes the new one at a reset
+            # communication (CiA 305): one to all, before the master's own resets
+            net.nmt.reset_communication(0)
+        if named:
+            await asyncio.sleep(self.LSS_SETTLE)
+        self._reset_and_boot(enabled)
 
     def _reset_and_boot(self, enabled: list[ManagedNode]) -> None:
         """Reset the nodes (one broadcast or each its own) and start their boot tasks."""
@@ -351,6 +370,14 @@ class Master:
             await asyncio.wait_for(self._running.wait(), timeout)
         except TimeoutError:
             blockers = [n.describe() for n in self.nodes.values() if not n.settled]
+            if self._lss_task is not None and not self._lss_task.done():
+                total = sum(1 for n in self.nodes.values() if n.config.enabled and n.config.lss)
+                blockers.insert(
+                    0,
+                    f"the LSS step (node-IDs before any reset) is still running: "
+                    f"{self._lss_done} of {total} nodes done (a revision the file does not "
+                    "give costs about 3.5 s to search for: give revision_number)",
+                )
             if not blockers and self._status is MasterStatus.STOP:
                 blockers = ["the network reaction stopped every node"]
             raise BootTimeoutError(timeout or 0.0, blockers) from None

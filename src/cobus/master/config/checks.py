@@ -54,20 +54,24 @@ def cross_checks(network: NetworkConfig, report: Report) -> None:
                 node.rpdos[i] = replace(
                     layout, positions=tuple(None for _ in layout.positions), linked=True
                 )
-    addresses: dict[tuple[int, int, int, int], str] = {}
+    # two enabled LSS nodes with one address (a revision left out matches any revision)
+    addresses: dict[tuple[int, int, int], list[tuple[int, str]]] = {}
     for node in network.nodes.values():
-        if not node.lss:
+        if not node.lss or not node.enabled:
             continue
-        other = addresses.get(node.identity)
+        key = (node.vendor_id, node.product_code, node.serial_number)
+        seen = addresses.setdefault(key, [])
+        rev = node.revision_number
+        other = next((name for r, name in seen if not r or not rev or r == rev), None)
         if other is not None:
             report.error(
                 node.name,
                 "lss",
-                f"node {other!r} has the same LSS address (vendor, product, revision, serial): LSS "
-                "cannot tell the two devices apart",
+                f"node {other!r} has the same LSS address (vendor, product, serial; a "
+                "revision_number left out matches any): LSS cannot tell the two devices apart",
                 None,
             )
-        addresses.setdefault(node.identity, node.name)
+        seen.append((rev, node.name))
     master = network.master
     if master.time_period:
         for node in network.nodes.values():

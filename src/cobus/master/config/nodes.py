@@ -292,6 +292,9 @@ class NodeReader:
         if cfg.do_not_initialise and cfg.restore_defaults:
             self.error("restore_defaults", "a node that is not initialised cannot be restored")
         if cfg.lss:
+            _given, _value, where = self.value("lss")
+            inherited = " (lss: true comes from defaults: set lss: false on this node)"
+            inherited = inherited if where is not self.raw else ""
             missing = [
                 k for k in ("vendor_id", "product_code", "serial_number") if not getattr(cfg, k)
             ]
@@ -299,15 +302,17 @@ class NodeReader:
                 self.error(
                     "lss",
                     f"the master finds the device by its LSS address: give {', '.join(missing)} "
-                    "(revision_number too, or the master searches for it)",
+                    "(not 0; revision_number too, or the master looks for it)" + inherited,
+                    where,
                 )
             if cfg.do_not_initialise:
                 self.error(
                     "lss",
                     "a node with do_not_initialise: true gets nothing from the master, "
-                    "no LSS either",
+                    "no LSS either" + inherited,
+                    where,
                 )
-        elif cfg.lss_store:
+        elif cfg.lss_store and "lss_store" in self.raw:
             self.error("lss_store", "stores the node-ID LSS gives: set lss: true too")
         if not cfg.sdo_server:
             if not cfg.do_not_initialise:
