@@ -36,11 +36,18 @@ Scenario = Callable[[AsyncNetwork, Rig, Master], Awaitable[None]]
 
 
 def node_entry(
-    name: str, node_id: int, serial: int, *, revision: bool = True, extra: str = ""
+    name: str,
+    node_id: int,
+    serial: int,
+    *,
+    revision: bool = True,
+    extra: str = "",
+    mandatory: bool = True,
 ) -> str:
     rev = f", revision_number: {REVISION}" if revision else ""
+    must = "true" if mandatory else "false"
     return (
-        f"  {name}: {{node_id: {node_id}, eds: io.eds, mandatory: true, heartbeat_time: 100, "
+        f"  {name}: {{node_id: {node_id}, eds: io.eds, mandatory: {must}, heartbeat_time: 100, "
         f"lss: true, vendor_id: 0x{VENDOR:X}, product_code: 0x{PRODUCT:X}{rev}, "
         f"serial_number: 0x{serial:X}{extra}}}\n"
     )
@@ -421,4 +428,27 @@ def test_a_boot_that_times_out_during_lss_says_so(tmp_path: Path) -> None:
         )
 
     nodes = node_entry("a", 5, 0xA, revision=False) + node_entry("b", 6, 0xB, revision=False)
+    run(tmp_path, rig, nodes, scenario, eds_revision=7)
+
+
+def test_a_network_closed_during_lss_is_said_and_a_new_start_runs(tmp_path: Path) -> None:
+    rig = "devices:\n  - {node: 9, kind: cia401_io, serial: 0xA, options: {lss: true}}\n"
+
+    async def scenario(net: AsyncNetwork, rig: Rig, master: Master) -> None:
+        master.start()
+        await net.sleep(1.0)  # (searching a revision)
+        await net.disconnect()
+        await net.sleep(0.5)
+        await net.connect()
+        with pytest.raises(BootTimeoutError) as caught:
+            await master.boot(timeout=1)
+        said = str(caught.value)
+        assert "the network closed during the master's LSS step: stop() and start()" in said
+        await master.stop()
+        await master.boot(timeout=10)  # (started again: it runs)
+        assert state_of(master, 5) is NodeState.OPERATIONAL
+
+    nodes = node_entry("a", 5, 0xA, revision=False) + node_entry(
+        "b", 6, 0xB, revision=False, mandatory=False
+    )
     run(tmp_path, rig, nodes, scenario, eds_revision=7)

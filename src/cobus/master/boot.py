@@ -53,8 +53,9 @@ from cobus.runtime.events import HandlerFailed
 
 if TYPE_CHECKING:
     from cobus.master.node import ManagedNode
+    from cobus.runtime import AsyncNetwork
 
-__all__ = ["LOAD_SIGNATURE", "NodeBoot"]
+__all__ = ["LOAD_SIGNATURE", "LssStep", "NodeBoot"]
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +71,55 @@ class _NodeSilent(Exception):
 
 class _Held(Exception):
     """The boot-up of the node stops here (wrong device, aborted configuration)."""
+
+
+class LssStep:
+    """Step 0 of the network's boot: the nodes with ``lss: true``, one after another (LSS
+    addresses one device at a time), before any reset."""
+
+    #: Seconds between the last node named and the resets: the boot-ups of the devices
+    #: that LSS just named come (and are let pass) before the master's own resets.
+    SETTLE = 0.2
+
+    def __init__(self, network: AsyncNetwork, nodes: list[ManagedNode]) -> None:
+        self.network = network
+        self.nodes = nodes
+        self.done = 0  # nodes the step is through with
+        self.problem = ""  # why the step could not end (the network closed)
+
+    async def run(self) -> bool:
+        """Name every node's device; False when the network closed on the way."""
+        net = self.network
+        named = 0
+        if net.connected:  # (a device left in configuration state by an earlier tool)
+            net.lss.switch_global(LssState.WAITING)
+        for node in self.nodes:
+            try:
+                named += await node.boot.assign_by_lss()
+            except Exception as exc:  # a failure here must not stop the boot
+                net.report_failure(f"master: LSS for node {node.node_id}", exc)
+            self.done += 1
+        if not net.connected:
+            self.problem = (
+                "the network closed during the master's LSS step: stop() and start() the "
+                "master again"
+            )
+            return False
+        if any(n.boot.lss_reset_all for n in self.nodes):
+            # a device that did not say its node-ID takes the new one at a reset
+            # communication (CiA 305): one to all, before the master's own resets
+            net.nmt.reset_communication(0)
+        if named:
+            await asyncio.sleep(self.SETTLE)
+        return True
+
+    def progress(self) -> str:
+        """Where the step is, in words (for a boot that times out during it)."""
+        return (
+            f"the LSS step (node-IDs before any reset) is still running: {self.done} of "
+            f"{len(self.nodes)} nodes done (a revision the file does not give costs about "
+            "3.5 s to search for: give revision_number)"
+        )
 
 
 class NodeBoot:

@@ -18,6 +18,7 @@ import os
 from collections.abc import Awaitable, Callable, Mapping
 from typing import Any, Final
 
+from cobus.master.boot import LssStep
 from cobus.master.config import NetworkConfig, load_network
 from cobus.master.config.model import EXTENDED, INVALID
 from cobus.master.diagnostics import BusLoadMeter, MasterDiagnostics
@@ -41,7 +42,6 @@ from cobus.proto.heartbeat import (
     HeartbeatTimeout,
     RemoteStateChanged,
 )
-from cobus.proto.lss import LssState
 from cobus.proto.nmt import NmtState
 from cobus.runtime import (
     AsyncNetwork,
@@ -111,7 +111,7 @@ class Master:
         self._started = False
         self._running = asyncio.Event()
         self._lss_task: asyncio.Task[None] | None = None
-        self._lss_done = 0  # nodes the LSS step is through with
+        self._lss: LssStep | None = None
         self._monitor = HeartbeatMonitor(track_all=True)
         self._monitor_host: MachineHost = network.attach(self._monitor, (), self._on_monitor)
         self._subs: list[Subscription] = []
@@ -304,42 +304,19 @@ class Master:
         enabled = [n for n in self.nodes.values() if n.config.enabled]
         by_lss = [n for n in enabled if n.config.lss]
         if by_lss:
+            self._lss = LssStep(net, by_lss)
             self._lss_task = loop.create_task(
-                self._assign_by_lss(by_lss, enabled), name="cobus-master-lss"
+                self._lss_then_boot(self._lss, enabled), name="cobus-master-lss"
             )
         else:
             self._reset_and_boot(enabled)
 
-    #: Seconds between the last LSS step and the resets: the boot-ups of the devices that
-    #: LSS just named come (and are let pass) before the master's own resets.
-    LSS_SETTLE = 0.2
-
-    async def _assign_by_lss(self, nodes: list[ManagedNode], enabled: list[ManagedNode]) -> None:
-        net = self.network
-        named = 0
-        self._lss_done = 0
-        if net.connected:  # (a device left in configuration state by an earlier tool)
-            net.lss.switch_global(LssState.WAITING)
-        for node in nodes:
-            try:
-                named += await node.boot.assign_by_lss()
-            except Exception as exc:  # a failure here must not stop the boot
-                net.report_failure(f"master: LSS for node {node.node_id}", exc)
-            self._lss_done += 1
-        if not net.connected:
+    async def _lss_then_boot(self, step: LssStep, enabled: list[ManagedNode]) -> None:
+        if await step.run():
+            self._reset_and_boot(enabled)
+        else:
             for node in enabled:
-                node.problem = (
-                    "the network closed during the master's LSS step: stop() and start() "
-                    "the master again"
-                )
-            return
-        if any(n.boot.lss_reset_all for n in nodes):
-            # a device that did not say its node-ID takes the new one at a reset
-            # communication (CiA 305): one to all, before the master's own resets
-            net.nmt.reset_communication(0)
-        if named:
-            await asyncio.sleep(self.LSS_SETTLE)
-        self._reset_and_boot(enabled)
+                node.problem = step.problem
 
     def _reset_and_boot(self, enabled: list[ManagedNode]) -> None:
         """Reset the nodes (one broadcast or each its own) and start their boot tasks."""
@@ -370,14 +347,8 @@ class Master:
             await asyncio.wait_for(self._running.wait(), timeout)
         except TimeoutError:
             blockers = [n.describe() for n in self.nodes.values() if not n.settled]
-            if self._lss_task is not None and not self._lss_task.done():
-                total = sum(1 for n in self.nodes.values() if n.config.enabled and n.config.lss)
-                blockers.insert(
-                    0,
-                    f"the LSS step (node-IDs before any reset) is still running: "
-                    f"{self._lss_done} of {total} nodes done (a revision the file does not "
-                    "give costs about 3.5 s to search for: give revision_number)",
-                )
+            if self._lss is not None and self._lss_task is not None and not self._lss_task.done():
+                blockers.insert(0, self._lss.progress())
             if not blockers and self._status is MasterStatus.STOP:
                 blockers = ["the network reaction stopped every node"]
             raise BootTimeoutError(timeout or 0.0, blockers) from None
