@@ -65,6 +65,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "cobus.apps._lss_cli",
         "LSS (CiA 305): give devices node-IDs, find them, change the bit rate",
     ),
+    "gateway": (
+        "cobus.apps._gateway_cli",
+        "the CiA 309-3 ASCII gateway: the bus from any program over TCP",
+    ),
     "demo": (
         "cobus.apps.demo",
         "run the simulated thesis rig, booted and supervised by the cobus master",

@@ -133,6 +133,11 @@ class SdoChannel:
             f"0x{client.tx_cob_id:X}, {od})>"
         )
 
+    def close(self) -> None:
+        """Release the channel (its owner is done with the node): a transfer of it under
+        way fails, later ones raise; other channels to the node go on."""
+        self._close()
+
     def _close(self) -> None:
         if self._removed:
             return

@@ -1,0 +1,24 @@
+"""The CiA 309-3 ASCII gateway: the network from any program, over TCP, several clients at
+once (``cobus gateway``).
+
+:mod:`~cobus.apps.gateway.grammar` reads the command language (sans-I/O),
+:mod:`~cobus.apps.gateway.core` runs requests on cobus networks,
+:mod:`~cobus.apps.gateway.server` serves them over TCP.
+"""
+
+from cobus.apps.gateway.core import HELP, GatewayCore, Session
+from cobus.apps.gateway.grammar import ERRORS, TYPES, GatewayError, parse_line
+from cobus.apps.gateway.server import MAX_LINE, GatewayServer, is_loopback
+
+__all__ = [
+    "ERRORS",
+    "HELP",
+    "MAX_LINE",
+    "TYPES",
+    "GatewayCore",
+    "GatewayError",
+    "GatewayServer",
+    "Session",
+    "is_loopback",
+    "parse_line",
+]

@@ -1,0 +1,240 @@
+"""The gateway's command core: executes parsed CiA 309-3 requests on cobus networks.
+
+One :class:`Session` per client holds its defaults (net, node, SDO timeout, block transfer);
+:class:`GatewayCore` runs its requests: SDO reads and writes on the network's one SDO
+transport per node (a master or a remote node asking the same node waits its turn, and so
+do other clients: requests to one node run in order, to different nodes side by side), NMT
+commands, and the ``set``, ``info`` and ``help`` requests. A framing (the TCP server, JSON
+lines) feeds it lines and writes back what it returns.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import cobus
+from cobus.apps.gateway.grammar import (
+    TYPES,
+    GatewayError,
+    Request,
+    format_error,
+    format_value,
+    parse_line,
+    parse_number,
+    parse_value,
+)
+from cobus.proto.sdo import SdoAbortedError, SdoError, SdoTimeoutError, describe
+from cobus.runtime import NetworkClosedError, SdoChannel
+
+if TYPE_CHECKING:
+    from cobus.runtime import AsyncNetwork
+
+__all__ = ["HELP", "GatewayCore", "Session"]
+
+HELP = """\
+cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [# comment]
+  r|read INDEX SUB [TYPE]          read an object (no TYPE: its bytes in hex)
+  w|write INDEX SUB TYPE VALUE     write an object
+  start | stop | preop | reset node | reset comm    NMT (node 0: every node)
+  set network N | set node N | set sdo_timeout MS | set sdo_block 0|1
+  info | help
+types: b i8 i16 i24 i32 i40 i48 i56 i64 u8 u16 u24 u32 u40 u48 u56 u64 x8 x16 x32 x64
+       r32 r64 vs ("text", "" for a quote) os us d (base64) t td (days ms) hex (bytes)
+numbers: decimal, 0x hex, leading-0 octal"""
+
+
+@dataclass
+class Session:
+    """One client's defaults (``set network``, ``set node``...)."""
+
+    net: int | None = None
+    node: int | None = None
+    sdo_timeout: float = 1.0  # s
+    sdo_block: bool = False
+    #: The SDO channels this client opened, by (net, node).
+    channels: dict[tuple[int, int], SdoChannel] = field(default_factory=dict)
+
+    def close(self) -> None:
+        """The client left: its channels go (a transfer under way ends with it)."""
+        for channel in self.channels.values():
+            channel.close()
+        self.channels.clear()
+
+
+class GatewayCore:
+    """Runs CiA 309-3 requests on ``networks`` (by net number; the first is the default)."""
+
+    def __init__(self, networks: dict[int, AsyncNetwork], *, dialect: str = "canopennode") -> None:
+        if not networks:
+            raise ValueError("a gateway needs at least one network")
+        self.networks = networks
+        self.dialect = dialect
+        self.default_net = next(iter(networks))
+
+    def session(self) -> Session:
+        """A new client's session (the default net, no default node)."""
+        return Session(net=self.default_net)
+
+    async def execute(self, session: Session, line: str) -> list[str]:
+        """The reply lines to ``line`` (none for an empty line or a comment)."""
+        try:
+            request = parse_line(line)
+        except GatewayError as exc:
+            return [format_error(None, exc.code, exc.text, self.dialect)]
+        if request is None:
+            return []
+        head = "" if request.seq is None else f"[{request.seq}] "
+        try:
+            out = await self._run(session, request)
+        except GatewayError as exc:
+            return [format_error(request.seq, exc.code, exc.text, self.dialect)]
+        except SdoAbortedError as exc:
+            code = int(exc.code)
+            return [format_error(request.seq, code, describe(code), self.dialect)]
+        except SdoTimeoutError:
+            if self.dialect == "lely":
+                return [format_error(request.seq, 103, "Time-out", self.dialect)]
+            timed_out = "SDO protocol timed out."
+            return [format_error(request.seq, 0x05040000, timed_out, self.dialect)]
+        except (SdoError, NetworkClosedError) as exc:
+            return [format_error(request.seq, 102, str(exc), self.dialect)]
+        if out is None:
+            return [f"{head}OK"]
+        if isinstance(out, list):
+            return [*out, f"{head}OK"]
+        return [f"{head}{out}"]
+
+    # ------------------------------------------------------------------ requests
+
+    async def _run(self, session: Session, request: Request) -> str | list[str] | None:
+        command, args = request.command, request.args
+        if command in ("r", "read"):
+            return await self._read(session, request)
+        if command in ("w", "write"):
+            await self._write(session, request)
+            return None
+        if command in ("start", "stop", "preop", "preoperational", "reset"):
+            self._nmt(session, request)
+            return None
+        if command == "set":
+            self._set(session, request)
+            return None
+        if command == "info":
+            nets = ", ".join(str(n) for n in self.networks)
+            return (
+                f"cobus {cobus.__version__} CiA 309-3 gateway, dialect {self.dialect}, nets {nets}"
+            )
+        if command == "help":
+            return HELP.splitlines()
+        del args
+        raise GatewayError(100, f"no command {command!r} (help lists them)")
+
+    def _network(self, session: Session, request: Request) -> tuple[int, AsyncNetwork]:
+        net = request.net if request.net is not None else session.net
+        if net is None:
+            raise GatewayError(104)
+        network = self.networks.get(net)
+        if network is None:
+            known = ", ".join(str(n) for n in self.networks)
+            raise GatewayError(106, f"no net {net} here (the nets: {known})")
+        return net, network
+
+    def _node(self, session: Session, request: Request, *, broadcast: bool = False) -> int:
+        node = request.node if request.node is not None else session.node
+        if node is None:
+            raise GatewayError(105, "no node given and no default node: set node N")
+        low = 0 if broadcast else 1
+        if not low <= node <= 127:
+            raise GatewayError(107, f"node {node} is not in {low}..127")
+        return node
+
+    def _channel(self, session: Session, request: Request) -> SdoChannel:
+        net, network = self._network(session, request)
+        node = self._node(session, request)
+        channel = session.channels.get((net, node))
+        if channel is None:
+            channel = SdoChannel(network, node, None, timeout=session.sdo_timeout, emit=False)
+            session.channels[(net, node)] = channel
+        elif channel.timeout != session.sdo_timeout:
+            channel.timeout = session.sdo_timeout
+        return channel
+
+    @staticmethod
+    def _address(args: list[str]) -> tuple[int, int]:
+        if len(args) < 2:
+            raise GatewayError(101, "give the object's index and sub-index")
+        index = parse_number(args[0], "index")
+        sub = parse_number(args[1], "sub-index")
+        if not 0 <= index <= 0xFFFF or not 0 <= sub <= 0xFF:
+            raise GatewayError(101, f"no object {args[0]} {args[1]} (index 0..0xFFFF, sub 0..255)")
+        return index, sub
+
+    async def _read(self, session: Session, request: Request) -> str:
+        args = request.args
+        index, sub = self._address(args)
+        if len(args) > 3:
+            raise GatewayError(101, "read takes index, sub-index and a data type at most")
+        type_name = args[2] if len(args) == 3 else None
+        if type_name is not None and type_name.lower() not in TYPES:
+            format_value(type_name, b"")  # (raises the error that names the types)
+        channel = self._channel(session, request)
+        data = await channel.upload(index, sub, block=session.sdo_block)
+        return format_value(type_name, data, self.dialect)
+
+    async def _write(self, session: Session, request: Request) -> None:
+        args = request.args
+        index, sub = self._address(args)
+        if len(args) < 4:
+            raise GatewayError(101, "write takes index, sub-index, data type and value")
+        value_text = request.rest.split(None, 3)[3]
+        data = parse_value(args[2], value_text)
+        channel = self._channel(session, request)
+        await channel.download(index, sub, data, block=session.sdo_block)
+
+    def _nmt(self, session: Session, request: Request) -> None:
+        _net, network = self._network(session, request)
+        node = self._node(session, request, broadcast=True)
+        command, args = request.command, [a.lower() for a in request.args]
+        nmt = network.nmt
+        if command == "start" and not args:
+            nmt.start(node)
+        elif command == "stop" and not args:
+            nmt.stop(node)
+        elif command in ("preop", "preoperational") and not args:
+            nmt.enter_preoperational(node)
+        elif command == "reset" and args == ["node"]:
+            nmt.reset_node(node)
+        elif command == "reset" and args in (["comm"], ["communication"]):
+            nmt.reset_communication(node)
+        else:
+            raise GatewayError(
+                101, f"{request.command} {' '.join(request.args)}: no such NMT command"
+            )
+
+    def _set(self, session: Session, request: Request) -> None:
+        args = [a.lower() for a in request.args]
+        if len(args) != 2:
+            raise GatewayError(101, "set takes a name and a value: set node 5")
+        name, value = args[0], parse_number(args[1], args[0])
+        if name == "network":
+            if value not in self.networks:
+                known = ", ".join(str(n) for n in self.networks)
+                raise GatewayError(106, f"no net {value} here (the nets: {known})")
+            session.net = value
+        elif name == "node":
+            if not 1 <= value <= 127:
+                raise GatewayError(107, f"node {value} is not in 1..127")
+            session.node = value
+        elif name == "sdo_timeout":
+            if not 1 <= value <= 600_000:
+                raise GatewayError(101, f"sdo_timeout {value} ms is not in 1..600000")
+            session.sdo_timeout = value / 1000.0
+        elif name == "sdo_block":
+            if value not in (0, 1):
+                raise GatewayError(101, "sdo_block is 0 or 1")
+            session.sdo_block = bool(value)
+        else:
+            raise GatewayError(
+                100, f"no setting {args[0]!r} (network, node, sdo_timeout, sdo_block)"
+            )

@@ -1,0 +1,252 @@
+"""The CiA 309-3 ASCII gateway (issue 44, first slice): the command language line by line,
+values in both dialects (CANopenNode's documented transcripts replayed), and the gateway over
+a real TCP socket against a simulated device - several clients, bad lines, a client that
+leaves in the middle of a transfer."""
+
+from __future__ import annotations
+
+import asyncio
+import struct
+import subprocess
+import sys
+import uuid
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+import pytest
+
+from cobus.apps.gateway import HELP, GatewayCore, GatewayError, GatewayServer, parse_line
+from cobus.apps.gateway.grammar import format_error, format_value, parse_number, parse_value
+from cobus.proto.nmt import NmtState
+from cobus.runtime import AsyncNetwork
+from cobus.sim import Rig
+from cobus.sim.generic import CanopenSimDevice
+
+# ------------------------------------------------------------------ the language
+
+
+def test_a_line_names_its_sequence_net_node_and_command() -> None:
+    r = parse_line("[7] 1 5 r 0x1018 1 u32 # the vendor\r\n")
+    assert r is not None
+    assert (r.seq, r.net, r.node, r.command, r.args) == (7, 1, 5, "r", ["0x1018", "1", "u32"])
+    r = parse_line("[8] 4 START")
+    assert r is not None and (r.net, r.node, r.command) == (None, 4, "start")
+    r = parse_line("read 0x1017 0")  # (typed by hand: no sequence number)
+    assert r is not None and (r.seq, r.node, r.command) == (None, None, "read")
+    assert parse_line("   # a comment") is None and parse_line("\r\n") is None
+    r = parse_line('[2] w 0x2000 0 vs "a # not a comment"')
+    assert r is not None and r.rest == '0x2000 0 vs "a # not a comment"'
+    with pytest.raises(GatewayError) as caught:
+        parse_line("[x] r 0x1000 0")
+    assert caught.value.code == 101
+
+
+@pytest.mark.parametrize(
+    ("text", "value"),
+    [("10", 10), ("0x1F", 31), ("0X1f", 31), ("010", 8), ("0", 0), ("-5", -5), ("+7", 7)],
+)
+def test_numbers_are_decimal_hex_or_octal(text: str, value: int) -> None:
+    assert parse_number(text) == value
+
+
+@pytest.mark.parametrize("text", ["08", "0x", "1.5", "ten", ""])
+def test_what_is_no_number_is_a_syntax_error(text: str) -> None:
+    with pytest.raises(GatewayError) as caught:
+        parse_number(text)
+    assert caught.value.code == 101
+
+
+def test_canopennodes_documented_reads_come_out_alike() -> None:
+    """CANopenDemo's tutorial/SDO.md: the same bytes give the same reply lines."""
+    i64 = struct.pack("<q", -1234567890123456789)
+    assert format_value("i64", i64) == "-1234567890123456789"
+    u64 = bytes.fromhex("EFCDAB9078563412")
+    assert format_value("x64", u64) == "0x1234567890ABCDEF"
+    assert format_value("u64", u64) == "1311768467294899695"
+    assert format_value(None, u64) == "EF CD AB 90 78 56 34 12"
+    assert format_value("r32", struct.pack("<f", 12.345)) == "12.345"
+    assert format_value("vs", b"1 2") == '"1 2"'
+    assert format_value("vs", b'say "hi"') == '"say ""hi"""'
+    assert format_value("os", bytes.fromhex("c83dbb00000000000000")) == "yD27AAAAAAAAAA=="
+    assert format_value("u16", b"\x01") == "01"  # (a size the type does not have: its bytes)
+
+
+def test_lely_writes_unsigned_numbers_in_hex_and_errors_its_way() -> None:
+    assert format_value("u16", (1000).to_bytes(2, "little"), "lely") == "0x03e8"
+    assert format_value("i16", (-2).to_bytes(2, "little", signed=True), "lely") == "-2"
+    assert format_value("t", bytes.fromhex("e80300000a00"), "lely") == "10 1000"
+    assert format_error(3, 0x06020000, "Object does not exist", "lely") == (
+        "[3] ERROR: 06020000 (Object does not exist)"
+    )
+    assert format_error(4, 101, "Syntax error") == "[4] ERROR:101 #Syntax error"
+    assert format_error(5, 0x06020000, "x") == "[5] ERROR:0x06020000 #x"
+
+
+def test_values_to_write_per_type() -> None:
+    written = parse_value("hex", "01 2 30 456789 0A b0 0 ff")  # (CANopenDemo's SDO.md)
+    assert written == bytes.fromhex("01 02 30 45 67 89 0A B0 00 FF")
+    assert parse_value("vs", '"1 2"') == b"1 2" and parse_value("vs", "one two") == b"one two"
+    assert parse_value("vs", '"a ""b"""') == b'a "b"'
+    assert parse_value("u16", "0x3e8") == b"\xe8\x03" and parse_value("i8", "-1") == b"\xff"
+    assert parse_value("b", "1") == b"\x01" and parse_value("b", "false") == b"\x00"
+    assert parse_value("r32", "1.5") == struct.pack("<f", 1.5)
+    assert parse_value("os", "yD27AAAAAAAAAA==") == bytes.fromhex("c83dbb00000000000000")
+    assert parse_value("td", "2 500") == bytes.fromhex("f40100000200")
+    for type_name, text in [("u8", "256"), ("i8", "-129"), ("b", "2"), ("vs", '"open'),
+                            ("os", "not base64!"), ("r32", "x"), ("u16", "")]:  # fmt: skip
+        with pytest.raises(GatewayError) as caught:
+            parse_value(type_name, text)
+        assert caught.value.code == 101, (type_name, text)
+    with pytest.raises(GatewayError) as caught:
+        parse_value("u17", "1")
+    assert caught.value.code == 101 and "u32" in caught.value.text
+
+
+# ------------------------------------------------------------------ over TCP
+
+RIG = "devices:\n  - {node: 5, kind: cia401_io}\n  - {node: 6, kind: cia401_io}\n"
+Client = tuple[asyncio.StreamReader, asyncio.StreamWriter]
+Scenario = Callable[[AsyncNetwork, Rig, GatewayServer], Awaitable[None]]
+
+
+def served(scenario: Scenario, dialect: str = "canopennode") -> None:
+    """``scenario(net, rig, server)`` with the gateway on a free port of 127.0.0.1, on a
+    real-time loop (real sockets)."""
+
+    async def main() -> None:
+        rig = Rig.loads(RIG)
+        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+            await rig.start(net)
+            server = GatewayServer(GatewayCore({1: net}, dialect=dialect))
+            await server.start()
+            try:
+                await scenario(net, rig, server)
+            finally:
+                await server.stop()
+                await rig.stop()
+
+    asyncio.run(asyncio.wait_for(main(), 60))
+
+
+async def connect(server: GatewayServer) -> Client:
+    return await asyncio.open_connection("127.0.0.1", server.port)
+
+
+async def ask(client: Client, line: str, replies: int = 1) -> list[str]:
+    reader, writer = client
+    writer.write(line.encode() + b"\n")
+    await writer.drain()
+    return [(await reader.readline()).decode().rstrip("\r\n") for _ in range(replies)]
+
+
+def device(rig: Rig, node: int) -> Any:
+    sim = rig.device(node)
+    assert isinstance(sim, CanopenSimDevice)
+    return sim.device
+
+
+def test_reads_writes_and_nmt_through_the_socket() -> None:
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        c = await connect(server)
+        assert await ask(c, "[1] 5 r 0x1018 1 u32") == [f"[1] {0x00C0B005}"]
+        assert await ask(c, "[2] 5 r 0x1018 1 x32") == ["[2] 0x00C0B005"]
+        assert await ask(c, "[3] set node 5") == ["[3] OK"]
+        assert await ask(c, "[4] w 0x1017 0 u16 250") == ["[4] OK"]
+        assert await ask(c, "[5] r 0x1017 0 u16") == ["[5] 250"]
+        assert await ask(c, "[6] r 0x1017 0") == ["[6] FA 00"]
+        (abort,) = await ask(c, "[7] r 0x5FFF 0 u8")
+        assert abort.startswith("[7] ERROR:0x06020000 #")
+        (bad,) = await ask(c, "[8] w 0x1017 0 u16 70000")
+        assert bad.startswith("[8] ERROR:101 #")
+        assert await ask(c, "[9] 6 stop") == ["[9] OK"]
+        await asyncio.sleep(0.05)
+        assert device(rig, 6).state is NmtState.STOPPED
+        assert await ask(c, "[10] 0 start") == ["[10] OK"]
+        await asyncio.sleep(0.05)
+        assert device(rig, 6).state is NmtState.OPERATIONAL
+        assert await ask(c, "r 0x1017 0 u16") == ["250"]  # (no [seq]: none back)
+        (info,) = await ask(c, "[11] info")
+        assert info.startswith("[11] cobus ") and "CiA 309-3 gateway" in info
+        help_lines = await ask(c, "[12] help", len(HELP.splitlines()) + 1)
+        assert help_lines[-1] == "[12] OK" and "r|read" in help_lines[1]
+
+    served(scenario)
+
+
+def test_what_a_client_gets_wrong_is_answered_and_the_connection_stays() -> None:
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        c = await connect(server)
+        assert (await ask(c, "[1] r 0x1000 0 u32"))[0].startswith("[1] ERROR:105 #")
+        assert (await ask(c, "[2] 5 frobnicate"))[0].startswith("[2] ERROR:100 #")
+        assert (await ask(c, "[3] 5 r 0x1000 0 u33"))[0].startswith("[3] ERROR:101 #")
+        assert (await ask(c, "[4] 200 r 0x1000 0"))[0].startswith("[4] ERROR:107 #")
+        assert (await ask(c, "[5] 2 5 r 0x1000 0"))[0].startswith("[5] ERROR:106 #")
+        assert (await ask(c, "[6] set node 0"))[0].startswith("[6] ERROR:107 #")
+        assert (await ask(c, "[7] set colour 5"))[0].startswith("[7] ERROR:100 #")
+        assert (await ask(c, "[8] 5 reset everything"))[0].startswith("[8] ERROR:101 #")
+        (long,) = await ask(c, "[9] " + "x" * 10_000)
+        assert long.startswith("ERROR:101 #a line longer than")
+        assert await ask(c, "[10] 5 r 0x1017 0 u16") == ["[10] 0"]
+        assert await ask(c, "[11] set sdo_timeout 100") == ["[11] OK"]
+        (silent,) = await ask(c, "[12] 99 r 0x1000 0 u32")
+        assert silent.startswith("[12] ERROR:0x05040000 #")
+
+    served(scenario)
+
+
+def test_several_clients_each_with_its_defaults_and_one_that_leaves_mid_transfer() -> None:
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        clients = [await connect(server) for _ in range(20)]
+        for i, c in enumerate(clients):
+            assert await ask(c, f"[{i}] set node {5 + i % 2}") == [f"[{i}] OK"]
+        replies = await asyncio.gather(
+            *(ask(c, f"[{i}] r 0x1018 1 u32") for i, c in enumerate(clients))
+        )
+        assert replies == [[f"[{i}] {0x00C0B005}"] for i in range(20)]
+        assert server.clients == 20
+        # one client asks a node that never answers (5 s) and leaves; the others go on
+        leaving = clients[0]
+        await ask(leaving, "[1] set sdo_timeout 5000")
+        leaving[1].write(b"[2] 99 r 0x1000 0\n")
+        await leaving[1].drain()
+        await asyncio.sleep(0.05)
+        leaving[1].close()
+        started = asyncio.get_running_loop().time()
+        assert await ask(clients[1], "[3] r 0x1017 0 u16") == ["[3] 0"]
+        assert asyncio.get_running_loop().time() - started < 2.0
+        for _reader, writer in clients[1:]:
+            writer.close()
+        for _ in range(100):
+            if server.clients == 0:
+                break
+            await asyncio.sleep(0.02)
+        assert server.clients == 0
+
+    served(scenario)
+
+
+def test_the_lely_dialect_over_the_socket() -> None:
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        c = await connect(server)
+        assert await ask(c, "[1] 5 r 0x1018 1 u32") == ["[1] 0x00c0b005"]
+        (abort,) = await ask(c, "[2] 5 r 0x5FFF 0 u8")
+        assert abort.startswith("[2] ERROR: 06020000 (")
+
+    served(scenario, "lely")
+
+
+def test_only_this_host_is_served() -> None:
+    core = GatewayCore({1: AsyncNetwork()})
+    for host in ("0.0.0.0", "192.168.1.5", "::"):
+        with pytest.raises(ValueError, match=r"only 127\.0\.0\.1"):
+            GatewayServer(core, host)
+    GatewayServer(core, "localhost")
+    GatewayServer(core, "::1")
+    done = subprocess.run(
+        [sys.executable, "-m", "cobus", "gateway", "--listen", "0.0.0.0:5000", "-i", "virtual"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 2
+    assert done.stderr.startswith("cobus gateway: --listen 0.0.0.0: the gateway writes to the bus")
