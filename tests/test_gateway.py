@@ -6,17 +6,24 @@ leaves in the middle of a transfer."""
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
+import contextlib
+import json
 import struct
 import subprocess
 import sys
+import threading
 import uuid
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
 
 from cobus.apps.gateway import HELP, GatewayCore, GatewayError, GatewayServer, parse_line
 from cobus.apps.gateway.grammar import format_error, format_value, parse_number, parse_value
+from cobus.device import export_eds
+from cobus.master import ConfigurationFailed, Master, NodeState, SdoUnanswered, loads_network
 from cobus.proto.nmt import NmtState
 from cobus.runtime import AsyncNetwork
 from cobus.sim import Rig
@@ -250,3 +257,115 @@ def test_only_this_host_is_served() -> None:
     )
     assert done.returncode == 2
     assert done.stderr.startswith("cobus gateway: --listen 0.0.0.0: the gateway writes to the bus")
+
+
+def test_a_master_beside_the_gateway_never_sees_its_transfers_aborted(tmp_path: Path) -> None:
+    """The gateway and the master share the network's one SDO transport per node: while
+    clients read and write a node, the master boots it again (1000h, 1018h, its start-up
+    list, heartbeat) and nothing of either side is aborted."""
+
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        sim = rig.device(5)
+        assert isinstance(sim, CanopenSimDevice)
+        (tmp_path / "io.eds").write_text(export_eds(sim.od))
+        text = (
+            "master: {node_id: 1}\nnodes:\n"
+            "  a: {node_id: 5, eds: io.eds, mandatory: true, heartbeat_time: 100}\n"
+            "  b: {node_id: 6, eds: io.eds, mandatory: true, heartbeat_time: 100}\n"
+        )
+        master = Master(net, loads_network(text, base_dir=tmp_path))
+        events: list[Any] = []
+        master.add_listener(events.append)
+        await master.boot(timeout=10)
+        clients = [await connect(server) for _ in range(4)]
+
+        async def busy(i: int, c: Client) -> list[str]:
+            node = 5 + i % 2
+            out = []
+            for k in range(25):
+                out += await ask(c, f"[{k}] {node} w 0x1017 0 u16 {100 + k}")
+                out += await ask(c, f"[{k}] {node} r 0x1018 4 u32")
+            return out
+
+        replies, _ = await asyncio.gather(
+            asyncio.gather(*(busy(i, c) for i, c in enumerate(clients))),
+            master.restart_node(5),
+        )
+        assert all("ERROR" not in line for lines in replies for line in lines), replies
+        assert master.nodes[5].state is NodeState.OPERATIONAL
+        assert not [e for e in events if isinstance(e, ConfigurationFailed | SdoUnanswered)]
+        await master.stop()
+        for _reader, writer in clients:
+            writer.close()
+
+    served(scenario)
+
+
+# ------------------------------------------------------------------ the client
+
+
+@contextlib.contextmanager
+def gateway_in_a_thread(dialect: str = "canopennode") -> Iterator[int]:
+    """A gateway with the rig's devices, on its own loop in a thread: its port."""
+    loop = asyncio.new_event_loop()
+    ready: concurrent.futures.Future[int] = concurrent.futures.Future()
+    stop = asyncio.Event()
+
+    async def main() -> None:
+        rig = Rig.loads(RIG)
+        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+            await rig.start(net)
+            server = GatewayServer(GatewayCore({1: net}, dialect=dialect))
+            await server.start()
+            ready.set_result(server.port)
+            await stop.wait()
+            await server.stop()
+            await rig.stop()
+
+    thread = threading.Thread(target=loop.run_until_complete, args=(main(),), daemon=True)
+    thread.start()
+    try:
+        yield ready.result(timeout=30)
+    finally:
+        loop.call_soon_threadsafe(stop.set)
+        thread.join(30)
+        loop.close()
+
+
+def gw(port: int, *args: str, stdin: str | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "cobus", "gw", f"127.0.0.1:{port}", *args],
+        input=stdin,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+def test_cobus_gw_prints_values_as_data_and_exits_by_the_first_errors_kind(
+    tmp_path: Path,
+) -> None:
+    with gateway_in_a_thread() as port:
+        done = gw(port, "5 r 0x1018 1 u32", "5 w 0x1017 0 u16 300", "5 r 0x1017 0 u16")
+        assert (done.returncode, done.stdout, done.stderr) == (0, f"{0x00C0B005}\n300\n", "")
+        done = gw(port, stdin="# a file of requests\nset node 6\n\nr 0x1018 1 x32\n")
+        assert (done.returncode, done.stdout) == (0, "0x00C0B005\n")
+        (tmp_path / "req.txt").write_text("5 r 0x5FFF 0 u8\n5 r 0x1017 0 u16\n")
+        done = gw(port, "-f", str(tmp_path / "req.txt"), "--json")
+        assert done.returncode == 1  # (an abort first; the second request still answered)
+        first, second = (json.loads(line) for line in done.stdout.splitlines())
+        assert first["ok"] is False and first["error"] == "0x06020000"
+        assert first["kind"] == "abort" and first["text"]
+        assert second == {"request": "5 r 0x1017 0 u16", "ok": True, "value": "300"}
+        assert gw(port, "5 r 0x1000 0 u33").returncode == 2
+        done = gw(port, "r 0x1000 0 u32")
+        assert done.returncode == 4 and "error 105" in done.stderr
+        assert gw(port, "set sdo_timeout 50", "99 r 0x1000 0").returncode == 3
+        done = gw(port, "help")
+        assert done.returncode == 0 and "r|read" in done.stdout
+    with gateway_in_a_thread("lely") as port:
+        done = gw(port, "5 r 0x5FFF 0 u8", "--json")
+        assert done.returncode == 1 and json.loads(done.stdout)["error"] == "0x06020000"
+        assert gw(port, "5 r 0x1017 0 u16").stdout == "0x0000\n"
+    done = gw(port, "5 r 0x1017 0 u16")  # (the gateway is gone)
+    assert done.returncode == 5 and done.stderr.startswith(f"cobus gw: 127.0.0.1:{port}: ")

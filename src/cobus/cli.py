@@ -69,6 +69,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "cobus.apps._gateway_cli",
         "the CiA 309-3 ASCII gateway: the bus from any program over TCP",
     ),
+    "gw": (
+        "cobus.apps._gw_cli",
+        "send requests to a CiA 309-3 gateway and print the replies as data",
+    ),
     "demo": (
         "cobus.apps.demo",
         "run the simulated thesis rig, booted and supervised by the cobus master",

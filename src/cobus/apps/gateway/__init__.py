@@ -6,6 +6,7 @@ once (``cobus gateway``).
 :mod:`~cobus.apps.gateway.server` serves them over TCP.
 """
 
+from cobus.apps.gateway.client import GatewayClient, Reply
 from cobus.apps.gateway.core import HELP, GatewayCore, Session
 from cobus.apps.gateway.grammar import ERRORS, TYPES, GatewayError, parse_line
 from cobus.apps.gateway.server import MAX_LINE, GatewayServer, is_loopback
@@ -15,9 +16,11 @@ __all__ = [
     "HELP",
     "MAX_LINE",
     "TYPES",
+    "GatewayClient",
     "GatewayCore",
     "GatewayError",
     "GatewayServer",
+    "Reply",
     "Session",
     "is_loopback",
     "parse_line",

@@ -1,0 +1,114 @@
+"""``cobus gw``: requests to a CiA 309-3 gateway, the replies as data.
+
+    cobus gw 127.0.0.1:5000 '5 r 0x1018 1 u32' '5 r 0x1008 0 vs'
+    cobus gw 127.0.0.1:5000 -f commands.txt --json
+    printf 'set node 5\\nr 0x1017 0 u16\\n' | cobus gw 127.0.0.1:5000
+
+Requests come from the arguments, else from the files of ``-f``, else from standard input,
+one a line (``#`` comments and blank lines skipped); each is answered in turn, a value on a
+line of its own (OK answers print nothing), or with ``--json`` one JSON object a request.
+Every request is sent even after an error; the exit code is the first error's kind.
+
+Exit codes: 0 all answered OK, 1 an SDO abort, 2 bad usage or a request the gateway calls a
+syntax error, 3 no answer (time-out), 4 refused by the gateway (no default node, unknown
+command...), 5 the gateway could not be reached or closed the connection.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Iterator
+from typing import Any
+
+__all__ = ["register"]
+
+_EXIT = {"abort": 1, "syntax": 2, "timeout": 3, "refused": 4}
+_EXIT_CONNECT = 5
+
+
+def _address(text: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: give HOST:PORT, e.g. 127.0.0.1:5000")
+    return host.strip("[]"), int(port)
+
+
+def register(sub: Any) -> None:
+    """Add ``cobus gw``."""
+    p = sub.add_parser(
+        "gw",
+        help="send requests to a CiA 309-3 gateway and print the replies as data",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("address", type=_address, metavar="HOST:PORT", help="the gateway")
+    p.add_argument("requests", nargs="*", metavar="REQUEST", help="request lines")
+    p.add_argument(
+        "-f", "--file", action="append", default=[], metavar="FILE", help="a file of requests"
+    )
+    p.add_argument("--json", action="store_true", help="one JSON object a request")
+    p.add_argument(
+        "--timeout", type=float, default=30.0, help="seconds to wait for each reply (30)"
+    )
+    p.set_defaults(handler=_run)
+
+
+def _lines(args: argparse.Namespace) -> Iterator[str]:
+    if args.requests:
+        sources: list[Any] = [args.requests]
+    elif args.file:
+        sources = []
+        for name in args.file:
+            with open(name, encoding="utf-8") as f:
+                sources.append(f.read().splitlines())
+    else:
+        sources = [sys.stdin]
+    for source in sources:
+        for line in source:
+            text = line.strip()
+            if text and not text.startswith("#"):
+                yield text
+
+
+def _run(args: argparse.Namespace) -> int:
+    from cobus.apps.gateway.client import GatewayClient, error_class
+
+    host, port = args.address
+    try:
+        lines = list(_lines(args))
+    except OSError as exc:
+        print(f"cobus gw: {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return 2
+    first_error = 0
+    done = 0
+    try:
+        with GatewayClient(host, port, args.timeout) as client:
+            for line in lines:
+                reply = client.request(line)
+                done += 1
+                if args.json:
+                    print(json.dumps(reply.as_dict()), flush=True)
+                elif reply.ok:
+                    for extra in reply.lines:
+                        print(extra)
+                    if reply.value is not None:
+                        print(reply.value, flush=True)
+                else:
+                    code = reply.code or 0
+                    shown = f"0x{code:08X}" if code > 0xFFFF else str(code)
+                    print(f"cobus gw: {line}: error {shown}: {reply.text}", file=sys.stderr)
+                if not reply.ok and not first_error:
+                    first_error = _EXIT[error_class(reply.code)]
+    except KeyboardInterrupt:
+        print(f"cobus gw: stopped by Ctrl-C after {done} of {len(lines)} requests", file=sys.stderr)
+        return 130
+    except (OSError, ConnectionError) as exc:
+        print(
+            f"cobus gw: {host}:{port}: {getattr(exc, 'strerror', None) or exc} "
+            f"(after {done} of {len(lines)} requests)",
+            file=sys.stderr,
+        )
+        return _EXIT_CONNECT
+    return first_error
