@@ -99,6 +99,8 @@ class GatewayCore:
             return [format_error(request.seq, 0x05040000, timed_out, self.dialect)]
         except (SdoError, NetworkClosedError) as exc:
             return [format_error(request.seq, 102, str(exc), self.dialect)]
+        except Exception as exc:  # (never a dropped connection: the client is told)
+            return [format_error(request.seq, 102, f"internal error: {exc!r}", self.dialect)]
         if out is None:
             return [f"{head}OK"]
         if isinstance(out, list):
@@ -120,6 +122,8 @@ class GatewayCore:
         if command == "set":
             self._set(session, request)
             return None
+        if command in ("info", "help") and args and not (command == "info" and args == ["version"]):
+            raise GatewayError(101, f"{command} takes no arguments")
         if command == "info":
             nets = ", ".join(str(n) for n in self.networks)
             return (
@@ -213,6 +217,11 @@ class GatewayCore:
             )
 
     def _set(self, session: Session, request: Request) -> None:
+        if request.net is not None:
+            raise GatewayError(101, "set takes one number before it at most: its net")
+        if request.node is not None and request.node not in self.networks:  # ([net] set ...)
+            known = ", ".join(str(n) for n in self.networks)
+            raise GatewayError(106, f"no net {request.node} here (the nets: {known})")
         args = [a.lower() for a in request.args]
         if len(args) != 2:
             raise GatewayError(101, "set takes a name and a value: set node 5")

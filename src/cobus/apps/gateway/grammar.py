@@ -132,7 +132,7 @@ _WORD = re.compile(r"\s*(\S+)")
 
 def parse_number(text: str, what: str = "number") -> int:
     """An integer as CiA 309-3 writes it: decimal, ``0x`` hex or leading-0 octal."""
-    if not _NUMBER.match(text):
+    if len(text) > 40 or not _NUMBER.match(text):
         raise GatewayError(101, f"{what} {text!r} is not a number (decimal, 0x hex or 0 octal)")
     sign = -1 if text[0] == "-" else 1
     body = text.lstrip("+-")
@@ -205,10 +205,12 @@ def format_value(type_name: str | None, data: bytes, dialect: str = "canopennode
     size = data_type.size
     if size is not None and len(data) != size:
         return " ".join(f"{b:02X}" for b in data)  # (the server's size: shown as it came)
-    value: Any = decode(data_type, data)
     if name in _BASE64:
-        raw = value.encode("utf-16-le") if isinstance(value, str) else bytes(value)
-        return base64.b64encode(raw).decode("ascii")
+        return base64.b64encode(bytes(data)).decode("ascii")  # (the bytes as they came)
+    try:
+        value: Any = decode(data_type, data)
+    except ValueError:  # (bytes the type cannot hold, a time out of range...: as they came)
+        return " ".join(f"{b:02X}" for b in data)
     if name.startswith("x"):
         return f"0x{value:0{2 * (size or 1)}X}"
     if data_type is _D.BOOLEAN:
@@ -222,15 +224,36 @@ def format_value(type_name: str | None, data: bytes, dialect: str = "canopennode
     if data_type is _D.REAL64:
         return f"{value:.15g}"
     if data_type is _D.VISIBLE_STRING:
-        return '"' + str(value).replace('"', '""') + '"'
+        return '"' + _escaped(str(value)) + '"'
     if isinstance(value, TimeOfDay | TimeDifference):
         return f"{value.days} {value.milliseconds}"
     return str(value)
 
 
+_ESCAPES = {"\\": "\\\\", "\n": "\\n", "\r": "\\r", "\t": "\\t"}
+_UNESCAPES = {"\\": "\\", "n": "\n", "r": "\r", "t": "\t"}
+
+
+def _escaped(text: str) -> str:
+    """A visible string on one reply line: ``""`` for a quote, ``\\`` for a backslash,
+    ``\\n``, ``\\r``, ``\\t`` and ``\\xNN`` for control characters (a line end inside
+    would split the reply)."""
+    out = []
+    for ch in text:
+        if ch == '"':
+            out.append('""')
+        elif ch in _ESCAPES:
+            out.append(_ESCAPES[ch])
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\x{ord(ch):02X}")
+        else:
+            out.append(ch)
+    return "".join(out)
+
+
 def _quoted(text: str) -> str:
-    """A visible string as written: ``"..."`` with ``""`` for a quote, or the words as
-    they are."""
+    """A visible string as written: ``"..."`` with ``""`` for a quote and the escapes of
+    :func:`_escaped`, or the words as they are."""
     text = text.strip()
     if not text.startswith('"'):
         return text
@@ -246,6 +269,17 @@ def _quoted(text: str) -> str:
             if text[i + 1 :].strip():
                 raise GatewayError(101, "text after the closing quote of the string")
             return "".join(out)
+        if ch == "\\" and i + 1 < len(text):
+            nxt = text[i + 1]
+            if nxt in _UNESCAPES:
+                out.append(_UNESCAPES[nxt])
+                i += 2
+                continue
+            hex_digits = text[i + 2 : i + 4]
+            if nxt == "x" and re.fullmatch(r"[0-9A-Fa-f]{2}", hex_digits):
+                out.append(chr(int(hex_digits, 16)))
+                i += 4
+                continue
         out.append(ch)
         i += 1
     raise GatewayError(101, "the string has no closing quote")

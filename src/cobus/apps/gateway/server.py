@@ -1,10 +1,12 @@
-"""The gateway over TCP (or a Unix socket): each client a session of its own, one request a
-line, the replies in its order.
+"""The gateway over TCP: each client a session of its own, one request a line (LF, CR LF or
+CR), the replies in its order.
 
 Lines are bounded (:data:`MAX_LINE` bytes: a longer one is answered with a syntax error and
-skipped, the connection stays); a client that disconnects in the middle of a transfer ends
-only its own requests. The server binds 127.0.0.1 unless told otherwise; it serves another
-address only to clients that give the token (not built yet: it refuses such an address).
+skipped, the connection stays); a client that disconnects in the middle of a transfer holds
+back no other client but those asking the same node, and them only until its transfer ends
+as it would (within its SDO timeout): no abort the client did not ask for reaches the bus.
+The server binds 127.0.0.1 unless told otherwise; it serves another address only to clients
+that give the token (not built yet: it refuses such an address).
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import contextlib
 import ipaddress
 from typing import TYPE_CHECKING
 
-from cobus.apps.gateway.core import GatewayCore, Session
+from cobus.apps.gateway.core import GatewayCore
 from cobus.apps.gateway.grammar import format_error
 
 if TYPE_CHECKING:
@@ -52,9 +54,7 @@ class GatewayServer:
 
     async def start(self) -> None:
         """Listen (on the running loop: the networks' own)."""
-        self._server = await asyncio.start_server(
-            self._serve, self.host, self.requested_port, limit=MAX_LINE + 2
-        )
+        self._server = await asyncio.start_server(self._serve, self.host, self.requested_port)
 
     async def stop(self) -> None:
         """Stop listening and end every client's connection."""
@@ -74,27 +74,25 @@ class GatewayServer:
         self._clients.add(task)
         self.clients += 1
         session = self.core.session()
+        lines = _Lines(reader)
         try:
             while True:
-                line = await _read_line(reader)
+                line = await lines.next()
                 if line is None:
-                    break
+                    break  # (a request under way was answered first: a client that only
+                    # half-closed, as `printf ... | nc -N` does, still gets every reply)
                 if isinstance(line, int):
-                    reply = [
-                        format_error(
-                            None, 101, f"a line longer than {MAX_LINE} bytes", self.core.dialect
-                        )
-                    ]
+                    too_long = f"a line longer than {MAX_LINE} bytes"
+                    reply = [format_error(None, 101, too_long, self.core.dialect)]
                 else:
-                    answered = await self._execute(reader, session, line)
-                    if answered is None:
-                        break  # (the client left while its request ran)
-                    reply = answered
+                    reply = await self.core.execute(session, line)
                 if reply:
                     writer.write(("\r\n".join(reply) + "\r\n").encode("utf-8", "replace"))
                     await writer.drain()
         except (ConnectionError, asyncio.IncompleteReadError):
             pass
+        except asyncio.CancelledError:
+            pass  # (the server stops: the connection ends quietly)
         finally:
             session.close()
             self.clients -= 1
@@ -103,45 +101,53 @@ class GatewayServer:
             with contextlib.suppress(Exception):
                 await writer.wait_closed()
 
-    #: Seconds between looks whether a client whose request runs has left.
-    LOOK = 0.1
 
-    async def _execute(
-        self, reader: asyncio.StreamReader, session: Session, line: str
-    ) -> list[str] | None:
-        """The reply to ``line``; None when the client left before it came (its request is
-        cancelled: a transfer to a silent node does not outlive its asker)."""
-        task = asyncio.ensure_future(self.core.execute(session, line))
+class _Lines:
+    """The lines of one client, ended by LF, CR LF or a CR alone, each at most
+    :data:`MAX_LINE` bytes (a longer one comes as ``0`` and is skipped to its end)."""
+
+    def __init__(self, reader: asyncio.StreamReader) -> None:
+        self._reader = reader
+        self._buffer = b""
+        self._skipping = False  # (inside a line too long)
+        self._after_cr = False  # (an LF right after a CR ends nothing)
+
+    async def next(self) -> str | int | None:
+        """The next line (None: the client sent no more)."""
         while True:
-            done, _pending = await asyncio.wait({task}, timeout=self.LOOK)
-            if done:
-                return task.result()
-            if reader.at_eof():
-                task.cancel()
-                with contextlib.suppress(asyncio.CancelledError, Exception):
-                    await task
+            if self._after_cr and self._buffer[:1] == b"\n":
+                self._buffer = self._buffer[1:]
+            if self._buffer:
+                self._after_cr = False
+            cut = _line_end(self._buffer)
+            if cut is not None:
+                raw, self._after_cr = self._buffer[:cut], self._buffer[cut : cut + 1] == b"\r"
+                self._buffer = self._buffer[cut + 1 :]
+                if self._skipping:
+                    self._skipping = False
+                    return 0
+                if len(raw) > MAX_LINE:
+                    return 0
+                return raw.decode("utf-8", "replace")
+            if len(self._buffer) > MAX_LINE:
+                self._buffer = b""
+                self._skipping = True
+            chunk = await self._reader.read(MAX_LINE)
+            if not chunk:
+                if self._buffer and not self._skipping:  # (a last line without its end)
+                    raw, self._buffer = self._buffer, b""
+                    return raw.decode("utf-8", "replace")
+                if self._skipping:  # (it ended in a line too long)
+                    self._skipping = False
+                    return 0
                 return None
+            self._buffer += chunk
 
 
-async def _read_line(reader: asyncio.StreamReader) -> str | int | None:
-    """The next line (None: the client left; an int: a line too long, skipped)."""
-    try:
-        raw = await reader.readuntil(b"\n")
-    except asyncio.IncompleteReadError as exc:
-        if not exc.partial:
-            return None
-        raw = exc.partial
-    except asyncio.LimitOverrunError:
-        # skip to the end of the over-long line
-        while True:
-            try:
-                await reader.readuntil(b"\n")
-                return 0
-            except asyncio.LimitOverrunError as exc:
-                await reader.readexactly(exc.consumed)
-            except asyncio.IncompleteReadError:
-                return None
-    return raw.decode("utf-8", "replace")
+def _line_end(data: bytes) -> int | None:
+    """Where the first line of ``data`` ends (at a CR or an LF), None: it does not yet."""
+    ends = [i for i in (data.find(b"\r"), data.find(b"\n")) if i >= 0]
+    return min(ends) if ends else None
 
 
 def is_loopback(host: str) -> bool:
