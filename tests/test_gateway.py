@@ -10,6 +10,7 @@ import concurrent.futures
 import contextlib
 import json
 import logging
+import re
 import struct
 import subprocess
 import sys
@@ -434,3 +435,104 @@ def test_a_time_out_in_the_lely_dialect() -> None:
         assert await ask(c, "[2] 99 r 0x1000 0 u32") == ["[2] ERROR: 103 (Time-out)"]
 
     served(scenario, "lely")
+
+
+def test_a_fuzzer_of_lines_gets_one_well_formed_answer_a_line_and_no_failure() -> None:
+    """5,000 lines of random words, numbers, types, quotes and bytes through the command
+    core on the simulated clock: no exception, every reply line free of line ends, and the
+    last line of each answer carries the request's number or is an error line."""
+    import random
+
+    from tests.util import simulate
+
+    rng = random.Random(309)
+    words = ["r", "w", "read", "write", "set", "node", "network", "sdo_timeout", "sdo_block",
+             "start", "stop", "preop", "reset", "comm", "info", "help", "u8", "i64", "vs",
+             "os", "t", "td", "x32", "hex", "r32", "b", "0x1017", "0x1018", "0", "1", "4",
+             "5", "-1", "0x", "010", "1e3", '"', '""', "#", "[", "]", "\\x01", "\x00"]  # fmt: skip
+
+    def line() -> str:
+        parts = [rng.choice(words) if rng.random() < 0.8 else str(rng.getrandbits(40))
+                 for _ in range(rng.randint(0, 7))]  # fmt: skip
+        text = " ".join(parts)
+        if rng.random() < 0.1:
+            text += bytes(rng.getrandbits(8) for _ in range(5)).decode("latin-1")
+        return (f"[{rng.randint(0, 99)}] " if rng.random() < 0.7 else "") + text
+
+    async def main() -> None:
+        rig = Rig.loads(RIG)
+        async with AsyncNetwork() as net:
+            await rig.start(net)
+            core = GatewayCore({1: net})
+            session = core.session()
+            session.sdo_timeout = 0.05
+            kinds: dict[str, int] = {}
+            for _ in range(5000):
+                text = line().replace("\r", " ").replace("\n", " ")
+                reply = await core.execute(session, text)
+                error = re.search(r"ERROR:(0x[0-9A-F]{8}|[0-9]+)", reply[-1]) if reply else None
+                kind = error.group(0) if error else ("OK" if reply else "none")
+                kinds[kind] = kinds.get(kind, 0) + 1
+                for out in reply:
+                    assert "\r" not in out and "\n" not in out, (text, reply)
+                request = None
+                with contextlib.suppress(GatewayError):
+                    request = parse_line(text)
+                if request is None:
+                    assert reply == [] or reply[-1].startswith("ERROR:"), (text, reply)
+                elif request.seq is not None:
+                    assert reply[-1].startswith(f"[{request.seq}] "), (text, reply)
+            # (the fuzzer reaches the commands, not only the parser)
+            assert kinds.get("OK", 0) > 20 and kinds.get("ERROR:101", 0) > 1000, kinds
+            session.close()
+            await rig.stop()
+
+    simulate(main())
+
+
+def test_lss_through_the_gateway() -> None:
+    """The LSS requests on a device without a node-ID (the simulated clock, the core: the
+    socket only carries the lines)."""
+    from tests.util import simulate
+
+    async def main() -> None:
+        rig = Rig.loads("devices:\n  - {node: unconfigured, kind: cia401_io, serial: 0x1234}\n")
+        async with AsyncNetwork() as net:
+            await rig.start(net)
+            core = GatewayCore({1: net})
+            s = core.session()
+
+            async def say(line: str) -> str:
+                (reply,) = await core.execute(s, line)
+                return reply
+
+            identity = "0x00C0B005 0x00000191 0x00000001 0x00001234"
+            assert await say("[1] _lss_fastscan") == f"[1] {identity}"
+            assert await say("[2] lss_get_node") == "[2] 255"
+            assert await say("[3] lss_inquire_addr 3") == "[3] 0x00001234"
+            assert await say("[4] lss_inquire_addr") == f"[4] {identity}"
+            assert (await say("[5] lss_set_node 200")).startswith("[5] ERROR:502 #")
+            assert (await say("[6] lss_conf_bitrate 0 5")).startswith("[6] ERROR:503 #")
+            assert await say("[7] lss_conf_bitrate 0 3") == "[7] OK"
+            assert await say("[8] lss_set_node 20") == "[8] OK"
+            assert await say("[9] lss_store") == "[9] OK"
+            assert await say("[10] lss_switch_glob 0") == "[10] OK"
+            await net.sleep(0.1)
+            assert await say("[11] 20 r 0x1018 4 u32") == "[11] 4660"
+            assert await say("[12] lss_switch_sel 0xC0B005 0x191 1 0x1234") == "[12] OK"
+            assert await say("[13] lss_get_node") == "[13] 20"
+            sim = rig.device(20)
+            assert isinstance(sim, CanopenSimDevice) and sim.device.lss is not None
+            sim.device.lss.store = lambda node_id, timing: False
+            assert (await say("[14] lss_store")).startswith("[14] ERROR:505 #")
+            assert await say("[15] lss_switch_glob 0") == "[15] OK"
+            assert (await say("[16] lss_switch_sel 1 2 3 4")).startswith("[16] ERROR:103 #")
+            assert (await say("[17] _lss_fastscan 100")).startswith("[17] ERROR:103 #")
+            assert (await say("[18] lss_get_node")).startswith("[18] ERROR:103 #")
+            assert (await say("[19] lss_frobnicate")).startswith("[19] ERROR:100 #")
+            assert (await say("[20] lss_switch_glob 2")).startswith("[20] ERROR:101 #")
+            assert (await say("[21] 2 lss_store")).startswith("[21] ERROR:106 #")
+            s.close()
+            await rig.stop()
+
+    simulate(main())

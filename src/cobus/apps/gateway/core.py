@@ -24,8 +24,15 @@ from cobus.apps.gateway.grammar import (
     parse_number,
     parse_value,
 )
+from cobus.proto.lss import BIT_RATES, LssError, LssIdentity, LssState
 from cobus.proto.sdo import SdoAbortedError, SdoError, SdoTimeoutError, describe
-from cobus.runtime import NetworkClosedError, SdoChannel
+from cobus.runtime import (
+    LssRefusedError,
+    LssScanError,
+    LssTimeoutError,
+    NetworkClosedError,
+    SdoChannel,
+)
 
 if TYPE_CHECKING:
     from cobus.runtime import AsyncNetwork
@@ -38,6 +45,9 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
   w|write INDEX SUB TYPE VALUE     write an object
   start | stop | preop | reset node | reset comm    NMT (node 0: every node)
   set network N | set node N | set sdo_timeout MS | set sdo_block 0|1
+  lss_switch_glob 0|1 | lss_switch_sel VENDOR PRODUCT REVISION SERIAL | lss_set_node N
+  lss_conf_bitrate 0 INDEX | lss_activate_bitrate DELAY_MS | lss_store
+  lss_inquire_addr [0..3] | lss_get_node | _lss_fastscan        LSS (CiA 305)
   info | help
 types: b i8 i16 i24 i32 i40 i48 i56 i64 u8 u16 u24 u32 u40 u48 u56 u64 x8 x16 x32 x64
        r32 r64 vs ("text", "" for a quote) os us d (base64) t td (days ms) hex (bytes)
@@ -60,6 +70,10 @@ class Session:
         for channel in self.channels.values():
             channel.close()
         self.channels.clear()
+
+
+#: The gateway error number of an LSS service the device refused (CiA 309-3).
+_LSS_REFUSED = {"configure node-ID": 502, "configure bit timing": 503, "store configuration": 504}
 
 
 class GatewayCore:
@@ -89,6 +103,15 @@ class GatewayCore:
             out = await self._run(session, request)
         except GatewayError as exc:
             return [format_error(request.seq, exc.code, exc.text, self.dialect)]
+        except LssTimeoutError as exc:
+            return [format_error(request.seq, 103, str(exc), self.dialect)]
+        except LssRefusedError as exc:
+            code = _LSS_REFUSED.get(exc.service, 501)
+            if code == 504 and exc.error == 2:
+                code = 505  # (storage media access error)
+            return [format_error(request.seq, code, str(exc), self.dialect)]
+        except (LssScanError, LssError) as exc:
+            return [format_error(request.seq, 102, str(exc), self.dialect)]
         except SdoAbortedError as exc:
             code = int(exc.code)
             return [format_error(request.seq, code, describe(code), self.dialect)]
@@ -122,6 +145,8 @@ class GatewayCore:
         if command == "set":
             self._set(session, request)
             return None
+        if command.startswith("lss_") or command == "_lss_fastscan":
+            return await self._lss(session, request)
         if command in ("info", "help") and args and not (command == "info" and args == ["version"]):
             raise GatewayError(101, f"{command} takes no arguments")
         if command == "info":
@@ -247,3 +272,76 @@ class GatewayCore:
             raise GatewayError(
                 100, f"no setting {args[0]!r} (network, node, sdo_timeout, sdo_block)"
             )
+
+    async def _lss(self, session: Session, request: Request) -> str | None:
+        """The LSS requests (CiA 305 through the network's LSS master)."""
+        if request.net is not None:  # ([net] lss_...: one number names the net)
+            raise GatewayError(101, "an LSS request takes its net before it, not a node")
+        if request.node is not None:
+            request.net, request.node = request.node, None
+        _net, network = self._network(session, request)
+        lss = network.lss
+        command = request.command
+        numbers = [parse_number(a, command) for a in request.args]
+
+        def want(count: int, usage: str) -> None:
+            if len(numbers) != count:
+                raise GatewayError(101, f"{command} takes {usage}")
+
+        if command == "lss_switch_glob":
+            want(1, "0 (waiting) or 1 (configuration)")
+            if numbers[0] not in (0, 1):
+                raise GatewayError(101, "lss_switch_glob takes 0 (waiting) or 1 (configuration)")
+            lss.switch_global(LssState(numbers[0]))
+            return None
+        if command == "lss_switch_sel":
+            want(4, "vendor, product, revision and serial")
+            if not all(0 <= n <= 0xFFFFFFFF for n in numbers):
+                raise GatewayError(101, "the identity fields are UNSIGNED32")
+            await lss.select(LssIdentity(*numbers))
+            return None
+        if command == "lss_set_node":
+            want(1, "a node-ID (1..127, or 255 to remove it)")
+            if not (1 <= numbers[0] <= 127 or numbers[0] == 0xFF):
+                raise GatewayError(502, f"node-ID {numbers[0]} is not 1..127 or 255")
+            await lss.configure_node_id(numbers[0])
+            return None
+        if command == "lss_conf_bitrate":
+            want(2, "table 0 and an index (0 1000, 1 800, 2 500, 3 250, 4 125, 6 50, 7 20, 8 10)")
+            if numbers[0] != 0 or numbers[1] not in BIT_RATES:
+                raise GatewayError(503, f"no bit timing {numbers[0]} {numbers[1]} in table 0")
+            await lss.configure_bit_rate(BIT_RATES[numbers[1]])
+            return None
+        if command == "lss_activate_bitrate":
+            want(1, "the switch delay in ms")
+            if not 0 <= numbers[0] <= 0xFFFF:
+                raise GatewayError(101, "the switch delay is 0..65535 ms")
+            lss.activate_bit_rate(numbers[0] / 1000.0)
+            return None
+        if command == "lss_store":
+            want(0, "no arguments")
+            await lss.store()
+            return None
+        if command == "lss_inquire_addr":
+            fields = ("vendor", "product", "revision", "serial")
+            if not numbers:
+                values = [await lss.inquire(what) for what in fields]
+                return " ".join(f"0x{v:08X}" for v in values)
+            want(1, "nothing (all four) or a field: 0 vendor, 1 product, 2 revision, 3 serial")
+            if not 0 <= numbers[0] <= 3:
+                raise GatewayError(101, "a field is 0 vendor, 1 product, 2 revision, 3 serial")
+            return f"0x{await lss.inquire(fields[numbers[0]]):08X}"
+        if command == "lss_get_node":
+            want(0, "no arguments")
+            return str(await lss.inquire("node_id"))
+        if command == "_lss_fastscan":
+            if len(numbers) > 1:
+                raise GatewayError(101, "_lss_fastscan takes a time-out in ms at most")
+            ceiling = numbers[0] / 1000.0 if numbers else 0.5
+            if not 0.001 <= ceiling <= 60:
+                raise GatewayError(101, "the fastscan time-out is 1..60000 ms")
+            found = await lss.fastscan(ceiling=ceiling)
+            if found is None:
+                raise GatewayError(103, "no device without a node-ID answered the fastscan")
+            return " ".join(f"0x{v:08X}" for v in found.fields)
+        raise GatewayError(100, f"no LSS command {command!r} (help lists them)")
