@@ -26,6 +26,7 @@ from cobus.apps.gateway import HELP, MAX_LINE, GatewayCore, GatewayError, Gatewa
 from cobus.apps.gateway.grammar import format_error, format_value, parse_number, parse_value
 from cobus.device import export_eds
 from cobus.master import ConfigurationFailed, Master, NodeState, SdoUnanswered, loads_network
+from cobus.proto import Frame
 from cobus.proto.nmt import NmtState
 from cobus.runtime import AsyncNetwork
 from cobus.sim import Rig
@@ -536,3 +537,22 @@ def test_lss_through_the_gateway() -> None:
             await rig.stop()
 
     simulate(main())
+
+
+def test_subscribed_clients_get_boot_ups_and_emergencies_as_lely_writes_them() -> None:
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        a, b = await connect(server), await connect(server)
+        assert await ask(a, "[1] subscribe") == ["[1] OK"]
+        assert await ask(b, "[1] boot_up_indication enable") == ["[1] OK"]
+        assert (await ask(b, "[2] subscribe everything"))[0].startswith("[2] ERROR:101 #")
+        assert await ask(b, "[3] 5 reset node") == ["[3] OK"]
+        assert (await a[0].readline()).decode() == "1 5 BOOT_UP\r\n"
+        assert (await b[0].readline()).decode() == "1 5 BOOT_UP\r\n"
+        net.send(Frame(0x86, bytes.fromhex("1023 01 0A 0B 0C 0D 0E")))
+        assert (await a[0].readline()).decode() == "1 6 EMCY 2310 01 10 11 12 13 14\r\n"
+        assert await ask(a, "[2] unsubscribe emcy") == ["[2] OK"]
+        net.send(Frame(0x86, bytes(8)))
+        assert await ask(a, "[3] 5 r 0x1017 0 u16") == ["[3] 0"]  # (no EMCY line before)
+        assert await ask(b, "[4] 6 r 0x1017 0 u16") == ["[4] 0"]  # (b took boot-ups only)
+
+    served(scenario)

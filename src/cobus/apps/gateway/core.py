@@ -10,7 +10,10 @@ lines) feeds it lines and writes back what it returns.
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import TYPE_CHECKING
 
 import cobus
@@ -24,6 +27,8 @@ from cobus.apps.gateway.grammar import (
     parse_number,
     parse_value,
 )
+from cobus.proto import Frame
+from cobus.proto.connection_set import emcy_cob_id, error_control_cob_id
 from cobus.proto.lss import BIT_RATES, LssError, LssIdentity, LssState
 from cobus.proto.sdo import SdoAbortedError, SdoError, SdoTimeoutError, describe
 from cobus.runtime import (
@@ -48,6 +53,8 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
   lss_switch_glob 0|1 | lss_switch_sel VENDOR PRODUCT REVISION SERIAL | lss_set_node N
   lss_conf_bitrate 0 INDEX | lss_activate_bitrate DELAY_MS | lss_store
   lss_inquire_addr [0..3] | lss_get_node | _lss_fastscan        LSS (CiA 305)
+  subscribe [boot_up|emcy|all] | unsubscribe [...]   unsolicited lines, as Lely writes
+  them: NET NODE BOOT_UP, NET NODE EMCY CODE REG B0 B1 B2 B3 B4
   info | help
 types: b i8 i16 i24 i32 i40 i48 i56 i64 u8 u16 u24 u32 u40 u48 u56 u64 x8 x16 x32 x64
        r32 r64 vs ("text", "" for a quote) os us d (base64) t td (days ms) hex (bytes)
@@ -64,12 +71,17 @@ class Session:
     sdo_block: bool = False
     #: The SDO channels this client opened, by (net, node).
     channels: dict[tuple[int, int], SdoChannel] = field(default_factory=dict)
+    #: The unsolicited lines the client asked for ("boot_up", "emcy"), and how the framing
+    #: hands it a line (None: it cannot take any).
+    subscribed: set[str] = field(default_factory=set)
+    notify: Callable[[str], None] | None = None
 
     def close(self) -> None:
         """The client left: its channels go (a transfer under way ends with it)."""
         for channel in self.channels.values():
             channel.close()
         self.channels.clear()
+        self.subscribed.clear()
 
 
 #: The gateway error number of an LSS service the device refused (CiA 309-3).
@@ -85,10 +97,69 @@ class GatewayCore:
         self.networks = networks
         self.dialect = dialect
         self.default_net = next(iter(networks))
+        self._sessions: list[Session] = []
+        self._listening = False
 
     def session(self) -> Session:
         """A new client's session (the default net, no default node)."""
-        return Session(net=self.default_net)
+        session = Session(net=self.default_net)
+        self._sessions.append(session)
+        return session
+
+    def forget(self, session: Session) -> None:
+        """The client left: its session ends."""
+        session.close()
+        with contextlib.suppress(ValueError):
+            self._sessions.remove(session)
+
+    # ------------------------------------------------------------------ unsolicited lines
+
+    def _subscribe(self, session: Session, request: Request) -> None:
+        kinds = {"boot_up", "emcy"}
+        words = [a.lower() for a in request.args]
+        if request.command == "boot_up_indication":  # (Lely's)
+            if words not in (["enable"], ["disable"]):
+                raise GatewayError(101, "boot_up_indication takes enable or disable")
+            wanted, on = {"boot_up"}, words == ["enable"]
+        else:
+            unknown = [w for w in words if w not in kinds | {"all"}]
+            if unknown:
+                raise GatewayError(101, f"no events {' '.join(unknown)} (boot_up, emcy, all)")
+            wanted = kinds if not words or "all" in words else set(words)
+            on = request.command == "subscribe"
+        if on and session.notify is None:
+            raise GatewayError(100, "this connection takes no unsolicited lines")
+        if on:
+            session.subscribed |= wanted
+            self._listen()
+        else:
+            session.subscribed -= wanted
+
+    def _listen(self) -> None:
+        """Watch boot-ups and emergencies on every net (once, when a client first asks)."""
+        if self._listening:
+            return
+        self._listening = True
+        for net_id, network in self.networks.items():
+            for node in range(1, 128):
+                network.subscribe(error_control_cob_id(node), partial(self._bootup, net_id, node))
+                network.subscribe(emcy_cob_id(node), partial(self._emcy, net_id, node))
+
+    def _tell(self, kind: str, line: str) -> None:
+        for session in self._sessions:
+            if kind in session.subscribed and session.notify is not None:
+                session.notify(line)
+
+    def _bootup(self, net: int, node: int, frame: Frame, now: float) -> None:
+        if frame.data == b"\x00" and not frame.rtr:
+            self._tell("boot_up", f"{net} {node} BOOT_UP")
+
+    def _emcy(self, net: int, node: int, frame: Frame, now: float) -> None:
+        data = frame.data
+        if len(data) == 8 and not frame.rtr:
+            code = int.from_bytes(data[:2], "little")
+            rest = " ".join(str(b) for b in data[3:8])
+            self._tell("emcy", f"{net} {node} EMCY {code:04X} {data[2]:02X} {rest}")
 
     async def execute(self, session: Session, line: str) -> list[str]:
         """The reply lines to ``line`` (none for an empty line or a comment)."""
@@ -144,6 +215,9 @@ class GatewayCore:
             return None
         if command == "set":
             self._set(session, request)
+            return None
+        if command in ("subscribe", "unsubscribe", "boot_up_indication"):
+            self._subscribe(session, request)
             return None
         if command.startswith("lss_") or command == "_lss_fastscan":
             return await self._lss(session, request)

@@ -14,9 +14,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import ipaddress
+from functools import partial
 from typing import TYPE_CHECKING
 
-from cobus.apps.gateway.core import GatewayCore
+from cobus.apps.gateway.core import GatewayCore, Session
 from cobus.apps.gateway.grammar import format_error
 
 if TYPE_CHECKING:
@@ -68,12 +69,24 @@ class GatewayServer:
             await self._server.wait_closed()
             self._server = None
 
+    #: Unsolicited lines dropped because their client did not read (summed over clients).
+    dropped = 0
+
+    def _notify(self, session: Session, writer: asyncio.StreamWriter, line: str) -> None:
+        if writer.is_closing():
+            return
+        if writer.transport.get_write_buffer_size() > UNREAD_LIMIT:
+            self.dropped += 1  # (a client that does not read holds back nobody)
+            return
+        writer.write(line.encode("utf-8") + b"\r\n")
+
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         task = asyncio.current_task()
         assert task is not None
         self._clients.add(task)
         self.clients += 1
         session = self.core.session()
+        session.notify = partial(self._notify, session, writer)
         lines = _Lines(reader)
         try:
             while True:
@@ -94,12 +107,16 @@ class GatewayServer:
         except asyncio.CancelledError:
             pass  # (the server stops: the connection ends quietly)
         finally:
-            session.close()
+            self.core.forget(session)
             self.clients -= 1
             self._clients.discard(task)
             writer.close()
             with contextlib.suppress(Exception):
                 await writer.wait_closed()
+
+
+#: Bytes a client may leave unread before its unsolicited lines are dropped (and counted).
+UNREAD_LIMIT = 64 * 1024
 
 
 class _Lines:
