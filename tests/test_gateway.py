@@ -556,3 +556,22 @@ def test_subscribed_clients_get_boot_ups_and_emergencies_as_lely_writes_them() -
         assert await ask(b, "[4] 6 r 0x1017 0 u16") == ["[4] 0"]  # (b took boot-ups only)
 
     served(scenario)
+
+
+def test_who_lists_the_clients_and_an_idle_client_is_closed() -> None:
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        a, b = await connect(server), await connect(server)
+        await ask(b, "[1] set node 6")
+        lines = await ask(a, "[2] who", 3)
+        assert lines[-1] == "[2] OK"
+        mine = [line for line in lines[:2] if line.startswith("* ")]
+        other = [line for line in lines[:2] if line.startswith("  ")]
+        assert len(mine) == 1 and "node -, 1 requests" in mine[0]
+        assert len(other) == 1 and "node 6, 1 requests" in other[0]
+        assert mine[0].startswith("* 127.0.0.1:")
+        server.idle_timeout = 0.3  # (from the next line each client waits for)
+        await ask(a, "[3] info")
+        assert (await a[0].readline()).decode() == "# idle for 0.3 s: closed\r\n"
+        assert await a[0].readline() == b""  # (closed)
+
+    served(scenario)

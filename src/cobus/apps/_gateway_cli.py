@@ -51,6 +51,13 @@ def register(sub: Any) -> None:
         help="how replies are written: CANopenNode's (decimal, ERROR:101 #text, the default) "
         "or Lely's (unsigned in hex, ERROR: 101 (text))",
     )
+    p.add_argument(
+        "--idle-timeout",
+        type=float,
+        default=600.0,
+        metavar="SECONDS",
+        help="close a client's connection after this long without a request (600; 0: never)",
+    )
     add_bus_options(p)
     p.set_defaults(handler=_run)
 
@@ -93,7 +100,9 @@ async def _serve(args: argparse.Namespace, served: list[str]) -> int:
     except (CobusError, OSError, ValueError) as exc:
         return _fail(f"cannot open the bus: {exc}", _EXIT_OPEN)
     host, port = args.listen
-    server = GatewayServer(GatewayCore({1: network}, dialect=args.dialect), host, port)
+    idle = args.idle_timeout if args.idle_timeout > 0 else None
+    core = GatewayCore({1: network}, dialect=args.dialect)
+    server = GatewayServer(core, host, port, idle_timeout=idle)
     try:
         try:
             await server.start()

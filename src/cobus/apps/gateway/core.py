@@ -11,6 +11,7 @@ lines) feeds it lines and writes back what it returns.
 from __future__ import annotations
 
 import contextlib
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
@@ -55,6 +56,7 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
   lss_inquire_addr [0..3] | lss_get_node | _lss_fastscan        LSS (CiA 305)
   subscribe [boot_up|emcy|all] | unsubscribe [...]   unsolicited lines, as Lely writes
   them: NET NODE BOOT_UP, NET NODE EMCY CODE REG B0 B1 B2 B3 B4
+  who                               the clients connected (this one marked *)
   info | help
 types: b i8 i16 i24 i32 i40 i48 i56 i64 u8 u16 u24 u32 u40 u48 u56 u64 x8 x16 x32 x64
        r32 r64 vs ("text", "" for a quote) os us d (base64) t td (days ms) hex (bytes)
@@ -75,6 +77,12 @@ class Session:
     #: hands it a line (None: it cannot take any).
     subscribed: set[str] = field(default_factory=set)
     notify: Callable[[str], None] | None = None
+    #: Who the client is (its address), since when (monotonic s), its requests so far and
+    #: when the last came - what ``who`` shows.
+    peer: str = "?"
+    since: float = field(default_factory=time.monotonic)
+    requests: int = 0
+    last: float = field(default_factory=time.monotonic)
 
     def close(self) -> None:
         """The client left: its channels go (a transfer under way ends with it)."""
@@ -111,6 +119,18 @@ class GatewayCore:
         session.close()
         with contextlib.suppress(ValueError):
             self._sessions.remove(session)
+
+    def _who(self, asker: Session) -> list[str]:
+        now = time.monotonic()
+        out = []
+        for s in self._sessions:
+            node = "-" if s.node is None else str(s.node)
+            mark = "*" if s is asker else " "
+            out.append(
+                f"{mark} {s.peer} net {s.net} node {node}, {s.requests} requests, connected "
+                f"{now - s.since:.0f} s, idle {now - s.last:.0f} s"
+            )
+        return out
 
     # ------------------------------------------------------------------ unsolicited lines
 
@@ -169,6 +189,8 @@ class GatewayCore:
             return [format_error(None, exc.code, exc.text, self.dialect)]
         if request is None:
             return []
+        session.requests += 1
+        session.last = time.monotonic()
         head = "" if request.seq is None else f"[{request.seq}] "
         try:
             out = await self._run(session, request)
@@ -221,6 +243,8 @@ class GatewayCore:
             return None
         if command.startswith("lss_") or command == "_lss_fastscan":
             return await self._lss(session, request)
+        if command == "who":
+            return self._who(session)
         if command in ("info", "help") and args and not (command == "info" and args == ["version"]):
             raise GatewayError(101, f"{command} takes no arguments")
         if command == "info":

@@ -32,13 +32,22 @@ MAX_LINE = 4096
 class GatewayServer:
     """Serves ``core`` on ``host``:``port`` (``port`` 0: a free one, see :attr:`port`)."""
 
-    def __init__(self, core: GatewayCore, host: str = "127.0.0.1", port: int = 0) -> None:
+    def __init__(
+        self,
+        core: GatewayCore,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        *,
+        idle_timeout: float | None = 600.0,
+    ) -> None:
         if not is_loopback(host):
             raise ValueError(
                 f"the gateway writes to the bus: it serves only 127.0.0.1 (or ::1) until "
                 f"tokens are built, not {host!r}"
             )
         self.core = core
+        #: Seconds a client may send nothing before its connection closes (None: never).
+        self.idle_timeout = idle_timeout
         self.host = host
         self.requested_port = port
         self._server: asyncio.Server | None = None
@@ -87,10 +96,16 @@ class GatewayServer:
         self.clients += 1
         session = self.core.session()
         session.notify = partial(self._notify, session, writer)
+        peer = writer.get_extra_info("peername")
+        session.peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer)
         lines = _Lines(reader)
         try:
             while True:
-                line = await lines.next()
+                try:
+                    line = await asyncio.wait_for(lines.next(), self.idle_timeout)
+                except TimeoutError:
+                    writer.write(f"# idle for {self.idle_timeout:g} s: closed\r\n".encode())
+                    break
                 if line is None:
                     break  # (a request under way was answered first: a client that only
                     # half-closed, as `printf ... | nc -N` does, still gets every reply)
