@@ -120,3 +120,15 @@ def _number(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"{text!r}: a finite number of seconds")
     return value
+
+
+def host_port(text: str, *, listening: bool = False) -> tuple[str, int]:
+    """``HOST:PORT`` (``[::1]:5000`` for IPv6) as an argparse type; ``listening``: the host
+    may be left out (127.0.0.1) and port 0 means any free one."""
+    import argparse
+
+    host, sep, port = text.rpartition(":")
+    low = 0 if listening else 1
+    if not sep or not port.isdigit() or not low <= int(port) <= 65535 or not (host or listening):
+        raise argparse.ArgumentTypeError(f"{text!r}: give HOST:PORT, e.g. 127.0.0.1:5000")
+    return (host.strip("[]") or "127.0.0.1"), int(port)

@@ -13,20 +13,14 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
+from functools import partial
 from typing import Any
 
-from cobus._args import add_bus_options, bus_options
+from cobus._args import add_bus_options, bus_options, host_port
 
 __all__ = ["register"]
 
 _EXIT_OK, _EXIT_OPEN, _EXIT_USAGE = 0, 1, 2
-
-
-def _listen(text: str) -> tuple[str, int]:
-    host, sep, port = text.rpartition(":")
-    if not sep or not port.isdigit() or not 0 <= int(port) <= 65535:
-        raise argparse.ArgumentTypeError(f"{text!r}: give HOST:PORT, e.g. 127.0.0.1:5000")
-    return (host.strip("[]") or "127.0.0.1"), int(port)
 
 
 def register(sub: Any) -> None:
@@ -39,7 +33,7 @@ def register(sub: Any) -> None:
     )
     p.add_argument(
         "--listen",
-        type=_listen,
+        type=partial(host_port, listening=True),
         default=("127.0.0.1", 5000),
         metavar="HOST:PORT",
         help="where to listen (default 127.0.0.1:5000; only this host is served)",

@@ -22,17 +22,12 @@ import sys
 from collections.abc import Iterator
 from typing import Any
 
+from cobus._args import host_port
+
 __all__ = ["register"]
 
 _EXIT = {"abort": 1, "syntax": 2, "timeout": 3, "refused": 4}
 _EXIT_CONNECT = 5
-
-
-def _address(text: str) -> tuple[str, int]:
-    host, sep, port = text.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) <= 65535:
-        raise argparse.ArgumentTypeError(f"{text!r}: give HOST:PORT, e.g. 127.0.0.1:5000")
-    return host.strip("[]"), int(port)
 
 
 def register(sub: Any) -> None:
@@ -43,7 +38,7 @@ def register(sub: Any) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("address", type=_address, metavar="HOST:PORT", help="the gateway")
+    p.add_argument("address", type=host_port, metavar="HOST:PORT", help="the gateway")
     p.add_argument("requests", nargs="*", metavar="REQUEST", help="request lines")
     p.add_argument(
         "-f", "--file", action="append", default=[], metavar="FILE", help="a file of requests"
