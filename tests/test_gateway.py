@@ -336,9 +336,11 @@ def gateway_in_a_thread(dialect: str = "canopennode") -> Iterator[int]:
         loop.close()
 
 
-def gw(port: int, *args: str, stdin: str | None = None) -> subprocess.CompletedProcess[str]:
+def gw(
+    port: int, *args: str, stdin: str | None = None, options: tuple[str, ...] = ()
+) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "cobus", "gw", f"127.0.0.1:{port}", *args],
+        [sys.executable, "-m", "cobus", "gw", *options, f"127.0.0.1:{port}", *args],
         input=stdin,
         capture_output=True,
         text=True,
@@ -573,5 +575,57 @@ def test_who_lists_the_clients_and_an_idle_client_is_closed() -> None:
         await ask(a, "[3] info")
         assert (await a[0].readline()).decode() == "# idle for 0.3 s: closed\r\n"
         assert await a[0].readline() == b""  # (closed)
+
+    served(scenario)
+
+
+def test_the_client_keeps_unsolicited_lines_apart_and_a_late_reply_is_a_time_out() -> None:
+    import socket
+
+    from cobus.apps.gateway import GatewayClient
+
+    with socket.create_server(("127.0.0.1", 0)) as listener:
+        port = listener.getsockname()[1]
+
+        def fake_gateway() -> None:
+            conn, _ = listener.accept()
+            with conn:
+                conn.recv(100)
+                conn.sendall(b"1 5 BOOT_UP\r\n1 5 EMCY 8130 11 0 0 0 0 0\r\n[1] 0\r\n")
+                conn.recv(100)  # (the second request gets no reply)
+                conn.recv(100)
+
+        thread = threading.Thread(target=fake_gateway, daemon=True)
+        thread.start()
+        with GatewayClient("127.0.0.1", port, timeout=0.3) as client:
+            reply = client.request("5 r 0x1017 0 u16")
+            assert (reply.ok, reply.value, reply.lines) == (True, "0", [])
+            assert client.events == ["1 5 BOOT_UP", "1 5 EMCY 8130 11 0 0 0 0 0"]
+            with pytest.raises(TimeoutError):
+                client.request("5 r 0x1017 0 u16")
+        thread.join(5)
+
+
+def test_cobus_gw_says_a_reply_that_does_not_come_in_time() -> None:
+    with gateway_in_a_thread() as port:
+        done = gw(
+            port, "set sdo_timeout 2000", "99 r 0x1000 0", "info", options=("--timeout", "0.3")
+        )
+        assert done.returncode == 3
+        assert "no reply within 0.3 s (--timeout); the 2 requests from there on" in done.stderr
+
+
+def test_a_listening_client_is_not_idle_and_the_core_lets_the_bus_go() -> None:
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        a = await connect(server)
+        assert await ask(a, "[1] subscribe boot_up") == ["[1] OK"]
+        server.idle_timeout = 0.2
+        await ask(a, "[2] 5 r 0x1017 0 u16")
+        await asyncio.sleep(0.6)  # (only listening)
+        assert await ask(a, "[3] 5 r 0x1017 0 u16") == ["[3] 0"]
+        assert (await ask(a, "[4] 5 lss_get_node"))[0].startswith("[4] ERROR:106 #no net 5")
+        assert server.core._listening
+        await server.stop()
+        assert not server.core._listening and server.clients == 0
 
     served(scenario)

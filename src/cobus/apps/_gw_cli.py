@@ -8,6 +8,8 @@ Requests come from the arguments, else from the files of ``-f``, else from stand
 one a line (``#`` comments and blank lines skipped); each is answered in turn, a value on a
 line of its own (OK answers print nothing), or with ``--json`` one JSON object a request.
 Every request is sent even after an error; the exit code is the first error's kind.
+Unsolicited lines (after ``subscribe``) go to standard error, or as ``{"event": ...}``
+objects with ``--json``. Options come before HOST:PORT or after the requests.
 
 Exit codes: 0 all answered OK, 1 an SDO abort, 2 bad usage or a request the gateway calls a
 syntax error, 3 no answer (time-out), 4 refused by the gateway (no default node, unknown
@@ -83,6 +85,12 @@ def _run(args: argparse.Namespace) -> int:
             for line in lines:
                 reply = client.request(line)
                 done += 1
+                for event in client.events:  # (unsolicited lines: not data of any reply)
+                    if args.json:
+                        print(json.dumps({"event": event}), flush=True)
+                    else:
+                        print(f"cobus gw: event: {event}", file=sys.stderr)
+                client.events.clear()
                 if args.json:
                     print(json.dumps(reply.as_dict()), flush=True)
                 elif reply.ok:
@@ -99,6 +107,13 @@ def _run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print(f"cobus gw: stopped by Ctrl-C after {done} of {len(lines)} requests", file=sys.stderr)
         return 130
+    except TimeoutError:
+        print(
+            f"cobus gw: no reply within {args.timeout:g} s (--timeout); the {len(lines) - done} "
+            "requests from there on were not answered",
+            file=sys.stderr,
+        )
+        return _EXIT["timeout"]
     except (OSError, ConnectionError) as exc:
         print(
             f"cobus gw: {host}:{port}: {getattr(exc, 'strerror', None) or exc} "

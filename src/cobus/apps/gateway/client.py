@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 __all__ = ["GatewayClient", "Reply", "error_class"]
 
 _SEQ = re.compile(r"\s*\[\s*([0-9]+)\s*\]\s?(.*)\Z", re.S)
+_EVENT = re.compile(r"[0-9]+ [0-9]+ (BOOT_UP|EMCY|ERROR|USER|pdo|SDO)")
 _ERROR = re.compile(
     r"ERROR:\s*(0x[0-9A-Fa-f]{8}|[0-9A-Fa-f]{8}(?=\s*\()|[0-9]+)\s*(?:#\s*(.*)|\((.*)\))?\Z"
 )
@@ -68,6 +69,9 @@ class GatewayClient:
         self._sock = socket.create_connection((host, port), timeout=timeout)
         self._file = self._sock.makefile("rb")
         self._seq = 0
+        #: Unsolicited lines (``1 5 BOOT_UP``, ``1 5 EMCY ...``) that came so far, oldest
+        #: first; whoever reads them empties the list.
+        self.events: list[str] = []
 
     def close(self) -> None:
         """End the connection."""
@@ -98,6 +102,9 @@ class GatewayClient:
                 raise ConnectionError("the gateway closed the connection before it answered")
             got = raw.decode("utf-8", "replace").rstrip("\r\n")
             answer = _SEQ.match(got)
+            if answer is None and _EVENT.match(got):
+                self.events.append(got)  # (an unsolicited line: no part of any reply)
+                continue
             if answer is None:
                 if got.lstrip().startswith("ERROR"):  # (a line the gateway could not number)
                     return _reply(line.strip(), got.strip(), before)

@@ -38,6 +38,7 @@ from cobus.runtime import (
     LssTimeoutError,
     NetworkClosedError,
     SdoChannel,
+    Subscription,
 )
 
 if TYPE_CHECKING:
@@ -106,7 +107,7 @@ class GatewayCore:
         self.dialect = dialect
         self.default_net = next(iter(networks))
         self._sessions: list[Session] = []
-        self._listening = False
+        self._listening: list[Subscription] = []
 
     def session(self) -> Session:
         """A new client's session (the default net, no default node)."""
@@ -159,11 +160,22 @@ class GatewayCore:
         """Watch boot-ups and emergencies on every net (once, when a client first asks)."""
         if self._listening:
             return
-        self._listening = True
         for net_id, network in self.networks.items():
             for node in range(1, 128):
-                network.subscribe(error_control_cob_id(node), partial(self._bootup, net_id, node))
-                network.subscribe(emcy_cob_id(node), partial(self._emcy, net_id, node))
+                self._listening += [
+                    network.subscribe(
+                        error_control_cob_id(node), partial(self._bootup, net_id, node)
+                    ),
+                    network.subscribe(emcy_cob_id(node), partial(self._emcy, net_id, node)),
+                ]
+
+    def close(self) -> None:
+        """The gateway stops: every session ends, the bus is no longer watched."""
+        for session in list(self._sessions):
+            self.forget(session)
+        for subscription in self._listening:
+            subscription.cancel()
+        self._listening.clear()
 
     def _tell(self, kind: str, line: str) -> None:
         for session in self._sessions:
@@ -374,8 +386,17 @@ class GatewayCore:
     async def _lss(self, session: Session, request: Request) -> str | None:
         """The LSS requests (CiA 305 through the network's LSS master)."""
         if request.net is not None:  # ([net] lss_...: one number names the net)
-            raise GatewayError(101, "an LSS request takes its net before it, not a node")
+            raise GatewayError(
+                101, "an LSS request goes to a whole net: one number before it, the net"
+            )
         if request.node is not None:
+            if request.node not in self.networks:
+                known = ", ".join(str(n) for n in self.networks)
+                raise GatewayError(
+                    106,
+                    f"no net {request.node} here (an LSS request takes one number before it, "
+                    f"its net: {known})",
+                )
             request.net, request.node = request.node, None
         _net, network = self._network(session, request)
         lss = network.lss

@@ -77,6 +77,7 @@ class GatewayServer:
                     await task
             await self._server.wait_closed()
             self._server = None
+        self.core.close()
 
     #: Unsolicited lines dropped because their client did not read (summed over clients).
     dropped = 0
@@ -97,12 +98,16 @@ class GatewayServer:
         session = self.core.session()
         session.notify = partial(self._notify, session, writer)
         peer = writer.get_extra_info("peername")
-        session.peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer)
+        if isinstance(peer, tuple):
+            host = f"[{peer[0]}]" if ":" in str(peer[0]) else str(peer[0])
+            session.peer = f"{host}:{peer[1]}"
         lines = _Lines(reader)
         try:
             while True:
                 try:
-                    line = await asyncio.wait_for(lines.next(), self.idle_timeout)
+                    # (a client that only listens to its subscriptions is not idle)
+                    idle = None if session.subscribed else self.idle_timeout
+                    line = await asyncio.wait_for(lines.next(), idle)
                 except TimeoutError:
                     writer.write(f"# idle for {self.idle_timeout:g} s: closed\r\n".encode())
                     break
