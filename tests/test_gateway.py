@@ -388,8 +388,9 @@ def test_what_the_review_of_the_first_slice_found(caplog: pytest.LogCaptureFixtu
         await writer.drain()
         writer.write_eof()  # (printf ... | nc -N: the client half-closes and reads on)
         replies = (await reader.read()).decode().splitlines()
-        assert replies[0] == "[1] OK" and replies[1].startswith("[2] ERROR:0x05040000 #")
-        assert replies[2:] == ["[3] 0"]
+        # ([3] asks another node: it is answered while [2] waits for its silent node)
+        assert replies[:2] == ["[1] OK", "[3] 0"] and len(replies) == 3
+        assert replies[2].startswith("[2] ERROR:0x05040000 #")
         c = await connect(server)
         assert await ask(c, "[5] info\r[6] 5 r 0x1017 0 u16", 2) == [ANY_INFO, "[6] 0"]
         assert (await ask(c, "[7] 3 set node 5"))[0].startswith("[7] ERROR:106 #")
@@ -627,5 +628,108 @@ def test_a_listening_client_is_not_idle_and_the_core_lets_the_bus_go() -> None:
         assert server.core._listening
         await server.stop()
         assert not server.core._listening and server.clients == 0
+
+    served(scenario)
+
+
+# ------------------------------------------------------------------ several requests at once
+
+
+async def send(client: Client, *lines: str) -> None:
+    client[1].write("".join(line + "\n" for line in lines).encode())
+    await client[1].drain()
+
+
+async def answers(client: Client, count: int) -> list[str]:
+    return [(await client[0].readline()).decode().rstrip("\r\n") for _ in range(count)]
+
+
+def test_numbered_requests_run_side_by_side_and_in_turn_per_node() -> None:
+    """A silent node holds back no request to another node of the same client; requests to
+    one node keep their order; each takes the defaults set before it, not after."""
+
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        c = await connect(server)
+        await send(
+            c,
+            "[1] set sdo_timeout 300",
+            "[2] set node 99",
+            "[3] r 0x1000 0",  # (node 99: silent)
+            "[4] set node 5",
+            "[5] w 0x1017 0 u16 100",
+            "[6] r 0x1017 0 u16",  # (after [5]: same node)
+            "[7] 6 r 0x1017 0 u16",
+        )
+        got = await answers(c, 7)
+        assert got[:2] == ["[1] OK", "[2] OK"]
+        assert got[-1].startswith("[3] ERROR:0x05040000 #")  # (the only one that waited)
+        assert got.index("[5] OK") < got.index("[6] 100")
+        assert {"[4] OK", "[7] 0"} <= set(got)
+
+    served(scenario)
+
+
+def test_unnumbered_requests_are_answered_in_order() -> None:
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        c = await connect(server)
+        await send(c, "set sdo_timeout 200", "99 r 0x1000 0", "[8] 5 r 0x1017 0 u16", "x y z")
+        got = await answers(c, 4)
+        assert got[0] == "OK" and got[1].startswith("ERROR:0x05040000 #")
+        assert got[2] == "[8] 0" and got[3].startswith("ERROR:100 #")
+
+    served(scenario)
+
+
+def test_cancel_ends_requests_under_way_and_the_queue_is_bounded() -> None:
+    from cobus.apps.gateway import MAX_PENDING
+
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        aborts: list[Frame] = []
+        net.subscribe(0x600 + 99, lambda frame, now: aborts.append(frame))
+        c = await connect(server)
+        assert await ask(c, "[1] set sdo_timeout 5000") == ["[1] OK"]
+        await send(c, "[2] 99 r 0x1000 0", "[3] 99 r 0x1001 0")
+        await asyncio.sleep(0.05)
+        started = asyncio.get_running_loop().time()
+        assert await ask(c, "[4] cancel 2", 2) == ["[4] OK", "[2] ERROR:102 #cancelled by [4]"]
+        # ([2] was under way: the node is told, [3] takes its turn and is cancelled next)
+        assert await ask(c, "[5] cancel", 2) == ["[5] OK", "[3] ERROR:102 #cancelled by [5]"]
+        assert asyncio.get_running_loop().time() - started < 1.0
+        await asyncio.sleep(0.05)
+        assert [f.data[0] for f in aborts] == [0x40, 0x80, 0x40, 0x80]  # (each told)
+        assert (await ask(c, "[6] cancel 42"))[0].startswith("[6] ERROR:102 #no request [42]")
+        assert (await ask(c, "[7] cancel x"))[0].startswith("[7] ERROR:101 #")
+        # the queue: MAX_PENDING requests wait, the next are refused, the connection stays
+        await send(c, *(f"[{100 + i}] 99 r 0x1000 0" for i in range(MAX_PENDING + 3)))
+        refused = await answers(c, 3)
+        assert all(
+            r.startswith(f"[{100 + MAX_PENDING + i}] ERROR:102 #") for i, r in enumerate(refused)
+        )
+        assert "under way" in refused[0]
+        got = await ask(c, "[9] cancel", MAX_PENDING + 1)
+        assert got[0] == "[9] OK" and len(set(got[1:])) == MAX_PENDING
+        assert all(g.endswith("ERROR:102 #cancelled by [9]") for g in got[1:])
+        assert await ask(c, "[10] 5 r 0x1017 0 u16") == ["[10] 0"]
+
+    served(scenario)
+
+
+def test_a_client_gone_with_requests_queued_holds_back_nobody() -> None:
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        gone = await connect(server)
+        await send(gone, "[1] set sdo_timeout 400", *(f"[{i}] 99 r 0x1000 0" for i in range(2, 12)))
+        await asyncio.sleep(0.05)
+        gone[1].close()
+        other = await connect(server)
+        await ask(other, "[1] set sdo_timeout 100")
+        started = asyncio.get_running_loop().time()
+        (late,) = await ask(other, "[2] 99 r 0x1000 0")
+        assert late.startswith("[2] ERROR:0x05040000 #")
+        assert asyncio.get_running_loop().time() - started < 0.9  # (one transfer's wait)
+        for _ in range(100):  # (its queue dropped: gone within a transfer or two)
+            if server.clients == 1:
+                break
+            await asyncio.sleep(0.05)
+        assert server.clients == 1
 
     served(scenario)

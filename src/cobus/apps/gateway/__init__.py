@@ -7,7 +7,7 @@ once (``cobus gateway``).
 """
 
 from cobus.apps.gateway.client import GatewayClient, Reply
-from cobus.apps.gateway.core import HELP, GatewayCore, Session
+from cobus.apps.gateway.core import HELP, MAX_PENDING, GatewayCore, Session
 from cobus.apps.gateway.grammar import ERRORS, TYPES, GatewayError, parse_line
 from cobus.apps.gateway.server import MAX_LINE, GatewayServer, is_loopback
 
@@ -15,6 +15,7 @@ __all__ = [
     "ERRORS",
     "HELP",
     "MAX_LINE",
+    "MAX_PENDING",
     "TYPES",
     "GatewayClient",
     "GatewayCore",

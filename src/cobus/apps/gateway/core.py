@@ -5,12 +5,20 @@ One :class:`Session` per client holds its defaults (net, node, SDO timeout, bloc
 transport per node (a master or a remote node asking the same node waits its turn, and so
 do other clients: requests to one node run in order, to different nodes side by side), NMT
 commands, and the ``set``, ``info`` and ``help`` requests. A framing (the TCP server, JSON
-lines) feeds it lines and writes back what it returns.
+lines) feeds it lines (:meth:`GatewayCore.submit`) and writes back what it is handed.
+
+One client may have several requests under way (:data:`MAX_PENDING` at most): those with a
+``[seq]`` run side by side, in turn per node, and are answered as they end (the client
+matches the answers by their numbers); one without runs after every request before it and
+before every request after it, so a client that numbers nothing gets its answers in order.
+``cancel`` ends the client's requests still under way.
 """
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
+import copy
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -44,7 +52,15 @@ from cobus.runtime import (
 if TYPE_CHECKING:
     from cobus.runtime import AsyncNetwork
 
-__all__ = ["HELP", "GatewayCore", "Session"]
+__all__ = ["HELP", "MAX_PENDING", "GatewayCore", "Session"]
+
+#: Requests one client may have under way at once; one more is answered with ERROR:102.
+MAX_PENDING = 64
+
+#: The commands that address one node (and queue behind the client's others to that node).
+_NODE_COMMANDS = frozenset(
+    ("r", "read", "w", "write", "start", "stop", "preop", "preoperational", "reset")
+)
 
 HELP = """\
 cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [# comment]
@@ -58,7 +74,11 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
   subscribe [boot_up|emcy|all] | unsubscribe [...]   unsolicited lines, as Lely writes
   them: NET NODE BOOT_UP, NET NODE EMCY CODE REG B0 B1 B2 B3 B4
   who                               the clients connected (this one marked *)
-  info | help
+  cancel [SEQ]                      end this client's requests under way (or the one
+                                    numbered SEQ): each is answered ERROR:102 #cancelled
+  info | help                       help ends with [seq] OK
+requests with [seq] run side by side (to one node in turn) and are answered as they end;
+one without [seq] waits for all before it, so unnumbered requests are answered in order
 types: b i8 i16 i24 i32 i40 i48 i56 i64 u8 u16 u24 u32 u40 u48 u56 u64 x8 x16 x32 x64
        r32 r64 vs ("text", "" for a quote) os us d (base64) t td (days ms) hex (bytes)
 numbers: decimal, 0x hex, leading-0 octal"""
@@ -84,9 +104,22 @@ class Session:
     since: float = field(default_factory=time.monotonic)
     requests: int = 0
     last: float = field(default_factory=time.monotonic)
+    #: The client's requests under way (their tasks, with their sequence numbers).
+    pending: dict[asyncio.Task[None], int | None] = field(default_factory=dict)
+    #: The last request without [seq] still under way (later ones wait for it).
+    barrier: asyncio.Task[None] | None = None
+    #: Requests that have their turn at their node (not merely waiting for it).
+    running: set[asyncio.Task[None]] = field(default_factory=set)
+    #: Requests the client cancelled, with what their answer says.
+    cancelled: dict[asyncio.Task[None], str] = field(default_factory=dict)
+    #: One lock per node (and one for LSS): the client's requests to it in turn.
+    lanes: dict[tuple[object, ...], asyncio.Lock] = field(default_factory=dict)
 
     def close(self) -> None:
-        """The client left: its channels go (a transfer under way ends with it)."""
+        """The client left: its channels go (a transfer under way ends with it), its
+        requests still under way end."""
+        for task in list(self.pending):
+            task.cancel()
         for channel in self.channels.values():
             channel.close()
         self.channels.clear()
@@ -128,8 +161,9 @@ class GatewayCore:
             node = "-" if s.node is None else str(s.node)
             mark = "*" if s is asker else " "
             out.append(
-                f"{mark} {s.peer} net {s.net} node {node}, {s.requests} requests, connected "
-                f"{now - s.since:.0f} s, idle {now - s.last:.0f} s"
+                f"{mark} {s.peer} net {s.net} node {node}, {s.requests} requests "
+                f"({len(s.pending)} under way), connected {now - s.since:.0f} s, "
+                f"idle {now - s.last:.0f} s"
             )
         return out
 
@@ -194,7 +228,8 @@ class GatewayCore:
             self._tell("emcy", f"{net} {node} EMCY {code:04X} {data[2]:02X} {rest}")
 
     async def execute(self, session: Session, line: str) -> list[str]:
-        """The reply lines to ``line`` (none for an empty line or a comment)."""
+        """The reply lines to ``line`` (none for an empty line or a comment), one request
+        at a time (:meth:`submit` takes several)."""
         try:
             request = parse_line(line)
         except GatewayError as exc:
@@ -203,6 +238,135 @@ class GatewayCore:
             return []
         session.requests += 1
         session.last = time.monotonic()
+        if request.command == "cancel":
+            return self._cancel(session, request)
+        return await self._answer(session, request)
+
+    # ------------------------------------------------------------------ several at once
+
+    def submit(self, session: Session, line: str, answer: Callable[[list[str]], None]) -> None:
+        """Take ``line`` and hand its reply lines to ``answer`` when it is done (at once for
+        ``cancel``, a full queue or an empty line: nothing). See the module's text for the
+        order requests run in."""
+        request: Request | GatewayError | None
+        try:
+            request = parse_line(line)
+        except GatewayError as exc:
+            request = exc
+        if request is None:
+            return
+        seq = None
+        if isinstance(request, Request):
+            session.requests += 1
+            session.last = time.monotonic()
+            seq = request.seq
+            if request.command == "cancel":
+                answer(self._cancel(session, request))
+                return
+        if len(session.pending) >= MAX_PENDING:
+            full = f"{MAX_PENDING} requests of this client are under way: wait for their answers"
+            answer([format_error(seq, 102, full, self.dialect)])
+            return
+        ordered = seq is None
+        if ordered:
+            before = list(session.pending)
+        else:
+            before = [] if session.barrier is None else [session.barrier]
+        task = asyncio.get_running_loop().create_task(self._job(session, request, before, answer))
+        session.pending[task] = seq
+        if ordered:
+            session.barrier = task
+        task.add_done_callback(partial(self._ended, session))
+
+    @staticmethod
+    def _ended(session: Session, task: asyncio.Task[None]) -> None:
+        session.last = time.monotonic()  # (idle from its last answer)
+        session.pending.pop(task, None)
+        session.running.discard(task)
+        session.cancelled.pop(task, None)
+        if session.barrier is task:
+            session.barrier = None
+
+    async def _job(
+        self,
+        session: Session,
+        request: Request | GatewayError,
+        before: list[asyncio.Task[None]],
+        answer: Callable[[list[str]], None],
+    ) -> None:
+        task = asyncio.current_task()
+        assert task is not None
+        try:
+            if before:
+                await asyncio.wait(before)
+            if isinstance(request, GatewayError):
+                answer([format_error(None, request.code, request.text, self.dialect)])
+                return
+            view, lane = self._bind(session, request)
+            if lane is None:
+                lines = await self._answer(view, request)
+            else:
+                async with session.lanes.setdefault(lane, asyncio.Lock()):
+                    session.running.add(task)
+                    lines = await self._answer(view, request)
+        except asyncio.CancelledError:
+            reason = session.cancelled.get(task)
+            if reason is None:
+                raise  # (the client left, the gateway stops: nobody to answer)
+            seq = request.seq if isinstance(request, Request) else None
+            answer([format_error(seq, 102, reason, self.dialect)])
+            return
+        answer(lines)
+
+    def _bind(
+        self, session: Session, request: Request
+    ) -> tuple[Session, tuple[object, ...] | None]:
+        """The session as ``request`` sees it (its defaults as they are when its turn
+        comes, whatever the client sets later) and the lane it queues in (None: none)."""
+        command = request.command
+        if command in _NODE_COMMANDS:
+            net = request.net if request.net is not None else session.net
+            node = request.node if request.node is not None else session.node
+            request.net, request.node = net, node
+            return copy.copy(session), ("node", net, node)
+        if command.startswith("lss_") or command == "_lss_fastscan":
+            return copy.copy(session), ("lss",)
+        return session, None
+
+    def _cancel(self, session: Session, request: Request) -> list[str]:
+        """``cancel [SEQ]``: end the client's requests under way (or those numbered SEQ)."""
+        if len(request.args) > 1 or request.net is not None or request.node is not None:
+            raise_text = "cancel takes the [seq] of one request at most: cancel 12"
+            return [format_error(request.seq, 101, raise_text, self.dialect)]
+        try:
+            which = parse_number(request.args[0], "seq") if request.args else None
+        except GatewayError as exc:
+            return [format_error(request.seq, exc.code, exc.text, self.dialect)]
+        head = "" if request.seq is None else f"[{request.seq}] "
+        tasks = [t for t, s in session.pending.items() if which is None or s == which]
+        if not tasks and which is not None:
+            return [
+                format_error(request.seq, 102, f"no request [{which}] is under way", self.dialect)
+            ]
+        by = "cancelled" if request.seq is None else f"cancelled by [{request.seq}]"
+        for task in tasks:
+            session.cancelled[task] = by
+            task.cancel()
+        return [f"{head}OK"]
+
+    def abandon(self, session: Session) -> None:
+        """The client is gone: its requests that have not had their turn yet end (no frame
+        of theirs reaches the bus); those under way end as they would."""
+        for task in list(session.pending):
+            if task not in session.running:
+                task.cancel()
+
+    async def drain(self, session: Session) -> None:
+        """Wait until every request of ``session`` has ended."""
+        while session.pending:
+            await asyncio.wait(list(session.pending))
+
+    async def _answer(self, session: Session, request: Request) -> list[str]:
         head = "" if request.seq is None else f"[{request.seq}] "
         try:
             out = await self._run(session, request)

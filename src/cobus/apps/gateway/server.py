@@ -1,10 +1,14 @@
 """The gateway over TCP: each client a session of its own, one request a line (LF, CR LF or
-CR), the replies in its order.
+CR); requests with a ``[seq]`` run side by side and are answered as they end, those without
+in order (see :mod:`cobus.apps.gateway.core`).
 
 Lines are bounded (:data:`MAX_LINE` bytes: a longer one is answered with a syntax error and
-skipped, the connection stays); a client that disconnects in the middle of a transfer holds
-back no other client but those asking the same node, and them only until its transfer ends
-as it would (within its SDO timeout): no abort the client did not ask for reaches the bus.
+skipped, the connection stays), and so are a client's requests under way
+(:data:`~cobus.apps.gateway.core.MAX_PENDING`); a client that disconnects in the middle of a
+transfer holds back no other client but those asking the same node, and them only until its
+transfer ends as it would (within its SDO timeout): no abort the client did not ask for
+reaches the bus, and its requests still waiting for their turn are dropped. A client that
+only half-closes (``printf ... | nc -N``) gets every answer.
 The server binds 127.0.0.1 unless told otherwise; it serves another address only to clients
 that give the token (not built yet: it refuses such an address).
 """
@@ -14,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import ipaddress
+import time
 from functools import partial
 from typing import TYPE_CHECKING
 
@@ -90,6 +95,33 @@ class GatewayServer:
             return
         writer.write(line.encode("utf-8") + b"\r\n")
 
+    def _answer(self, session: Session, writer: asyncio.StreamWriter, reply: list[str]) -> None:
+        if writer.is_closing():
+            self.core.abandon(session)  # (nobody reads: what waits for its turn goes)
+            return
+        if reply:
+            writer.write(("\r\n".join(reply) + "\r\n").encode("utf-8", "replace"))
+
+    async def _next(self, lines: _Lines, session: Session) -> str | int | None:
+        """The client's next line, or :data:`_IDLE` once it has been idle too long: no
+        request for :attr:`idle_timeout` seconds, none under way, no subscription."""
+        if self.idle_timeout is None:
+            return await lines.next()
+        reading = asyncio.ensure_future(lines.next())
+        try:
+            while True:
+                idle = time.monotonic() - session.last
+                if session.subscribed or session.pending:
+                    idle = 0.0
+                if idle >= self.idle_timeout:
+                    return _IDLE
+                await asyncio.wait({reading}, timeout=self.idle_timeout - idle)
+                if reading.done():
+                    return reading.result()
+        finally:
+            if not reading.done():
+                reading.cancel()
+
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         task = asyncio.current_task()
         assert task is not None
@@ -101,29 +133,29 @@ class GatewayServer:
         if isinstance(peer, tuple):
             host = f"[{peer[0]}]" if ":" in str(peer[0]) else str(peer[0])
             session.peer = f"{host}:{peer[1]}"
+        answer = partial(self._answer, session, writer)
         lines = _Lines(reader)
         try:
             while True:
-                try:
-                    # (a client that only listens to its subscriptions is not idle)
-                    idle = None if session.subscribed else self.idle_timeout
-                    line = await asyncio.wait_for(lines.next(), idle)
-                except TimeoutError:
+                line = await self._next(lines, session)
+                if line == _IDLE:
                     writer.write(f"# idle for {self.idle_timeout:g} s: closed\r\n".encode())
                     break
                 if line is None:
-                    break  # (a request under way was answered first: a client that only
-                    # half-closed, as `printf ... | nc -N` does, still gets every reply)
+                    break
                 if isinstance(line, int):
                     too_long = f"a line longer than {MAX_LINE} bytes"
-                    reply = [format_error(None, 101, too_long, self.core.dialect)]
+                    answer([format_error(None, 101, too_long, self.core.dialect)])
                 else:
-                    reply = await self.core.execute(session, line)
-                if reply:
-                    writer.write(("\r\n".join(reply) + "\r\n").encode("utf-8", "replace"))
-                    await writer.drain()
+                    self.core.submit(session, line, answer)
+                await writer.drain()  # (a client that does not read its answers is not read)
+            # the client sent all it will: its requests are answered (a client that only
+            # half-closed, as `printf ... | nc -N` does, gets every answer)
+            await self.core.drain(session)
         except (ConnectionError, asyncio.IncompleteReadError):
-            pass
+            self.core.abandon(session)
+            with contextlib.suppress(asyncio.CancelledError):
+                await self.core.drain(session)
         except asyncio.CancelledError:
             pass  # (the server stops: the connection ends quietly)
         finally:
@@ -134,6 +166,9 @@ class GatewayServer:
             with contextlib.suppress(Exception):
                 await writer.wait_closed()
 
+
+#: What :meth:`GatewayServer._next` gives for a client idle too long (0: a line too long).
+_IDLE = -1
 
 #: Bytes a client may leave unread before its unsolicited lines are dropped (and counted).
 UNREAD_LIMIT = 64 * 1024
