@@ -246,21 +246,14 @@ def test_the_lely_dialect_over_the_socket() -> None:
     served(scenario, "lely")
 
 
-def test_only_this_host_is_served() -> None:
+def test_beyond_this_host_only_with_a_token() -> None:
     core = GatewayCore({1: AsyncNetwork()})
     for host in ("0.0.0.0", "192.168.1.5", "::"):
-        with pytest.raises(ValueError, match=r"only 127\.0\.0\.1"):
+        with pytest.raises(ValueError, match=r"not only this host\) give the core a token"):
             GatewayServer(core, host)
     GatewayServer(core, "localhost")
     GatewayServer(core, "::1")
-    done = subprocess.run(
-        [sys.executable, "-m", "cobus", "gateway", "--listen", "0.0.0.0:5000", "-i", "virtual"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert done.returncode == 2
-    assert done.stderr.startswith("cobus gateway: --listen 0.0.0.0: the gateway writes to the bus")
+    GatewayServer(GatewayCore({1: AsyncNetwork()}, token="a-long-token"), "::")
 
 
 def test_a_master_beside_the_gateway_never_sees_its_transfers_aborted(tmp_path: Path) -> None:
@@ -733,3 +726,192 @@ def test_a_client_gone_with_requests_queued_holds_back_nobody() -> None:
         assert server.clients == 1
 
     served(scenario)
+
+
+# ------------------------------------------------------------------ tokens, Unix sockets, nets
+
+
+def test_with_a_token_writes_nmt_and_lss_wait_for_it() -> None:
+    async def main() -> None:
+        rig = Rig.loads(RIG)
+        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+            await rig.start(net)
+            core = GatewayCore({1: net}, token="s3cret-token")
+            server = GatewayServer(core, "127.0.0.1", 0)
+            await server.start()
+            try:
+                c = await connect(server)
+                assert await ask(c, "[1] 5 r 0x1017 0 u16") == ["[1] 0"]  # (reads: free)
+                for seq, line in enumerate(
+                    ["5 w 0x1017 0 u16 9", "5 stop", "0 reset node", "lss_switch_glob 1"], 2
+                ):
+                    (refused,) = await ask(c, f"[{seq}] {line}")
+                    assert refused.startswith(f"[{seq}] ERROR:102 #") and "auth TOKEN" in refused
+                assert (await ask(c, "[6] auth guess-guess"))[0].startswith("[6] ERROR:102 #")
+                assert (await ask(c, "[7] auth"))[0].startswith("[7] ERROR:101 #")
+                assert await ask(c, "[8] auth s3cret-token") == ["[8] OK"]
+                assert await ask(c, "[9] 5 w 0x1017 0 u16 9") == ["[9] OK"]
+                (who,) = (await ask(c, "[10] who", 2))[:1]
+                assert "s3cret" not in who
+                other = await connect(server)  # (each client gives it)
+                assert (await ask(other, "[1] 5 stop"))[0].startswith("[1] ERROR:102 #")
+                assert device(rig, 5).state is not NmtState.STOPPED
+            finally:
+                await server.stop()
+                await rig.stop()
+            with pytest.raises(ValueError, match="token"):
+                GatewayServer(GatewayCore({1: net}), "0.0.0.0", 0)
+            assert GatewayServer(core, "0.0.0.0", 0).address == "0.0.0.0:0"
+            with pytest.raises(ValueError, match="8 characters"):
+                GatewayCore({1: net}, token="short")
+            with pytest.raises(ValueError, match=r"1\.\.127"):
+                GatewayCore({0: net})
+            # without a token, auth says there is none
+            plain = GatewayCore({1: net})
+            assert (await plain.execute(plain.session(), "[1] auth x"))[0].startswith(
+                "[1] ERROR:102 #this gateway has no token"
+            )
+
+    asyncio.run(asyncio.wait_for(main(), 60))
+
+
+def test_a_unix_socket_is_this_users_and_serves_several_nets(tmp_path: Path) -> None:
+    import os
+    import stat
+
+    from cobus.apps.gateway import GatewayClient
+
+    path = str(tmp_path / "gw.sock")
+
+    async def main() -> None:
+        rig1 = Rig.loads("devices:\n  - {node: 5, kind: cia401_io}\n")
+        rig2 = Rig.loads("devices:\n  - {node: 7, kind: cia401_io}\n")
+        async with (
+            AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net1,
+            AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net2,
+        ):
+            await rig1.start(net1)
+            await rig2.start(net2)
+            with open(path, "w"):  # (a file that is no socket is refused)
+                pass
+            refused = GatewayServer(GatewayCore({1: net1}), unix=path)
+            with pytest.raises(OSError, match="no socket"):
+                await refused.start()
+            os.unlink(path)
+            server = GatewayServer(GatewayCore({1: net1, 2: net2}), unix=path)
+            await server.start()
+            try:
+                assert stat.S_IMODE(os.stat(path).st_mode) == 0o600
+                assert server.address == path
+                twin = GatewayServer(GatewayCore({1: net1}), unix=path)
+                with pytest.raises(OSError, match="another server listens"):
+                    await twin.start()
+
+                def as_client() -> list[str | None]:
+                    with GatewayClient(unix=path, timeout=10) as client:
+                        replies = [
+                            client.request("5 r 0x1018 1 u32"),
+                            client.request("2 7 r 0x1018 1 u32"),
+                            client.request("set network 2"),
+                            client.request("7 r 0x1017 0 u16"),
+                            client.request("5 r 0x1017 0 u16"),  # (no node 5 on net 2)
+                            client.request("3 5 r 0x1017 0 u16"),
+                            client.request("info"),
+                            client.request("who"),
+                        ]
+                    values = [r.value if r.ok else f"E{r.code}" for r in replies]
+                    values[-1] = replies[-1].lines[0]
+                    return values
+
+                got = await asyncio.to_thread(as_client)
+                assert got[:3] == [str(0x00C0B005), str(0x00C0B005), None]
+                assert got[3] == "0" and got[4] == f"E{0x05040000}" and got[5] == "E106"
+                assert got[6] is not None and got[6].endswith("nets 1, 2")
+                assert got[7] is not None and re.match(
+                    rf"\* {re.escape(path)}#[0-9]+ net 2 node -", got[7]
+                )
+            finally:
+                await server.stop()
+                await rig1.stop()
+                await rig2.stop()
+            assert not os.path.exists(path)
+            # a socket left by a gateway that is gone is taken over
+            import socket
+
+            stale = socket.socket(socket.AF_UNIX)
+            stale.bind(path)
+            stale.close()
+            again = GatewayServer(GatewayCore({1: net1}), unix=path)
+            await again.start()
+            await again.stop()
+
+    asyncio.run(asyncio.wait_for(main(), 60))
+
+
+def test_cobus_gateway_with_two_nets_a_unix_socket_and_a_token_beyond_this_host(
+    tmp_path: Path,
+) -> None:
+    import os
+    import signal
+
+    path = str(tmp_path / "gw.sock")
+    base = [sys.executable, "-m", "cobus", "gateway", "-i", "virtual", "-c", f"gw-{uuid.uuid4()}"]
+
+    def started(*options: str) -> tuple[subprocess.Popen[str], str]:
+        proc = subprocess.Popen(
+            [*base, *options], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        assert proc.stdout is not None
+        lines = ""
+        while "serving" not in lines:
+            line = proc.stdout.readline()
+            assert line, proc.stderr.read() if proc.stderr else ""
+            lines += line
+        return proc, lines
+
+    def stopped(proc: subprocess.Popen[str]) -> str:
+        proc.send_signal(signal.SIGINT)
+        _out, err = proc.communicate(timeout=30)
+        assert proc.returncode == 0
+        return err
+
+    proc, said = started("--net", f"2=virtual:gw-{uuid.uuid4()}", "--unix", path)
+    try:
+        assert said == f"cobus gateway: serving nets 1, 2 on {path}\n"
+        done = subprocess.run(
+            [sys.executable, "-m", "cobus", "gw", path, "info", "2 0 start"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert done.returncode == 0 and done.stdout.strip().endswith("nets 1, 2")
+    finally:
+        err = stopped(proc)
+    assert err == f"cobus gateway: stopped by Ctrl-C after serving on {path}\n"
+
+    proc, said = started("--listen", "0.0.0.0:0")
+    try:
+        token = re.search(r"auth (\S+)\n", said)
+        port = re.search(r"on 0\.0\.0\.0:([0-9]+)", said)
+        assert token and port, said
+        env = {k: v for k, v in os.environ.items() if k != "COBUS_GATEWAY_TOKEN"}
+        ask_ = [sys.executable, "-m", "cobus", "gw", f"127.0.0.1:{port[1]}", "0 start"]
+        done = subprocess.run(ask_, capture_output=True, text=True, timeout=60, env=env)
+        assert done.returncode == 4 and "auth TOKEN" in done.stderr
+        env["COBUS_GATEWAY_TOKEN"] = token[1]
+        done = subprocess.run(ask_, capture_output=True, text=True, timeout=60, env=env)
+        assert (done.returncode, done.stderr) == (0, "")
+        env["COBUS_GATEWAY_TOKEN"] = "not-the-token"
+        done = subprocess.run(ask_, capture_output=True, text=True, timeout=60, env=env)
+        assert done.returncode == 4 and "refused the token" in done.stderr
+    finally:
+        stopped(proc)
+
+    for options, said in [
+        (["--net", "1=virtual:x"], "net 1 is given by -i/-c/-b and by --net"),
+        (["--net", "2=virtual"], "give N=INTERFACE:CHANNEL"),
+        (["--net", "200=virtual:x"], "1..127"),
+        (["--token", "short"], "8 characters"),
+    ]:
+        done = subprocess.run([*base, *options], capture_output=True, text=True, timeout=60)
+        assert done.returncode == 2 and said in done.stderr, done.stderr

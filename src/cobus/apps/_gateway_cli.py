@@ -1,17 +1,27 @@
-"""``cobus gateway``: the CiA 309-3 ASCII gateway on a bus, over TCP.
+"""``cobus gateway``: the CiA 309-3 ASCII gateway on one bus or several, over TCP or a Unix
+socket.
 
-Any program that can open a TCP socket reads and writes objects and sends NMT commands,
-several at once: ``printf '[1] 5 r 0x1018 1 u32\\n' | nc 127.0.0.1 PORT``. Each client has
-its own defaults (``set node 5``); requests to one node run in turn, to different nodes
-side by side. ``help`` lists the commands. The gateway serves only this host (127.0.0.1).
+Any program that can open a socket reads and writes objects and sends NMT commands, several
+at once: ``printf '[1] 5 r 0x1018 1 u32\\n' | nc 127.0.0.1 PORT``. Each client has its own
+defaults (``set node 5``); requests to one node run in turn, to different nodes side by
+side. ``help`` lists the commands.
 
-Exit codes: 0 ended by Ctrl-C, 1 the bus or the port could not be opened, 2 bad usage.
+Net 1 is the bus of -i/-c/-b (or python-can's configuration); ``--net 2=socketcan:can1``
+adds more, addressed as ``[seq] 2 5 r 0x1000 0`` or after ``set network 2``.
+
+The gateway serves only this host (127.0.0.1) unless ``--listen`` names another address;
+then clients must give a token (``auth TOKEN``) before they write, send NMT commands or use
+LSS: ``--token``, or ``COBUS_GATEWAY_TOKEN``, or a random one it prints. A Unix socket
+(``--unix PATH``) is this user's only and needs no token.
+
+Exit codes: 0 ended by Ctrl-C, 1 a bus or the address could not be opened, 2 bad usage.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import os
 import sys
 from functools import partial
 from typing import Any
@@ -21,6 +31,22 @@ from cobus._args import add_bus_options, bus_options, host_port
 __all__ = ["register"]
 
 _EXIT_OK, _EXIT_OPEN, _EXIT_USAGE = 0, 1, 2
+
+
+def _net_spec(text: str) -> tuple[int, dict[str, Any]]:
+    """``N=INTERFACE:CHANNEL[@BITRATE]`` as an argparse type."""
+    usage = f"{text!r}: give N=INTERFACE:CHANNEL[@BITRATE], e.g. 2=socketcan:can1"
+    number, sep, bus = text.partition("=")
+    interface, colon, channel = bus.partition(":")
+    if not sep or not colon or not number.isdigit() or not interface or not channel:
+        raise argparse.ArgumentTypeError(usage)
+    if not 1 <= int(number) <= 127:
+        raise argparse.ArgumentTypeError(f"{text!r}: nets are numbered 1..127")
+    options: dict[str, Any] = {"interface": interface, "channel": channel}
+    head, at, rate = channel.rpartition("@")
+    if at and rate.isdigit() and head:
+        options.update(channel=head, bitrate=int(rate))
+    return int(number), options
 
 
 def register(sub: Any) -> None:
@@ -34,9 +60,23 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--listen",
         type=partial(host_port, listening=True),
-        default=("127.0.0.1", 5000),
         metavar="HOST:PORT",
-        help="where to listen (default 127.0.0.1:5000; only this host is served)",
+        help="where to listen (default 127.0.0.1:5000 unless --unix is given; another host "
+        "than this one needs a token)",
+    )
+    p.add_argument("--unix", metavar="PATH", help="listen on this Unix socket (this user's only)")
+    p.add_argument(
+        "--token",
+        help="the token clients give (auth TOKEN) before they write, send NMT or use LSS "
+        "(default: COBUS_GATEWAY_TOKEN, else none on this host, a random one beyond it)",
+    )
+    p.add_argument(
+        "--net",
+        type=_net_spec,
+        action="append",
+        default=[],
+        metavar="N=INTERFACE:CHANNEL[@BITRATE]",
+        help="one more bus, as net N (net 1 is the bus of -i/-c/-b)",
     )
     p.add_argument(
         "--dialect",
@@ -62,50 +102,78 @@ def _fail(message: str, code: int) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from cobus.apps.gateway import is_loopback
+    import secrets
 
-    host, _port = args.listen
-    if not is_loopback(host):
+    from cobus.apps._serving import MIN_TOKEN, is_loopback
+
+    nets: dict[int, dict[str, Any]] = {1: bus_options(args)}
+    for number, options in args.net:
+        if number in nets:
+            given = "twice" if number != 1 else "by -i/-c/-b and by --net"
+            return _fail(f"--net {number}: net {number} is given {given}", _EXIT_USAGE)
+        nets[number] = options
+    if args.listen is None and args.unix is None:
+        args.listen = ("127.0.0.1", 5000)
+    token = args.token if args.token is not None else os.environ.get("COBUS_GATEWAY_TOKEN")
+    if token is not None and (len(token) < MIN_TOKEN or token != token.strip()):
         return _fail(
-            f"--listen {host}: the gateway writes to the bus, so it serves only this host "
-            "(127.0.0.1 or ::1) until tokens are built",
+            f"the token: give {MIN_TOKEN} characters at least, without spaces at its ends",
             _EXIT_USAGE,
         )
+    if token is None and args.listen is not None and not is_loopback(args.listen[0]):
+        token = secrets.token_urlsafe(18)
+        print(f"cobus gateway: clients write after: auth {token}", flush=True)
     served: list[str] = []
     try:
-        return asyncio.run(_serve(args, served))
+        return asyncio.run(_serve(args, nets, token, served))
     except KeyboardInterrupt:
-        print(
-            "cobus gateway: stopped by Ctrl-C"
-            + (f" after serving on {served[0]}" if served else ""),
-            file=sys.stderr,
-        )
+        where = f" after serving on {' and '.join(served)}" if served else ""
+        print(f"cobus gateway: stopped by Ctrl-C{where}", file=sys.stderr)
         return _EXIT_OK
 
 
-async def _serve(args: argparse.Namespace, served: list[str]) -> int:
+async def _serve(
+    args: argparse.Namespace, nets: dict[int, dict[str, Any]], token: str | None, served: list[str]
+) -> int:
     from cobus.apps.gateway import GatewayCore, GatewayServer
     from cobus.errors import CobusError
     from cobus.runtime import AsyncNetwork
 
-    network = AsyncNetwork(**bus_options(args))
+    networks: dict[int, AsyncNetwork] = {}
+    servers: list[GatewayServer] = []
     try:
-        await network.connect()
-    except (CobusError, OSError, ValueError) as exc:
-        return _fail(f"cannot open the bus: {exc}", _EXIT_OPEN)
-    host, port = args.listen
-    idle = args.idle_timeout if args.idle_timeout > 0 else None
-    core = GatewayCore({1: network}, dialect=args.dialect)
-    server = GatewayServer(core, host, port, idle_timeout=idle)
-    try:
-        try:
-            await server.start()
-        except OSError as exc:
-            return _fail(f"cannot listen on {host}:{port}: {exc.strerror or exc}", _EXIT_OPEN)
-        served.append(f"{host}:{server.port}")
-        print(f"cobus gateway: serving net 1 on {host}:{server.port}", flush=True)
+        for number, options in sorted(nets.items()):
+            network = AsyncNetwork(**options)
+            try:
+                await network.connect()
+            except (CobusError, OSError, ValueError) as exc:
+                which = "" if len(nets) == 1 else f" of net {number}"
+                return _fail(f"cannot open the bus{which}: {exc}", _EXIT_OPEN)
+            networks[number] = network
+        idle = args.idle_timeout if args.idle_timeout > 0 else None
+        core = GatewayCore(networks, dialect=args.dialect, token=token)
+        if args.listen is not None:
+            host, port = args.listen
+            servers.append(GatewayServer(core, host, port, idle_timeout=idle))
+        if args.unix is not None:
+            servers.append(GatewayServer(core, unix=args.unix, idle_timeout=idle))
+        for server in servers:
+            try:
+                await server.start()
+            except OSError as exc:
+                where = server.unix or f"{server.host}:{server.requested_port}"
+                return _fail(f"cannot listen on {where}: {exc.strerror or exc}", _EXIT_OPEN)
+            served.append(server.address)
+        which = ", ".join(str(n) for n in networks)
+        print(
+            f"cobus gateway: serving net{'s' if len(networks) > 1 else ''} {which} on "
+            f"{' and '.join(served)}",
+            flush=True,
+        )
         await asyncio.Event().wait()
         return _EXIT_OK
     finally:
-        await server.stop()
-        await network.disconnect()
+        for server in servers:
+            await server.stop()
+        for network in networks.values():
+            await network.disconnect()

@@ -3,13 +3,15 @@
     cobus gw 127.0.0.1:5000 '5 r 0x1018 1 u32' '5 r 0x1008 0 vs'
     cobus gw 127.0.0.1:5000 -f commands.txt --json
     printf 'set node 5\\nr 0x1017 0 u16\\n' | cobus gw 127.0.0.1:5000
+    cobus gw /run/cobus-gw.sock '0 start'
 
 Requests come from the arguments, else from the files of ``-f``, else from standard input,
 one a line (``#`` comments and blank lines skipped); each is answered in turn, a value on a
 line of its own (OK answers print nothing), or with ``--json`` one JSON object a request.
 Every request is sent even after an error; the exit code is the first error's kind.
 Unsolicited lines (after ``subscribe``) go to standard error, or as ``{"event": ...}``
-objects with ``--json``. Options come before HOST:PORT or after the requests.
+objects with ``--json``. Options come before HOST:PORT or after the requests. A gateway
+that wants a token for writes gets it from ``COBUS_GATEWAY_TOKEN`` (or ``--token``).
 
 Exit codes: 0 all answered OK, 1 an SDO abort, 2 bad usage or a request the gateway calls a
 syntax error, 3 no answer (time-out), 4 refused by the gateway (no default node, unknown
@@ -40,16 +42,32 @@ def register(sub: Any) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("address", type=host_port, metavar="HOST:PORT", help="the gateway")
+    p.add_argument(
+        "address",
+        type=_address,
+        metavar="HOST:PORT",
+        help="the gateway (a path with a / in it: its Unix socket)",
+    )
     p.add_argument("requests", nargs="*", metavar="REQUEST", help="request lines")
     p.add_argument(
         "-f", "--file", action="append", default=[], metavar="FILE", help="a file of requests"
     )
     p.add_argument("--json", action="store_true", help="one JSON object a request")
     p.add_argument(
+        "--token",
+        help="give the gateway this token first (default: COBUS_GATEWAY_TOKEN, if set)",
+    )
+    p.add_argument(
         "--timeout", type=float, default=30.0, help="seconds to wait for each reply (30)"
     )
     p.set_defaults(handler=_run)
+
+
+def _address(text: str) -> tuple[str, int]:
+    """HOST:PORT, or a Unix socket's path (port 0)."""
+    if "/" in text:
+        return text, 0
+    return host_port(text)
 
 
 def _lines(args: argparse.Namespace) -> Iterator[str]:
@@ -70,9 +88,13 @@ def _lines(args: argparse.Namespace) -> Iterator[str]:
 
 
 def _run(args: argparse.Namespace) -> int:
+    import os
+
     from cobus.apps.gateway.client import GatewayClient, error_class
 
     host, port = args.address
+    where = host if port == 0 else f"{host}:{port}"
+    token = args.token if args.token is not None else os.environ.get("COBUS_GATEWAY_TOKEN")
     try:
         lines = list(_lines(args))
     except OSError as exc:
@@ -81,7 +103,8 @@ def _run(args: argparse.Namespace) -> int:
     first_error = 0
     done = 0
     try:
-        with GatewayClient(host, port, args.timeout) as client:
+        unix = host if port == 0 else None
+        with GatewayClient(host, port, args.timeout, unix=unix, token=token) as client:
             for line in lines:
                 reply = client.request(line)
                 done += 1
@@ -114,9 +137,12 @@ def _run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return _EXIT["timeout"]
+    except PermissionError as exc:
+        print(f"cobus gw: {where}: {exc}", file=sys.stderr)
+        return _EXIT["refused"]
     except (OSError, ConnectionError) as exc:
         print(
-            f"cobus gw: {host}:{port}: {getattr(exc, 'strerror', None) or exc} "
+            f"cobus gw: {where}: {getattr(exc, 'strerror', None) or exc} "
             f"(after {done} of {len(lines)} requests)",
             file=sys.stderr,
         )

@@ -6,10 +6,11 @@ once (``cobus gateway``).
 :mod:`~cobus.apps.gateway.server` serves them over TCP.
 """
 
+from cobus.apps._serving import is_loopback
 from cobus.apps.gateway.client import GatewayClient, Reply
 from cobus.apps.gateway.core import HELP, MAX_PENDING, GatewayCore, Session
 from cobus.apps.gateway.grammar import ERRORS, TYPES, GatewayError, parse_line
-from cobus.apps.gateway.server import MAX_LINE, GatewayServer, is_loopback
+from cobus.apps.gateway.server import MAX_LINE, GatewayServer
 
 __all__ = [
     "ERRORS",

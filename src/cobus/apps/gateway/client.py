@@ -63,15 +63,43 @@ def error_class(code: int | None) -> str:
 
 
 class GatewayClient:
-    """A connection to the gateway at ``host``:``port``; ``timeout`` seconds per reply."""
+    """A connection to the gateway at ``host``:``port`` (or on the Unix socket ``unix``);
+    ``timeout`` seconds per reply. With a ``token``, it gives it first (``auth``):
+    :class:`PermissionError` when the gateway refuses it."""
 
-    def __init__(self, host: str, port: int, timeout: float = 30.0) -> None:
-        self._sock = socket.create_connection((host, port), timeout=timeout)
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 5000,
+        timeout: float = 30.0,
+        *,
+        unix: str | None = None,
+        token: str | None = None,
+    ) -> None:
+        if unix is not None:
+            self._sock = socket.socket(socket.AF_UNIX)
+            self._sock.settimeout(timeout)
+            try:
+                self._sock.connect(unix)
+            except OSError:
+                self._sock.close()
+                raise
+        else:
+            self._sock = socket.create_connection((host, port), timeout=timeout)
         self._file = self._sock.makefile("rb")
         self._seq = 0
         #: Unsolicited lines (``1 5 BOOT_UP``, ``1 5 EMCY ...``) that came so far, oldest
         #: first; whoever reads them empties the list.
         self.events: list[str] = []
+        if token is not None:
+            try:
+                reply = self.request(f"auth {token}")
+            except BaseException:
+                self.close()
+                raise
+            if not reply.ok:
+                self.close()
+                raise PermissionError(f"the gateway refused the token: {reply.text}")
 
     def close(self) -> None:
         """End the connection."""

@@ -12,6 +12,9 @@ One client may have several requests under way (:data:`MAX_PENDING` at most): th
 matches the answers by their numbers); one without runs after every request before it and
 before every request after it, so a client that numbers nothing gets its answers in order.
 ``cancel`` ends the client's requests still under way.
+
+A core with a ``token`` takes writes, NMT commands and LSS requests only from a client that
+gave it first (``auth TOKEN``); reads, ``set`` and the rest need none.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from functools import partial
 from typing import TYPE_CHECKING
 
 import cobus
+from cobus.apps._serving import MIN_TOKEN, token_is
 from cobus.apps.gateway.grammar import (
     TYPES,
     GatewayError,
@@ -57,6 +61,9 @@ __all__ = ["HELP", "MAX_PENDING", "GatewayCore", "Session"]
 #: Requests one client may have under way at once; one more is answered with ERROR:102.
 MAX_PENDING = 64
 
+#: The commands that need the token (when the core has one): they change the bus.
+_GUARDED = frozenset(("w", "write", "start", "stop", "preop", "preoperational", "reset"))
+
 #: The commands that address one node (and queue behind the client's others to that node).
 _NODE_COMMANDS = frozenset(
     ("r", "read", "w", "write", "start", "stop", "preop", "preoperational", "reset")
@@ -76,6 +83,8 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
   who                               the clients connected (this one marked *)
   cancel [SEQ]                      end this client's requests under way (or the one
                                     numbered SEQ): each is answered ERROR:102 #cancelled
+  auth TOKEN                        give the gateway's token (when it has one: writes,
+                                    NMT and LSS need it)
   info | help                       help ends with [seq] OK
 requests with [seq] run side by side (to one node in turn) and are answered as they end;
 one without [seq] waits for all before it, so unnumbered requests are answered in order
@@ -114,6 +123,9 @@ class Session:
     cancelled: dict[asyncio.Task[None], str] = field(default_factory=dict)
     #: One lock per node (and one for LSS): the client's requests to it in turn.
     lanes: dict[tuple[object, ...], asyncio.Lock] = field(default_factory=dict)
+    #: Whether the client may write, send NMT commands and use LSS (it gave the token, or
+    #: the gateway has none).
+    authorised: bool = True
 
     def close(self) -> None:
         """The client left: its channels go (a transfer under way ends with it), its
@@ -131,11 +143,27 @@ _LSS_REFUSED = {"configure node-ID": 502, "configure bit timing": 503, "store co
 
 
 class GatewayCore:
-    """Runs CiA 309-3 requests on ``networks`` (by net number; the first is the default)."""
+    """Runs CiA 309-3 requests on ``networks`` (by net number; the first is the default);
+    with a ``token``, writes, NMT and LSS only for clients that gave it (``auth TOKEN``)."""
 
-    def __init__(self, networks: dict[int, AsyncNetwork], *, dialect: str = "canopennode") -> None:
+    def __init__(
+        self,
+        networks: dict[int, AsyncNetwork],
+        *,
+        dialect: str = "canopennode",
+        token: str | None = None,
+    ) -> None:
         if not networks:
             raise ValueError("a gateway needs at least one network")
+        bad = [n for n in networks if not 1 <= n <= 127]
+        if bad:
+            raise ValueError(f"net {bad[0]}: the nets of a gateway are numbered 1..127")
+        if token is not None and (len(token) < MIN_TOKEN or token != token.strip()):
+            raise ValueError(
+                f"a token of {MIN_TOKEN} characters at least, without spaces at its ends"
+            )
+        #: What clients give before they write (None: nothing needed).
+        self.token = token
         self.networks = networks
         self.dialect = dialect
         self.default_net = next(iter(networks))
@@ -144,7 +172,7 @@ class GatewayCore:
 
     def session(self) -> Session:
         """A new client's session (the default net, no default node)."""
-        session = Session(net=self.default_net)
+        session = Session(net=self.default_net, authorised=self.token is None)
         self._sessions.append(session)
         return session
 
@@ -403,6 +431,16 @@ class GatewayCore:
 
     async def _run(self, session: Session, request: Request) -> str | list[str] | None:
         command, args = request.command, request.args
+        if command == "auth":
+            self._auth(session, request)
+            return None
+        guarded = command in _GUARDED or command.startswith("lss_") or command == "_lss_fastscan"
+        if guarded and not session.authorised:
+            raise GatewayError(
+                102,
+                f"{command}: this gateway writes to the bus only for clients that gave "
+                "its token first: auth TOKEN",
+            )
         if command in ("r", "read"):
             return await self._read(session, request)
         if command in ("w", "write"):
@@ -432,6 +470,17 @@ class GatewayCore:
             return HELP.splitlines()
         del args
         raise GatewayError(100, f"no command {command!r} (help lists them)")
+
+    def _auth(self, session: Session, request: Request) -> None:
+        if self.token is None:
+            raise GatewayError(102, "this gateway has no token: every client may write")
+        words = request.rest.split()
+        if len(words) != 1 or request.net is not None or request.node is not None:
+            raise GatewayError(101, "auth takes the token: auth TOKEN")
+        if not token_is(words[0], self.token):
+            session.authorised = False
+            raise GatewayError(102, "that is not this gateway's token")
+        session.authorised = True
 
     def _network(self, session: Session, request: Request) -> tuple[int, AsyncNetwork]:
         net = request.net if request.net is not None else session.net

@@ -9,24 +9,22 @@ transfer holds back no other client but those asking the same node, and them onl
 transfer ends as it would (within its SDO timeout): no abort the client did not ask for
 reaches the bus, and its requests still waiting for their turn are dropped. A client that
 only half-closes (``printf ... | nc -N``) gets every answer.
-The server binds 127.0.0.1 unless told otherwise; it serves another address only to clients
-that give the token (not built yet: it refuses such an address).
+The server binds 127.0.0.1 unless told otherwise; it serves another address only with a
+token (the core's), which clients give (``auth TOKEN``) before they write, send NMT commands
+or use LSS. A Unix socket (``unix``) is this user's only (mode 0600).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import ipaddress
+import os
 import time
 from functools import partial
-from typing import TYPE_CHECKING
 
+from cobus.apps._serving import free_unix_path, is_loopback
 from cobus.apps.gateway.core import GatewayCore, Session
 from cobus.apps.gateway.grammar import format_error
-
-if TYPE_CHECKING:
-    pass
 
 __all__ = ["MAX_LINE", "GatewayServer", "is_loopback"]
 
@@ -35,7 +33,8 @@ MAX_LINE = 4096
 
 
 class GatewayServer:
-    """Serves ``core`` on ``host``:``port`` (``port`` 0: a free one, see :attr:`port`)."""
+    """Serves ``core`` on ``host``:``port`` (``port`` 0: a free one, see :attr:`port`), or
+    on the Unix socket ``unix`` instead."""
 
     def __init__(
         self,
@@ -43,14 +42,19 @@ class GatewayServer:
         host: str = "127.0.0.1",
         port: int = 0,
         *,
+        unix: str | None = None,
         idle_timeout: float | None = 600.0,
     ) -> None:
-        if not is_loopback(host):
+        if unix is None and not is_loopback(host) and core.token is None:
             raise ValueError(
-                f"the gateway writes to the bus: it serves only 127.0.0.1 (or ::1) until "
-                f"tokens are built, not {host!r}"
+                f"the gateway writes to the bus: to serve {host!r} (not only this host) give "
+                "the core a token, GatewayCore(..., token=...), that clients give before "
+                "they write"
             )
         self.core = core
+        #: The Unix socket's path (None: TCP).
+        self.unix = unix
+        self._peers = 0
         #: Seconds a client may send nothing before its connection closes (None: never).
         self.idle_timeout = idle_timeout
         self.host = host
@@ -67,9 +71,27 @@ class GatewayServer:
             return self.requested_port
         return int(self._server.sockets[0].getsockname()[1])
 
+    @property
+    def address(self) -> str:
+        """Where it listens: ``HOST:PORT`` or the Unix socket's path."""
+        if self.unix is not None:
+            return self.unix
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"{host}:{self.port}"
+
     async def start(self) -> None:
-        """Listen (on the running loop: the networks' own)."""
-        self._server = await asyncio.start_server(self._serve, self.host, self.requested_port)
+        """Listen (on the running loop: the networks' own); OSError when it cannot."""
+        if self.unix is None:
+            self._server = await asyncio.start_server(self._serve, self.host, self.requested_port)
+            return
+        refused = free_unix_path(self.unix)
+        if refused is not None:
+            raise OSError(f"{self.unix}: {refused}")
+        old = os.umask(0o177)  # (created 0600: this user's only, from the first moment)
+        try:
+            self._server = await asyncio.start_unix_server(self._serve, self.unix)
+        finally:
+            os.umask(old)
 
     async def stop(self) -> None:
         """Stop listening and end every client's connection."""
@@ -82,6 +104,9 @@ class GatewayServer:
                     await task
             await self._server.wait_closed()
             self._server = None
+            if self.unix is not None:
+                with contextlib.suppress(OSError):
+                    os.unlink(self.unix)
         self.core.close()
 
     #: Unsolicited lines dropped because their client did not read (summed over clients).
@@ -133,6 +158,9 @@ class GatewayServer:
         if isinstance(peer, tuple):
             host = f"[{peer[0]}]" if ":" in str(peer[0]) else str(peer[0])
             session.peer = f"{host}:{peer[1]}"
+        elif self.unix is not None:
+            self._peers += 1
+            session.peer = f"{self.unix}#{self._peers}"
         answer = partial(self._answer, session, writer)
         lines = _Lines(reader)
         try:
@@ -220,13 +248,3 @@ def _line_end(data: bytes) -> int | None:
     """Where the first line of ``data`` ends (at a CR or an LF), None: it does not yet."""
     ends = [i for i in (data.find(b"\r"), data.find(b"\n")) if i >= 0]
     return min(ends) if ends else None
-
-
-def is_loopback(host: str) -> bool:
-    """Whether ``host`` is this host only (localhost, 127.0.0.0/8, ::1)."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False

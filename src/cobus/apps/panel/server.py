@@ -36,14 +36,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import hmac
-import ipaddress
 import json
 import logging
 import os
 import secrets
-import socket
-import stat
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,6 +49,7 @@ from urllib.parse import quote, urlsplit
 from aiohttp import WSMsgType, web
 
 from cobus._moved import renamed_names
+from cobus.apps._serving import MIN_TOKEN, free_unix_path, is_loopback, token_is
 from cobus.apps.panel.hub import Client, Hub, _clean
 from cobus.errors import CobusError, clip
 
@@ -72,8 +69,6 @@ ROUNDS = 50.0
 #: Pages connected at once; more are refused (each costs the bus loop some work per tick).
 MAX_CLIENTS = 32
 #: The shortest token a panel takes.
-MIN_TOKEN = 8
-_LOOPBACK_NAMES = {"localhost", "127.0.0.1", "::1"}
 CSP = (
     "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'; base-uri 'none'; "
     "form-action 'none'"
@@ -104,17 +99,6 @@ class PanelCommand:
     handler: Handler
     writes: bool
     help: str = ""
-
-
-def is_loopback(host: str) -> bool:
-    """Whether ``host`` (a name or an address) names this machine only."""
-    host = host.strip("[]")
-    if host in _LOOPBACK_NAMES:
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 class Panel:
@@ -223,7 +207,9 @@ class Panel:
     async def start(self) -> None:
         """Serve in the running loop; :class:`PanelError` if the address cannot be bound."""
         if self.unix is not None:
-            _free_unix_path(self.unix)
+            refused = free_unix_path(self.unix)
+            if refused is not None:
+                raise PanelError(f"cannot serve the panel on {self.unix}: {refused}")
         runner = web.AppRunner(self.app(), handle_signals=False, access_log=None)
         await runner.setup()
         where = f"{self.host}:{self.port}"
@@ -401,9 +387,7 @@ class Panel:
 
     def _token_is(self, given: Any) -> bool:
         """Whether ``given`` is the panel's token (compared in constant time)."""
-        return isinstance(given, str) and hmac.compare_digest(
-            given.encode("utf-8", "surrogatepass"), self.token.encode()
-        )
+        return token_is(given, self.token)
 
     # ------------------------------------------------------------------ commands
     def _receive(self, client: Client, text: str, pending: set[asyncio.Task[None]]) -> None:
@@ -492,23 +476,6 @@ def _json(message: Any) -> str:
 
 def _nothing() -> None:
     pass
-
-
-def _free_unix_path(path: str) -> None:
-    """Refuse a Unix socket path another live server listens on; remove a stale one."""
-    if not os.path.exists(path):
-        return
-    if not stat.S_ISSOCK(os.stat(path).st_mode):
-        raise PanelError(f"cannot serve the panel on {path}: it exists and is no socket")
-    probe = socket.socket(socket.AF_UNIX)
-    try:
-        probe.connect(path)
-    except OSError:
-        os.unlink(path)  # left behind by a server that is gone
-        return
-    finally:
-        probe.close()
-    raise PanelError(f"cannot serve the panel on {path}: another server listens there")
 
 
 def _secure(headers: Any) -> None:

@@ -1,0 +1,54 @@
+"""What cobus's servers (the panel, the gateway) share about where they listen and who may
+write: loopback addresses, Unix socket paths, tokens compared in constant time."""
+
+from __future__ import annotations
+
+import hmac
+import ipaddress
+import os
+import socket
+import stat
+
+__all__ = ["MIN_TOKEN", "free_unix_path", "is_loopback", "token_is"]
+
+#: The shortest token a server takes.
+MIN_TOKEN = 8
+
+_LOOPBACK_NAMES = {"localhost", "127.0.0.1", "::1"}
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` (a name or an address, ``[::1]`` too) names this machine only."""
+    host = host.strip("[]")
+    if host in _LOOPBACK_NAMES:
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def free_unix_path(path: str) -> str | None:
+    """Make ``path`` free for a Unix socket: a stale socket left by a server that is gone is
+    removed. Returns why it cannot be used (None: it can): it is no socket, or another live
+    server listens there."""
+    if not os.path.exists(path):
+        return None
+    if not stat.S_ISSOCK(os.stat(path).st_mode):
+        return "it exists and is no socket"
+    probe = socket.socket(socket.AF_UNIX)
+    try:
+        probe.connect(path)
+    except OSError:
+        os.unlink(path)  # left behind by a server that is gone
+        return None
+    finally:
+        probe.close()
+    return "another server listens there"
+
+
+def token_is(given: object, token: str) -> bool:
+    """Whether ``given`` is ``token`` (compared in constant time)."""
+    return isinstance(given, str) and hmac.compare_digest(
+        given.encode("utf-8", "surrogatepass"), token.encode("utf-8", "surrogatepass")
+    )
