@@ -242,6 +242,9 @@ def test_the_lely_dialect_over_the_socket() -> None:
         assert await ask(c, "[1] 5 r 0x1018 1 u32") == ["[1] 0x00c0b005"]
         (abort,) = await ask(c, "[2] 5 r 0x5FFF 0 u8")
         assert abort.startswith("[2] ERROR: 06020000 (")
+        # info version as Lely writes it: identity, class 3, CiA 309-1 2.0, implementation
+        (version,) = await ask(c, "[3] info version")
+        assert re.fullmatch(r"\[3\] 0 0 [0-9]+\.[0-9]+ 0 3 2\.0 [0-9]+\.[0-9]+", version)
 
     served(scenario, "lely")
 
@@ -413,9 +416,9 @@ ANY_INFO = _AnyInfo("[5] cobus ...")
 def test_replies_stay_one_line_and_odd_values_come_as_bytes() -> None:
     assert format_value("vs", b'A\r\nB "q" \\ \x01') == '"A\\r\\nB ""q"" \\\\ \\x01"'
     assert parse_value("vs", '"B ""q"" \\\\ \\x41"') == b'B "q" \\ A'
-    with pytest.raises(GatewayError) as caught:  # (a visible string holds no control codes)
-        parse_value("vs", '"A\\r\\nB"')
-    assert caught.value.code == 101 and "0x20..0x7E" in caught.value.text
+    # bytes as written, UTF-8 or escaped: the device says whether it takes them
+    assert parse_value("vs", '"A\\r\\nB ß \\xC8"') == b"A\r\nB \xc3\x9f \xc8"
+    assert format_value("vs", b"A\r\nB \xc3\x9f \xc8") == '"A\\r\\nB ß \\xC8"'
     assert parse_value("vs", "C:\\temp") == b"C:\\temp"  # (unquoted: as written)
     assert format_value("us", b"a\x00\x00\x00") == "YQAAAA=="  # (the bytes as they came)
     late = (90_000_000).to_bytes(4, "little") + b"\x00\x00"  # (ms past midnight)
@@ -908,10 +911,232 @@ def test_cobus_gateway_with_two_nets_a_unix_socket_and_a_token_beyond_this_host(
         stopped(proc)
 
     for options, said in [
-        (["--net", "1=virtual:x"], "net 1 is given by -i/-c/-b and by --net"),
+        (["--net", "1=virtual:x"], "--net numbers the other buses 2..127"),
         (["--net", "2=virtual"], "give N=INTERFACE:CHANNEL"),
-        (["--net", "200=virtual:x"], "1..127"),
+        (["--net", "200=virtual:x"], "2..127"),
+        (["--net", "٢=virtual:x"], "give N=INTERFACE:CHANNEL"),
+        (["--net", "2=virtual:x", "--net", "2=virtual:y"], "net 2 is given twice"),
+        (["--net", "2=socketcan:can1@0"], "a bit rate of 0"),
         (["--token", "short"], "8 characters"),
+        (["--token", "has#hash-in-it"], "without spaces or #"),
     ]:
         done = subprocess.run([*base, *options], capture_output=True, text=True, timeout=60)
         assert done.returncode == 2 and said in done.stderr, done.stderr
+
+
+def test_subscribed_clients_hear_heartbeats_start_stop_and_change_state() -> None:
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        a, quiet = await connect(server), await connect(server)
+        assert await ask(a, "[1] subscribe error_control boot_up") == ["[1] OK"]
+
+        assert await ask(a, "[2] 5 start") == ["[2] OK"]
+        # the first beat: the heartbeat started, in the state the node reports
+        got = await ask(a, "[3] 5 w 0x1017 0 u16 100", 2)
+        assert got == ["[3] OK", "1 5 ERRORx OPER 202 (Heartbeat started)"]
+        assert await ask(a, "[4] 5 preop", 2) == ["[4] OK", "1 5 ERRORx PREO"]
+        await asyncio.sleep(0.35)  # (three beats: the gateway knows the period)
+        started = asyncio.get_running_loop().time()
+        got = await ask(a, "[5] 5 w 0x1017 0 u16 0", 2)
+        assert got == ["[5] OK", "1 5 ERRORx PREO 203 (Heartbeat lost)"]
+        assert asyncio.get_running_loop().time() - started < 0.5  # (2.5 periods, not more)
+        got = await ask(a, "[6] 5 w 0x1017 0 u16 50", 2)
+        assert got == ["[6] OK", "1 5 ERRORx PREO 202 (Heartbeat started)"]
+        assert await ask(a, "[7] 5 reset node", 2) == ["[7] OK", "1 5 BOOT_UP"]
+        assert await ask(quiet, "[1] 6 r 0x1017 0 u16") == ["[1] 0"]  # (nothing before)
+
+    served(scenario)
+
+
+# ------------------------------------------------------------------ documented transcripts
+
+#: CANopenDemo's tutorial/SDO.md, request then reply (see the file's head).
+CANOPENDEMO_SDO = Path(__file__).with_name("data") / "canopendemo_sdo.txt"
+
+
+def _demo_device(net: AsyncNetwork) -> Any:
+    """The objects of CANopenDemo's demoDevice the transcript uses, as it behaves: a string
+    of 3 bytes at most, one of 1,000, an octet string of exactly 10, and a read-only average
+    of the record's four numbers."""
+    from cobus.device import DictionaryBuilder, add_device
+    from cobus.od import DataType
+    from cobus.proto.sdo import SdoAbort
+
+    b = DictionaryBuilder(device_name="demoDevice")
+    b.record(0x2120, "Demo record")
+    b.variable(0x2120, "I64", DataType.INTEGER64, subindex=1, default=-1234567890123456789)
+    b.variable(0x2120, "U64", DataType.UNSIGNED64, subindex=2, default=0x1234567890ABCDEF)
+    b.variable(0x2120, "R32", DataType.REAL32, subindex=3, default=12.345)
+    b.variable(0x2120, "R64", DataType.REAL64, subindex=4, default=456.789)
+    b.variable(0x2120, "Average", DataType.REAL64, subindex=5, access="ro", default=0.0)
+    b.record(0x2121, "Demo strings")
+    b.variable(0x2121, "Short", DataType.VISIBLE_STRING, subindex=1, default="str")
+    # (a DOMAIN: a cobus device takes visible ASCII only in a VISIBLE_STRING, CANopenNode's
+    # demoDevice any bytes - here UTF-8)
+    b.variable(0x2121, "Long", DataType.DOMAIN, subindex=2, default=b"x")
+    octets = bytes.fromhex("C83DBB00000000000000")
+    b.variable(0x2121, "Octets", DataType.OCTET_STRING, subindex=3, default=octets)
+    device = add_device(net, 4, b.build())
+
+    def capacity(size: int, exact: bool = False) -> Callable[[Any], None]:
+        def check(value: Any) -> None:
+            length = len(value.encode() if isinstance(value, str) else value)
+            if length > size:
+                raise SdoAbort(0x06070012)
+            if exact and length < size:
+                raise SdoAbort(0x06070013)
+
+        return check
+
+    device.on_write(0x2121, 1, capacity(3))
+    device.on_write(0x2121, 2, capacity(1000))
+    device.on_write(0x2121, 3, capacity(10, exact=True))
+    device.on_read(0x2120, 5, lambda: sum(float(device.get(0x2120, s)) for s in (1, 2, 3, 4)) / 4)
+    return device
+
+
+def test_canopendemos_sdo_transcript_replayed_line_for_line() -> None:
+    """Over the socket, one request at a time as cocomm sends them; every reply line as
+    documented (an error line up to its text, which is CiA 301's wording: CANopenNode says
+    "too short" where CiA 301 says "too low")."""
+    text = CANOPENDEMO_SDO.read_text(encoding="utf-8")
+    pairs = [line for line in text.splitlines() if line and not line.startswith("#")]
+    assert len(pairs) % 2 == 0
+
+    async def main() -> None:
+        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+            _demo_device(net)
+            server = GatewayServer(GatewayCore({1: net}))
+            await server.start()
+            try:
+                c = await connect(server)
+                for request, documented in zip(pairs[::2], pairs[1::2], strict=True):
+                    (reply,) = await ask(c, request)
+                    if "ERROR:" in documented:
+                        head, _, text = documented.partition(" #")
+                        assert reply.partition(" #")[0] == head, request
+                        assert text.split(",")[0] in reply, request
+                    else:
+                        assert reply == documented, request
+            finally:
+                await server.stop()
+
+    asyncio.run(asyncio.wait_for(main(), 60))
+
+
+def test_what_the_review_of_pipelining_and_tokens_found() -> None:
+    """A request cancelled before it ever ran is answered; a line too long and a full queue
+    are answered in their turn when unnumbered; a client gone with a write queued at a node
+    behind another client's transfer writes nothing."""
+
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        server.idle_timeout = None  # (lines already read are taken without a pause)
+        c = await connect(server)
+        assert await ask(c, "[1] set sdo_timeout 3000") == ["[1] OK"]
+        await send(c, "[2] 99 r 0x1000 0", "[3] cancel 2")
+        assert await answers(c, 2) == ["[3] OK", "[2] ERROR:102 #cancelled by [3]"]
+        assert await ask(c, "[4] set sdo_timeout 200") == ["[4] OK"]
+        await send(c, "99 r 0x1000 0", "x" * (MAX_LINE + 1), "5 r 0x1017 0 u16")
+        got = await answers(c, 3)
+        assert got[0].startswith("ERROR:0x05040000") and got[1].startswith("ERROR:101 #")
+        assert got[2] == "0"
+        # a client gone with a write waiting for node 99 behind another client's read
+        frames: list[str] = []
+        net.subscribe(0x600 + 99, lambda frame, now: frames.append(frame.data.hex()))
+        a = await connect(server)
+        await send(a, "[1] set sdo_timeout 600", "[2] 99 r 0x1000 0")
+        b = await connect(server)
+        await send(b, "[1] set sdo_timeout 600", "[2] 99 w 0x2000 0 u8 7")
+        await asyncio.sleep(0.2)
+        import socket
+
+        # (it resets the connection: a client that only closes its side is answered)
+        linger = struct.pack("ii", 1, 0)
+        b[1].get_extra_info("socket").setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, linger)
+        b[1].transport.abort()
+        assert (await answers(a, 2))[1].startswith("[2] ERROR:0x05040000")
+        await asyncio.sleep(0.3)
+        assert [f[:2] for f in frames] == ["40", "80"]  # (A's read and its abort only)
+
+    served(scenario)
+
+
+def test_the_unnumbered_queue_full_answer_comes_in_its_turn() -> None:
+    from cobus.apps.gateway import MAX_PENDING
+
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        c = await connect(server)
+        assert await ask(c, "set sdo_timeout 20") == ["OK"]
+        await send(c, *["99 r 0x1000 0"] * MAX_PENDING, "5 r 0x1017 0 u16")
+        got = await answers(c, MAX_PENDING + 1)
+        assert all(g.startswith("ERROR:0x05040000") for g in got[:MAX_PENDING])
+        assert got[-1].startswith("ERROR:102 #") and "under way" in got[-1]
+
+    served(scenario)
+
+
+def test_tokens_are_one_word_guessing_costs_time_and_who_needs_it(tmp_path: Path) -> None:
+    from cobus.apps.gateway import GatewayClient
+    from cobus.apps.gateway.client import TokenRefused
+
+    async def main() -> None:
+        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+            for bad in ("abc#defgh", "abcd efgh", "short"):
+                with pytest.raises(ValueError, match="without spaces or #"):
+                    GatewayCore({1: net}, token=bad)
+            core = GatewayCore({1: net}, token="the-right-token")
+            tcp = GatewayServer(core, "127.0.0.1", 0)
+            unix = GatewayServer(core, unix=str(tmp_path / "gw.sock"))
+            await tcp.start()
+            await unix.start()
+            try:
+                c = await connect(tcp)
+                assert (await ask(c, "[1] who"))[0].startswith("[1] ERROR:102 #who: ")
+                started = asyncio.get_running_loop().time()
+                await send(c, *(f"[{i}] auth wrong-{i}" for i in range(2, 8)))
+                got = await answers(c, 6)
+                assert asyncio.get_running_loop().time() - started >= 4.5  # (one at a time)
+                assert got[-1] == "[7] ERROR:102 #5 wrong tokens: connect again"
+                assert (await ask(c, "[8] auth the-right-token"))[0].startswith("[8] ERROR:102")
+                # a client of this user's Unix socket needs none; the client gives the token
+                # only when asked, so a gateway that asks for none never sees it
+                reader, writer = await asyncio.open_unix_connection(str(tmp_path / "gw.sock"))
+                assert await ask((reader, writer), "[1] 0 start") == ["[1] OK"]
+
+                def as_client(token: str) -> list[bool]:
+                    with GatewayClient("127.0.0.1", tcp.port, 10, token=token) as client:
+                        return [client.request("5 r 0x1017 0 u16").ok, client.request("0 start").ok]
+
+                assert await asyncio.to_thread(as_client, "the-right-token") == [False, True]
+                with pytest.raises(TokenRefused):
+                    await asyncio.to_thread(as_client, "not-the-token")
+                plain = GatewayServer(GatewayCore({1: net}), "127.0.0.1", 0)
+                await plain.start()
+                try:
+
+                    def no_token_asked() -> bool:
+                        with GatewayClient("127.0.0.1", plain.port, 10, token="unused-token") as g:
+                            return g.request("0 start").ok
+
+                    assert await asyncio.to_thread(no_token_asked)
+                finally:
+                    await plain.stop()
+            finally:
+                await tcp.stop()
+                await unix.stop()
+
+    asyncio.run(asyncio.wait_for(main(), 60))
+
+
+def test_net_options_keep_channels_with_colons_and_at_signs() -> None:
+    from cobus.apps._gateway_cli import _net_spec
+
+    assert _net_spec("2=socketcand:10.0.0.1:29536") == (
+        2,
+        {"interface": "socketcand", "channel": "10.0.0.1:29536"},
+    )
+    assert _net_spec("3=remote:ws://u@host:54701")[1]["channel"] == "ws://u@host:54701"
+    assert _net_spec("4=slcan:/dev/ttyACM0@500000")[1] == {
+        "interface": "slcan",
+        "channel": "/dev/ttyACM0",
+        "bitrate": 500000,
+    }

@@ -11,8 +11,9 @@ adds more, addressed as ``[seq] 2 5 r 0x1000 0`` or after ``set network 2``.
 
 The gateway serves only this host (127.0.0.1) unless ``--listen`` names another address;
 then clients must give a token (``auth TOKEN``) before they write, send NMT commands or use
-LSS: ``--token``, or ``COBUS_GATEWAY_TOKEN``, or a random one it prints. A Unix socket
-(``--unix PATH``) is this user's only and needs no token.
+LSS: ``--token``, or ``COBUS_GATEWAY_TOKEN``, or a random one it prints; five wrong tokens
+and a client must connect again. A Unix socket (``--unix PATH``) is this user's only and
+its clients need no token.
 
 Exit codes: 0 ended by Ctrl-C, 1 a bus or the address could not be opened, 2 bad usage.
 """
@@ -22,6 +23,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
+import re
 import sys
 from functools import partial
 from typing import Any
@@ -38,13 +40,17 @@ def _net_spec(text: str) -> tuple[int, dict[str, Any]]:
     usage = f"{text!r}: give N=INTERFACE:CHANNEL[@BITRATE], e.g. 2=socketcan:can1"
     number, sep, bus = text.partition("=")
     interface, colon, channel = bus.partition(":")
-    if not sep or not colon or not number.isdigit() or not interface or not channel:
+    if not sep or not colon or not re.fullmatch("[0-9]+", number) or not interface or not channel:
         raise argparse.ArgumentTypeError(usage)
-    if not 1 <= int(number) <= 127:
-        raise argparse.ArgumentTypeError(f"{text!r}: nets are numbered 1..127")
+    if not 2 <= int(number) <= 127:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: --net numbers the other buses 2..127 (net 1 is -i/-c/-b)"
+        )
     options: dict[str, Any] = {"interface": interface, "channel": channel}
     head, at, rate = channel.rpartition("@")
-    if at and rate.isdigit() and head:
+    if at and re.fullmatch("[0-9]+", rate) and head:
+        if int(rate) == 0:
+            raise argparse.ArgumentTypeError(f"{text!r}: a bit rate of 0")
         options.update(channel=head, bitrate=int(rate))
     return int(number), options
 
@@ -104,20 +110,19 @@ def _fail(message: str, code: int) -> int:
 def _run(args: argparse.Namespace) -> int:
     import secrets
 
-    from cobus.apps._serving import MIN_TOKEN, is_loopback
+    from cobus.apps._serving import MIN_TOKEN, is_loopback, token_usable
 
     nets: dict[int, dict[str, Any]] = {1: bus_options(args)}
     for number, options in args.net:
         if number in nets:
-            given = "twice" if number != 1 else "by -i/-c/-b and by --net"
-            return _fail(f"--net {number}: net {number} is given {given}", _EXIT_USAGE)
+            return _fail(f"--net {number}: net {number} is given twice", _EXIT_USAGE)
         nets[number] = options
     if args.listen is None and args.unix is None:
         args.listen = ("127.0.0.1", 5000)
     token = args.token if args.token is not None else os.environ.get("COBUS_GATEWAY_TOKEN")
-    if token is not None and (len(token) < MIN_TOKEN or token != token.strip()):
+    if token is not None and not token_usable(token):
         return _fail(
-            f"the token: give {MIN_TOKEN} characters at least, without spaces at its ends",
+            f"the token: give {MIN_TOKEN} characters at least, without spaces or #",
             _EXIT_USAGE,
         )
     if token is None and args.listen is not None and not is_loopback(args.listen[0]):

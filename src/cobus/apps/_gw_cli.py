@@ -11,7 +11,8 @@ line of its own (OK answers print nothing), or with ``--json`` one JSON object a
 Every request is sent even after an error; the exit code is the first error's kind.
 Unsolicited lines (after ``subscribe``) go to standard error, or as ``{"event": ...}``
 objects with ``--json``. Options come before HOST:PORT or after the requests. A gateway
-that wants a token for writes gets it from ``COBUS_GATEWAY_TOKEN`` (or ``--token``).
+that wants a token for writes gets it from ``COBUS_GATEWAY_TOKEN`` (or ``--token``) when
+it first asks; one that asks for none never sees it.
 
 Exit codes: 0 all answered OK, 1 an SDO abort, 2 bad usage or a request the gateway calls a
 syntax error, 3 no answer (time-out), 4 refused by the gateway (no default node, unknown
@@ -90,7 +91,7 @@ def _lines(args: argparse.Namespace) -> Iterator[str]:
 def _run(args: argparse.Namespace) -> int:
     import os
 
-    from cobus.apps.gateway.client import GatewayClient, error_class
+    from cobus.apps.gateway.client import GatewayClient, TokenRefused, error_class
 
     host, port = args.address
     where = host if port == 0 else f"{host}:{port}"
@@ -137,7 +138,7 @@ def _run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return _EXIT["timeout"]
-    except PermissionError as exc:
+    except TokenRefused as exc:
         print(f"cobus gw: {where}: {exc}", file=sys.stderr)
         return _EXIT["refused"]
     except (OSError, ConnectionError) as exc:

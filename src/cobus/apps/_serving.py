@@ -9,7 +9,7 @@ import os
 import socket
 import stat
 
-__all__ = ["MIN_TOKEN", "free_unix_path", "is_loopback", "token_is"]
+__all__ = ["MIN_TOKEN", "free_unix_path", "is_loopback", "token_is", "token_usable"]
 
 #: The shortest token a server takes.
 MIN_TOKEN = 8
@@ -37,14 +37,23 @@ def free_unix_path(path: str) -> str | None:
     if not stat.S_ISSOCK(os.stat(path).st_mode):
         return "it exists and is no socket"
     probe = socket.socket(socket.AF_UNIX)
+    probe.settimeout(1.0)
     try:
         probe.connect(path)
-    except OSError:
+    except ConnectionRefusedError:
         os.unlink(path)  # left behind by a server that is gone
         return None
+    except OSError as exc:  # (no right to it, a server too busy to answer...: not ours)
+        return f"cannot tell whether a server listens there ({exc.strerror or exc})"
     finally:
         probe.close()
     return "another server listens there"
+
+
+def token_usable(token: str) -> bool:
+    """Whether ``token`` can be a server's token: :data:`MIN_TOKEN` characters at least, no
+    white space and no ``#`` (a gateway client gives it as one word of a request line)."""
+    return len(token) >= MIN_TOKEN and not any(c.isspace() or c == "#" for c in token)
 
 
 def token_is(given: object, token: str) -> bool:

@@ -12,7 +12,12 @@ import re
 import socket
 from dataclasses import dataclass, field
 
-__all__ = ["GatewayClient", "Reply", "error_class"]
+__all__ = ["GatewayClient", "Reply", "TokenRefused", "error_class"]
+
+
+class TokenRefused(Exception):
+    """The gateway did not take the client's token."""
+
 
 _SEQ = re.compile(r"\s*\[\s*([0-9]+)\s*\]\s?(.*)\Z", re.S)
 _EVENT = re.compile(r"[0-9]+ [0-9]+ (BOOT_UP|EMCY|ERROR|USER|pdo|SDO)")
@@ -64,8 +69,10 @@ def error_class(code: int | None) -> str:
 
 class GatewayClient:
     """A connection to the gateway at ``host``:``port`` (or on the Unix socket ``unix``);
-    ``timeout`` seconds per reply. With a ``token``, it gives it first (``auth``):
-    :class:`PermissionError` when the gateway refuses it."""
+    ``timeout`` seconds per reply. With a ``token``, it gives it (``auth``) when the gateway
+    first asks for it (a request refused until ``auth TOKEN``; that request is then sent
+    again): a gateway that asks for none never sees it. :class:`TokenRefused` when the
+    gateway does not take it."""
 
     def __init__(
         self,
@@ -91,15 +98,7 @@ class GatewayClient:
         #: Unsolicited lines (``1 5 BOOT_UP``, ``1 5 EMCY ...``) that came so far, oldest
         #: first; whoever reads them empties the list.
         self.events: list[str] = []
-        if token is not None:
-            try:
-                reply = self.request(f"auth {token}")
-            except BaseException:
-                self.close()
-                raise
-            if not reply.ok:
-                self.close()
-                raise PermissionError(f"the gateway refused the token: {reply.text}")
+        self._token = token
 
     def close(self) -> None:
         """End the connection."""
@@ -114,6 +113,21 @@ class GatewayClient:
 
     def request(self, line: str) -> Reply:
         """Send ``line`` (a number is put in front unless it has one) and read its reply."""
+        reply = self._request(line)
+        if (
+            self._token is not None
+            and not reply.ok
+            and reply.code == 102
+            and "auth TOKEN" in reply.text
+        ):
+            token, self._token = self._token, None  # (given once)
+            given = self._request(f"auth {token}")
+            if not given.ok:
+                raise TokenRefused(f"the gateway refused the token: {given.text}")
+            reply = self._request(line)
+        return reply
+
+    def _request(self, line: str) -> Reply:
         text = line.strip()
         match = _SEQ.match(text)
         if match:

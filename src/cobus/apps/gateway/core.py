@@ -29,7 +29,7 @@ from functools import partial
 from typing import TYPE_CHECKING
 
 import cobus
-from cobus.apps._serving import MIN_TOKEN, token_is
+from cobus.apps._serving import MIN_TOKEN, token_is, token_usable
 from cobus.apps.gateway.grammar import (
     TYPES,
     GatewayError,
@@ -40,9 +40,17 @@ from cobus.apps.gateway.grammar import (
     parse_number,
     parse_value,
 )
-from cobus.proto import Frame
-from cobus.proto.connection_set import emcy_cob_id, error_control_cob_id
+from cobus.proto import Event, Frame
+from cobus.proto.connection_set import ERROR_CONTROL_BASE, emcy_cob_id, error_control_cob_id
+from cobus.proto.heartbeat import (
+    BootupReceived,
+    HeartbeatMonitor,
+    HeartbeatResumed,
+    HeartbeatTimeout,
+    RemoteStateChanged,
+)
 from cobus.proto.lss import BIT_RATES, LssError, LssIdentity, LssState
+from cobus.proto.nmt import NmtState
 from cobus.proto.sdo import SdoAbortedError, SdoError, SdoTimeoutError, describe
 from cobus.runtime import (
     LssRefusedError,
@@ -55,11 +63,16 @@ from cobus.runtime import (
 
 if TYPE_CHECKING:
     from cobus.runtime import AsyncNetwork
+    from cobus.runtime.network import MachineHost
 
 __all__ = ["HELP", "MAX_PENDING", "GatewayCore", "Session"]
 
 #: Requests one client may have under way at once; one more is answered with ERROR:102.
 MAX_PENDING = 64
+
+#: Wrong tokens a client may give (each answered after a wait) before auth is refused.
+_WRONG_TOKENS = 5
+_WRONG_TOKEN_WAIT = 1.0  # s
 
 #: The commands that need the token (when the core has one): they change the bus.
 _GUARDED = frozenset(("w", "write", "start", "stop", "preop", "preoperational", "reset"))
@@ -78,18 +91,27 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
   lss_switch_glob 0|1 | lss_switch_sel VENDOR PRODUCT REVISION SERIAL | lss_set_node N
   lss_conf_bitrate 0 INDEX | lss_activate_bitrate DELAY_MS | lss_store
   lss_inquire_addr [0..3] | lss_get_node | _lss_fastscan        LSS (CiA 305)
-  subscribe [boot_up|emcy|all] | unsubscribe [...]   unsolicited lines, as Lely writes
-  them: NET NODE BOOT_UP, NET NODE EMCY CODE REG B0 B1 B2 B3 B4
+  subscribe [boot_up|emcy|error_control|all] | unsubscribe [...]   unsolicited lines, as
+  Lely writes them: NET NODE BOOT_UP, NET NODE EMCY CODE REG B0 B1 B2 B3 B4,
+  NET NODE ERRORx STATE 202 (Heartbeat started) | 203 (Heartbeat lost), NET NODE ERRORx
+  STATE (a new NMT state); STATE is OPER, PREO or STOP. A heartbeat counts as lost after
+  2.5 times the period the gateway saw it come at.
   who                               the clients connected (this one marked *)
   cancel [SEQ]                      end this client's requests under way (or the one
-                                    numbered SEQ): each is answered ERROR:102 #cancelled
+                                    numbered SEQ): each is answered ERROR:102 #cancelled;
+                                    cancel itself is answered at once, [seq] or not
   auth TOKEN                        give the gateway's token (when it has one: writes,
                                     NMT and LSS need it)
-  info | help                       help ends with [seq] OK
+  info | info version | help       info version as Lely answers it: VENDOR PRODUCT
+                                    REVISION SERIAL CLASS PROTOCOL IMPLEMENTATION
+                                    (cobus has no identity: 0 0 its version 0 3 2.0 its
+                                    version); help ends with [seq] OK
 requests with [seq] run side by side (to one node in turn) and are answered as they end;
 one without [seq] waits for all before it, so unnumbered requests are answered in order
 types: b i8 i16 i24 i32 i40 i48 i56 i64 u8 u16 u24 u32 u40 u48 u56 u64 x8 x16 x32 x64
        r32 r64 vs ("text", "" for a quote) os us d (base64) t td (days ms) hex (bytes)
+       (r32 and r64 with six significant digits as CANopenNode writes them; every digit
+       in the lely dialect, or the bytes with hex)
 numbers: decimal, 0x hex, leading-0 octal"""
 
 
@@ -117,8 +139,8 @@ class Session:
     pending: dict[asyncio.Task[None], int | None] = field(default_factory=dict)
     #: The last request without [seq] still under way (later ones wait for it).
     barrier: asyncio.Task[None] | None = None
-    #: Requests that have their turn at their node (not merely waiting for it).
-    running: set[asyncio.Task[None]] = field(default_factory=set)
+    #: Requests that hold their lane (their node, LSS), with the lane.
+    running: dict[asyncio.Task[None], tuple[object, ...]] = field(default_factory=dict)
     #: Requests the client cancelled, with what their answer says.
     cancelled: dict[asyncio.Task[None], str] = field(default_factory=dict)
     #: One lock per node (and one for LSS): the client's requests to it in turn.
@@ -126,6 +148,8 @@ class Session:
     #: Whether the client may write, send NMT commands and use LSS (it gave the token, or
     #: the gateway has none).
     authorised: bool = True
+    #: Wrong tokens this client gave.
+    wrong_tokens: int = 0
 
     def close(self) -> None:
         """The client left: its channels go (a transfer under way ends with it), its
@@ -158,9 +182,10 @@ class GatewayCore:
         bad = [n for n in networks if not 1 <= n <= 127]
         if bad:
             raise ValueError(f"net {bad[0]}: the nets of a gateway are numbered 1..127")
-        if token is not None and (len(token) < MIN_TOKEN or token != token.strip()):
+        if token is not None and not token_usable(token):
             raise ValueError(
-                f"a token of {MIN_TOKEN} characters at least, without spaces at its ends"
+                f"a token of {MIN_TOKEN} characters at least, without spaces or # (a client "
+                "gives it as one word of a request line)"
             )
         #: What clients give before they write (None: nothing needed).
         self.token = token
@@ -169,10 +194,12 @@ class GatewayCore:
         self.default_net = next(iter(networks))
         self._sessions: list[Session] = []
         self._listening: list[Subscription] = []
+        self._watches: list[_HeartbeatWatch] = []
 
-    def session(self) -> Session:
-        """A new client's session (the default net, no default node)."""
-        session = Session(net=self.default_net, authorised=self.token is None)
+    def session(self, *, trusted: bool = False) -> Session:
+        """A new client's session (the default net, no default node); a ``trusted`` one
+        (this user's Unix socket) needs no token."""
+        session = Session(net=self.default_net, authorised=trusted or self.token is None)
         self._sessions.append(session)
         return session
 
@@ -198,7 +225,7 @@ class GatewayCore:
     # ------------------------------------------------------------------ unsolicited lines
 
     def _subscribe(self, session: Session, request: Request) -> None:
-        kinds = {"boot_up", "emcy"}
+        kinds = {"boot_up", "emcy", "error_control"}
         words = [a.lower() for a in request.args]
         if request.command == "boot_up_indication":  # (Lely's)
             if words not in (["enable"], ["disable"]):
@@ -207,7 +234,9 @@ class GatewayCore:
         else:
             unknown = [w for w in words if w not in kinds | {"all"}]
             if unknown:
-                raise GatewayError(101, f"no events {' '.join(unknown)} (boot_up, emcy, all)")
+                raise GatewayError(
+                    101, f"no events {' '.join(unknown)} (boot_up, emcy, error_control, all)"
+                )
             wanted = kinds if not words or "all" in words else set(words)
             on = request.command == "subscribe"
         if on and session.notify is None:
@@ -219,15 +248,17 @@ class GatewayCore:
             session.subscribed -= wanted
 
     def _listen(self) -> None:
-        """Watch boot-ups and emergencies on every net (once, when a client first asks)."""
+        """Watch boot-ups, heartbeats and emergencies on every net (once, when a client
+        first asks)."""
         if self._listening:
             return
         for net_id, network in self.networks.items():
+            watch = _HeartbeatWatch(self, net_id)
+            watch.host = network.attach(watch.monitor, on_event=watch.on_event)
+            self._watches.append(watch)
             for node in range(1, 128):
                 self._listening += [
-                    network.subscribe(
-                        error_control_cob_id(node), partial(self._bootup, net_id, node)
-                    ),
+                    network.subscribe(error_control_cob_id(node), watch.on_frame),
                     network.subscribe(emcy_cob_id(node), partial(self._emcy, net_id, node)),
                 ]
 
@@ -238,15 +269,14 @@ class GatewayCore:
         for subscription in self._listening:
             subscription.cancel()
         self._listening.clear()
+        for watch in self._watches:
+            watch.close()
+        self._watches.clear()
 
     def _tell(self, kind: str, line: str) -> None:
         for session in self._sessions:
             if kind in session.subscribed and session.notify is not None:
                 session.notify(line)
-
-    def _bootup(self, net: int, node: int, frame: Frame, now: float) -> None:
-        if frame.data == b"\x00" and not frame.rtr:
-            self._tell("boot_up", f"{net} {node} BOOT_UP")
 
     def _emcy(self, net: int, node: int, frame: Frame, now: float) -> None:
         data = frame.data
@@ -291,10 +321,31 @@ class GatewayCore:
             if request.command == "cancel":
                 answer(self._cancel(session, request))
                 return
-        if len(session.pending) >= MAX_PENDING:
-            full = f"{MAX_PENDING} requests of this client are under way: wait for their answers"
-            answer([format_error(seq, 102, full, self.dialect)])
-            return
+        full = len(session.pending) >= MAX_PENDING
+        if full:
+            refusal = GatewayError(
+                102, f"{MAX_PENDING} requests of this client are under way: wait for their answers"
+            )
+            if seq is not None:
+                answer([format_error(seq, refusal.code, refusal.text, self.dialect)])
+                return
+            request = refusal  # (answered in its turn, as every request without [seq])
+        self._queue(session, request, seq, answer)
+
+    def refuse(
+        self, session: Session, code: int, text: str, answer: Callable[[list[str]], None]
+    ) -> None:
+        """Answer an error for a line the framing could not take (too long...), in its
+        turn: after every request before it."""
+        self._queue(session, GatewayError(code, text), None, answer)
+
+    def _queue(
+        self,
+        session: Session,
+        request: Request | GatewayError,
+        seq: int | None,
+        answer: Callable[[list[str]], None],
+    ) -> None:
         ordered = seq is None
         if ordered:
             before = list(session.pending)
@@ -304,16 +355,23 @@ class GatewayCore:
         session.pending[task] = seq
         if ordered:
             session.barrier = task
-        task.add_done_callback(partial(self._ended, session))
+        task.add_done_callback(partial(self._ended, session, seq, answer))
 
-    @staticmethod
-    def _ended(session: Session, task: asyncio.Task[None]) -> None:
+    def _ended(
+        self,
+        session: Session,
+        seq: int | None,
+        answer: Callable[[list[str]], None],
+        task: asyncio.Task[None],
+    ) -> None:
         session.last = time.monotonic()  # (idle from its last answer)
         session.pending.pop(task, None)
-        session.running.discard(task)
-        session.cancelled.pop(task, None)
+        session.running.pop(task, None)
+        reason = session.cancelled.pop(task, None)
         if session.barrier is task:
             session.barrier = None
+        if reason is not None and task.cancelled():  # (cancelled before it ever ran)
+            answer([format_error(seq, 102, reason, self.dialect)])
 
     async def _job(
         self,
@@ -335,7 +393,7 @@ class GatewayCore:
                 lines = await self._answer(view, request)
             else:
                 async with session.lanes.setdefault(lane, asyncio.Lock()):
-                    session.running.add(task)
+                    session.running[task] = lane
                     lines = await self._answer(view, request)
         except asyncio.CancelledError:
             reason = session.cancelled.get(task)
@@ -359,6 +417,8 @@ class GatewayCore:
             return copy.copy(session), ("node", net, node)
         if command.startswith("lss_") or command == "_lss_fastscan":
             return copy.copy(session), ("lss",)
+        if command == "auth":  # (one at a time: each wrong token costs its wait)
+            return session, ("auth",)
         return session, None
 
     def _cancel(self, session: Session, request: Request) -> list[str]:
@@ -384,10 +444,17 @@ class GatewayCore:
 
     def abandon(self, session: Session) -> None:
         """The client is gone: its requests that have not had their turn yet end (no frame
-        of theirs reaches the bus); those under way end as they would."""
+        of theirs reaches the bus, even those queued at a node behind other clients'); a
+        transfer under way ends as it would, and so does an LSS request."""
         for task in list(session.pending):
-            if task not in session.running:
-                task.cancel()
+            lane = session.running.get(task)
+            if lane is not None and lane[0] == "node":
+                channel = session.channels.get((lane[1], lane[2]))  # type: ignore[arg-type]
+                if channel is not None and channel.transport.owner is channel:
+                    continue  # (its transfer is on the bus: it ends as it would)
+            elif lane is not None and lane[0] == "lss":
+                continue
+            task.cancel()
 
     async def drain(self, session: Session) -> None:
         """Wait until every request of ``session`` has ended."""
@@ -411,7 +478,9 @@ class GatewayCore:
             return [format_error(request.seq, 102, str(exc), self.dialect)]
         except SdoAbortedError as exc:
             code = int(exc.code)
-            return [format_error(request.seq, code, describe(code), self.dialect)]
+            text = describe(code)
+            text = text[:1].upper() + text[1:] + ("." if self.dialect == "canopennode" else "")
+            return [format_error(request.seq, code, text, self.dialect)]
         except SdoTimeoutError:
             if self.dialect == "lely":
                 return [format_error(request.seq, 103, "Time-out", self.dialect)]
@@ -432,7 +501,7 @@ class GatewayCore:
     async def _run(self, session: Session, request: Request) -> str | list[str] | None:
         command, args = request.command, request.args
         if command == "auth":
-            self._auth(session, request)
+            await self._auth(session, request)
             return None
         guarded = command in _GUARDED or command.startswith("lss_") or command == "_lss_fastscan"
         if guarded and not session.authorised:
@@ -458,9 +527,13 @@ class GatewayCore:
         if command.startswith("lss_") or command == "_lss_fastscan":
             return await self._lss(session, request)
         if command == "who":
+            if not session.authorised:
+                raise GatewayError(102, "who: this gateway lists its clients only after auth TOKEN")
             return self._who(session)
         if command in ("info", "help") and args and not (command == "info" and args == ["version"]):
             raise GatewayError(101, f"{command} takes no arguments")
+        if command == "info" and args:
+            return _version_line()
         if command == "info":
             nets = ", ".join(str(n) for n in self.networks)
             return (
@@ -471,14 +544,18 @@ class GatewayCore:
         del args
         raise GatewayError(100, f"no command {command!r} (help lists them)")
 
-    def _auth(self, session: Session, request: Request) -> None:
+    async def _auth(self, session: Session, request: Request) -> None:
         if self.token is None:
             raise GatewayError(102, "this gateway has no token: every client may write")
         words = request.rest.split()
         if len(words) != 1 or request.net is not None or request.node is not None:
             raise GatewayError(101, "auth takes the token: auth TOKEN")
+        if session.wrong_tokens >= _WRONG_TOKENS:
+            raise GatewayError(102, f"{_WRONG_TOKENS} wrong tokens: connect again")
         if not token_is(words[0], self.token):
             session.authorised = False
+            session.wrong_tokens += 1
+            await asyncio.sleep(_WRONG_TOKEN_WAIT)  # (guessing costs time)
             raise GatewayError(102, "that is not this gateway's token")
         session.authorised = True
 
@@ -677,3 +754,82 @@ class GatewayCore:
                 raise GatewayError(103, "no device without a node-ID answered the fastscan")
             return " ".join(f"0x{v:08X}" for v in found.fields)
         raise GatewayError(100, f"no LSS command {command!r} (help lists them)")
+
+
+#: How Lely names the NMT states in its error-control lines.
+_STATE_WORDS = {
+    NmtState.STOPPED: "ERRORx STOP",
+    NmtState.OPERATIONAL: "ERRORx OPER",
+    NmtState.PRE_OPERATIONAL: "ERRORx PREO",
+}
+
+#: A heartbeat is lost after this many times the period it came at.
+_LOST_AFTER = 2.5
+
+
+class _HeartbeatWatch:
+    """The heartbeats of one net, for the subscribed clients: boot-ups, a heartbeat started
+    (202) or lost (203), a new NMT state. The gateway is told no consumer times: it learns
+    each node's period from the beats it sees (the median of the last three intervals)."""
+
+    def __init__(self, core: GatewayCore, net: int) -> None:
+        self._core = core
+        self._net = net
+        self.monitor = HeartbeatMonitor(track_all=True)
+        self.host: MachineHost | None = None
+        self._last: dict[int, float] = {}
+        self._intervals: dict[int, list[float]] = {}
+
+    def close(self) -> None:
+        if self.host is not None:
+            self.host.close()
+            self.host = None
+
+    def on_frame(self, frame: Frame, now: float) -> None:
+        if self.host is None or frame.rtr or len(frame.data) != 1:
+            return
+        node = frame.cob_id - ERROR_CONTROL_BASE
+        state = frame.data[0] & 0x7F
+        last = self._last.get(node)
+        if state == 0 or self.monitor.is_lost(node):  # (boot-up, a loss: learn anew)
+            self._intervals.pop(node, None)
+            last = None
+        self._last[node] = now
+        if last is not None and now > last:
+            seen = self._intervals.setdefault(node, [])
+            seen.append(now - last)
+            del seen[:-3]
+            if len(seen) >= 2:
+                period = sorted(seen)[len(seen) // 2]
+                timeout = max(0.05, _LOST_AFTER * period)
+                if abs(self.monitor.timeout(node) - timeout) > 0.2 * timeout:
+                    self.monitor.watch(node, timeout, now)
+        self.host.feed(frame, now)
+
+    def on_event(self, event: Event) -> None:
+        tell, net = self._core._tell, self._net
+        if isinstance(event, BootupReceived):
+            self._last.pop(event.node_id, None)
+            tell("boot_up", f"{net} {event.node_id} BOOT_UP")
+        elif isinstance(event, HeartbeatTimeout):
+            self._last.pop(event.node_id, None)
+            word = _STATE_WORDS.get(self.monitor.state(event.node_id), "ERROR")  # type: ignore[arg-type]
+            tell("error_control", f"{net} {event.node_id} {word} 203 (Heartbeat lost)")
+        elif isinstance(event, HeartbeatResumed):
+            word = _STATE_WORDS.get(event.state, "ERROR")
+            tell("error_control", f"{net} {event.node_id} {word} 202 (Heartbeat started)")
+        elif isinstance(event, RemoteStateChanged) and event.new is not NmtState.INITIALISING:
+            word = _STATE_WORDS.get(event.new, "ERROR")
+            if event.old in (None, NmtState.INITIALISING):
+                tell("error_control", f"{net} {event.node_id} {word} 202 (Heartbeat started)")
+            else:
+                tell("error_control", f"{net} {event.node_id} {word}")
+
+
+def _version_line() -> str:
+    """``info version`` as Lely answers it: the gateway's identity (cobus has none of its
+    own: vendor, product and serial 0, its version as the revision), gateway class 3 (it
+    sends NMT commands), CiA 309-1 version 2.0, the implementation's version."""
+    parts = [int(p) if p.isdigit() else 0 for p in cobus.__version__.split(".")[:2]]
+    major, minor = [*parts, 0, 0][:2]
+    return f"0 0 {major}.{minor} 0 3 2.0 {major}.{minor}"

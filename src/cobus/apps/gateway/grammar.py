@@ -221,10 +221,10 @@ def format_value(type_name: str | None, data: bytes, dialect: str = "canopennode
         return str(value)
     if data_type is _D.REAL32:
         return f"{value:g}" if dialect == "canopennode" else f"{value:.6g}"
-    if data_type is _D.REAL64:
-        return f"{value:.15g}"
-    if data_type is _D.VISIBLE_STRING:
-        return '"' + _escaped(str(value)) + '"'
+    if data_type is _D.REAL64:  # (CANopenNode: six significant digits, as for r32)
+        return f"{value:g}" if dialect == "canopennode" else f"{value:.15g}"
+    if data_type is _D.VISIBLE_STRING:  # (UTF-8, as devices keep it; other bytes \xNN)
+        return '"' + _escaped(bytes(data).decode("utf-8", "surrogateescape")) + '"'
     if isinstance(value, TimeOfDay | TimeDifference):
         return f"{value.days} {value.milliseconds}"
     return str(value)
@@ -237,7 +237,7 @@ _UNESCAPES = {"\\": "\\", "n": "\n", "r": "\r", "t": "\t"}
 def _escaped(text: str) -> str:
     """A visible string on one reply line: ``""`` for a quote, ``\\`` for a backslash,
     ``\\n``, ``\\r``, ``\\t`` and ``\\xNN`` for control characters (a line end inside
-    would split the reply)."""
+    would split the reply) and for bytes that are no UTF-8 (decoded with surrogateescape)."""
     out = []
     for ch in text:
         if ch == '"':
@@ -246,6 +246,8 @@ def _escaped(text: str) -> str:
             out.append(_ESCAPES[ch])
         elif ord(ch) < 0x20 or ord(ch) == 0x7F:
             out.append(f"\\x{ord(ch):02X}")
+        elif 0xDC80 <= ord(ch) <= 0xDCFF:  # (a byte that is no UTF-8)
+            out.append(f"\\x{ord(ch) - 0xDC00:02X}")
         else:
             out.append(ch)
     return "".join(out)
@@ -277,7 +279,8 @@ def _quoted(text: str) -> str:
                 continue
             hex_digits = text[i + 2 : i + 4]
             if nxt == "x" and re.fullmatch(r"[0-9A-Fa-f]{2}", hex_digits):
-                out.append(chr(int(hex_digits, 16)))
+                byte = int(hex_digits, 16)  # (that byte, UTF-8 or not: surrogateescape)
+                out.append(chr(byte) if byte < 0x80 else chr(0xDC00 + byte))
                 i += 4
                 continue
         out.append(ch)
@@ -298,8 +301,8 @@ def parse_value(type_name: str, text: str) -> bytes:
             return bytes.fromhex(digits)
         if name in _BASE64:
             return base64.b64decode(text, validate=True)
-        if data_type is _D.VISIBLE_STRING:
-            return encode(data_type, _quoted(text))
+        if data_type is _D.VISIBLE_STRING:  # (UTF-8, as CANopenNode and devices take it)
+            return _quoted(text).encode("utf-8", "surrogateescape")
         if data_type is _D.BOOLEAN:
             word = text.lower()
             value: Any = {"true": True, "false": False}.get(word)

@@ -7,8 +7,9 @@ skipped, the connection stays), and so are a client's requests under way
 (:data:`~cobus.apps.gateway.core.MAX_PENDING`); a client that disconnects in the middle of a
 transfer holds back no other client but those asking the same node, and them only until its
 transfer ends as it would (within its SDO timeout): no abort the client did not ask for
-reaches the bus, and its requests still waiting for their turn are dropped. A client that
-only half-closes (``printf ... | nc -N``) gets every answer.
+reaches the bus, and its requests still waiting for their turn are dropped once the
+connection is known to be gone (reset, or a write to it failed). A client that only closes
+its side (``printf ... | nc -N``) gets every answer: its requests all run.
 The server binds 127.0.0.1 unless told otherwise; it serves another address only with a
 token (the core's), which clients give (``auth TOKEN``) before they write, send NMT commands
 or use LSS. A Unix socket (``unix``) is this user's only (mode 0600).
@@ -19,12 +20,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+import socket
 import time
 from functools import partial
 
 from cobus.apps._serving import free_unix_path, is_loopback
-from cobus.apps.gateway.core import GatewayCore, Session
-from cobus.apps.gateway.grammar import format_error
+from cobus.apps.gateway.core import MAX_PENDING, GatewayCore, Session
 
 __all__ = ["MAX_LINE", "GatewayServer", "is_loopback"]
 
@@ -87,11 +88,16 @@ class GatewayServer:
         refused = free_unix_path(self.unix)
         if refused is not None:
             raise OSError(f"{self.unix}: {refused}")
+        sock = socket.socket(socket.AF_UNIX)
         old = os.umask(0o177)  # (created 0600: this user's only, from the first moment)
         try:
-            self._server = await asyncio.start_unix_server(self._serve, self.unix)
+            sock.bind(self.unix)
+        except OSError:
+            sock.close()
+            raise
         finally:
             os.umask(old)
+        self._server = await asyncio.start_unix_server(self._serve, sock=sock)
 
     async def stop(self) -> None:
         """Stop listening and end every client's connection."""
@@ -126,6 +132,8 @@ class GatewayServer:
             return
         if reply:
             writer.write(("\r\n".join(reply) + "\r\n").encode("utf-8", "replace"))
+            if writer.is_closing():  # (that write found the client gone)
+                self.core.abandon(session)
 
     async def _next(self, lines: _Lines, session: Session) -> str | int | None:
         """The client's next line, or :data:`_IDLE` once it has been idle too long: no
@@ -152,7 +160,7 @@ class GatewayServer:
         assert task is not None
         self._clients.add(task)
         self.clients += 1
-        session = self.core.session()
+        session = self.core.session(trusted=self.unix is not None)
         session.notify = partial(self._notify, session, writer)
         peer = writer.get_extra_info("peername")
         if isinstance(peer, tuple):
@@ -172,11 +180,12 @@ class GatewayServer:
                 if line is None:
                     break
                 if isinstance(line, int):
-                    too_long = f"a line longer than {MAX_LINE} bytes"
-                    answer([format_error(None, 101, too_long, self.core.dialect)])
+                    self.core.refuse(session, 101, f"a line longer than {MAX_LINE} bytes", answer)
                 else:
                     self.core.submit(session, line, answer)
                 await writer.drain()  # (a client that does not read its answers is not read)
+                while len(session.pending) > 2 * MAX_PENDING:  # (nor one that floods us)
+                    await asyncio.wait(list(session.pending), return_when=asyncio.FIRST_COMPLETED)
             # the client sent all it will: its requests are answered (a client that only
             # half-closed, as `printf ... | nc -N` does, gets every answer)
             await self.core.drain(session)
