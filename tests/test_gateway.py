@@ -17,6 +17,7 @@ import sys
 import threading
 import uuid
 from collections.abc import Awaitable, Callable, Iterator
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -919,6 +920,9 @@ def test_cobus_gateway_with_two_nets_a_unix_socket_and_a_token_beyond_this_host(
         (["--net", "2=socketcan:can1@0"], "a bit rate of 0"),
         (["--token", "short"], "8 characters"),
         (["--token", "has#hash-in-it"], "without spaces or #"),
+        (["--eds", "5"], "give [NET:]NODE=FILE"),
+        (["--eds", "3:5=x.eds"], "there is no net 3"),
+        (["--eds", f"5={tmp_path}/none.eds"], "none.eds: cannot read the file"),
     ]:
         done = subprocess.run([*base, *options], capture_output=True, text=True, timeout=60)
         assert done.returncode == 2 and said in done.stderr, done.stderr
@@ -1140,3 +1144,32 @@ def test_net_options_keep_channels_with_colons_and_at_signs() -> None:
         "channel": "/dev/ttyACM0",
         "bitrate": 500000,
     }
+
+
+def test_objects_by_their_eds_names_and_types(tmp_path: Path) -> None:
+    async def main() -> None:
+        rig = Rig.loads(RIG)
+        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+            await rig.start(net)
+            sim = rig.device(5)
+            assert isinstance(sim, CanopenSimDevice)
+            core = GatewayCore({1: net}, dictionaries={(1, 5): sim.od})
+            s = core.session()
+            ask_ = partial(core.execute, s)
+            assert await ask_('[1] 5 r "Identity object.Vendor-ID" x32') == ["[1] 0x00C0B005"]
+            assert await ask_('[2] 5 r "identity object.vendor id"') == [f"[2] {0x00C0B005}"]
+            assert await ask_('[3] 5 w "Producer heartbeat time" 0') == ["[3] OK"]
+            assert await ask_("[4] 5 w Producer_heartbeat_time u16 0") == ["[4] OK"]
+            assert await ask_("[5] 5 r 0x1017 0") == ["[5] 0"]  # (u16, as the EDS says)
+            (name,) = await ask_('[6] 5 r "Manufacturer device name"')
+            assert name.startswith('[6] "') and name.endswith('"')
+            (wrong,) = await ask_('[7] 5 r "Producer heartbeet time"')
+            assert wrong.startswith("[7] ERROR:101 #") and "Producer heartbeat time" in wrong
+            (none,) = await ask_('[8] 6 r "Device name"')
+            assert none.startswith("[8] ERROR:101 #") and "--eds 6=FILE" in none
+            (open_quote,) = await ask_('[9] 5 r "Device name')
+            assert open_quote.startswith("[9] ERROR:101 #")
+            assert await ask_("[10] 6 r 0x1017 0") == ["[10] 00 00"]  # (no EDS: bytes)
+            await rig.stop()
+
+    asyncio.run(asyncio.wait_for(main(), 60))

@@ -7,7 +7,9 @@ defaults (``set node 5``); requests to one node run in turn, to different nodes 
 side. ``help`` lists the commands.
 
 Net 1 is the bus of -i/-c/-b (or python-can's configuration); ``--net 2=socketcan:can1``
-adds more, addressed as ``[seq] 2 5 r 0x1000 0`` or after ``set network 2``.
+adds more, addressed as ``[seq] 2 5 r 0x1000 0`` or after ``set network 2``. With a node's
+EDS (``--eds 5=drive.eds``, ``--eds 2:7=io.eds`` for net 2) its objects go by name and
+type: ``[1] 5 r "Device name"``, ``[2] 5 w "Producer heartbeat time" 500``.
 
 The gateway serves only this host (127.0.0.1) unless ``--listen`` names another address;
 then clients must give a token (``auth TOKEN``) before they write, send NMT commands or use
@@ -28,7 +30,7 @@ import sys
 from functools import partial
 from typing import Any
 
-from cobus._args import add_bus_options, bus_options, host_port
+from cobus._args import add_bus_options, bus_options, host_port, load_eds
 
 __all__ = ["register"]
 
@@ -53,6 +55,19 @@ def _net_spec(text: str) -> tuple[int, dict[str, Any]]:
             raise argparse.ArgumentTypeError(f"{text!r}: a bit rate of 0")
         options.update(channel=head, bitrate=int(rate))
     return int(number), options
+
+
+def _eds_spec(text: str) -> tuple[int, int, str]:
+    """``[NET:]NODE=FILE`` as an argparse type."""
+    where, sep, path = text.partition("=")
+    net, colon, node = where.rpartition(":")
+    numbers = [net or "1", node]
+    if not sep or not path or not all(re.fullmatch("[0-9]+", n) for n in numbers):
+        raise argparse.ArgumentTypeError(f"{text!r}: give [NET:]NODE=FILE, e.g. 5=drive.eds")
+    del colon
+    if not 1 <= int(numbers[0]) <= 127 or not 1 <= int(node) <= 127:
+        raise argparse.ArgumentTypeError(f"{text!r}: nets and nodes are numbered 1..127")
+    return int(numbers[0]), int(node), path
 
 
 def register(sub: Any) -> None:
@@ -85,6 +100,14 @@ def register(sub: Any) -> None:
         help="one more bus, as net N (net 1 is the bus of -i/-c/-b)",
     )
     p.add_argument(
+        "--eds",
+        type=_eds_spec,
+        action="append",
+        default=[],
+        metavar="[NET:]NODE=FILE",
+        help="a node's EDS or DCF: its objects by name and type (net 1 unless NET: is given)",
+    )
+    p.add_argument(
         "--dialect",
         choices=("canopennode", "lely"),
         default="canopennode",
@@ -111,6 +134,7 @@ def _run(args: argparse.Namespace) -> int:
     import secrets
 
     from cobus.apps._serving import MIN_TOKEN, is_loopback, token_usable
+    from cobus.errors import CobusError
 
     nets: dict[int, dict[str, Any]] = {1: bus_options(args)}
     for number, options in args.net:
@@ -128,6 +152,17 @@ def _run(args: argparse.Namespace) -> int:
     if token is None and args.listen is not None and not is_loopback(args.listen[0]):
         token = secrets.token_urlsafe(18)
         print(f"cobus gateway: clients write after: auth {token}", flush=True)
+    dictionaries: dict[tuple[int, int], Any] = {}
+    for net, node, path in args.eds:
+        if net not in nets:
+            return _fail(f"--eds {net}:{node}={path}: there is no net {net}", _EXIT_USAGE)
+        try:
+            dictionaries[(net, node)] = load_eds(path, "gateway", node_id=node)
+        except OSError as exc:
+            return _fail(f"--eds {path}: {exc.strerror or exc}", _EXIT_USAGE)
+        except (ValueError, CobusError) as exc:  # (the error names the file)
+            return _fail(f"--eds: {exc}", _EXIT_USAGE)
+    args.dictionaries = dictionaries
     served: list[str] = []
     try:
         return asyncio.run(_serve(args, nets, token, served))
@@ -156,7 +191,9 @@ async def _serve(
                 return _fail(f"cannot open the bus{which}: {exc}", _EXIT_OPEN)
             networks[number] = network
         idle = args.idle_timeout if args.idle_timeout > 0 else None
-        core = GatewayCore(networks, dialect=args.dialect, token=token)
+        core = GatewayCore(
+            networks, dialect=args.dialect, token=token, dictionaries=args.dictionaries
+        )
         if args.listen is not None:
             host, port = args.listen
             servers.append(GatewayServer(core, host, port, idle_timeout=idle))

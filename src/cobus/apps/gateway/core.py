@@ -36,10 +36,13 @@ from cobus.apps.gateway.grammar import (
     Request,
     format_error,
     format_value,
+    mnemonic,
     parse_line,
     parse_number,
     parse_value,
+    split_name,
 )
+from cobus.od import NameLookupError, ObjectDictionary, resolve
 from cobus.proto import Event, Frame
 from cobus.proto.connection_set import ERROR_CONTROL_BASE, emcy_cob_id, error_control_cob_id
 from cobus.proto.heartbeat import (
@@ -84,8 +87,11 @@ _NODE_COMMANDS = frozenset(
 
 HELP = """\
 cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [# comment]
-  r|read INDEX SUB [TYPE]          read an object (no TYPE: its bytes in hex)
+  r|read INDEX SUB [TYPE]          read an object (no TYPE: its bytes in hex, or the
+                                   type the node's EDS gives)
   w|write INDEX SUB TYPE VALUE     write an object
+  r NAME [TYPE] | w NAME [TYPE] VALUE   by its name in the node's EDS: "Device name",
+                                   "Identity object.Vendor-ID" (TYPE from the EDS)
   start | stop | preop | reset node | reset comm    NMT (node 0: every node)
   set network N | set node N | set sdo_timeout MS | set sdo_block 0|1
   lss_switch_glob 0|1 | lss_switch_sel VENDOR PRODUCT REVISION SERIAL | lss_set_node N
@@ -176,6 +182,7 @@ class GatewayCore:
         *,
         dialect: str = "canopennode",
         token: str | None = None,
+        dictionaries: dict[tuple[int, int], ObjectDictionary] | None = None,
     ) -> None:
         if not networks:
             raise ValueError("a gateway needs at least one network")
@@ -189,6 +196,8 @@ class GatewayCore:
             )
         #: What clients give before they write (None: nothing needed).
         self.token = token
+        #: The nodes' object dictionaries, by (net, node): names and types for r and w.
+        self.dictionaries = dict(dictionaries or {})
         self.networks = networks
         self.dialect = dialect
         self.default_net = next(iter(networks))
@@ -589,22 +598,63 @@ class GatewayCore:
             channel.timeout = session.sdo_timeout
         return channel
 
-    @staticmethod
-    def _address(args: list[str]) -> tuple[int, int]:
-        if len(args) < 2:
-            raise GatewayError(101, "give the object's index and sub-index")
-        index = parse_number(args[0], "index")
-        sub = parse_number(args[1], "sub-index")
-        if not 0 <= index <= 0xFFFF or not 0 <= sub <= 0xFF:
-            raise GatewayError(101, f"no object {args[0]} {args[1]} (index 0..0xFFFF, sub 0..255)")
-        return index, sub
+    def dictionary(self, net: int, node: int) -> ObjectDictionary | None:
+        """The object dictionary the gateway knows of ``node`` on ``net`` (given to it, or
+        of a remote node added to that network), None: none."""
+        od = self.dictionaries.get((net, node))
+        if od is None:
+            network = self.networks.get(net)
+            remote = None if network is None else network.remotes.get(node)
+            od = None if remote is None else remote.od
+        return od
+
+    def _target(self, session: Session, request: Request) -> tuple[int, int, str | None, str]:
+        """The object a read or write names - ``INDEX SUB`` or a name from the node's EDS
+        (``"Device name"``, ``Identity_object.Vendor-ID``) - the type mnemonic its
+        dictionary gives (None: not known) and the text after it."""
+        rest = request.rest.strip()
+        first = rest.split(None, 1)[0] if rest else ""
+        numeric = bool(first) and not first.startswith('"') and _is_number(first)
+        net, _network = self._network(session, request)
+        node = self._node(session, request)
+        od = self.dictionary(net, node)
+        if numeric:
+            words = rest.split(None, 2)
+            if len(words) < 2:
+                raise GatewayError(101, "give the object's index and sub-index (or its name)")
+            index = parse_number(words[0], "index")
+            sub = parse_number(words[1], "sub-index")
+            if not 0 <= index <= 0xFFFF or not 0 <= sub <= 0xFF:
+                raise GatewayError(
+                    101, f"no object {words[0]} {words[1]} (index 0..0xFFFF, sub 0..255)"
+                )
+            after = words[2] if len(words) > 2 else ""
+            known = None
+            if od is not None:
+                with contextlib.suppress(KeyError):
+                    known = mnemonic(resolve(od, index, sub, suggest=False).data_type)
+            return index, sub, known, after
+        if not rest:
+            raise GatewayError(101, "give the object's index and sub-index (or its name)")
+        name, after = split_name(rest)
+        if od is None:
+            raise GatewayError(
+                101,
+                f"{name!r}: node {node} of net {net} has no EDS here to find names in "
+                f"(cobus gateway --eds {node}=FILE), give index and sub-index",
+            )
+        try:
+            variable = resolve(od, name)
+        except NameLookupError as exc:
+            raise GatewayError(101, str(exc.args[0]) if exc.args else str(exc)) from None
+        return variable.index, variable.subindex, mnemonic(variable.data_type), after
 
     async def _read(self, session: Session, request: Request) -> str:
-        args = request.args
-        index, sub = self._address(args)
-        if len(args) > 3:
-            raise GatewayError(101, "read takes index, sub-index and a data type at most")
-        type_name = args[2] if len(args) == 3 else None
+        index, sub, known, after = self._target(session, request)
+        words = after.split()
+        if len(words) > 1:
+            raise GatewayError(101, "read takes the object and a data type at most")
+        type_name = words[0] if words else known
         if type_name is not None and type_name.lower() not in TYPES:
             format_value(type_name, b"")  # (raises the error that names the types)
         channel = self._channel(session, request)
@@ -612,12 +662,15 @@ class GatewayCore:
         return format_value(type_name, data, self.dialect)
 
     async def _write(self, session: Session, request: Request) -> None:
-        args = request.args
-        index, sub = self._address(args)
-        if len(args) < 4:
+        index, sub, known, after = self._target(session, request)
+        head, _, value_text = after.partition(" ")
+        if head.lower() in TYPES and (value_text.strip() or known is None):
+            type_name = head  # (the type given; the value after it)
+        elif known is not None:
+            type_name, value_text = known, after  # (the type from the EDS)
+        else:
             raise GatewayError(101, "write takes index, sub-index, data type and value")
-        value_text = request.rest.split(None, 3)[3]
-        data = parse_value(args[2], value_text)
+        data = parse_value(type_name, value_text)
         channel = self._channel(session, request)
         await channel.download(index, sub, data, block=session.sdo_block)
 
@@ -833,3 +886,11 @@ def _version_line() -> str:
     parts = [int(p) if p.isdigit() else 0 for p in cobus.__version__.split(".")[:2]]
     major, minor = [*parts, 0, 0][:2]
     return f"0 0 {major}.{minor} 0 3 2.0 {major}.{minor}"
+
+
+def _is_number(word: str) -> bool:
+    try:
+        parse_number(word)
+    except GatewayError:
+        return False
+    return True

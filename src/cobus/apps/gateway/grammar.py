@@ -24,9 +24,11 @@ __all__ = [
     "Request",
     "format_error",
     "format_value",
+    "mnemonic",
     "parse_line",
     "parse_number",
     "parse_value",
+    "split_name",
 ]
 
 #: The reply dialects: CANopenNode's (decimal numbers, ``ERROR:101 #text``) and Lely's
@@ -186,6 +188,38 @@ def parse_line(line: str) -> Request | None:
     elif len(numbers) == 1:
         node = numbers[0]
     return Request(seq, net, node, command, rest.split(), rest)
+
+
+#: The mnemonic of each data type (the standard's, not x8..x64).
+_MNEMONICS = {t: name for name, t in TYPES.items() if t is not None and not name.startswith("x")}
+
+
+def mnemonic(data_type: DataType) -> str:
+    """The type mnemonic a value of ``data_type`` is read and written as (``hex``: bytes)."""
+    return _MNEMONICS.get(data_type, "hex")
+
+
+def split_name(text: str) -> tuple[str, str]:
+    """The object name at the start of ``text`` (``"Device name"`` quoted, with ``""`` for a
+    quote, or one word) and the text after it."""
+    text = text.strip()
+    if not text.startswith('"'):
+        word, _, after = text.partition(" ")
+        return word, after.strip()
+    out, i = [], 1
+    while i < len(text):
+        if text[i] == '"':
+            if text[i + 1 : i + 2] == '"':
+                out.append('"')
+                i += 2
+                continue
+            after = text[i + 1 :]
+            if after and not after[0].isspace():
+                raise GatewayError(101, "a space after the name's closing quote")
+            return "".join(out), after.strip()
+        out.append(text[i])
+        i += 1
+    raise GatewayError(101, "the name has no closing quote")
 
 
 def _type_of(name: str) -> DataType | None:
