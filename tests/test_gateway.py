@@ -1173,3 +1173,97 @@ def test_objects_by_their_eds_names_and_types(tmp_path: Path) -> None:
             await rig.stop()
 
     asyncio.run(asyncio.wait_for(main(), 60))
+
+
+# ------------------------------------------------------------------ PDOs (Lely's)
+
+
+def test_pdo_configurations_fields_and_what_is_refused() -> None:
+    from cobus.apps.gateway.pdo import pack, parse_pdo_config, unpack
+
+    c = parse_pdo_config(["1", "0x181", "event", "3", "u8", "0x2000", "1", "i16", "b"])
+    assert (c.number, c.cob_id, c.transmission, c.lengths) == (1, 0x181, 0xFF, [8, 16, 8])
+    assert parse_pdo_config(["2", "0x182", "sync7", "0"]).transmission == 7
+    x = parse_pdo_config(["3", "0x183", "event", "10", "500", "1", "u32"], extended=True)
+    assert (x.inhibit_ms, x.event_ms) == (10, 500)
+    assert parse_pdo_config(["4", "0xA0000184", "rtr", "1", "u8"]).extended
+    assert pack([8, 16], [5, 0x1234]) == bytes([5, 0x34, 0x12])
+    assert unpack([8, 16], bytes([5, 0x34, 0x12, 9])) == [5, 0x1234]
+    assert unpack([8, 16], b"\x05") is None
+    for words, code in [
+        ("1 0x181 sometimes 1 u8", 101),
+        ("1 0x181 sync241 1 u8", 101),
+        ("1 0x181 event 1 vs", 101),
+        ("0 0x181 event 1 u8", 101),
+        ("1 0x800 event 1 u8", 101),
+        ("1 0x181 event 2 u8", 101),
+        ("1 0x181 event 1 u8 u8", 101),
+        ("1 0x181 event 9 u8 u8 u8 u8 u8 u8 u8 u8 u8", 401),
+    ]:
+        with pytest.raises(GatewayError) as caught:
+            parse_pdo_config(words.split())
+        assert caught.value.code == code, words
+    with pytest.raises(GatewayError):
+        pack([8], [256])
+
+
+def test_the_gateways_own_pdos_as_lely_has_them() -> None:
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        sent: list[tuple[int, str]] = []
+        for cob_id in (0x201, 0x202, 0x203):
+            net.subscribe(
+                cob_id, lambda f, now: None if f.rtr else sent.append((f.cob_id, f.data.hex()))
+            )
+        c = await connect(server)
+        assert await ask(c, "[1] subscribe pdo") == ["[1] OK"]
+        assert await ask(c, "[2] set rpdo 1 0x181 event 2 u8 u16") == ["[2] OK"]
+        assert await ask(c, "[3] r p 1") == ["[3] 1 pdo 2 0x0 0x0"]  # (nothing yet)
+        net.send(Frame(0x181, bytes([5, 0x34, 0x12])))
+        assert (await c[0].readline()).decode() == "1 pdo 1 2 0x5 0x1234\r\n"
+        assert await ask(c, "[4] 1 r p 1") == ["[4] 1 pdo 2 0x5 0x1234"]
+        net.send(Frame(0x181, b"\x05"))  # (too short for its mapping: not taken)
+        assert await ask(c, "[5] r p 1") == ["[5] 1 pdo 2 0x5 0x1234"]
+        # synchronous: taken at the next SYNC
+        assert await ask(c, "[6] set rpdo 2 0x182 sync0 1 0x2000 1 u32") == ["[6] OK"]
+        net.send(Frame(0x182, (0xDEADBEEF).to_bytes(4, "little")))
+        await asyncio.sleep(0.02)
+        assert await ask(c, "[7] r p 2") == ["[7] 1 pdo 1 0x0"]
+        net.send(Frame(0x80, b""))
+        assert (await c[0].readline()).decode() == "1 pdo 2 1 0xdeadbeef\r\n"
+        assert (await ask(c, "[8] set rpdo 3 0x181 event 1 u8"))[0].startswith("[8] ERROR:400 #")
+        # TPDOs: at once, every 2nd SYNC, on a remote frame
+        assert await ask(c, "[9] set tpdo 1 0x201 event 2 i16 u8") == ["[9] OK"]
+        assert await ask(c, "[10] w p 1 2 0xffff 7") == ["[10] OK"]
+        assert (await ask(c, "[11] w p 1 1 5"))[0].startswith("[11] ERROR:101 #")
+        assert (await ask(c, "[12] w p 1 2 0x1ffff 1"))[0].startswith("[12] ERROR:101 #")
+        assert await ask(c, "[13] set tpdo 2 0x202 sync2 1 u8") == ["[13] OK"]
+        assert await ask(c, "[14] set tpdo 3 0x203 rtr 1 u8") == ["[14] OK"]
+        assert await ask(c, "[15] w p 2 1 9") == ["[15] OK"]
+        assert await ask(c, "[16] w p 3 1 4") == ["[16] OK"]
+        await asyncio.sleep(0.02)
+        assert sent == [(0x201, "ffff07")]
+        for _ in range(4):
+            net.send(Frame(0x80, b""))
+        net.send(Frame(0x203, rtr=True, dlc=1))
+        await asyncio.sleep(0.05)
+        assert sent[1:] == [(0x202, "09"), (0x202, "09"), (0x203, "04")]
+        assert (await ask(c, "[17] r p 9"))[0].startswith("[17] ERROR:102 #RPDO 9")
+        assert (await ask(c, "[18] w p 9 1 1"))[0].startswith("[18] ERROR:102 #TPDO 9")
+        assert (await ask(c, "[19] 3 r p 1"))[0].startswith("[19] ERROR:106 #")
+
+    served(scenario)
+
+
+def test_pdo_settings_and_writes_need_the_token() -> None:
+    async def main() -> None:
+        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+            core = GatewayCore({1: net}, token="pdo-token-1")
+            s = core.session()
+            for line in ("[1] set rpdo 1 0x181 event 1 u8", "[2] w p 1 1 1"):
+                (refused,) = await core.execute(s, line)
+                assert "ERROR:102 #" in refused and "auth TOKEN" in refused
+            assert await core.execute(s, "[3] auth pdo-token-1") == ["[3] OK"]
+            assert await core.execute(s, "[4] set tpdo 1 0x201 event 1 u8") == ["[4] OK"]
+            core.close()
+
+    asyncio.run(asyncio.wait_for(main(), 60))

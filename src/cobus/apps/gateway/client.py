@@ -20,7 +20,7 @@ class TokenRefused(Exception):
 
 
 _SEQ = re.compile(r"\s*\[\s*([0-9]+)\s*\]\s?(.*)\Z", re.S)
-_EVENT = re.compile(r"[0-9]+ [0-9]+ (BOOT_UP|EMCY|ERROR|USER|pdo|SDO)")
+_EVENT = re.compile(r"[0-9]+ (pdo [0-9]|[0-9]+ (BOOT_UP|EMCY|ERROR|USER|SDO))")
 _ERROR = re.compile(
     r"ERROR:\s*(0x[0-9A-Fa-f]{8}|[0-9A-Fa-f]{8}(?=\s*\()|[0-9]+)\s*(?:#\s*(.*)|\((.*)\))?\Z"
 )

@@ -42,6 +42,7 @@ from cobus.apps.gateway.grammar import (
     parse_value,
     split_name,
 )
+from cobus.apps.gateway.pdo import PdoTable, parse_pdo_config
 from cobus.od import NameLookupError, ObjectDictionary, resolve
 from cobus.proto import Event, Frame
 from cobus.proto.connection_set import ERROR_CONTROL_BASE, emcy_cob_id, error_control_cob_id
@@ -102,6 +103,10 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
   NET NODE ERRORx STATE 202 (Heartbeat started) | 203 (Heartbeat lost), NET NODE ERRORx
   STATE (a new NMT state); STATE is OPER, PREO or STOP. A heartbeat counts as lost after
   2.5 times the period the gateway saw it come at.
+  set rpdo|tpdo N COB-ID event|rtr|syncN COUNT [INDEX SUB] TYPE...   the gateway's own
+  PDOs, as Lely's (set tpdox N COB-ID TRANS INHIBIT EVENT|SYNC-START ...);
+  r p N -> NET pdo COUNT 0xV... what RPDO N last brought; w p N COUNT V...  send TPDO N;
+  subscribe pdo: NET pdo N COUNT 0xV... for each RPDO that comes in
   who                               the clients connected (this one marked *)
   cancel [SEQ]                      end this client's requests under way (or the one
                                     numbered SEQ): each is answered ERROR:102 #cancelled;
@@ -204,6 +209,7 @@ class GatewayCore:
         self._sessions: list[Session] = []
         self._listening: list[Subscription] = []
         self._watches: list[_HeartbeatWatch] = []
+        self._pdos: dict[int, PdoTable] = {}
 
     def session(self, *, trusted: bool = False) -> Session:
         """A new client's session (the default net, no default node); a ``trusted`` one
@@ -234,7 +240,7 @@ class GatewayCore:
     # ------------------------------------------------------------------ unsolicited lines
 
     def _subscribe(self, session: Session, request: Request) -> None:
-        kinds = {"boot_up", "emcy", "error_control"}
+        kinds = {"boot_up", "emcy", "error_control", "pdo"}
         words = [a.lower() for a in request.args]
         if request.command == "boot_up_indication":  # (Lely's)
             if words not in (["enable"], ["disable"]):
@@ -244,7 +250,8 @@ class GatewayCore:
             unknown = [w for w in words if w not in kinds | {"all"}]
             if unknown:
                 raise GatewayError(
-                    101, f"no events {' '.join(unknown)} (boot_up, emcy, error_control, all)"
+                    101,
+                    f"no events {' '.join(unknown)} (boot_up, emcy, error_control, pdo, all)",
                 )
             wanted = kinds if not words or "all" in words else set(words)
             on = request.command == "subscribe"
@@ -281,6 +288,9 @@ class GatewayCore:
         for watch in self._watches:
             watch.close()
         self._watches.clear()
+        for table in self._pdos.values():
+            table.close()
+        self._pdos.clear()
 
     def _tell(self, kind: str, line: str) -> None:
         for session in self._sessions:
@@ -419,6 +429,8 @@ class GatewayCore:
         """The session as ``request`` sees it (its defaults as they are when its turn
         comes, whatever the client sets later) and the lane it queues in (None: none)."""
         command = request.command
+        if command in ("r", "read", "w", "write") and request.args[:1] in (["p"], ["pdo"]):
+            return copy.copy(session), ("pdo",)  # (a whole net's: no node)
         if command in _NODE_COMMANDS:
             net = request.net if request.net is not None else session.net
             node = request.node if request.node is not None else session.node
@@ -519,10 +531,14 @@ class GatewayCore:
                 f"{command}: this gateway writes to the bus only for clients that gave "
                 "its token first: auth TOKEN",
             )
+        pdo = bool(args) and args[0].lower() in ("p", "pdo")
         if command in ("r", "read"):
-            return await self._read(session, request)
+            return self._pdo_read(session, request) if pdo else await self._read(session, request)
         if command in ("w", "write"):
-            await self._write(session, request)
+            if pdo:
+                self._pdo_write(session, request)
+            else:
+                await self._write(session, request)
             return None
         if command in ("start", "stop", "preop", "preoperational", "reset"):
             self._nmt(session, request)
@@ -695,6 +711,9 @@ class GatewayCore:
             )
 
     def _set(self, session: Session, request: Request) -> None:
+        if request.args and request.args[0].lower() in ("rpdo", "tpdo", "tpdox"):
+            self._set_pdo(session, request)
+            return
         if request.net is not None:
             raise GatewayError(101, "set takes one number before it at most: its net")
         if request.node is not None and request.node not in self.networks:  # ([net] set ...)
@@ -726,22 +745,65 @@ class GatewayCore:
                 100, f"no setting {args[0]!r} (network, node, sdo_timeout, sdo_block)"
             )
 
-    async def _lss(self, session: Session, request: Request) -> str | None:
-        """The LSS requests (CiA 305 through the network's LSS master)."""
-        if request.net is not None:  # ([net] lss_...: one number names the net)
-            raise GatewayError(
-                101, "an LSS request goes to a whole net: one number before it, the net"
-            )
+    def _whole_net(self, session: Session, request: Request, what: str) -> tuple[int, AsyncNetwork]:
+        """The net of a request that goes to a whole net (LSS, PDOs): one number before
+        it names the net, as ``[net] lss_store``."""
+        if request.net is not None:
+            raise GatewayError(101, f"{what} goes to a whole net: one number before it, the net")
         if request.node is not None:
             if request.node not in self.networks:
                 known = ", ".join(str(n) for n in self.networks)
                 raise GatewayError(
                     106,
-                    f"no net {request.node} here (an LSS request takes one number before it, "
-                    f"its net: {known})",
+                    f"no net {request.node} here ({what} takes one number before it, its "
+                    f"net: {known})",
                 )
             request.net, request.node = request.node, None
-        _net, network = self._network(session, request)
+        return self._network(session, request)
+
+    def _pdo_table(self, net: int, network: AsyncNetwork) -> PdoTable:
+        table = self._pdos.get(net)
+        if table is None:
+            table = self._pdos[net] = PdoTable(net, network, partial(self._tell, "pdo"))
+        return table
+
+    def _set_pdo(self, session: Session, request: Request) -> None:
+        """``[net] set rpdo|tpdo|tpdox N COB-ID TRANS ... COUNT TYPE...`` (Lely's)."""
+        if not session.authorised:
+            raise GatewayError(
+                102,
+                "set rpdo/tpdo: this gateway changes its PDOs only for clients that gave "
+                "its token first: auth TOKEN",
+            )
+        net, network = self._whole_net(session, request, "a PDO request")
+        kind = request.args[0].lower()
+        config = parse_pdo_config(request.args[1:], extended=kind == "tpdox")
+        table = self._pdo_table(net, network)
+        if kind == "rpdo":
+            table.configure_rpdo(config)
+        else:
+            table.configure_tpdo(config)
+
+    def _pdo_read(self, session: Session, request: Request) -> str:
+        """``[net] r p N``: ``NET pdo COUNT 0xV ...`` (Lely's)."""
+        net, network = self._whole_net(session, request, "a PDO request")
+        if len(request.args) != 2:
+            raise GatewayError(101, "r p takes the RPDO's number: r p 1")
+        number = parse_number(request.args[1], "PDO number")
+        values = self._pdo_table(net, network).read(number)
+        return " ".join([str(net), "pdo", str(len(values)), *(f"0x{v:x}" for v in values)])
+
+    def _pdo_write(self, session: Session, request: Request) -> None:
+        """``[net] w p N COUNT V ...`` (Lely's)."""
+        net, network = self._whole_net(session, request, "a PDO request")
+        numbers = [parse_number(a, "PDO value") for a in request.args[1:]]
+        if len(numbers) < 2 or numbers[1] != len(numbers) - 2:
+            raise GatewayError(101, "w p takes the TPDO's number, how many values, the values")
+        self._pdo_table(net, network).write(numbers[0], numbers[2:])
+
+    async def _lss(self, session: Session, request: Request) -> str | None:
+        """The LSS requests (CiA 305 through the network's LSS master)."""
+        _net, network = self._whole_net(session, request, "an LSS request")
         lss = network.lss
         command = request.command
         numbers = [parse_number(a, command) for a in request.args]
