@@ -1267,3 +1267,66 @@ def test_pdo_settings_and_writes_need_the_token() -> None:
             core.close()
 
     asyncio.run(asyncio.wait_for(main(), 60))
+
+
+# ------------------------------------------------------------------ JSON lines
+
+
+def test_json_lines_are_a_second_framing_of_the_same_requests() -> None:
+    from cobus.apps.gateway import request_line
+
+    assert request_line('{"seq": 1, "node": 5, "command": "r", "args": ["0x1018", 1]}') == (
+        "[1] 5 r 0x1018 1"
+    )
+    assert request_line('{"command": "w", "args": ["Device name", "vs", "a \\"b\\" # c"]}') == (
+        'w "Device name" vs "a ""b"" # c"'
+    )
+    assert request_line("   ") == ""
+    for bad in ["[1] r", "{", "[]", '{"command": "r", "colour": 1}', '{"command": 5}',
+                '{"command": "r", "args": [true]}', '{"net": 1, "command": "start"}',
+                '{"line": "r 1 0", "seq": 1}', '{"command": "w", "args": ["a\\nb"]}']:  # fmt: skip
+        refused = request_line(bad)
+        assert isinstance(refused, GatewayError) and refused.code == 101, bad
+
+    async def main() -> None:
+        rig = Rig.loads(RIG)
+        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+            await rig.start(net)
+            server = GatewayServer(GatewayCore({1: net}), json_lines=True)
+            await server.start()
+            try:
+                c = await connect(server)
+
+                async def asked(request: str, count: int = 1) -> list[Any]:
+                    return [json.loads(line) for line in await ask(c, request, count)]
+
+                read = '{"seq": 1, "node": 5, "command": "r", "args": ["0x1018", 1, "u32"]}'
+                assert await asked(read) == [
+                    {
+                        "seq": 1,
+                        "request": "[1] 5 r 0x1018 1 u32",
+                        "ok": True,
+                        "value": str(0x00C0B005),
+                    }
+                ]
+                (abort,) = await asked('{"line": "[2] 5 r 0x5FFF 0 u8"}')
+                assert abort["seq"] == 2 and abort["ok"] is False
+                assert (abort["error"], abort["kind"]) == ("0x06020000", "abort")
+                write = '{"node": 5, "command": "w", "args": ["0x1017", "0", "u16", 100]}'
+                assert (await asked(write))[0]["ok"] is True
+                (value,) = await asked('{"node": 5, "command": "r", "args": ["0x1017", 0, "u16"]}')
+                assert value == {"request": "5 r 0x1017 0 u16", "ok": True, "value": "100"}
+                (helped,) = await asked('{"command": "help"}')
+                assert helped["ok"] is True and "r|read" in helped["lines"][1]
+                (bad,) = await asked("not json")
+                assert (bad["ok"], bad["error"], bad["kind"]) == (False, 101, "syntax")
+                (long,) = await asked("x" * (MAX_LINE + 1))
+                assert long["error"] == 101 and "longer than" in long["text"]
+                assert (await asked('{"seq": 3, "command": "subscribe"}'))[0]["ok"] is True
+                assert (await asked('{"node": 5, "command": "reset", "args": ["node"]}'))[0]["ok"]
+                assert json.loads(await c[0].readline()) == {"event": "1 5 BOOT_UP"}
+            finally:
+                await server.stop()
+                await rig.stop()
+
+    asyncio.run(asyncio.wait_for(main(), 60))

@@ -115,6 +115,13 @@ def register(sub: Any) -> None:
         "or Lely's (unsigned in hex, ERROR: 101 (text))",
     )
     p.add_argument(
+        "--json",
+        action="store_true",
+        help='JSON lines instead of CiA 309-3 text: {"seq": 1, "node": 5, "command": "r", '
+        '"args": ["0x1018", 1, "u32"]} (or {"line": "..."}) in, {"seq": 1, "ok": true, '
+        '"value": "..."} or {"event": "..."} out',
+    )
+    p.add_argument(
         "--idle-timeout",
         type=float,
         default=600.0,
@@ -196,9 +203,11 @@ async def _serve(
         )
         if args.listen is not None:
             host, port = args.listen
-            servers.append(GatewayServer(core, host, port, idle_timeout=idle))
+            servers.append(GatewayServer(core, host, port, idle_timeout=idle, json_lines=args.json))
         if args.unix is not None:
-            servers.append(GatewayServer(core, unix=args.unix, idle_timeout=idle))
+            servers.append(
+                GatewayServer(core, unix=args.unix, idle_timeout=idle, json_lines=args.json)
+            )
         for server in servers:
             try:
                 await server.start()

@@ -10,7 +10,7 @@ from cobus.apps._serving import is_loopback
 from cobus.apps.gateway.client import GatewayClient, Reply
 from cobus.apps.gateway.core import HELP, MAX_PENDING, GatewayCore, Session
 from cobus.apps.gateway.grammar import ERRORS, TYPES, GatewayError, parse_line
-from cobus.apps.gateway.server import MAX_LINE, GatewayServer
+from cobus.apps.gateway.server import MAX_LINE, GatewayServer, request_line
 
 __all__ = [
     "ERRORS",
@@ -26,4 +26,5 @@ __all__ = [
     "Session",
     "is_loopback",
     "parse_line",
+    "request_line",
 ]

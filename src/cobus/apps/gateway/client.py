@@ -12,7 +12,7 @@ import re
 import socket
 from dataclasses import dataclass, field
 
-__all__ = ["GatewayClient", "Reply", "TokenRefused", "error_class"]
+__all__ = ["GatewayClient", "Reply", "TokenRefused", "error_class", "reply_of"]
 
 
 class TokenRefused(Exception):
@@ -155,6 +155,16 @@ class GatewayClient:
             if int(answer.group(1)) == seq:
                 return _reply(line.strip(), answer.group(2), before)
             before.append(got)
+
+
+def reply_of(request: str, lines: list[str]) -> Reply:
+    """The :class:`Reply` a gateway's answer ``lines`` to ``request`` make (the last line
+    closes it, ``[seq]`` or not; the lines before it are help's text)."""
+    if not lines:
+        return Reply(request, False, code=102, text="no answer")
+    match = _SEQ.match(lines[-1])
+    body = match.group(2) if match else lines[-1]
+    return _reply(request, body, lines[:-1])
 
 
 def _reply(request: str, body: str, before: list[str]) -> Reply:

@@ -19,15 +19,19 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import os
+import re
 import socket
 import time
 from functools import partial
 
 from cobus.apps._serving import free_unix_path, is_loopback
+from cobus.apps.gateway.client import reply_of
 from cobus.apps.gateway.core import MAX_PENDING, GatewayCore, Session
+from cobus.apps.gateway.grammar import GatewayError
 
-__all__ = ["MAX_LINE", "GatewayServer", "is_loopback"]
+__all__ = ["MAX_LINE", "GatewayServer", "request_line"]
 
 #: The longest request line taken (bytes, without its line end).
 MAX_LINE = 4096
@@ -45,6 +49,7 @@ class GatewayServer:
         *,
         unix: str | None = None,
         idle_timeout: float | None = 600.0,
+        json_lines: bool = False,
     ) -> None:
         if unix is None and not is_loopback(host) and core.token is None:
             raise ValueError(
@@ -55,6 +60,9 @@ class GatewayServer:
         self.core = core
         #: The Unix socket's path (None: TCP).
         self.unix = unix
+        #: Whether requests and answers are JSON objects, one a line (see
+        #: :func:`request_line`), instead of CiA 309-3 text.
+        self.json_lines = json_lines
         self._peers = 0
         #: Seconds a client may send nothing before its connection closes (None: never).
         self.idle_timeout = idle_timeout
@@ -124,7 +132,18 @@ class GatewayServer:
         if writer.transport.get_write_buffer_size() > UNREAD_LIMIT:
             self.dropped += 1  # (a client that does not read holds back nobody)
             return
+        if self.json_lines:
+            line = json.dumps({"event": line}, ensure_ascii=False)
         writer.write(line.encode("utf-8") + b"\r\n")
+
+    def _answer_json(
+        self, session: Session, writer: asyncio.StreamWriter, request: str, reply: list[str]
+    ) -> None:
+        out = reply_of(request, reply).as_dict()
+        match = _NUMBERED.match(request)
+        if match:
+            out = {"seq": int(match.group(1)), **out}
+        self._answer(session, writer, [json.dumps(out, ensure_ascii=False)])
 
     def _answer(self, session: Session, writer: asyncio.StreamWriter, reply: list[str]) -> None:
         if writer.is_closing():
@@ -180,7 +199,18 @@ class GatewayServer:
                 if line is None:
                     break
                 if isinstance(line, int):
-                    self.core.refuse(session, 101, f"a line longer than {MAX_LINE} bytes", answer)
+                    too_long = f"a line longer than {MAX_LINE} bytes"
+                    if self.json_lines:
+                        answer = partial(self._answer_json, session, writer, "")
+                    self.core.refuse(session, 101, too_long, answer)
+                elif self.json_lines:
+                    text = request_line(line)
+                    if isinstance(text, GatewayError):
+                        refused = partial(self._answer_json, session, writer, "")
+                        self.core.refuse(session, text.code, text.text, refused)
+                    elif text:
+                        replied = partial(self._answer_json, session, writer, text)
+                        self.core.submit(session, text, replied)
                 else:
                     self.core.submit(session, line, answer)
                 await writer.drain()  # (a client that does not read its answers is not read)
@@ -202,6 +232,60 @@ class GatewayServer:
             writer.close()
             with contextlib.suppress(Exception):
                 await writer.wait_closed()
+
+
+_NUMBERED = re.compile(r"\s*\[\s*([0-9]+)\s*\]")
+_NEEDS_QUOTES = re.compile(r'[\s"#]')
+
+
+def request_line(text: str) -> str | GatewayError:
+    """The CiA 309-3 line of one JSON request (the JSON lines framing): ``{"line": "[1] 5 r
+    0x1018 1 u32"}`` as it is, or ``{"seq": 1, "net": 1, "node": 5, "command": "r", "args":
+    ["0x1018", 1, "u32"]}`` (net, node, seq and args may be left out; an argument with a
+    space, a quote or a # is quoted). A blank line is "" (nothing to do); what is no such
+    object is the :class:`GatewayError` to answer."""
+    if not text.strip():
+        return ""
+    try:
+        request = json.loads(text)
+    except ValueError as exc:
+        return GatewayError(101, f"no JSON: {exc}")
+    if not isinstance(request, dict):
+        return GatewayError(101, 'a request is a JSON object: {"command": "r", ...}')
+    unknown = set(request) - {"line", "seq", "net", "node", "command", "args"}
+    if unknown:
+        return GatewayError(101, f"no field {sorted(unknown)[0]!r} in a request")
+    if "line" in request:
+        line = request["line"]
+        if set(request) != {"line"} or not isinstance(line, str) or "\n" in line:
+            return GatewayError(101, '"line" is one line of text, alone in its request')
+        return line
+    command, args = request.get("command"), request.get("args", [])
+    if not isinstance(command, str) or not command.strip() or " " in command.strip():
+        return GatewayError(101, 'give the "command": "r", "w", "start", "set"...')
+    if not isinstance(args, list) or not all(
+        isinstance(a, str | int) and not isinstance(a, bool) for a in args
+    ):
+        return GatewayError(101, '"args" is a list of strings and numbers')
+    words: list[str] = []
+    for key in ("seq", "net", "node"):
+        value = request.get(key)
+        if value is None:
+            continue
+        if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+            return GatewayError(101, f'"{key}" is a number')
+        words.append(f"[{value}]" if key == "seq" else str(value))
+    if "net" in request and "node" not in request:
+        return GatewayError(101, '"net" needs "node" beside it (or the line form)')
+    words.append(command.strip())
+    for arg in args:
+        word = str(arg)
+        if "\n" in word or "\r" in word:
+            return GatewayError(101, "an argument of one line: \\n for a line end in a string")
+        words.append(
+            '"' + word.replace('"', '""') + '"' if not word or _NEEDS_QUOTES.search(word) else word
+        )
+    return " ".join(words)
 
 
 #: What :meth:`GatewayServer._next` gives for a client idle too long (0: a line too long).
