@@ -911,6 +911,17 @@ def test_cobus_gateway_with_two_nets_a_unix_socket_and_a_token_beyond_this_host(
     finally:
         stopped(proc)
 
+    proc, said = started("--http", "127.0.0.1:0")  # (HTTP alone: no text port)
+    try:
+        import urllib.request
+
+        http = re.search(r"on (http://127\.0\.0\.1:[0-9]+)\n", said)
+        assert http, said
+        with urllib.request.urlopen(f"{http[1]}/cia309-5/1.0/1/1/none/info/version") as r:
+            assert json.loads(r.read())["GatewayClass"] == "3"
+    finally:
+        stopped(proc)
+
     for options, said in [
         (["--net", "1=virtual:x"], "--net numbers the other buses 2..127"),
         (["--net", "2=virtual"], "give N=INTERFACE:CHANNEL"),
@@ -1328,5 +1339,80 @@ def test_json_lines_are_a_second_framing_of_the_same_requests() -> None:
             finally:
                 await server.stop()
                 await rig.stop()
+
+    asyncio.run(asyncio.wait_for(main(), 60))
+
+
+# ------------------------------------------------------------------ HTTP (gocanopen's URLs)
+
+
+def test_http_in_gocanopens_urls_and_a_websocket_of_events() -> None:
+    import aiohttp
+
+    from cobus.apps.gateway.http import GatewayHttp
+
+    async def main() -> None:
+        rig = Rig.loads(RIG)
+        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+            await rig.start(net)
+            core = GatewayCore({1: net}, token="http-token-1")
+            http = GatewayHttp(core)
+            await http.start()
+            base = f"{http.address}/cia309-5/1.0"
+            bearer = {"Authorization": "Bearer http-token-1"}
+            try:
+                async with aiohttp.ClientSession() as client:
+
+                    async def call(
+                        method: str, path: str, body: Any = None, **kw: Any
+                    ) -> dict[str, Any]:
+                        data = None if body is None else json.dumps(body)
+                        async with client.request(method, base + path, data=data, **kw) as r:
+                            assert r.status == 200 and r.content_type == "application/json"
+                            got: dict[str, Any] = await r.json()
+                            return got
+
+                    # as gocanopen's client asks: decimal numbers, GET reads, PUT writes
+                    got = await call("GET", f"/1/1/5/r/{0x1018}/1")
+                    assert got == {"sequence": "1", "response": "OK", "data": "0x00c0b005",
+                                   "length": 4}  # fmt: skip
+                    write = {"value": "0x00fa", "datatype": "u16"}
+                    refused = await call("PUT", "/2/1/5/w/4119/0", write)
+                    assert refused["response"] == "ERROR:102" and "auth TOKEN" in refused["text"]
+                    ok = await call("PUT", "/3/1/5/w/4119/0", write, headers=bearer)
+                    assert ok == {"sequence": "3", "response": "OK"}
+                    got = await call("GET", "/4/default/5/r/0x1017/0?datatype=u16")
+                    assert got["value"] == "250"
+                    abort = await call("GET", "/5/1/5/r/0x5fff/0")
+                    assert abort["response"] == "ERROR:0x06020000" and abort["text"]
+                    assert (await call("PUT", "/6/1/all/stop", headers=bearer))["response"] == "OK"
+                    await asyncio.sleep(0.05)
+                    assert device(rig, 6).state is NmtState.STOPPED
+                    assert (await call("PUT", "/6/1/0/start", headers=bearer))["response"] == "OK"
+                    assert (await call("PUT", "/7/none/none/set/node", {"value": "6"}))[
+                        "response"
+                    ] == "OK"
+                    got = await call("GET", "/8/none/none/r/0x1018/1", {"datatype": "x32"})
+                    assert got.get("value") == "0x00C0B005", got  # (node 6, the default now)
+                    version = await call("GET", "/9/1/none/info/version")
+                    assert version["GatewayClass"] == "3" and version["response"] == "OK"
+                    assert (await call("GET", "/10/1/5/frobnicate"))["response"] == "ERROR:100"
+                    assert (await call("GET", "/11/1/5/r/0x1018"))["response"] == "ERROR:101"
+                    async with client.get(f"{http.address}/x") as r:
+                        assert (await r.json())["response"] == "ERROR:101"
+                    assert (await call("GET", "/12/1/5/r/1/2", "[1]"))["response"] == "ERROR:101"
+                    async with client.get(f"{http.address}/cia309-5/2.0/1/1/5/start") as r:
+                        assert (await r.json())["response"] == "ERROR:100"
+                    # the events
+                    async with client.ws_connect(f"{base}/events") as ws:
+                        await asyncio.sleep(0.05)
+                        await call("PUT", "/13/1/5/reset/node", headers=bearer)
+                        message = await asyncio.wait_for(ws.receive_json(), 5)
+                        assert message == {"event": "1 5 BOOT_UP"}
+            finally:
+                await http.stop()
+                await rig.stop()
+            with pytest.raises(ValueError, match="token"):
+                GatewayHttp(GatewayCore({1: net}), "0.0.0.0")
 
     asyncio.run(asyncio.wait_for(main(), 60))

@@ -82,10 +82,18 @@ def register(sub: Any) -> None:
         "--listen",
         type=partial(host_port, listening=True),
         metavar="HOST:PORT",
-        help="where to listen (default 127.0.0.1:5000 unless --unix is given; another host "
-        "than this one needs a token)",
+        help="where to listen (default 127.0.0.1:5000 unless --unix or --http is given; "
+        "another host than this one needs a token)",
     )
     p.add_argument("--unix", metavar="PATH", help="listen on this Unix socket (this user's only)")
+    p.add_argument(
+        "--http",
+        type=partial(host_port, listening=True),
+        metavar="HOST:PORT",
+        help="also serve HTTP in gocanopen's CiA 309-5 URLs (/cia309-5/1.0/SEQ/NET/NODE/"
+        "r/INDEX/SUB...) and a WebSocket of events; beyond this host writes need "
+        "Authorization: Bearer TOKEN",
+    )
     p.add_argument(
         "--token",
         help="the token clients give (auth TOKEN) before they write, send NMT or use LSS "
@@ -148,7 +156,7 @@ def _run(args: argparse.Namespace) -> int:
         if number in nets:
             return _fail(f"--net {number}: net {number} is given twice", _EXIT_USAGE)
         nets[number] = options
-    if args.listen is None and args.unix is None:
+    if args.listen is None and args.unix is None and args.http is None:
         args.listen = ("127.0.0.1", 5000)
     token = args.token if args.token is not None else os.environ.get("COBUS_GATEWAY_TOKEN")
     if token is not None and not token_usable(token):
@@ -156,7 +164,8 @@ def _run(args: argparse.Namespace) -> int:
             f"the token: give {MIN_TOKEN} characters at least, without spaces or #",
             _EXIT_USAGE,
         )
-    if token is None and args.listen is not None and not is_loopback(args.listen[0]):
+    beyond = [a for a in (args.listen, args.http) if a is not None and not is_loopback(a[0])]
+    if token is None and beyond:
         token = secrets.token_urlsafe(18)
         print(f"cobus gateway: clients write after: auth {token}", flush=True)
     dictionaries: dict[tuple[int, int], Any] = {}
@@ -183,11 +192,12 @@ async def _serve(
     args: argparse.Namespace, nets: dict[int, dict[str, Any]], token: str | None, served: list[str]
 ) -> int:
     from cobus.apps.gateway import GatewayCore, GatewayServer
+    from cobus.apps.gateway.http import GatewayHttp
     from cobus.errors import CobusError
     from cobus.runtime import AsyncNetwork
 
     networks: dict[int, AsyncNetwork] = {}
-    servers: list[GatewayServer] = []
+    servers: list[GatewayServer | GatewayHttp] = []
     try:
         for number, options in sorted(nets.items()):
             network = AsyncNetwork(**options)
@@ -208,11 +218,13 @@ async def _serve(
             servers.append(
                 GatewayServer(core, unix=args.unix, idle_timeout=idle, json_lines=args.json)
             )
+        if args.http is not None:
+            servers.append(GatewayHttp(core, *args.http))
         for server in servers:
             try:
                 await server.start()
             except OSError as exc:
-                where = server.unix or f"{server.host}:{server.requested_port}"
+                where = getattr(server, "unix", None) or f"{server.host}:{server.requested_port}"
                 return _fail(f"cannot listen on {where}: {exc.strerror or exc}", _EXIT_OPEN)
             served.append(server.address)
         which = ", ".join(str(n) for n in networks)

@@ -69,7 +69,7 @@ if TYPE_CHECKING:
     from cobus.runtime import AsyncNetwork
     from cobus.runtime.network import MachineHost
 
-__all__ = ["HELP", "MAX_PENDING", "GatewayCore", "Session"]
+__all__ = ["HELP", "MAX_PENDING", "GatewayCore", "Session", "version_fields"]
 
 #: Requests one client may have under way at once; one more is answered with ERROR:102.
 MAX_PENDING = 64
@@ -941,13 +941,33 @@ class _HeartbeatWatch:
                 tell("error_control", f"{net} {event.node_id} {word}")
 
 
+def _version() -> tuple[int, int]:
+    parts = [int(p) if p.isdigit() else 0 for p in cobus.__version__.split(".")[:2]]
+    major, minor = [*parts, 0, 0][:2]
+    return major, minor
+
+
 def _version_line() -> str:
     """``info version`` as Lely answers it: the gateway's identity (cobus has none of its
     own: vendor, product and serial 0, its version as the revision), gateway class 3 (it
     sends NMT commands), CiA 309-1 version 2.0, the implementation's version."""
-    parts = [int(p) if p.isdigit() else 0 for p in cobus.__version__.split(".")[:2]]
-    major, minor = [*parts, 0, 0][:2]
+    major, minor = _version()
     return f"0 0 {major}.{minor} 0 3 2.0 {major}.{minor}"
+
+
+def version_fields() -> dict[str, str]:
+    """``info version`` as gocanopen's HTTP gateway answers it (the same facts as
+    :func:`_version_line`)."""
+    major, minor = _version()
+    return {
+        "VendorId": "0x0",
+        "ProductCode": "0x0",
+        "RevisionNumber": f"0x{(major << 16) | minor:x}",
+        "SerialNumber": "0x0",
+        "GatewayClass": "3",
+        "ProtocolVersion": "02.00",
+        "ImplementationClass": f"{major:02d}.{minor:02d}",
+    }
 
 
 def _is_number(word: str) -> bool:
