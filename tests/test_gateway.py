@@ -1416,3 +1416,91 @@ def test_http_in_gocanopens_urls_and_a_websocket_of_events() -> None:
                 GatewayHttp(GatewayCore({1: net}), "0.0.0.0")
 
     asyncio.run(asyncio.wait_for(main(), 60))
+
+
+def test_lelys_lss_requests() -> None:
+    """lss_identity, lss_ident_nonconf, inquiries by Lely's codes, fastscan with masks."""
+    from tests.util import simulate
+
+    async def main() -> None:
+        rig = Rig.loads("devices:\n  - {node: unconfigured, kind: cia401_io, serial: 0x1234}\n")
+        async with AsyncNetwork() as net:
+            await rig.start(net)
+            core = GatewayCore({1: net}, dialect="lely")
+            s = core.session()
+
+            async def say(line: str) -> str:
+                (reply,) = await core.execute(s, line)
+                return reply
+
+            assert await say("[1] lss_ident_nonconf") == "[1] OK"
+            assert await say("[2] lss_identity 0xC0B005 0x191 0 5 0x1000 0x2000") == "[2] OK"
+            assert (await say("[3] lss_identity 0xC0B005 0x191 0 5 0 0x1000")).startswith(
+                "[3] ERROR: 103 ("
+            )
+            masks = "0xC0B005 0xFFFFFFFF 0x191 0xFFFFFFFF 0 0 0 0"
+            identity = "0x00C0B005 0x00000191 0x00000001 0x00001234"
+            assert await say(f"[4] _lss_fastscan {masks}") == f"[4] {identity}"
+            assert await say("[5] lss_inquire_addr 0x5D") == "[5] 0x00001234"
+            assert await say("[6] lss_inquire_addr 0x5A") == "[6] 0x00C0B005"
+            (partial_mask,) = await core.execute(s, "[7] _lss_fastscan 1 0xFF 0 0 0 0 0 0")
+            assert partial_mask.startswith("[7] ERROR: 100 (")
+            assert (await say("[8] lss_inquire_addr 0x5E")).startswith("[8] ERROR: 101 (")
+            assert await say("[9] lss_set_node 9") == "[9] OK"
+            assert await say("[10] lss_switch_glob 0") == "[10] OK"
+            assert (await say("[11] lss_ident_nonconf")).startswith("[11] ERROR: 103 (")
+            s.close()
+            await rig.stop()
+
+    simulate(main())
+
+
+#: Lely's coctl documentation, its typical session: the lines cobus's gateway serves (not
+#: `set id` and `init`, which configure Lely's gateway as a CANopen device of its own).
+LELY_COCTL = [
+    ("[1] set network 1", "[1] OK"),
+    ("[2] 2 boot_up_indication Enable", "[2] OK"),
+    ("[3] 2 reset node", "[3] OK"),
+    (None, "1 2 BOOT_UP"),
+    ("[4] set node 2", "[4] OK"),
+    ("[5] r 0x1018 0x01 u32", "[5] 0x00000360"),
+]
+
+
+def test_lelys_coctl_session_replayed_line_for_line() -> None:
+    from cobus.device import DictionaryBuilder, add_device
+
+    async def main() -> None:
+        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+            add_device(net, 2, DictionaryBuilder(vendor_id=0x360).build())  # (Lely's ID)
+            server = GatewayServer(GatewayCore({1: net}, dialect="lely"))
+            await server.start()
+            try:
+                reader, writer = await connect(server)
+                for request, documented in LELY_COCTL:
+                    if request is not None:
+                        writer.write(request.encode() + b"\n")
+                    line = await asyncio.wait_for(reader.readline(), 5)
+                    assert line.decode().rstrip("\r\n") == documented, request
+            finally:
+                await server.stop()
+
+    asyncio.run(asyncio.wait_for(main(), 60))
+
+
+def test_a_heartbeat_watched_with_the_time_a_client_gives() -> None:
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        c = await connect(server)
+        assert await ask(c, "[1] subscribe error_control") == ["[1] OK"]
+        assert await ask(c, "[2] 5 enable heartbeat 150") == ["[2] OK"]
+        got = await ask(c, "[3] 5 w 0x1017 0 u16 100", 2)
+        assert got[0] == "[3] OK" and got[1].endswith("202 (Heartbeat started)")
+        started = asyncio.get_running_loop().time()
+        got = await ask(c, "[4] 5 w 0x1017 0 u16 0", 2)
+        assert got[0] == "[4] OK" and got[1].endswith("203 (Heartbeat lost)")
+        assert asyncio.get_running_loop().time() - started < 0.4  # (150 ms, not learned)
+        assert await ask(c, "[5] 5 disable heartbeat") == ["[5] OK"]
+        assert (await ask(c, "[6] 5 enable guarding 100 3"))[0].startswith("[6] ERROR:100 #")
+        assert (await ask(c, "[7] 5 enable heartbeat"))[0].startswith("[7] ERROR:101 #")
+
+    served(scenario)

@@ -44,7 +44,7 @@ from cobus.apps.gateway.grammar import (
 )
 from cobus.apps.gateway.pdo import PdoTable, parse_pdo_config
 from cobus.od import NameLookupError, ObjectDictionary, resolve
-from cobus.proto import Event, Frame
+from cobus.proto import NOTHING, Event, Frame
 from cobus.proto.connection_set import ERROR_CONTROL_BASE, emcy_cob_id, error_control_cob_id
 from cobus.proto.heartbeat import (
     BootupReceived,
@@ -83,7 +83,19 @@ _GUARDED = frozenset(("w", "write", "start", "stop", "preop", "preoperational", 
 
 #: The commands that address one node (and queue behind the client's others to that node).
 _NODE_COMMANDS = frozenset(
-    ("r", "read", "w", "write", "start", "stop", "preop", "preoperational", "reset")
+    (
+        "r",
+        "read",
+        "w",
+        "write",
+        "start",
+        "stop",
+        "preop",
+        "preoperational",
+        "reset",
+        "enable",
+        "disable",
+    )
 )
 
 HELP = """\
@@ -97,7 +109,11 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
   set network N | set node N | set sdo_timeout MS | set sdo_block 0|1
   lss_switch_glob 0|1 | lss_switch_sel VENDOR PRODUCT REVISION SERIAL | lss_set_node N
   lss_conf_bitrate 0 INDEX | lss_activate_bitrate DELAY_MS | lss_store
-  lss_inquire_addr [0..3] | lss_get_node | _lss_fastscan        LSS (CiA 305)
+  lss_inquire_addr [0..3|0x5A..0x5D] | lss_get_node | lss_identity V P RL RH SL SH |
+  lss_ident_nonconf | _lss_fastscan [MS] (or Lely's V VMASK P PMASK R RMASK S SMASK)
+                                    LSS (CiA 305)
+  enable heartbeat MS | disable heartbeat    watch a node's heartbeat with this time
+                                    (instead of the period the gateway learns)
   subscribe [boot_up|emcy|error_control|all] | unsubscribe [...]   unsolicited lines, as
   Lely writes them: NET NODE BOOT_UP, NET NODE EMCY CODE REG B0 B1 B2 B3 B4,
   NET NODE ERRORx STATE 202 (Heartbeat started) | 203 (Heartbeat lost), NET NODE ERRORx
@@ -546,6 +562,9 @@ class GatewayCore:
         if command == "set":
             self._set(session, request)
             return None
+        if command in ("enable", "disable"):
+            self._heartbeat(session, request)
+            return None
         if command in ("subscribe", "unsubscribe", "boot_up_indication"):
             self._subscribe(session, request)
             return None
@@ -745,6 +764,27 @@ class GatewayCore:
                 100, f"no setting {args[0]!r} (network, node, sdo_timeout, sdo_block)"
             )
 
+    def _heartbeat(self, session: Session, request: Request) -> None:
+        """``enable heartbeat MS`` / ``disable heartbeat`` (Lely's): watch the node's
+        heartbeat with that time (0 or disable: not at all) instead of the learned one."""
+        words = [a.lower() for a in request.args]
+        if words[:1] == ["guarding"]:
+            raise GatewayError(
+                100, "node guarding is not served by cobus's gateway: watch heartbeats"
+            )
+        enable = request.command == "enable"
+        if words[:1] != ["heartbeat"] or len(words) != (2 if enable else 1):
+            raise GatewayError(101, "enable heartbeat MS | disable heartbeat")
+        ms = parse_number(words[1], "heartbeat consumer time") if enable else 0
+        if not 0 <= ms <= 0xFFFF:
+            raise GatewayError(101, f"heartbeat consumer time {ms} ms: 0..65535")
+        net, _network = self._network(session, request)
+        node = self._node(session, request)
+        self._listen()
+        for watch in self._watches:
+            if watch.net == net:
+                watch.fix(node, ms / 1000.0)
+
     def _whole_net(self, session: Session, request: Request, what: str) -> tuple[int, AsyncNetwork]:
         """The net of a request that goes to a whole net (LSS, PDOs): one number before
         it names the net, as ``[net] lss_store``."""
@@ -851,20 +891,53 @@ class GatewayCore:
             if not numbers:
                 values = [await lss.inquire(what) for what in fields]
                 return " ".join(f"0x{v:08X}" for v in values)
-            want(1, "nothing (all four) or a field: 0 vendor, 1 product, 2 revision, 3 serial")
-            if not 0 <= numbers[0] <= 3:
-                raise GatewayError(101, "a field is 0 vendor, 1 product, 2 revision, 3 serial")
-            return f"0x{await lss.inquire(fields[numbers[0]]):08X}"
+            usage = (
+                "nothing (all four) or a field: 0..3 or Lely's 0x5A..0x5D (vendor, product, "
+                "revision, serial)"
+            )
+            want(1, usage)
+            field = numbers[0] - 0x5A if 0x5A <= numbers[0] <= 0x5D else numbers[0]
+            if not 0 <= field <= 3:
+                raise GatewayError(101, f"lss_inquire_addr takes {usage}")
+            return f"0x{await lss.inquire(fields[field]):08X}"
         if command == "lss_get_node":
             want(0, "no arguments")
             return str(await lss.inquire("node_id"))
+        if command == "lss_identity":  # (Lely's: is a slave in these ranges there?)
+            want(6, "vendor, product, revision low and high, serial low and high")
+            vendor, product, rev_low, rev_high, serial_low, serial_high = numbers
+            if not await lss.identify_remote(
+                vendor, product, (rev_low, rev_high), (serial_low, serial_high)
+            ):
+                raise GatewayError(103, "no slave of that identity answered")
+            return None
+        if command == "lss_ident_nonconf":  # (Lely's: is a slave without a node-ID there?)
+            want(0, "no arguments")
+            if not await lss.identify_unconfigured():
+                raise GatewayError(103, "no slave without a node-ID answered")
+            return None
         if command == "_lss_fastscan":
+            known: dict[str, int] = {}
+            if len(numbers) == 8:  # (Lely's: a value and a mask per field)
+                fields = ("vendor", "product", "revision", "serial")
+                for name, value, mask in zip(fields, numbers[::2], numbers[1::2], strict=True):
+                    if mask == 0xFFFFFFFF:
+                        known[name] = value
+                    elif mask != 0:
+                        raise GatewayError(
+                            100,
+                            f"{name} mask 0x{mask:08X}: cobus's fastscan takes a field "
+                            "whole (mask 0xFFFFFFFF) or scans it (mask 0)",
+                        )
+                numbers = []
             if len(numbers) > 1:
-                raise GatewayError(101, "_lss_fastscan takes a time-out in ms at most")
+                raise GatewayError(
+                    101, "_lss_fastscan takes a time-out in ms at most (or Lely's eight values)"
+                )
             ceiling = numbers[0] / 1000.0 if numbers else 0.5
             if not 0.001 <= ceiling <= 60:
                 raise GatewayError(101, "the fastscan time-out is 1..60000 ms")
-            found = await lss.fastscan(ceiling=ceiling)
+            found = await lss.fastscan(known or None, ceiling=ceiling)
             if found is None:
                 raise GatewayError(103, "no device without a node-ID answered the fastscan")
             return " ".join(f"0x{v:08X}" for v in found.fields)
@@ -890,6 +963,10 @@ class _HeartbeatWatch:
     def __init__(self, core: GatewayCore, net: int) -> None:
         self._core = core
         self._net = net
+        #: The net it watches.
+        self.net = net
+        #: Nodes watched with a time a client gave (0: not watched), not a learned one.
+        self.fixed: dict[int, float] = {}
         self.monitor = HeartbeatMonitor(track_all=True)
         self.host: MachineHost | None = None
         self._last: dict[int, float] = {}
@@ -910,7 +987,7 @@ class _HeartbeatWatch:
             self._intervals.pop(node, None)
             last = None
         self._last[node] = now
-        if last is not None and now > last:
+        if last is not None and now > last and node not in self.fixed:
             seen = self._intervals.setdefault(node, [])
             seen.append(now - last)
             del seen[:-3]
@@ -920,6 +997,17 @@ class _HeartbeatWatch:
                 if abs(self.monitor.timeout(node) - timeout) > 0.2 * timeout:
                     self.monitor.watch(node, timeout, now)
         self.host.feed(frame, now)
+
+    def fix(self, node: int, timeout: float) -> None:
+        """Watch ``node`` with ``timeout`` seconds from now on (0: not at all)."""
+        self.fixed[node] = timeout
+        self._intervals.pop(node, None)
+        self.monitor.watch(node, timeout, self._now())
+        if self.host is not None:
+            self.host.apply(NOTHING)  # (its deadline armed)
+
+    def _now(self) -> float:
+        return self._core.networks[self._net].time()
 
     def on_event(self, event: Event) -> None:
         tell, net = self._core._tell, self._net
