@@ -648,16 +648,14 @@ class GatewayCore:
         (``"Device name"``, ``Identity_object.Vendor-ID``) - the type mnemonic its
         dictionary gives (None: not known) and the text after it."""
         rest = request.rest.strip()
-        first = rest.split(None, 1)[0] if rest else ""
-        numeric = bool(first) and not first.startswith('"') and _is_number(first)
+        words = rest.split(None, 2)
+        index = _number_or_none(words[0]) if words and not words[0].startswith('"') else None
         net, _network = self._network(session, request)
         node = self._node(session, request)
         od = self.dictionary(net, node)
-        if numeric:
-            words = rest.split(None, 2)
+        if index is not None:
             if len(words) < 2:
                 raise GatewayError(101, "give the object's index and sub-index (or its name)")
-            index = parse_number(words[0], "index")
             sub = parse_number(words[1], "sub-index")
             if not 0 <= index <= 0xFFFF or not 0 <= sub <= 0xFF:
                 raise GatewayError(
@@ -1058,9 +1056,8 @@ def version_fields() -> dict[str, str]:
     }
 
 
-def _is_number(word: str) -> bool:
+def _number_or_none(word: str) -> int | None:
     try:
-        parse_number(word)
+        return parse_number(word)
     except GatewayError:
-        return False
-    return True
+        return None

@@ -154,26 +154,6 @@ class GatewayServer:
             if writer.is_closing():  # (that write found the client gone)
                 self.core.abandon(session)
 
-    async def _next(self, lines: _Lines, session: Session) -> str | int | None:
-        """The client's next line, or :data:`_IDLE` once it has been idle too long: no
-        request for :attr:`idle_timeout` seconds, none under way, no subscription."""
-        if self.idle_timeout is None:
-            return await lines.next()
-        reading = asyncio.ensure_future(lines.next())
-        try:
-            while True:
-                idle = time.monotonic() - session.last
-                if session.subscribed or session.pending:
-                    idle = 0.0
-                if idle >= self.idle_timeout:
-                    return _IDLE
-                await asyncio.wait({reading}, timeout=self.idle_timeout - idle)
-                if reading.done():
-                    return reading.result()
-        finally:
-            if not reading.done():
-                reading.cancel()
-
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         task = asyncio.current_task()
         assert task is not None
@@ -190,14 +170,13 @@ class GatewayServer:
             session.peer = f"{self.unix}#{self._peers}"
         answer = partial(self._answer, session, writer)
         lines = _Lines(reader)
+        idle = _IdleWatch(self, session, writer)
         try:
             while True:
-                line = await self._next(lines, session)
-                if line == _IDLE:
-                    writer.write(f"# idle for {self.idle_timeout:g} s: closed\r\n".encode())
-                    break
+                line = await lines.next()
                 if line is None:
                     break
+                idle.update()
                 if isinstance(line, int):
                     too_long = f"a line longer than {MAX_LINE} bytes"
                     if self.json_lines:
@@ -226,6 +205,7 @@ class GatewayServer:
         except asyncio.CancelledError:
             pass  # (the server stops: the connection ends quietly)
         finally:
+            idle.cancel()
             self.core.forget(session)
             self.clients -= 1
             self._clients.discard(task)
@@ -288,8 +268,50 @@ def request_line(text: str) -> str | GatewayError:
     return " ".join(words)
 
 
-#: What :meth:`GatewayServer._next` gives for a client idle too long (0: a line too long).
-_IDLE = -1
+class _IdleWatch:
+    """Closes a client's connection once it has been idle for the server's idle timeout:
+    no request and no answer for that long, none under way, no subscription. A timer, not
+    a wait around each read (which would cost every line a task)."""
+
+    def __init__(self, server: GatewayServer, session: Session, writer: asyncio.StreamWriter):
+        self._server = server
+        self._session = session
+        self._writer = writer
+        self._handle: asyncio.TimerHandle | None = None
+        self._armed_for: float | None = None
+        self.update()
+
+    def update(self) -> None:
+        """Follow a change of the server's idle timeout (from the next line on)."""
+        timeout = self._server.idle_timeout
+        if timeout != self._armed_for:
+            self.cancel()
+            self._armed_for = timeout
+            if timeout is not None:
+                self._arm(timeout)
+
+    def cancel(self) -> None:
+        """The connection ends: no more checks."""
+        if self._handle is not None:
+            self._handle.cancel()
+            self._handle = None
+
+    def _arm(self, delay: float) -> None:
+        self._handle = asyncio.get_running_loop().call_later(delay, self._check)
+
+    def _check(self) -> None:
+        timeout, session, writer = self._armed_for, self._session, self._writer
+        self._handle = None
+        if timeout is None or writer.is_closing():
+            return
+        busy = session.subscribed or session.pending
+        idle = 0.0 if busy else time.monotonic() - session.last
+        if idle < timeout:
+            self._arm(timeout - idle)
+            return
+        writer.write(f"# idle for {timeout:g} s: closed\r\n".encode())
+        writer.close()  # (the read sees the end: the connection ends as any other)
+
 
 #: Bytes a client may leave unread before its unsolicited lines are dropped (and counted).
 UNREAD_LIMIT = 64 * 1024
