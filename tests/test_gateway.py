@@ -366,6 +366,13 @@ def test_cobus_gw_prints_values_as_data_and_exits_by_the_first_errors_kind(
         assert gw(port, "set sdo_timeout 50", "99 r 0x1000 0").returncode == 3
         done = gw(port, "help")
         assert done.returncode == 0 and "r|read" in done.stdout
+        # options anywhere after HOST:PORT, between the requests too
+        done = gw(port, "--json", "5 r 0x1017 0 u16", "--timeout", "5", "5 r 0x1018 1 x32")
+        assert done.returncode == 0, done.stderr
+        assert [json.loads(line)["value"] for line in done.stdout.splitlines()] == [
+            "300",
+            "0x00C0B005",
+        ]
     with gateway_in_a_thread("lely") as port:
         done = gw(port, "5 r 0x5FFF 0 u8", "--json")
         assert done.returncode == 1 and json.loads(done.stdout)["error"] == "0x06020000"

@@ -10,7 +10,7 @@ one a line (``#`` comments and blank lines skipped); each is answered in turn, a
 line of its own (OK answers print nothing), or with ``--json`` one JSON object a request.
 Every request is sent even after an error; the exit code is the first error's kind.
 Unsolicited lines (after ``subscribe``) go to standard error, or as ``{"event": ...}``
-objects with ``--json``. Options come before HOST:PORT or after the requests. A gateway
+objects with ``--json``. Options may come anywhere (``cobus gw H:P --json info``). A gateway
 that wants a token for writes gets it from ``COBUS_GATEWAY_TOKEN`` (or ``--token``) when
 it first asks; one that asks for none never sees it.
 
@@ -49,7 +49,13 @@ def register(sub: Any) -> None:
         metavar="HOST:PORT",
         help="the gateway (a path with a / in it: its Unix socket)",
     )
-    p.add_argument("requests", nargs="*", metavar="REQUEST", help="request lines")
+    # (the words after HOST:PORT - requests and options mixed - are sorted by _options)
+    p.add_argument("requests", nargs=argparse.REMAINDER, metavar="REQUEST", help="request lines")
+    _add_options(p)
+    p.set_defaults(handler=_run)
+
+
+def _add_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "-f", "--file", action="append", default=[], metavar="FILE", help="a file of requests"
     )
@@ -61,7 +67,22 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--timeout", type=float, default=30.0, help="seconds to wait for each reply (30)"
     )
-    p.set_defaults(handler=_run)
+
+
+def _options(args: argparse.Namespace) -> argparse.Namespace:
+    """The options written among the requests (after HOST:PORT) taken out of them."""
+    if not any(word.startswith("-") for word in args.requests):
+        return args
+    parser = argparse.ArgumentParser(prog="cobus gw", add_help=False)
+    _add_options(parser)
+    parser.add_argument("requests", nargs="*")
+    parser.set_defaults(
+        file=list(args.file), json=args.json, token=args.token, timeout=args.timeout
+    )
+    mixed = parser.parse_intermixed_args(args.requests)
+    for name in ("file", "json", "token", "timeout", "requests"):
+        setattr(args, name, getattr(mixed, name))
+    return args
 
 
 def _address(text: str) -> tuple[str, int]:
@@ -93,6 +114,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from cobus.apps.gateway.client import GatewayClient, TokenRefused, error_class
 
+    args = _options(args)
     host, port = args.address
     where = host if port == 0 else f"{host}:{port}"
     token = args.token if args.token is not None else os.environ.get("COBUS_GATEWAY_TOKEN")
