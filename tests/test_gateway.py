@@ -1396,9 +1396,9 @@ def test_http_in_gocanopens_urls_and_a_websocket_of_events() -> None:
                     await asyncio.sleep(0.05)
                     assert device(rig, 6).state is NmtState.STOPPED
                     assert (await call("PUT", "/6/1/0/start", headers=bearer))["response"] == "OK"
-                    assert (await call("PUT", "/7/none/none/set/node", {"value": "6"}))[
-                        "response"
-                    ] == "OK"
+                    assert (
+                        await call("PUT", "/7/none/none/set/node", {"value": "6"}, headers=bearer)
+                    )["response"] == "OK"
                     got = await call("GET", "/8/none/none/r/0x1018/1", {"datatype": "x32"})
                     assert got.get("value") == "0x00C0B005", got  # (node 6, the default now)
                     version = await call("GET", "/9/1/none/info/version")
@@ -1410,6 +1410,31 @@ def test_http_in_gocanopens_urls_and_a_websocket_of_events() -> None:
                     assert (await call("GET", "/12/1/5/r/1/2", "[1]"))["response"] == "ERROR:101"
                     async with client.get(f"{http.address}/cia309-5/2.0/1/1/5/start") as r:
                         assert (await r.json())["response"] == "ERROR:100"
+                    # as gocanopen's client sets the SDO time-out (node all, no content type)
+                    timeout = {"value": "0x4c6"}
+                    got = await call("PUT", "/14/1/all/set/sdo-timeout", timeout, headers=bearer)
+                    assert got["response"] == "OK"
+                    got = await call("GET", "/15/1/none/r/0x1017/0")  # (the default node, 6)
+                    assert got["data"] == "0x0000"
+                    # what a web page could send: refused
+                    form = {"Content-Type": "text/plain", **bearer}
+                    got = await call("POST", "/16/1/5/w/4119/0", write, headers=form)
+                    assert got["response"] == "ERROR:100"
+                    got = await call("GET", "/17/1/5/stop", headers=bearer)
+                    assert got["response"] == "ERROR:100"
+                    evil = {"Origin": "http://evil.example", **bearer}
+                    got = await call("PUT", "/18/1/5/stop", headers=evil)
+                    assert got["response"] == "ERROR:102" and "evil.example" in got["text"]
+                    rebound = {"Host": f"evil.example:{http.port}", **bearer}
+                    got = await call("PUT", "/19/1/5/stop", headers=rebound)
+                    assert got["response"] == "ERROR:102" and "Host" in got["text"]
+                    got = await call("PUT", "/20/1/none/set/node", {"value": "5"})
+                    assert got["response"] == "ERROR:102"  # (every client's defaults: token)
+                    async with client.post(
+                        f"{base}/22/1/5/w/4119/0", json=write, headers=bearer
+                    ) as r:
+                        assert (await r.json())["response"] == "OK"
+                    assert device(rig, 5).state is not NmtState.STOPPED
                     # the events
                     async with client.ws_connect(f"{base}/events") as ws:
                         await asyncio.sleep(0.05)
@@ -1511,3 +1536,51 @@ def test_a_heartbeat_watched_with_the_time_a_client_gives() -> None:
         assert (await ask(c, "[7] 5 enable heartbeat"))[0].startswith("[7] ERROR:101 #")
 
     served(scenario)
+
+
+def test_what_the_review_of_the_later_slices_found() -> None:
+    """Quoting keeps backslashes and several-word values, a tab parts type and value, the
+    heartbeat settings need the token, tpdox takes Lely's event<ms>, a TPDO waits for its
+    SYNC start value, and an idle timeout set at run time reaches connected clients."""
+    from cobus.apps.gateway import request_line
+    from cobus.apps.gateway.pdo import parse_pdo_config
+
+    line = request_line('{"command": "w", "args": ["0x2000", 0, "vs", "C:\\\\temp dir"]}')
+    assert isinstance(line, str) and parse_value("vs", line.split(None, 4)[4]) == b"C:\\temp dir"
+    x = parse_pdo_config(["1", "0x201", "event10", "500", "0"], extended=True)
+    assert (x.inhibit_ms, x.event_ms) == (10, 500)
+    for words, extended in [(["1", "0x201", "eventually", "0"], False),
+                            (["1", "0x201", "event10", "0"], False)]:  # fmt: skip
+        with pytest.raises(GatewayError):
+            parse_pdo_config(words, extended=extended)
+
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        c = await connect(server)
+        assert await ask(c, "[1] 5 w 0x1017 0 u16\t1000") == ["[1] OK"]
+        assert await ask(c, '[2] 5 w 0x1017 0 hex "e8 03"') == ["[2] OK"]
+        assert await ask(c, "[3] 5 r 0x1017 0 u16") == ["[3] 1000"]
+        assert await ask(c, "[4] 5 w 0x1017 0 u16 0") == ["[4] OK"]
+        sent: list[str] = []
+        net.subscribe(0x204, lambda f, now: None if f.rtr else sent.append(f.data.hex()))
+        assert await ask(c, "[5] set tpdox 4 0x204 sync2 3 1 u8") == ["[5] OK"]
+        assert await ask(c, "[6] w p 4 1 7") == ["[6] OK"]
+        for counter in (1, 2, 3, 4, 5, 6):
+            net.send(Frame(0x80, bytes([counter])))
+        await asyncio.sleep(0.05)
+        assert sent == ["07", "07"]  # (at counter 3, then 5)
+        # the idle timeout, changed while a client is connected: now it applies
+        server.idle_timeout = None
+        idle = await connect(server)
+        await asyncio.sleep(0.05)
+        server.idle_timeout = 0.2
+        assert (await asyncio.wait_for(idle[0].readline(), 5)).startswith(b"# idle for 0.2 s")
+
+    served(scenario)
+
+    async def guarded() -> None:
+        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+            core = GatewayCore({1: net}, token="beat-token-1")
+            (refused,) = await core.execute(core.session(), "[1] 5 enable heartbeat 100")
+            assert refused.startswith("[1] ERROR:102 #") and "auth TOKEN" in refused
+
+    asyncio.run(asyncio.wait_for(guarded(), 30))

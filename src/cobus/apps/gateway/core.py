@@ -69,7 +69,7 @@ if TYPE_CHECKING:
     from cobus.runtime import AsyncNetwork
     from cobus.runtime.network import MachineHost
 
-__all__ = ["HELP", "MAX_PENDING", "GatewayCore", "Session", "version_fields"]
+__all__ = ["HELP", "MAX_PENDING", "NODE_COMMANDS", "GatewayCore", "Session", "version_fields"]
 
 #: Requests one client may have under way at once; one more is answered with ERROR:102.
 MAX_PENDING = 64
@@ -79,10 +79,12 @@ _WRONG_TOKENS = 5
 _WRONG_TOKEN_WAIT = 1.0  # s
 
 #: The commands that need the token (when the core has one): they change the bus.
-_GUARDED = frozenset(("w", "write", "start", "stop", "preop", "preoperational", "reset"))
+_GUARDED = frozenset(
+    ("w", "write", "start", "stop", "preop", "preoperational", "reset", "enable", "disable")
+)
 
 #: The commands that address one node (and queue behind the client's others to that node).
-_NODE_COMMANDS = frozenset(
+NODE_COMMANDS = frozenset(
     (
         "r",
         "read",
@@ -447,7 +449,7 @@ class GatewayCore:
         command = request.command
         if command in ("r", "read", "w", "write") and request.args[:1] in (["p"], ["pdo"]):
             return copy.copy(session), ("pdo",)  # (a whole net's: no node)
-        if command in _NODE_COMMANDS:
+        if command in NODE_COMMANDS:
             net = request.net if request.net is not None else session.net
             node = request.node if request.node is not None else session.node
             request.net, request.node = net, node
@@ -696,7 +698,7 @@ class GatewayCore:
 
     async def _write(self, session: Session, request: Request) -> None:
         index, sub, known, after = self._target(session, request)
-        head, _, value_text = after.partition(" ")
+        head, value_text = ([*after.split(None, 1), ""])[:2]
         if head.lower() in TYPES and (value_text.strip() or known is None):
             type_name = head  # (the type given; the value after it)
         elif known is not None:

@@ -327,6 +327,8 @@ def parse_value(type_name: str, text: str) -> bytes:
     name = type_name.lower()
     data_type = _type_of(name)
     text = text.strip()
+    if data_type is not _D.VISIBLE_STRING and len(text) >= 2 and text[0] == text[-1] == '"':
+        text = _quoted(text).strip()  # (a value quoted as one word: "e8 03", "2 500")
     if not text:
         raise GatewayError(101, "no value to write")
     try:

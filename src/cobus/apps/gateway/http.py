@@ -35,7 +35,7 @@ from aiohttp import WSMsgType, web
 
 from cobus.apps._serving import is_loopback, token_is
 from cobus.apps.gateway.client import reply_of
-from cobus.apps.gateway.core import GatewayCore, Session, version_fields
+from cobus.apps.gateway.core import NODE_COMMANDS, GatewayCore, Session, version_fields
 
 __all__ = ["GatewayHttp"]
 
@@ -43,6 +43,8 @@ _PATH = re.compile(
     r"/cia309-5/(?P<api>[^/]+)/(?P<seq>[0-9]{1,10})/(?P<net>[^/]+)/(?P<node>[^/]+)/(?P<cmd>.+)\Z"
 )
 _NUMBER = re.compile(r"(0x[0-9a-fA-F]{1,8}|[0-9]{1,10})\Z")
+#: What a wrong Authorization costs (seconds; one at a time for the whole server).
+_WRONG_TOKEN_WAIT = 1.0
 #: Event lines a WebSocket may have waiting to be sent before more are dropped.
 _UNSENT_LIMIT = 256
 
@@ -64,6 +66,7 @@ class GatewayHttp:
         #: The defaults of every HTTP request (set network, set node, set sdo-timeout).
         self.defaults = Session(net=core.default_net)
         self._sockets: set[web.WebSocketResponse] = set()
+        self._guessing = asyncio.Lock()
 
     @property
     def port(self) -> int:
@@ -110,6 +113,34 @@ class GatewayHttp:
         scheme, _, token = given.partition(" ")
         return scheme.lower() == "bearer" and token_is(token.strip(), self.core.token)
 
+    async def _checked(self, request: web.Request) -> bool:
+        """Whether the request is authorised; a wrong token costs a second, one wrong
+        token at a time for the whole server (guessing gets nowhere, requests side by
+        side or not)."""
+        if self._authorised(request):
+            return True
+        if request.headers.get("Authorization"):
+            async with self._guessing:
+                await asyncio.sleep(_WRONG_TOKEN_WAIT)
+        return False
+
+    def _foreign(self, request: web.Request) -> str | None:
+        """Why a request that a web page may have sent is refused (None: it is not): an
+        Origin other than this server, or, served on this host only, a Host header that
+        names another (DNS rebinding)."""
+        host = request.host
+        origin = request.headers.get("Origin")
+        if origin is not None and origin not in (f"http://{host}", f"https://{host}"):
+            return f"a request from the web page of {origin} is refused"
+        if is_loopback(self.host):
+            try:
+                name, port = request.url.host or "", request.url.port
+            except ValueError:
+                name, port = "", None
+            if not is_loopback(name) or (port is not None and port != self.port):
+                return f"Host {host}: this gateway serves {self.address} only"
+        return None
+
     async def _handle(self, request: web.Request) -> web.Response:
         try:
             return await self._answer(request)
@@ -124,6 +155,18 @@ class GatewayHttp:
             return _answer(seq, "ERROR:101", "give /cia309-5/1.0/SEQ/NET/NODE/COMMAND")
         if match.group("api") != "1.0":
             return _answer(seq, "ERROR:100", f"API version {match.group('api')}: 1.0 only")
+        foreign = self._foreign(request)
+        if foreign is not None:
+            return _answer(seq, "ERROR:102", foreign)
+        words = match.group("cmd").strip("/").split("/")
+        words[0] = words[0].lower()
+        reading = words[0] in ("r", "read", "info") and words[1:2] not in (["p"], ["pdo"])
+        # (a web page can send GET and a form's POST to any site: they change nothing here)
+        json_post = request.method == "POST" and request.content_type == "application/json"
+        if not (request.method == "PUT" or json_post or (reading and request.method == "GET")):
+            return _answer(
+                seq, "ERROR:100", f"{request.method}: GET reads, PUT (or a JSON POST) the rest"
+            )
         try:
             raw = await request.read()
             body: Any = json.loads(raw) if raw.strip() else {}
@@ -131,7 +174,6 @@ class GatewayHttp:
             return _answer(seq, "ERROR:101", "the body is no JSON")
         if not isinstance(body, dict):
             return _answer(seq, "ERROR:101", 'the body is a JSON object: {"value": ...}')
-        words = match.group("cmd").strip("/").split("/")
         try:
             line, type_name = self._line(
                 seq,
@@ -145,7 +187,11 @@ class GatewayHttp:
             return _answer(seq, "ERROR:101", str(exc))
         if line is None:  # (info version)
             return web.json_response({"sequence": seq, "response": "OK", **version_fields()})
-        session = self.core.session(trusted=self._authorised(request))
+        authorised = await self._checked(request)
+        if words[0] == "set" and not authorised:
+            return _answer(seq, "ERROR:102", "set changes every HTTP client's defaults: it "
+                           "needs Authorization: Bearer TOKEN")  # fmt: skip
+        session = self.core.session(trusted=authorised)
         session.net, session.node = self.defaults.net, self.defaults.node
         session.sdo_timeout, session.peer = self.defaults.sdo_timeout, "http"
         try:
@@ -191,38 +237,44 @@ class GatewayHttp:
             raise ValueError('"value" is a string or a number')
         if command == "info" and words[1:] == ["version"]:
             return None, None
-        head = [f"[{seq}]"]
         if node.lower() == "all":
             node = "0"
-        for part, what in ((net, "net"), (node, "node")):
+        numbers: list[int | None] = []
+        for part, what, default in (
+            (net, "net", self.defaults.net),
+            (node, "node", self.defaults.node),
+        ):
             if part.lower() in ("default", "none"):
-                continue
-            if not _NUMBER.match(part):
+                numbers.append(default)
+            elif _NUMBER.match(part):
+                numbers.append(int(part, 0))
+            else:
                 raise ValueError(f"{what} {part!r}: a number, default, none or all")
-        net_given = net.lower() not in ("default", "none")
-        node_given = node.lower() not in ("default", "none")
-        if net_given and node_given:
-            head += [net, node]
-        elif node_given:
-            head.append(node)
-        elif net_given:
-            raise ValueError("a net with the default node: give the node too")
+        net_number, node_number = numbers
+        head = [f"[{seq}]"]
+        pdo = words[1:2] in (["p"], ["pdo"])
+        if command in NODE_COMMANDS and not pdo:  # ([seq] net node command)
+            if node_number is None:
+                raise ValueError("no node in the path and no default node: set/node first")
+            head += [str(net_number), str(node_number)]
+        elif net_number is not None:  # (a whole net's request: [seq] net command)
+            head.append(str(net_number))
         type_name: str | None = None
-        if command in ("r", "read") and len(words) == 3:
+        if command in ("r", "read") and len(words) in (2, 3) and words[1] not in ("p", "pdo"):
             type_name = body.get("datatype") or query_type or None
             if type_name is not None and not isinstance(type_name, str):
                 raise ValueError('"datatype" is a type mnemonic: "u16"')
-            typed = [type_name] if type_name else []
-            return " ".join([*head, "r", words[1], words[2], *typed]), type_name
+            where = words[1:] if len(words) == 3 else [_quote(words[1])]  # (a name)
+            return " ".join([*head, "r", *where, type_name or "hex"]), type_name
         if command in ("w", "write") and len(words) == 3:
             datatype = body.get("datatype")
             if not isinstance(datatype, str) or value is None:
                 raise ValueError('a write takes {"value": ..., "datatype": "u16"}')
             text = str(value)
-            if datatype.lower() == "vs":
-                text = '"' + text.replace('"', '""') + '"'
+            if datatype.lower() == "vs" or any(c.isspace() for c in text):
+                text = _quote(text)
             return " ".join([*head, "w", words[1], words[2], datatype, text]), None
-        if command == "set" and len(words) == 2:
+        if command == "set" and len(words) == 2:  # (the gateway's: the path's net, node unused)
             name = {"sdo-timeout": "sdo_timeout"}.get(words[1].lower(), words[1].lower())
             if value is None:
                 raise ValueError(f'set/{words[1]} takes {{"value": ...}}')
@@ -237,6 +289,9 @@ class GatewayHttp:
     # ------------------------------------------------------------------ events
 
     async def _events(self, request: web.Request) -> web.WebSocketResponse:
+        foreign = self._foreign(request)
+        if foreign is not None:
+            raise web.HTTPForbidden(text=foreign + "\n")
         ws = web.WebSocketResponse(heartbeat=30.0)
         await ws.prepare(request)
         session = self.core.session(trusted=self._authorised(request))
@@ -250,6 +305,7 @@ class GatewayHttp:
                 return  # (a socket that does not keep up loses lines, not memory)
             task = asyncio.get_running_loop().create_task(ws.send_str(json.dumps({"event": line})))
             sending.add(task)
+            task.add_done_callback(_sent)
             task.add_done_callback(sending.discard)
 
         session.notify = notify
@@ -262,6 +318,16 @@ class GatewayHttp:
             self._sockets.discard(ws)
             self.core.forget(session)
         return ws
+
+
+def _quote(text: str) -> str:
+    """``text`` as one quoted word of a request line (quotes doubled, backslashes too)."""
+    return '"' + text.replace("\\", "\\\\").replace('"', '""') + '"'
+
+
+def _sent(task: asyncio.Task[None]) -> None:
+    if not task.cancelled():
+        task.exception()  # (a socket gone: its lines are lost, nothing to log)
 
 
 def _answer(seq: str, response: str, text: str = "") -> web.Response:

@@ -60,14 +60,16 @@ class PdoConfig:
         return bool(self.cob_id & 0x2000_0000)
 
 
-def _transmission(word: str) -> int:
+def _transmission(word: str) -> tuple[int, int | None]:
+    """The transmission type of ``word`` and the number written onto ``event`` (Lely's
+    ``set tpdox``: ``event<inhibit ms>``), None: none."""
     low = word.lower()
-    if low.startswith("event"):
-        return _EVENT
+    if low == "event" or (low.startswith("event") and low[5:].isdigit()):
+        return _EVENT, int(low[5:]) if low[5:] else None
     if low == "rtr":
-        return _RTR
+        return _RTR, None
     if low.startswith("sync") and low[4:].isdigit() and int(low[4:]) <= 240:
-        return int(low[4:])
+        return int(low[4:]), None
     raise GatewayError(101, f"transmission {word!r}: event, rtr or sync0..sync240")
 
 
@@ -88,12 +90,16 @@ def parse_pdo_config(words: list[str], *, extended: bool = False) -> PdoConfig:
     cob_id = parse_number(take("COB-ID"), "COB-ID")
     if not 0 <= cob_id <= 0xFFFF_FFFF:
         raise GatewayError(101, f"COB-ID {cob_id:#x} does not fit 32 bits")
-    transmission = _transmission(take("transmission type"))
+    transmission, attached = _transmission(take("transmission type"))
+    if attached is not None and not extended:
+        raise GatewayError(101, "event<inhibit ms> is set tpdox's: set tpdo takes event")
     config = PdoConfig(number, cob_id, transmission, [])
     if not cob_id & 0x2000_0000 and cob_id & 0x1FFF_F800:
         raise GatewayError(101, f"COB-ID {cob_id:#x}: an 11-bit identifier is 0..0x7FF")
-    if extended and transmission >= 0xFE:
-        config.inhibit_ms = parse_number(take("inhibit time"), "inhibit time")
+    if extended and transmission >= 0xFE:  # (Lely's event<ms>, or the ms as a word)
+        config.inhibit_ms = (
+            attached if attached is not None else parse_number(take("inhibit time"), "ms")
+        )
     if extended and transmission >= 0xFD:
         config.event_ms = parse_number(take("event timer"), "event timer")
     elif extended and transmission <= 240:
@@ -159,6 +165,7 @@ class _Tpdo:
     values: list[int] | None = None
     due: bool = False  # (sync0: to go at the next SYNC)
     syncs: int = 0
+    started: bool = False  # (syncN with a SYNC start value: the counter has reached it)
     subscription: Subscription | None = None
 
 
@@ -298,6 +305,13 @@ class PdoTable:
             if transmission == 0:
                 if tpdo.due:
                     tpdo.due = False
+                    self._send(tpdo)
+                continue
+            start = tpdo.config.sync_start
+            if start and not tpdo.started:  # (CiA 301: the first at the SYNC counting start)
+                if len(frame.data) == 1 and frame.data[0] == start:
+                    tpdo.started = True
+                    tpdo.syncs = 0
                     self._send(tpdo)
                 continue
             tpdo.syncs += 1

@@ -64,14 +64,26 @@ class GatewayServer:
         #: :func:`request_line`), instead of CiA 309-3 text.
         self.json_lines = json_lines
         self._peers = 0
-        #: Seconds a client may send nothing before its connection closes (None: never).
-        self.idle_timeout = idle_timeout
+        self._idle_timeout = idle_timeout
+        self._idle_watches: set[_IdleWatch] = set()
         self.host = host
         self.requested_port = port
         self._server: asyncio.Server | None = None
         self._clients: set[asyncio.Task[None]] = set()
         #: How many clients are connected now.
         self.clients = 0
+
+    @property
+    def idle_timeout(self) -> float | None:
+        """Seconds a client may send nothing (and be sent nothing) before its connection
+        closes (None: never); a change applies to the clients connected too."""
+        return self._idle_timeout
+
+    @idle_timeout.setter
+    def idle_timeout(self, seconds: float | None) -> None:
+        self._idle_timeout = seconds
+        for watch in list(self._idle_watches):
+            watch.update()
 
     @property
     def port(self) -> int:
@@ -171,6 +183,7 @@ class GatewayServer:
         answer = partial(self._answer, session, writer)
         lines = _Lines(reader)
         idle = _IdleWatch(self, session, writer)
+        self._idle_watches.add(idle)
         try:
             while True:
                 line = await lines.next()
@@ -206,6 +219,7 @@ class GatewayServer:
             pass  # (the server stops: the connection ends quietly)
         finally:
             idle.cancel()
+            self._idle_watches.discard(idle)
             self.core.forget(session)
             self.clients -= 1
             self._clients.discard(task)
@@ -262,9 +276,9 @@ def request_line(text: str) -> str | GatewayError:
         word = str(arg)
         if "\n" in word or "\r" in word:
             return GatewayError(101, "an argument of one line: \\n for a line end in a string")
-        words.append(
-            '"' + word.replace('"', '""') + '"' if not word or _NEEDS_QUOTES.search(word) else word
-        )
+        if not word or _NEEDS_QUOTES.search(word):
+            word = '"' + word.replace("\\", "\\\\").replace('"', '""') + '"'
+        words.append(word)
     return " ".join(words)
 
 
@@ -282,7 +296,7 @@ class _IdleWatch:
         self.update()
 
     def update(self) -> None:
-        """Follow a change of the server's idle timeout (from the next line on)."""
+        """Follow a change of the server's idle timeout."""
         timeout = self._server.idle_timeout
         if timeout != self._armed_for:
             self.cancel()
