@@ -249,3 +249,46 @@ def test_sigterm_stops_the_run_in_order_and_says_so(tmp_path: Path) -> None:
     assert "stopped by SIGTERM" in err
     assert "the panel closed" in err and "supervision ended" in err
     assert not Path(sock).exists()  # its socket file went with it
+
+
+def test_the_gateway_beside_the_master(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--gateway``: a client reads the master's node by its EDS names while the master
+    boots and supervises it; an address in use exits 3."""
+    from cobus.apps.gateway import GatewayClient
+
+    channel = f"cli-run-gw-{os.getpid()}"
+    port = free_port()
+    replies: list[str | None] = []
+
+    def ask() -> None:
+        for _ in range(400):
+            try:
+                with GatewayClient("127.0.0.1", port, timeout=5) as client:
+                    replies.append(client.request('10 r "Identity object.Vendor-ID" x32').value)
+                    replies.append(client.request("10 r 0x1000 0").value)  # (u32, its EDS)
+                return
+            except OSError:
+                time.sleep(0.01)
+
+    with Network(interface="virtual", channel=channel) as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        (tmp_path / "servo.eds").write_text(export_eds(rig.aio.devices[10].od))
+        (tmp_path / "line.yml").write_text(NETWORK)
+        client = threading.Thread(target=ask)
+        client.start()
+        bus = ["-i", "virtual", "-c", channel]
+        line = str(tmp_path / "line.yml")
+        code = main(["run", line, "--gateway", f"127.0.0.1:{port}", "--duration", "1.5", *bus])
+        client.join()
+        out, err = capsys.readouterr()
+        assert code == 0, err
+        assert f"the gateway serves net 1 on 127.0.0.1:{port}\n" in out
+        assert "node 10: configured -> operational" in err
+        assert replies[0] == "0x00C0B005"
+        assert replies[1] is not None and int(replies[1]) & 0xFFFF == 0x0192  # (not bytes)
+        with socket.socket() as taken:
+            taken.bind(("127.0.0.1", 0))
+            taken.listen()
+            busy = taken.getsockname()[1]
+            code = main(["run", line, "--gateway", f"127.0.0.1:{busy}", "--duration", "1", *bus])
+        assert code == 3 and "the gateway cannot listen" in capsys.readouterr().err

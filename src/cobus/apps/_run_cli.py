@@ -10,6 +10,8 @@
                                                          # the file at each of its boots
     cobus run thesis.yml --panel --zapi zapi             # a Drive page for the ZAPI inverter
                                                          # (examples/networks/thesis.yml)
+    cobus run line.yml --gateway 127.0.0.1:5000          # and the CiA 309-3 gateway beside
+                                                         # the master (cobus gateway --help)
 
 The master boots the network the CiA 302 way and supervises it until Ctrl-C (or
 ``--duration``); each of its events is printed as a line on stderr (``--quiet``: none). On
@@ -34,8 +36,15 @@ failure holds the node back. It writes configuration only: a file that holds a c
 controlword, a mode, a set-point, an output, what an RPDO carries) is refused. The panel's
 Parameters page shows each node's result and a diff against the file.
 
+``--gateway HOST:PORT`` serves the CiA 309-3 gateway on the master's network, in the same
+loop: its clients' transfers and the master's queue on one SDO channel per node (neither
+aborts the other), objects go by the names of the network file's EDS files. What a client
+sends goes to the bus as sent - an NMT stop of a node the master supervises is reported by
+the master as any stop. Beyond this host its writes need a token (``COBUS_GATEWAY_TOKEN``,
+else a random one it prints).
+
 Exit codes: 0 ran until stopped, 1 the bus cannot be used, 2 bad usage or a bad network file,
-3 the panel cannot listen there.
+3 the panel or the gateway cannot listen there.
 """
 
 from __future__ import annotations
@@ -46,11 +55,12 @@ import contextlib
 import signal
 import socket
 import sys
+from functools import partial
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
-from cobus._args import add_bus_options, bus_options, seconds
+from cobus._args import add_bus_options, bus_options, host_port, seconds
 from cobus.errors import CobusError
 
 __all__ = ["listen_address", "register"]
@@ -129,6 +139,12 @@ def register(sub: Any) -> None:
         metavar="NODE",
         help="show NODE (name or ID) as a ZAPI inverter on the panel: its handshake starts "
         "when the operator starts it there; repeat per inverter",
+    )
+    p.add_argument(
+        "--gateway",
+        type=partial(host_port, listening=True),
+        metavar="HOST:PORT",
+        help="serve the CiA 309-3 gateway beside the master (beyond 127.0.0.1 with a token)",
     )
     p.add_argument("--duration", type=seconds, help="stop after this many seconds")
     p.add_argument("--quiet", "-q", action="store_true", help="do not print the master's events")
@@ -256,6 +272,52 @@ async def _serve(args: argparse.Namespace, config: Any, done: list[str]) -> int:
             loop.remove_signal_handler(signal.SIGTERM)
 
 
+async def _serve_gateway(
+    args: argparse.Namespace,
+    master: Any,
+    network: Any,
+    undo: contextlib.AsyncExitStack,
+    done: list[str],
+) -> int | None:
+    """The CiA 309-3 gateway on the master's network (None: serving; else the exit code)."""
+    import os
+    import secrets
+
+    from cobus.apps._serving import MIN_TOKEN, is_loopback, token_usable
+    from cobus.apps.gateway import GatewayCore, GatewayServer
+
+    host, port = args.gateway
+    token = os.environ.get("COBUS_GATEWAY_TOKEN")
+    if token is not None and not token_usable(token):
+        return _fail(
+            f"COBUS_GATEWAY_TOKEN: give {MIN_TOKEN} characters at least, without spaces or #",
+            _EXIT_USAGE,
+        )
+    if token is None and not is_loopback(host):
+        token = secrets.token_urlsafe(18)
+        print(f"cobus run: gateway clients write after: auth {token}", flush=True)
+    dictionaries = {
+        (1, node_id): node.config.od
+        for node_id, node in master.nodes.items()
+        if node.config.od is not None
+    }
+    core = GatewayCore({1: network}, token=token, dictionaries=dictionaries)
+    server = GatewayServer(core, host, port)
+    try:
+        await server.start()
+    except OSError as exc:
+        return _fail(f"the gateway cannot listen on {host}:{port}: {exc.strerror or exc}",
+                     _EXIT_PANEL)  # fmt: skip
+
+    async def stop_gateway() -> None:
+        await server.stop()
+        done.append("the gateway closed")
+
+    undo.push_async_callback(stop_gateway)
+    print(f"cobus run: the gateway serves net 1 on {server.address}", flush=True)
+    return None
+
+
 async def _supervise(
     args: argparse.Namespace,
     config: Any,
@@ -374,6 +436,10 @@ async def _supervise(
             print("cobus run: reading the panel needs the token in that address", flush=True)
         elif panel.needs_token:
             print("cobus run: commands from the panel need the token in that address", flush=True)
+    if args.gateway is not None:
+        code = await _serve_gateway(args, master, network, undo, done)
+        if code is not None:
+            return code
     master.start()
     done.append(f"the master supervised {len(master.nodes)} node(s)")
     print(
