@@ -929,6 +929,36 @@ def test_cobus_gateway_with_two_nets_a_unix_socket_and_a_token_beyond_this_host(
     finally:
         stopped(proc)
 
+    # --json and --eds reach the server: JSON lines in and out, names from the EDS
+    from cobus.device import minimal_od
+
+    eds = tmp_path / "io.eds"
+    eds.write_text(export_eds(minimal_od()))
+    jpath = str(tmp_path / "json.sock")
+    proc, said = started("--json", "--eds", f"5={eds}", "--unix", jpath)
+    try:
+        import socket
+
+        with socket.socket(socket.AF_UNIX) as sock:
+            sock.settimeout(10)
+            sock.connect(jpath)
+            sock.sendall(
+                b'{"line": "set sdo_timeout 50"}\n'
+                b'{"node": 5, "command": "r", "args": ["Producer heartbeat time"]}\n'
+                b'{"node": 5, "command": "r", "args": ["No such name"]}\n'
+            )
+            got = b""
+            while got.count(b"\n") < 3:
+                chunk = sock.recv(4096)
+                assert chunk, got
+                got += chunk
+        first, named, unknown = (json.loads(line) for line in got.splitlines())
+        assert first["ok"] is True
+        assert named["error"] == "0x05040000"  # (found in the EDS, asked: nobody answers)
+        assert unknown["error"] == 101 and "No such name" in unknown["text"]
+    finally:
+        stopped(proc)
+
     for options, said in [
         (["--net", "1=virtual:x"], "--net numbers the other buses 2..127"),
         (["--net", "2=virtual"], "give N=INTERFACE:CHANNEL"),
@@ -1202,8 +1232,11 @@ def test_pdo_configurations_fields_and_what_is_refused() -> None:
     c = parse_pdo_config(["1", "0x181", "event", "3", "u8", "0x2000", "1", "i16", "b"])
     assert (c.number, c.cob_id, c.transmission, c.lengths) == (1, 0x181, 0xFF, [8, 16, 8])
     assert parse_pdo_config(["2", "0x182", "sync7", "0"]).transmission == 7
-    x = parse_pdo_config(["3", "0x183", "event", "10", "500", "1", "u32"], extended=True)
-    assert (x.inhibit_ms, x.event_ms) == (10, 500)
+    x = parse_pdo_config(["3", "0x183", "event", "0", "0", "1", "u32"], extended=True)
+    assert (x.inhibit_ms, x.event_ms, x.lengths) == (0, 0, [32])
+    with pytest.raises(GatewayError) as refused:  # (a TPDO goes when written: no timers)
+        parse_pdo_config(["3", "0x183", "event", "10", "500", "1", "u32"], extended=True)
+    assert refused.value.code == 100
     assert parse_pdo_config(["4", "0xA0000184", "rtr", "1", "u8"]).extended
     assert pack([8, 16], [5, 0x1234]) == bytes([5, 0x34, 0x12])
     assert unpack([8, 16], bytes([5, 0x34, 0x12, 9])) == [5, 0x1234]
@@ -1547,8 +1580,8 @@ def test_what_the_review_of_the_later_slices_found() -> None:
 
     line = request_line('{"command": "w", "args": ["0x2000", 0, "vs", "C:\\\\temp dir"]}')
     assert isinstance(line, str) and parse_value("vs", line.split(None, 4)[4]) == b"C:\\temp dir"
-    x = parse_pdo_config(["1", "0x201", "event10", "500", "0"], extended=True)
-    assert (x.inhibit_ms, x.event_ms) == (10, 500)
+    x = parse_pdo_config(["1", "0x201", "event0", "0", "0"], extended=True)  # (Lely's form)
+    assert (x.transmission, x.inhibit_ms, x.event_ms) == (0xFF, 0, 0)
     for words, extended in [(["1", "0x201", "eventually", "0"], False),
                             (["1", "0x201", "event10", "0"], False)]:  # fmt: skip
         with pytest.raises(GatewayError):

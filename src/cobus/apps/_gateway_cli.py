@@ -90,7 +90,7 @@ def register(sub: Any) -> None:
         "--http",
         type=partial(host_port, listening=True),
         metavar="HOST:PORT",
-        help="also serve HTTP in gocanopen's CiA 309-5 URLs (/cia309-5/1.0/SEQ/NET/NODE/"
+        help="serve HTTP in gocanopen's CiA 309-5 URLs (/cia309-5/1.0/SEQ/NET/NODE/"
         "r/INDEX/SUB...) and a WebSocket of events; beyond this host writes need "
         "Authorization: Bearer TOKEN",
     )
@@ -198,6 +198,7 @@ async def _serve(
 
     networks: dict[int, AsyncNetwork] = {}
     servers: list[GatewayServer | GatewayHttp] = []
+    core: GatewayCore | None = None
     try:
         for number, options in sorted(nets.items()):
             network = AsyncNetwork(**options)
@@ -238,5 +239,7 @@ async def _serve(
     finally:
         for server in servers:
             await server.stop()
+        if core is not None:
+            core.close()
         for network in networks.values():
             await network.disconnect()

@@ -62,7 +62,8 @@ def _add_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="one JSON object a request")
     p.add_argument(
         "--token",
-        help="give the gateway this token first (default: COBUS_GATEWAY_TOKEN, if set)",
+        help="the gateway's token, given when the gateway asks for it (default: "
+        "COBUS_GATEWAY_TOKEN, if set)",
     )
     p.add_argument(
         "--timeout", type=float, default=30.0, help="seconds to wait for each reply (30)"

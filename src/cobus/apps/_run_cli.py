@@ -37,7 +37,7 @@ controlword, a mode, a set-point, an output, what an RPDO carries) is refused. T
 Parameters page shows each node's result and a diff against the file.
 
 ``--gateway HOST:PORT`` serves the CiA 309-3 gateway on the master's network, in the same
-loop: its clients' transfers and the master's queue on one SDO channel per node (neither
+loop: its clients' transfers and the master's queue on one SDO transport per node (neither
 aborts the other), objects go by the names of the network file's EDS files. What a client
 sends goes to the bus as sent - an NMT stop of a node the master supervises is reported by
 the master as any stop. Beyond this host its writes need a token (``COBUS_GATEWAY_TOKEN``,

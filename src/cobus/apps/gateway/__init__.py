@@ -1,9 +1,12 @@
-"""The CiA 309-3 ASCII gateway: the network from any program, over TCP, several clients at
-once (``cobus gateway``).
+"""The CiA 309-3 ASCII gateway: the network from any program, over TCP, a Unix socket or
+HTTP, several clients at once (``cobus gateway``).
 
 :mod:`~cobus.apps.gateway.grammar` reads the command language (sans-I/O),
 :mod:`~cobus.apps.gateway.core` runs requests on cobus networks,
-:mod:`~cobus.apps.gateway.server` serves them over TCP.
+:mod:`~cobus.apps.gateway.pdo` keeps the gateway's own PDOs,
+:mod:`~cobus.apps.gateway.server` serves them over TCP or a Unix socket (text or JSON lines),
+:mod:`~cobus.apps.gateway.http` over HTTP in gocanopen's CiA 309-5 URLs,
+:mod:`~cobus.apps.gateway.client` is a client of any 309-3 gateway.
 """
 
 from cobus.apps._serving import is_loopback

@@ -13,8 +13,10 @@ matches the answers by their numbers); one without runs after every request befo
 before every request after it, so a client that numbers nothing gets its answers in order.
 ``cancel`` ends the client's requests still under way.
 
-A core with a ``token`` takes writes, NMT commands and LSS requests only from a client that
-gave it first (``auth TOKEN``); reads, ``set`` and the rest need none.
+A core with a ``token`` takes what changes the bus or what others are told - writes, NMT
+commands, LSS requests, the gateway's PDOs (``set rpdo``, ``w p``), heartbeat consumer
+times - and ``who`` only from a client that gave it first (``auth TOKEN``); reads, ``set
+node`` and the like need none.
 """
 
 from __future__ import annotations
@@ -123,14 +125,16 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
   2.5 times the period the gateway saw it come at.
   set rpdo|tpdo N COB-ID event|rtr|syncN COUNT [INDEX SUB] TYPE...   the gateway's own
   PDOs, as Lely's (set tpdox N COB-ID TRANS INHIBIT EVENT|SYNC-START ...);
-  r p N -> NET pdo COUNT 0xV... what RPDO N last brought; w p N COUNT V...  send TPDO N;
+  r p N -> NET pdo COUNT 0xV... what RPDO N last brought; w p N COUNT V...  send TPDO N
+  (the net's PDOs, kept until the gateway stops or they are set again, COB-ID bit 31 off);
   subscribe pdo: NET pdo N COUNT 0xV... for each RPDO that comes in
   who                               the clients connected (this one marked *)
   cancel [SEQ]                      end this client's requests under way (or the one
                                     numbered SEQ): each is answered ERROR:102 #cancelled;
                                     cancel itself is answered at once, [seq] or not
   auth TOKEN                        give the gateway's token (when it has one: writes,
-                                    NMT and LSS need it)
+                                    NMT, LSS, set rpdo/tpdo, w p, enable/disable and who
+                                    need it)
   info | info version | help       info version as Lely answers it: VENDOR PRODUCT
                                     REVISION SERIAL CLASS PROTOCOL IMPLEMENTATION
                                     (cobus has no identity: 0 0 its version 0 3 2.0 its
@@ -139,8 +143,8 @@ requests with [seq] run side by side (to one node in turn) and are answered as t
 one without [seq] waits for all before it, so unnumbered requests are answered in order
 types: b i8 i16 i24 i32 i40 i48 i56 i64 u8 u16 u24 u32 u40 u48 u56 u64 x8 x16 x32 x64
        r32 r64 vs ("text", "" for a quote) os us d (base64) t td (days ms) hex (bytes)
-       (r32 and r64 with six significant digits as CANopenNode writes them; every digit
-       in the lely dialect, or the bytes with hex)
+       (r32 and r64 with six significant digits as CANopenNode writes them; the lely
+       dialect writes r64 with 15; hex gives the bytes)
 numbers: decimal, 0x hex, leading-0 octal"""
 
 

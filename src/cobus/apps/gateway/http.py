@@ -19,9 +19,11 @@ gocanopen's own gateway says 102), with ``"text"`` saying why. ``/cia309-5/1.0/e
 a WebSocket that sends ``{"event": "1 5 BOOT_UP"}`` for every unsolicited line.
 
 Like the TCP server it binds 127.0.0.1 unless told otherwise; with a token (the core's),
-writes, NMT and LSS need ``Authorization: Bearer TOKEN``. Each request runs in a session of
-its own; ``set network``/``set node``/``set sdo-timeout`` change the defaults of every
-later HTTP request.
+writes, NMT, LSS and every ``set`` need ``Authorization: Bearer TOKEN``. Each request runs
+in a session of its own; ``set/network``, ``set/node``, ``set/sdo-timeout`` and
+``set/sdo_block`` change the defaults of every later HTTP request. A web page cannot use
+it: GET only reads, a request from another Origin (or, on loopback, another Host) is
+refused.
 """
 
 from __future__ import annotations
@@ -194,6 +196,7 @@ class GatewayHttp:
         session = self.core.session(trusted=authorised)
         session.net, session.node = self.defaults.net, self.defaults.node
         session.sdo_timeout, session.peer = self.defaults.sdo_timeout, "http"
+        session.sdo_block = self.defaults.sdo_block
         try:
             lines = await self.core.execute(session, line)
         finally:
@@ -206,6 +209,7 @@ class GatewayHttp:
         if words[0] == "set":
             self.defaults.net, self.defaults.node = session.net, session.node
             self.defaults.sdo_timeout = session.sdo_timeout
+            self.defaults.sdo_block = session.sdo_block
         out: dict[str, Any] = {"sequence": seq, "response": "OK"}
         if words[0] in ("r", "read") and words[1:2] not in (["p"], ["pdo"]):
             if type_name is None:

@@ -1,7 +1,8 @@
 """The gateway's own PDOs, as Lely's gateway has them (CiA 309-3 PDO access).
 
 A client configures them per net - ``set rpdo N COB-ID TRANS COUNT [INDEX SUB] TYPE ...``,
-``set tpdo N ...`` (``set tpdox`` adds the inhibit time, event timer or SYNC start value) -
+``set tpdo N ...`` (``set tpdox`` adds the SYNC start value; an inhibit time or event
+timer other than 0 is refused: a TPDO goes when written) -
 then reads what an RPDO last brought (``r p N`` → ``[seq] NET pdo COUNT 0xV ...``) and sends
 values in a TPDO (``w p N COUNT V ...``). Subscribed clients hear every RPDO as it comes in
 (``NET pdo N COUNT 0xV ...``). TRANS is ``event``, ``rtr`` or ``syncN`` (N 0..240): an RPDO
@@ -102,6 +103,12 @@ def parse_pdo_config(words: list[str], *, extended: bool = False) -> PdoConfig:
         )
     if extended and transmission >= 0xFD:
         config.event_ms = parse_number(take("event timer"), "event timer")
+    if config.inhibit_ms or config.event_ms:
+        raise GatewayError(
+            100,
+            "cobus's gateway sends a TPDO when it is written (w p): no inhibit time or "
+            "event timer (give 0)",
+        )
     elif extended and transmission <= 240:
         config.sync_start = parse_number(take("SYNC start value"), "SYNC start value")
     count = parse_number(take("number of values"), "number of values")

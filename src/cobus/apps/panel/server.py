@@ -68,7 +68,6 @@ MAX_REPLIES = 256
 ROUNDS = 50.0
 #: Pages connected at once; more are refused (each costs the bus loop some work per tick).
 MAX_CLIENTS = 32
-#: The shortest token a panel takes.
 CSP = (
     "default-src 'self'; img-src 'self' data:; frame-ancestors 'none'; base-uri 'none'; "
     "form-action 'none'"
