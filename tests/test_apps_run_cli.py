@@ -292,3 +292,17 @@ def test_the_gateway_beside_the_master(tmp_path: Path, capsys: pytest.CaptureFix
             busy = taken.getsockname()[1]
             code = main(["run", line, "--gateway", f"127.0.0.1:{busy}", "--duration", "1", *bus])
         assert code == 3 and "the gateway cannot listen" in capsys.readouterr().err
+
+
+def test_a_bad_gateway_token_in_the_environment_exits_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    channel = f"cli-run-gwtok-{os.getpid()}"
+    with Network(interface="virtual", channel=channel) as net:
+        rig = start_rig(net, Rig.loads(RIG))
+        (tmp_path / "servo.eds").write_text(export_eds(rig.aio.devices[10].od))
+        (tmp_path / "line.yml").write_text(NETWORK)
+        monkeypatch.setenv("COBUS_GATEWAY_TOKEN", "has space in it")
+        bus = ["-i", "virtual", "-c", channel]
+        code = main(["run", str(tmp_path / "line.yml"), "--gateway", "0.0.0.0:0", *bus])
+    assert code == 2 and "COBUS_GATEWAY_TOKEN: give 8 characters" in capsys.readouterr().err

@@ -1664,3 +1664,21 @@ def test_every_data_type_through_the_socket_in_both_dialects(dialect: str) -> No
                 await server.stop()
 
     asyncio.run(asyncio.wait_for(main(), 60))
+
+
+def test_the_gateways_token_comes_from_the_option_the_environment_or_chance(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from cobus.apps._serving import gateway_token
+
+    monkeypatch.delenv("COBUS_GATEWAY_TOKEN", raising=False)
+    assert gateway_token(None, ["127.0.0.1", "::1"]) == (None, False)
+    token, drawn = gateway_token(None, ["127.0.0.1", "0.0.0.0"])
+    assert drawn and token is not None and len(token) >= 16
+    assert gateway_token("given-token", ["0.0.0.0"]) == ("given-token", False)
+    monkeypatch.setenv("COBUS_GATEWAY_TOKEN", "from-the-env")
+    assert gateway_token(None, ["127.0.0.1"]) == ("from-the-env", False)
+    assert gateway_token("the-option-wins", ["127.0.0.1"]) == ("the-option-wins", False)
+    monkeypatch.setenv("COBUS_GATEWAY_TOKEN", "short")
+    with pytest.raises(ValueError, match="8 characters"):
+        gateway_token(None, ["127.0.0.1"])

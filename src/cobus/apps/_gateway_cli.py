@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
 import re
 import sys
 from functools import partial
@@ -146,9 +145,7 @@ def _fail(message: str, code: int) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    import secrets
-
-    from cobus.apps._serving import MIN_TOKEN, is_loopback, token_usable
+    from cobus.apps._serving import gateway_token
     from cobus.errors import CobusError
 
     nets: dict[int, dict[str, Any]] = {1: bus_options(args)}
@@ -158,15 +155,12 @@ def _run(args: argparse.Namespace) -> int:
         nets[number] = options
     if args.listen is None and args.unix is None and args.http is None:
         args.listen = ("127.0.0.1", 5000)
-    token = args.token if args.token is not None else os.environ.get("COBUS_GATEWAY_TOKEN")
-    if token is not None and not token_usable(token):
-        return _fail(
-            f"the token: give {MIN_TOKEN} characters at least, without spaces or #",
-            _EXIT_USAGE,
-        )
-    beyond = [a for a in (args.listen, args.http) if a is not None and not is_loopback(a[0])]
-    if token is None and beyond:
-        token = secrets.token_urlsafe(18)
+    hosts = [a[0] for a in (args.listen, args.http) if a is not None]
+    try:
+        token, drawn = gateway_token(args.token, hosts)
+    except ValueError as exc:
+        return _fail(f"the token: {exc}", _EXIT_USAGE)
+    if drawn:
         print(f"cobus gateway: clients write after: auth {token}", flush=True)
     dictionaries: dict[tuple[int, int], Any] = {}
     for net, node, path in args.eds:

@@ -280,21 +280,15 @@ async def _serve_gateway(
     done: list[str],
 ) -> int | None:
     """The CiA 309-3 gateway on the master's network (None: serving; else the exit code)."""
-    import os
-    import secrets
-
-    from cobus.apps._serving import MIN_TOKEN, is_loopback, token_usable
+    from cobus.apps._serving import gateway_token
     from cobus.apps.gateway import GatewayCore, GatewayServer
 
     host, port = args.gateway
-    token = os.environ.get("COBUS_GATEWAY_TOKEN")
-    if token is not None and not token_usable(token):
-        return _fail(
-            f"COBUS_GATEWAY_TOKEN: give {MIN_TOKEN} characters at least, without spaces or #",
-            _EXIT_USAGE,
-        )
-    if token is None and not is_loopback(host):
-        token = secrets.token_urlsafe(18)
+    try:
+        token, drawn = gateway_token(None, [host])
+    except ValueError as exc:
+        return _fail(f"COBUS_GATEWAY_TOKEN: {exc}", _EXIT_USAGE)
+    if drawn:
         print(f"cobus run: gateway clients write after: auth {token}", flush=True)
     dictionaries = {
         (1, node_id): node.config.od

@@ -9,7 +9,14 @@ import os
 import socket
 import stat
 
-__all__ = ["MIN_TOKEN", "free_unix_path", "is_loopback", "token_is", "token_usable"]
+__all__ = [
+    "MIN_TOKEN",
+    "free_unix_path",
+    "gateway_token",
+    "is_loopback",
+    "token_is",
+    "token_usable",
+]
 
 #: The shortest token a server takes.
 MIN_TOKEN = 8
@@ -54,6 +61,23 @@ def token_usable(token: str) -> bool:
     """Whether ``token`` can be a server's token: :data:`MIN_TOKEN` characters at least, no
     white space and no ``#`` (a gateway client gives it as one word of a request line)."""
     return len(token) >= MIN_TOKEN and not any(c.isspace() or c == "#" for c in token)
+
+
+def gateway_token(given: str | None, hosts: list[str]) -> tuple[str | None, bool]:
+    """The token a gateway serving ``hosts`` uses: ``given`` (``--token``), else
+    ``COBUS_GATEWAY_TOKEN``, else a random one when a host is beyond this one (None: none
+    needed); and whether it was drawn (to print). ValueError says what a bad one lacks."""
+    import os
+    import secrets
+
+    token = given if given is not None else os.environ.get("COBUS_GATEWAY_TOKEN")
+    if token is not None:
+        if not token_usable(token):
+            raise ValueError(f"give {MIN_TOKEN} characters at least, without spaces or #")
+        return token, False
+    if any(not is_loopback(host) for host in hosts):
+        return secrets.token_urlsafe(18), True
+    return None, False
 
 
 def token_is(given: object, token: str) -> bool:
