@@ -120,13 +120,19 @@ Client = tuple[asyncio.StreamReader, asyncio.StreamWriter]
 Scenario = Callable[[AsyncNetwork, Rig, GatewayServer], Awaitable[None]]
 
 
+#: The virtual channel of each network ``served`` makes (another bus on it: another node).
+CHANNEL_OF: dict[int, str] = {}
+
+
 def served(scenario: Scenario, dialect: str = "canopennode") -> None:
     """``scenario(net, rig, server)`` with the gateway on a free port of 127.0.0.1, on a
     real-time loop (real sockets)."""
 
     async def main() -> None:
         rig = Rig.loads(RIG)
-        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+        channel = f"gw-{uuid.uuid4()}"
+        async with AsyncNetwork(interface="virtual", channel=channel) as net:
+            CHANNEL_OF[id(net)] = channel
             await rig.start(net)
             server = GatewayServer(GatewayCore({1: net}, dialect=dialect))
             await server.start()
@@ -1565,7 +1571,7 @@ def test_a_heartbeat_watched_with_the_time_a_client_gives() -> None:
         assert got[0] == "[4] OK" and got[1].endswith("203 (Heartbeat lost)")
         assert asyncio.get_running_loop().time() - started < 0.4  # (150 ms, not learned)
         assert await ask(c, "[5] 5 disable heartbeat") == ["[5] OK"]
-        assert (await ask(c, "[6] 5 enable guarding 100 3"))[0].startswith("[6] ERROR:100 #")
+        assert (await ask(c, "[6] 5 enable guarding 100"))[0].startswith("[6] ERROR:101 #")
         assert (await ask(c, "[7] 5 enable heartbeat"))[0].startswith("[7] ERROR:101 #")
 
     served(scenario)
@@ -1682,3 +1688,118 @@ def test_the_gateways_token_comes_from_the_option_the_environment_or_chance(
     monkeypatch.setenv("COBUS_GATEWAY_TOKEN", "short")
     with pytest.raises(ValueError, match="8 characters"):
         gateway_token(None, ["127.0.0.1"])
+
+
+# ------------------------------------------------------------------ node guarding
+
+
+class _GuardedNode:
+    """Node 9 on a bus of its own (the same channel): answers node guarding in ``state``
+    with the toggle bit, or not at all while ``mute``."""
+
+    def __init__(self, net: AsyncNetwork) -> None:
+        self.net = net
+        self.state = 0x05
+        self.mute = False
+        self.toggle = 0
+        net.subscribe(0x709, self.on_frame)
+
+    def on_frame(self, frame: Frame, now: float) -> None:
+        if frame.rtr and not self.mute:
+            self.net.send(Frame(0x709, bytes((self.state | self.toggle << 7,))))
+            self.toggle ^= 1
+
+
+async def _lines(client: Client, count: int, timeout: float = 2.0) -> list[str]:
+    reader, _writer = client
+    return [
+        (await asyncio.wait_for(reader.readline(), timeout)).decode().rstrip("\r\n")
+        for _ in range(count)
+    ]
+
+
+def test_a_guarded_node_reports_its_states_a_wrong_one_and_its_loss() -> None:
+    """enable guarding: each new state the replies give, 204 when it is not the one the
+    gateway's NMT commands asked for, 200 when the replies stop for the life time, and the
+    state again when they come back; disable guarding stops the remote requests."""
+
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        c = await connect(server)
+        assert await ask(c, "[1] subscribe error_control") == ["[1] OK"]
+        assert sorted(await ask(c, "[2] 5 enable guarding 50 3", 2)) == [
+            "1 5 ERRORx PREO",
+            "[2] OK",
+        ]
+        assert sorted(await ask(c, "[3] 5 start", 2)) == ["1 5 ERRORx OPER", "[3] OK"]
+        # the node leaves operational by itself: a wrong state
+        device(rig, 5).apply_nmt(0x80)
+        assert await _lines(c, 2) == ["1 5 ERROR 204 (Wrong NMT state)", "1 5 ERRORx PREO"]
+        # a reset the gateway asked for: pre-operational again is what it expects
+        assert sorted(await ask(c, "[4] 5 start", 2)) == ["1 5 ERRORx OPER", "[4] OK"]
+        async with AsyncNetwork(interface="virtual", channel=CHANNEL_OF[id(net)]) as other:
+            node = _GuardedNode(other)
+            assert await ask(c, "[5] 9 enable guarding 40 2", 2) == ["[5] OK", "1 9 ERRORx OPER"]
+            node.mute = True
+            started = asyncio.get_running_loop().time()
+            assert await _lines(c, 1) == ["1 9 ERROR 200 (Lost guarding message)"]
+            assert asyncio.get_running_loop().time() - started < 0.3  # (80 ms life time)
+            node.mute = False
+            assert await _lines(c, 1) == ["1 9 ERRORx OPER"]
+            node.state = 0x04
+            assert await _lines(c, 2) == ["1 9 ERROR 204 (Wrong NMT state)", "1 9 ERRORx STOP"]
+            assert await ask(c, "[6] 9 disable guarding") == ["[6] OK"]
+            await asyncio.sleep(0.02)
+            asked = node.toggle
+            await asyncio.sleep(0.2)
+            assert node.toggle == asked  # (no more requests)
+            assert await ask(c, "[7] 9 disable guarding") == ["[7] OK"]
+        for bad in ["[8] 5 enable guarding 0 3", "[8] 5 enable guarding 50 256",
+                    "[8] 5 enable guarding 50", "[8] 5 disable guarding 50"]:  # fmt: skip
+            assert (await ask(c, bad))[0].startswith("[8] ERROR:101 #"), bad
+        (zero,) = await ask(c, "[9] 0 enable guarding 50 3")
+        assert zero.startswith("[9] ERROR:107 #")
+
+    served(scenario)
+
+
+def test_one_guarding_master_per_node() -> None:
+    """A node another master guards is refused (remote requests seen on the bus, or the
+    master of this process); another master's requests or the master taking the node over
+    stop the gateway's guarding, and its clients are told."""
+
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        c = await connect(server)
+        assert await ask(c, "[1] subscribe error_control") == ["[1] OK"]
+        assert net.claim_guarding(6, "the master") is None
+        (refused,) = await ask(c, "[2] 6 enable guarding 50 3")
+        assert refused.startswith("[2] ERROR:102 #") and "the master" in refused
+        net.release_guarding(6, "the master")
+        assert sorted(await ask(c, "[3] 6 enable guarding 50 3", 2))[1] == "[3] OK"
+        assert net.claim_guarding(6, "a test") == "the CiA 309-3 gateway"
+        assert net.claim_guarding(6, "the master", take=True) is None
+        (told,) = await _lines(c, 1)
+        assert told.startswith("1 6 ERROR 200 (Lost guarding message) #the master guards")
+        async with AsyncNetwork(interface="virtual", channel=CHANNEL_OF[id(net)]) as other:
+            _GuardedNode(other)
+            assert (await ask(c, "[4] 9 enable guarding 40 3", 2))[0] == "[4] OK"
+            other.send(Frame(0x709, rtr=True))  # (another master on the bus)
+            (told,) = await _lines(c, 1)
+            assert told.startswith("1 9 ERROR 200 (Lost guarding message) #")
+            assert told.endswith("another master guards it: guarding stopped")
+            (again,) = await ask(c, "[5] 9 enable guarding 40 3")
+            assert again.startswith("[5] ERROR:102 #") and "another master" in again
+
+    served(scenario)
+
+
+def test_guarding_needs_the_token() -> None:
+    async def main() -> None:
+        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+            core = GatewayCore({1: net}, token="a-long-token")
+            session = core.session()
+            for line in ("5 enable guarding 50 3", "5 disable guarding"):
+                (refused,) = await core.execute(session, line)
+                assert refused.startswith("ERROR:102 #") and "auth TOKEN" in refused
+            core.close()
+
+    asyncio.run(main())

@@ -182,6 +182,8 @@ def test_guarding_toggle_error_then_recovery(tmp_path):
         await booted(rig, 5)
         node = rig.master.nodes[5]
         assert node.error_control == "guarding"
+        # the network knows who guards the node (a gateway beside it is refused)
+        assert rig.master.network.claim_guarding(5, "a gateway") == "the master"
         last = rig.data(0x705)[-1]
         rig.send(0x705, last)  # the same toggle twice in a row
         await rig.settle()

@@ -714,6 +714,7 @@ def test_the_blocking_network_has_what_the_async_one_has():
 
     plumbing = {
         "attach",
+        "claim_guarding",
         "connect",
         "disconnect",
         "emit",
@@ -721,6 +722,7 @@ def test_the_blocking_network_has_what_the_async_one_has():
         "loop",
         "on_connect",
         "on_disconnect",
+        "release_guarding",
         "report_failure",
         "sdo_transport",
     }

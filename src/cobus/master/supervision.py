@@ -50,6 +50,8 @@ __all__ = ["NodeSupervision"]
 
 #: The EMCY code of an RPDO the node missed (CiA 301 "RPDO timeout").
 _RPDO_TIMEOUT_EMCY = 0x8250
+#: Who guards a node, for the network's record (AsyncNetwork.claim_guarding).
+_GUARD_OWNER = "the master"
 _VALID_STATES = {int(s) for s in NmtState if s is not NmtState.INITIALISING}
 
 
@@ -220,6 +222,7 @@ class NodeSupervision:
                 if cfg.guard_time
                 else cfg.fallback_guarding
             )
+            self.context.network.claim_guarding(self.node_id, _GUARD_OWNER, take=True)
             self._guard = _guarding.GuardingMaster(self.node_id, guard_ms, factor)
             self._guard_host = self.context.network.attach(self._guard, (), self._on_guard_event)
             guard = self._guard
@@ -237,6 +240,7 @@ class NodeSupervision:
         self.context.watch_heartbeat(self.node_id, 0.0, now)
         if self._guard_host is not None:
             self._guard_host.close()
+            self.context.network.release_guarding(self.node_id, _GUARD_OWNER)
         self._guard = None
         self._guard_host = None
         self._disarm_watchdogs()

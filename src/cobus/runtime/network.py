@@ -287,6 +287,8 @@ class AsyncNetwork:
         self._reading: ReadingRole | None = None
         self._reader_stop = threading.Event()
         self._hosts: set[MachineHost] = set()  # until host.close()
+        #: node-ID -> who guards it, and how it is told another takes over (claim_guarding)
+        self._guarded: dict[int, tuple[str, Callable[[str], object] | None]] = {}
         self._on_disconnect: list[Callable[[], object]] = []
         self._on_connect: list[Callable[[], object]] = []
         self._listener_tasks: set[asyncio.Task[Any]] = set()
@@ -527,6 +529,36 @@ class AsyncNetwork:
         if self._loop is not None:
             host.apply(NOTHING)
         return host
+
+    def claim_guarding(
+        self,
+        node_id: int,
+        owner: str,
+        *,
+        take: bool = False,
+        on_taken: Callable[[str], object] | None = None,
+    ) -> str | None:
+        """Record that ``owner`` (a name people read: "the master") guards ``node_id``
+        here. One guarding master per node: each remote request flips the toggle bit of
+        the node's reply, so a second master's requests break the first one's toggle.
+
+        None if ``owner`` now guards the node; else the owner already guarding it, and
+        nothing changes - unless ``take``: then that owner's ``on_taken(new owner)`` is
+        called (it stops guarding) and ``owner`` guards the node from now on."""
+        current = self._guarded.get(node_id)
+        if current is not None and current[0] != owner:
+            if not take:
+                return current[0]
+            if current[1] is not None:
+                current[1](owner)
+        self._guarded[node_id] = (owner, on_taken)
+        return None
+
+    def release_guarding(self, node_id: int, owner: str) -> None:
+        """``owner`` no longer guards ``node_id`` (see :meth:`claim_guarding`)."""
+        current = self._guarded.get(node_id)
+        if current is not None and current[0] == owner:
+            del self._guarded[node_id]
 
     # ------------------------------------------------------------------ nodes and services
     def sdo_transport(

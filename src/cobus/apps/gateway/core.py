@@ -15,8 +15,8 @@ before every request after it, so a client that numbers nothing gets its answers
 
 A core with a ``token`` takes what changes the bus or what others are told - writes, NMT
 commands, LSS requests, the gateway's PDOs (``set rpdo``, ``w p``), heartbeat consumer
-times - and ``who`` only from a client that gave it first (``auth TOKEN``); reads, ``set
-node`` and the like need none.
+times, node guarding - and ``who`` only from a client that gave it first (``auth TOKEN``);
+reads, ``set node`` and the like need none.
 """
 
 from __future__ import annotations
@@ -46,8 +46,14 @@ from cobus.apps.gateway.grammar import (
 )
 from cobus.apps.gateway.pdo import PdoTable, parse_pdo_config
 from cobus.od import NameLookupError, ObjectDictionary, resolve
-from cobus.proto import NOTHING, Event, Frame
+from cobus.proto import NOTHING, Event, Frame, Out
 from cobus.proto.connection_set import ERROR_CONTROL_BASE, emcy_cob_id, error_control_cob_id
+from cobus.proto.guarding import (
+    GuardingMaster,
+    GuardingNodeLost,
+    GuardingResumed,
+    GuardingStateChanged,
+)
 from cobus.proto.heartbeat import (
     BootupReceived,
     HeartbeatMonitor,
@@ -118,6 +124,14 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
                                     LSS (CiA 305)
   enable heartbeat MS | disable heartbeat    watch a node's heartbeat with this time
                                     (instead of the period the gateway learns)
+  enable guarding GUARD_MS FACTOR | disable guarding    guard a node: a remote request
+                                    every GUARD_MS; NET NODE ERROR 200 (Lost guarding
+                                    message) after GUARD_MS x FACTOR without a reply,
+                                    NET NODE ERROR 204 (Wrong NMT state) when a reply gives
+                                    another state than the gateway's NMT commands asked
+                                    for, then the state; refused (102) for a node another
+                                    master guards, and stopped (a 200 line says why) when
+                                    one starts to
   subscribe [boot_up|emcy|error_control|all] | unsubscribe [...]   unsolicited lines, as
   Lely writes them: NET NODE BOOT_UP, NET NODE EMCY CODE REG B0 B1 B2 B3 B4,
   NET NODE ERRORx STATE 202 (Heartbeat started) | 203 (Heartbeat lost), NET NODE ERRORx
@@ -714,24 +728,30 @@ class GatewayCore:
         await channel.download(index, sub, data, block=session.sdo_block)
 
     def _nmt(self, session: Session, request: Request) -> None:
-        _net, network = self._network(session, request)
+        net, network = self._network(session, request)
         node = self._node(session, request, broadcast=True)
         command, args = request.command, [a.lower() for a in request.args]
         nmt = network.nmt
         if command == "start" and not args:
             nmt.start(node)
+            state = NmtState.OPERATIONAL
         elif command == "stop" and not args:
             nmt.stop(node)
+            state = NmtState.STOPPED
         elif command in ("preop", "preoperational") and not args:
             nmt.enter_preoperational(node)
+            state = NmtState.PRE_OPERATIONAL
         elif command == "reset" and args == ["node"]:
             nmt.reset_node(node)
+            state = NmtState.PRE_OPERATIONAL  # (after its boot-up)
         elif command == "reset" and args in (["comm"], ["communication"]):
             nmt.reset_communication(node)
+            state = NmtState.PRE_OPERATIONAL
         else:
             raise GatewayError(
                 101, f"{request.command} {' '.join(request.args)}: no such NMT command"
             )
+        self._expect(net, node, state)
 
     def _set(self, session: Session, request: Request) -> None:
         if request.args and request.args[0].lower() in ("rpdo", "tpdo", "tpdox"):
@@ -773,9 +793,8 @@ class GatewayCore:
         heartbeat with that time (0 or disable: not at all) instead of the learned one."""
         words = [a.lower() for a in request.args]
         if words[:1] == ["guarding"]:
-            raise GatewayError(
-                100, "node guarding is not served by cobus's gateway: watch heartbeats"
-            )
+            self._guarding(session, request, words)
+            return
         enable = request.command == "enable"
         if words[:1] != ["heartbeat"] or len(words) != (2 if enable else 1):
             raise GatewayError(101, "enable heartbeat MS | disable heartbeat")
@@ -784,10 +803,42 @@ class GatewayCore:
             raise GatewayError(101, f"heartbeat consumer time {ms} ms: 0..65535")
         net, _network = self._network(session, request)
         node = self._node(session, request)
+        self._watch(net).fix(node, ms / 1000.0)
+
+    def _guarding(self, session: Session, request: Request, words: list[str]) -> None:
+        """``enable guarding GUARD_MS FACTOR`` / ``disable guarding`` (Lely's): guard the
+        node - a remote request every guard time, lost after guard time x factor."""
+        enable = request.command == "enable"
+        if len(words) != (3 if enable else 1):
+            raise GatewayError(
+                101, "enable guarding GUARD_TIME_MS LIFE_TIME_FACTOR | disable guarding"
+            )
+        net, _network = self._network(session, request)
+        node = self._node(session, request)
+        watch = self._watch(net)
+        if not enable:
+            watch.unguard(node)
+            return
+        guard_ms = parse_number(words[1], "guard time")
+        factor = parse_number(words[2], "life time factor")
+        if not 1 <= guard_ms <= 0xFFFF:
+            raise GatewayError(101, f"guard time {guard_ms} ms: 1..65535")
+        if not 1 <= factor <= 0xFF:
+            raise GatewayError(101, f"life time factor {factor}: 1..255")
+        watch.guard(node, guard_ms, factor)
+
+    def _watch(self, net: int) -> _HeartbeatWatch:
         self._listen()
+        return next(w for w in self._watches if w.net == net)
+
+    def _expect(self, net: int, node: int, state: NmtState) -> None:
+        """An NMT command went to ``node`` (0: every node): its guarding replies should
+        give ``state`` from now on (another one is a wrong state, 204)."""
         for watch in self._watches:
             if watch.net == net:
-                watch.fix(node, ms / 1000.0)
+                for guarded, guard in watch.guards.items():
+                    if node in (0, guarded):
+                        guard.expected = state
 
     def _whole_net(self, session: Session, request: Request, what: str) -> tuple[int, AsyncNetwork]:
         """The net of a request that goes to a whole net (LSS, PDOs): one number before
@@ -959,10 +1010,86 @@ _STATE_WORDS = {
 _LOST_AFTER = 2.5
 
 
+#: Who guards a node, for the network's record (AsyncNetwork.claim_guarding).
+_GUARD_OWNER = "the CiA 309-3 gateway"
+
+#: A remote request for a node the gateway does not guard, seen this recently (s), means
+#: another master guards it: ``enable guarding`` is refused.
+_FOREIGN_RTR_WINDOW = 10.0
+
+
+class _Guard:
+    """Node guarding of one node (``enable guarding``), for the subscribed clients: a node
+    lost after guard time x life time factor (``ERROR 200``), a reply in another state than
+    the gateway's NMT commands asked for (``ERROR 204``), each new state. Runs as the
+    network's machine; counts the remote requests it sends, so that one it did not send
+    (the network hands it back its own) shows another master guarding the node."""
+
+    def __init__(self, watch: _HeartbeatWatch, node: int, guard_ms: int, factor: int) -> None:
+        self.watch = watch
+        self.node = node
+        self.machine = GuardingMaster(node, guard_ms, factor)
+        #: Requests sent whose echo has not come back yet.
+        self.owed = 0
+        #: The state the gateway's last NMT command to the node asked for (None: the first
+        #: reply's state is the one expected).
+        self.expected: NmtState | None = None
+        self.host: MachineHost | None = None
+        self._told = False  # (a state line went out for the reply just fed)
+
+    @property
+    def deadline(self) -> float | None:
+        return self.machine.deadline
+
+    def start(self, now: float) -> Out:
+        out = self.machine.start(now)
+        self.owed += len(out.frames)
+        return out
+
+    def on_timer(self, now: float) -> Out:
+        out = self.machine.on_timer(now)
+        self.owed += len(out.frames)
+        return out
+
+    def on_frame(self, frame: Frame, now: float) -> Out:
+        self._told = False
+        return self.machine.on_frame(frame, now)
+
+    def stop(self, why: str | None = None) -> None:
+        """Stop guarding (``why``: the subscribed clients are told, as a lost guarding)."""
+        watch = self.watch
+        if watch.guards.get(self.node) is self:
+            del watch.guards[self.node]
+        if self.host is not None:
+            self.host.close()
+            self.host = None
+        watch.network.release_guarding(self.node, _GUARD_OWNER)
+        if why is not None:
+            self._line(f"ERROR 200 (Lost guarding message) #{why}: guarding stopped")
+
+    def _line(self, text: str) -> None:
+        self.watch._core._tell("error_control", f"{self.watch.net} {self.node} {text}")
+
+    def on_event(self, event: Event) -> None:
+        if isinstance(event, GuardingNodeLost):
+            self._line("ERROR 200 (Lost guarding message)")
+        elif isinstance(event, GuardingStateChanged) and event.new is not NmtState.INITIALISING:
+            expected = self.expected
+            if expected is None:
+                self.expected = event.new
+            elif event.new is not expected:
+                self._line("ERROR 204 (Wrong NMT state)")
+            self._line(_STATE_WORDS.get(event.new, "ERROR"))
+            self._told = True
+        elif isinstance(event, GuardingResumed) and not self._told:
+            self._line(_STATE_WORDS.get(event.state, "ERROR"))
+
+
 class _HeartbeatWatch:
     """The heartbeats of one net, for the subscribed clients: boot-ups, a heartbeat started
     (202) or lost (203), a new NMT state. The gateway is told no consumer times: it learns
-    each node's period from the beats it sees (the median of the last three intervals)."""
+    each node's period from the beats it sees (the median of the last three intervals).
+    Nodes a client asked to guard go to their :class:`_Guard` instead."""
 
     def __init__(self, core: GatewayCore, net: int) -> None:
         self._core = core
@@ -973,18 +1100,76 @@ class _HeartbeatWatch:
         self.fixed: dict[int, float] = {}
         self.monitor = HeartbeatMonitor(track_all=True)
         self.host: MachineHost | None = None
+        self.network = core.networks[net]
+        #: The nodes guarded (enable guarding), by node-ID.
+        self.guards: dict[int, _Guard] = {}
         self._last: dict[int, float] = {}
         self._intervals: dict[int, list[float]] = {}
+        #: When a remote request for a node not guarded here last went by.
+        self._foreign: dict[int, float] = {}
 
     def close(self) -> None:
+        for guard in list(self.guards.values()):
+            guard.stop()
         if self.host is not None:
             self.host.close()
             self.host = None
 
+    def guard(self, node: int, guard_ms: int, factor: int) -> None:
+        """Guard ``node`` (again, with these times, if it is already)."""
+        old = self.guards.get(node)
+        now = self._now()
+        if old is None:
+            seen = self._foreign.get(node)
+            if seen is not None and now - seen < _FOREIGN_RTR_WINDOW:
+                raise GatewayError(
+                    102,
+                    f"node {node} is guarded by another master (its remote requests went by "
+                    f"{now - seen:.1f} s ago): one guarding master per node",
+                )
+        guard = _Guard(self, node, guard_ms, factor)
+        if old is not None:
+            guard.expected = old.expected
+            old.stop()
+        owner = self.network.claim_guarding(
+            node, _GUARD_OWNER, on_taken=lambda who: guard.stop(f"{who} guards it now")
+        )
+        if owner is not None:
+            raise GatewayError(102, f"node {node} is guarded by {owner}: one guarding master")
+        self.guards[node] = guard
+        self.fix(node, 0.0)  # (its replies are no heartbeats)
+        guard.host = self.network.attach(guard, on_event=guard.on_event)
+        guard.host.run(guard.start)
+
+    def unguard(self, node: int) -> None:
+        """Stop guarding ``node`` (nothing if it is not); its heartbeat is learned again."""
+        guard = self.guards.get(node)
+        if guard is not None:
+            guard.stop()
+            self.fixed.pop(node, None)
+
     def on_frame(self, frame: Frame, now: float) -> None:
-        if self.host is None or frame.rtr or len(frame.data) != 1:
+        if self.host is None:
             return
         node = frame.cob_id - ERROR_CONTROL_BASE
+        guard = self.guards.get(node)
+        if frame.rtr:
+            if guard is not None and guard.owed:
+                guard.owed -= 1  # (the network hands back the requests it sends)
+                return
+            self._foreign[node] = now
+            if guard is not None:
+                guard.stop(
+                    f"a remote request for node {node} the gateway did not send: another "
+                    "master guards it"
+                )
+            return
+        if guard is not None and guard.host is not None:
+            guard.host.feed(frame, now)
+            if frame.data != b"\x00":
+                return  # (a guarding reply; a boot-up is the heartbeat watch's too)
+        if len(frame.data) != 1:
+            return
         state = frame.data[0] & 0x7F
         last = self._last.get(node)
         if state == 0 or self.monitor.is_lost(node):  # (boot-up, a loss: learn anew)
