@@ -892,7 +892,9 @@ def test_cobus_gateway_with_two_nets_a_unix_socket_and_a_token_beyond_this_host(
         assert proc.returncode == 0
         return err
 
-    proc, said = started("--net", f"2=virtual:gw-{uuid.uuid4()}", "--unix", path)
+    proc, said = started(
+        "--net", f"2=virtual:gw-{uuid.uuid4()}", "--unix", path, "--node-id", "2:64"
+    )
     try:
         assert said == f"cobus gateway: serving nets 1, 2 on {path}\n"
         done = subprocess.run(
@@ -902,6 +904,13 @@ def test_cobus_gateway_with_two_nets_a_unix_socket_and_a_token_beyond_this_host(
             timeout=60,
         )
         assert done.returncode == 0 and done.stdout.strip().endswith("nets 1, 2")
+        done = subprocess.run(
+            [sys.executable, "-m", "cobus", "gw", path, "2 64 r 0x1008 0 vs"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert (done.returncode, done.stdout) == (0, '"cobus CiA 309-3 gateway"\n'), done
     finally:
         err = stopped(proc)
     assert err == f"cobus gateway: stopped by Ctrl-C after serving on {path}\n"
@@ -975,6 +984,9 @@ def test_cobus_gateway_with_two_nets_a_unix_socket_and_a_token_beyond_this_host(
         (["--token", "short"], "8 characters"),
         (["--token", "has#hash-in-it"], "without spaces or #"),
         (["--eds", "5"], "give [NET:]NODE=FILE"),
+        (["--node-id", "0"], "1..127"),
+        (["--node-id", "x"], "give [NET:]NODE"),
+        (["--node-id", "3:5"], "there is no net 3"),
         (["--eds", "3:5=x.eds"], "there is no net 3"),
         (["--eds", f"5={tmp_path}/none.eds"], "none.eds: cannot read the file"),
     ]:
@@ -1798,6 +1810,74 @@ def test_guarding_needs_the_token() -> None:
             core = GatewayCore({1: net}, token="a-long-token")
             session = core.session()
             for line in ("5 enable guarding 50 3", "5 disable guarding"):
+                (refused,) = await core.execute(session, line)
+                assert refused.startswith("ERROR:102 #") and "auth TOKEN" in refused
+            core.close()
+
+    asyncio.run(main())
+
+
+def test_the_gateway_as_a_device_of_its_own_a_master_guards() -> None:
+    """set id N: the gateway is node N (its objects read like any node's), set heartbeat
+    produces its heartbeat, a master that stops guarding it is ERROR 201 (Lost connection);
+    a node-ID in use, a missing one and a client without the token are refused."""
+
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        c = await connect(server)
+        assert await ask(c, "[1] subscribe error_control") == ["[1] OK"]
+        (no_id,) = await ask(c, "[2] set heartbeat 50")
+        assert no_id.startswith("[2] ERROR:102 #") and "set id N" in no_id
+        assert await ask(c, "[3] set id 64") == ["[3] OK"]
+        assert await ask(c, "[4] 64 r 0x1008 0 vs") == ['[4] "cobus CiA 309-3 gateway"']
+        beats: list[float] = []
+        net.subscribe(0x740, lambda frame, now: beats.append(now))
+        assert await ask(c, "[5] 1 set heartbeat 50") == ["[5] OK"]
+        await asyncio.sleep(0.28)
+        assert 4 <= len(beats) <= 7 and await ask(c, "[6] 64 r 0x1017 0 u16") == ["[6] 50"]
+        assert await ask(c, "[7] set heartbeat 0") == ["[7] OK"]
+        # a master guards the gateway, then stops: its life guarding is lost
+        assert await ask(c, "[8] 64 w 0x100C 0 u16 40") == ["[8] OK"]
+        assert await ask(c, "[9] 64 w 0x100D 0 u8 2") == ["[9] OK"]
+        async with AsyncNetwork(interface="virtual", channel=CHANNEL_OF[id(net)]) as master:
+            replies: list[bytes] = []
+            master.subscribe(0x740, lambda f, now: None if f.rtr else replies.append(f.data))
+            for _ in range(3):
+                master.send(Frame(0x740, rtr=True))
+                await asyncio.sleep(0.03)
+            assert [r[0] & 0x7F for r in replies[-3:]] == [0x7F] * 3
+            assert [r[0] >> 7 for r in replies[-3:]] == [0, 1, 0]  # (the toggle)
+            assert await _lines(c, 1) == ["1 64 ERROR 201 (Lost connection)"]
+            master.send(Frame(0x740, rtr=True))
+            assert await _lines(c, 1) == ["1 64 ERRORx PREO"]
+            assert await _lines(c, 1) == ["1 64 ERROR 201 (Lost connection)"]  # (once more)
+            assert await ask(c, "[9] 64 w 0x100D 0 u8 0") == ["[9] OK"]
+        # in use: a node heard on the net, a device of this process
+        got = await ask(c, "[10] 5 w 0x1017 0 u16 30", 2)
+        assert got == ["[10] OK", "1 5 ERRORx PREO 202 (Heartbeat started)"]
+        (heard,) = await ask(c, "[11] set id 5")
+        assert heard.startswith("[11] ERROR:102 #") and "free node-ID" in heard
+        (local,) = await ask(c, "[12] set id 6")
+        assert local.startswith("[12] ERROR:102 #") and "another device" in local
+        (own,) = await ask(c, "[13] 64 enable guarding 50 2")
+        assert own.startswith("[13] ERROR:102 #") and "the gateway itself" in own
+        assert await ask(c, "[14] set id 65") == ["[14] OK"]  # (it moves)
+        assert await ask(c, "[15] 65 r 0x1017 0 u16") == ["[15] 0"]
+        for bad in ["[16] set id 0", "[16] set id 128", "[16] set heartbeat 70000"]:
+            assert (await ask(c, bad))[0].startswith("[16] ERROR:101 #"), bad
+        assert await ask(c, "[17] set id 255") == ["[17] OK"]
+        (gone,) = await ask(c, "[18] set heartbeat 10")
+        assert gone.startswith("[18] ERROR:102 #")
+        assert (await ask(c, "[19] 3 set id 5"))[0].startswith("[19] ERROR:106 #")
+
+    served(scenario)
+
+
+def test_the_gateways_device_needs_the_token() -> None:
+    async def main() -> None:
+        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+            core = GatewayCore({1: net}, token="a-long-token")
+            session = core.session()
+            for line in ("set id 64", "set heartbeat 100"):
                 (refused,) = await core.execute(session, line)
                 assert refused.startswith("ERROR:102 #") and "auth TOKEN" in refused
             core.close()

@@ -9,7 +9,8 @@ side. ``help`` lists the commands.
 Net 1 is the bus of -i/-c/-b (or python-can's configuration); ``--net 2=socketcan:can1``
 adds more, addressed as ``[seq] 2 5 r 0x1000 0`` or after ``set network 2``. With a node's
 EDS (``--eds 5=drive.eds``, ``--eds 2:7=io.eds`` for net 2) its objects go by name and
-type: ``[1] 5 r "Device name"``, ``[2] 5 w "Producer heartbeat time" 500``.
+type: ``[1] 5 r "Device name"``, ``[2] 5 w "Producer heartbeat time" 500``. With
+``--node-id 64`` the gateway is node 64 of net 1 too, a device a master can guard.
 
 The gateway serves only this host (127.0.0.1) unless ``--listen`` names another address;
 then clients must give a token (``auth TOKEN``) before they write, send NMT commands or use
@@ -69,6 +70,17 @@ def _eds_spec(text: str) -> tuple[int, int, str]:
     return int(numbers[0]), int(node), path
 
 
+def _node_id_spec(text: str) -> tuple[int, int]:
+    """``[NET:]NODE`` as an argparse type."""
+    net, _colon, node = text.rpartition(":")
+    numbers = [net or "1", node]
+    if not all(re.fullmatch("[0-9]+", n) for n in numbers):
+        raise argparse.ArgumentTypeError(f"{text!r}: give [NET:]NODE, e.g. 64 or 2:64")
+    if not 1 <= int(numbers[0]) <= 127 or not 1 <= int(node) <= 127:
+        raise argparse.ArgumentTypeError(f"{text!r}: nets and nodes are numbered 1..127")
+    return int(numbers[0]), int(node)
+
+
 def register(sub: Any) -> None:
     """Add ``cobus gateway``."""
     p = sub.add_parser(
@@ -113,6 +125,15 @@ def register(sub: Any) -> None:
         default=[],
         metavar="[NET:]NODE=FILE",
         help="a node's EDS or DCF: its objects by name and type (net 1 unless NET: is given)",
+    )
+    p.add_argument(
+        "--node-id",
+        type=_node_id_spec,
+        action="append",
+        default=[],
+        metavar="[NET:]NODE",
+        help="the gateway is this node of the net too, a CANopen device of its own "
+        "(heartbeat, guarding, SDO server; net 1 unless NET: is given); clients: set id N",
     )
     p.add_argument(
         "--dialect",
@@ -173,6 +194,9 @@ def _run(args: argparse.Namespace) -> int:
         except (ValueError, CobusError) as exc:  # (the error names the file)
             return _fail(f"--eds: {exc}", _EXIT_USAGE)
     args.dictionaries = dictionaries
+    for net, node in args.node_id:
+        if net not in nets:
+            return _fail(f"--node-id {net}:{node}: there is no net {net}", _EXIT_USAGE)
     served: list[str] = []
     try:
         return asyncio.run(_serve(args, nets, token, served))
@@ -185,7 +209,7 @@ def _run(args: argparse.Namespace) -> int:
 async def _serve(
     args: argparse.Namespace, nets: dict[int, dict[str, Any]], token: str | None, served: list[str]
 ) -> int:
-    from cobus.apps.gateway import GatewayCore, GatewayServer
+    from cobus.apps.gateway import GatewayCore, GatewayError, GatewayServer
     from cobus.apps.gateway.http import GatewayHttp
     from cobus.errors import CobusError
     from cobus.runtime import AsyncNetwork
@@ -206,6 +230,11 @@ async def _serve(
         core = GatewayCore(
             networks, dialect=args.dialect, token=token, dictionaries=args.dictionaries
         )
+        for net, node in args.node_id:
+            try:
+                core.set_node_id(net, node)
+            except GatewayError as exc:
+                return _fail(f"--node-id {net}:{node}: {exc.text}", _EXIT_USAGE)
         if args.listen is not None:
             host, port = args.listen
             servers.append(GatewayServer(core, host, port, idle_timeout=idle, json_lines=args.json))

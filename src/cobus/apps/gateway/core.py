@@ -45,6 +45,8 @@ from cobus.apps.gateway.grammar import (
     split_name,
 )
 from cobus.apps.gateway.pdo import PdoTable, parse_pdo_config
+from cobus.device import Device, NodeIdInUseError, add_device, minimal_od
+from cobus.device.events import DeviceEvent, LifeGuardingLost, LifeGuardingRestored
 from cobus.od import NameLookupError, ObjectDictionary, resolve
 from cobus.proto import NOTHING, Event, Frame, Out
 from cobus.proto.connection_set import ERROR_CONTROL_BASE, emcy_cob_id, error_control_cob_id
@@ -117,6 +119,10 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
                                    "Identity object.Vendor-ID" (TYPE from the EDS)
   start | stop | preop | reset node | reset comm    NMT (node 0: every node)
   set network N | set node N | set sdo_timeout MS | set sdo_block 0|1
+  [net] set id N | [net] set heartbeat MS    the gateway is node N of the net too, a
+                                    device of its own (its heartbeat; a master that stops
+                                    guarding it: NET N ERROR 201 (Lost connection));
+                                    set id 255: no more
   lss_switch_glob 0|1 | lss_switch_sel VENDOR PRODUCT REVISION SERIAL | lss_set_node N
   lss_conf_bitrate 0 INDEX | lss_activate_bitrate DELAY_MS | lss_store
   lss_inquire_addr [0..3|0x5A..0x5D] | lss_get_node | lss_identity V P RL RH SL SH |
@@ -147,7 +153,8 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
                                     numbered SEQ): each is answered ERROR:102 #cancelled;
                                     cancel itself is answered at once, [seq] or not
   auth TOKEN                        give the gateway's token (when it has one: writes,
-                                    NMT, LSS, set rpdo/tpdo, w p, enable/disable and who
+                                    NMT, LSS, set rpdo/tpdo/id/heartbeat, w p,
+                                    enable/disable and who
                                     need it)
   info | info version | help       info version as Lely answers it: VENDOR PRODUCT
                                     REVISION SERIAL CLASS PROTOCOL IMPLEMENTATION
@@ -246,6 +253,8 @@ class GatewayCore:
         self._listening: list[Subscription] = []
         self._watches: list[_HeartbeatWatch] = []
         self._pdos: dict[int, PdoTable] = {}
+        #: The gateway's own device on a net (``set id``), by net.
+        self._devices: dict[int, Device] = {}
 
     def session(self, *, trusted: bool = False) -> Session:
         """A new client's session (the default net, no default node); a ``trusted`` one
@@ -327,6 +336,9 @@ class GatewayCore:
         for table in self._pdos.values():
             table.close()
         self._pdos.clear()
+        for device in self._devices.values():
+            device.close()
+        self._devices.clear()
 
     def _tell(self, kind: str, line: str) -> None:
         for session in self._sessions:
@@ -783,10 +795,80 @@ class GatewayCore:
             if value not in (0, 1):
                 raise GatewayError(101, "sdo_block is 0 or 1")
             session.sdo_block = bool(value)
+        elif name in ("id", "heartbeat"):
+            if not session.authorised:
+                raise GatewayError(
+                    102, f"set {name}: the gateway's own device changes only after auth TOKEN"
+                )
+            net = request.node if request.node is not None else session.net
+            if net is None:
+                raise GatewayError(104)
+            if name == "id":
+                self.set_node_id(net, value)
+            else:
+                self._set_heartbeat(net, value)
         else:
             raise GatewayError(
-                100, f"no setting {args[0]!r} (network, node, sdo_timeout, sdo_block)"
+                100,
+                f"no setting {args[0]!r} (network, node, sdo_timeout, sdo_block, id, heartbeat)",
             )
+
+    def set_node_id(self, net: int, node: int) -> None:
+        """Make the gateway node ``node`` of net ``net`` (``[net] set id N``, Lely's): a
+        CANopen device of its own - heartbeat producer (``set heartbeat``), node and life
+        guarding (a master that stops guarding it: ``ERROR 201``), an SDO server of its
+        communication objects; 255: no device any more. A :class:`GatewayError` (102) for
+        a node-ID the net shows in use."""
+        device = self._devices.get(net)
+        watch = self._watch(net)
+        if node == 255:
+            if device is not None:
+                device.close()
+                del self._devices[net]
+                watch.own = None
+            return
+        if not 1 <= node <= 127:
+            raise GatewayError(101, f"node-ID {node}: 1..127, or 255 for none")
+        if device is not None and device.node_id == node:
+            return
+        heard = watch.heard(node)
+        if heard is not None:
+            raise GatewayError(
+                102, f"node {node} is on net {net} ({heard}): give the gateway a free node-ID"
+            )
+        try:
+            if device is None:
+                device = add_device(self.networks[net], node, _device_dictionary())
+                device.add_listener(partial(self._device_event, net))
+                self._devices[net] = device
+            else:
+                device.set_node_id(node)
+        except NodeIdInUseError as exc:
+            raise GatewayError(102, str(exc)) from None
+        watch.own = node
+
+    def _set_heartbeat(self, net: int, ms: int) -> None:
+        """``[net] set heartbeat MS`` (Lely's): the gateway's own heartbeat (1017h)."""
+        device = self._devices.get(net)
+        if device is None:
+            raise GatewayError(
+                102, f"the gateway is no device on net {net}: give it a node-ID first (set id N)"
+            )
+        if not 0 <= ms <= 0xFFFF:
+            raise GatewayError(101, f"heartbeat time {ms} ms: 0..65535")
+        device.set(0x1017, 0, ms)
+
+    def _device_event(self, net: int, event: DeviceEvent) -> None:
+        """What the gateway's own device reports that its clients hear of: its life
+        guarding lost (``ERROR 201``, Lost connection) and back (its state again)."""
+        device = self._devices.get(net)
+        if device is None:
+            return
+        if isinstance(event, LifeGuardingLost):
+            self._tell("error_control", f"{net} {event.node_id} ERROR 201 (Lost connection)")
+        elif isinstance(event, LifeGuardingRestored):
+            word = _STATE_WORDS.get(device.state, "ERROR")
+            self._tell("error_control", f"{net} {event.node_id} {word}")
 
     def _heartbeat(self, session: Session, request: Request) -> None:
         """``enable heartbeat MS`` / ``disable heartbeat`` (Lely's): watch the node's
@@ -816,6 +898,8 @@ class GatewayCore:
         net, _network = self._network(session, request)
         node = self._node(session, request)
         watch = self._watch(net)
+        if node == watch.own:
+            raise GatewayError(102, f"node {node} is the gateway itself (set id)")
         if not enable:
             watch.unguard(node)
             return
@@ -1107,6 +1191,21 @@ class _HeartbeatWatch:
         self._intervals: dict[int, list[float]] = {}
         #: When a remote request for a node not guarded here last went by.
         self._foreign: dict[int, float] = {}
+        #: The gateway's own node-ID on the net (``set id``): not watched.
+        self.own: int | None = None
+
+    def heard(self, node: int) -> str | None:
+        """What shows ``node`` on the net lately (None: nothing seen)."""
+        now = self._now()
+        if node in self.guards:
+            return "the gateway guards it"
+        last = self._last.get(node)
+        if last is not None and now - last < _FOREIGN_RTR_WINDOW:
+            return f"its error control message came {now - last:.1f} s ago"
+        seen = self._foreign.get(node)
+        if seen is not None and now - seen < _FOREIGN_RTR_WINDOW:
+            return f"a master guards it: a remote request went by {now - seen:.1f} s ago"
+        return None
 
     def close(self) -> None:
         for guard in list(self.guards.values()):
@@ -1149,9 +1248,9 @@ class _HeartbeatWatch:
             self.fixed.pop(node, None)
 
     def on_frame(self, frame: Frame, now: float) -> None:
-        if self.host is None:
-            return
         node = frame.cob_id - ERROR_CONTROL_BASE
+        if self.host is None or node == self.own:
+            return
         guard = self.guards.get(node)
         if frame.rtr:
             if guard is not None and guard.owed:
@@ -1222,6 +1321,19 @@ def _version() -> tuple[int, int]:
     parts = [int(p) if p.isdigit() else 0 for p in cobus.__version__.split(".")[:2]]
     major, minor = [*parts, 0, 0][:2]
     return major, minor
+
+
+def _device_dictionary() -> ObjectDictionary:
+    """The objects of the gateway's own device (``set id``): CiA 301's communication
+    objects, no PDOs (the gateway's PDOs are ``set rpdo``'s), its version as the revision."""
+    major, minor = _version()
+    return minimal_od(
+        revision=major << 16 | minor,
+        device_name="cobus CiA 309-3 gateway",
+        software_version=f"cobus {cobus.__version__}",
+        rpdos=0,
+        tpdos=0,
+    )
 
 
 def _version_line() -> str:
