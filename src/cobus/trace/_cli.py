@@ -4,6 +4,7 @@
     cobus record bench.pcapng --duration 10                     # Wireshark opens it
     cobus decode bench.asc --eds 10=servo.eds                   # every record, in words
     cobus decode bench.log --filter sdo,emcy --node 10 --json
+    cobus decode bench.blf --summary --bitrate 250000            # load, periods, latencies
     cobus replay bench.asc -i socketcan -c can0                   # back onto a bus, timed
 
 Formats are python-can's, chosen by the file's suffix: candump .log, Vector .asc and .blf,
@@ -77,6 +78,27 @@ def register(sub: Any) -> None:
     decode.add_argument("--node", type=node_id, help="only records of this node-ID (1-127)")
     decode.add_argument("--json", action="store_true", help="one JSON object per line")
     decode.add_argument(
+        "--summary",
+        action="store_true",
+        help="what the trace shows instead of its records: bus load, frames per COB-ID and "
+        "node, heartbeat and SYNC periods and jitter, PDO age after SYNC, SDO latency and "
+        "aborts, emergencies, NMT time line (--json: one object)",
+    )
+    decode.add_argument(
+        "--bitrate",
+        type=_bitrate,
+        default=500_000,
+        metavar="BPS",
+        help="the bus's bit rate, for --summary's bus load (500000)",
+    )
+    decode.add_argument(
+        "--window",
+        type=seconds,
+        default=1.0,
+        metavar="S",
+        help="--summary's bus load per this many seconds (1)",
+    )
+    decode.add_argument(
         "--absolute",
         action="store_true",
         help="the date and time of day of each record (local time), not seconds from the "
@@ -135,7 +157,45 @@ def _plain(value: Any) -> Any:
     return str(value)
 
 
+def _bitrate(text: str) -> int:
+    if not text.isdigit() or not 1_000 <= int(text) <= 8_000_000:
+        raise argparse.ArgumentTypeError(f"{text!r}: a bit rate in bit/s, e.g. 250000")
+    return int(text)
+
+
+def _summary(args: argparse.Namespace) -> int:
+    from cobus.trace.blocks import blocks
+    from cobus.trace.monitor import _inputs
+    from cobus.trace.summary import TraceSummary
+
+    for given, name in ((args.filter, "--filter"), (args.node, "--node")):
+        if given is not None:
+            return _fail(f"{name} does not go with --summary (it sums up the whole trace)", 2)
+    if args.absolute:
+        return _fail("--absolute does not go with --summary (times count from the start)", 2)
+    try:
+        dictionaries, network = _inputs(args)
+    except Exception as exc:  # a network file or EDS that cannot be read
+        return _fail(str(exc), 2)
+    if not args.file.is_file():
+        return _fail(f"{args.file}: no such file")
+    summary = TraceSummary(args.bitrate, args.window, dictionaries, network)
+    try:
+        summary.feed(blocks(args.file))
+    except BrokenPipeError:
+        raise
+    except Exception as exc:  # a damaged file, whatever the reader raises for it
+        return _fail(_unreadable(args.file, exc))
+    if args.json:
+        print(json.dumps(summary.result()))
+    else:
+        print("\n".join(summary.lines()))
+    return 0
+
+
 def _decode(args: argparse.Namespace) -> int:
+    if args.summary:
+        return _summary(args)
 
     from cobus.runtime.bus import message_to_frame
     from cobus.trace.decoder import Decoder

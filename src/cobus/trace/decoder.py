@@ -665,6 +665,12 @@ class Decoder:
             found = self.stats[node] = NodeStats(node)
         return found
 
+    def pdo_of(self, cob_id: int) -> tuple[int, int, bool] | None:
+        """(node, PDO number, whether the node sends it) of the PDO on ``cob_id`` as the
+        decoder knows it (an EDS, the network file, a configuration it saw), else None."""
+        pdo = self._pdos.get(cob_id)
+        return None if pdo is None else (pdo.node, pdo.number, pdo.tpdo)
+
     def feed(self, frame: Frame, now: float) -> list[TraceRecord]:
         """The records ``frame`` completes (none while an SDO transfer is under way)."""
         records = self._decode(frame, now)
