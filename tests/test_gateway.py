@@ -1748,6 +1748,16 @@ def test_a_guarded_node_reports_its_states_a_wrong_one_and_its_loss() -> None:
         assert await _lines(c, 2) == ["1 5 ERROR 204 (Wrong NMT state)", "1 5 ERRORx PREO"]
         # a reset the gateway asked for: pre-operational again is what it expects
         assert sorted(await ask(c, "[4] 5 start", 2)) == ["1 5 ERRORx OPER", "[4] OK"]
+        # another master's NMT command on the bus: the state it asks for is no wrong one
+        async with AsyncNetwork(interface="virtual", channel=CHANNEL_OF[id(net)]) as master:
+            master.send(Frame(0x000, b"\x80\x05"))
+            assert await _lines(c, 1) == ["1 5 ERRORx PREO"]
+            # new guard times: guarding goes on where it was (no state line again)
+            writer = c[1]
+            writer.write(b"[40] 5 enable guarding 40 3\n[41] 5 enable guarding 60 3\n")
+            assert sorted(await _lines(c, 2)) == ["[40] OK", "[41] OK"]
+            master.send(Frame(0x000, b"\x01\x05"))
+            assert await _lines(c, 1) == ["1 5 ERRORx OPER"]  # (nothing before it)
         async with AsyncNetwork(interface="virtual", channel=CHANNEL_OF[id(net)]) as other:
             node = _GuardedNode(other)
             assert await ask(c, "[5] 9 enable guarding 40 2", 2) == ["[5] OK", "1 9 ERRORx OPER"]
@@ -1787,7 +1797,7 @@ def test_one_guarding_master_per_node() -> None:
         assert refused.startswith("[2] ERROR:102 #") and "the master" in refused
         net.release_guarding(6, "the master")
         assert sorted(await ask(c, "[3] 6 enable guarding 50 3", 2))[1] == "[3] OK"
-        assert net.claim_guarding(6, "a test") == "the CiA 309-3 gateway"
+        assert str(net.claim_guarding(6, "a test")).startswith("the CiA 309-3 gateway")
         assert net.claim_guarding(6, "the master", take=True) is None
         (told,) = await _lines(c, 1)
         assert told.startswith("1 6 ERROR 200 (Lost guarding message) #the master guards")
@@ -1857,7 +1867,10 @@ def test_the_gateway_as_a_device_of_its_own_a_master_guards() -> None:
         (heard,) = await ask(c, "[11] set id 5")
         assert heard.startswith("[11] ERROR:102 #") and "free node-ID" in heard
         (local,) = await ask(c, "[12] set id 6")
-        assert local.startswith("[12] ERROR:102 #") and "another device" in local
+        assert local.startswith("[12] ERROR:102 #node 6 is on net 1 (its error control")
+        server.core.in_use[(1, 7)] = "the master's node drive"
+        (master_node,) = await ask(c, "[12] set id 7")
+        assert "the master's node drive" in master_node
         (own,) = await ask(c, "[13] 64 enable guarding 50 2")
         assert own.startswith("[13] ERROR:102 #") and "the gateway itself" in own
         assert await ask(c, "[14] set id 65") == ["[14] OK"]  # (it moves)

@@ -718,6 +718,7 @@ def test_the_blocking_network_has_what_the_async_one_has():
         "connect",
         "disconnect",
         "emit",
+        "guarding_owner",
         "listened",
         "loop",
         "on_connect",

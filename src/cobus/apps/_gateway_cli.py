@@ -70,6 +70,11 @@ def _eds_spec(text: str) -> tuple[int, int, str]:
     return int(numbers[0]), int(node), path
 
 
+#: How long the gateway listens before it takes its --node-id (s): a node beating on the bus
+#: within that time is seen (heartbeats come every second or faster).
+_HEAR_FIRST = 1.5
+
+
 def _node_id_spec(text: str) -> tuple[int, int]:
     """``[NET:]NODE`` as an argparse type."""
     net, _colon, node = text.rpartition(":")
@@ -194,9 +199,13 @@ def _run(args: argparse.Namespace) -> int:
         except (ValueError, CobusError) as exc:  # (the error names the file)
             return _fail(f"--eds: {exc}", _EXIT_USAGE)
     args.dictionaries = dictionaries
+    given: set[int] = set()
     for net, node in args.node_id:
         if net not in nets:
             return _fail(f"--node-id {net}:{node}: there is no net {net}", _EXIT_USAGE)
+        if net in given:
+            return _fail(f"--node-id: net {net} is given a node-ID twice", _EXIT_USAGE)
+        given.add(net)
     served: list[str] = []
     try:
         return asyncio.run(_serve(args, nets, token, served))
@@ -230,6 +239,9 @@ async def _serve(
         core = GatewayCore(
             networks, dialect=args.dialect, token=token, dictionaries=args.dictionaries
         )
+        if args.node_id:  # (first hear what beats on the buses: a node-ID in use is refused)
+            core.listen()
+            await asyncio.sleep(_HEAR_FIRST)
         for net, node in args.node_id:
             try:
                 core.set_node_id(net, node)

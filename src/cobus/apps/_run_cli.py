@@ -296,6 +296,10 @@ async def _serve_gateway(
         if node.config.od is not None
     }
     core = GatewayCore({1: network}, token=token, dictionaries=dictionaries)
+    for node_id, node in master.nodes.items():
+        core.in_use[(1, node_id)] = f"the master's node {node.config.name}"
+    if master.config.master.node_id is not None:
+        core.in_use[(1, master.config.master.node_id)] = "the master's own node-ID"
     server = GatewayServer(core, host, port)
     try:
         await server.start()

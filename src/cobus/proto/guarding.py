@@ -183,6 +183,20 @@ class GuardingMaster:
         return self._lost
 
     @property
+    def next_toggle(self) -> int:
+        """The toggle bit (0 or 1) the node's next reply must carry."""
+        return self._expected >> 7
+
+    def carry_on(self, state: NmtState | None, toggle: int) -> None:
+        """Go on where another master object of the node stopped (new guard times): the
+        state its last reply gave and the toggle bit the next one carries, so that the
+        first reply is neither a toggle error nor reported as a new state."""
+        if toggle not in (0, 1):
+            raise GuardingConfigError(f"toggle bit {toggle!r}: 0 or 1")
+        self._state = state
+        self._expected = toggle << 7
+
+    @property
     def running(self) -> bool:
         """Whether guarding requests are being sent."""
         return self._next_rtr is not None

@@ -554,6 +554,11 @@ class AsyncNetwork:
         self._guarded[node_id] = (owner, on_taken)
         return None
 
+    def guarding_owner(self, node_id: int) -> str | None:
+        """Who guards ``node_id`` here (see :meth:`claim_guarding`); None: nobody."""
+        current = self._guarded.get(node_id)
+        return None if current is None else current[0]
+
     def release_guarding(self, node_id: int, owner: str) -> None:
         """``owner`` no longer guards ``node_id`` (see :meth:`claim_guarding`)."""
         current = self._guarded.get(node_id)

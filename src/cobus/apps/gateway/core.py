@@ -15,7 +15,8 @@ before every request after it, so a client that numbers nothing gets its answers
 
 A core with a ``token`` takes what changes the bus or what others are told - writes, NMT
 commands, LSS requests, the gateway's PDOs (``set rpdo``, ``w p``), heartbeat consumer
-times, node guarding - and ``who`` only from a client that gave it first (``auth TOKEN``);
+times, node guarding, the gateway's own device (``set id``, ``set heartbeat``) - and
+``who`` only from a client that gave it first (``auth TOKEN``);
 reads, ``set node`` and the like need none.
 """
 
@@ -134,14 +135,16 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
                                     every GUARD_MS; NET NODE ERROR 200 (Lost guarding
                                     message) after GUARD_MS x FACTOR without a reply,
                                     NET NODE ERROR 204 (Wrong NMT state) when a reply gives
-                                    another state than the gateway's NMT commands asked
+                                    another state than the NMT commands on the bus asked
                                     for, then the state; refused (102) for a node another
                                     master guards, and stopped (a 200 line says why) when
                                     one starts to
   subscribe [boot_up|emcy|error_control|all] | unsubscribe [...]   unsolicited lines, as
   Lely writes them: NET NODE BOOT_UP, NET NODE EMCY CODE REG B0 B1 B2 B3 B4,
   NET NODE ERRORx STATE 202 (Heartbeat started) | 203 (Heartbeat lost), NET NODE ERRORx
-  STATE (a new NMT state); STATE is OPER, PREO or STOP. A heartbeat counts as lost after
+  STATE (a new NMT state); STATE is OPER, PREO or STOP; NET NODE ERROR 200 (Lost guarding
+  message) | 204 (Wrong NMT state) of a guarded node, NET ID ERROR 201 (Lost connection)
+  when a master stops guarding the gateway's own device. A heartbeat counts as lost after
   2.5 times the period the gateway saw it come at.
   set rpdo|tpdo N COB-ID event|rtr|syncN COUNT [INDEX SUB] TYPE...   the gateway's own
   PDOs, as Lely's (set tpdox N COB-ID TRANS INHIBIT EVENT|SYNC-START ...);
@@ -255,6 +258,14 @@ class GatewayCore:
         self._pdos: dict[int, PdoTable] = {}
         #: The gateway's own device on a net (``set id``), by net.
         self._devices: dict[int, Device] = {}
+        #: Nodes the gateway must not take as its own node-ID, by (net, node): who uses
+        #: them (``cobus run --gateway``: the master and its nodes).
+        self.in_use: dict[tuple[int, int], str] = {}
+        _CORES[0] += 1
+        #: Who guards a node for this gateway, in the network's record (claim_guarding).
+        self.guard_owner = (
+            _GUARD_OWNER if _CORES[0] == 1 else f"{_GUARD_OWNER} (gateway {_CORES[0]})"
+        )
 
     def session(self, *, trusted: bool = False) -> Session:
         """A new client's session (the default net, no default node); a ``trusted`` one
@@ -304,19 +315,20 @@ class GatewayCore:
             raise GatewayError(100, "this connection takes no unsolicited lines")
         if on:
             session.subscribed |= wanted
-            self._listen()
+            self.listen()
         else:
             session.subscribed -= wanted
 
-    def _listen(self) -> None:
-        """Watch boot-ups, heartbeats and emergencies on every net (once, when a client
-        first asks)."""
+    def listen(self) -> None:
+        """Watch boot-ups, heartbeats, NMT commands and emergencies on every net (once:
+        when a client first asks, or at once to know the nodes before ``set_node_id``)."""
         if self._listening:
             return
         for net_id, network in self.networks.items():
             watch = _HeartbeatWatch(self, net_id)
             watch.host = network.attach(watch.monitor, on_event=watch.on_event)
             self._watches.append(watch)
+            self._listening.append(network.subscribe(0x000, watch.on_nmt))
             for node in range(1, 128):
                 self._listening += [
                     network.subscribe(error_control_cob_id(node), watch.on_frame),
@@ -740,30 +752,24 @@ class GatewayCore:
         await channel.download(index, sub, data, block=session.sdo_block)
 
     def _nmt(self, session: Session, request: Request) -> None:
-        net, network = self._network(session, request)
+        _net, network = self._network(session, request)
         node = self._node(session, request, broadcast=True)
         command, args = request.command, [a.lower() for a in request.args]
         nmt = network.nmt
         if command == "start" and not args:
             nmt.start(node)
-            state = NmtState.OPERATIONAL
         elif command == "stop" and not args:
             nmt.stop(node)
-            state = NmtState.STOPPED
         elif command in ("preop", "preoperational") and not args:
             nmt.enter_preoperational(node)
-            state = NmtState.PRE_OPERATIONAL
         elif command == "reset" and args == ["node"]:
             nmt.reset_node(node)
-            state = NmtState.PRE_OPERATIONAL  # (after its boot-up)
         elif command == "reset" and args in (["comm"], ["communication"]):
             nmt.reset_communication(node)
-            state = NmtState.PRE_OPERATIONAL
         else:
             raise GatewayError(
                 101, f"{request.command} {' '.join(request.args)}: no such NMT command"
             )
-        self._expect(net, node, state)
 
     def _set(self, session: Session, request: Request) -> None:
         if request.args and request.args[0].lower() in ("rpdo", "tpdo", "tpdox"):
@@ -831,7 +837,7 @@ class GatewayCore:
             raise GatewayError(101, f"node-ID {node}: 1..127, or 255 for none")
         if device is not None and device.node_id == node:
             return
-        heard = watch.heard(node)
+        heard = self.in_use.get((net, node)) or watch.heard(node)
         if heard is not None:
             raise GatewayError(
                 102, f"node {node} is on net {net} ({heard}): give the gateway a free node-ID"
@@ -912,17 +918,11 @@ class GatewayCore:
         watch.guard(node, guard_ms, factor)
 
     def _watch(self, net: int) -> _HeartbeatWatch:
-        self._listen()
+        if net not in self.networks:
+            known = ", ".join(str(n) for n in self.networks)
+            raise GatewayError(106, f"no net {net} here (the nets: {known})")
+        self.listen()
         return next(w for w in self._watches if w.net == net)
-
-    def _expect(self, net: int, node: int, state: NmtState) -> None:
-        """An NMT command went to ``node`` (0: every node): its guarding replies should
-        give ``state`` from now on (another one is a wrong state, 204)."""
-        for watch in self._watches:
-            if watch.net == net:
-                for guarded, guard in watch.guards.items():
-                    if node in (0, guarded):
-                        guard.expected = state
 
     def _whole_net(self, session: Session, request: Request, what: str) -> tuple[int, AsyncNetwork]:
         """The net of a request that goes to a whole net (LSS, PDOs): one number before
@@ -1094,8 +1094,19 @@ _STATE_WORDS = {
 _LOST_AFTER = 2.5
 
 
-#: Who guards a node, for the network's record (AsyncNetwork.claim_guarding).
+#: Who guards a node, for the network's record (AsyncNetwork.claim_guarding); the second
+#: core of a process and further ones add their number.
 _GUARD_OWNER = "the CiA 309-3 gateway"
+_CORES = [0]  # (cores made so far)
+
+#: The state each NMT command (its command specifier) asks a node for.
+_COMMANDED = {
+    0x01: NmtState.OPERATIONAL,
+    0x02: NmtState.STOPPED,
+    0x80: NmtState.PRE_OPERATIONAL,
+    0x81: NmtState.PRE_OPERATIONAL,  # (after its boot-up)
+    0x82: NmtState.PRE_OPERATIONAL,
+}
 
 #: A remote request for a node the gateway does not guard, seen this recently (s), means
 #: another master guards it: ``enable guarding`` is refused.
@@ -1105,20 +1116,23 @@ _FOREIGN_RTR_WINDOW = 10.0
 class _Guard:
     """Node guarding of one node (``enable guarding``), for the subscribed clients: a node
     lost after guard time x life time factor (``ERROR 200``), a reply in another state than
-    the gateway's NMT commands asked for (``ERROR 204``), each new state. Runs as the
-    network's machine; counts the remote requests it sends, so that one it did not send
-    (the network hands it back its own) shows another master guarding the node."""
+    the NMT commands on the bus asked for (``ERROR 204``), each new state. Runs as the
+    network's machine; the watch counts the remote requests it sends, so that one it did
+    not send (the network hands it back its own) shows another master guarding the node."""
 
     def __init__(self, watch: _HeartbeatWatch, node: int, guard_ms: int, factor: int) -> None:
         self.watch = watch
         self.node = node
         self.machine = GuardingMaster(node, guard_ms, factor)
-        #: Requests sent whose echo has not come back yet.
-        self.owed = 0
-        #: The state the gateway's last NMT command to the node asked for (None: the first
-        #: reply's state is the one expected).
+        #: The state the last NMT command to the node asked for (None: the first reply's
+        #: state is the one expected).
         self.expected: NmtState | None = None
         self.host: MachineHost | None = None
+        #: The heartbeat time a client gave the node before (enable heartbeat), put back
+        #: when guarding stops.
+        self.heartbeat: float | None = None
+        #: Where the guard it replaces stopped: (its state, the next toggle bit).
+        self.carried: tuple[NmtState | None, int] | None = None
         self._told = False  # (a state line went out for the reply just fed)
 
     @property
@@ -1127,12 +1141,14 @@ class _Guard:
 
     def start(self, now: float) -> Out:
         out = self.machine.start(now)
-        self.owed += len(out.frames)
+        if self.carried is not None:
+            self.machine.carry_on(*self.carried)
+        self.watch.owe(self.node, len(out.frames))
         return out
 
     def on_timer(self, now: float) -> Out:
         out = self.machine.on_timer(now)
-        self.owed += len(out.frames)
+        self.watch.owe(self.node, len(out.frames))
         return out
 
     def on_frame(self, frame: Frame, now: float) -> Out:
@@ -1147,9 +1163,13 @@ class _Guard:
         if self.host is not None:
             self.host.close()
             self.host = None
-        watch.network.release_guarding(self.node, _GUARD_OWNER)
+            watch.network.release_guarding(self.node, watch._core.guard_owner)
+            watch.heartbeat_again(self.node, self.heartbeat)
         if why is not None:
-            self._line(f"ERROR 200 (Lost guarding message) #{why}: guarding stopped")
+            line = "ERROR 200 (Lost guarding message)"
+            if watch._core.dialect != "lely":  # (Lely's clients read its exact form)
+                line += f" #{why}: guarding stopped"
+            self._line(line)
 
     def _line(self, text: str) -> None:
         self.watch._core._tell("error_control", f"{self.watch.net} {self.node} {text}")
@@ -1191,6 +1211,10 @@ class _HeartbeatWatch:
         self._intervals: dict[int, list[float]] = {}
         #: When a remote request for a node not guarded here last went by.
         self._foreign: dict[int, float] = {}
+        #: When each node's last error control message (not a request) went by.
+        self._seen: dict[int, float] = {}
+        #: Remote requests the gateway sent per node whose echo has not come back yet.
+        self._owed: dict[int, int] = {}
         #: The gateway's own node-ID on the net (``set id``): not watched.
         self.own: int | None = None
 
@@ -1199,9 +1223,12 @@ class _HeartbeatWatch:
         now = self._now()
         if node in self.guards:
             return "the gateway guards it"
-        last = self._last.get(node)
+        last = self._seen.get(node)
         if last is not None and now - last < _FOREIGN_RTR_WINDOW:
             return f"its error control message came {now - last:.1f} s ago"
+        owner = self.network.guarding_owner(node)
+        if owner is not None:
+            return f"{owner} guards it"
         seen = self._foreign.get(node)
         if seen is not None and now - seen < _FOREIGN_RTR_WINDOW:
             return f"a master guards it: a remote request went by {now - seen:.1f} s ago"
@@ -1229,11 +1256,18 @@ class _HeartbeatWatch:
         guard = _Guard(self, node, guard_ms, factor)
         if old is not None:
             guard.expected = old.expected
+            guard.heartbeat = old.heartbeat
+            guard.carried = (old.machine.state, old.machine.next_toggle)
             old.stop()
+        else:
+            guard.heartbeat = self.fixed.get(node)
         owner = self.network.claim_guarding(
-            node, _GUARD_OWNER, on_taken=lambda who: guard.stop(f"{who} guards it now")
+            node,
+            self._core.guard_owner,
+            on_taken=lambda who: guard.stop(f"{who} guards it now"),
         )
         if owner is not None:
+            self.heartbeat_again(node, guard.heartbeat)
             raise GatewayError(102, f"node {node} is guarded by {owner}: one guarding master")
         self.guards[node] = guard
         self.fix(node, 0.0)  # (its replies are no heartbeats)
@@ -1241,11 +1275,33 @@ class _HeartbeatWatch:
         guard.host.run(guard.start)
 
     def unguard(self, node: int) -> None:
-        """Stop guarding ``node`` (nothing if it is not); its heartbeat is learned again."""
+        """Stop guarding ``node`` (nothing if it is not)."""
         guard = self.guards.get(node)
         if guard is not None:
             guard.stop()
+
+    def heartbeat_again(self, node: int, timeout: float | None) -> None:
+        """Guarding of ``node`` stopped: watch its heartbeat again, with the time a client
+        gave before (None: the period learned)."""
+        if timeout is not None:
+            self.fix(node, timeout)
+        else:
             self.fixed.pop(node, None)
+
+    def owe(self, node: int, count: int) -> None:
+        """The gateway sent ``count`` remote requests for ``node``: their echoes are its."""
+        if count:
+            self._owed[node] = self._owed.get(node, 0) + count
+
+    def on_nmt(self, frame: Frame, now: float) -> None:
+        """An NMT command on the bus (the gateway's, a master's): the state a guarded node
+        should report from now on."""
+        data = frame.data
+        if frame.rtr or len(data) != 2 or data[0] not in _COMMANDED:
+            return
+        for node, guard in self.guards.items():
+            if data[1] in (0, node):
+                guard.expected = _COMMANDED[data[0]]
 
     def on_frame(self, frame: Frame, now: float) -> None:
         node = frame.cob_id - ERROR_CONTROL_BASE
@@ -1253,8 +1309,9 @@ class _HeartbeatWatch:
             return
         guard = self.guards.get(node)
         if frame.rtr:
-            if guard is not None and guard.owed:
-                guard.owed -= 1  # (the network hands back the requests it sends)
+            owed = self._owed.get(node, 0)
+            if owed:
+                self._owed[node] = owed - 1  # (the network hands back the requests it sends)
                 return
             self._foreign[node] = now
             if guard is not None:
@@ -1263,10 +1320,17 @@ class _HeartbeatWatch:
                     "master guards it"
                 )
             return
+        self._seen[node] = now
         if guard is not None and guard.host is not None:
             guard.host.feed(frame, now)
             if frame.data != b"\x00":
                 return  # (a guarding reply; a boot-up is the heartbeat watch's too)
+        elif frame.data != b"\x00":
+            asked = self._foreign.get(node)
+            if (
+                asked is not None and now - asked < _FOREIGN_RTR_WINDOW
+            ) or self.network.guarding_owner(node) is not None:
+                return  # (another master guards it: a reply, no heartbeat)
         if len(frame.data) != 1:
             return
         state = frame.data[0] & 0x7F

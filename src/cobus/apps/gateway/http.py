@@ -82,7 +82,9 @@ class GatewayHttp:
         return f"http://{host}:{self.port}"
 
     async def start(self) -> None:
-        """Listen on the running loop; OSError when the address cannot be bound."""
+        """Listen on the running loop; OSError when the address cannot be bound. The core
+        watches the buses from now on."""
+        self.core.listen()
         app = web.Application(client_max_size=64 * 1024)
         app.router.add_route("GET", "/cia309-5/{api}/events", self._events)
         app.router.add_route("*", "/{tail:.*}", self._handle)

@@ -101,7 +101,9 @@ class GatewayServer:
         return f"{host}:{self.port}"
 
     async def start(self) -> None:
-        """Listen (on the running loop: the networks' own); OSError when it cannot."""
+        """Listen (on the running loop: the networks' own); OSError when it cannot. The
+        core watches the buses from now on (``set id`` then knows the nodes that beat)."""
+        self.core.listen()
         if self.unix is None:
             self._server = await asyncio.start_server(self._serve, self.host, self.requested_port)
             return
