@@ -1532,6 +1532,14 @@ def test_lelys_lss_requests() -> None:
             assert await say("[9] lss_set_node 9") == "[9] OK"
             assert await say("[10] lss_switch_glob 0") == "[10] OK"
             assert (await say("[11] lss_ident_nonconf")).startswith("[11] ERROR: 103 (")
+            # slowscan: the revision, then the serial, halved; the slave found is selected
+            found = await say("[12] _lss_slowscan 0xC0B005 0x191 0 5 0 0xFFFF")
+            assert found == "[12] 0x00C0B005 0x00000191 0x00000001 0x00001234"
+            assert await say("[13] lss_get_node") == "[13] 9"
+            none = await say("[14] _lss_slowscan 0xC0B005 0x191 2 5 0 0xFFFF")
+            assert none.startswith("[14] ERROR: 103 (")
+            backwards = await say("[15] _lss_slowscan 0xC0B005 0x191 5 2 0 1")
+            assert backwards.startswith("[15] ERROR: 101 (")
             s.close()
             await rig.stop()
 
@@ -1539,7 +1547,7 @@ def test_lelys_lss_requests() -> None:
 
 
 #: Lely's coctl documentation, its typical session: the lines cobus's gateway serves (not
-#: `set id` and `init`, which configure Lely's gateway as a CANopen device of its own).
+#: `set id`, tested apart, and `init`, which re-opens Lely's adapter at another bit rate).
 LELY_COCTL = [
     ("[1] set network 1", "[1] OK"),
     ("[2] 2 boot_up_indication Enable", "[2] OK"),
@@ -1896,3 +1904,28 @@ def test_the_gateways_device_needs_the_token() -> None:
             core.close()
 
     asyncio.run(main())
+
+
+def test_a_command_time_out_ends_a_request_and_init_is_refused() -> None:
+    """set command_timeout: a read the node answers late is ended with ERROR:103 (the
+    transfer aborted on the bus), the next one runs; init (Lely's) is refused with how."""
+
+    async def scenario(net: AsyncNetwork, rig: Rig, server: GatewayServer) -> None:
+        c = await connect(server)
+        aborts: list[bytes] = []
+        net.subscribe(0x605, lambda f, now: aborts.append(f.data) if f.data[:1] == b"\x80" else 0)
+        device(rig, 5).simulation.sdo_response_delay = 0.3
+        assert await ask(c, "[1] set command_timeout 100") == ["[1] OK"]
+        (late,) = await ask(c, "[2] 5 r 0x1000 0 u32")
+        assert late.startswith("[2] ERROR:103 #") and "100 ms" in late
+        await asyncio.sleep(0.35)
+        assert aborts  # (the transfer was aborted, not left to the node)
+        device(rig, 5).simulation.sdo_response_delay = 0.0
+        assert await ask(c, "[3] 5 r 0x1017 0 u16") == ["[3] 0"]
+        assert await ask(c, "[4] set command_timeout 0") == ["[4] OK"]
+        (bad,) = await ask(c, "[5] set command_timeout 700000")
+        assert bad.startswith("[5] ERROR:101 #")
+        (init,) = await ask(c, "[6] init 2")
+        assert init.startswith("[6] ERROR:100 #") and "lss_conf_bitrate" in init
+
+    served(scenario)

@@ -78,6 +78,7 @@ from cobus.runtime import (
 
 if TYPE_CHECKING:
     from cobus.runtime import AsyncNetwork
+    from cobus.runtime.lss import AsyncNetworkLss
     from cobus.runtime.network import MachineHost
 
 __all__ = ["HELP", "MAX_PENDING", "NODE_COMMANDS", "GatewayCore", "Session", "version_fields"]
@@ -93,6 +94,9 @@ _WRONG_TOKEN_WAIT = 1.0  # s
 _GUARDED = frozenset(
     ("w", "write", "start", "stop", "preop", "preoperational", "reset", "enable", "disable")
 )
+
+#: Lely's LSS scans beside CiA 309-3's lss_ commands.
+_LSS_SCANS = frozenset(("_lss_fastscan", "_lss_slowscan"))
 
 #: The commands that address one node (and queue behind the client's others to that node).
 NODE_COMMANDS = frozenset(
@@ -120,6 +124,8 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
                                    "Identity object.Vendor-ID" (TYPE from the EDS)
   start | stop | preop | reset node | reset comm    NMT (node 0: every node)
   set network N | set node N | set sdo_timeout MS | set sdo_block 0|1
+  set command_timeout MS            end this client's requests not done after MS
+                                    (ERROR:103; an SDO under way is aborted; 0: no limit)
   [net] set id N | [net] set heartbeat MS    the gateway is node N of the net too, a
                                     device of its own (its heartbeat; a master that stops
                                     guarding it: NET N ERROR 201 (Lost connection));
@@ -127,7 +133,8 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
   lss_switch_glob 0|1 | lss_switch_sel VENDOR PRODUCT REVISION SERIAL | lss_set_node N
   lss_conf_bitrate 0 INDEX | lss_activate_bitrate DELAY_MS | lss_store
   lss_inquire_addr [0..3|0x5A..0x5D] | lss_get_node | lss_identity V P RL RH SL SH |
-  lss_ident_nonconf | _lss_fastscan [MS] (or Lely's V VMASK P PMASK R RMASK S SMASK)
+  lss_ident_nonconf | _lss_fastscan [MS] (or Lely's V VMASK P PMASK R RMASK S SMASK) |
+  _lss_slowscan V P RL RH SL SH     (Lely's: the lowest slave in the ranges, selected)
                                     LSS (CiA 305)
   enable heartbeat MS | disable heartbeat    watch a node's heartbeat with this time
                                     (instead of the period the gateway learns)
@@ -180,6 +187,9 @@ class Session:
     node: int | None = None
     sdo_timeout: float = 1.0  # s
     sdo_block: bool = False
+    #: ``set command_timeout MS``: a request not done after it is ended (ERROR:103; an
+    #: SDO transfer under way is aborted); None: no limit but each service's own.
+    command_timeout: float | None = None
     #: The SDO channels this client opened, by (net, node).
     channels: dict[tuple[int, int], SdoChannel] = field(default_factory=dict)
     #: The unsolicited lines the client asked for ("boot_up", "emcy"), and how the framing
@@ -496,7 +506,7 @@ class GatewayCore:
             node = request.node if request.node is not None else session.node
             request.net, request.node = net, node
             return copy.copy(session), ("node", net, node)
-        if command.startswith("lss_") or command == "_lss_fastscan":
+        if command.startswith("lss_") or command in _LSS_SCANS:
             return copy.copy(session), ("lss",)
         if command == "auth":  # (one at a time: each wrong token costs its wait)
             return session, ("auth",)
@@ -545,7 +555,10 @@ class GatewayCore:
     async def _answer(self, session: Session, request: Request) -> list[str]:
         head = "" if request.seq is None else f"[{request.seq}] "
         try:
-            out = await self._run(session, request)
+            if session.command_timeout is None:
+                out = await self._run(session, request)
+            else:
+                out = await asyncio.wait_for(self._run(session, request), session.command_timeout)
         except GatewayError as exc:
             return [format_error(request.seq, exc.code, exc.text, self.dialect)]
         except LssTimeoutError as exc:
@@ -569,6 +582,12 @@ class GatewayCore:
             return [format_error(request.seq, 0x05040000, timed_out, self.dialect)]
         except (SdoError, NetworkClosedError) as exc:
             return [format_error(request.seq, 102, str(exc), self.dialect)]
+        except TimeoutError as exc:  # (the command time-out's, or another service's)
+            text = str(exc) or "Time-out"
+            if session.command_timeout is not None and not str(exc):
+                ms = round(session.command_timeout * 1000)
+                text = f"Time-out: not done within the command time-out, {ms} ms"
+            return [format_error(request.seq, 103, text, self.dialect)]
         except Exception as exc:  # (never a dropped connection: the client is told)
             return [format_error(request.seq, 102, f"internal error: {exc!r}", self.dialect)]
         if out is None:
@@ -584,7 +603,7 @@ class GatewayCore:
         if command == "auth":
             await self._auth(session, request)
             return None
-        guarded = command in _GUARDED or command.startswith("lss_") or command == "_lss_fastscan"
+        guarded = command in _GUARDED or command.startswith("lss_") or command in _LSS_SCANS
         if guarded and not session.authorised:
             raise GatewayError(
                 102,
@@ -612,7 +631,7 @@ class GatewayCore:
         if command in ("subscribe", "unsubscribe", "boot_up_indication"):
             self._subscribe(session, request)
             return None
-        if command.startswith("lss_") or command == "_lss_fastscan":
+        if command.startswith("lss_") or command in _LSS_SCANS:
             return await self._lss(session, request)
         if command == "who":
             if not session.authorised:
@@ -629,6 +648,13 @@ class GatewayCore:
             )
         if command == "help":
             return HELP.splitlines()
+        if command == "init":
+            raise GatewayError(
+                100,
+                "init: cobus's gateway does not re-open its adapter at another bit rate; "
+                "switch the nodes (lss_conf_bitrate, lss_activate_bitrate) and start the "
+                "gateway again with -b",
+            )
         del args
         raise GatewayError(100, f"no command {command!r} (help lists them)")
 
@@ -801,6 +827,10 @@ class GatewayCore:
             if value not in (0, 1):
                 raise GatewayError(101, "sdo_block is 0 or 1")
             session.sdo_block = bool(value)
+        elif name == "command_timeout":
+            if not 0 <= value <= 600_000:
+                raise GatewayError(101, f"command_timeout {value} ms is not in 0..600000")
+            session.command_timeout = value / 1000.0 if value else None
         elif name in ("id", "heartbeat"):
             if not session.authorised:
                 raise GatewayError(
@@ -816,7 +846,8 @@ class GatewayCore:
         else:
             raise GatewayError(
                 100,
-                f"no setting {args[0]!r} (network, node, sdo_timeout, sdo_block, id, heartbeat)",
+                f"no setting {args[0]!r} (network, node, sdo_timeout, sdo_block, "
+                "command_timeout, id, heartbeat)",
             )
 
     def set_node_id(self, net: int, node: int) -> None:
@@ -1055,6 +1086,18 @@ class GatewayCore:
             if not await lss.identify_unconfigured():
                 raise GatewayError(103, "no slave without a node-ID answered")
             return None
+        if command == "_lss_slowscan":  # (Lely's: find one slave in these ranges, select it)
+            want(6, "vendor, product, revision low and high, serial low and high")
+            vendor, product, rev_low, rev_high, serial_low, serial_high = numbers
+            if not (rev_low <= rev_high and serial_low <= serial_high):
+                raise GatewayError(101, "each range goes from its low value to its high one")
+            found = await _slowscan(
+                lss, vendor, product, (rev_low, rev_high), (serial_low, serial_high)
+            )
+            if found is None:
+                raise GatewayError(103, "no slave of that identity answered")
+            await lss.select(found)
+            return " ".join(f"0x{v:08X}" for v in found.fields)
         if command == "_lss_fastscan":
             known: dict[str, int] = {}
             if len(numbers) == 8:  # (Lely's: a value and a mask per field)
@@ -1081,6 +1124,36 @@ class GatewayCore:
                 raise GatewayError(103, "no device without a node-ID answered the fastscan")
             return " ".join(f"0x{v:08X}" for v in found.fields)
         raise GatewayError(100, f"no LSS command {command!r} (help lists them)")
+
+
+async def _slowscan(
+    lss: AsyncNetworkLss,
+    vendor: int,
+    product: int,
+    revisions: tuple[int, int],
+    serials: tuple[int, int],
+) -> LssIdentity | None:
+    """The lowest identity of a slave of ``vendor`` and ``product`` in the ranges, found by
+    halving them with "identify remote slave" (CiA 305): first the revision, then the
+    serial number; None when no slave answers for the whole ranges."""
+    if not await lss.identify_remote(vendor, product, revisions, serials):
+        return None
+    low, high = revisions
+    while low < high:
+        middle = (low + high) // 2
+        if await lss.identify_remote(vendor, product, (low, middle), serials):
+            high = middle
+        else:
+            low = middle + 1
+    revision = low
+    low, high = serials
+    while low < high:
+        middle = (low + high) // 2
+        if await lss.identify_remote(vendor, product, (revision, revision), (low, middle)):
+            high = middle
+        else:
+            low = middle + 1
+    return LssIdentity(vendor, product, revision, low)
 
 
 #: How Lely names the NMT states in its error-control lines.
