@@ -1929,3 +1929,30 @@ def test_a_command_time_out_ends_a_request_and_init_is_refused() -> None:
         assert init.startswith("[6] ERROR:100 #") and "lss_conf_bitrate" in init
 
     served(scenario)
+
+
+def test_two_servers_of_one_core_and_the_core_closes_with_the_last() -> None:
+    """A TCP and a Unix socket server of one core: stopping one leaves the other's clients
+    served; the core closes (the buses no longer watched) when the last stops."""
+
+    async def main(tmp: str) -> None:
+        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+            from cobus.device import add_device, minimal_od
+
+            add_device(net, 5, minimal_od())
+            core = GatewayCore({1: net})
+            tcp, unix = GatewayServer(core), GatewayServer(core, unix=f"{tmp}/gw.sock")
+            await tcp.start()
+            await unix.start()
+            c = await asyncio.open_unix_connection(f"{tmp}/gw.sock")
+            assert await ask(c, "[1] subscribe error_control") == ["[1] OK"]
+            await tcp.stop()
+            assert await ask(c, "[2] 5 r 0x1017 0 u16") == ["[2] 0"]
+            assert "[3] OK" in await ask(c, "[3] 5 enable guarding 50 3", 2)
+            await unix.stop()
+            assert net.guarding_owner(5) is None  # (the core closed: its guard stopped)
+
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        asyncio.run(asyncio.wait_for(main(tmp), 60))

@@ -271,6 +271,7 @@ class GatewayCore:
         #: Nodes the gateway must not take as its own node-ID, by (net, node): who uses
         #: them (``cobus run --gateway``: the master and its nodes).
         self.in_use: dict[tuple[int, int], str] = {}
+        self._held = 0  # (servers serving it: hold, release)
         _CORES[0] += 1
         #: Who guards a node for this gateway, in the network's record (claim_guarding).
         self.guard_owner = (
@@ -344,6 +345,18 @@ class GatewayCore:
                     network.subscribe(error_control_cob_id(node), watch.on_frame),
                     network.subscribe(emcy_cob_id(node), partial(self._emcy, net_id, node)),
                 ]
+
+    def hold(self) -> None:
+        """A server serves this core from now on (the buses are watched from now on)."""
+        self._held += 1
+        self.listen()
+
+    def release(self) -> None:
+        """A server stopped serving this core: when none serves it any more, it closes."""
+        self._held -= 1
+        if self._held <= 0:
+            self._held = 0
+            self.close()
 
     def close(self) -> None:
         """The gateway stops: every session ends, the bus is no longer watched."""

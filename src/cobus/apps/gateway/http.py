@@ -61,6 +61,7 @@ class GatewayHttp:
                 "host) give the core a token"
             )
         self.core = core
+        self._holding = False  # (it holds the core: start, stop)
         self.host = host
         self.requested_port = port
         self._runner: web.AppRunner | None = None
@@ -84,7 +85,9 @@ class GatewayHttp:
     async def start(self) -> None:
         """Listen on the running loop; OSError when the address cannot be bound. The core
         watches the buses from now on."""
-        self.core.listen()
+        if not self._holding:
+            self.core.hold()
+            self._holding = True
         app = web.Application(client_max_size=64 * 1024)
         app.router.add_route("GET", "/cia309-5/{api}/events", self._events)
         app.router.add_route("*", "/{tail:.*}", self._handle)
@@ -107,6 +110,9 @@ class GatewayHttp:
         if self._runner is not None:
             await self._runner.cleanup()
             self._runner = None
+        if self._holding:  # (the core closes once no server serves it)
+            self._holding = False
+            self.core.release()
 
     # ------------------------------------------------------------------ requests
 

@@ -58,6 +58,7 @@ class GatewayServer:
                 "they write"
             )
         self.core = core
+        self._holding = False  # (it holds the core: start, stop)
         #: The Unix socket's path (None: TCP).
         self.unix = unix
         #: Whether requests and answers are JSON objects, one a line (see
@@ -103,7 +104,9 @@ class GatewayServer:
     async def start(self) -> None:
         """Listen (on the running loop: the networks' own); OSError when it cannot. The
         core watches the buses from now on (``set id`` then knows the nodes that beat)."""
-        self.core.listen()
+        if not self._holding:
+            self.core.hold()
+            self._holding = True
         if self.unix is None:
             self._server = await asyncio.start_server(self._serve, self.host, self.requested_port)
             return
@@ -135,7 +138,9 @@ class GatewayServer:
             if self.unix is not None:
                 with contextlib.suppress(OSError):
                     os.unlink(self.unix)
-        self.core.close()
+        if self._holding:  # (the core closes once no server serves it)
+            self._holding = False
+            self.core.release()
 
     #: Unsolicited lines dropped because their client did not read (summed over clients).
     dropped = 0
