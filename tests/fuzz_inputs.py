@@ -253,6 +253,7 @@ def history_sample(folder: Path) -> bytes:
 def try_blf(data: bytes, folder: Path) -> None:
     """Read a (mutated, maybe bombed) BLF trace the way cobus decode does: what python-can's
     reader raises on a damaged file is allowed; running away is not (make fuzz's caps)."""
+    from cobus.trace.fastread import blf_blocks
     from cobus.trace.files import TraceFileError, open_trace
 
     path = folder / "trace.blf"
@@ -264,6 +265,14 @@ def try_blf(data: bytes, folder: Path) -> None:
     except TraceFileError:
         pass
     except Exception as exc:  # python-can's own: BLFParseError, struct.error, zlib.error
+        if isinstance(exc, MemoryError):
+            raise
+    try:  # (cobus decode --summary's reader: the same, or python-can's own errors)
+        for _ in blf_blocks(path, 1000):
+            pass
+    except TraceFileError:
+        pass
+    except Exception as exc:  # python-can's own, once the block reader handed over to it
         if isinstance(exc, MemoryError):
             raise
 

@@ -86,9 +86,16 @@ def _block(
 
 
 def blocks(path: str | Path, size: int = BLOCK, **options: Any) -> Iterator[FrameBlock]:
-    """The frames of trace file ``path`` in blocks (python-can's reader, a BLF file checked
-    first: :func:`cobus.trace.files.open_trace`)."""
+    """The frames of trace file ``path`` in blocks: a BLF file through
+    :func:`cobus.trace.fastread.blf_blocks` (python-can's frames, read a container at a
+    time), the other formats through python-can's reader (:func:`cobus.trace.files.open_trace`)."""
     from cobus.trace.files import open_trace
+
+    if Path(path).suffix.lower() == ".blf":
+        from cobus.trace.fastread import blf_blocks
+
+        yield from blf_blocks(path, size)
+        return
 
     reader = open_trace(path, **options)
     try:
@@ -107,68 +114,114 @@ _TAIL = 13
 _CRC_POLY = 0x4599
 
 
+def _crc_table() -> npt.NDArray[np.int64]:
+    """CRC-15/CAN of each byte value, most significant bit first: a byte at a time."""
+    table = np.zeros(256, dtype=np.int64)
+    for value in range(256):
+        crc = value << 7
+        for _ in range(8):
+            crc = ((crc << 1) ^ _CRC_POLY if crc & 0x4000 else crc << 1) & 0x7FFF
+        table[value] = crc
+    return table
+
+
+def _stuff_tables() -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """For each state (the last bit and how many equal bits end the stream, 1..4: state
+    last * 4 + run - 1) and the top ``k`` bits of a byte (k = 1..8): the state after them
+    and the stuff bits they need. Indexed [k, state, byte]."""
+    states = np.zeros((9, 8, 256), dtype=np.int64)
+    counts = np.zeros((9, 8, 256), dtype=np.int64)
+    for k in range(1, 9):
+        for state in range(8):
+            for value in range(256):
+                last, run, stuffed = state >> 2, (state & 3) + 1, 0
+                for i in range(k):
+                    bit = (value >> (7 - i)) & 1
+                    if bit == last:
+                        run += 1
+                        if run == 5:
+                            stuffed += 1
+                            last, run = 1 - bit, 1
+                    else:
+                        last, run = bit, 1
+                states[k, state, value] = last * 4 + run - 1
+                counts[k, state, value] = stuffed
+    return states, counts
+
+
+_TABLES: list[Any] = []  # (built at first use: crc, stuff states, stuff counts)
+
+
 def frame_bits(block: FrameBlock) -> npt.NDArray[np.int64]:
     """Each frame's bits on a classic CAN bus: start of frame to intermission, with the
     stuff bits its identifier, data and CRC really need (computed, not estimated). Error
-    and FD frames count 0 (their length depends on what the bus did)."""
+    and FD frames count 0 (their length depends on what the bus did).
+
+    Frames go in groups of one layout (base or extended identifier, data length): each
+    group's bits are laid out in columns, its CRC computed a byte at a time and its stuff
+    bits counted a byte at a time with tables, for all its frames at once."""
+    if not _TABLES:
+        _TABLES.extend((_crc_table(), *_stuff_tables()))
+    crc_table, stuff_states, stuff_counts = _TABLES
     n = len(block)
+    out = np.zeros(n, dtype=np.int64)
     if n == 0:
-        return np.zeros(0, dtype=np.int64)
-    ext = (block.flags & EXTENDED) != 0
-    rtr = (block.flags & REMOTE) != 0
-    skip = (block.flags & (ERROR | FD)) != 0
+        return out
+    flags = block.flags
+    ext = (flags & EXTENDED) != 0
+    rtr = (flags & REMOTE) != 0
+    skip = (flags & (ERROR | FD)) != 0
     nbytes = np.where(rtr, 0, np.minimum(block.dlc, 8)).astype(np.int64)
-    dlc_field = np.minimum(block.dlc, 15).astype(np.int64)
-    head = np.where(ext, 39, 19)  # bits before the data: SOF ... DLC
-    body = head + 8 * nbytes  # the bits the CRC covers
-    width = 39 + 64 + 15
-    bits = np.zeros((n, width), dtype=np.uint8)
+    layout = np.where(skip, -1, ext * 16 + nbytes)
     cob = block.cob_id.astype(np.int64)
-    rows = np.arange(n)
-    # standard: SOF, ID10..0, RTR, IDE=0, r0, DLC3..0
-    base = np.where(ext, cob >> 18, cob) & 0x7FF
-    for i in range(11):
-        bits[:, 1 + i] = (base >> (10 - i)) & 1
-    # extended: SOF, ID28..18, SRR=1, IDE=1, ID17..0, RTR, r1, r0, DLC
-    low = cob & 0x3FFFF
-    std = ~ext
-    bits[std, 12] = rtr[std]
-    bits[ext, 12] = 1
-    bits[ext, 13] = 1
-    for i in range(18):
-        bits[ext, 14 + i] = (low[ext] >> (17 - i)) & 1
-    bits[ext, 32] = rtr[ext]
-    dlc_at = np.where(ext, 35, 15)
-    for i in range(4):
-        bits[rows, dlc_at + i] = (dlc_field >> (3 - i)) & 1
-    data_bits = np.unpackbits(block.data, axis=1)  # (n, 64), most significant bit first
-    columns = head[:, None] + np.arange(64)[None, :]
-    inside = np.arange(64)[None, :] < (8 * nbytes)[:, None]
-    bits[np.broadcast_to(rows[:, None], columns.shape)[inside], columns[inside]] = data_bits[inside]
-    crc = np.zeros(n, dtype=np.int64)
-    for pos in range(39 + 64):
-        live = pos < body
-        if not live.any():
-            break
-        nxt = ((crc >> 14) & 1) ^ bits[:, pos]
-        stepped = (crc << 1) & 0x7FFF
-        stepped = np.where(nxt == 1, stepped ^ _CRC_POLY, stepped)
-        crc = np.where(live, stepped, crc)
-    for i in range(15):
-        bits[rows, body + i] = (crc >> (14 - i)) & 1
-    stuffed = body + 15
-    last = np.zeros(n, dtype=np.uint8)  # (SOF is dominant: 0)
-    run = np.zeros(n, dtype=np.int64)
-    stuff = np.zeros(n, dtype=np.int64)
-    for pos in range(int(stuffed.max())):
-        live = pos < stuffed
-        bit = bits[:, pos]
-        same = bit == last
-        run = np.where(live, np.where(same, run + 1, 1), run)
-        last = np.where(live, bit, last)
-        full = live & (run == 5)
-        stuff += full
-        last = np.where(full, 1 - bit, last)
-        run = np.where(full, 1, run)
-    total = stuffed + stuff + _TAIL
-    return np.where(skip, 0, total).astype(np.int64)
+    dlc_field = np.minimum(block.dlc, 15).astype(np.int64)
+    for group in np.unique(layout).tolist():
+        if group < 0:
+            continue
+        rows = np.flatnonzero(layout == group)
+        extended, size = bool(group >> 4), group & 15
+        head = 39 if extended else 19
+        body = head + 8 * size  # (the bits the CRC covers)
+        bits = np.zeros((len(rows), body + 15), dtype=np.uint8)
+        ident = cob[rows]
+        base = (ident >> 18 if extended else ident) & 0x7FF
+        for i in range(11):
+            bits[:, 1 + i] = (base >> (10 - i)) & 1
+        if extended:
+            bits[:, 12] = 1  # (SRR)
+            bits[:, 13] = 1  # (IDE)
+            low = ident & 0x3FFFF
+            for i in range(18):
+                bits[:, 14 + i] = (low >> (17 - i)) & 1
+            bits[:, 32] = rtr[rows]
+        else:
+            bits[:, 12] = rtr[rows]
+        dlc = dlc_field[rows]
+        for i in range(4):
+            bits[:, head - 4 + i] = (dlc >> (3 - i)) & 1
+        if size:
+            bits[:, head:body] = np.unpackbits(block.data[rows, :size], axis=1)
+        # the CRC: zeros before the bits change nothing (it starts at 0), so the bits are
+        # padded in front to whole bytes and taken a byte at a time
+        pad = -body % 8
+        packed = np.packbits(
+            np.concatenate((np.zeros((len(rows), pad), dtype=np.uint8), bits[:, :body]), axis=1),
+            axis=1,
+        ).astype(np.int64)
+        crc = np.zeros(len(rows), dtype=np.int64)
+        for column in range(packed.shape[1]):
+            crc = ((crc << 8) & 0x7FFF) ^ crc_table[((crc >> 7) ^ packed[:, column]) & 0xFF]
+        for i in range(15):
+            bits[:, body + i] = (crc >> (14 - i)) & 1
+        # the stuff bits, a byte at a time from the start of frame to the end of the CRC
+        stream = np.packbits(bits, axis=1).astype(np.int64)
+        total = body + 15
+        state = np.full(len(rows), 4, dtype=np.int64)  # (the idle bus before: recessive)
+        stuffed = np.zeros(len(rows), dtype=np.int64)
+        for column in range(stream.shape[1]):
+            k = min(8, total - 8 * column)
+            value = stream[:, column]
+            stuffed += stuff_counts[k, state, value]
+            state = stuff_states[k, state, value]
+        out[rows] = total + stuffed + _TAIL
+    return out

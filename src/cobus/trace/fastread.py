@@ -1,0 +1,317 @@
+"""A BLF reader that hands frames over in blocks of arrays (numpy), for whole traces.
+
+python-can's BLF reader builds one ``can.Message`` per frame in Python; this one inflates
+each log container (zlib), then takes the runs of CAN messages that follow each other in
+it - what a BLF file of a CAN bus is made of - as one numpy record array each, and only
+the other objects (error frames, CAN FD frames, markers) one by one. It gives what
+python-can's reader gives, frame for frame (a test holds it to that on every trace), and
+refuses what :func:`cobus.trace.files.check_blf` refuses (a container that announces or
+inflates to more than :data:`~cobus.trace.files.MAX_CONTAINER`), without inflating twice.
+What it does not expect of a file it leaves to python-can's reader, from the frame it had
+come to: the blocks go on as python-can reads them.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Generator, Iterator
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import numpy as np
+import numpy.typing as npt
+
+from cobus.trace.blocks import BLOCK, ERROR, EXTENDED, FD, REMOTE, FrameBlock, message_blocks
+from cobus.trace.files import MAX_CONTAINER, TraceFileError
+
+__all__ = ["blf_blocks"]
+
+_CAN_MESSAGE, _CAN_MESSAGE2, _CAN_ERROR_EXT = 1, 86, 73
+_CAN_FD_MESSAGE, _CAN_FD_MESSAGE_64, _LOG_CONTAINER = 100, 101, 10
+_CAN_MSG_EXT = 0x80000000
+_CAN_FD_LEN = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
+
+#: A CAN message object with a version 1 header: base header, object header, message.
+_MESSAGE = [
+    ("signature", "S4"),
+    ("header_size", "<u2"),
+    ("header_version", "<u2"),
+    ("size", "<u4"),
+    ("type", "<u4"),
+    ("time_flags", "<u4"),
+    ("client", "<u2"),
+    ("version", "<u2"),
+    ("time", "<u8"),
+    ("channel", "<u2"),
+    ("flags", "u1"),
+    ("dlc", "u1"),
+    ("can_id", "<u4"),
+    ("data", "u1", (8,)),
+]
+_RECORDS = {48: np.dtype(_MESSAGE), 56: np.dtype([*_MESSAGE, ("extra", "V8")])}
+
+
+class _Unexpected(Exception):
+    """Something of the file this reader leaves to python-can's."""
+
+
+class _Columns:
+    """Frames gathered column by column until a block is full."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self.parts: list[tuple[Any, ...]] = []
+        self.count = 0
+
+    def add(
+        self,
+        time: npt.NDArray[np.float64],
+        cob_id: npt.NDArray[Any],
+        flags: npt.NDArray[Any],
+        dlc: npt.NDArray[Any],
+        data: npt.NDArray[np.uint8],
+    ) -> Iterator[FrameBlock]:
+        self.parts.append((time, cob_id, flags, dlc, data))
+        self.count += len(time)
+        while self.count >= self.size:
+            yield self._take(self.size)
+
+    def _take(self, count: int) -> FrameBlock:
+        columns = [np.concatenate(c) for c in zip(*self.parts, strict=True)]
+        head = [c[:count] for c in columns]
+        rest = [c[count:] for c in columns]
+        self.parts = [tuple(rest)] if len(rest[0]) else []
+        self.count -= count
+        return FrameBlock(
+            head[0].astype(np.float64),
+            head[1].astype(np.uint32),
+            head[2].astype(np.uint8),
+            head[3].astype(np.uint8),
+            np.ascontiguousarray(head[4], dtype=np.uint8).reshape(-1, 8),
+        )
+
+    def rest(self) -> Iterator[FrameBlock]:
+        if self.count:
+            yield self._take(self.count)
+
+
+def blf_blocks(path: str | Path, size: int = BLOCK) -> Iterator[FrameBlock]:
+    """The frames of BLF file ``path`` in blocks of ``size``, as python-can reads them."""
+    import can
+    from can.io import blf
+
+    done = 0
+    with open(path, "rb") as f:
+        head = f.read(blf.FILE_HEADER_STRUCT.size)
+        if len(head) < blf.FILE_HEADER_STRUCT.size:
+            raise TraceFileError(f"{Path(path).name}: too short for a BLF file")
+        header = blf.FILE_HEADER_STRUCT.unpack(head)
+        if header[0] != b"LOGG":
+            raise TraceFileError(f"{Path(path).name}: no BLF file (it does not start with LOGG)")
+        start = blf.systemtime_to_timestamp(header[14:22])
+        f.seek(header[1])
+        columns = _Columns(size)
+        try:
+            for block in _read(path, f, start, columns):
+                done += len(block)
+                yield block
+            for block in columns.rest():
+                done += len(block)
+                yield block
+            return
+        except _Unexpected:
+            pass
+    # the rest as python-can reads it (frames gathered but not handed over are read again)
+    reader = can.io.BLFReader(str(path))
+    try:
+        messages = iter(reader)
+        for _ in range(done):
+            next(messages)
+        yield from message_blocks(messages, size)
+    finally:
+        reader.stop()
+
+
+def _read(path: str | Path, f: BinaryIO, start: float, columns: _Columns) -> Iterator[FrameBlock]:
+    from can.io import blf
+
+    base = blf.OBJ_HEADER_BASE_STRUCT
+    tail = b""
+    offset = f.tell()
+    while True:
+        raw = f.read(base.size)
+        if not raw:
+            return
+        if len(raw) < base.size:
+            raise _Unexpected
+        signature, _, _, obj_size, obj_type = base.unpack(raw)
+        if signature != b"LOBJ" or obj_size < base.size:
+            raise _Unexpected
+        body = f.read(obj_size - base.size)
+        f.read(obj_size % 4)
+        if obj_type == _LOG_CONTAINER:
+            data = _inflate(path, offset, body)
+            if data is not None:
+                data = tail + data if tail else data
+                used = yield from _objects(data, start, columns)
+                tail = data[used:]
+        offset = f.tell()
+
+
+def _inflate(path: str | Path, offset: int, body: bytes) -> bytes | None:
+    from can.io import blf
+
+    if len(body) < blf.LOG_CONTAINER_STRUCT.size:
+        raise _Unexpected
+    method, announced = blf.LOG_CONTAINER_STRUCT.unpack_from(body)
+    packed = body[blf.LOG_CONTAINER_STRUCT.size :]
+    if method == blf.NO_COMPRESSION:
+        return packed
+    if method != blf.ZLIB_DEFLATE:
+        return None  # (python-can skips it too, with a warning)
+    where = f"{Path(path).name}: the log container at byte {offset:,}"
+    if announced > MAX_CONTAINER:
+        raise TraceFileError(
+            f"{where} announces {announced:,} bytes uncompressed, more than the "
+            f"{MAX_CONTAINER:,} cobus inflates (real traces hold 128 KiB a container): a "
+            "damaged or hostile file; not read"
+        )
+    inflater = zlib.decompressobj()
+    try:
+        out = inflater.decompress(packed, announced + 1)
+    except zlib.error:
+        raise _Unexpected from None
+    if len(out) > announced:
+        raise TraceFileError(
+            f"{where} inflates to more than the {announced:,} bytes it announces (a zip "
+            "bomb?): a damaged or hostile file; not read"
+        )
+    return out
+
+
+def _objects(data: bytes, start: float, columns: _Columns) -> Generator[FrameBlock, None, int]:
+    """The frames of the objects in ``data``; returns how many bytes whole objects took
+    (the rest continues in the next container)."""
+    from can.io import blf
+
+    base = blf.OBJ_HEADER_BASE_STRUCT
+    end = len(data)
+    pos = 0
+    view = np.frombuffer(data, dtype=np.uint8)
+    while True:
+        found = data.find(b"LOBJ", pos, pos + 8)
+        if found < 0:
+            if pos + 8 > end:
+                return pos
+            raise _Unexpected
+        pos = found
+        if pos + base.size > end:
+            return pos
+        _, header_size, header_version, obj_size, obj_type = base.unpack_from(data, pos)
+        if pos + obj_size > end:
+            return pos
+        record = _RECORDS.get(obj_size)
+        if (
+            obj_type in (_CAN_MESSAGE, _CAN_MESSAGE2)
+            and header_version == 1
+            and record is not None
+            and header_size == 32
+        ):
+            count = (end - pos) // obj_size
+            rows = view[pos : pos + count * obj_size].view(record)
+            same = (
+                (rows["signature"] == b"LOBJ")
+                & (rows["size"] == obj_size)
+                & (rows["type"] == obj_type)
+                & (rows["header_version"] == 1)
+                & (rows["header_size"] == 32)
+            )
+            run = count if same.all() else int(np.argmin(same))
+            yield from _messages(rows[:run], start, columns)
+            pos += run * obj_size
+            continue
+        yield from _one(data, pos, header_version, obj_size, obj_type, start, columns)
+        pos += obj_size
+
+
+def _times(raw: npt.NDArray[Any], flags: npt.NDArray[Any], start: float) -> npt.NDArray[Any]:
+    if int(raw.max(initial=0)) >= 1 << 53:
+        raise _Unexpected  # (float64 would round it: python-can's Decimal does not)
+    scale = np.where(flags == 1, 1e5, 1e9)
+    return raw.astype(np.float64) / scale + start
+
+
+def _messages(rows: npt.NDArray[Any], start: float, columns: _Columns) -> Iterator[FrameBlock]:
+    if not len(rows):
+        return
+    can_id = rows["can_id"].astype(np.int64)
+    rtr = (rows["flags"] & 0x80) != 0
+    flags = np.where(can_id & _CAN_MSG_EXT, EXTENDED, 0) | np.where(rtr, REMOTE, 0)
+    dlc = rows["dlc"]
+    data = rows["data"].copy()
+    keep = np.minimum(dlc, 8)
+    data[np.arange(8)[None, :] >= keep[:, None]] = 0  # (python-can keeps data[:dlc])
+    data[rtr] = 0
+    length = np.where(rtr, dlc, keep)
+    yield from columns.add(
+        _times(rows["time"], rows["time_flags"], start),
+        can_id & 0x1FFFFFFF,
+        flags,
+        length,
+        data,
+    )
+
+
+def _one(
+    data: bytes,
+    pos: int,
+    header_version: int,
+    obj_size: int,
+    obj_type: int,
+    start: float,
+    columns: _Columns,
+) -> Iterator[FrameBlock]:
+    """An object that is no run of CAN messages: one frame, or nothing."""
+    from can.io import blf
+
+    if obj_type not in (_CAN_MESSAGE, _CAN_MESSAGE2, _CAN_ERROR_EXT, _CAN_FD_MESSAGE):
+        if obj_type == _CAN_FD_MESSAGE_64:
+            raise _Unexpected  # (rare: python-can's reader takes it from here)
+        return  # (python-can skips what is not a frame)
+    at = pos + blf.OBJ_HEADER_BASE_STRUCT.size
+    if header_version == 1:
+        time_flags, _, _, stamp = blf.OBJ_HEADER_V1_STRUCT.unpack_from(data, at)
+        at += blf.OBJ_HEADER_V1_STRUCT.size
+    elif header_version == 2:
+        time_flags, _, _, stamp = blf.OBJ_HEADER_V2_STRUCT.unpack_from(data, at)
+        at += blf.OBJ_HEADER_V2_STRUCT.size
+    else:
+        return  # (python-can skips it, with a warning)
+    if obj_type in (_CAN_MESSAGE, _CAN_MESSAGE2):
+        _channel, msg_flags, dlc, can_id, payload = blf.CAN_MSG_STRUCT.unpack_from(data, at)
+        rtr = bool(msg_flags & 0x80)
+        flag = (EXTENDED if can_id & _CAN_MSG_EXT else 0) | (REMOTE if rtr else 0)
+        body = b"" if rtr else payload[:dlc]
+        length = dlc if rtr else len(body)
+    elif obj_type == _CAN_ERROR_EXT:
+        members = blf.CAN_ERROR_EXT_STRUCT.unpack_from(data, at)
+        dlc, can_id, payload = members[5], members[7], members[9]
+        flag = ERROR | (EXTENDED if can_id & _CAN_MSG_EXT else 0)
+        body = payload[:dlc]
+        length = len(body)
+    else:
+        members = blf.CAN_FD_MSG_STRUCT.unpack_from(data, at)
+        _channel, msg_flags, dlc, can_id, _, _, fd_flags, valid, payload = members
+        rtr = bool(msg_flags & 0x80)
+        flag = (EXTENDED if can_id & _CAN_MSG_EXT else 0) | (REMOTE if rtr else 0)
+        flag |= FD if fd_flags & 1 else 0
+        body = b"" if rtr else payload[:valid]
+        length = (_CAN_FD_LEN[dlc] if dlc <= 15 else 64) if rtr else len(body)
+    row = np.frombuffer(body[:8].ljust(8, b"\0"), dtype=np.uint8).reshape(1, 8)
+    yield from columns.add(
+        _times(np.array([stamp], dtype=np.uint64), np.array([time_flags]), start),
+        np.array([can_id & 0x1FFFFFFF]),
+        np.array([flag]),
+        np.array([min(length, 255)]),
+        row,
+    )
