@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from cobus.trace.blocks import FrameBlock, blocks, message_blocks
-from cobus.trace.fastread import blf_blocks
+from cobus.trace.fastread import blf_blocks, log_blocks
 from cobus.trace.files import TraceFileError
 from tests.test_hostile_inputs import blf_bomb
 
@@ -117,3 +117,43 @@ def test_what_is_no_blf_file(tmp_path: Path) -> None:
     path.write_bytes(b"LOGG")
     with pytest.raises(TraceFileError, match="too short"):
         list(blf_blocks(path))
+
+
+def test_a_candump_log_gives_the_same_frames_as_python_cans_reader(tmp_path: Path) -> None:
+    """python-can's writer (an R or T after each frame) and candump's own lines (none),
+    remote frames with and without a DLC, CAN FD, error frames, blank lines, CR LF."""
+    path = tmp_path / "mixed.log"
+    with can.Logger(str(path)) as logger:
+        for msg in _messages(5000):
+            logger(msg)
+    for size in (1, 7, 65_536):
+        _same(list(log_blocks(path, size)), _python_can(path, size))
+    _same(list(blocks(path)), _python_can(path, 65_536))
+    candump = tmp_path / "candump.log"
+    candump.write_bytes(
+        b"(1436509052.249713) vcan0 044#2A366C2BBA\n"
+        b"(1436509052.449847) vcan0 0F6#BC\n\n"
+        b"(1436509052.650004) vcan0 12345678#R\r\n"
+        b"(1436509052.850118) can1 1A2#R5\n"
+        b"(1436509053.050327) vcan0 123##1DEADBEEF00112233445566778899\n"
+        b"(1436509053.250511) vcan0 20000080#0000000000000000\n"
+        b"(1436509053.450687) vcan0 7FF#\n"
+        b"(1436509053.650900) vcan0 181#1122334455667788AABB\n"
+        b"(1436509053.851000) vcan0 181#123\n"
+    )
+    for size in (1, 3, 100):
+        _same(list(log_blocks(candump, size)), _python_can(candump, size))
+
+
+def test_a_log_line_of_another_form_is_left_to_python_can(tmp_path: Path) -> None:
+    """A line the block reader does not parse: python-can's reader from that frame on (its
+    own error for a line it cannot read either)."""
+    path = tmp_path / "odd.log"
+    lines = [f"({1.0 + n / 100:.6f}) can0 181#{n:02X}\n" for n in range(50)]
+    lines.insert(30, "(1.295000) can0 181#R1x\n")  # (python-can: invalid literal for int)
+    path.write_text("".join(lines))
+    with pytest.raises(ValueError):
+        list(log_blocks(path, 7))
+    lines[30] = "(1.295000)  can0   181#01   \n"  # (spaces python-can's split takes)
+    path.write_text("".join(lines))
+    _same(list(log_blocks(path, 7)), _python_can(path, 7))

@@ -86,15 +86,17 @@ def _block(
 
 
 def blocks(path: str | Path, size: int = BLOCK, **options: Any) -> Iterator[FrameBlock]:
-    """The frames of trace file ``path`` in blocks: a BLF file through
-    :func:`cobus.trace.fastread.blf_blocks` (python-can's frames, read a container at a
-    time), the other formats through python-can's reader (:func:`cobus.trace.files.open_trace`)."""
+    """The frames of trace file ``path`` in blocks: a BLF file and a candump .log through
+    :mod:`cobus.trace.fastread` (python-can's frames, read a container or a few megabytes
+    at a time), the other formats through python-can's reader
+    (:func:`cobus.trace.files.open_trace`)."""
     from cobus.trace.files import open_trace
 
-    if Path(path).suffix.lower() == ".blf":
-        from cobus.trace.fastread import blf_blocks
+    suffix = Path(path).suffix.lower()
+    if suffix in (".blf", ".log"):
+        from cobus.trace.fastread import blf_blocks, log_blocks
 
-        yield from blf_blocks(path, size)
+        yield from (blf_blocks if suffix == ".blf" else log_blocks)(path, size)
         return
 
     reader = open_trace(path, **options)

@@ -13,6 +13,7 @@ come to: the blocks go on as python-can reads them.
 
 from __future__ import annotations
 
+import re
 import zlib
 from collections.abc import Generator, Iterator
 from pathlib import Path
@@ -24,7 +25,7 @@ import numpy.typing as npt
 from cobus.trace.blocks import BLOCK, ERROR, EXTENDED, FD, REMOTE, FrameBlock, message_blocks
 from cobus.trace.files import MAX_CONTAINER, TraceFileError
 
-__all__ = ["blf_blocks"]
+__all__ = ["blf_blocks", "log_blocks"]
 
 _CAN_MESSAGE, _CAN_MESSAGE2, _CAN_ERROR_EXT = 1, 86, 73
 _CAN_FD_MESSAGE, _CAN_FD_MESSAGE_64, _LOG_CONTAINER = 100, 101, 10
@@ -315,3 +316,151 @@ def _one(
         np.array([min(length, 255)]),
         row,
     )
+
+
+# ------------------------------------------------------------------ candump .log
+
+#: One frame of a candump ``-L`` log (what python-can's CanutilsLogReader reads): the time,
+#: the channel, the identifier in hex, ``#`` and the rest (data in hex, ``R`` and a DLC for
+#: a remote frame, ``#`` and flags for CAN FD), an ``R``/``T`` python-can's writer adds.
+_LOG_LINE = re.compile(
+    rb"^[ \t]*\(([0-9][0-9.]*)\)[ \t]+\S+[ \t]+([0-9A-Fa-f]+)#(\S*)(?:[ \t]+[RrTt])?[ \t\r]*$",
+    re.M,
+)
+_NON_BLANK = re.compile(rb"^[ \t\r]*[^ \t\r\n]", re.M)
+_CAN_ERR_FLAG, _CAN_ERR_BUSERROR = 0x20000000, 0x80
+_CHUNK = 8 << 20  # bytes of the file parsed at once
+
+#: Each byte's value as a hex digit (255: none).
+_NIBBLE = np.full(256, 255, dtype=np.uint8)
+for _i, _c in enumerate(b"0123456789ABCDEF"):
+    _NIBBLE[_c] = _i
+    _NIBBLE[bytes([_c]).lower()[0]] = _i
+
+
+def log_blocks(path: str | Path, size: int = BLOCK) -> Iterator[FrameBlock]:
+    """The frames of candump log ``path`` in blocks of ``size``, as python-can reads them:
+    the lines parsed a few megabytes at a time with one regular expression and numpy; a
+    line it does not know is left to python-can's reader, from the frame it had come to."""
+    import can
+
+    done = 0
+    columns = _Columns(size)
+    try:
+        for block in _log(path, columns):
+            done += len(block)
+            yield block
+        for block in columns.rest():
+            done += len(block)
+            yield block
+        return
+    except _Unexpected:
+        pass
+    reader = can.io.CanutilsLogReader(str(path))
+    try:
+        messages = iter(reader)
+        for _ in range(done):
+            next(messages)
+        yield from message_blocks(messages, size)
+    finally:
+        reader.stop()
+
+
+def _log(path: str | Path, columns: _Columns) -> Iterator[FrameBlock]:
+    with open(path, "rb") as f:
+        carry = b""
+        while True:
+            piece = f.read(_CHUNK)
+            text = carry + piece
+            if piece:
+                cut = text.rfind(b"\n") + 1
+                text, carry = text[:cut], text[cut:]
+            else:
+                carry = b""
+            if text:
+                yield from _lines(text, columns)
+            if not piece:
+                return
+
+
+def _lines(text: bytes, columns: _Columns) -> Iterator[FrameBlock]:
+    found = _LOG_LINE.findall(text)
+    lines = text.count(b"\n") + (not text.endswith(b"\n"))
+    if len(found) != lines and len(found) != len(_NON_BLANK.findall(text)):
+        raise _Unexpected  # (a line of another form: python-can's reader says what it is)
+    if not found:
+        return
+    stamps, idents, rests = zip(*found, strict=True)
+    try:
+        times = np.array(stamps, dtype="S40").astype(np.float64)
+    except ValueError:
+        raise _Unexpected from None
+    ids, id_len = _hex_columns(idents, 8)
+    if int(id_len.max()) > 8:
+        raise _Unexpected  # (python-can takes it; a CAN identifier has 8 digits at most)
+    shift = 4 * (id_len[:, None] - 1 - np.arange(8)[None, :])
+    inside = np.arange(8)[None, :] < id_len[:, None]
+    cob = np.where(inside, ids.astype(np.int64) << np.maximum(shift, 0), 0).sum(axis=1)
+    if (ids[inside] == 255).any():
+        raise _Unexpected
+    raw, rest_len = _hex_columns(rests, 16)
+    plain = (rest_len % 2 == 0) & ~(
+        (raw == 255) & (np.arange(16)[None, :] < rest_len[:, None])
+    ).any(axis=1)
+    nbytes = rest_len // 2
+    data = (raw[:, 0::2].astype(np.uint16) * 16 + raw[:, 1::2]).astype(np.uint8)
+    data[np.arange(8)[None, :] >= nbytes[:, None]] = 0
+    error = ((cob & _CAN_ERR_FLAG) != 0) & ((cob & _CAN_ERR_BUSERROR) != 0)
+    flags = np.where(id_len > 3, EXTENDED, 0) | np.where(error, ERROR, 0)
+    dlc = nbytes.copy()
+    cob = np.where(error, 0, cob & 0x1FFFFFFF)
+    flags = np.where(error, ERROR, flags)
+    for i in np.flatnonzero(~plain | error).tolist():
+        flags[i], dlc[i], data[i] = _special(rests[i], bool(error[i]), int(id_len[i]) > 3)
+    yield from columns.add(times, cob, flags, dlc, data)
+
+
+def _hex_columns(
+    words: tuple[bytes, ...], width: int
+) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.int64]]:
+    """Each word's first ``width`` characters as hex digit values (255: none) and each
+    word's length."""
+    packed = np.array(words, dtype=f"S{width + 1}")  # (one more: a longer word shows)
+    chars = packed.view(np.uint8).reshape(len(words), width + 1)
+    lengths = (chars != 0).sum(axis=1)  # (no hex digit or letter is a zero byte)
+    long = lengths > width
+    if long.any():  # (the true lengths, for what the caller refuses or reads its own way)
+        lengths[long] = [len(words[i]) for i in np.flatnonzero(long).tolist()]
+    return _NIBBLE[chars[:, :width]], lengths
+
+
+def _special(rest: bytes, error: bool, extended: bool) -> tuple[int, int, npt.NDArray[np.uint8]]:
+    """Flags, length and data of a frame that is no classic data frame of up to 8 bytes
+    (remote, CAN FD, an error frame, more than 8 bytes, an odd number of digits), as
+    python-can reads it."""
+    try:
+        text = rest.decode("ascii")
+    except UnicodeDecodeError:
+        raise _Unexpected from None
+    flags = EXTENDED if extended else 0
+    fd = False
+    if text[:1] == "#":
+        fd = True
+        if len(text) < 2 or not text[1].isdigit():
+            raise _Unexpected
+        text = text[2:]
+    if text[:1].lower() == "r" and not error:
+        tail = text[1:]
+        if tail and not tail.isdigit():
+            raise _Unexpected
+        flags |= REMOTE | (FD if fd else 0)
+        return flags, int(tail) if tail else 0, np.zeros(8, dtype=np.uint8)
+    try:
+        body = bytes(int(text[i : i + 2], 16) for i in range(0, len(text), 2))
+    except ValueError:
+        raise _Unexpected from None
+    if error:  # (python-can keeps neither identifier nor data; its default: extended)
+        return ERROR | EXTENDED, 0, np.zeros(8, dtype=np.uint8)
+    flags |= FD if fd else 0
+    row = np.frombuffer(body[:8].ljust(8, b"\0"), dtype=np.uint8).copy()
+    return flags, min(len(body), 255), row
