@@ -10,6 +10,7 @@ reading of the same frames from a candump ``.log`` is the raw rate beside it.
 from __future__ import annotations
 
 import asyncio
+import json
 import tempfile
 import time
 from pathlib import Path
@@ -98,7 +99,8 @@ def main() -> None:
 def _bulk(frames: list[tuple[Frame, float]], od: ObjectDictionary) -> list[str]:
     """Whole traces (issue 45): the session's frames repeated to ``BULK`` as .blf and candump
     .log files; python-can's reader alone, cobus's block reader, ``cobus decode --summary``
-    end to end (read, count, each frame's stuff bits, SDO/EMCY/NMT through the decoder)."""
+    in process (read, count, each frame's stuff bits, SDO/EMCY/NMT through the decoder, the
+    result as JSON and as text; the command's start-up not counted)."""
     from cobus.trace.blocks import blocks
     from cobus.trace.summary import TraceSummary
 
@@ -131,7 +133,14 @@ def _bulk(frames: list[tuple[Frame, float]], od: ObjectDictionary) -> list[str]:
 
             raw = rate(lambda p=path: sum(1 for _ in can.LogReader(str(p))))
             read = rate(lambda p=path: sum(len(b) for b in blocks(p)))
-            summed = rate(lambda p=path: TraceSummary(dictionaries={10: od}).feed(blocks(p)).frames)
+
+            def summarise(p: Path = path) -> int:
+                summary = TraceSummary(dictionaries={10: od}).feed(blocks(p))
+                json.dumps(summary.result())  # (what --summary --json prints)
+                summary.lines()
+                return summary.frames
+
+            summed = rate(summarise)
             lines += [
                 f"  {'python-can reading .' + suffix:<44} {raw:>12,.0f} frames/s",
                 f"  {'cobus blocks of .' + suffix:<44} {read:>12,.0f} frames/s",

@@ -157,3 +157,33 @@ def test_a_log_line_of_another_form_is_left_to_python_can(tmp_path: Path) -> Non
     lines[30] = "(1.295000)  can0   181#01   \n"  # (spaces python-can's split takes)
     path.write_text("".join(lines))
     _same(list(log_blocks(path, 7)), _python_can(path, 7))
+
+
+def test_a_bomb_behind_what_python_can_reads_is_still_refused(tmp_path: Path) -> None:
+    """An object the block reader leaves to python-can's reader (CAN FD 64), then a bomb:
+    the file is checked before python-can's reader inflates anything."""
+    import zlib
+
+    from can.io import blf
+
+    path = tmp_path / "fd64.blf"
+    with can.BLFWriter(str(path)) as writer:
+        for n in range(5):
+            writer.on_message_received(can.Message(arbitration_id=0x181, data=[n], timestamp=n))
+    fd64 = blf.OBJ_HEADER_BASE_STRUCT.pack(b"LOBJ", 32, 1, 32 + 40, 101) + bytes(16 + 40)
+    body = blf.LOG_CONTAINER_STRUCT.pack(blf.ZLIB_DEFLATE, len(fd64)) + zlib.compress(fd64)
+    size = blf.OBJ_HEADER_BASE_STRUCT.size + len(body)
+    head = blf.OBJ_HEADER_BASE_STRUCT.pack(b"LOBJ", 16, 1, size, blf.LOG_CONTAINER)
+    with path.open("ab") as f:
+        f.write(head + body + bytes(size % 4))
+    _same(list(blf_blocks(path, 3)), _python_can(path, 3))  # (handed over, the same)
+    inflated = 64 << 20
+    deflate = zlib.compressobj()
+    bomb = deflate.compress(bytes(inflated)) + deflate.flush()
+    body = blf.LOG_CONTAINER_STRUCT.pack(blf.ZLIB_DEFLATE, 128 * 1024) + bomb
+    size = blf.OBJ_HEADER_BASE_STRUCT.size + len(body)
+    head = blf.OBJ_HEADER_BASE_STRUCT.pack(b"LOBJ", 16, 1, size, blf.LOG_CONTAINER)
+    with path.open("ab") as f:
+        f.write(head + body + bytes(size % 4))
+    with pytest.raises(TraceFileError, match="inflates to more than"):
+        list(blf_blocks(path))

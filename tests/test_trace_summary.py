@@ -223,3 +223,52 @@ def test_cobus_decode_summary(tmp_path: Path) -> None:
     ]:
         done = subprocess.run([*base, *extra], capture_output=True, text=True)
         assert done.returncode == 2 and said in done.stderr, done.stderr
+
+
+def test_what_the_review_of_the_summary_found() -> None:
+    """result() twice gives the same; missed beats whatever the blocks; times that step
+    back; latencies past the sample kept; a node silent at the end; LSS frames no node's;
+    the last window of a few frames left out; too short a window refused."""
+    beats = [_message(0.1 * k, 0x705, b"\x05") for k in range(20)]
+    beats += [_message(2.5 + 0.1 * k, 0x705, b"\x05") for k in range(20)]  # (after 0.6 s)
+    beats.append(_message(9.0, 0x181, bytes(2)))  # (node 5 silent from 4.4 s on)
+    for size in (1, 2, 5, 1000):
+        (node,) = [n for n in _summary(beats, size).result()["nodes"] if n["node"] == 5]
+        assert node["heartbeat"]["missed"] == 5 + 45, size
+    summary = _summary(beats)
+    assert summary.result() == summary.result()
+    back = [_message(1.0, 0x181, bytes(8)), _message(0.5, 0x181, bytes(8))]
+    back += [_message(2.0 + k, 0x181, bytes(8)) for k in range(3)]
+    assert _summary(back).result()["frames"] == 5  # (no exception)
+    assert _summary([_message(0.0, 0x181), _message(1e9, 0x181)]).result()["frames"] == 2
+    from cobus.trace import summary as module
+
+    many = TraceSummary()
+    stats = many._node(5)
+    for _k in range(module.KEEP + 10):
+        stats.latency(0.001)
+    stats.latency(0.05)
+    many.feed([])
+    lat = many.result()["nodes"][0]["sdo_latency"]
+    assert lat["count"] == module.KEEP + 11 and lat["max"] == 0.05
+    lss = [_message(0.01 * k, 0x7E5, bytes((0x4C, 0, 0, 0, 0, 0, 0, 0))) for k in range(50)]
+    lss.append(_message(1.0, 0x764, b"\x05"))
+    nodes = {n["node"]: n["frames"] for n in _summary(lss).result()["nodes"]}
+    assert nodes == {100: 1}
+    tail = [_message(0.001 * k, 0x181, bytes(8)) for k in range(1000)]
+    tail.append(_message(1.05, 0x181, bytes(8)))
+    windows = _summary(tail).result()["bus_load"]["per_window"]
+    assert [w["start"] for w in windows] == [0.0]
+    with pytest.raises(ValueError, match="at least"):
+        TraceSummary(bitrate=500_000, window=0.001)
+
+
+def test_the_timeline_keeps_the_earliest_events() -> None:
+    from cobus.trace import summary as module
+
+    events = [_message(0.001 * k, 0x000, b"\x01\x05") for k in range(module.TIMELINE + 50)]
+    for size in (1, 65_536):
+        r = _summary(events, size).result()
+        assert len(r["timeline"]) == module.TIMELINE and r["timeline_dropped"] == 50
+        assert r["timeline"][0]["time"] == 0.0
+        assert r["timeline"][-1]["time"] == pytest.approx(0.001 * (module.TIMELINE - 1))

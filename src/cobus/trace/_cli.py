@@ -179,7 +179,10 @@ def _summary(args: argparse.Namespace) -> int:
         return _fail(str(exc), 2)
     if not args.file.is_file():
         return _fail(f"{args.file}: no such file")
-    summary = TraceSummary(args.bitrate, args.window, dictionaries, network)
+    try:
+        summary = TraceSummary(args.bitrate, args.window, dictionaries, network)
+    except ValueError as exc:
+        return _fail(f"--window: {exc}", 2)
     try:
         summary.feed(blocks(args.file))
     except BrokenPipeError:

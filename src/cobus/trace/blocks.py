@@ -2,8 +2,9 @@
 
 A :class:`FrameBlock` holds up to :data:`BLOCK` frames column by column: times, identifiers,
 flags, DLCs and the data bytes (zero-padded to 8). :func:`blocks` reads a trace file in
-blocks of constant size (memory stays bounded whatever the trace's length), from python-can's
-reader for every format it reads; :func:`frame_bits` gives each frame's length on the wire,
+blocks of constant size (memory stays bounded whatever the trace's length): BLF and candump
+.log files with :mod:`cobus.trace.fastread`, every other format python-can reads with its
+reader; :func:`frame_bits` gives each frame's length on the wire,
 bit stuffing included, for bus load.
 """
 

@@ -8,12 +8,16 @@ python-can's reader gives, frame for frame (a test holds it to that on every tra
 refuses what :func:`cobus.trace.files.check_blf` refuses (a container that announces or
 inflates to more than :data:`~cobus.trace.files.MAX_CONTAINER`), without inflating twice.
 What it does not expect of a file it leaves to python-can's reader, from the frame it had
-come to: the blocks go on as python-can reads them.
+come to (the file checked first): the blocks go on as python-can reads them.
+
+:func:`log_blocks` does the same for candump ``.log`` files, a few megabytes of lines at a
+time.
 """
 
 from __future__ import annotations
 
 import re
+import struct
 import zlib
 from collections.abc import Generator, Iterator
 from pathlib import Path
@@ -23,7 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from cobus.trace.blocks import BLOCK, ERROR, EXTENDED, FD, REMOTE, FrameBlock, message_blocks
-from cobus.trace.files import MAX_CONTAINER, TraceFileError
+from cobus.trace.files import _SLACK, MAX_CONTAINER, TraceFileError, check_blf
 
 __all__ = ["blf_blocks", "log_blocks"]
 
@@ -122,7 +126,9 @@ def blf_blocks(path: str | Path, size: int = BLOCK) -> Iterator[FrameBlock]:
             return
         except _Unexpected:
             pass
-    # the rest as python-can reads it (frames gathered but not handed over are read again)
+    # the rest as python-can reads it (frames gathered but not handed over are read again),
+    # its containers checked first as cobus decode checks them
+    check_blf(path)
     reader = can.io.BLFReader(str(path))
     try:
         messages = iter(reader)
@@ -148,6 +154,13 @@ def _read(path: str | Path, f: BinaryIO, start: float, columns: _Columns) -> Ite
         signature, _, _, obj_size, obj_type = base.unpack(raw)
         if signature != b"LOBJ" or obj_size < base.size:
             raise _Unexpected
+        if obj_type == _LOG_CONTAINER and obj_size - base.size > MAX_CONTAINER + _SLACK:
+            raise TraceFileError(
+                f"{Path(path).name}: the log container at byte {offset:,} holds "
+                f"{obj_size - base.size:,} bytes, more than the {MAX_CONTAINER:,} cobus reads "
+                "in one (real traces hold 128 KiB a container): a damaged or hostile file; "
+                "not read"
+            )
         body = f.read(obj_size - base.size)
         f.read(obj_size % 4)
         if obj_type == _LOG_CONTAINER:
@@ -231,7 +244,12 @@ def _objects(data: bytes, start: float, columns: _Columns) -> Generator[FrameBlo
             yield from _messages(rows[:run], start, columns)
             pos += run * obj_size
             continue
-        yield from _one(data, pos, header_version, obj_size, obj_type, start, columns)
+        try:
+            frame = _one(data, pos, header_version, obj_size, obj_type, start)
+        except struct.error:
+            raise _Unexpected from None  # (a short object: python-can's reader decides)
+        if frame is not None:
+            yield from columns.add(*frame)
         pos += obj_size
 
 
@@ -264,21 +282,15 @@ def _messages(rows: npt.NDArray[Any], start: float, columns: _Columns) -> Iterat
 
 
 def _one(
-    data: bytes,
-    pos: int,
-    header_version: int,
-    obj_size: int,
-    obj_type: int,
-    start: float,
-    columns: _Columns,
-) -> Iterator[FrameBlock]:
-    """An object that is no run of CAN messages: one frame, or nothing."""
+    data: bytes, pos: int, header_version: int, obj_size: int, obj_type: int, start: float
+) -> tuple[Any, ...] | None:
+    """An object that is no run of CAN messages: one frame's columns, or None."""
     from can.io import blf
 
     if obj_type not in (_CAN_MESSAGE, _CAN_MESSAGE2, _CAN_ERROR_EXT, _CAN_FD_MESSAGE):
         if obj_type == _CAN_FD_MESSAGE_64:
             raise _Unexpected  # (rare: python-can's reader takes it from here)
-        return  # (python-can skips what is not a frame)
+        return None  # (python-can skips what is not a frame)
     at = pos + blf.OBJ_HEADER_BASE_STRUCT.size
     if header_version == 1:
         time_flags, _, _, stamp = blf.OBJ_HEADER_V1_STRUCT.unpack_from(data, at)
@@ -287,7 +299,7 @@ def _one(
         time_flags, _, _, stamp = blf.OBJ_HEADER_V2_STRUCT.unpack_from(data, at)
         at += blf.OBJ_HEADER_V2_STRUCT.size
     else:
-        return  # (python-can skips it, with a warning)
+        return None  # (python-can skips it, with a warning)
     if obj_type in (_CAN_MESSAGE, _CAN_MESSAGE2):
         _channel, msg_flags, dlc, can_id, payload = blf.CAN_MSG_STRUCT.unpack_from(data, at)
         rtr = bool(msg_flags & 0x80)
@@ -309,7 +321,7 @@ def _one(
         body = b"" if rtr else payload[:valid]
         length = (_CAN_FD_LEN[dlc] if dlc <= 15 else 64) if rtr else len(body)
     row = np.frombuffer(body[:8].ljust(8, b"\0"), dtype=np.uint8).reshape(1, 8)
-    yield from columns.add(
+    return (
         _times(np.array([stamp], dtype=np.uint64), np.array([time_flags]), start),
         np.array([can_id & 0x1FFFFFFF]),
         np.array([flag]),

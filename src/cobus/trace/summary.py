@@ -20,7 +20,9 @@ emergency texts are the decoder's.
 
 from __future__ import annotations
 
+import heapq
 import math
+import random
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -50,6 +52,20 @@ _STATE = {0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 #: Function codes of the default connection set (COB-ID & 780h).
 _TPDO = {0x180: 1, 0x280: 2, 0x380: 3, 0x480: 4}
 _RPDO = {0x200: 1, 0x300: 2, 0x400: 3, 0x500: 4}
+
+
+#: Intervals a node's heartbeat period is taken from (their median).
+_PERIOD_FROM = 16
+#: Entries of LSS sessions kept.
+_LSS_KEPT = 1_000
+
+
+def _missed(gaps: npt.NDArray[np.float64], period: float) -> int:
+    """Beats missing in ``gaps``: an interval over 1.5 periods lacks all but one."""
+    if not period or not len(gaps):
+        return 0
+    late = gaps > 1.5 * period
+    return int(np.maximum(1, np.round(gaps[late] / period) - 1).sum())
 
 
 @dataclass
@@ -108,10 +124,26 @@ class _Node:
     bootups: int = 0
     reboots: int = 0
     guarding: int = 0
-    tpdos: int = 0
-    rpdos: int = 0
     sdo_asked: float | None = None
+    #: Latencies: how many, the least, the most, and a sample of at most KEEP for the
+    #: median and p99 (every one until then; a uniform one after, the same each run).
     latencies: list[float] = field(default_factory=list)
+    answered: int = 0
+    fastest: float = math.inf
+    slowest: float = -math.inf
+    draw: random.Random = field(default_factory=lambda: random.Random(45))
+
+    def latency(self, value: float) -> None:
+        self.answered += 1
+        self.fastest = min(self.fastest, value)
+        self.slowest = max(self.slowest, value)
+        if len(self.latencies) < KEEP:
+            self.latencies.append(value)
+        else:
+            slot = self.draw.randrange(self.answered)
+            if slot < KEEP:
+                self.latencies[slot] = value
+
     transfers: int = 0
     aborts: dict[str, int] = field(default_factory=dict)
     unfinished: list[str] = field(default_factory=list)
@@ -133,8 +165,12 @@ class TraceSummary:
     ) -> None:
         if bitrate <= 0:
             raise ValueError(f"bit rate {bitrate}: give it in bit/s, e.g. 500000")
-        if window <= 0:
-            raise ValueError(f"window {window} s: give a positive number of seconds")
+        shortest = max(0.01, 20 * 135 / max(bitrate, 1))
+        if not window >= shortest:
+            raise ValueError(
+                f"window {window} s: give at least {shortest:g} s (twenty frames at "
+                f"{bitrate} bit/s), or the load of one frame fills it"
+            )
         self.bitrate = bitrate
         self.window = window
         self.decoder = Decoder(dictionaries, network=network)
@@ -152,7 +188,9 @@ class TraceSummary:
         self._burst = (0, 0.0, 0.0)  # frames, start, end
         self._run = (0, 0.0, 0.0)  # the burst under way at the end of the last block
         self._last_end: float | None = None  # when the last frame's last bit was sent
-        self.timeline: list[tuple[float, str]] = []
+        #: The earliest TIMELINE events: (-time, order, text), a heap of the latest on top.
+        self._timeline: list[tuple[float, int, str]] = []
+        self._events = 0
         self.timeline_dropped = 0
         self.lss: list[str] = []
 
@@ -163,10 +201,19 @@ class TraceSummary:
         return found
 
     def _event(self, when: float, text: str) -> None:
-        if len(self.timeline) < TIMELINE:
-            self.timeline.append((when, text))
+        self._events += 1
+        entry = (-when, -self._events, text)
+        if len(self._timeline) < TIMELINE:
+            heapq.heappush(self._timeline, entry)
         else:
             self.timeline_dropped += 1
+            if entry > self._timeline[0]:  # (earlier than the latest kept)
+                heapq.heapreplace(self._timeline, entry)
+
+    @property
+    def timeline(self) -> list[tuple[float, str]]:
+        """The time line's earliest :data:`TIMELINE` events, in time order."""
+        return [(-t, text) for t, _n, text in sorted(self._timeline, reverse=True)]
 
     # ------------------------------------------------------------------ feeding
 
@@ -194,10 +241,10 @@ class TraceSummary:
             self._per_cob[k] = self._per_cob.get(k, 0) + c
         bits = frame_bits(block)
         slots = (t // self.window).astype(np.int64)
-        sums = np.bincount(slots - slots[0], weights=bits)
-        for i, v in enumerate(sums.tolist()):
+        windows, where = np.unique(slots, return_inverse=True)  # (times may step back)
+        sums = np.bincount(where.ravel(), weights=bits)
+        for slot, v in zip(windows.tolist(), sums.tolist(), strict=True):
             if v:
-                slot = int(slots[0]) + i
                 self._bits[slot] = self._bits.get(slot, 0) + int(v)
         self._bursts(t, bits, good)
         std = good & ~ext
@@ -340,14 +387,22 @@ class TraceSummary:
         stats.last_boot = bool(boot[-1])
         if not len(gaps):
             return
-        if stats.period is None:
-            stats.first.extend(gaps[:16].tolist())
-            if len(stats.first) >= 3:
-                stats.period = float(np.median(stats.first))
-        if stats.period:
-            late = gaps > 1.5 * stats.period
-            stats.missed += int(np.maximum(1, np.round(gaps[late] / stats.period) - 1).sum())
+        if stats.period is None:  # (the first intervals wait for the period they set)
+            stats.first.extend(gaps.tolist())
+            if len(stats.first) >= _PERIOD_FROM:
+                self._period(stats)
+        else:
+            stats.missed += _missed(gaps, stats.period)
         stats.intervals.add(gaps)
+
+    @staticmethod
+    def _period(stats: _Node) -> None:
+        """The node's period: the median of its first intervals, which are then checked
+        against it like every later one."""
+        first = np.array(stats.first, dtype=np.float64)
+        stats.period = float(np.median(first[:_PERIOD_FROM]))
+        stats.missed += _missed(first, stats.period)
+        stats.first = []
 
     def _slow(self, block: FrameBlock, i: int, now: float) -> None:
         dlc = int(block.dlc[i])
@@ -361,8 +416,7 @@ class TraceSummary:
         elif not rtr and func == 0x580:
             stats = self._node(node)
             if stats.sdo_asked is not None:
-                if len(stats.latencies) < KEEP:
-                    stats.latencies.append(now - stats.sdo_asked)
+                stats.latency(now - stats.sdo_asked)
                 stats.sdo_asked = None
         for rec in self.decoder.feed(frame, now):
             self._record(rec)
@@ -391,7 +445,8 @@ class TraceSummary:
             who = "all nodes" if rec.target == 0 else f"node {rec.target}"
             self._event(rec.time, f"NMT {rec.command} {who}")
         elif isinstance(rec, LssSession):
-            self.lss.append(str(rec))
+            if len(self.lss) < _LSS_KEPT:
+                self.lss.append(str(rec))
             self._event(rec.time, str(rec))
         elif isinstance(rec, Bootup):  # (not fed: heartbeats are counted in bulk)
             pass
@@ -404,10 +459,17 @@ class TraceSummary:
         return self
 
     def finish(self) -> None:
-        """The trace is over: SDO transfers still open count as unfinished."""
+        """The trace is over: SDO transfers still open count as unfinished; a node with
+        fewer intervals than the period needs gets its period from them; a node silent at
+        the end misses the beats of that silence."""
         end = 0.0 if self.start is None or self.end is None else self.end - self.start
         for rec in self.decoder.flush(end):
             self._record(rec)
+        for stats in self._nodes.values():
+            if stats.period is None and stats.first:
+                self._period(stats)
+            if stats.period and stats.last_beat is not None and not stats.last_boot:
+                stats.missed += _missed(np.array([end - stats.last_beat]), stats.period)
 
     # ------------------------------------------------------------------ results
 
@@ -435,14 +497,16 @@ class TraceSummary:
         """The summary as data (what ``--summary --json`` prints)."""
         span = self.duration
         per_second = (lambda c: c / span) if span > 0 else (lambda c: float(c))
-        capacity = self.bitrate * self.window
-        loads = [
-            (round(slot * self.window, 9), bits / capacity)
-            for slot, bits in sorted(self._bits.items())
-        ]
+        loads = []
+        for slot, slot_bits in sorted(self._bits.items()):
+            begin = slot * self.window
+            covered = min(self.window, span - begin) if span > begin else 0.0
+            if covered >= self.window / 2:  # (a last window of a few frames says nothing)
+                loads.append((round(begin, 9), slot_bits / (self.bitrate * covered)))
         peak = max(loads, key=lambda w: w[1]) if loads else None
         bits = sum(self._bits.values())
         cobs = []
+        pdo_frames: dict[int, dict[str, int]] = {}
         for key, count in sorted(self._per_cob.items()):
             cob = key & 0x1FFFFFFF
             entry: dict[str, Any] = {
@@ -454,19 +518,16 @@ class TraceSummary:
             pdo = None if key >> 31 else self._pdo_kind(cob)
             if pdo is not None:
                 entry["pdo"] = f"{pdo[1].upper()}{pdo[2]} of node {pdo[0]}"
-                stats = self._node(pdo[0])
-                if pdo[1] == "tpdo":
-                    stats.tpdos += count
-                else:
-                    stats.rpdos += count
+                counted = pdo_frames.setdefault(pdo[0], {"tpdo": 0, "rpdo": 0})
+                counted[pdo[1]] += count
                 age = self._age.get(cob)
                 if age is not None and age.count:
                     entry["age_after_sync"] = age.as_dict()
             cobs.append(entry)
-        nodes = {n: self._node(n) for n in sorted(self._nodes)}
+        nodes = {n: self._nodes.get(n) or _Node() for n in sorted({*self._nodes, *pdo_frames})}
         per_node: dict[int, int] = {}
         for key, count in self._per_cob.items():
-            if not key >> 31 and key & 0x7F and key & 0x780 not in (0x000,):
+            if not key >> 31 and key & 0x7F and key & 0x780 not in (0x000, 0x780):
                 per_node[key & 0x7F] = per_node.get(key & 0x7F, 0) + count
         out_nodes = []
         for n, s in nodes.items():
@@ -474,11 +535,11 @@ class TraceSummary:
             latency = None
             if lat:
                 latency = {
-                    "count": len(lat),
-                    "min": lat[0],
+                    "count": s.answered,
+                    "min": s.fastest,
                     "median": lat[len(lat) // 2],
                     "p99": lat[min(len(lat) - 1, math.ceil(0.99 * len(lat)) - 1)],
-                    "max": lat[-1],
+                    "max": s.slowest,
                 }
             heartbeat = s.intervals.as_dict()
             if heartbeat is not None:
@@ -494,8 +555,9 @@ class TraceSummary:
                     "reboots": s.reboots,
                     "guarding_replies": s.guarding,
                     "state": _STATE.get(s.state) if s.state else None,
-                    "tpdos": s.tpdos,
-                    "rpdos": s.rpdos,
+                    "tpdos": pdo_frames.get(n, {}).get("tpdo", 0),
+                    "rpdos": pdo_frames.get(n, {}).get("rpdo", 0),
+                    "last_heartbeat": s.last_beat,
                     "sdo_transfers": s.transfers,
                     "sdo_latency": latency,
                     "sdo_aborts": dict(sorted(s.aborts.items())),
@@ -525,9 +587,7 @@ class TraceSummary:
             "sync": self._sync.as_dict(),
             "cob_ids": cobs,
             "nodes": out_nodes,
-            "timeline": [
-                {"time": t, "event": e} for t, e in sorted(self.timeline, key=lambda x: x[0])
-            ],
+            "timeline": [{"time": t, "event": e} for t, e in self.timeline],
             "timeline_dropped": self.timeline_dropped,
             "lss": list(self.lss),
         }
