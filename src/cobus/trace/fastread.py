@@ -390,9 +390,107 @@ def _log(path: str | Path, columns: _Columns) -> Iterator[FrameBlock]:
             else:
                 carry = b""
             if text:
-                yield from _lines(text, columns)
+                frames = _lines_by_layout(text)
+                if frames is None:  # (a line of another layout: the regular expression)
+                    yield from _lines(text, columns)
+                else:
+                    yield from columns.add(*frames)
             if not piece:
                 return
+
+
+_POWERS = 10 ** np.arange(19, dtype=np.int64)
+
+
+def _first_after(positions: npt.NDArray[np.int64], after: npt.NDArray[np.int64]) -> Any:
+    """For each of ``after``, the first of ``positions`` at or past it (len: none)."""
+    at = np.searchsorted(positions, after)
+    return np.append(positions, np.iinfo(np.int64).max)[at]
+
+
+def _lines_by_layout(text: bytes) -> tuple[Any, ...] | None:
+    """The frames of ``text`` (whole lines) found column by column, when every line has
+    candump's layout: ``(SECONDS.FRACTION) CHANNEL ID#DATA`` and maybe `` R`` or `` T``;
+    None when a line has another (blank, other spacing): the regular expression's turn."""
+    buf = np.frombuffer(text, dtype=np.uint8)
+    ends = np.flatnonzero(buf == 10)
+    if not len(ends) or ends[-1] != len(buf) - 1:
+        return None
+    starts = np.concatenate(([0], ends[:-1] + 1))
+    stop = ends - (buf[np.maximum(ends - 1, 0)] == 13)  # (before a CR)
+    if (buf[starts] != 40).any():  # (
+        return None
+    close = _first_after(np.flatnonzero(buf == 41), starts)  # )
+    spaces = np.flatnonzero(buf == 32)
+    if not (close < stop).all() or (buf[close + 1] != 32).any():
+        return None
+    channel_end = _first_after(spaces, close + 2)
+    hashes = _first_after(np.flatnonzero(buf == 35), channel_end)
+    if not ((channel_end > close + 2) & (hashes < stop)).all():
+        return None
+    data_end = _first_after(spaces, hashes)
+    suffix = data_end < stop
+    if suffix.any():  # (python-can's writer: " R" or " T" after the frame)
+        at = data_end[suffix]
+        mark = buf[np.minimum(at + 1, len(buf) - 1)] | 0x20
+        if ((at + 2 != stop[suffix]) | ((mark != 114) & (mark != 116))).any():
+            return None
+    data_end = np.where(suffix, data_end, stop)
+    # the identifier: the digits between the channel and #, 1 to 8 of them
+    id_len = hashes - channel_end - 1
+    if ((id_len < 1) | (id_len > 8)).any():  # (a space in it: no hex digit, refused below)
+        return None
+    # the time: digits and one point between the parentheses, exact as python-can's float()
+    last = len(buf) - 1
+    n = len(starts)
+    tlen = close - starts - 1
+    value = np.zeros(n, dtype=np.int64)
+    count = np.zeros(n, dtype=np.int64)
+    places = np.zeros(n, dtype=np.int64)
+    points = np.zeros(n, dtype=np.int64)
+    bad = tlen < 1
+    for j in range(int(tlen.max(initial=0))):
+        c = buf[np.minimum(starts + 1 + j, last)].astype(np.int64)
+        inside = j < tlen
+        digit = inside & (c >= 48) & (c <= 57)
+        point = inside & (c == 46)
+        bad |= inside & ~digit & ~point
+        value = np.where(digit, value * 10 + (c - 48), value)
+        count += digit
+        places += digit & (points > 0)
+        points += point
+        if (count > 18).any():
+            return None
+    if bad.any() or (points > 1).any() or (count == 0).any() or (value >= 1 << 53).any():
+        return None  # (another form, or more digits than float64 holds exactly)
+    times = value / (10.0**places)
+    # the identifier and the data in hex
+    cob = np.zeros(n, dtype=np.int64)
+    for j in range(8):
+        inside = j < id_len
+        digit = _NIBBLE[buf[np.minimum(channel_end + 1 + j, last)]].astype(np.int64)
+        if (inside & (digit == 255)).any():
+            return None
+        cob = np.where(inside, cob * 16 + digit, cob)
+    data_len = data_end - hashes - 1
+    data = np.zeros((n, 8), dtype=np.uint8)
+    plain = (data_len <= 16) & (data_len % 2 == 0)
+    for j in range(8):
+        high = _NIBBLE[buf[np.minimum(hashes + 1 + 2 * j, last)]]
+        low = _NIBBLE[buf[np.minimum(hashes + 2 + 2 * j, last)]]
+        inside = 2 * j < data_len
+        plain &= ~(inside & ((high == 255) | (low == 255)))
+        data[:, j] = np.where(inside, (high.astype(np.uint16) * 16 + low).astype(np.uint8), 0)
+    nbytes = np.where(plain, data_len // 2, 0)
+    data[~plain] = 0
+    error = ((cob & _CAN_ERR_FLAG) != 0) & ((cob & _CAN_ERR_BUSERROR) != 0)
+    flags = np.where(id_len > 3, EXTENDED, 0)
+    dlc = nbytes.copy()
+    cob = np.where(error, 0, cob & 0x1FFFFFFF)
+    for i in np.flatnonzero(~plain | error).tolist():
+        rest = text[int(hashes[i]) + 1 : int(data_end[i])]
+        flags[i], dlc[i], data[i] = _special(rest, bool(error[i]), int(id_len[i]) > 3)
+    return times, cob, flags, dlc, data
 
 
 def _lines(text: bytes, columns: _Columns) -> Iterator[FrameBlock]:
