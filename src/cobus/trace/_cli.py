@@ -157,6 +157,20 @@ def _plain(value: Any) -> Any:
     return str(value)
 
 
+def _inputs_of(args: argparse.Namespace) -> tuple[Any, Any] | int:
+    """The dictionaries and network ``--eds``/``--network`` give, or the exit code of what
+    cannot be read (those, or the trace file)."""
+    from cobus.trace.monitor import _inputs
+
+    try:
+        found = _inputs(args)
+    except Exception as exc:  # a network file or EDS that cannot be read
+        return _fail(str(exc), 2)
+    if not args.file.is_file():
+        return _fail(f"{args.file}: no such file")
+    return found
+
+
 def _bitrate(text: str) -> int:
     if not text.isdigit() or not 1_000 <= int(text) <= 8_000_000:
         raise argparse.ArgumentTypeError(f"{text!r}: a bit rate in bit/s, e.g. 250000")
@@ -165,7 +179,6 @@ def _bitrate(text: str) -> int:
 
 def _summary(args: argparse.Namespace) -> int:
     from cobus.trace.blocks import blocks
-    from cobus.trace.monitor import _inputs
     from cobus.trace.summary import TraceSummary
 
     for given, name in ((args.filter, "--filter"), (args.node, "--node")):
@@ -173,12 +186,10 @@ def _summary(args: argparse.Namespace) -> int:
             return _fail(f"{name} does not go with --summary (it sums up the whole trace)", 2)
     if args.absolute:
         return _fail("--absolute does not go with --summary (times count from the start)", 2)
-    try:
-        dictionaries, network = _inputs(args)
-    except Exception as exc:  # a network file or EDS that cannot be read
-        return _fail(str(exc), 2)
-    if not args.file.is_file():
-        return _fail(f"{args.file}: no such file")
+    inputs = _inputs_of(args)
+    if isinstance(inputs, int):
+        return inputs
+    dictionaries, network = inputs
     try:
         summary = TraceSummary(args.bitrate, args.window, dictionaries, network)
     except ValueError as exc:
@@ -202,14 +213,11 @@ def _decode(args: argparse.Namespace) -> int:
 
     from cobus.runtime.bus import message_to_frame
     from cobus.trace.decoder import Decoder
-    from cobus.trace.monitor import _inputs
 
-    try:
-        dictionaries, network = _inputs(args)
-    except Exception as exc:  # a network file or EDS that cannot be read
-        return _fail(str(exc), 2)
-    if not args.file.is_file():
-        return _fail(f"{args.file}: no such file")
+    inputs = _inputs_of(args)
+    if isinstance(inputs, int):
+        return inputs
+    dictionaries, network = inputs
     decoder = Decoder(dictionaries, network=network)
     first: float | None = None
     now = 0.0

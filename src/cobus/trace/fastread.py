@@ -19,7 +19,7 @@ from __future__ import annotations
 import re
 import struct
 import zlib
-from collections.abc import Generator, Iterator
+from collections.abc import Callable, Generator, Iterator
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -100,43 +100,57 @@ class _Columns:
             yield self._take(self.count)
 
 
-def blf_blocks(path: str | Path, size: int = BLOCK) -> Iterator[FrameBlock]:
-    """The frames of BLF file ``path`` in blocks of ``size``, as python-can reads them."""
-    import can
-    from can.io import blf
-
+def _then_python_can(
+    fast: Iterator[FrameBlock], reader: Callable[[], Any], size: int
+) -> Iterator[FrameBlock]:
+    """``fast``'s blocks; once it meets what it leaves to python-can (:class:`_Unexpected`),
+    the messages of python-can's ``reader()`` from the frame it had come to (frames gathered
+    but not handed over yet are read again)."""
     done = 0
-    with open(path, "rb") as f:
-        head = f.read(blf.FILE_HEADER_STRUCT.size)
-        if len(head) < blf.FILE_HEADER_STRUCT.size:
-            raise TraceFileError(f"{Path(path).name}: too short for a BLF file")
-        header = blf.FILE_HEADER_STRUCT.unpack(head)
-        if header[0] != b"LOGG":
-            raise TraceFileError(f"{Path(path).name}: no BLF file (it does not start with LOGG)")
-        start = blf.systemtime_to_timestamp(header[14:22])
-        f.seek(header[1])
-        columns = _Columns(size)
-        try:
-            for block in _read(path, f, start, columns):
-                done += len(block)
-                yield block
-            for block in columns.rest():
-                done += len(block)
-                yield block
-            return
-        except _Unexpected:
-            pass
-    # the rest as python-can reads it (frames gathered but not handed over are read again),
-    # its containers checked first as cobus decode checks them
-    check_blf(path)
-    reader = can.io.BLFReader(str(path))
     try:
-        messages = iter(reader)
+        for block in fast:
+            done += len(block)
+            yield block
+        return
+    except _Unexpected:
+        pass
+    source = reader()
+    try:
+        messages = iter(source)
         for _ in range(done):
             next(messages)
         yield from message_blocks(messages, size)
     finally:
-        reader.stop()
+        source.stop()
+
+
+def blf_blocks(path: str | Path, size: int = BLOCK) -> Iterator[FrameBlock]:
+    """The frames of BLF file ``path`` in blocks of ``size``, as python-can reads them."""
+    import can
+
+    def fast() -> Iterator[FrameBlock]:
+        from can.io import blf
+
+        with open(path, "rb") as f:
+            head = f.read(blf.FILE_HEADER_STRUCT.size)
+            if len(head) < blf.FILE_HEADER_STRUCT.size:
+                raise TraceFileError(f"{Path(path).name}: too short for a BLF file")
+            header = blf.FILE_HEADER_STRUCT.unpack(head)
+            if header[0] != b"LOGG":
+                raise TraceFileError(
+                    f"{Path(path).name}: no BLF file (it does not start with LOGG)"
+                )
+            start = blf.systemtime_to_timestamp(header[14:22])
+            f.seek(header[1])
+            columns = _Columns(size)
+            yield from _read(path, f, start, columns)
+            yield from columns.rest()
+
+    def python_can() -> Any:
+        check_blf(path)  # (its containers checked as cobus decode checks them)
+        return can.io.BLFReader(str(path))
+
+    yield from _then_python_can(fast(), python_can, size)
 
 
 def _read(path: str | Path, f: BinaryIO, start: float, columns: _Columns) -> Iterator[FrameBlock]:
@@ -352,30 +366,17 @@ for _i, _c in enumerate(b"0123456789ABCDEF"):
 
 def log_blocks(path: str | Path, size: int = BLOCK) -> Iterator[FrameBlock]:
     """The frames of candump log ``path`` in blocks of ``size``, as python-can reads them:
-    the lines parsed a few megabytes at a time with one regular expression and numpy; a
-    line it does not know is left to python-can's reader, from the frame it had come to."""
+    the lines parsed a few megabytes at a time, column by column with numpy (a chunk with
+    a line of another layout: with one regular expression); a line it does not know is
+    left to python-can's reader, from the frame it had come to."""
     import can
 
-    done = 0
-    columns = _Columns(size)
-    try:
-        for block in _log(path, columns):
-            done += len(block)
-            yield block
-        for block in columns.rest():
-            done += len(block)
-            yield block
-        return
-    except _Unexpected:
-        pass
-    reader = can.io.CanutilsLogReader(str(path))
-    try:
-        messages = iter(reader)
-        for _ in range(done):
-            next(messages)
-        yield from message_blocks(messages, size)
-    finally:
-        reader.stop()
+    def fast() -> Iterator[FrameBlock]:
+        columns = _Columns(size)
+        yield from _log(path, columns)
+        yield from columns.rest()
+
+    yield from _then_python_can(fast(), lambda: can.io.CanutilsLogReader(str(path)), size)
 
 
 def _log(path: str | Path, columns: _Columns) -> Iterator[FrameBlock]:
