@@ -82,7 +82,8 @@ def register(sub: Any) -> None:
         action="store_true",
         help="what the trace shows instead of its records: bus load, frames per COB-ID and "
         "node, heartbeat and SYNC periods and jitter, PDO age after SYNC, SDO latency and "
-        "aborts, emergencies, NMT time line (--json: one object)",
+        "aborts, emergencies, NMT time line (--json: one object; the channels of a "
+        "trace of several buses are counted as one)",
     )
     decode.add_argument(
         "--bitrate",
