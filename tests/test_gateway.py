@@ -1956,3 +1956,47 @@ def test_two_servers_of_one_core_and_the_core_closes_with_the_last() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         asyncio.run(asyncio.wait_for(main(tmp), 60))
+
+
+def test_slowscan_is_not_fooled_by_a_late_second_slave_and_auth_waits_stay() -> None:
+    """Two slaves in the ranges, one answering 3 ms late: _lss_slowscan finds the lowest
+    that is there (each answer let settle, the value found asked again); a wrong token's
+    wait cut short by cancel does not let the next guess in sooner."""
+    import struct as _struct
+
+    async def main() -> None:
+        rig = Rig.loads("devices:\n  - {node: unconfigured, kind: cia401_io, serial: 0x1235}\n")
+        channel = f"gw-{uuid.uuid4()}"
+        async with (
+            AsyncNetwork(interface="virtual", channel=channel) as net,
+            AsyncNetwork(interface="virtual", channel=channel) as other,
+        ):
+            await rig.start(net)
+            asked: dict[int, int] = {}
+
+            def late_slave(frame: Frame, now: float) -> None:  # (serial 0x1236, 3 ms late)
+                cs, value = frame.data[0], _struct.unpack_from("<I", frame.data, 1)[0]
+                if 0x46 <= cs <= 0x4B:
+                    asked[cs] = value
+                within = len(asked) == 6 and asked[0x4A] <= 0x1236 <= value
+                if cs == 0x4B and within and asked[0x48] <= 1 <= asked[0x49]:
+                    reply = Frame(0x7E4, b"\x4f" + bytes(7))
+                    asyncio.get_running_loop().call_later(0.003, other.send, reply)
+
+            other.subscribe(0x7E5, late_slave)
+            core = GatewayCore({1: net}, dialect="lely", token="a-long-token")
+            s = core.session(trusted=True)
+            (found,) = await core.execute(s, "[1] _lss_slowscan 0xC0B005 0x191 0 3 0x1200 0x12FF")
+            assert found == "[1] 0x00C0B005 0x00000191 0x00000001 0x00001235"
+            guesser = core.session()
+            answers: asyncio.Queue[list[str]] = asyncio.Queue()
+            core.submit(guesser, "[2] auth not-the-token", answers.put_nowait)
+            await asyncio.sleep(0.05)
+            (cancelled,) = await core.execute(guesser, "cancel 2")
+            assert cancelled.startswith("OK") or cancelled.endswith("OK")
+            (early,) = await core.execute(guesser, "[3] auth a-long-token")
+            assert early.startswith("[3] ERROR: 102 (") and "less than a second" in early
+            core.close()
+            await rig.stop()
+
+    asyncio.run(asyncio.wait_for(main(), 60))

@@ -154,6 +154,10 @@ def test_a_log_line_of_another_form_is_left_to_python_can(tmp_path: Path) -> Non
     path.write_text("".join(lines))
     with pytest.raises(ValueError):
         list(log_blocks(path, 7))
+    lines[30] = "(1.295000) can\t0 181#01\n"  # (a tab: python-can's split finds 4 fields)
+    path.write_text("".join(lines))
+    with pytest.raises(ValueError):
+        list(log_blocks(path, 7))
     lines[30] = "(1.295000)  can0   181#01   \n"  # (spaces python-can's split takes)
     path.write_text("".join(lines))
     _same(list(log_blocks(path, 7)), _python_can(path, 7))

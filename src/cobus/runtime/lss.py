@@ -173,6 +173,45 @@ class AsyncNetworkLss:
         by halving ranges with "identify remote slave": about 33 requests for one device."""
         return await self._halve(vendor, product, None, (serial, serial))
 
+    async def slowscan(
+        self, vendor: int, product: int, revisions: tuple[int, int], serials: tuple[int, int]
+    ) -> LssIdentity | None:
+        """The lowest identity of a device of ``vendor`` and ``product`` with a revision and
+        a serial in the ranges (bounds included), found by halving them with "identify
+        remote slave": the revision first, then the serial; None when no device answers.
+        Several devices may answer one request: each answer is let settle before the next
+        request, and the value found is asked once more after a quiet timeout."""
+
+        async def ask(revs: tuple[int, int], sers: tuple[int, int]) -> bool:
+            if await self.identify_remote(vendor, product, revs, sers):
+                await asyncio.sleep(self._settle)
+                return True
+            return False
+
+        async def lowest(field: str, span: tuple[int, int]) -> int | None:
+            low, high = span
+            while low < high:
+                middle = (low + high) // 2
+                half = (low, middle)
+                if await (ask(half, serials) if field == "revision" else ask((rev, rev), half)):
+                    high = middle
+                else:
+                    low = middle + 1
+            await asyncio.sleep(self._machine.timeout)  # (a late answer passes first)
+            one = (low, low)
+            found = await (ask(one, serials) if field == "revision" else ask((rev, rev), one))
+            return low if found else None
+
+        rev = 0
+        if not await ask(revisions, serials):
+            return None
+        revision = await lowest("revision", revisions)
+        if revision is None:
+            return None
+        rev = revision
+        serial = await lowest("serial", serials)
+        return None if serial is None else LssIdentity(vendor, product, revision, serial)
+
     async def _halve(
         self,
         vendor: int,

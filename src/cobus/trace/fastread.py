@@ -400,9 +400,6 @@ def _log(path: str | Path, columns: _Columns) -> Iterator[FrameBlock]:
                 return
 
 
-_POWERS = 10 ** np.arange(19, dtype=np.int64)
-
-
 def _first_after(positions: npt.NDArray[np.int64], after: npt.NDArray[np.int64]) -> Any:
     """For each of ``after``, the first of ``positions`` at or past it (len: none)."""
     at = np.searchsorted(positions, after)
@@ -417,6 +414,11 @@ def _lines_by_layout(text: bytes) -> tuple[Any, ...] | None:
     ends = np.flatnonzero(buf == 10)
     if not len(ends) or ends[-1] != len(buf) - 1:
         return None
+    odd = np.flatnonzero((buf < 32) | (buf >= 128))  # (control bytes, beyond ASCII)
+    if len(odd) != len(ends):
+        lone = odd[buf[odd] != 10]
+        if (buf[lone] != 13).any() or (buf[np.minimum(lone + 1, len(buf) - 1)] != 10).any():
+            return None  # (a tab, a CR inside a line...: python-can's split decides)
     starts = np.concatenate(([0], ends[:-1] + 1))
     stop = ends - (buf[np.maximum(ends - 1, 0)] == 13)  # (before a CR)
     if (buf[starts] != 40).any():  # (

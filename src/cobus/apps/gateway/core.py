@@ -78,7 +78,6 @@ from cobus.runtime import (
 
 if TYPE_CHECKING:
     from cobus.runtime import AsyncNetwork
-    from cobus.runtime.lss import AsyncNetworkLss
     from cobus.runtime.network import MachineHost
 
 __all__ = ["HELP", "MAX_PENDING", "NODE_COMMANDS", "GatewayCore", "Session", "version_fields"]
@@ -124,7 +123,8 @@ cobus CiA 309-3 gateway: one request a line, [seq] [[net] node] command [args] [
                                    "Identity object.Vendor-ID" (TYPE from the EDS)
   start | stop | preop | reset node | reset comm    NMT (node 0: every node)
   set network N | set node N | set sdo_timeout MS | set sdo_block 0|1
-  set command_timeout MS            end this client's requests not done after MS
+  set command_timeout MS            end this client's requests not done after MS from
+                                    their turn (waits for the node's SDO server count)
                                     (ERROR:103; an SDO under way is aborted; 0: no limit)
   [net] set id N | [net] set heartbeat MS    the gateway is node N of the net too, a
                                     device of its own (its heartbeat; a master that stops
@@ -215,8 +215,9 @@ class Session:
     #: Whether the client may write, send NMT commands and use LSS (it gave the token, or
     #: the gateway has none).
     authorised: bool = True
-    #: Wrong tokens this client gave.
+    #: Wrong tokens this client gave, and when (monotonic s) it may give the next.
     wrong_tokens: int = 0
+    auth_not_before: float = 0.0
 
     def close(self) -> None:
         """The client left: its channels go (a transfer under way ends with it), its
@@ -597,7 +598,7 @@ class GatewayCore:
             return [format_error(request.seq, 102, str(exc), self.dialect)]
         except TimeoutError as exc:  # (the command time-out's, or another service's)
             text = str(exc) or "Time-out"
-            if session.command_timeout is not None and not str(exc):
+            if session.command_timeout is not None and not str(exc) and self.dialect != "lely":
                 ms = round(session.command_timeout * 1000)
                 text = f"Time-out: not done within the command time-out, {ms} ms"
             return [format_error(request.seq, 103, text, self.dialect)]
@@ -679,9 +680,13 @@ class GatewayCore:
             raise GatewayError(101, "auth takes the token: auth TOKEN")
         if session.wrong_tokens >= _WRONG_TOKENS:
             raise GatewayError(102, f"{_WRONG_TOKENS} wrong tokens: connect again")
+        now = time.monotonic()
+        if now < session.auth_not_before:  # (a wait cut short - cancel, a command time-out)
+            raise GatewayError(102, "a wrong token came less than a second ago: auth later")
         if not token_is(words[0], self.token):
             session.authorised = False
             session.wrong_tokens += 1
+            session.auth_not_before = now + _WRONG_TOKEN_WAIT
             await asyncio.sleep(_WRONG_TOKEN_WAIT)  # (guessing costs time)
             raise GatewayError(102, "that is not this gateway's token")
         session.authorised = True
@@ -1104,8 +1109,8 @@ class GatewayCore:
             vendor, product, rev_low, rev_high, serial_low, serial_high = numbers
             if not (rev_low <= rev_high and serial_low <= serial_high):
                 raise GatewayError(101, "each range goes from its low value to its high one")
-            found = await _slowscan(
-                lss, vendor, product, (rev_low, rev_high), (serial_low, serial_high)
+            found = await lss.slowscan(
+                vendor, product, (rev_low, rev_high), (serial_low, serial_high)
             )
             if found is None:
                 raise GatewayError(103, "no slave of that identity answered")
@@ -1137,36 +1142,6 @@ class GatewayCore:
                 raise GatewayError(103, "no device without a node-ID answered the fastscan")
             return " ".join(f"0x{v:08X}" for v in found.fields)
         raise GatewayError(100, f"no LSS command {command!r} (help lists them)")
-
-
-async def _slowscan(
-    lss: AsyncNetworkLss,
-    vendor: int,
-    product: int,
-    revisions: tuple[int, int],
-    serials: tuple[int, int],
-) -> LssIdentity | None:
-    """The lowest identity of a slave of ``vendor`` and ``product`` in the ranges, found by
-    halving them with "identify remote slave" (CiA 305): first the revision, then the
-    serial number; None when no slave answers for the whole ranges."""
-    if not await lss.identify_remote(vendor, product, revisions, serials):
-        return None
-    low, high = revisions
-    while low < high:
-        middle = (low + high) // 2
-        if await lss.identify_remote(vendor, product, (low, middle), serials):
-            high = middle
-        else:
-            low = middle + 1
-    revision = low
-    low, high = serials
-    while low < high:
-        middle = (low + high) // 2
-        if await lss.identify_remote(vendor, product, (revision, revision), (low, middle)):
-            high = middle
-        else:
-            low = middle + 1
-    return LssIdentity(vendor, product, revision, low)
 
 
 #: How Lely names the NMT states in its error-control lines.
