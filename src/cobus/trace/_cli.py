@@ -5,6 +5,7 @@
     cobus decode bench.asc --eds 10=servo.eds                   # every record, in words
     cobus decode bench.log --filter sdo,emcy --node 10 --json
     cobus decode bench.blf --summary --bitrate 250000            # load, periods, latencies
+    cobus decode bench.blf --eds 10=servo.eds --to parquet out/  # tables for pandas, DuckDB
     cobus replay bench.asc -i socketcan -c can0                   # back onto a bus, timed
 
 Formats are python-can's, chosen by the file's suffix: candump .log, Vector .asc and .blf,
@@ -84,6 +85,14 @@ def register(sub: Any) -> None:
         "node, heartbeat and SYNC periods and jitter, PDO age after SYNC, SDO latency and "
         "aborts, emergencies, NMT time line (--json: one object; the channels of a "
         "trace of several buses are counted as one)",
+    )
+    decode.add_argument(
+        "--to",
+        nargs=2,
+        metavar=("FORMAT", "DIR"),
+        help="write the records as tables into DIR instead: parquet (pyarrow) or csv, one "
+        "file per kind of record and per PDO, its values as typed columns by name (pandas, "
+        "polars, DuckDB read them); --filter and --node keep some, --json lists the files",
     )
     decode.add_argument(
         "--bitrate",
@@ -208,30 +217,74 @@ def _summary(args: argparse.Namespace) -> int:
     return 0
 
 
+def _export(args: argparse.Namespace) -> int:
+    from cobus.trace.batch import BatchDecoder
+    from cobus.trace.blocks import blocks
+    from cobus.trace.export import ExportError, TraceExport
+
+    fmt, folder = args.to[0].lower(), Path(args.to[1])
+    for given, name in ((args.summary, "--summary"), (args.absolute, "--absolute")):
+        if given:
+            return _fail(f"{name} does not go with --to (tables count times from the start)", 2)
+    inputs = _inputs_of(args)
+    if isinstance(inputs, int):
+        return inputs
+    dictionaries, network = inputs
+    try:
+        export = TraceExport(
+            folder, fmt, BatchDecoder(dictionaries, network), kinds=args.filter, node=args.node
+        )
+    except ExportError as exc:
+        return _fail(str(exc), 2)
+    suffix = ".parquet" if fmt == "parquet" else ".csv"
+    interrupted = False
+    try:
+        export.write(blocks(args.file))
+    except KeyboardInterrupt:
+        interrupted = True
+    except OSError as exc:
+        return _fail(f"cannot write {folder}: {exc}" if folder.name in str(exc) else str(exc))
+    except Exception as exc:  # a damaged file, whatever the reader raises for it
+        return _fail(_unreadable(args.file, exc))
+    files = {name: str(folder / f"{name}{suffix}") for name in export.rows}
+    if args.json:
+        print(json.dumps({n: {"file": files[n], "rows": r} for n, r in export.rows.items()}))
+    else:
+        for name, rows in export.rows.items():
+            print(f"{files[name]}  {rows} rows")
+    if interrupted:
+        print(
+            f"cobus: stopped by Ctrl-C: {len(files)} tables written, each complete up to "
+            "the frame it had reached",
+            file=sys.stderr,
+        )
+        return 130
+    if not export.rows:
+        print(f"cobus: {args.file}: no records to write", file=sys.stderr)
+    return 0
+
+
 def _decode(args: argparse.Namespace) -> int:
+    if args.to is not None:
+        return _export(args)
     if args.summary:
         return _summary(args)
 
-    from cobus.runtime.bus import message_to_frame
-    from cobus.trace.decoder import Decoder
+    from cobus.trace._lines import block_lines
+    from cobus.trace.batch import BatchDecoder
+    from cobus.trace.blocks import blocks
 
     inputs = _inputs_of(args)
     if isinstance(inputs, int):
         return inputs
     dictionaries, network = inputs
-    decoder = Decoder(dictionaries, network=network)
+    batch = BatchDecoder(dictionaries, network)
     first: float | None = None
     now = 0.0
     absolute = args.absolute
     options: dict[str, Any] = {}
     if absolute and args.file.suffix.lower() == ".asc":
         options["relative_timestamp"] = False  # (the date of its header, not 0)
-    try:
-        from cobus.trace.files import open_trace
-
-        reader = open_trace(args.file, **options)
-    except Exception as exc:  # python-can's readers raise their own kinds (BLF, zlib...)
-        return _fail(_unreadable(args.file, exc))
 
     def stamp(seconds: float, *, zone: bool = False) -> str:
         """Seconds from the first frame; with --absolute the local date and time (and, for
@@ -243,24 +296,26 @@ def _decode(args: argparse.Namespace) -> int:
             moment = moment.astimezone()
         return moment.isoformat(sep=" ", timespec="microseconds")
 
-    def emit(rec: Any) -> None:
+    def line(rec: Any) -> str | None:
         if args.filter is not None and rec.kind not in args.filter:
-            return
+            return None
         if args.node is not None and not rec.concerns(args.node):
-            return
+            return None
         if args.json:
             body = {k: _plain(v) for k, v in vars(rec).items()}
             if absolute:
                 body["datetime"] = stamp(rec.time, zone=True)
-            print(json.dumps({"kind": rec.kind, "text": str(rec), **body}))
-        else:
-            print(f"{stamp(rec.time)}  {rec}")
+            return json.dumps({"kind": rec.kind, "text": str(rec), **body})
+        return f"{stamp(rec.time)}  {rec}"
 
+    out = sys.stdout
+    error_frames = args.filter is None and args.node is None and not args.json
     try:
-        for msg in reader:
-            now = float(msg.timestamp)
+        for block in blocks(args.file, **options):
+            if not len(block):
+                continue
             if first is None:
-                first = now
+                first = float(block.time[0])
                 if absolute and first < _YEAR_2000:
                     absolute = False
                     print(
@@ -268,28 +323,29 @@ def _decode(args: argparse.Namespace) -> int:
                         "shown in seconds",
                         file=sys.stderr,
                     )
-            if msg.is_error_frame:
-                if args.filter is None and args.node is None and not args.json:
-                    print(f"{stamp(now - first)}  error frame")
-                continue
-            frame = message_to_frame(msg)
-            if frame is None:  # a CAN FD frame: CANopen (CiA 301) has none
-                print(
-                    f"# {now - first:.6f}: frame skipped: not a classic CAN frame", file=sys.stderr
-                )
-                continue
-            for rec in decoder.feed(frame, now - first):
-                emit(rec)
-        for rec in decoder.flush(0.0 if first is None else now - first):
-            emit(rec)  # transfers the trace ended in
+            now = float(block.time[-1])
+            decoded = batch.decode(block, first)
+            for skipped in decoded.time[decoded.skipped].tolist():  # CAN FD: CiA 301 has none
+                print(f"# {skipped:.6f}: frame skipped: not a classic CAN frame", file=sys.stderr)
+            lines = block_lines(
+                decoded,
+                line,
+                as_json=args.json,
+                kinds=args.filter,
+                node=args.node,
+                error_frames=error_frames,
+                stamp=stamp if absolute else None,
+            )
+            if lines:
+                out.write("\n".join(lines) + "\n")
+        for rec in batch.flush(0.0 if first is None else now - first):
+            text = line(rec)  # transfers the trace ended in
+            if text is not None:
+                out.write(text + "\n")
     except BrokenPipeError:
         raise
     except Exception as exc:  # a damaged file, whatever the reader raises for it
         return _fail(_unreadable(args.file, exc))
-    finally:
-        stop = getattr(reader, "stop", None)
-        if stop is not None:
-            stop()
     return 0
 
 

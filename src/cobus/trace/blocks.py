@@ -45,13 +45,23 @@ class FrameBlock:
 
 
 def message_blocks(messages: Iterable[Any], size: int = BLOCK) -> Iterator[FrameBlock]:
-    """python-can messages (anything with their attributes) in blocks of ``size``."""
+    """python-can messages (anything with their attributes) in blocks of ``size``. Where
+    reading fails (a damaged file), the frames read before come first, then the error."""
     times: list[float] = []
     ids: list[int] = []
     flags: list[int] = []
     dlcs: list[int] = []
     data = bytearray()
-    for msg in messages:
+    reading = iter(messages)
+    while True:
+        try:
+            msg = next(reading)
+        except StopIteration:
+            break
+        except Exception:
+            if times:  # (what came before the damage is kept)
+                yield _block(times, ids, flags, dlcs, data)
+            raise
         times.append(float(msg.timestamp))
         ids.append(msg.arbitration_id)
         flag = 0

@@ -16,6 +16,7 @@ what comes out.
 
 from __future__ import annotations
 
+import bisect
 import datetime as dt
 import functools
 import re
@@ -432,6 +433,7 @@ class NodeStats:
         self.node = node
         self.sdo_latencies: deque[float] = deque(maxlen=self.KEEP)
         self.heartbeat_intervals: deque[float] = deque(maxlen=self.KEEP)
+        self._sorted_intervals: list[float] = []  # (the same, sorted: the period at once)
         self.heartbeats = 0
         self.missed_beats = 0
         self.last_heartbeat: float | None = None
@@ -456,9 +458,11 @@ class NodeStats:
     @property
     def heartbeat_period(self) -> float | None:
         """The median interval between heartbeats (None before two came)."""
-        if not self.heartbeat_intervals:
+        values = self._sorted_intervals
+        if len(values) != len(self.heartbeat_intervals):  # (someone filled the deque)
+            values = self._sorted_intervals = sorted(self.heartbeat_intervals)
+        if not values:
             return None
-        values = sorted(self.heartbeat_intervals)
         return values[len(values) // 2]
 
     @property
@@ -475,7 +479,12 @@ class NodeStats:
             period = self.heartbeat_period
             if period and interval > 1.5 * period:
                 self.missed_beats += max(1, round(interval / period) - 1)
-            self.heartbeat_intervals.append(interval)
+            intervals, ordered = self.heartbeat_intervals, self._sorted_intervals
+            if len(intervals) == intervals.maxlen and len(ordered) == len(intervals):
+                del ordered[bisect.bisect_left(ordered, intervals[0])]
+            intervals.append(interval)
+            if len(ordered) == len(intervals) - 1:
+                bisect.insort(ordered, interval)
         self.last_heartbeat = now
         self.heartbeats += 1
         self._state(now, state)
@@ -546,6 +555,8 @@ class Decoder:
         #: LSS requests and answers followed into sessions (the slave being configured).
         self.lss = LssSessions()
         self._pdos: dict[int, _Pdo] = {}
+        #: Counts the changes of ``_pdos`` (the batch decoder re-reads the mappings on one).
+        self._pdo_generation = 0
         #: (node, tpdo, number) -> the PDO as a network file has it.
         self._layouts: dict[tuple[int, bool, int], _Pdo] = {}
         self._params: dict[int, dict[tuple[int, int], int]] = {}
@@ -594,6 +605,7 @@ class Decoder:
         if other is not None and other.node != pdo.node and other.tpdo and not pdo.tpdo:
             return
         self._pdos[key] = pdo
+        self._pdo_generation += 1
 
     # ------------------------------------------------------------------ PDO mappings
 
@@ -609,6 +621,7 @@ class Decoder:
     def _rebuild(self, node: int) -> None:
         for cob_id in [c for c, p in self._pdos.items() if p.node == node]:
             del self._pdos[cob_id]
+            self._pdo_generation += 1
         params = self._params.get(node, {})
         od = self.dictionaries.get(node)
         for base, tpdo in ((0x1400, False), (0x1800, True)):
@@ -792,54 +805,13 @@ class Decoder:
 
     def _pdo(self, now: float, cob: int, data: bytes) -> PdoRecord:
         pdo = self._pdos[cob]
-        if pdo.layout is not None:
-            return self._configured_pdo(now, cob, pdo, data)
-        values: dict[str, Any] = {}
-        raw = int.from_bytes(data, "little")
-        bit = 0
-        for name, data_type, bits in pdo.entries:
-            if bit + bits > 8 * len(data):
-                break
-            chunk = (raw >> bit) & ((1 << bits) - 1)
-            size = data_type.size or (bits + 7) // 8
-            if name is None:  # a dummy entry: a gap
-                bit += bits
-                continue
-            if bits == 8 * size:
-                try:
-                    values[name] = decode(data_type, chunk.to_bytes(size, "little"))
-                except ValueError:
-                    values[name] = chunk
-            else:
-                values[name] = chunk
-            bit += bits
+        values, units = pdo_values(pdo, data)
         if pdo.statusword is not None:
             if pdo.stats is None:
                 pdo.stats = self.node_stats(pdo.node)
             pdo.stats._statusword(now, values.get(pdo.statusword), pdo.axis)
-        return PdoRecord(now, cob, pdo.node, pdo.number, pdo.tpdo, data, values)
-
-    def _configured_pdo(self, now: float, cob: int, pdo: _Pdo, data: bytes) -> PdoRecord:
-        try:
-            raws = pdo.layout.codec.unpack(data)
-        except Exception:  # shorter than the mapping: the bytes as they came
-            return PdoRecord(now, cob, pdo.node, pdo.number, pdo.tpdo, data)
-        values: dict[str, Any] = {}
-        units: dict[str, str] = {}
-        for (name, signal), raw in zip(pdo.named, raws, strict=False):
-            if signal is None:
-                values[name] = raw
-                continue
-            try:
-                values[name] = signal.to_engineering(raw)
-            except (TypeError, ValueError):
-                values[name] = raw
-            if signal.unit:
-                units[name] = signal.unit
-        if pdo.statusword is not None:
-            if pdo.stats is None:
-                pdo.stats = self.node_stats(pdo.node)
-            pdo.stats._statusword(now, values.get(pdo.statusword), pdo.axis)
+        if units is None:
+            return PdoRecord(now, cob, pdo.node, pdo.number, pdo.tpdo, data, values)
         return PdoRecord(now, cob, pdo.node, pdo.number, pdo.tpdo, data, values, units)
 
     # ------------------------------------------------------------------ SDO
@@ -1040,6 +1012,48 @@ class Decoder:
     def _object_name(self, node: int, index: int, sub: int) -> str | None:
         var = self._variable(node, index, sub)
         return _name(var) if var is not None else None
+
+
+def pdo_values(pdo: _Pdo, data: bytes) -> tuple[dict[str, Any], dict[str, str] | None]:
+    """The values of ``pdo`` in ``data`` by name, and their units (None: a mapping from a
+    dictionary, whose values have none; a network file's signals may)."""
+    values: dict[str, Any] = {}
+    if pdo.layout is not None:
+        units: dict[str, str] = {}
+        try:
+            raws = pdo.layout.codec.unpack(data)
+        except Exception:  # shorter than the mapping: the bytes as they came
+            return values, units
+        for (label, signal), raw in zip(pdo.named, raws, strict=False):
+            if signal is None:
+                values[label] = raw
+                continue
+            try:
+                values[label] = signal.to_engineering(raw)
+            except (TypeError, ValueError):
+                values[label] = raw
+            if signal.unit:
+                units[label] = signal.unit
+        return values, units
+    raw = int.from_bytes(data, "little")
+    bit = 0
+    for name, data_type, bits in pdo.entries:
+        if bit + bits > 8 * len(data):
+            break
+        chunk = (raw >> bit) & ((1 << bits) - 1)
+        size = data_type.size or (bits + 7) // 8
+        if name is None:  # a dummy entry: a gap
+            bit += bits
+            continue
+        if bits == 8 * size:
+            try:
+                values[name] = decode(data_type, chunk.to_bytes(size, "little"))
+            except ValueError:
+                values[name] = chunk
+        else:
+            values[name] = chunk
+        bit += bits
+    return values, None
 
 
 def _axis(index: int) -> int:

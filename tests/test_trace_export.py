@@ -1,0 +1,213 @@
+"""``cobus decode FILE --to parquet|csv DIR``: a table per kind of record and per PDO, its
+values as typed columns by their EDS names, the same records as the decoder's (issue 45)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import can
+import pyarrow.parquet as pq
+import pytest
+
+from cobus.cli import main
+from cobus.master import load_network
+from cobus.trace.batch import BatchDecoder
+from cobus.trace.blocks import message_blocks
+from cobus.trace.export import ExportError, TraceExport
+
+from .test_trace_batch import (
+    LINE,
+    _decoders,
+    _dictionaries,
+    _frame_by_frame,
+    _msg,
+    _odd_eds,
+    _random_trace,
+    _servo_od,
+    _session,
+)
+
+_TABLE_OF = {
+    "SyncRecord": "sync",
+    "Heartbeat": "heartbeat",
+    "SdoTransfer": "sdo",
+    "SdoBlockFrame": "sdo_block_frame",
+    "EmergencyRecord": "emcy",
+    "NmtCommandRecord": "nmt",
+    "Bootup": "bootup",
+    "GuardRequest": "guard_request",
+    "GuardResponse": "guard_response",
+    "TimeRecord": "time",
+    "LssFrame": "lss",
+    "LssSession": "lss_session",
+    "Unknown": "other",
+}
+
+
+def _messages() -> list[can.Message]:
+    return [m for m in _random_trace(3, 2_000) if not m.is_fd] + _session()
+
+
+def _export(messages: list[can.Message], folder: Path, fmt: str, **options: Any) -> Any:
+    export = TraceExport(folder, fmt, BatchDecoder(_dictionaries(), load_network(LINE)), **options)
+    return export.write(message_blocks(messages, 700))
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a):
+        return math.isnan(b)
+    return bool(a == b)
+
+
+@pytest.mark.parametrize("fmt", ["parquet", "csv"])
+def test_every_record_lands_in_its_table(fmt: str, tmp_path: Path) -> None:
+    messages = _messages()
+    records = _frame_by_frame(_decoders()[0], messages)
+    rows = _export(messages, tmp_path / "out", fmt)
+    expected = Counter(_TABLE_OF.get(type(r).__name__, "?") for r in records if r.kind != "pdo")
+    assert {k: v for k, v in rows.items() if k in expected} == dict(expected)
+    pdo_rows = sum(v for k, v in rows.items() if k not in expected)
+    assert pdo_rows == sum(1 for r in records if r.kind == "pdo")
+    suffix = "." + fmt
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == sorted(
+        name + suffix for name in rows
+    )
+
+
+def test_parquet_columns_are_typed_and_hold_the_records_values(tmp_path: Path) -> None:
+    messages = _messages()
+    records = _frame_by_frame(_decoders()[0], messages)
+    rows = _export(messages, tmp_path / "out", "parquet")
+    # SYNC: the counter, null where the frame has none
+    sync = pq.read_table(tmp_path / "out/sync.parquet").to_pylist()
+    syncs = [r for r in records if type(r).__name__ == "SyncRecord"]
+    assert [(s["time"], s["counter"]) for s in sync] == [(r.time, r.counter) for r in syncs]
+    # heartbeats in the order of the frames, those after a guarding request among them
+    beats = pq.read_table(tmp_path / "out/heartbeat.parquet").to_pylist()
+    expected = [r for r in records if type(r).__name__ == "Heartbeat"]
+    assert [(b["time"], b["node"], b["state"]) for b in beats] == [
+        (r.time, r.node, r.state) for r in expected
+    ]
+    # the servo's PDOs: the values by their names, typed; a remap gives a second table
+    assert {"node5_tpdo1", "node5_tpdo1_2", "node10_tpdo1"} <= set(rows)
+    table = pq.read_table(tmp_path / "out/node10_tpdo1.parquet")
+    names = [f.name for f in table.schema]
+    assert names[:4] == ["time", "cob_id", "dlc", "data"]
+    statusword = next(n for n in names if "tatusword" in n)
+    assert str(table.schema.field(statusword).type) == "uint16"
+    # every PDO row of every table is a record's, value for value (null: not in the frame)
+    pdos: dict[tuple[float, int], list[Any]] = {}
+    for r in records:
+        if r.kind == "pdo":
+            pdos.setdefault((r.time, r.cob_id), []).append(r)
+    seen = 0
+    for name in rows:
+        if not (name.startswith("node") or name == "pdo"):
+            continue
+        for row in pq.read_table(tmp_path / f"out/{name}.parquet").to_pylist():
+            same_time = pdos[(row["time"], row["cob_id"])]  # (frames of one time: in order)
+            rec = same_time.pop(0)
+            assert row["data"] == rec.data
+            seen += 1
+            if name == "pdo":  # (no mapping: the frame as it came)
+                assert (row["node"], row["number"], row["tpdo"]) == (rec.node, rec.number, rec.tpdo)
+                assert not rec.values
+                continue
+            for key, value in row.items():
+                if key in ("time", "cob_id", "dlc", "data"):
+                    continue
+                if value is None:
+                    assert key not in rec.values
+                else:
+                    assert _same(value, rec.values[key]), (name, key)
+    assert seen == sum(1 for r in records if r.kind == "pdo")
+    assert not any(pdos.values())
+    # node 5's REAL32/REAL64/BOOLEAN values keep their types
+    odd = pq.read_table(tmp_path / "out/node5_tpdo1.parquet").schema
+    assert {str(f.type) for f in odd if f.name in ("ratio", "precise", "ready")} <= {
+        "float",
+        "double",
+        "bool",
+    }
+    # the exact decoder's records: their fields and their text
+    sdo = pq.read_table(tmp_path / "out/sdo.parquet").to_pylist()
+    transfers = [r for r in records if type(r).__name__ == "SdoTransfer"]
+    assert [s["text"] for s in sdo] == [str(r) for r in transfers]
+    assert [s["index"] for s in sdo] == [r.index for r in transfers]
+
+
+def test_filters_and_a_node(tmp_path: Path) -> None:
+    messages = _messages()
+    rows = _export(messages, tmp_path / "a", "csv", kinds={"hb", "emcy"})
+    assert set(rows) <= {"heartbeat", "bootup", "guard_request", "guard_response", "emcy"}
+    rows = _export(messages, tmp_path / "b", "csv", node=10)
+    assert "sync" not in rows and "heartbeat" in rows
+    with (tmp_path / "b/heartbeat.csv").open() as f:
+        assert {row["node"] for row in csv.DictReader(f)} == {"10"}
+
+
+def test_short_frames_leave_nulls_and_csv_reads_back(tmp_path: Path) -> None:
+    messages = [
+        _msg(5.0, 0x18A, bytes([0x37, 0x06, 0x10, 0x27, 0, 0, 0xFF, 0xFF])),
+        _msg(5.001, 0x18A, bytes([0x37, 0x02])),
+        _msg(5.002, 0x080, b""),
+        _msg(5.003, 0x080, b"\x07"),
+    ]
+    rows = _export(messages, tmp_path / "out", "csv")
+    assert rows == {"node10_tpdo1": 2, "sync": 2}
+    with (tmp_path / "out/node10_tpdo1.csv").open() as f:
+        table = list(csv.DictReader(f))
+    assert table[0]["data"] == "3706102700 00ffff".replace(" ", "")
+    values = [k for k in table[0] if k not in ("time", "cob_id", "dlc", "data")]
+    assert table[0][values[0]] == str(0x0637) and table[1][values[0]] == str(0x0237)
+    assert all(table[1][k] == "" for k in values[1:])
+    with (tmp_path / "out/sync.csv").open() as f:
+        assert [r["counter"] for r in csv.DictReader(f)] == ["", "7"]
+
+
+def test_bad_requests_are_refused(tmp_path: Path) -> None:
+    decoder = BatchDecoder()
+    with pytest.raises(ExportError, match="choose parquet or csv"):
+        TraceExport(tmp_path / "x", "xlsx", decoder)
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full/keep.txt").write_text("mine")
+    with pytest.raises(ExportError, match="not an empty folder"):
+        TraceExport(tmp_path / "full", "csv", decoder)
+    assert (tmp_path / "full/keep.txt").read_text() == "mine"
+
+
+def test_cobus_decode_to(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    trace = tmp_path / "trace.blf"
+    with can.Logger(str(trace)) as logger:
+        for msg in _messages():
+            logger(msg)
+    eds = tmp_path / "servo.eds"
+    from cobus.device import export_eds
+
+    eds.write_text(export_eds(_servo_od()))
+    odd = tmp_path / "odd.eds"
+    odd.write_text(_odd_eds())
+    base = ["decode", str(trace), "--eds", f"10={eds}", "--eds", f"5={odd}"]
+    assert main([*base, "--to", "parquet", str(tmp_path / "p"), "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)
+    assert listed["sync"]["rows"] > 0 and Path(listed["sync"]["file"]).is_file()
+    assert pq.read_table(listed["sync"]["file"]).num_rows == listed["sync"]["rows"]
+    assert main([*base, "--to", "csv", str(tmp_path / "c"), "--filter", "sdo"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out == [f"{tmp_path / 'c' / 'sdo.csv'}  {listed['sdo']['rows']} rows"]
+    # refused, one line each, exit code 2
+    for extra in (
+        ["--to", "xlsx", str(tmp_path / "x")],
+        ["--to", "csv", str(tmp_path / "c")],  # (not empty now)
+        ["--to", "csv", str(tmp_path / "y"), "--summary"],
+        ["--to", "csv", str(tmp_path / "y"), "--absolute"],
+    ):
+        assert main([*base, *extra]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("cobus: ") and err.count("\n") == 1
+    assert main(["decode", str(tmp_path / "none.blf"), "--to", "csv", str(tmp_path / "z")]) == 1
