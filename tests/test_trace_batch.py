@@ -115,6 +115,7 @@ def _same(messages: list[can.Message], sizes: tuple[int, ...] = (1, 7, 500, 65_5
             k: (p.node, p.number, p.tpdo) for k, p in reference._pdos.items()
         }
         assert decoder._toggle == reference._toggle
+        assert decoder._requested == reference._requested
         assert decoder._guard_asked == reference._guard_asked
 
 
@@ -203,7 +204,7 @@ def _random_trace(seed: int, count: int = 3_000) -> list[can.Message]:
             sw = rng.choice(statuswords)
             size = rng.choice((8, 8, 8, 6, 2, 1, 0))
             payload = sw.to_bytes(2, "little") + rng.randbytes(6)
-            batch = [_msg(0, 0x18A, payload[:size])]
+            batch = [_msg(0, rng.choice((0x18A, 0x28A)), payload[:size])]  # (two carry it)
         elif pick < 0.33:
             cob = rng.choice((0x183, 0x203, 0x182, 0x28A, 0x20A, 0x185, 0x185, 0x185))
             payload = rng.randbytes(rng.choice((8, 8, 8, rng.randint(0, 8))))
@@ -243,11 +244,20 @@ def _random_trace(seed: int, count: int = 3_000) -> list[can.Message]:
                     sdo(node, 0x1A00 + number, 0, rng.choice((1, 2)), 1),
                     sdo(node, 0x1800 + number, 1, 0x180 + 0x100 * number + node),
                     sdo(node, 0x1800 + number, 1, 0x80000000 | (0x180 + node)),
+                    sdo(node, 0x1800 + number, 1, rng.choice((0x58B, 0x60B))),  # (SDO's)
+                    sdo(node, 0x1800 + number, 5, 100, 2),  # (event timer: no new mapping)
                     sdo(node, 0x1017, 0, 100, 2),
                 )
             )
         elif pick < 0.73:  # node 5's TPDO1 mapped to values of other shapes
-            mapped = rng.choice(((0x20010020, 0x20020008), (0x20030018, 0x20040010), (0x20050040,)))
+            mapped = rng.choice(
+                (
+                    (0x20010020, 0x20020008),
+                    (0x20030018, 0x20040010),
+                    (0x20050040,),
+                    (0x20010020, 0x20040080),  # (a 16-character string: past any frame)
+                )
+            )
             batch = sdo(5, 0x1A00, 0, 0, 1)
             for sub, entry in enumerate(mapped, 1):
                 batch += sdo(5, 0x1A00, sub, entry)
@@ -272,8 +282,12 @@ def _random_trace(seed: int, count: int = 3_000) -> list[can.Message]:
             ]
         elif pick < 0.88:
             batch = [_msg(0, 0x20000080, b"", is_error_frame=True, is_extended_id=True)]
-        elif pick < 0.90:
+        elif pick < 0.89:
             batch = [_msg(0, 0x18A, rng.randbytes(12), is_fd=True)]
+        elif pick < 0.90:  # (a classic frame of 12 bytes, as a .csv of an FD bus has them)
+            batch = [_msg(0, rng.choice((0x18A, 0x080, 0x60B)), rng.randbytes(12))]
+        elif pick < 0.91:  # (on an SDO COB-ID a PDO may have been moved to)
+            batch = [_msg(0, rng.choice((0x58B, 0x60B)), rng.randbytes(8))]
         else:
             batch = [_msg(0, rng.randrange(0x800), rng.randbytes(rng.randint(0, 8)))]
         for msg in batch:

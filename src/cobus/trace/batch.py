@@ -30,6 +30,7 @@ from cobus.proto import Frame
 from cobus.proto.connection_set import (
     ERROR_CONTROL_BASE,
     MAX_NODE_ID,
+    SDO_RX_BASE,
     SDO_TX_BASE,
     SYNC_COB_ID,
     TPDO_BASE,
@@ -76,10 +77,13 @@ _SIGNED = {
 @dataclass
 class PdoColumns:
     """The frames of one PDO in a block: ``index`` (row in the block), ``time``, ``dlc``,
-    ``data`` (n x 8, zero-padded) and, by value name, a column (a numpy array of the
-    value's type; a list where numpy has none); ``present``: how many of ``names`` each
-    frame carries (a frame shorter than its mapping carries the first few). ``pdo`` is None
-    for a PDO no mapping names (node and number from its COB-ID)."""
+    ``data`` (n x 8, zero-padded) and, by value name, a column: a numpy array (the
+    narrowest integer type that holds the entry's bits, signed for INTEGERn; float32,
+    float64, bool), or a list where numpy has no type (strings, times of day).
+    ``present``: how many of ``names`` each frame carries (a frame shorter than its mapping
+    carries the first few); None for a PDO no mapping names (node and number from its
+    COB-ID, no values). ``rows``: values and units frame by frame instead, where a network
+    file's signals scale them."""
 
     cob_id: int
     node: int | None
@@ -245,11 +249,16 @@ class BatchDecoder:
         now = block.time - origin
         parts = _Parts()
         start, n = 0, len(block)
+        window = n
         while start < n:
-            start = self._segment(block, now, start, n, parts)
-        bad = (block.flags & (ERROR | FD)) != 0
+            end = min(n, start + window)
+            stop = self._segment(block, now, start, end, parts)
+            # After a mapping changed, a short stretch, longer while none changes (a trace
+            # of many PDO writes is not read again to its block's end at each one).
+            window = max(64, 2 * (stop - start)) if stop < end else 2 * window
+            start = stop
         errors = np.flatnonzero((block.flags & ERROR) != 0)
-        skipped = np.flatnonzero(bad & ((block.flags & ERROR) == 0))
+        skipped = np.flatnonzero(_skipped(block.flags, block.dlc) & ((block.flags & ERROR) == 0))
         return parts.done(now, errors, skipped)
 
     def _segment(
@@ -269,12 +278,16 @@ class BatchDecoder:
         dlc = block.dlc[start:end]
         data = block.data[start:end]
         times = now[start:end]
-        plain = (flags & (EXTENDED | REMOTE | ERROR | FD)) == 0
-        bad = (flags & (ERROR | FD)) != 0
+        bad = _skipped(flags, dlc)
+        plain = ((flags & (EXTENDED | REMOTE)) == 0) & ~bad
         if dec._pdos:
             keys = np.fromiter(dec._pdos, dtype=np.uint32, count=len(dec._pdos))
-            is_pdo = plain & np.isin(cob, keys)
-            rest = plain & ~is_pdo
+            # (a PDO moved onto an SDO COB-ID still counts in the SDO latencies: in order)
+            sdo = ((cob > SDO_TX_BASE) & (cob <= SDO_TX_BASE + MAX_NODE_ID)) | (
+                (cob > SDO_RX_BASE) & (cob <= SDO_RX_BASE + MAX_NODE_ID)
+            )
+            is_pdo = plain & np.isin(cob, keys) & ~sdo
+            rest = plain & ~is_pdo & ~sdo
         else:
             is_pdo = np.zeros(len(cob), dtype=bool)
             rest = plain
@@ -293,37 +306,12 @@ class BatchDecoder:
         slow_rows = np.flatnonzero(slow)
         beat_rows = np.flatnonzero(beat)
         tables = self._pdo_tables(start, cob, dlc, data, times, is_pdo, raw_pdo)
-        # The statuswords PDOs carry, where one may change a drive's state: the first of a
-        # drive's axis after any frame the exact decoder takes, and each new value.
-        sw_rows: list[npt.NDArray[np.int64]] = []
-        sw_events: list[tuple[Any, int, Any]] = []  # (pdo, axis, value)
-        for table, pdo in tables:
-            if pdo is None or pdo.statusword is None:
-                continue
-            column, has = _statuswords(table, pdo.statusword)
-            changed = np.ones(len(table), dtype=bool)
-            if isinstance(column, np.ndarray):
-                changed[1:] = (column[1:] != column[:-1]) | (has[1:] != has[:-1])
-            else:
-                changed[1:] = [a != b for a, b in zip(column[1:], column[:-1], strict=True)]
-            before = np.searchsorted(slow_rows, table.index - start)
-            changed[1:] |= before[1:] != before[:-1]
-            keep = np.flatnonzero(changed)
-            sw_rows.append(table.index[keep] - start)
-            if isinstance(column, np.ndarray):
-                pairs = zip(column[keep].tolist(), has[keep].tolist(), strict=True)
-                sw_events.extend((pdo, pdo.axis, v if h else None) for v, h in pairs)
-            else:
-                sw_events.extend((pdo, pdo.axis, column[i]) for i in keep.tolist())
-
-        rows = [slow_rows, beat_rows, *sw_rows]
-        kinds = [np.zeros(len(slow_rows), np.int8), np.ones(len(beat_rows), np.int8)]
-        kinds += [np.full(len(r), 2, np.int8) for r in sw_rows]
-        refs = [np.arange(len(slow_rows)), np.arange(len(beat_rows))]
-        offset = 0
-        for r in sw_rows:
-            refs.append(np.arange(offset, offset + len(r)))
-            offset += len(r)
+        sw_rows, sw_events = _statusword_events(tables, slow_rows, start)
+        # The frames taken one by one, in order: those of the exact decoder (0), heartbeats
+        # (1: their statistics) and statuswords that may change a drive's state (2).
+        rows = [slow_rows, beat_rows, sw_rows]
+        kinds = [np.full(len(r), k, np.int8) for k, r in enumerate(rows)]
+        refs = [np.arange(len(r)) for r in rows]
         all_rows = np.concatenate(rows)
         order = np.argsort(all_rows, kind="stable")
         beat_nodes = (cob[beat_rows] - ERROR_CONTROL_BASE).tolist()
@@ -433,6 +421,77 @@ class _Parts:
         )
 
 
+def _skipped(flags: npt.NDArray[np.uint8], dlc: npt.NDArray[np.uint8]) -> Any:
+    """Rows the decoder never sees: error frames, CAN FD frames, data frames of more than
+    8 bytes (:func:`cobus.runtime.bus.message_to_frame` gives no frame for them)."""
+    return ((flags & (ERROR | FD)) != 0) | ((dlc > 8) & ((flags & REMOTE) == 0))
+
+
+def _statusword_events(
+    tables: list[tuple[PdoColumns, _Pdo | None]], slow_rows: _Index, start: int
+) -> tuple[_Index, list[tuple[Any, int, Any]]]:
+    """The statuswords the PDOs of a segment carry where one may change a drive's state,
+    as (row in the segment, (pdo, axis, value)): per drive and axis (its statusword may come
+    in several PDOs), the first after any frame the exact decoder takes, and each new
+    value."""
+    series: dict[tuple[int, int], list[tuple[PdoColumns, _Pdo]]] = {}
+    for table, pdo in tables:
+        if pdo is not None and pdo.statusword is not None:
+            series.setdefault((pdo.node, pdo.axis), []).append((table, pdo))
+    found: list[_Index] = []
+    events: list[tuple[Any, int, Any]] = []
+    for (_, axis), parts in series.items():
+        if len(parts) == 1 and parts[0][0].rows is None:
+            table, pdo = parts[0]
+            column, has = _statuswords(table, pdo.statusword)  # type: ignore[arg-type]
+            if isinstance(column, np.ndarray):
+                rows = table.index - start
+                changed = np.ones(len(rows), dtype=bool)
+                changed[1:] = (column[1:] != column[:-1]) | (has[1:] != has[:-1])
+                before = np.searchsorted(slow_rows, rows)
+                changed[1:] |= before[1:] != before[:-1]
+                keep = np.flatnonzero(changed)
+                found.append(rows[keep])
+                pairs = zip(column[keep].tolist(), has[keep].tolist(), strict=True)
+                events.extend((pdo, axis, v if h else None) for v, h in pairs)
+                continue
+        rows_of: list[_Index] = []
+        values: list[Any] = []
+        pdos: list[_Pdo] = []
+        for table, pdo in parts:
+            column, has = _statuswords(table, pdo.statusword)  # type: ignore[arg-type]
+            if isinstance(column, np.ndarray):
+                pairs = zip(column.tolist(), has.tolist(), strict=True)
+                column = [v if h else None for v, h in pairs]
+            if table.rows is not None:  # (a frame too short for the file's mapping: none)
+                ok = [bool(values_of) for values_of, _ in table.rows]
+                rows_of.append(table.index[np.array(ok, dtype=bool)] - start)
+                column = [v for v, good in zip(column, ok, strict=True) if good]
+            else:
+                rows_of.append(table.index - start)
+            values += column
+            pdos += [pdo] * len(column)
+        rows = np.concatenate(rows_of)
+        order = np.argsort(rows, kind="stable")
+        rows = rows[order]
+        ordered = np.empty(len(values), dtype=object)
+        ordered[:] = values
+        ordered = ordered[order]
+        kinds = np.array([type(v).__name__ for v in ordered], dtype=object)
+        changed = np.ones(len(rows), dtype=bool)
+        changed[1:] = (ordered[1:] != ordered[:-1]) | (kinds[1:] != kinds[:-1])
+        before = np.searchsorted(slow_rows, rows)
+        changed[1:] |= before[1:] != before[:-1]
+        keep = np.flatnonzero(changed)
+        found.append(rows[keep])
+        picked = [pdos[i] for i in order[keep].tolist()]
+        events.extend((pdo, axis, v) for pdo, v in zip(picked, ordered[keep].tolist(), strict=True))
+    if not found:
+        return np.zeros(0, dtype=np.int64), events
+    rows = np.concatenate(found)
+    return rows, events
+
+
 def _statuswords(table: PdoColumns, name: str) -> tuple[Any, Any]:
     """The statusword ``name`` of each frame of ``table``: a numpy column and whether each
     frame carries it, or a list (None where a frame does not carry it) and None."""
@@ -487,6 +546,8 @@ def _table(
     names: list[str] = []
     bit = 0
     for name, data_type, bits in pdo.entries:
+        if bit + bits > 64:  # (never in a frame: it and those after it are never values)
+            break
         if name is None:  # a dummy entry: a gap
             bit += bits
             continue
@@ -507,6 +568,8 @@ def _present(pdo: _Pdo, have: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
     alive = np.ones(len(have), dtype=bool)
     bit = 0
     for name, _, bits in pdo.entries:
+        if bit + bits > 64:
+            break
         alive &= have >= bit + bits
         if name is not None:
             count += alive

@@ -619,6 +619,18 @@ class Decoder:
         self._rebuild(node)
 
     def _rebuild(self, node: int) -> None:
+        """Make the node's PDOs anew from its parameters; where nothing comes out changed
+        (a write of an inhibit time, an event timer...), the PDOs stay as they were."""
+        was, generation = dict(self._pdos), self._pdo_generation
+        self._make(node)
+        if {c: _pdo_key(p) for c, p in self._pdos.items()} == {
+            c: _pdo_key(p) for c, p in was.items()
+        }:
+            self._pdos.clear()
+            self._pdos.update(was)
+            self._pdo_generation = generation
+
+    def _make(self, node: int) -> None:
         for cob_id in [c for c, p in self._pdos.items() if p.node == node]:
             del self._pdos[cob_id]
             self._pdo_generation += 1
@@ -806,7 +818,8 @@ class Decoder:
     def _pdo(self, now: float, cob: int, data: bytes) -> PdoRecord:
         pdo = self._pdos[cob]
         values, units = pdo_values(pdo, data)
-        if pdo.statusword is not None:
+        if pdo.statusword is not None and (pdo.layout is None or values):
+            # (a frame too short for a network file's mapping shows its bytes only)
             if pdo.stats is None:
                 pdo.stats = self.node_stats(pdo.node)
             pdo.stats._statusword(now, values.get(pdo.statusword), pdo.axis)
@@ -1012,6 +1025,20 @@ class Decoder:
     def _object_name(self, node: int, index: int, sub: int) -> str | None:
         var = self._variable(node, index, sub)
         return _name(var) if var is not None else None
+
+
+def _pdo_key(pdo: _Pdo) -> tuple[Any, ...]:
+    """What decides how ``pdo`` decodes a frame."""
+    return (
+        pdo.node,
+        pdo.number,
+        pdo.tpdo,
+        tuple(pdo.entries),
+        id(pdo.layout),
+        pdo.named,
+        pdo.statusword,
+        pdo.axis,
+    )
 
 
 def pdo_values(pdo: _Pdo, data: bytes) -> tuple[dict[str, Any], dict[str, str] | None]:

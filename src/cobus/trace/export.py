@@ -34,7 +34,7 @@ from cobus.errors import CobusError
 from cobus.proto.connection_set import ERROR_CONTROL_BASE
 from cobus.trace.batch import BatchDecoder, DecodedBlock, PdoColumns
 from cobus.trace.blocks import FrameBlock
-from cobus.trace.decoder import _STATES, Heartbeat, SyncRecord, TraceRecord
+from cobus.trace.decoder import _STATES, Heartbeat, PdoRecord, SyncRecord, TraceRecord
 
 __all__ = ["FORMATS", "ExportError", "TraceExport"]
 
@@ -201,6 +201,9 @@ class TraceExport:
                 name = "heartbeat"
             elif isinstance(rec, SyncRecord):
                 name = "sync"
+            elif isinstance(rec, PdoRecord):  # (one the decoder took: on an SDO COB-ID)
+                self._one_pdo(row, rec)
+                continue
             else:
                 name = _TABLES.get(type(rec).__name__, "other")
             by_table.setdefault(name, []).append((row, rec))
@@ -209,6 +212,24 @@ class TraceExport:
                 columns, types = _record_columns([rec for _, rec in found])
                 self._put(name, found, columns, types)
         return by_table
+
+    def _one_pdo(self, row: int, rec: PdoRecord) -> None:
+        data = np.frombuffer(rec.data.ljust(8, b"\0")[:8], dtype=np.uint8).reshape(1, 8)
+        table = PdoColumns(
+            rec.cob_id,
+            rec.node,
+            rec.number,
+            rec.tpdo,
+            np.array([row], dtype=np.int64),
+            np.array([rec.time]),
+            np.array([len(rec.data)], dtype=np.uint8),
+            data,
+        )
+        if rec.values:
+            table.rows = [(dict(rec.values), dict(rec.units))]
+            self._pdo(table)
+        else:
+            self._unmapped([table])
 
     def _unmapped(self, tables: list[PdoColumns]) -> None:
         """The PDOs no mapping names, in one table ``pdo`` in the order of the frames."""

@@ -143,7 +143,11 @@ def blf_blocks(path: str | Path, size: int = BLOCK) -> Iterator[FrameBlock]:
             start = blf.systemtime_to_timestamp(header[14:22])
             f.seek(header[1])
             columns = _Columns(size)
-            yield from _read(path, f, start, columns)
+            try:
+                yield from _read(path, f, start, columns)
+            except TraceFileError:  # (a container it refuses: the frames before it first)
+                yield from columns.rest()
+                raise
             yield from columns.rest()
 
     def python_can() -> Any:
