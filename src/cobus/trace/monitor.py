@@ -23,7 +23,9 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import queue
 import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Iterator
@@ -134,59 +136,124 @@ def _running(
         yield item
 
 
-def _frames(args: argparse.Namespace, say: Any) -> Iterator[tuple[Any, float] | None]:
-    """Frames from the bus with their time (None about every 0.1 s without one); a bus
-    that fails is said and opened again."""
-    import can
+class BusReader:
+    """Reads a bus in a thread of its own into a queue of at most ``room`` frames: when
+    decoding falls behind (a full bus, a slow terminal), the frames that do not fit are
+    dropped and counted (:attr:`dropped`) instead of piling up in memory. A bus that fails
+    is said (``say``, from the reading thread) and opened again every second.
 
-    from cobus.runtime.bus import message_to_frame
+    >>> with BusReader(dict(interface="virtual", channel="bench"), print) as reader:
+    ...     for item in reader.items():     # (frame, time), or None each 0.1 s without
+    ...         ...
+    """
 
-    options = {k: v for k, v in bus_options(args).items() if v is not None}
-    bus = None
-    opened = False
-    try:
+    def __init__(self, options: dict[str, Any], say: Any, room: int = 10_000) -> None:
+        self.options = options
+        self.say = say
+        #: Frames read from the bus, and those dropped for want of room.
+        self.received = 0
+        self.dropped = 0
+        self._queue: queue.Queue[tuple[Any, float]] = queue.Queue(maxsize=room)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._bus: Any = None
+
+    def __enter__(self) -> BusReader:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def open(self) -> None:
+        """Open the bus (``ConnectionError`` when it cannot be) and start reading."""
+        import can
+
+        try:
+            self._bus = can.Bus(**self.options)
+        except (can.CanError, OSError, ValueError, ImportError) as exc:
+            raise ConnectionError(str(exc)) from None
+        self._thread = threading.Thread(target=self._read, name="cobus-monitor-bus", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        """Stop reading and close the bus."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        if self._bus is not None:
+            with contextlib.suppress(Exception):
+                self._bus.shutdown()
+            self._bus = None
+
+    def items(self) -> Iterator[tuple[Any, float] | None]:
+        """The frames read, with their time; None about every 0.1 s without one."""
+        get = self._queue.get
         while True:
+            try:
+                yield get(timeout=0.1)
+            except queue.Empty:
+                yield None
+
+    def _read(self) -> None:
+        import can
+
+        from cobus.runtime.bus import message_to_frame
+
+        put = self._queue.put_nowait
+        while not self._stop.is_set():
+            bus = self._bus
             if bus is None:
                 try:
-                    bus = can.Bus(**options)
+                    bus = self._bus = can.Bus(**self.options)
                 except (can.CanError, OSError, ValueError, ImportError) as exc:
-                    if not opened:
-                        raise ConnectionError(str(exc)) from None
-                    say(f"the bus cannot be opened again: {exc}; next try in {_REOPEN:g} s")
-                    time.sleep(_REOPEN)
-                    yield None
+                    self.say(f"the bus cannot be opened again: {exc}; next try in {_REOPEN:g} s")
+                    self._stop.wait(_REOPEN)
                     continue
-                opened = True
             try:
                 msg = bus.recv(0.1)
             except (can.CanError, OSError) as exc:
-                say(f"bus error: {exc}; opening the bus again in {_REOPEN:g} s")
+                self.say(f"bus error: {exc}; opening the bus again in {_REOPEN:g} s")
                 with contextlib.suppress(Exception):
                     bus.shutdown()
-                bus = None
-                time.sleep(_REOPEN)
-                yield None
+                self._bus = None
+                self._stop.wait(_REOPEN)
                 continue
             if msg is None:
-                yield None
                 continue
+            self.received += 1
             if msg.is_error_frame:
-                say("error frame on the bus")
+                self.say("error frame on the bus")
                 continue
             frame = message_to_frame(msg)
             if frame is None:  # a CAN FD frame: CANopen (CiA 301) has none
-                say(f"frame {msg.arbitration_id:03X} skipped: not a classic CAN frame")
+                self.say(f"frame {msg.arbitration_id:03X} skipped: not a classic CAN frame")
                 continue
-            yield frame, float(msg.timestamp or time.time())
-    finally:
-        if bus is not None:
-            bus.shutdown()
+            try:
+                put((frame, float(msg.timestamp or time.time())))
+            except queue.Full:
+                self.dropped += 1
 
 
-def _table(decoder: Any, rate: float, load: float | None) -> Any:
+def _frames(
+    args: argparse.Namespace, say: Any, reader: list[BusReader] | None = None
+) -> Iterator[tuple[Any, float] | None]:
+    """Frames from the bus with their time (None about every 0.1 s without one), read by
+    a :class:`BusReader` (given back in ``reader``, for its counts)."""
+    options = {k: v for k, v in bus_options(args).items() if v is not None}
+    bus = BusReader(options, say)
+    if reader is not None:
+        reader.append(bus)
+    with bus:
+        yield from bus.items()
+
+
+def _table(decoder: Any, rate: float, load: float | None, dropped: int = 0) -> Any:
     from cobus._console import table as new_table
 
     shown = f"{rate:,.0f} frames/s" + ("" if load is None else f", bus load {load:.1f} %")
+    if dropped:
+        shown += f", {dropped:,} dropped (decoding fell behind)"
     table = new_table(title=f"nodes — {shown}")
     columns = (
         "node",
@@ -262,9 +329,14 @@ def _run(args: argparse.Namespace) -> int:
         load = 100.0 * bits / args.bitrate if args.bitrate else None
         return float(len(window)), load
 
+    readers: list[BusReader] = []
+
+    def dropped() -> int:
+        return readers[0].dropped if readers else 0
+
     def view() -> Any:
         rate, load = figures()
-        table = _table(decoder, rate, load)
+        table = _table(decoder, rate, load, dropped())
         # The records that fit below the node table as the terminal draws it (rows wrap).
         height = len(console.render_lines(table, console.options, pad=False))
         room = max(3, console.size.height - height - 1)
@@ -287,7 +359,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     try:
         with _Keys() as keys, display as live:
-            for item in _running(_frames(args, say), keys, deadline):
+            for item in _running(_frames(args, say, readers), keys, deadline):
                 if item is None:
                     if not keys.paused:
                         redraw(live)
@@ -320,7 +392,14 @@ def _run(args: argparse.Namespace) -> int:
         from cobus._console import print_table
 
         rate, load = figures()
-        print_table(_table(decoder, rate, load))
+        print_table(_table(decoder, rate, load, dropped()))
     elif args.json:
-        print(json.dumps({"nodes": [decoder.stats[n].summary() for n in sorted(decoder.stats)]}))
+        nodes = [decoder.stats[n].summary() for n in sorted(decoder.stats)]
+        print(json.dumps({"nodes": nodes, "dropped": dropped()}))
+    if dropped():
+        print(
+            f"cobus monitor: {dropped():,} frames dropped: decoding could not keep up "
+            "(--filter, --node or a file: cobus record, then cobus decode)",
+            file=sys.stderr,
+        )
     return 0
