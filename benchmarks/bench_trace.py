@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -102,7 +104,8 @@ def _bulk(frames: list[tuple[Frame, float]], od: ObjectDictionary) -> list[str]:
     .log files; python-can's reader alone, cobus's block reader, ``cobus decode --summary``
     in process (read, count, each frame's stuff bits, SDO/EMCY/NMT through the decoder, the
     result as JSON and as text; the command's start-up not counted); the batch decoder's
-    records as columns, from blocks already read and read from the file."""
+    records as columns, from blocks already read and read from the file; ``cobus decode``
+    with ``--json`` and as text, the command end to end (its start-up counted)."""
     from cobus.trace.batch import BatchDecoder
     from cobus.trace.blocks import blocks
     from cobus.trace.summary import TraceSummary
@@ -156,6 +159,16 @@ def _bulk(frames: list[tuple[Frame, float]], od: ObjectDictionary) -> list[str]:
 
             batched = rate(batch)
             read_batched = rate(lambda: batch(read=True))
+            eds = Path(tmp) / "servo.eds"
+            eds.write_text(export_eds(od))
+
+            def command(options: tuple[str, ...], p: Path = path, e: Path = eds) -> int:
+                decode = [sys.executable, "-m", "cobus", "decode", str(p), "--eds", f"10={e}"]
+                subprocess.run([*decode, *options], stdout=subprocess.DEVNULL, check=True)
+                return BULK
+
+            as_json = rate(lambda c=command: c(("--json",)))
+            as_text = rate(lambda c=command: c(()))
             lines += [
                 f"  {'python-can reading .' + suffix:<44} {raw:>12,.0f} frames/s",
                 f"  {'cobus blocks of .' + suffix:<44} {read:>12,.0f} frames/s",
@@ -164,6 +177,10 @@ def _bulk(frames: list[tuple[Frame, float]], od: ObjectDictionary) -> list[str]:
                 f"  {'cobus batch decoding, blocks in memory':<44} {batched:>12,.0f} frames/s"
                 "  (target 2,000,000)",
                 f"  {'cobus batch decoding, read from .' + suffix:<44} {read_batched:>12,.0f}"
+                " frames/s",
+                f"  {'cobus decode --json, .' + suffix + ' (the command)':<44} {as_json:>12,.0f}"
+                " frames/s  (target 200,000)",
+                f"  {'cobus decode, text, .' + suffix + ' (the command)':<44} {as_text:>12,.0f}"
                 " frames/s",
             ]
     return lines

@@ -455,6 +455,20 @@ def _statusword_events(
                 pairs = zip(column[keep].tolist(), has[keep].tolist(), strict=True)
                 events.extend((pdo, axis, v if h else None) for v, h in pairs)
                 continue
+        numeric = _numeric(parts)
+        if numeric is not None:  # (the usual: integer columns, of several PDOs)
+            rows, column, has, part = numeric
+            order = np.argsort(rows, kind="stable")
+            rows, column, has, part = rows[order] - start, column[order], has[order], part[order]
+            changed = np.ones(len(rows), dtype=bool)
+            changed[1:] = (column[1:] != column[:-1]) | (has[1:] != has[:-1])
+            before = np.searchsorted(slow_rows, rows)
+            changed[1:] |= before[1:] != before[:-1]
+            keep = np.flatnonzero(changed)
+            found.append(rows[keep])
+            kept = zip(part[keep].tolist(), column[keep].tolist(), has[keep].tolist(), strict=True)
+            events.extend((parts[p][1], axis, v if h else None) for p, v, h in kept)
+            continue
         rows_of: list[_Index] = []
         values: list[Any] = []
         pdos: list[_Pdo] = []
@@ -490,6 +504,30 @@ def _statusword_events(
         return np.zeros(0, dtype=np.int64), events
     rows = np.concatenate(found)
     return rows, events
+
+
+def _numeric(parts: list[tuple[PdoColumns, _Pdo]]) -> tuple[Any, Any, Any, Any] | None:
+    """The statuswords of several PDOs as one column (rows, values as int64, whether each
+    frame carries it, which PDO), where each is an integer column of at most 32 bits."""
+    rows, columns, hases, which = [], [], [], []
+    for n, (table, pdo) in enumerate(parts):
+        if table.rows is not None:
+            return None
+        column, has = _statuswords(table, pdo.statusword)  # type: ignore[arg-type]
+        if not isinstance(column, np.ndarray) or column.dtype.kind not in "iu":
+            return None
+        if column.dtype.itemsize > 4:
+            return None
+        rows.append(table.index)
+        columns.append(column.astype(np.int64))
+        hases.append(has)
+        which.append(np.full(len(table), n, dtype=np.int64))
+    return (
+        np.concatenate(rows),
+        np.concatenate(columns),
+        np.concatenate(hases),
+        np.concatenate(which),
+    )
 
 
 def _statuswords(table: PdoColumns, name: str) -> tuple[Any, Any]:

@@ -11,7 +11,9 @@ On a terminal: the node table (NMT state, heartbeats with period, jitter and mis
 emergencies and the last one, SDO answer latency), frames/s and bus load, and the newest
 decoded records; ``p`` or space pauses the display (decoding goes on), ``q`` quits. Piped or
 with ``--json``: one line per record, and the node table at the end. A bus error is said and
-the bus opened again (until it opens); ``--duration S`` stops by itself. python-can's
+the bus opened again (until it opens); ``--duration S`` stops by itself. When decoding
+cannot keep up with the bus, frames are dropped and counted (in the node table's title,
+the JSON's last line and at the end) instead of queueing without end. python-can's
 ``virtual`` bus is private to one process: to watch a bench run by another process, share
 it (``python -m can_remote -i virtual -c bench -H 127.0.0.1`` and ``-i remote -c
 ws://127.0.0.1:54701/``) or use ``-i udp_multicast``. Exit codes: 0 done, 1 the bus cannot
@@ -366,7 +368,10 @@ def _run(args: argparse.Namespace) -> int:
                     continue
                 frame, stamp = item
                 first = stamp if first is None else first
-                window.append((time.monotonic(), frame_bits(frame)))
+                arrived = time.monotonic()
+                window.append((arrived, frame_bits(frame)))
+                while window[0][0] < arrived - 1.0:  # (the last second only: memory stays)
+                    window.popleft()
                 for rec in decoder.feed(frame, stamp - first):
                     if args.filter is not None and rec.kind not in args.filter:
                         continue
