@@ -449,8 +449,67 @@ def _lines_by_layout(text: bytes) -> tuple[Any, ...] | None:
         return None
     # the time: digits and one point between the parentheses, exact as python-can's float()
     last = len(buf) - 1
-    n = len(starts)
     tlen = close - starts - 1
+    fixed = _fixed_times(buf, starts, tlen)
+    if fixed is not None:  # (the usual: every time of one width, its point in one place)
+        value, count, places, points, bad = fixed
+    else:
+        value, count, places, points, bad = _times_by_column(buf, starts, tlen, last)
+    if bad is None:
+        return None
+    if bad.any() or (points > 1).any() or (count == 0).any() or (value >= 1 << 53).any():
+        return None  # (another form, or more digits than float64 holds exactly)
+    times = value / (10.0**places)
+    # the identifier and the data in hex
+    cob = _hex_number(buf, channel_end + 1, id_len, last)
+    if cob is None:
+        return None
+    data_len = data_end - hashes - 1
+    at = np.minimum(hashes[:, None] + 1 + _SIXTEEN, last)
+    nibbles = _NIBBLE[buf[at]]
+    inside = data_len[:, None] > _SIXTEEN
+    plain = (data_len <= 16) & (data_len % 2 == 0) & ~(inside & (nibbles == 255)).any(axis=1)
+    pairs = nibbles[:, 0::2].astype(np.uint16) * 16 + nibbles[:, 1::2]
+    data = np.where(inside[:, 0::2] & plain[:, None], pairs, 0).astype(np.uint8)
+    nbytes = np.where(plain, data_len // 2, 0)
+    error = ((cob & _CAN_ERR_FLAG) != 0) & ((cob & _CAN_ERR_BUSERROR) != 0)
+    flags = np.where(id_len > 3, EXTENDED, 0)
+    dlc = nbytes.copy()
+    cob = np.where(error, 0, cob & 0x1FFFFFFF)
+    for i in np.flatnonzero(~plain | error).tolist():
+        rest = text[int(hashes[i]) + 1 : int(data_end[i])]
+        flags[i], dlc[i], data[i] = _special(rest, bool(error[i]), int(id_len[i]) > 3)
+    return times, cob, flags, dlc, data
+
+
+_SIXTEEN = np.arange(16)
+
+
+def _fixed_times(buf: Any, starts: Any, tlen: Any) -> tuple[Any, ...] | None:
+    """The times of lines whose times are all of one width with the point in one column,
+    digit columns at once; None otherwise (:func:`_times_by_column` reads them)."""
+    width = int(tlen[0])
+    if not 2 <= width <= 19 or (tlen != width).any():
+        return None
+    chars = buf[starts[:, None] + 1 + np.arange(width)].astype(np.int64)
+    point = np.flatnonzero(chars[0] == 46)
+    if len(point) != 1:
+        return None
+    p = int(point[0])
+    digits = np.delete(chars, p, axis=1) - 48
+    if (chars[:, p] != 46).any() or ((digits < 0) | (digits > 9)).any():
+        return None
+    value = digits @ (10 ** np.arange(width - 2, -1, -1, dtype=np.int64))
+    n = len(starts)
+    count = np.full(n, width - 1, dtype=np.int64)
+    places = np.full(n, width - 1 - p, dtype=np.int64)
+    return value, count, places, np.ones(n, dtype=np.int64), np.zeros(n, dtype=bool)
+
+
+def _times_by_column(buf: Any, starts: Any, tlen: Any, last: int) -> tuple[Any, ...]:
+    """The times of lines of any width, a character column at a time (``bad`` None: more
+    digits than the reader takes)."""
+    n = len(starts)
     value = np.zeros(n, dtype=np.int64)
     count = np.zeros(n, dtype=np.int64)
     places = np.zeros(n, dtype=np.int64)
@@ -467,37 +526,23 @@ def _lines_by_layout(text: bytes) -> tuple[Any, ...] | None:
         places += digit & (points > 0)
         points += point
         if (count > 18).any():
-            return None
-    if bad.any() or (points > 1).any() or (count == 0).any() or (value >= 1 << 53).any():
-        return None  # (another form, or more digits than float64 holds exactly)
-    times = value / (10.0**places)
-    # the identifier and the data in hex
-    cob = np.zeros(n, dtype=np.int64)
-    for j in range(8):
-        inside = j < id_len
-        digit = _NIBBLE[buf[np.minimum(channel_end + 1 + j, last)]].astype(np.int64)
-        if (inside & (digit == 255)).any():
-            return None
-        cob = np.where(inside, cob * 16 + digit, cob)
-    data_len = data_end - hashes - 1
-    data = np.zeros((n, 8), dtype=np.uint8)
-    plain = (data_len <= 16) & (data_len % 2 == 0)
-    for j in range(8):
-        high = _NIBBLE[buf[np.minimum(hashes + 1 + 2 * j, last)]]
-        low = _NIBBLE[buf[np.minimum(hashes + 2 + 2 * j, last)]]
-        inside = 2 * j < data_len
-        plain &= ~(inside & ((high == 255) | (low == 255)))
-        data[:, j] = np.where(inside, (high.astype(np.uint16) * 16 + low).astype(np.uint8), 0)
-    nbytes = np.where(plain, data_len // 2, 0)
-    data[~plain] = 0
-    error = ((cob & _CAN_ERR_FLAG) != 0) & ((cob & _CAN_ERR_BUSERROR) != 0)
-    flags = np.where(id_len > 3, EXTENDED, 0)
-    dlc = nbytes.copy()
-    cob = np.where(error, 0, cob & 0x1FFFFFFF)
-    for i in np.flatnonzero(~plain | error).tolist():
-        rest = text[int(hashes[i]) + 1 : int(data_end[i])]
-        flags[i], dlc[i], data[i] = _special(rest, bool(error[i]), int(id_len[i]) > 3)
-    return times, cob, flags, dlc, data
+            return value, count, places, points, None
+    return value, count, places, points, bad
+
+
+def _hex_number(buf: Any, at: Any, length: Any, last: int) -> Any:
+    """The hex numbers of ``length`` (1..8) digits at ``at``; None where one is no hex."""
+    width = int(length.max(initial=1))
+    nibbles = _NIBBLE[buf[np.minimum(at[:, None] + np.arange(width), last)]].astype(np.int64)
+    inside = np.arange(width) < length[:, None]
+    if (inside & (nibbles == 255)).any():
+        return None
+    if (length == width).all():
+        return nibbles @ (16 ** np.arange(width - 1, -1, -1, dtype=np.int64))
+    number = np.zeros(len(at), dtype=np.int64)
+    for j in range(width):
+        number = np.where(inside[:, j], number * 16 + nibbles[:, j], number)
+    return number
 
 
 def _lines(text: bytes, columns: _Columns) -> Iterator[FrameBlock]:
