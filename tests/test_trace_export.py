@@ -11,14 +11,15 @@ from pathlib import Path
 from typing import Any
 
 import can
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
 from cobus.cli import main
 from cobus.master import load_network
-from cobus.trace.batch import BatchDecoder
+from cobus.trace.batch import BatchDecoder, PdoColumns
 from cobus.trace.blocks import message_blocks
-from cobus.trace.export import ExportError, TraceExport
+from cobus.trace.export import _TABLES, ExportError, TraceExport
 
 from .test_trace_batch import (
     LINE,
@@ -32,21 +33,7 @@ from .test_trace_batch import (
     _session,
 )
 
-_TABLE_OF = {
-    "SyncRecord": "sync",
-    "Heartbeat": "heartbeat",
-    "SdoTransfer": "sdo",
-    "SdoBlockFrame": "sdo_block_frame",
-    "EmergencyRecord": "emcy",
-    "NmtCommandRecord": "nmt",
-    "Bootup": "bootup",
-    "GuardRequest": "guard_request",
-    "GuardResponse": "guard_response",
-    "TimeRecord": "time",
-    "LssFrame": "lss",
-    "LssSession": "lss_session",
-    "Unknown": "other",
-}
+_TABLE_OF = {**_TABLES, "SyncRecord": "sync", "Heartbeat": "heartbeat"}
 
 
 def _messages() -> list[can.Message]:
@@ -211,3 +198,62 @@ def test_cobus_decode_to(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
         err = capsys.readouterr().err
         assert err.startswith("cobus: ") and err.count("\n") == 1
     assert main(["decode", str(tmp_path / "none.blf"), "--to", "csv", str(tmp_path / "z")]) == 1
+
+
+def test_what_the_review_of_the_export_found(tmp_path: Path) -> None:
+    # a value named as a frame's column keeps both
+    export = TraceExport(tmp_path / "a", "csv", BatchDecoder())
+    data = np.zeros((2, 8), dtype=np.uint8)
+    table = PdoColumns(
+        0x181,
+        1,
+        1,
+        True,
+        np.array([0, 1]),
+        np.array([0.5, 0.75]),
+        np.array([8, 8], dtype=np.uint8),
+        data,
+        ("time", "data"),
+        {"time": np.array([7, 8], dtype=np.uint8), "data": np.array([9, 10], dtype=np.uint16)},
+        np.array([2, 2]),
+    )
+    export._pdo(table)
+    export.close()
+    with (tmp_path / "a/node1_tpdo1.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert rows[0]["time"] == "0.5" and rows[0]["time (value)"] == "7"
+    assert rows[1]["data (value)"] == "10" and rows[1]["data"] == "00" * 8
+    # stopped between blocks (Ctrl-C): every table ends at the same frame, counts true
+    messages = _messages()
+    export = TraceExport(tmp_path / "b", "csv", BatchDecoder(_dictionaries(), load_network(LINE)))
+    rows_written = export.write(message_blocks(messages, 1_000), stop=lambda: True)
+    assert export.stopped and export.frames == 1_000
+    for name, count in rows_written.items():
+        with (tmp_path / f"b/{name}.csv").open() as f:
+            times = [float(r["time"]) for r in csv.DictReader(f)]
+        assert len(times) == count and max(times) <= export.end
+    # a network file's PDO: one table however the blocks fall (a short frame alone first)
+    short = [_msg(1.0, 0x183, b"\x37"), *(_msg(1.0 + i, 0x183, bytes(6)) for i in range(1, 4))]
+    export = TraceExport(tmp_path / "c", "csv", BatchDecoder(network=load_network(LINE)))
+    assert export.write(message_blocks(short, 1)) == {"node3_tpdo1": 4}
+    # the PDOs no mapping names, in the order of the frames (the decoder's among them)
+    with (tmp_path / "b/pdo.csv").open() as f:
+        times = [float(r["time"]) for r in csv.DictReader(f)]
+    assert times == sorted(times)
+    # a file where the folder should be
+    (tmp_path / "file").write_text("")
+    with pytest.raises(ExportError, match="a file, not a folder"):
+        TraceExport(tmp_path / "file", "csv", BatchDecoder())
+
+
+def test_a_damaged_trace_says_how_far_the_tables_go(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    lines = [f"({1_700_000_000 + i / 1000:.6f}) can0 080#{i % 256:02X}" for i in range(3_000)]
+    lines[2_000] = "(garbage"
+    trace = tmp_path / "cut.log"
+    trace.write_text("\n".join(lines) + "\n")
+    assert main(["decode", str(trace), "--to", "csv", str(tmp_path / "out")]) == 1
+    captured = capsys.readouterr()
+    assert captured.out.splitlines() == [f"{tmp_path / 'out' / 'sync.csv'}  2000 rows"]
+    assert "(the 1 table written holds the trace's first 2000 frames, to 1.999" in captured.err

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import json
+import signal
 import sys
 import time
 from pathlib import Path
@@ -237,28 +238,42 @@ def _export(args: argparse.Namespace) -> int:
     except ExportError as exc:
         return _fail(str(exc), 2)
     suffix = ".parquet" if fmt == "parquet" else ".csv"
-    interrupted = False
+    asked: list[bool] = []  # (Ctrl-C: the tables end at the block under way, all of them)
     try:
-        export.write(blocks(args.file))
+        previous: Any = signal.signal(signal.SIGINT, lambda *_: asked.append(True))
+    except ValueError:  # (not the main thread: Ctrl-C is not this thread's)
+        previous = None
+    failure: str | None = None
+    try:
+        export.write(blocks(args.file), stop=lambda: bool(asked))
+    except ExportError as exc:
+        failure = str(exc)
     except KeyboardInterrupt:
-        interrupted = True
-    except OSError as exc:
-        return _fail(f"cannot write {folder}: {exc}" if folder.name in str(exc) else str(exc))
+        asked.append(True)
+        export.stopped = True
     except Exception as exc:  # a damaged file, whatever the reader raises for it
-        return _fail(_unreadable(args.file, exc))
+        failure = _unreadable(args.file, exc)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
     files = {name: str(folder / f"{name}{suffix}") for name in export.rows}
     if args.json:
         print(json.dumps({n: {"file": files[n], "rows": r} for n, r in export.rows.items()}))
     else:
         for name, rows in export.rows.items():
             print(f"{files[name]}  {rows} rows")
-    if interrupted:
-        print(
-            f"cobus: stopped by Ctrl-C: {len(files)} tables written, each complete up to "
-            "the frame it had reached",
-            file=sys.stderr,
-        )
-        return 130
+    upto = f"{export.frames} frames, to {export.end:.6f} s"
+    tables = (
+        f"{len(files)} table written holds"
+        if len(files) == 1
+        else f"{len(files)} tables written hold"
+    )
+    if failure is not None:
+        if export.rows:
+            failure += f" (the {tables} the trace's first {upto})"
+        return _fail(failure)
+    if export.stopped:
+        return _fail(f"interrupted: the {tables} the trace's first {upto}", 130)
     if not export.rows:
         print(f"cobus: {args.file}: no records to write", file=sys.stderr)
     return 0

@@ -145,7 +145,7 @@ def run_raw(args: argparse.Namespace, decoder: Any) -> int:
     from rich.live import Live
 
     from cobus._console import print_table
-    from cobus.trace.monitor import _frames, _Keys, _running
+    from cobus.trace.monitor import BusReader, _frames, _Keys, _running
 
     view = RawView()
     live_view = sys.stdout.isatty() and not args.json
@@ -154,10 +154,16 @@ def run_raw(args: argparse.Namespace, decoder: Any) -> int:
     first: float | None = None
     drawn = 0.0
 
+    readers: list[BusReader] = []
+
+    def dropped() -> int:
+        return readers[0].dropped if readers else 0
+
     def title() -> str:
         frames = sum(s.count for s in view.ids.values())
         seconds = time.monotonic() - started
-        return f"{len(view.ids)} identifier(s), {frames} frame(s) in {seconds:.1f} s"
+        lost = f", {dropped():,} dropped (counting fell behind)" if dropped() else ""
+        return f"{len(view.ids)} identifier(s), {frames} frame(s) in {seconds:.1f} s{lost}"
 
     def say(text: str) -> None:
         print(f"# {text}", file=sys.stderr)
@@ -170,7 +176,7 @@ def run_raw(args: argparse.Namespace, decoder: Any) -> int:
         display = Live(view.table(title()), console=console, auto_refresh=False)
     try:
         with _Keys() as keys, display as live:
-            for item in _running(_frames(args, say), keys, deadline):
+            for item in _running(_frames(args, say, readers), keys, deadline):
                 if item is not None:
                     frame, stamp = item
                     first = stamp if first is None else first
@@ -190,4 +196,9 @@ def run_raw(args: argparse.Namespace, decoder: Any) -> int:
         pass  # (the live table stays on the screen)
     else:
         print_table(view.table(title()))
+    if dropped():
+        print(
+            f"cobus monitor: {dropped():,} frames dropped: the counts and periods miss them",
+            file=sys.stderr,
+        )
     return 0

@@ -441,30 +441,12 @@ def _statusword_events(
     found: list[_Index] = []
     events: list[tuple[Any, int, Any]] = []
     for (_, axis), parts in series.items():
-        if len(parts) == 1 and parts[0][0].rows is None:
-            table, pdo = parts[0]
-            column, has = _statuswords(table, pdo.statusword)  # type: ignore[arg-type]
-            if isinstance(column, np.ndarray):
-                rows = table.index - start
-                changed = np.ones(len(rows), dtype=bool)
-                changed[1:] = (column[1:] != column[:-1]) | (has[1:] != has[:-1])
-                before = np.searchsorted(slow_rows, rows)
-                changed[1:] |= before[1:] != before[:-1]
-                keep = np.flatnonzero(changed)
-                found.append(rows[keep])
-                pairs = zip(column[keep].tolist(), has[keep].tolist(), strict=True)
-                events.extend((pdo, axis, v if h else None) for v, h in pairs)
-                continue
         numeric = _numeric(parts)
-        if numeric is not None:  # (the usual: integer columns, of several PDOs)
+        if numeric is not None:  # (the usual: integer columns)
             rows, column, has, part = numeric
             order = np.argsort(rows, kind="stable")
             rows, column, has, part = rows[order] - start, column[order], has[order], part[order]
-            changed = np.ones(len(rows), dtype=bool)
-            changed[1:] = (column[1:] != column[:-1]) | (has[1:] != has[:-1])
-            before = np.searchsorted(slow_rows, rows)
-            changed[1:] |= before[1:] != before[:-1]
-            keep = np.flatnonzero(changed)
+            keep = _kept(rows, (column[1:] != column[:-1]) | (has[1:] != has[:-1]), slow_rows)
             found.append(rows[keep])
             kept = zip(part[keep].tolist(), column[keep].tolist(), has[keep].tolist(), strict=True)
             events.extend((parts[p][1], axis, v if h else None) for p, v, h in kept)
@@ -492,11 +474,7 @@ def _statusword_events(
         ordered[:] = values
         ordered = ordered[order]
         kinds = np.array([type(v).__name__ for v in ordered], dtype=object)
-        changed = np.ones(len(rows), dtype=bool)
-        changed[1:] = (ordered[1:] != ordered[:-1]) | (kinds[1:] != kinds[:-1])
-        before = np.searchsorted(slow_rows, rows)
-        changed[1:] |= before[1:] != before[:-1]
-        keep = np.flatnonzero(changed)
+        keep = _kept(rows, (ordered[1:] != ordered[:-1]) | (kinds[1:] != kinds[:-1]), slow_rows)
         found.append(rows[keep])
         picked = [pdos[i] for i in order[keep].tolist()]
         events.extend((pdo, axis, v) for pdo, v in zip(picked, ordered[keep].tolist(), strict=True))
@@ -506,9 +484,21 @@ def _statusword_events(
     return rows, events
 
 
+def _kept(rows: _Index, differs: Any, slow_rows: _Index) -> _Index:
+    """Which of a drive's statuswords (at ``rows``, each ``differs`` from the one before)
+    may change its state: the first, each new one, the first after a frame the exact
+    decoder took (it may have read the statusword by SDO)."""
+    changed = np.ones(len(rows), dtype=bool)
+    changed[1:] = differs
+    before = np.searchsorted(slow_rows, rows)
+    changed[1:] |= before[1:] != before[:-1]
+    return np.flatnonzero(changed)
+
+
 def _numeric(parts: list[tuple[PdoColumns, _Pdo]]) -> tuple[Any, Any, Any, Any] | None:
-    """The statuswords of several PDOs as one column (rows, values as int64, whether each
-    frame carries it, which PDO), where each is an integer column of at most 32 bits."""
+    """The statuswords of a drive's PDOs as one column (rows, values, whether each frame
+    carries it, which PDO), where each is an integer column (of at most 32 bits, when
+    several PDOs are put together as int64)."""
     rows, columns, hases, which = [], [], [], []
     for n, (table, pdo) in enumerate(parts):
         if table.rows is not None:
@@ -516,10 +506,10 @@ def _numeric(parts: list[tuple[PdoColumns, _Pdo]]) -> tuple[Any, Any, Any, Any] 
         column, has = _statuswords(table, pdo.statusword)  # type: ignore[arg-type]
         if not isinstance(column, np.ndarray) or column.dtype.kind not in "iu":
             return None
-        if column.dtype.itemsize > 4:
+        if len(parts) > 1 and column.dtype.itemsize > 4:
             return None
         rows.append(table.index)
-        columns.append(column.astype(np.int64))
+        columns.append(column if len(parts) == 1 else column.astype(np.int64))
         hases.append(has)
         which.append(np.full(len(table), n, dtype=np.int64))
     return (
@@ -575,6 +565,7 @@ def _table(
         return PdoColumns(cob, cob & 0x7F, k // 2 + 1, k % 2 == 0, rows, times, dlc, data)
     table = PdoColumns(cob, pdo.node, pdo.number, pdo.tpdo, rows, times, dlc, data)
     if pdo.layout is not None:  # a network file's signals: scaled row by row
+        table.names = tuple(name for name, _ in pdo.named)
         buf = data.tobytes()
         sizes = dlc.tolist()
         table.rows = [pdo_values(pdo, buf[8 * i : 8 * i + sizes[i]]) for i in range(len(sizes))]

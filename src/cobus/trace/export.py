@@ -24,7 +24,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import IO, Any
 
@@ -87,7 +87,9 @@ class TraceExport:
                 raise ExportError(
                     "--to parquet needs pyarrow: pip install 'cobus[parquet]' (or use --to csv)"
                 ) from None
-        if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
+        if folder.exists() and not folder.is_dir():
+            raise ExportError(f"{folder}: a file, not a folder (the tables go into a folder)")
+        if folder.is_dir() and any(folder.iterdir()):
             raise ExportError(f"{folder}: not an empty folder (the tables go into one)")
         self.folder = folder
         self.fmt = fmt
@@ -98,10 +100,19 @@ class TraceExport:
         self.rows: dict[str, int] = {}
         self._writers: dict[str, _Writer] = {}
         self._pdo_names: dict[tuple[Any, ...], str] = {}
+        #: Frames read and written so far, the time of the last (from the first), and
+        #: whether ``stop`` ended the writing early.
+        self.frames = 0
+        self.end = 0.0
+        self.stopped = False
+        _more_files()
 
-    def write(self, blocks: Iterable[FrameBlock]) -> dict[str, int]:
+    def write(
+        self, blocks: Iterable[FrameBlock], stop: Callable[[], bool] | None = None
+    ) -> dict[str, int]:
         """Decode and write ``blocks`` (a trace's), then close the files; the rows written
-        per table."""
+        per table. ``stop()`` is asked between blocks (Ctrl-C): when true, the tables end
+        there, all at the same frame (:attr:`frames`, :attr:`stopped`)."""
         first: float | None = None
         end = 0.0
         try:
@@ -112,7 +123,13 @@ class TraceExport:
                     first = float(block.time[0])
                 end = float(block.time[-1]) - first
                 self.add(self.decoder.decode(block, first))
-            self._records([(0, rec) for rec in self.decoder.flush(end)])
+                self.frames += len(block)
+                self.end = end
+                if stop is not None and stop():
+                    self.stopped = True
+                    break
+            else:
+                self._records([(0, rec) for rec in self.decoder.flush(end)])
         finally:
             self.close()
         return dict(self.rows)
@@ -170,7 +187,9 @@ class TraceExport:
             )
         if wanted is None or "pdo" in wanted:
             unmapped: list[PdoColumns] = []
-            for table in decoded.pdos:
+            pdos = [*decoded.pdos, *(_one_pdo(row, rec) for row, rec in slow.get("pdo", []))]
+            pdos.sort(key=lambda t: int(t.index[0]))  # (a name goes to the first mapping)
+            for table in pdos:
                 if node is not None and table.node != node:
                     continue
                 if table.present is None and table.rows is None:  # no mapping names it
@@ -181,10 +200,17 @@ class TraceExport:
                 self._unmapped(unmapped)
 
     def close(self) -> None:
-        """Finish every file (a Parquet file is unreadable before)."""
+        """Finish every file (a Parquet file is unreadable before); every one, even where
+        one fails (then :class:`ExportError` naming it)."""
+        failed: ExportError | None = None
         for writer in self._writers.values():
-            writer.close()
+            try:
+                writer.close()
+            except OSError as exc:
+                failed = failed or ExportError(f"cannot write {writer.path}: {_why(exc)}")
         self._writers.clear()
+        if failed is not None:
+            raise failed
 
     # ------------------------------------------------------------------ tables
 
@@ -202,34 +228,15 @@ class TraceExport:
             elif isinstance(rec, SyncRecord):
                 name = "sync"
             elif isinstance(rec, PdoRecord):  # (one the decoder took: on an SDO COB-ID)
-                self._one_pdo(row, rec)
-                continue
+                name = "pdo"
             else:
                 name = _TABLES.get(type(rec).__name__, "other")
             by_table.setdefault(name, []).append((row, rec))
         for name, found in by_table.items():
-            if name not in ("heartbeat", "sync"):
+            if name not in ("heartbeat", "sync", "pdo"):
                 columns, types = _record_columns([rec for _, rec in found])
                 self._put(name, found, columns, types)
         return by_table
-
-    def _one_pdo(self, row: int, rec: PdoRecord) -> None:
-        data = np.frombuffer(rec.data.ljust(8, b"\0")[:8], dtype=np.uint8).reshape(1, 8)
-        table = PdoColumns(
-            rec.cob_id,
-            rec.node,
-            rec.number,
-            rec.tpdo,
-            np.array([row], dtype=np.int64),
-            np.array([rec.time]),
-            np.array([len(rec.data)], dtype=np.uint8),
-            data,
-        )
-        if rec.values:
-            table.rows = [(dict(rec.values), dict(rec.units))]
-            self._pdo(table)
-        else:
-            self._unmapped([table])
 
     def _unmapped(self, tables: list[PdoColumns]) -> None:
         """The PDOs no mapping names, in one table ``pdo`` in the order of the frames."""
@@ -283,29 +290,34 @@ class TraceExport:
             "dlc": table.dlc,
             "data": [buf[8 * i : 8 * i + n] for i, n in enumerate(dlcs)],
         }
+        frame_columns = set(columns)
         if table.rows is not None:  # a network file's signals, row by row
-            names: list[str] = []
+            names: list[str] = list(table.names)
             for values, _ in table.rows:
                 names += [n for n in values if n not in names]
             for name in names:
                 listed = [values.get(name) for values, _ in table.rows]
-                types[name] = _type_of(listed)
-                columns[name] = _typed(listed, types[name])
+                column_name = _unique(name, frame_columns)
+                # (engineering values: float64 whatever a block holds, so every block of a
+                # PDO has one table)
+                types[column_name] = _signal_type(listed)
+                columns[column_name] = _typed(listed, types[column_name])
         else:
             present = table.present.tolist() if table.present is not None else []
             for k, name in enumerate(table.names):
                 column = table.columns[name]
                 has = [p > k for p in present]
+                column_name = _unique(name, frame_columns)
                 if isinstance(column, np.ndarray) and all(has):
-                    columns[name] = column
-                    types[name] = column.dtype.name if column.dtype.kind != "b" else "bool"
+                    columns[column_name] = column
+                    types[column_name] = column.dtype.name if column.dtype.kind != "b" else "bool"
                 elif isinstance(column, np.ndarray):
-                    columns[name] = _nullable(column.tolist(), has)
-                    types[name] = column.dtype.name if column.dtype.kind != "b" else "bool"
+                    columns[column_name] = _nullable(column.tolist(), has)
+                    types[column_name] = column.dtype.name if column.dtype.kind != "b" else "bool"
                 else:  # (strings, times of day...)
                     listed = _nullable(column, has)
-                    types[name] = _type_of(listed)
-                    columns[name] = _typed(listed, types[name])
+                    types[column_name] = _type_of(listed)
+                    columns[column_name] = _typed(listed, types[column_name])
         key = (table.cob_id, table.node, table.number, table.tpdo, tuple(types.items()))
         found = self._pdo_names.get(key)
         if found is None:
@@ -325,14 +337,19 @@ class TraceExport:
         if not count:
             return
         writer = self._writers.get(name)
-        if writer is None:
-            suffix = ".parquet" if self.fmt == "parquet" else ".csv"
-            self.folder.mkdir(parents=True, exist_ok=True)
-            path = self.folder / f"{name}{suffix}"
-            writer = self._writers[name] = (
-                _ParquetWriter(path, types) if self.fmt == "parquet" else _CsvWriter(path, types)
-            )
-        writer.write(columns)
+        suffix = ".parquet" if self.fmt == "parquet" else ".csv"
+        path = self.folder / f"{name}{suffix}"
+        try:
+            if writer is None:
+                self.folder.mkdir(parents=True, exist_ok=True)
+                writer = self._writers[name] = (
+                    _ParquetWriter(path, types)
+                    if self.fmt == "parquet"
+                    else _CsvWriter(path, types)
+                )
+            writer.write(columns)
+        except OSError as exc:
+            raise ExportError(f"cannot write {path}: {_why(exc)}") from None
         self.rows[name] = self.rows.get(name, 0) + count
 
 
@@ -340,8 +357,64 @@ _HEARTBEAT = {"time": "float64", "cob_id": "uint16", "node": "uint8", "state": "
 _SYNC = {"time": "float64", "counter": "int16"}
 
 
+def _one_pdo(row: int, rec: PdoRecord) -> PdoColumns:
+    """A PDO record of the exact decoder as a table of one row."""
+    data = np.frombuffer(rec.data.ljust(8, b"\0")[:8], dtype=np.uint8).reshape(1, 8)
+    table = PdoColumns(
+        rec.cob_id,
+        rec.node,
+        rec.number,
+        rec.tpdo,
+        np.array([row], dtype=np.int64),
+        np.array([rec.time]),
+        np.array([len(rec.data)], dtype=np.uint8),
+        data,
+    )
+    if rec.values:
+        table.rows = [(dict(rec.values), dict(rec.units))]
+    return table
+
+
+def _more_files() -> None:
+    """As many open files as the system lets this process have: a table is a file, open
+    until the end, and a network has hundreds of PDOs."""
+    try:
+        import resource
+
+        soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+        if hard == resource.RLIM_INFINITY or hard > soft:
+            wanted = 1 << 16 if hard == resource.RLIM_INFINITY else hard
+            resource.setrlimit(resource.RLIMIT_NOFILE, (max(soft, wanted), hard))
+    except (ImportError, ValueError, OSError):  # (not on this system, or not allowed)
+        pass
+
+
+def _why(exc: OSError) -> str:
+    return exc.strerror or str(exc)
+
+
 def _nullable(values: list[Any], has: list[bool]) -> list[Any]:
     return [v if h else None for v, h in zip(values, has, strict=True)]
+
+
+def _unique(name: str, taken: set[str]) -> str:
+    """``name`` as a column beside ``taken`` (a value named "time" or "data" does not
+    overwrite the frame's): ``time (value)``, ``time (value 2)``..."""
+    found, n = name, 1
+    while found in taken:
+        found = f"{name} (value)" if n == 1 else f"{name} (value {n})"
+        n += 1
+    taken.add(found)
+    return found
+
+
+def _signal_type(values: list[Any]) -> str:
+    """A network-file signal's column: float64 for numbers (engineering values), else as
+    the values are."""
+    kinds = {type(v) for v in values if v is not None}
+    if not kinds or kinds <= {int, float}:
+        return "float64"
+    return _type_of(values)
 
 
 def _typed(values: list[Any], kind: str) -> list[Any]:
@@ -412,6 +485,8 @@ def _text(value: Any) -> str:
 
 
 class _Writer:
+    path: Path
+
     def write(self, columns: dict[str, Any]) -> None:
         raise NotImplementedError
 
@@ -425,6 +500,7 @@ class _ParquetWriter(_Writer):
         import pyarrow.parquet as pq
 
         self._pa = pa
+        self.path = path
         self.schema = pa.schema([(name, _arrow(pa, kind)) for name, kind in types.items()])
         self.file = pq.ParquetWriter(str(path), self.schema)
 
@@ -450,6 +526,7 @@ def _arrow(pa: Any, kind: str) -> Any:
 class _CsvWriter(_Writer):
     def __init__(self, path: Path, types: dict[str, str]) -> None:
         self.types = types
+        self.path = path
         self.handle: IO[str] = path.open("w", newline="", encoding="utf-8")
         self.csv = csv.writer(self.handle)
         self.csv.writerow(list(types))

@@ -169,20 +169,29 @@ class BusReader:
 
     def open(self) -> None:
         """Open the bus (``ConnectionError`` when it cannot be) and start reading."""
-        import can
-
-        try:
-            self._bus = can.Bus(**self.options)
-        except (can.CanError, OSError, ValueError, ImportError) as exc:
-            raise ConnectionError(str(exc)) from None
+        self._bus = self._open()
         self._thread = threading.Thread(target=self._read, name="cobus-monitor-bus", daemon=True)
         self._thread.start()
 
+    def _open(self) -> Any:
+        """The bus (:func:`cobus.runtime.bus.open_bus`: udp_multicast without a group stays
+        on this host); ``ConnectionError`` when it cannot be opened."""
+        from cobus.runtime.bus import open_bus
+        from cobus.runtime.errors import BusOpenError
+
+        try:
+            return open_bus(**self.options)
+        except (BusOpenError, OSError, ValueError, ImportError) as exc:
+            raise ConnectionError(str(exc)) from None
+
     def close(self) -> None:
-        """Stop reading and close the bus."""
+        """Stop reading and close the bus. Frames read but not taken yet count as dropped
+        (they were never decoded)."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
+        self.dropped += self._queue.qsize()
+        self._queue = queue.Queue()
         if self._bus is not None:
             with contextlib.suppress(Exception):
                 self._bus.shutdown()
@@ -207,8 +216,8 @@ class BusReader:
             bus = self._bus
             if bus is None:
                 try:
-                    bus = self._bus = can.Bus(**self.options)
-                except (can.CanError, OSError, ValueError, ImportError) as exc:
+                    bus = self._bus = self._open()
+                except ConnectionError as exc:
                     self.say(f"the bus cannot be opened again: {exc}; next try in {_REOPEN:g} s")
                     self._stop.wait(_REOPEN)
                     continue
