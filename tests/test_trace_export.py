@@ -257,3 +257,18 @@ def test_a_damaged_trace_says_how_far_the_tables_go(
     captured = capsys.readouterr()
     assert captured.out.splitlines() == [f"{tmp_path / 'out' / 'sync.csv'}  2000 rows"]
     assert "(the 1 table written holds the trace's first 2000 frames, to 1.999" in captured.err
+
+
+def test_an_empty_trace_and_frames_no_table_holds(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    trace = tmp_path / "errors.log"
+    trace.write_text(
+        "(1700000000.000000) can0 20000080#0000000000000000\n"
+        "(1700000000.000100) can0 080##1112233\n"
+    )
+    assert main(["decode", str(trace), "--to", "csv", str(tmp_path / "out")]) == 0
+    captured = capsys.readouterr()
+    assert "# not in the tables: 1 error frames, 1 CAN FD or longer frames" in captured.err
+    assert "no records to write" in captured.err
+    assert (tmp_path / "out").is_dir()  # (a folder to point a query at, empty)

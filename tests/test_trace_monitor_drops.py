@@ -44,6 +44,17 @@ def test_a_reader_with_no_room_left_drops_and_counts() -> None:
     ]
 
 
+def test_an_error_frame_storm_is_a_line_a_second() -> None:
+    channel = f"storm-{uuid.uuid4()}"
+    notes: list[str] = []
+    options: dict[str, Any] = {"interface": "virtual", "channel": channel}
+    with BusReader(options, notes.append) as reader, can.Bus(**options) as sender:
+        for _ in range(500):
+            sender.send(can.Message(arbitration_id=0x80, is_error_frame=True))
+        _wait(lambda: reader.received == 500)
+    assert notes == ["error frame on the bus", "499 error frames on the bus"]
+
+
 def test_a_bus_that_cannot_be_opened_is_a_connection_error() -> None:
     with pytest.raises(ConnectionError):
         BusReader({"interface": "nosuchbus", "channel": "x"}, print).open()

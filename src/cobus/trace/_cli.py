@@ -262,6 +262,16 @@ def _export(args: argparse.Namespace) -> int:
     else:
         for name, rows in export.rows.items():
             print(f"{files[name]}  {rows} rows")
+    left = [
+        f"{count} {what}"
+        for count, what in (
+            (export.error_frames, "error frames"),
+            (export.fd_frames, "CAN FD or longer frames (no CANopen)"),
+        )
+        if count
+    ]
+    if left:
+        print(f"# not in the tables: {', '.join(left)}", file=sys.stderr)
     upto = f"{export.frames} frames, to {export.end:.6f} s"
     tables = (
         f"{len(files)} table written holds"

@@ -105,6 +105,9 @@ class TraceExport:
         self.frames = 0
         self.end = 0.0
         self.stopped = False
+        #: Frames that are in no table: error frames, and CAN FD frames (CiA 301 has none).
+        self.error_frames = 0
+        self.fd_frames = 0
         _more_files()
 
     def write(
@@ -116,6 +119,7 @@ class TraceExport:
         first: float | None = None
         end = 0.0
         try:
+            self.folder.mkdir(parents=True, exist_ok=True)  # (an empty trace: an empty folder)
             for block in blocks:
                 if not len(block):
                     continue
@@ -136,6 +140,8 @@ class TraceExport:
 
     def add(self, decoded: DecodedBlock) -> None:
         """Write the tables of one decoded block."""
+        self.error_frames += len(decoded.errors)
+        self.fd_frames += len(decoded.skipped)
         wanted = self.kinds
         node = self.node
         slow = self._records([(row, r) for row, recs in decoded.records_at for r in recs])

@@ -155,6 +155,10 @@ class BusReader:
         #: Frames read from the bus, and those dropped for want of room.
         self.received = 0
         self.dropped = 0
+        #: Error frames seen (said at most once a second).
+        self.error_frames = 0
+        self._errors_said = 0
+        self._errors_said_at = -1e9
         self._queue: queue.Queue[tuple[Any, float]] = queue.Queue(maxsize=room)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -192,10 +196,17 @@ class BusReader:
             self._thread.join(timeout=2.0)
         self.dropped += self._queue.qsize()
         self._queue = queue.Queue()
+        if self.error_frames > self._errors_said:
+            self._say_errors()
         if self._bus is not None:
             with contextlib.suppress(Exception):
                 self._bus.shutdown()
             self._bus = None
+
+    def _say_errors(self) -> None:
+        count = self.error_frames - self._errors_said
+        self._errors_said, self._errors_said_at = self.error_frames, time.monotonic()
+        self.say("error frame on the bus" if count == 1 else f"{count} error frames on the bus")
 
     def items(self) -> Iterator[tuple[Any, float] | None]:
         """The frames read, with their time; None about every 0.1 s without one."""
@@ -233,8 +244,10 @@ class BusReader:
             if msg is None:
                 continue
             self.received += 1
-            if msg.is_error_frame:
-                self.say("error frame on the bus")
+            if msg.is_error_frame:  # (a storm: a line a second, not a line a frame)
+                self.error_frames += 1
+                if time.monotonic() - self._errors_said_at >= 1.0:
+                    self._say_errors()
                 continue
             frame = message_to_frame(msg)
             if frame is None:  # a CAN FD frame: CANopen (CiA 301) has none
