@@ -52,26 +52,6 @@ __all__ = ["BatchDecoder", "DecodedBlock", "PdoColumns"]
 _Index = npt.NDArray[np.int64]
 
 _new_frame = object.__new__
-_UNSIGNED = {
-    DataType.UNSIGNED8,
-    DataType.UNSIGNED16,
-    DataType.UNSIGNED24,
-    DataType.UNSIGNED32,
-    DataType.UNSIGNED40,
-    DataType.UNSIGNED48,
-    DataType.UNSIGNED56,
-    DataType.UNSIGNED64,
-}
-_SIGNED = {
-    DataType.INTEGER8,
-    DataType.INTEGER16,
-    DataType.INTEGER24,
-    DataType.INTEGER32,
-    DataType.INTEGER40,
-    DataType.INTEGER48,
-    DataType.INTEGER56,
-    DataType.INTEGER64,
-}
 
 
 @dataclass
@@ -620,9 +600,10 @@ def _column(data_type: DataType, bits: int, chunk: npt.NDArray[np.uint64]) -> An
     """The values of an entry of ``bits`` bits of ``data_type`` (as the frame path's
     :func:`~cobus.trace.decoder.pdo_values` gives them)."""
     size = data_type.size or (bits + 7) // 8
-    if bits != 8 * size or data_type in _UNSIGNED:  # (a part of a byte: its bits)
+    integer = data_type.is_integer
+    if bits != 8 * size or (integer and not data_type.is_signed):  # (part of a byte: bits)
         return chunk.astype(_narrowest(bits, signed=False))
-    if data_type in _SIGNED:
+    if integer:
         if bits == 64:
             return chunk.view(np.int64)
         signed = chunk.astype(np.int64)
