@@ -170,11 +170,14 @@ def frame_bits(block: FrameBlock) -> npt.NDArray[np.int64]:
     stuff bits its identifier, data and CRC really need (computed, not estimated). Error
     and FD frames count 0 (their length depends on what the bus did).
 
-    Frames go in groups of one layout (base or extended identifier, data length): each
-    group's bits are laid out in columns, its CRC computed a byte at a time and its stuff
-    bits counted a byte at a time with tables, for all its frames at once."""
+    Frames go in groups of one layout (base or extended identifier, data length). A group's
+    frames are walked a chunk of up to 8 bits at a time, all frames at once: the header
+    (start of frame to DLC) as one number, then each data byte, then the CRC; each chunk
+    moves the CRC (a byte table) and the stuffing state (tables of the state after the
+    chunk and the stuff bits it needs)."""
     if not _TABLES:
-        _TABLES.extend((_crc_table(), *_stuff_tables()))
+        states, counts = _stuff_tables()
+        _TABLES.extend((_crc_table(), states.reshape(9, -1), counts.reshape(9, -1)))
     crc_table, stuff_states, stuff_counts = _TABLES
     n = len(block)
     out = np.zeros(n, dtype=np.int64)
@@ -187,54 +190,50 @@ def frame_bits(block: FrameBlock) -> npt.NDArray[np.int64]:
     nbytes = np.where(rtr, 0, np.minimum(block.dlc, 8)).astype(np.int64)
     layout = np.where(skip, -1, ext * 16 + nbytes)
     cob = block.cob_id.astype(np.int64)
-    dlc_field = np.minimum(block.dlc, 15).astype(np.int64)
+    # the header's bits as a number: start of frame (0), identifier, RTR, IDE, r0 (and SRR,
+    # IDE, r1 in an extended one), DLC
+    head_bits = (rtr.astype(np.int64) << 6) | np.minimum(block.dlc, 15).astype(np.int64)
     for group in np.unique(layout).tolist():
         if group < 0:
             continue
         rows = np.flatnonzero(layout == group)
         extended, size = bool(group >> 4), group & 15
-        head = 39 if extended else 19
-        body = head + 8 * size  # (the bits the CRC covers)
-        bits = np.zeros((len(rows), body + 15), dtype=np.uint8)
         ident = cob[rows]
-        base = (ident >> 18 if extended else ident) & 0x7FF
-        for i in range(11):
-            bits[:, 1 + i] = (base >> (10 - i)) & 1
         if extended:
-            bits[:, 12] = 1  # (SRR)
-            bits[:, 13] = 1  # (IDE)
-            low = ident & 0x3FFFF
-            for i in range(18):
-                bits[:, 14 + i] = (low >> (17 - i)) & 1
-            bits[:, 32] = rtr[rows]
+            head = 39
+            number = (
+                ((ident >> 18) & 0x7FF) << 27 | 3 << 25 | (ident & 0x3FFFF) << 7 | head_bits[rows]
+            )
         else:
-            bits[:, 12] = rtr[rows]
-        dlc = dlc_field[rows]
-        for i in range(4):
-            bits[:, head - 4 + i] = (dlc >> (3 - i)) & 1
-        if size:
-            bits[:, head:body] = np.unpackbits(block.data[rows, :size], axis=1)
-        # the CRC: zeros before the bits change nothing (it starts at 0), so the bits are
-        # padded in front to whole bytes and taken a byte at a time
-        pad = -body % 8
-        packed = np.packbits(
-            np.concatenate((np.zeros((len(rows), pad), dtype=np.uint8), bits[:, :body]), axis=1),
-            axis=1,
-        ).astype(np.int64)
+            head = 19
+            number = (ident & 0x7FF) << 7 | head_bits[rows]
         crc = np.zeros(len(rows), dtype=np.int64)
-        for column in range(packed.shape[1]):
-            crc = ((crc << 8) & 0x7FFF) ^ crc_table[((crc >> 7) ^ packed[:, column]) & 0xFF]
-        for i in range(15):
-            bits[:, body + i] = (crc >> (14 - i)) & 1
-        # the stuff bits, a byte at a time from the start of frame to the end of the CRC
-        stream = np.packbits(bits, axis=1).astype(np.int64)
-        total = body + 15
         state = np.full(len(rows), 4, dtype=np.int64)  # (the idle bus before: recessive)
         stuffed = np.zeros(len(rows), dtype=np.int64)
-        for column in range(stream.shape[1]):
-            k = min(8, total - 8 * column)
-            value = stream[:, column]
-            stuffed += stuff_counts[k, state, value]
-            state = stuff_states[k, state, value]
-        out[rows] = total + stuffed + _TAIL
+
+        def chunk(value: Any, k: int) -> None:
+            """``k`` bits, the top ones of the byte ``value``, through the stuffing."""
+            nonlocal state, stuffed
+            at = state * 256 + value
+            stuffed = stuffed + stuff_counts[k][at]
+            state = stuff_states[k][at]
+
+        def crc_byte(value: Any) -> None:
+            nonlocal crc
+            crc = ((crc << 8) & 0x7FFF) ^ crc_table[((crc >> 7) ^ value) & 0xFF]
+
+        first = head % 8  # (the header's odd bits come first, then whole bytes)
+        chunk((number >> (head - first)) << (8 - first), first)
+        crc_byte(number >> (head - first))  # (zeros in front change no CRC: it starts at 0)
+        for shift in range(head - first - 8, -1, -8):
+            value = (number >> shift) & 0xFF
+            chunk(value, 8)
+            crc_byte(value)
+        for column in range(size):
+            value = block.data[rows, column].astype(np.int64)
+            chunk(value, 8)
+            crc_byte(value)
+        chunk(crc >> 7, 8)
+        chunk((crc & 0x7F) << 1, 7)
+        out[rows] = head + 8 * size + 15 + stuffed + _TAIL
     return out

@@ -414,25 +414,31 @@ def _lines_by_layout(text: bytes) -> tuple[Any, ...] | None:
     """The frames of ``text`` (whole lines) found column by column, when every line has
     candump's layout: ``(SECONDS.FRACTION) CHANNEL ID#DATA`` and maybe `` R`` or `` T``;
     None when a line has another (blank, other spacing): the regular expression's turn."""
-    buf = np.frombuffer(text, dtype=np.uint8)
-    ends = np.flatnonzero(buf == 10)
-    if not len(ends) or ends[-1] != len(buf) - 1:
+    padded = np.frombuffer(text + bytes(_WINDOW), dtype=np.uint8)
+    buf = padded[: len(text)]
+    # the _WINDOW characters from each place in the text, for rows of characters at a time
+    windows = np.lib.stride_tricks.sliding_window_view(padded, _WINDOW)
+    if not len(buf) or buf[-1] != 10 or buf.max() >= 128:  # (beyond ASCII)
         return None
-    odd = np.flatnonzero((buf < 32) | (buf >= 128))  # (control bytes, beyond ASCII)
-    if len(odd) != len(ends):
-        lone = odd[buf[odd] != 10]
+    # every character the layout turns on is below "0": one pass finds them all
+    marks = np.flatnonzero(buf < 48)
+    kind = buf[marks]
+    ends = marks[kind == 10]
+    odd = kind < 32  # (control bytes)
+    if odd.sum() != len(ends):
+        lone = marks[odd & (kind != 10)]
         if (buf[lone] != 13).any() or (buf[np.minimum(lone + 1, len(buf) - 1)] != 10).any():
             return None  # (a tab, a CR inside a line...: python-can's split decides)
     starts = np.concatenate(([0], ends[:-1] + 1))
     stop = ends - (buf[np.maximum(ends - 1, 0)] == 13)  # (before a CR)
     if (buf[starts] != 40).any():  # (
         return None
-    close = _first_after(np.flatnonzero(buf == 41), starts)  # )
-    spaces = np.flatnonzero(buf == 32)
+    close = _first_after(marks[kind == 41], starts)  # )
+    spaces = marks[kind == 32]
     if not (close < stop).all() or (buf[close + 1] != 32).any():
         return None
     channel_end = _first_after(spaces, close + 2)
-    hashes = _first_after(np.flatnonzero(buf == 35), channel_end)
+    hashes = _first_after(marks[kind == 35], channel_end)
     if not ((channel_end > close + 2) & (hashes < stop)).all():
         return None
     data_end = _first_after(spaces, hashes)
@@ -450,7 +456,7 @@ def _lines_by_layout(text: bytes) -> tuple[Any, ...] | None:
     # the time: digits and one point between the parentheses, exact as python-can's float()
     last = len(buf) - 1
     tlen = close - starts - 1
-    fixed = _fixed_times(buf, starts, tlen)
+    fixed = _fixed_times(windows, starts, tlen)
     if fixed is not None:  # (the usual: every time of one width, its point in one place)
         value, count, places, points, bad = fixed
     else:
@@ -461,12 +467,11 @@ def _lines_by_layout(text: bytes) -> tuple[Any, ...] | None:
         return None  # (another form, or more digits than float64 holds exactly)
     times = value / (10.0**places)
     # the identifier and the data in hex
-    cob = _hex_number(buf, channel_end + 1, id_len, last)
+    cob = _hex_number(windows, channel_end + 1, id_len)
     if cob is None:
         return None
     data_len = data_end - hashes - 1
-    at = np.minimum(hashes[:, None] + 1 + _SIXTEEN, last)
-    nibbles = _NIBBLE[buf[at]]
+    nibbles = _NIBBLE[windows[hashes + 1, :16]]
     inside = data_len[:, None] > _SIXTEEN
     plain = (data_len <= 16) & (data_len % 2 == 0) & ~(inside & (nibbles == 255)).any(axis=1)
     pairs = nibbles[:, 0::2].astype(np.uint16) * 16 + nibbles[:, 1::2]
@@ -483,23 +488,27 @@ def _lines_by_layout(text: bytes) -> tuple[Any, ...] | None:
 
 
 _SIXTEEN = np.arange(16)
+_WINDOW = 20  # (the widest run of characters read at once: a time of 19)
 
 
-def _fixed_times(buf: Any, starts: Any, tlen: Any) -> tuple[Any, ...] | None:
+def _fixed_times(windows: Any, starts: Any, tlen: Any) -> tuple[Any, ...] | None:
     """The times of lines whose times are all of one width with the point in one column,
     digit columns at once; None otherwise (:func:`_times_by_column` reads them)."""
     width = int(tlen[0])
     if not 2 <= width <= 19 or (tlen != width).any():
         return None
-    chars = buf[starts[:, None] + 1 + np.arange(width)].astype(np.int64)
+    chars = windows[starts + 1, :width]
     point = np.flatnonzero(chars[0] == 46)
     if len(point) != 1:
         return None
     p = int(point[0])
-    digits = np.delete(chars, p, axis=1) - 48
-    if (chars[:, p] != 46).any() or ((digits < 0) | (digits > 9)).any():
+    digits = chars - np.uint8(48)  # (anything but a digit wraps past 9)
+    if (chars[:, p] != 46).any() or (np.delete(digits, p, axis=1) > 9).any():
         return None
-    value = digits @ (10 ** np.arange(width - 2, -1, -1, dtype=np.int64))
+    value = np.zeros(len(starts), dtype=np.int64)
+    for column in range(width):  # (a column at a time: quicker than a product of matrices)
+        if column != p:
+            value = value * 10 + digits[:, column]
     n = len(starts)
     count = np.full(n, width - 1, dtype=np.int64)
     places = np.full(n, width - 1 - p, dtype=np.int64)
@@ -530,10 +539,10 @@ def _times_by_column(buf: Any, starts: Any, tlen: Any, last: int) -> tuple[Any, 
     return value, count, places, points, bad
 
 
-def _hex_number(buf: Any, at: Any, length: Any, last: int) -> Any:
+def _hex_number(windows: Any, at: Any, length: Any) -> Any:
     """The hex numbers of ``length`` (1..8) digits at ``at``; None where one is no hex."""
     width = int(length.max(initial=1))
-    nibbles = _NIBBLE[buf[np.minimum(at[:, None] + np.arange(width), last)]].astype(np.int64)
+    nibbles = _NIBBLE[windows[at, :width]].astype(np.int64)
     inside = np.arange(width) < length[:, None]
     if (inside & (nibbles == 255)).any():
         return None
