@@ -62,7 +62,7 @@ def test_every_record_lands_in_its_table(fmt: str, tmp_path: Path) -> None:
     assert pdo_rows == sum(1 for r in records if r.kind == "pdo")
     suffix = "." + fmt
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == sorted(
-        name + suffix for name in rows
+        [*(name + suffix for name in rows), "trace.json"]
     )
 
 
@@ -257,6 +257,10 @@ def test_a_damaged_trace_says_how_far_the_tables_go(
     captured = capsys.readouterr()
     assert captured.out.splitlines() == [f"{tmp_path / 'out' / 'sync.csv'}  2000 rows"]
     assert "(the 1 table written holds the trace's first 2000 frames, to 1.999" in captured.err
+    about = json.loads((tmp_path / "out/trace.json").read_text())
+    assert about["frames"] == 2000 and about["tables"] == {
+        "sync": {"file": "sync.csv", "rows": 2000}
+    }
 
 
 def test_an_empty_trace_and_frames_no_table_holds(
@@ -271,4 +275,80 @@ def test_an_empty_trace_and_frames_no_table_holds(
     captured = capsys.readouterr()
     assert "# not in the tables: 1 error frames, 1 CAN FD or longer frames" in captured.err
     assert "no records to write" in captured.err
-    assert (tmp_path / "out").is_dir()  # (a folder to point a query at, empty)
+    # a folder to point a query at: no table, what it holds says so
+    assert [p.name for p in (tmp_path / "out").iterdir()] == ["trace.json"]
+    about = json.loads((tmp_path / "out/trace.json").read_text())
+    assert about["tables"] == {} and about["frames"] == 2 and about["error_frames"] == 1
+
+
+def test_one_type_per_column_and_what_the_folder_holds(tmp_path: Path) -> None:
+    """The review's remarks: cob_id and node of one type in every table, TIME as a UTC
+    timestamp, the trace's absolute start written down."""
+    messages = _messages()
+    start = 1_700_000_000.25
+    for i, m in enumerate(messages):
+        m.timestamp = start + i * 1e-3
+    messages.append(_msg(start + 99.0, 0x100, bytes.fromhex("10 27 00 00 2c 3a")))  # TIME
+    export = TraceExport(
+        tmp_path / "out",
+        "parquet",
+        BatchDecoder(_dictionaries(), load_network(LINE)),
+        source="bench.blf",
+    )
+    rows = export.write(message_blocks(messages, 700))
+    types: dict[str, set[str]] = {}
+    for name in rows:
+        schema = pq.read_schema(tmp_path / f"out/{name}.parquet")
+        assert json.loads(schema.metadata[b"cobus.trace_start"]) == start
+        assert schema.metadata[b"cobus.trace_start_utc"] == b"2023-11-14T22:13:20.250000Z"
+        for f in schema:
+            types.setdefault(f.name, set()).add(str(f.type))
+    assert types["cob_id"] == {"uint32"} and types["node"] == {"uint8"}
+    assert types["index"] == {"uint16"} and types["subindex"] == {"uint8"}
+    (moment,) = pq.read_table(tmp_path / "out/time.parquet").column("moment").to_pylist()
+    assert str(pq.read_schema(tmp_path / "out/time.parquet").field("moment").type) == (
+        "timestamp[ms, tz=UTC]"
+    )
+    assert moment.isoformat() == "2024-10-09T00:00:10+00:00"  # (14,892 days and 10 s)
+    about = json.loads((tmp_path / "out/trace.json").read_text())
+    assert about["source"] == "bench.blf" and about["format"] == "parquet"
+    assert about["start"] == start and about["start_utc"] == "2023-11-14T22:13:20.250000Z"
+    assert about["frames"] == len(messages) and not about["stopped"]
+    assert about["tables"] == {n: {"file": f"{n}.parquet", "rows": r} for n, r in rows.items()}
+    # CSV: the TIME as ISO text; a trace whose times count from 0 has no UTC start
+    csv_export = TraceExport(tmp_path / "csv", "csv", BatchDecoder())
+    csv_export.write(message_blocks([_msg(5.0, 0x100, bytes.fromhex("10 27 00 00 2c 3a"))]))
+    with (tmp_path / "csv/time.csv").open() as f:
+        (row,) = list(csv.DictReader(f))
+    assert row["moment"] == moment.isoformat(timespec="milliseconds")
+    about = json.loads((tmp_path / "csv/trace.json").read_text())
+    assert about["start"] == 5.0 and about["start_utc"] is None
+
+
+def test_sigterm_finishes_every_parquet_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import os
+    import signal
+
+    import cobus.trace.blocks as trace_blocks
+
+    messages = _messages()
+
+    def terminated_after_the_first(path: Any) -> Any:
+        for n, block in enumerate(message_blocks(messages, 1_000)):
+            yield block
+            if n == 0:
+                os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(trace_blocks, "blocks", terminated_after_the_first)
+    trace = tmp_path / "trace.blf"
+    trace.write_bytes(b"")
+    assert main(["decode", str(trace), "--to", "parquet", str(tmp_path / "out")]) == 143
+    err = capsys.readouterr().err
+    # (the signal came while the second block was read: the tables end after it)
+    assert "terminated: the " in err and "the trace's first 2000 frames" in err
+    for table in (tmp_path / "out").glob("*.parquet"):
+        assert pq.read_table(table).num_rows > 0  # (each file has its footer)
+    assert json.loads((tmp_path / "out/trace.json").read_text())["stopped"] is True
+    assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL

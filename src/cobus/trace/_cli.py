@@ -233,29 +233,40 @@ def _export(args: argparse.Namespace) -> int:
     dictionaries, network = inputs
     try:
         export = TraceExport(
-            folder, fmt, BatchDecoder(dictionaries, network), kinds=args.filter, node=args.node
+            folder,
+            fmt,
+            BatchDecoder(dictionaries, network),
+            kinds=args.filter,
+            node=args.node,
+            source=str(args.file),
         )
     except ExportError as exc:
         return _fail(str(exc), 2)
     suffix = ".parquet" if fmt == "parquet" else ".csv"
-    asked: list[bool] = []  # (Ctrl-C: the tables end at the block under way, all of them)
-    try:
-        previous: Any = signal.signal(signal.SIGINT, lambda *_: asked.append(True))
-    except ValueError:  # (not the main thread: Ctrl-C is not this thread's)
-        previous = None
+    # Ctrl-C or SIGTERM: the tables end at the block under way, all of them, every file
+    # finished (a Parquet file without its footer is unreadable)
+    asked: list[int] = []
+    previous: dict[int, Any] = {}
+    for signum in (signal.SIGINT, getattr(signal, "SIGTERM", None)):
+        if signum is None:
+            continue
+        try:
+            previous[signum] = signal.signal(signum, lambda n, _: asked.append(n))
+        except ValueError:  # (not the main thread: signals are not this thread's)
+            break
     failure: str | None = None
     try:
         export.write(blocks(args.file), stop=lambda: bool(asked))
     except ExportError as exc:
         failure = str(exc)
     except KeyboardInterrupt:
-        asked.append(True)
+        asked.append(signal.SIGINT)
         export.stopped = True
     except Exception as exc:  # a damaged file, whatever the reader raises for it
         failure = _unreadable(args.file, exc)
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
     files = {name: str(folder / f"{name}{suffix}") for name in export.rows}
     if args.json:
         print(json.dumps({n: {"file": files[n], "rows": r} for n, r in export.rows.items()}))
@@ -283,6 +294,8 @@ def _export(args: argparse.Namespace) -> int:
             failure += f" (the {tables} the trace's first {upto})"
         return _fail(failure)
     if export.stopped:
+        if asked and asked[0] != signal.SIGINT:
+            return _fail(f"terminated: the {tables} the trace's first {upto}", 143)
         return _fail(f"interrupted: the {tables} the trace's first {upto}", 130)
     if not export.rows:
         print(f"cobus: {args.file}: no records to write", file=sys.stderr)

@@ -13,16 +13,21 @@ directly::
 
 A PDO whose mapping changes in the trace gets a table per mapping (``node10_tpdo1_2``...);
 the PDOs no dictionary maps share the table ``pdo`` (time, cob_id, node, number, tpdo,
-dlc, data). Times count from the trace's first
-frame. The frames stream through :class:`~cobus.trace.batch.BatchDecoder` a block at a time,
-so memory stays bounded whatever the trace's length. Parquet needs pyarrow
-(``pip install 'cobus[parquet]'``); CSV does not.
+dlc, data). Times count from the trace's first frame; ``trace.json`` beside the tables
+says when that was (the file's own time of it, and in UTC where it is one), how far the
+tables go and their rows (Parquet files carry the start in their metadata too). Columns
+have one type whatever the table: ``cob_id`` uint32, ``node`` uint8, ``index`` uint16,
+``subindex`` uint8, times of day (TIME) UTC timestamps. The frames stream through
+:class:`~cobus.trace.batch.BatchDecoder` a block at a time, so memory stays bounded
+whatever the trace's length. Parquet needs pyarrow (``pip install 'cobus[parquet]'``); CSV
+does not.
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
+import datetime as dt
 import json
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -36,10 +41,26 @@ from cobus.trace.batch import BatchDecoder, DecodedBlock, PdoColumns
 from cobus.trace.blocks import FrameBlock
 from cobus.trace.decoder import _STATES, Heartbeat, PdoRecord, SyncRecord, TraceRecord
 
-__all__ = ["FORMATS", "ExportError", "TraceExport"]
+__all__ = ["DESCRIPTION", "FORMATS", "ExportError", "TraceExport"]
 
 #: What ``--to`` writes.
 FORMATS = ("parquet", "csv")
+
+#: The file beside the tables that says what they hold.
+DESCRIPTION = "trace.json"
+
+#: Record fields of one column type in every table, whatever their annotations say.
+_FIELD_TYPES = {
+    "cob_id": "uint32",
+    "node": "uint8",
+    "target": "uint8",
+    "index": "uint16",
+    "subindex": "uint8",
+    "code": "uint16",
+    "register": "uint8",
+    "abort_code": "uint32",
+    "command": "uint8",
+}
 
 _TABLES = {
     "SdoTransfer": "sdo",
@@ -77,6 +98,7 @@ class TraceExport:
         *,
         kinds: set[str] | None = None,
         node: int | None = None,
+        source: str | None = None,
     ) -> None:
         if fmt not in FORMATS:
             raise ExportError(f"--to {fmt}: choose {' or '.join(FORMATS)}")
@@ -96,6 +118,9 @@ class TraceExport:
         self.decoder = decoder
         self.kinds = kinds
         self.node = node
+        self.source = source
+        #: The trace's first frame's time as the file gives it (None: no frame yet).
+        self.start: float | None = None
         #: Table name -> rows written.
         self.rows: dict[str, int] = {}
         self._writers: dict[str, _Writer] = {}
@@ -124,7 +149,7 @@ class TraceExport:
                 if not len(block):
                     continue
                 if first is None:
-                    first = float(block.time[0])
+                    first = self.start = float(block.time[0])
                 end = float(block.time[-1]) - first
                 self.add(self.decoder.decode(block, first))
                 self.frames += len(block)
@@ -135,8 +160,32 @@ class TraceExport:
             else:
                 self._records([(0, rec) for rec in self.decoder.flush(end)])
         finally:
-            self.close()
+            try:
+                self.close()
+            finally:
+                self._describe()
         return dict(self.rows)
+
+    def _describe(self) -> None:
+        """``trace.json``: what the folder holds, from where and when."""
+        suffix = ".parquet" if self.fmt == "parquet" else ".csv"
+        about = {
+            "source": self.source,
+            "format": self.fmt,
+            "start": self.start,
+            "start_utc": _utc(self.start),
+            "frames": self.frames,
+            "end": self.end,
+            "stopped": self.stopped,
+            "tables": {n: {"file": n + suffix, "rows": r} for n, r in self.rows.items()},
+            "error_frames": self.error_frames,
+            "fd_frames": self.fd_frames,
+        }
+        path = self.folder / DESCRIPTION
+        try:
+            path.write_text(json.dumps(about, indent=2) + "\n", encoding="utf-8")
+        except OSError as exc:
+            raise ExportError(f"cannot write {path}: {_why(exc)}") from None
 
     def add(self, decoded: DecodedBlock) -> None:
         """Write the tables of one decoded block."""
@@ -263,7 +312,7 @@ class TraceExport:
             index,
             {
                 "time": np.concatenate([t.time for t in tables])[order],
-                "cob_id": each([t.cob_id for t in tables], np.uint16),
+                "cob_id": each([t.cob_id for t in tables], np.uint32),
                 "node": each([t.node for t in tables], np.uint8),
                 "number": each([t.number for t in tables], np.uint16),
                 "tpdo": each([t.tpdo for t in tables], np.bool_),
@@ -272,7 +321,7 @@ class TraceExport:
             },
             {
                 "time": "float64",
-                "cob_id": "uint16",
+                "cob_id": "uint32",
                 "node": "uint8",
                 "number": "uint16",
                 "tpdo": "bool",
@@ -284,7 +333,7 @@ class TraceExport:
     def _pdo(self, table: PdoColumns) -> None:
         types: dict[str, str] = {
             "time": "float64",
-            "cob_id": "uint16",
+            "cob_id": "uint32",
             "dlc": "uint8",
             "data": "binary",
         }
@@ -292,7 +341,7 @@ class TraceExport:
         dlcs = table.dlc.tolist()
         columns: dict[str, Any] = {
             "time": table.time,
-            "cob_id": np.full(len(table), table.cob_id, dtype=np.uint16),
+            "cob_id": np.full(len(table), table.cob_id, dtype=np.uint32),
             "dlc": table.dlc,
             "data": [buf[8 * i : 8 * i + n] for i, n in enumerate(dlcs)],
         }
@@ -349,7 +398,7 @@ class TraceExport:
             if writer is None:
                 self.folder.mkdir(parents=True, exist_ok=True)
                 writer = self._writers[name] = (
-                    _ParquetWriter(path, types)
+                    _ParquetWriter(path, types, self.start)
                     if self.fmt == "parquet"
                     else _CsvWriter(path, types)
                 )
@@ -359,7 +408,7 @@ class TraceExport:
         self.rows[name] = self.rows.get(name, 0) + count
 
 
-_HEARTBEAT = {"time": "float64", "cob_id": "uint16", "node": "uint8", "state": "string"}
+_HEARTBEAT = {"time": "float64", "cob_id": "uint32", "node": "uint8", "state": "string"}
 _SYNC = {"time": "float64", "counter": "int16"}
 
 
@@ -453,11 +502,10 @@ def _record_columns(records: list[TraceRecord]) -> tuple[dict[str, Any], dict[st
     for f in fields:
         values = [getattr(r, f.name) for r in records]
         kind = _annotated(str(f.type))
+        if kind == "int64":
+            kind = _FIELD_TYPES.get(f.name, kind)
         if kind == "string":
             values = [None if v is None else _text(v) for v in values]
-        elif kind == "timestamp":
-            values = [v.timestamp() for v in values]
-            kind = "float64"
         columns[f.name] = values
         types[f.name] = kind
     columns["text"] = [str(r) for r in records]
@@ -501,13 +549,16 @@ class _Writer:
 
 
 class _ParquetWriter(_Writer):
-    def __init__(self, path: Path, types: dict[str, str]) -> None:
+    def __init__(self, path: Path, types: dict[str, str], start: float | None) -> None:
         import pyarrow as pa
         import pyarrow.parquet as pq
 
         self._pa = pa
         self.path = path
-        self.schema = pa.schema([(name, _arrow(pa, kind)) for name, kind in types.items()])
+        about = {"cobus.trace_start": json.dumps(start), "cobus.trace_start_utc": _utc(start) or ""}
+        self.schema = pa.schema(
+            [(name, _arrow(pa, kind)) for name, kind in types.items()], metadata=about
+        )
         self.file = pq.ParquetWriter(str(path), self.schema)
 
     def write(self, columns: dict[str, Any]) -> None:
@@ -526,6 +577,8 @@ def _arrow(pa: Any, kind: str) -> Any:
         return pa.binary()
     if kind == "bool":
         return pa.bool_()
+    if kind == "timestamp":
+        return pa.timestamp("ms", tz="UTC")  # (CiA 301's TIME counts milliseconds)
     return pa.from_numpy_dtype(np.dtype(kind))
 
 
@@ -552,4 +605,15 @@ def _csv_column(values: Any, kind: str) -> list[Any]:
         return ["" if v is None else v.hex() for v in values]
     if kind == "float64" or kind == "float32":
         return ["" if v is None else repr(v) for v in values]
+    if kind == "timestamp":
+        return ["" if v is None else v.isoformat(timespec="milliseconds") for v in values]
     return list(values)
+
+
+def _utc(when: float | None) -> str | None:
+    """``when`` as a UTC date and time, where it is one (a time since 1970 between 2000 and
+    2100: what loggers write); None for a trace whose times count from its start."""
+    if when is None or not 946_684_800 <= when < 4_102_444_800:
+        return None
+    moment = dt.datetime.fromtimestamp(when, tz=dt.UTC)
+    return moment.isoformat(timespec="microseconds").replace("+00:00", "Z")
