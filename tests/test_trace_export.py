@@ -257,6 +257,7 @@ def test_a_damaged_trace_says_how_far_the_tables_go(
     captured = capsys.readouterr()
     assert captured.out.splitlines() == [f"{tmp_path / 'out' / 'sync.csv'}  2000 rows"]
     assert "(the 1 table written holds the trace's first 2000 frames, to 1.999" in captured.err
+    assert "cut.log: line 2001: '(garbage' is no candump line (python-can" in captured.err
     about = json.loads((tmp_path / "out/trace.json").read_text())
     assert about["frames"] == 2000 and about["tables"] == {
         "sync": {"file": "sync.csv", "rows": 2000}

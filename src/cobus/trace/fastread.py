@@ -101,11 +101,15 @@ class _Columns:
 
 
 def _then_python_can(
-    fast: Iterator[FrameBlock], reader: Callable[[], Any], size: int
+    fast: Iterator[FrameBlock],
+    reader: Callable[[], Any],
+    size: int,
+    where: Callable[[int, Exception], Exception] | None = None,
 ) -> Iterator[FrameBlock]:
     """``fast``'s blocks; once it meets what it leaves to python-can (:class:`_Unexpected`),
     the messages of python-can's ``reader()`` from the frame it had come to (frames gathered
-    but not handed over yet are read again)."""
+    but not handed over yet are read again). When python-can's reader fails, ``where(n,
+    error)`` (n: the messages it gave before) makes the error that says where."""
     done = 0
     try:
         for block in fast:
@@ -115,11 +119,23 @@ def _then_python_can(
     except _Unexpected:
         pass
     source = reader()
+    given = 0
+
+    def counted() -> Iterator[Any]:
+        nonlocal given
+        for message in source:
+            given += 1
+            yield message
+
     try:
-        messages = iter(source)
+        messages = counted()
         for _ in range(done):
             next(messages)
         yield from message_blocks(messages, size)
+    except (ValueError, IndexError, TypeError) as exc:  # (python-can's, on a line it cannot read)
+        if where is None:
+            raise
+        raise where(given, exc) from exc
     finally:
         source.stop()
 
@@ -380,7 +396,23 @@ def log_blocks(path: str | Path, size: int = BLOCK) -> Iterator[FrameBlock]:
         yield from _log(path, columns)
         yield from columns.rest()
 
-    yield from _then_python_can(fast(), lambda: can.io.CanutilsLogReader(str(path)), size)
+    def where(given: int, exc: Exception) -> Exception:
+        """The line python-can stopped at: it gives a message for each line not blank."""
+        with open(path, "rb") as f:
+            for number, line in enumerate(f, 1):
+                if line.strip():
+                    if given == 0:
+                        text = line.strip().decode("utf-8", "replace")
+                        shown = text if len(text) <= 60 else text[:57] + "..."
+                        why = str(exc) or type(exc).__name__
+                        return TraceFileError(
+                            f"line {number}: {shown!r} is no candump line "
+                            f"(python-can's reader says: {why})"
+                        )
+                    given -= 1
+        return exc
+
+    yield from _then_python_can(fast(), lambda: can.io.CanutilsLogReader(str(path)), size, where)
 
 
 def _log(path: str | Path, columns: _Columns) -> Iterator[FrameBlock]:
