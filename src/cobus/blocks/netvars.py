@@ -16,18 +16,29 @@ next one. The wire format: ``docs/network-variables.md``.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import logging
+import socket
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from cobus.blocks.netvar_lists import NetVarDefinition, VarList
+from cobus.blocks.netvar_udp import (
+    DATA,
+    DEFAULT_PORT,
+    Telegram,
+    TelegramError,
+    UdpDefinition,
+    UdpVarList,
+)
 from cobus.proto import Event, Frame
 from cobus.runtime.errors import NetworkClosedError
 from cobus.runtime.twin import BlockingTwin
 
 __all__ = [
     "AsyncNetworkVariables",
+    "AsyncUdpNetworkVariables",
     "ListIncomplete",
     "ListMalformed",
     "ListReceived",
@@ -48,6 +59,15 @@ STALE_INTERVALS = 3
 SET_WINDOW = 0.1
 #: Seconds between a reader's requests at boot-up until the list comes (at most 10).
 REQUEST_RETRY = 1.0
+
+
+#: A list of either form: over CAN (YAML) or over UDP (.gvl).
+AnyList = VarList | UdpVarList
+
+
+def _modes(lst: AnyList) -> frozenset[str]:
+    """How a list is sent: one way over CAN; CODESYS may combine them over UDP."""
+    return lst.modes if isinstance(lst, UdpVarList) else frozenset({lst.transmit})
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,7 +144,7 @@ class ListRequested(NetVarEvent):
 
 
 class _Writer:
-    def __init__(self, owner: AsyncNetworkVariables, var_list: VarList) -> None:
+    def __init__(self, owner: AsyncNetworkVariables, var_list: AnyList) -> None:
         self.owner = owner
         self.list = var_list
         self.counter = 0
@@ -137,10 +157,11 @@ class _Writer:
         self.failed = 0
 
     def start(self) -> None:
-        if self.list.transmit == "cyclic":
-            self.due = self.owner.network.time()
+        modes = _modes(self.list)
+        if "cyclic" in modes and self.list.interval:
+            self.due = self.owner._time()
             self._cycle()
-        elif self.list.transmit == "on_change":
+        elif "on_change" in modes:
             self.send()  # the values it starts with: a reader that came first has them
 
     def _cycle(self) -> None:
@@ -149,26 +170,26 @@ class _Writer:
             self.send()
         finally:  # (a failed transmission does not end the cycle)
             self.due += self.list.interval
-            now = self.owner.network.time()
+            now = self.owner._time()
             if self.due < now:  # late (a busy loop): skip, do not burst
                 self.due = now
-            self.timer = self.owner.network.loop.call_at(self.due, self._cycle)
+            self.timer = self.owner._loop().call_at(self.due, self._cycle)
 
     def changed(self, edges: set[str]) -> None:
         lst = self.list
-        if lst.transmit == "on_event":
-            if lst.event is not None and lst.event in edges:
-                self.send()
-        elif lst.transmit == "on_change":
+        modes = _modes(lst)
+        if "on_event" in modes and lst.event is not None and lst.event in edges:
+            self.send()
+        if "on_change" in modes:
             payload = self.owner._payload(lst)
             if payload == self.last_payload or self.pending is not None:
                 return
-            now = self.owner.network.time()
+            now = self.owner._time()
             wait = 0.0 if self.last_sent is None else self.last_sent + lst.min_gap - now
             if wait <= 0:
                 self.send()
             else:
-                self.pending = self.owner.network.loop.call_later(wait, self._deferred)
+                self.pending = self.owner._loop().call_later(wait, self._deferred)
 
     def _deferred(self) -> None:
         self.pending = None
@@ -177,18 +198,17 @@ class _Writer:
 
     def send(self) -> None:
         lst = self.list
-        net = self.owner.network
-        payload = self.owner._payload(lst)
-        counter, self.counter = self.counter, (self.counter + 1) & 0xFF
+        owner = self.owner
+        payload = owner._payload(lst)
+        counter, self.counter = self.counter, (self.counter + 1) % owner._COUNTER_WRAP
         self.last_payload = payload
-        self.last_sent = net.time()
+        self.last_sent = owner._time()
         try:
-            for k, data in enumerate(lst.split(payload, counter)):
-                net.send(Frame(lst.cob_id + k, data))
+            owner._transmit(lst, payload, counter)
         except Exception as exc:  # backlog full, network closed: said, and tried again later
             self.failed += 1
             self.last_payload = None
-            self.owner._emit(ListSendFailed(lst.name, net.time(), str(exc) or repr(exc)))
+            owner._emit(ListSendFailed(lst.name, owner._time(), str(exc) or repr(exc)))
             return
         self.sent += 1
 
@@ -200,7 +220,7 @@ class _Writer:
 
 
 class _Reader:
-    def __init__(self, owner: AsyncNetworkVariables, var_list: VarList) -> None:
+    def __init__(self, owner: AsyncNetworkVariables, var_list: AnyList) -> None:
         self.owner = owner
         self.list = var_list
         self.parts: dict[int, bytes] = {}
@@ -214,6 +234,8 @@ class _Reader:
         self.received = 0
         self.incomplete = 0
         self.malformed = 0
+        #: Telegrams with flags cobus cannot honour (acknowledgement, checksum): dropped.
+        self.flagged = 0
         interval = var_list.interval
         self.window = min(SET_WINDOW, interval / 2) if interval else SET_WINDOW
 
@@ -227,10 +249,8 @@ class _Reader:
         self.asking = None
         if self.received or tries <= 0:
             return
-        dlc = self.list.size if not self.list.headed else 8
-        self.owner._send(Frame(self.list.cob_id, rtr=True, dlc=dlc))
-        loop = self.owner.network.loop
-        self.asking = loop.call_later(REQUEST_RETRY, self._ask, tries - 1)
+        self.owner._request(self.list)
+        self.asking = self.owner._loop().call_later(REQUEST_RETRY, self._ask, tries - 1)
 
     def _arm(self) -> None:
         interval = self.list.interval
@@ -238,7 +258,7 @@ class _Reader:
             return
         if self.watch is not None:
             self.watch.cancel()
-        self.watch = self.owner.network.loop.call_later(interval * STALE_INTERVALS, self._silent)
+        self.watch = self.owner._loop().call_later(interval * STALE_INTERVALS, self._silent)
 
     def _silent(self) -> None:
         self.watch = None
@@ -246,10 +266,11 @@ class _Reader:
             self.stale = True
             assert self.list.interval is not None
             silence = self.list.interval * STALE_INTERVALS
-            self.owner._emit(ListStale(self.list.name, self.owner.network.time(), silence))
+            self.owner._emit(ListStale(self.list.name, self.owner._time(), silence))
 
     def on_frame(self, frame: Frame, now: float) -> None:
         lst = self.list
+        assert isinstance(lst, VarList)
         if frame.rtr:
             return  # another reader's request
         k = frame.cob_id - lst.cob_id
@@ -267,18 +288,23 @@ class _Reader:
         if len(data) != chunk + 1:
             self._malformed(frame, now, f"{len(data)} bytes, frame {k} has {chunk + 1}")
             return
-        counter = data[0]
+        self.take(k, data[0], data[1:], now)
+
+    def take(self, k: int, counter: int, part: bytes, now: float) -> None:
+        """Part ``k`` of the transmission ``counter`` (checked against the definition):
+        a list is taken only whole, from the parts of one transmission."""
+        lst = self.list
         if self.done is not None and self.done[0] == counter and now - self.done[1] <= self.window:
             return  # a frame of the set just completed, again: nothing new
         if self.parts and (counter != self.counter or now - self.began > self.window):
             self._drop(now)  # another transmission (or one too old to finish): no mixing
         if k in self.parts:
-            if self.parts[k] == data[1:]:
+            if self.parts[k] == part:
                 return  # the same frame twice
             self._drop(now)
         if not self.parts:
             self.counter, self.began = counter, now
-        self.parts[k] = data[1:]
+        self.parts[k] = part
         if len(self.parts) == lst.frames:
             payload = b"".join(self.parts[n] for n in range(lst.frames))
             self.parts = {}
@@ -293,8 +319,12 @@ class _Reader:
         self.parts = {}
 
     def _malformed(self, frame: Frame, now: float, reason: str) -> None:
+        self.malformed_at(frame.cob_id, now, reason)
+
+    def malformed_at(self, cob_id: int, now: float, reason: str) -> None:
+        """A frame (or telegram: ``cob_id`` the list identifier) that does not fit."""
         self.malformed += 1
-        self.owner._emit(ListMalformed(self.list.name, now, frame.cob_id, reason))
+        self.owner._emit(ListMalformed(self.list.name, now, cob_id, reason))
 
     def _complete(self, payload: bytes, counter: int | None, now: float) -> None:
         values = self.list.unpack(payload)
@@ -318,7 +348,9 @@ class AsyncNetworkVariables:
     """The lists of ``definition`` on ``network`` as controller ``me``: the lists whose
     ``sender`` is ``me`` are written, all others read. Call :meth:`start` on the loop."""
 
-    def __init__(self, network: Any, definition: NetVarDefinition, *, me: str) -> None:
+    def __init__(
+        self, network: Any, definition: NetVarDefinition | UdpDefinition, *, me: str
+    ) -> None:
         if definition.controllers and me not in definition.controllers:
             raise ValueError(
                 f"controller {me!r} is not in the definition ({', '.join(definition.controllers)})"
@@ -353,9 +385,11 @@ class AsyncNetworkVariables:
         self._started = True
         self._closed = False
         for reader in self._readers.values():
+            assert isinstance(reader.list, VarList)
             for cob_id in reader.list.cob_ids:
                 self._subs.append(net.subscribe(cob_id, reader.on_frame))
         for writer in self._writers.values():
+            assert isinstance(writer.list, VarList)
             self._subs.append(net.subscribe(writer.list.cob_id, self._request_handler(writer)))
         for writer in self._writers.values():
             writer.start()
@@ -388,13 +422,37 @@ class AsyncNetworkVariables:
         except Exception as exc:  # (a request that cannot go out is tried again)
             log.warning("network variables: %s not sent: %s", frame, exc)
 
+    # ------------------------------------------------------------------ the transport
+    # (what the CAN form and the UDP form do each their own way)
+
+    #: A list's transmission counter wraps here.
+    _COUNTER_WRAP = 0x100
+
+    def _time(self) -> float:
+        return float(self.network.time())
+
+    def _loop(self) -> asyncio.AbstractEventLoop:
+        loop: asyncio.AbstractEventLoop = self.network.loop
+        return loop
+
+    def _transmit(self, lst: AnyList, payload: bytes, counter: int) -> None:
+        """Send one transmission of a list (an exception: it failed)."""
+        assert isinstance(lst, VarList)
+        for k, data in enumerate(lst.split(payload, counter)):
+            self.network.send(Frame(lst.cob_id + k, data))
+
+    def _request(self, lst: AnyList) -> None:
+        """Ask for a list (a remote frame on its first COB-ID)."""
+        assert isinstance(lst, VarList)
+        self._send(Frame(lst.cob_id, rtr=True, dlc=lst.size if not lst.headed else 8))
+
     def _check_running(self) -> None:
         if self._closed:
             raise NetworkClosedError("the network variables were closed")
 
     # ------------------------------------------------------------------ values
 
-    def _split(self, name: str) -> tuple[VarList, str]:
+    def _split(self, name: str) -> tuple[AnyList, str]:
         list_name, dot, var = name.partition(".")
         if not dot:
             raise KeyError(f"{name!r}: name a variable as LIST.VARIABLE")
@@ -452,7 +510,7 @@ class AsyncNetworkVariables:
         reader = self._readers.get(self.definition[list_name].name)
         if reader is None or reader.received_at is None:
             return None
-        return float(self.network.time() - reader.received_at)
+        return self._time() - reader.received_at
 
     def statistics(self) -> dict[str, dict[str, int]]:
         """Per list: transmissions sent, or complete sets received and incomplete ones."""
@@ -465,6 +523,8 @@ class AsyncNetworkVariables:
                 "incomplete": reader.incomplete,
                 "malformed": reader.malformed,
             }
+            if isinstance(reader.list, UdpVarList):
+                out[name]["flagged"] = reader.flagged
         return out
 
     def stale(self, list_name: str) -> bool:
@@ -473,8 +533,10 @@ class AsyncNetworkVariables:
         reader = self._readers.get(self.definition[list_name].name)
         return reader is not None and reader.stale
 
-    def _payload(self, lst: VarList) -> bytes:
-        return lst.pack(self._values[lst.name])
+    def _payload(self, lst: AnyList) -> bytes:
+        if isinstance(lst, VarList):
+            return lst.pack(self._values[lst.name])
+        return lst.pack_values(self._values[lst.name])
 
     # ------------------------------------------------------------------ events
 
@@ -496,6 +558,231 @@ class AsyncNetworkVariables:
                 listener(event)
             except Exception:  # an application's failure must not stop the lists
                 log.exception("network variable listener %r failed", listener)
+
+
+class _Datagrams(asyncio.DatagramProtocol):
+    def __init__(self, owner: AsyncUdpNetworkVariables) -> None:
+        self.owner = owner
+
+    def datagram_received(self, data: bytes, addr: tuple[str | Any, int]) -> None:
+        try:
+            self.owner.datagram(data, addr)
+        except Exception:  # (a telegram must never stop the lists)
+            log.exception("network variables: datagram from %s", addr)
+
+    def error_received(self, exc: Exception) -> None:
+        log.warning("network variables: %s", exc)
+
+
+class AsyncUdpNetworkVariables(AsyncNetworkVariables):
+    """Network variables over UDP, as CODESYS controllers exchange them: the lists of
+    ``definition`` (:class:`~cobus.blocks.netvar_udp.UdpDefinition`, e.g. from ``.gvl``
+    files); the lists named in ``send`` are written, the others read. The same values,
+    events, statistics and transmission modes as over CAN.
+
+    >>> lists = AsyncUdpNetworkVariables(UdpDefinition.of([load_gvl("plant.gvl")]))
+    >>> await lists.open()                       # 127.0.0.1:1202
+    >>> lists["plant.speed"]
+
+    It listens on ``bind``:``port`` (127.0.0.1 unless told: ``"0.0.0.0"`` for telegrams
+    from other hosts) and sends each list to ``to`` (host, port), else to the address and
+    port of its definition; a broadcast address needs ``broadcast=True``. Datagrams that
+    are no telegram, of lists it does not know, or with the acknowledgement or checksum
+    flags are counted (:meth:`dropped`) and dropped, never a crash."""
+
+    _COUNTER_WRAP = 0x10000
+
+    def __init__(
+        self,
+        definition: UdpDefinition,
+        *,
+        send: Any = (),
+        bind: str = "127.0.0.1",
+        port: int = DEFAULT_PORT,
+        to: tuple[str, int] | None = None,
+        broadcast: bool = False,
+    ) -> None:
+        sent = set(send)
+        unknown = sent - set(definition.lists)
+        if unknown:
+            raise KeyError(
+                f"no variable list {', '.join(sorted(unknown))}; the lists: "
+                f"{', '.join(definition.lists)}"
+            )
+        ids: dict[int, str] = {}
+        for lst in definition.lists.values():
+            if lst.list_id in ids:
+                raise ValueError(
+                    f"lists {ids[lst.list_id]} and {lst.name} have one identifier, "
+                    f"{lst.list_id}: give each list its own"
+                )
+            ids[lst.list_id] = lst.name
+        mine = {
+            n: dataclasses.replace(lst, sender="cobus" if n in sent else "")
+            for n, lst in definition.lists.items()
+        }
+        super().__init__(None, UdpDefinition(mine), me="cobus")
+        self.bind = bind
+        self.port = port
+        self.to = to
+        self.broadcast = broadcast
+        self._socket: socket.socket | None = None
+        self._transport: asyncio.DatagramTransport | None = None
+        self._event_loop: asyncio.AbstractEventLoop | None = None
+        self._by_id = {lst.list_id: lst.name for lst in mine.values()}
+        #: Datagrams taken, and those dropped by why.
+        self._counts = {"datagrams": 0, "not_telegrams": 0, "foreign": 0, "requests": 0}
+        #: The last datagram that was no telegram: who sent it and why.
+        self.last_junk: tuple[Any, str] | None = None
+
+    @property
+    def address(self) -> tuple[str, int]:
+        """Where it listens (the port the system gave, with ``port=0``)."""
+        if self._socket is None:
+            return self.bind, self.port
+        host, port = self._socket.getsockname()[:2]
+        return str(host), int(port)
+
+    async def open(self) -> None:
+        """Open the socket and :meth:`start` the lists (on the running loop)."""
+        if self._transport is not None:
+            return
+        loop = asyncio.get_running_loop()
+        family = socket.AF_INET6 if ":" in self.bind else socket.AF_INET
+        sock = socket.socket(family, socket.SOCK_DGRAM)
+        try:
+            if self.broadcast:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+            sock.bind((self.bind, self.port))
+            sock.setblocking(False)
+            transport, _ = await loop.create_datagram_endpoint(lambda: _Datagrams(self), sock=sock)
+        except OSError as exc:
+            sock.close()
+            raise OSError(
+                exc.errno, f"cannot listen on {self.bind}:{self.port}: {exc.strerror or exc}"
+            ) from None
+        self._socket, self._transport, self._event_loop = sock, transport, loop
+        self._closed = False
+        self.start()
+
+    def start(self) -> None:
+        """Start the lists (after :meth:`open`, which calls it)."""
+        if self._transport is None:
+            raise NetworkClosedError("open() the UDP network variables first")
+        if self._started:
+            return
+        self._started = True
+        for writer in self._writers.values():
+            writer.start()
+        for reader in self._readers.values():
+            reader.start()
+
+    def close(self) -> None:
+        """Stop sending and listening, and close the socket."""
+        super().close()
+        if self._transport is not None:
+            self._transport.close()
+        self._transport = self._socket = None
+
+    def dropped(self) -> dict[str, int]:
+        """Datagrams received, and those dropped: ``not_telegrams`` (short, foreign
+        identity, a length that does not match...), ``foreign`` (a list it does not
+        know), ``requests`` answered; per list: :meth:`statistics`."""
+        return dict(self._counts)
+
+    # ------------------------------------------------------------------ the transport
+
+    def _time(self) -> float:
+        return self._loop().time()
+
+    def _loop(self) -> asyncio.AbstractEventLoop:
+        if self._event_loop is None:
+            raise NetworkClosedError("open() the UDP network variables first")
+        return self._event_loop
+
+    def _transmit(self, lst: AnyList, payload: bytes, counter: int) -> None:
+        assert isinstance(lst, UdpVarList)
+        if self._socket is None:
+            raise NetworkClosedError("the UDP network variables are closed")
+        where = self.to or (lst.address, lst.port)
+        for telegram in lst.telegrams(payload, counter):
+            self._sendto(telegram, where)
+
+    def _sendto(self, telegram: Telegram, where: tuple[str, int]) -> None:
+        assert self._socket is not None
+        try:
+            self._socket.sendto(telegram.to_bytes(), where)
+        except PermissionError:
+            raise PermissionError(
+                f"sending to {where[0]}:{where[1]} was refused: a broadcast address needs "
+                "broadcast=True (cobus netvars --broadcast)"
+            ) from None
+        except OSError as exc:
+            raise OSError(
+                exc.errno, f"cannot send to {where[0]}:{where[1]}: {exc.strerror or exc}"
+            ) from None
+
+    def _request(self, lst: AnyList) -> None:
+        assert isinstance(lst, UdpVarList)
+        try:
+            self._sendto(lst.request(), self.to or (lst.address, lst.port))
+        except OSError as exc:  # (asked again a second later)
+            log.warning("network variables: request of %s not sent: %s", lst.name, exc)
+
+    def datagram(self, data: bytes, addr: Any = None) -> None:
+        """Take one datagram (what the socket received)."""
+        counts = self._counts
+        counts["datagrams"] += 1
+        try:
+            telegram = Telegram.parse(data)
+        except TelegramError as exc:
+            counts["not_telegrams"] += 1
+            self.last_junk = (addr, str(exc))
+            return
+        name = self._by_id.get(telegram.list_id)
+        if name is None:
+            counts["foreign"] += 1
+            return
+        now = self._time()
+        if telegram.kind != DATA:  # a request: answered when it is a list it sends
+            writer = self._writers.get(name)
+            if writer is not None and self._started:
+                counts["requests"] += 1
+                self._emit(ListRequested(name, now))
+                writer.send()
+            return
+        reader = self._readers.get(name)
+        if reader is None or not self._started:
+            return  # (its own list, heard back from a broadcast)
+        lst = reader.list
+        assert isinstance(lst, UdpVarList)
+        if telegram.flags & 0x03:
+            reader.flagged += 1
+            reader.malformed_at(
+                lst.list_id,
+                now,
+                f"telegram with flags {telegram.flags:02X}h (acknowledgement or checksum, "
+                "neither published): dropped",
+            )
+            return
+        if telegram.sub_index >= lst.frames:
+            reader.malformed_at(
+                lst.list_id,
+                now,
+                f"telegram {telegram.sub_index}: the list has {lst.frames} telegram(s)",
+            )
+            return
+        _, count, size = lst.parts[telegram.sub_index]
+        if telegram.count != count or len(telegram.data) != size:
+            reader.malformed_at(
+                lst.list_id,
+                now,
+                f"telegram {telegram.sub_index}: {telegram.count} values in "
+                f"{len(telegram.data)} bytes, the definition has {count} in {size} "
+                "(are the definitions the same?)",
+            )
+            return
+        reader.take(telegram.sub_index, telegram.counter, telegram.data, now)
 
 
 class NetworkVariables(BlockingTwin, twin_of=AsyncNetworkVariables):
