@@ -38,6 +38,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "compare, apply and capture a node's parameters (parameter manager)",
     ),
     "alarms": ("cobus.blocks._alarms_cli", "read an alarm history file (show, export as CSV)"),
+    "netvars": (
+        "cobus.blocks._netvars_cli",
+        "network variables over UDP with CODESYS controllers (.gvl): watch, send, export",
+    ),
     "decode": (
         "cobus.trace._cli",
         "decode a trace file into CANopen records (NMT, SDO, PDO, EMCY...)",

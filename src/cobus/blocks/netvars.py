@@ -560,6 +560,10 @@ class AsyncNetworkVariables:
                 log.exception("network variable listener %r failed", listener)
 
 
+def _loopback(host: str) -> bool:
+    return host == "localhost" or host.startswith("127.") or host == "::1"
+
+
 class _Datagrams(asyncio.DatagramProtocol):
     def __init__(self, owner: AsyncUdpNetworkVariables) -> None:
         self.owner = owner
@@ -681,7 +685,11 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
         """Stop sending and listening, and close the socket."""
         super().close()
         if self._transport is not None:
-            self._transport.close()
+            if self._event_loop is not None and self._event_loop.is_closed():
+                if self._socket is not None:  # (its loop is gone: the socket alone)
+                    self._socket.close()
+            else:
+                self._transport.close()
         self._transport = self._socket = None
 
     def dropped(self) -> dict[str, int]:
@@ -718,8 +726,14 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
                 "broadcast=True (cobus netvars --broadcast)"
             ) from None
         except OSError as exc:
+            hint = ""
+            if _loopback(self.bind) and not _loopback(where[0]):
+                hint = (
+                    f" (it sends from {self.bind}, which reaches this host only: "
+                    "bind='0.0.0.0', --bind 0.0.0.0, for other hosts)"
+                )
             raise OSError(
-                exc.errno, f"cannot send to {where[0]}:{where[1]}: {exc.strerror or exc}"
+                exc.errno, f"cannot send to {where[0]}:{where[1]}: {exc.strerror or exc}{hint}"
             ) from None
 
     def _request(self, lst: AnyList) -> None:
