@@ -352,10 +352,6 @@ def test_what_is_refused_says_why(tmp_path: Path) -> None:
         (_gvl(decl, ListIdentifier="70000"), "ListIdentifier>70000: give the list's number"),
         (_gvl(decl, Interval="50ms"), "Interval>: '50ms' is no TIME literal"),
         (_gvl(decl, Pack="yes"), "<Pack>yes</Pack>: write True or False"),
-        (
-            _gvl(decl, TransmissionOnEvent="True", EventVariable="x"),
-            "transmission on event needs a BOOL",
-        ),
         (_gvl("VAR_GLOBAL\n\tx : INT;\n\ty INT;\nEND_VAR"), r"line 4: 'y INT': write NAME : TYPE"),
         (_gvl("VAR_GLOBAL\n\tx : INT;\n\tx : INT;\nEND_VAR"), "line 4: x is declared twice"),
         (_gvl("x : INT;"), "no VAR_GLOBAL"),
@@ -366,6 +362,17 @@ def test_what_is_refused_says_why(tmp_path: Path) -> None:
         ("<GVL><Declarations>", "not XML"),
         ('<!DOCTYPE x [<!ENTITY a "b">]><GVL/>', "DOCTYPE"),
         ("<NVL/>", "starts with <GVL>"),
+    ):
+        with pytest.raises(GvlError, match=why):
+            loads_gvl(text, source="x.gvl")
+    for text, why in (
+        (_gvl(decl, Interval="T#0.5ms"), "every 0.5 ms would flood the network"),
+        (_gvl("VAR_GLOBAL\n\tt : LTIME;\nEND_VAR"), "LTIME: how it goes in a telegram"),
+        (_gvl("VAR_GLOBAL\n\ts : STRING(0);\nEND_VAR"), "a string of 1 to 65535 characters"),
+        (
+            _gvl(decl).replace('Value="1202"', 'Value="\u00b2"'),
+            "Port '\u00b2': give a UDP port",
+        ),
     ):
         with pytest.raises(GvlError, match=why):
             loads_gvl(text, source="x.gvl")
@@ -401,3 +408,50 @@ def test_a_gvl_written_reads_back_the_same() -> None:
     back = loads_gvl(text, name="mine")
     assert [v.name for v in back.variables] == ["speed", "temps[0]", "temps[1]", "motor_current"]
     assert back.size == bare.size and back.modes == {"on_change"} and back.min_gap == 0.02
+
+
+def test_what_the_review_of_the_gvl_reader_found() -> None:
+    # a $' in a string, END_VAR in a string: initial values change nothing
+    text = "VAR_GLOBAL s : STRING := 'it$'s; END_VAR'; n : INT; m : INT := 5; END_VAR"
+    assert [n for n, _ in declared_values(text)] == ["s", "n", "m"]
+    # subranges are their base type
+    assert [t.name for _, t in declared_values("VAR_GLOBAL r : INT(0..10); END_VAR")] == ["INT"]
+    # types that multiply past what a list takes stop at once
+    bomb = parse_st_types(
+        "TYPE S : STRUCT a : ARRAY[0..60000] OF BOOL; b : ARRAY[0..60000] OF BOOL; "
+        "END_STRUCT END_TYPE TYPE T : STRUCT x : S; y : S; END_STRUCT END_TYPE"
+    )
+    with pytest.raises(GvlError, match="more than 65535 values in a list"):
+        declared_values("VAR_GLOBAL t : ARRAY[0..1000] OF T; END_VAR", bomb)
+    with pytest.raises(GvlError, match="line 1: UNION is not something cobus sends"):
+        parse_st_types("TYPE U : UNION a : INT; b : REAL; END_UNION END_TYPE")
+    # the event variable may be any BOOL of the project: read, and written back as it was
+    gvl = _gvl(
+        "VAR_GLOBAL\n\tx : INT;\nEND_VAR",
+        TransmissionOnEvent="True",
+        CyclicTransmission="False",
+        EventVariable="PLC_PRG.xSend",
+    )
+    lst = loads_gvl(gvl)
+    assert lst.event is None and lst.event_text == "PLC_PRG.xSend"
+    assert "<EventVariable>PLC_PRG.xSend</EventVariable>" in dumps_gvl(lst)
+    # an empty <Pack/> is the default: packed
+    assert loads_gvl(_gvl("VAR_GLOBAL\n\tx : INT;\nEND_VAR", Pack="")).pack
+    # names made for struct members never clash, the event goes with its new name
+    flat = UdpVarList(
+        "mine",
+        1,
+        layout(
+            [
+                ("motor.current", iec_type("REAL")),
+                ("motor_current", iec_type("REAL")),
+                ("cmd.go", iec_type("BOOL")),
+            ]
+        ),
+        transmit="on_event",
+        modes=frozenset({"on_event"}),
+        event="cmd.go",
+    )
+    back = loads_gvl(dumps_gvl(flat), name="mine")
+    assert [v.name for v in back.variables] == ["motor_current_2", "motor_current", "cmd_go"]
+    assert back.event == "cmd_go"

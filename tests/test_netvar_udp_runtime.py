@@ -102,21 +102,33 @@ def test_a_list_only_whole_and_from_one_transmission() -> None:
             (received,) = [e for e in got if isinstance(e, ListReceived)]
             assert received.values == second and received.counter == 8
             assert lists.values("big") == second
-            # a late telegram of an older transmission mixes with nothing
+            # late telegrams of an older transmission mix with nothing, and a whole older
+            # transmission (or one taken already, again) does not roll the values back
             lists.datagram(one[1])
             lists.datagram(one[0])
+            for data in _telegrams(big, first, 7) + two:
+                lists.datagram(data)
             assert lists.values("big") == second
             assert lists.statistics()["big"] == {
                 "received": 1,
                 "incomplete": 1,
                 "malformed": 0,
                 "flagged": 0,
+                "late": 8,
             }
-            # the counter wraps at 65535
-            for data in _telegrams(big, first, 0xFFFF) + _telegrams(big, second, 0):
-                lists.datagram(data)
-            last = [e for e in got if isinstance(e, ListReceived)][-2:]
-            assert [e.counter for e in last] == [0xFFFF, 0]
+            # nor does a late telegram cost the transmission being gathered
+            three = _telegrams(big, first, 9)
+            lists.datagram(three[0])
+            lists.datagram(one[2])
+            lists.datagram(three[1])
+            lists.datagram(three[2])
+            assert lists.values("big") == first and lists.statistics()["big"]["incomplete"] == 1
+            # the counter wraps at 65535; a sender that starts again far behind is heard
+            for counter in (0xFFF0, 0xFFFF, 0, 5_000, 3):
+                for data in _telegrams(big, second if counter % 2 else first, counter):
+                    lists.datagram(data)
+            last = [e for e in got if isinstance(e, ListReceived)][-5:]
+            assert [e.counter for e in last] == [0xFFF0, 0xFFFF, 0, 5_000, 3]
         finally:
             lists.close()
 
@@ -150,11 +162,14 @@ def test_junk_foreign_and_flagged_telegrams_are_counted_and_dropped() -> None:
                 "datagrams": 9,
                 "not_telegrams": 5,
                 "foreign": 1,
+                "of_own_lists": 0,
                 "requests": 0,
             }
             assert lists.last_junk is not None and lists.last_junk[0] == ("10.0.0.9", 1202)
             reasons = [e.reason for e in got if isinstance(e, ListMalformed)]
             assert "flags 02h" in reasons[0]
+            malformed = next(e for e in got if isinstance(e, ListMalformed))
+            assert str(malformed).startswith("list small (identifier 1): telegram with flags")
             assert "2 values in 7 bytes, the definition has 3 in 7" in reasons[1]
             assert "telegram 1: the list has 1 telegram(s)" in reasons[2]
             assert lists.statistics()["small"]["flagged"] == 1
@@ -258,3 +273,34 @@ def test_what_cannot_be_opened_or_defined_says_why() -> None:
             first.close()
 
     asyncio.run(run())
+
+
+def test_requests_in_a_storm_are_one_transmission_and_ports_are_checked() -> None:
+    async def run() -> None:
+        mine = _list("mine", 3, [("x", "UDINT")], interval=60.0)
+        listener = AsyncUdpNetworkVariables(UdpDefinition.of([mine]), port=0)
+        await listener.open()
+        sender = AsyncUdpNetworkVariables(
+            UdpDefinition.of([mine]), send=["mine"], port=0, to=listener.address
+        )
+        await sender.open()
+        try:
+            await _until(lambda: listener.statistics()["mine"]["received"] == 1)
+            for _ in range(50):
+                sender.datagram(mine.request().to_bytes())
+            assert sender.statistics()["mine"]["sent"] == 2  # (the cycle's, and one answer)
+            assert sender.dropped()["requests"] == 50
+            # its own list heard back (a broadcast) is counted, not taken
+            sender.datagram(_telegrams(mine, {"x": 1}, 0)[0])
+            assert sender.dropped()["of_own_lists"] == 1 and sender["mine.x"] == 0
+        finally:
+            sender.close()
+            listener.close()
+
+    asyncio.run(run())
+    with pytest.raises(ValueError, match=r"port 70000: a UDP port is 0\.\.65535"):
+        AsyncUdpNetworkVariables(UdpDefinition.of([_list("a", 1, [("x", "INT")])]), port=70000)
+    from cobus.blocks.netvars import AsyncNetworkVariables
+
+    with pytest.raises(TypeError, match="use AsyncUdpNetworkVariables"):
+        AsyncNetworkVariables(None, UdpDefinition.of([_list("a", 1, [("x", "INT")])]), me="x")

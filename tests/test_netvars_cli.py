@@ -165,3 +165,55 @@ def test_what_send_and_watch_refuse(tmp_path: Path, capsys: pytest.CaptureFixtur
     # nothing came: says so, exit 0
     assert main(["netvars", "watch", str(gvl), "--udp", "--port", "0", "--seconds", "0.05"]) == 0
     assert "# 0 list(s) received (plant 0)" in capsys.readouterr().err
+
+
+def test_what_the_review_of_the_cli_found(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import subprocess
+    import sys
+
+    gvl = tmp_path / "plant.gvl"
+    gvl.write_text(CODESYS_EXPORT)
+    # two files of one list identifier: one line, exit code 2
+    twin = tmp_path / "twin.gvl"
+    twin.write_text(CODESYS_EXPORT)
+    assert main(["netvars", "watch", str(gvl), str(twin), "--udp", "--seconds", "0.1"]) == 2
+    err = capsys.readouterr().err
+    assert "lists plant and twin have one identifier, 1" in err and err.count("\n") == 1
+    assert main(["netvars", "watch", str(gvl), "--seconds", "-1"]) == 2
+    assert "--seconds: a time above 0" in capsys.readouterr().err
+    # gvl: a folder named with a slash, --json
+    yml = tmp_path / "netvars.yml"
+    yml.write_text(NETVARS)
+    folder = str(tmp_path / "new") + "/"
+    assert main(["netvars", "gvl", str(yml), folder, "--list", "alarms", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == {"alarms": str(tmp_path / "new/alarms.gvl")}
+    # SIGTERM: what it received, exit 143; a closed pipe: quiet, exit 0
+    port = _free_port()
+    command = [sys.executable, "-m", "cobus", "netvars", "watch", str(gvl), "--port", str(port)]
+    proc = subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stderr is not None
+        assert proc.stderr.readline().startswith("# listening on 127.0.0.1:")
+        proc.terminate()
+        _, err = proc.communicate(timeout=20)
+    finally:
+        proc.kill()
+    assert proc.returncode == 143
+    assert "cobus netvars watch: terminated: 0 list(s) received (plant 0)" in err
+    proc2 = subprocess.Popen([*command, "--json"], stderr=subprocess.PIPE, stdout=subprocess.PIPE)
+    try:
+        assert proc2.stderr is not None and proc2.stdout is not None
+        proc2.stderr.readline()
+        send = ["netvars", "send", str(gvl), "--to", f"127.0.0.1:{port}", "integer=1"]
+        assert main(send) == 0
+        assert json.loads(proc2.stdout.readline())["values"]["integer"] == 1
+        proc2.stdout.close()  # (as `| head -1` does)
+        for _ in range(3):
+            assert main(send) == 0
+        proc2.wait(timeout=20)
+        err_bytes = proc2.stderr.read()
+    finally:
+        proc2.kill()
+    assert proc2.returncode == 0 and b"Traceback" not in err_bytes

@@ -23,7 +23,9 @@ import contextlib
 import datetime as dt
 import json
 import math
+import signal
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -79,7 +81,11 @@ def register(sub: Any) -> None:
         "send", help="send a list once", description="send one transmission of a list"
     )
     for p in (watch, send):
-        p.add_argument("--udp", action="store_true", help="over UDP (the form .gvl files give)")
+        p.add_argument(
+            "--udp",
+            action="store_true",
+            help="over UDP: the form .gvl files give, the only one here (for clarity)",
+        )
         p.add_argument(
             "--types",
             type=Path,
@@ -108,12 +114,13 @@ def register(sub: Any) -> None:
         "CODESYS imports ('Import from file'): one list to OUT, several into the folder OUT",
     )
     gvl.add_argument("netvars", type=Path, help="cobus's network variable definition (YAML)")
-    gvl.add_argument("out", type=Path, help="the .gvl file (one list) or a folder (several)")
+    gvl.add_argument("out", help="the .gvl file (one list) or a folder (several; or OUT/)")
     gvl.add_argument("--list", action="append", dest="lists", help="only this list; again")
     gvl.add_argument(
         "--address", default="255.255.255.255", help="the address the file gives (broadcast)"
     )
     gvl.add_argument("--port", type=_port, default=1202, help="UDP port (default 1202)")
+    gvl.add_argument("--json", action="store_true", help="print the files written as JSON")
     gvl.set_defaults(handler=_gvl)
 
 
@@ -137,6 +144,10 @@ def _lists(args: argparse.Namespace, paths: list[Path]) -> Any:
                 except OSError as exc:
                     raise GvlError(f"{path}: {exc.strerror or exc}") from None
                 found = parse_st_types(text, str(path))
+                again = set(found.spelled) & set(merged.spelled)
+                if again:
+                    twice = ", ".join(sorted(found.spelled[n] for n in again))
+                    raise GvlError(f"{path}: {twice} defined in another --types file too")
                 merged.structs.update(found.structs)
                 merged.enums.update(found.enums)
                 merged.aliases.update(found.aliases)
@@ -174,10 +185,25 @@ def _watch(args: argparse.Namespace) -> int:
         return definition
     if args.count is not None and args.count < 1:
         return _fail("watch", "--count: 1 or more", 2)
-    lists = AsyncUdpNetworkVariables(definition, bind=args.bind, port=args.port)
+    if args.seconds is not None and not args.seconds > 0:
+        return _fail("watch", "--seconds: a time above 0", 2)
+    try:
+        lists = AsyncUdpNetworkVariables(definition, bind=args.bind, port=args.port)
+    except (KeyError, ValueError) as exc:
+        return _fail("watch", _why(exc), 2)
     received = 0
+    broken = False
+    stopped_by: list[int] = []
 
     def show(event: NetVarEvent) -> None:
+        nonlocal broken
+        try:
+            shown(event)
+        except BrokenPipeError:  # (the reader went away: `| head`)
+            broken = True
+            done.set()
+
+    def shown(event: NetVarEvent) -> None:
         nonlocal received
         when = dt.datetime.now().isoformat(timespec="milliseconds")
         if isinstance(event, ListReceived):
@@ -202,6 +228,13 @@ def _watch(args: argparse.Namespace) -> int:
 
     async def run() -> None:
         await lists.open()
+        with contextlib.suppress(NotImplementedError, AttributeError, ValueError, RuntimeError):
+            # SIGTERM as Ctrl-C: the summary, then 143 (where the loop takes signals)
+            def terminated() -> None:
+                stopped_by.append(143)
+                done.set()
+
+            asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, terminated)
         try:
             lists.add_listener(show)
             host, port = lists.address
@@ -224,6 +257,8 @@ def _watch(args: argparse.Namespace) -> int:
         return _fail("watch", str(exc.strerror or exc), 1)
     finally:
         lists.close()
+    if broken:
+        raise BrokenPipeError  # (cobus's main ends quietly)
     stats = lists.statistics()
     dropped = lists.dropped()
     counts = ", ".join(f"{name} {s['received']}" for name, s in stats.items())
@@ -242,6 +277,8 @@ def _watch(args: argparse.Namespace) -> int:
     )
     if interrupted:
         return _fail("watch", f"interrupted: {summary}", 130)
+    if stopped_by:
+        return _fail("watch", f"terminated: {summary}", 143)
     print(f"# {summary}", file=sys.stderr)
     return 0
 
@@ -294,14 +331,19 @@ def _send(args: argparse.Namespace) -> int:
             values[var.name] = var.decode(var.encode(_value(var, text)))
     except (KeyError, ValueError) as exc:
         return _fail("send", _why(exc), 2)
-    lists = AsyncUdpNetworkVariables(
-        definition,
-        send=[lst.name],
-        bind=args.bind,
-        port=0,
-        to=args.to,
-        broadcast=args.broadcast,
-    )
+    try:
+        lists = AsyncUdpNetworkVariables(
+            definition,
+            send=[lst.name],
+            bind=args.bind,
+            port=0,
+            to=args.to,
+            broadcast=args.broadcast,
+            # (each run a counter of its own: a receiver drops a repeat of the last one)
+            first_counter=time.time_ns() // 1_000_000,
+        )
+    except (KeyError, ValueError) as exc:
+        return _fail("send", _why(exc), 2)
     failed: list[str] = []
 
     def on(event: NetVarEvent) -> None:
@@ -368,20 +410,24 @@ def _gvl(args: argparse.Namespace) -> int:
         }
     except (KeyError, ValueError) as exc:
         return _fail("gvl", _why(exc), 2)
-    out: Path = args.out
-    if len(texts) == 1 and not out.is_dir():
+    out = Path(args.out)
+    folder = out.is_dir() or args.out.endswith(("/", "\\"))
+    if len(texts) == 1 and not folder:
         targets = {out: next(iter(texts.values()))}
     else:
         if out.exists() and not out.is_dir():
             return _fail("gvl", f"{out}: {len(texts)} lists go into a folder, not a file", 2)
         targets = {out / f"{name}.gvl": text for name, text in texts.items()}
     try:
-        if len(texts) > 1:
+        if out not in targets:
             out.mkdir(parents=True, exist_ok=True)
         for path, text in targets.items():
             path.write_text(text, encoding="utf-8")
     except OSError as exc:
         return _fail("gvl", f"cannot write {exc.filename}: {exc.strerror or exc}", 1)
-    for path in targets:
-        print(path)
+    if args.json:
+        print(json.dumps({name: str(path) for name, path in zip(texts, targets, strict=True)}))
+    else:
+        for path in targets:
+            print(path)
     return 0

@@ -43,6 +43,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from cobus.blocks.netvar_lists import MIN_INTERVAL
 from cobus.blocks.netvar_udp import (
     DEFAULT_PORT,
     IecType,
@@ -59,6 +60,8 @@ MAX_FILE = 4 << 20
 #: Values (array elements and struct members) of one list at most.
 MAX_VALUES = 65_535
 _MAX_DEPTH = 8
+#: Types whose layout in a telegram nobody has published.
+_UNKNOWN_LAYOUT = {"LTIME", "LDATE", "LDT", "LTOD", "LDATE_AND_TIME", "LTIME_OF_DAY"}
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
 _ARRAY = re.compile(r"ARRAY\s*\[(.*?)\]\s*OF\s+(.*)\Z", re.IGNORECASE | re.DOTALL)
 _RANGE = re.compile(r"\s*([+-]?\d+)\s*\.\.\s*([+-]?\d+)\s*\Z")
@@ -86,8 +89,9 @@ class GvlError(CobusError, ValueError):
 
 
 def _clean(text: str) -> str:
-    """``text`` with comments and pragmas blanked out (newlines kept, so lines stay
-    where they were); strings are kept."""
+    """``text`` with comments and pragmas blanked out, and the insides of strings (an
+    initial value, which cobus does not use: a ``;``, ``END_VAR`` or ``$'`` in one changes
+    nothing), newlines kept so lines stay where they were."""
     out: list[str] = []
     i, n = 0, len(text)
     while i < n:
@@ -117,7 +121,7 @@ def _clean(text: str) -> str:
             j = i + 1
             while j < n and text[j] != c:
                 j += 2 if text[j] == "$" else 1
-            out.append(text[i : j + 1])
+            out.append(c + re.sub(r"[^\n]", "_", text[i + 1 : min(j, n)]) + text[j : j + 1])
             i = j + 1
         else:
             out.append(c)
@@ -203,6 +207,13 @@ def parse_st_types(text: str, source: str = "<types>") -> StTypes:
 
 def _types_of(body: str, base: int, types: StTypes) -> None:
     source = types.source
+    odd = re.search(r"\b(UNION|EXTENDS|POINTER|REFERENCE|INTERFACE)\b", body, re.IGNORECASE)
+    if odd is not None:
+        line = base + body.count("\n", 0, odd.start())
+        raise GvlError(
+            f"{source}: line {line}: {odd.group(1).upper()} is not something cobus sends as "
+            "network variables: give the values as a STRUCT of elementary types and arrays"
+        )
     # structs first (their members hold semicolons)
     pattern = re.compile(
         r"([A-Za-z_]\w*)\s*:\s*STRUCT\b(.*?)\bEND_STRUCT\b\s*;?", re.IGNORECASE | re.DOTALL
@@ -265,12 +276,23 @@ def _declaration(statement: str, line: int, source: str) -> list[tuple[str, str,
 
 
 def _flatten(
-    name: str, declared: str, line: int, types: StTypes, source: str, depth: int = 0
+    name: str,
+    declared: str,
+    line: int,
+    types: StTypes,
+    source: str,
+    budget: list[int],
+    depth: int = 0,
 ) -> list[tuple[str, IecType]]:
-    """The elementary values of a declaration, in the order they go on the wire."""
+    """The elementary values of a declaration, in the order they go on the wire;
+    ``budget[0]``: values the list may still take (counted down as they are found, so a
+    type that would give millions stops at once)."""
     if depth > _MAX_DEPTH:
         raise GvlError(f"{source}: line {line}: {name}: types nested deeper than {_MAX_DEPTH}")
     text = " ".join(declared.split())
+    subrange = re.match(r"(\w+)\s*\(\s*[+-]?\d+\s*\.\.\s*[+-]?\d+\s*\)\Z", text)
+    if subrange is not None:  # (INT(0..10): an INT)
+        text = subrange.group(1)
     array = _ARRAY.match(text)
     if array is not None:
         ranges = []
@@ -288,31 +310,38 @@ def _flatten(
         total = 1
         for r in ranges:
             total *= len(r)
-        if total > MAX_VALUES:
+        if total > budget[0]:
             raise GvlError(
-                f"{source}: line {line}: {name}: {total} elements, more than a list takes"
+                f"{source}: line {line}: {name}: more than {MAX_VALUES} values in a list"
             )
         out: list[tuple[str, IecType]] = []
         for index in _indices(ranges):
             label = f"{name}[{', '.join(str(i) for i in index)}]"
-            out += _flatten(label, array.group(2), line, types, source, depth + 1)
-            if len(out) > MAX_VALUES:
-                break
+            out += _flatten(label, array.group(2), line, types, source, budget, depth + 1)
         return out
     upper = text.upper()
     if upper in types.structs:
         out = []
         for member, member_type, _ in types.structs[upper].members:
-            out += _flatten(f"{name}.{member}", member_type, line, types, source, depth + 1)
+            out += _flatten(f"{name}.{member}", member_type, line, types, source, budget, depth + 1)
         return out
+    if upper in types.aliases:
+        return _flatten(name, types.aliases[upper], line, types, source, budget, depth + 1)
+    budget[0] -= 1
+    if budget[0] < 0:
+        raise GvlError(f"{source}: line {line}: {name}: more than {MAX_VALUES} values in a list")
     if upper in types.enums:
         return [(name, iec_type(types.enums[upper]))]
-    if upper in types.aliases:
-        return _flatten(name, types.aliases[upper], line, types, source, depth + 1)
+    if upper in _UNKNOWN_LAYOUT:
+        raise GvlError(
+            f"{source}: line {line}: {name}: {upper}: how it goes in a telegram is published "
+            "nowhere, so cobus refuses it"
+        )
     try:
         return [(name, iec_type(text))]
-    except ValueError:
-        pass
+    except ValueError as exc:
+        if re.match(r"W?STRING\b", upper):
+            raise GvlError(f"{source}: line {line}: {name}: {exc}") from None
     if _IDENT.match(text):
         given = f" (types given: {', '.join(types.names())})" if types.names() else ""
         raise GvlError(
@@ -349,6 +378,7 @@ def declared_values(
         raise GvlError(f"{source}: no VAR_GLOBAL ... END_VAR in the declarations")
     values: list[tuple[str, IecType]] = []
     seen: set[str] = set()
+    budget = [MAX_VALUES]
     for block in blocks:
         at = line + clean.count("\n", 0, block.start())
         qualifier = block.group(1).strip().upper()
@@ -362,18 +392,16 @@ def declared_values(
                 if name.upper() in seen:
                     raise GvlError(f"{source}: line {where}: {name} is declared twice")
                 seen.add(name.upper())
-                values += _flatten(name, declared, where, types, source)
-                if len(values) > MAX_VALUES:
-                    raise GvlError(f"{source}: more than {MAX_VALUES} values in one list")
+                values += _flatten(name, declared, where, types, source, budget)
     return values
 
 
 # ------------------------------------------------------------------ the XML
 
 
-def _bool(element: ET.Element | None, what: str, source: str) -> bool:
+def _bool(element: ET.Element | None, what: str, source: str, default: bool = False) -> bool:
     if element is None or element.text is None or not element.text.strip():
-        return False
+        return default
     text = element.text.strip().lower()
     if text in ("true", "1"):
         return True
@@ -474,7 +502,7 @@ def loads_gvl(
         key = (setting.get("Name") or "").lower()
         value = (setting.get("Value") or "").strip()
         if "port" in key:
-            if not value.isdigit() or not 1 <= int(value) <= 65_535:
+            if not (value.isascii() and value.isdigit()) or not 1 <= int(value) <= 65_535:
                 raise GvlError(f"{source}: Port {value!r}: give a UDP port, 1..65535")
             port = int(value)
         elif "adr" in key or "addr" in key:
@@ -483,32 +511,34 @@ def loads_gvl(
     items = declared_values(declarations.text or "", types, source, line)
     if not items:
         raise GvlError(f"{source}: the list declares no variable")
-    if cyclic and interval <= 0:
-        raise GvlError(f"{source}: <Interval>: a cyclic list needs an interval above 0")
+    if cyclic and interval < MIN_INTERVAL:
+        raise GvlError(
+            f"{source}: <Interval>: a cyclic list every {interval * 1000:g} ms would flood the "
+            f"network: {MIN_INTERVAL * 1000:g} ms at least"
+        )
     modes = [
         m for m, on in (("cyclic", cyclic), ("on_change", on_change), ("on_event", on_event)) if on
     ]
     variables = layout(items)
-    if on_event:
-        names = {v.name.upper(): v for v in variables}
-        found = names.get(event.upper())
-        if found is None or found.type.name != "BOOL":
-            raise GvlError(
-                f"{source}: <EventVariable>{event}: transmission on event needs a BOOL "
-                "variable of the list"
-            )
-        event = found.name
+    event_text, event_var = event, None
+    if on_event and event:
+        # (CODESYS takes any BOOL of the project, PLC_PRG.xSend...: one of the list's own
+        # sends it from cobus on its rising edge; another, only on send())
+        found = {v.name.upper(): v for v in variables}.get(event.upper())
+        if found is not None and found.type.name == "BOOL":
+            event_var = found.name
     try:
         return UdpVarList(
             name,
             list_id,
             variables,
-            pack=_bool(child("Pack"), "Pack", source) if child("Pack") is not None else True,
+            pack=_bool(child("Pack"), "Pack", source, default=True),
             transmit=modes[0] if modes else "cyclic",
             modes=frozenset(modes),
             interval=interval,
             min_gap=min_gap,
-            event=event or None,
+            event=event_var,
+            event_text=event_text,
             address=address,
             port=port,
             declarations=declarations.text or "",
@@ -538,12 +568,23 @@ def _time_text(seconds: float) -> str:
     return f"T#{round(seconds * 1e6)}us"
 
 
-def declarations_of(var_list: UdpVarList) -> str:
+def declarations_of(var_list: UdpVarList) -> tuple[str, dict[str, str]]:
     """``VAR_GLOBAL ... END_VAR`` for a list's values: arrays of one type as ``ARRAY``,
-    struct members and anything else under a name of its own (``motor_current``): the
-    bytes are the same, a .gvl cannot carry struct types."""
+    struct members and anything else under a name of its own (``motor_current``; the
+    bytes are the same, a .gvl cannot carry struct types), each name once (ST does not
+    tell case: ``motor_current_2`` when taken); and each value's declared name."""
     lines = ["VAR_GLOBAL"]
     variables = list(var_list.variables)
+    taken = {v.name.upper() for v in variables if _IDENT.match(v.name)}
+    renamed: dict[str, str] = {}
+
+    def free(wanted: str) -> str:
+        found, n = wanted, 2
+        while found.upper() in taken:
+            found, n = f"{wanted}_{n}", n + 1
+        taken.add(found.upper())
+        return found
+
     i = 0
     while i < len(variables):
         var = variables[i]
@@ -556,21 +597,33 @@ def declarations_of(var_list: UdpVarList) -> str:
                 and variables[i + n].type == var.type
             ):
                 n += 1
-            lines.append(f"\t{base} : ARRAY[0..{n - 1}] OF {var.type.name};")
+            declared = base if base.upper() not in taken else free(base)
+            taken.add(declared.upper())
+            for k in range(n):
+                renamed[variables[i + k].name] = f"{declared}[{k}]"
+            lines.append(f"\t{declared} : ARRAY[0..{n - 1}] OF {var.type.name};")
             i += n
             continue
-        name = re.sub(r"\W+", "_", var.name).strip("_") or "value"
+        if _IDENT.match(var.name):
+            name = var.name
+        else:
+            name = free(re.sub(r"\W+", "_", var.name).strip("_") or "value")
+        renamed[var.name] = name
         comment = f"  (* {var.name} *)" if name != var.name else ""
         lines.append(f"\t{name} : {var.type.name};{comment}")
         i += 1
     lines.append("END_VAR")
-    return "\n".join(lines)
+    return "\n".join(lines), renamed
 
 
 def dumps_gvl(var_list: UdpVarList) -> str:
     """The .gvl text of a list, as CODESYS writes it (CODESYS: "Import from file")."""
     modes = var_list.modes
-    declarations = var_list.declarations or declarations_of(var_list)
+    if var_list.declarations:
+        declarations, event = var_list.declarations, var_list.event_text or var_list.event
+    else:
+        declarations, renamed = declarations_of(var_list)
+        event = renamed.get(var_list.event, var_list.event) if var_list.event else ""
     if "]]>" in declarations:
         raise GvlError(f"list {var_list.name}: its declarations hold ']]>'")
 
@@ -596,7 +649,7 @@ def dumps_gvl(var_list: UdpVarList) -> str:
             f"    <TransmissionOnEvent>{_bool_text('on_event' in modes)}</TransmissionOnEvent>",
             f"    <Interval>{_time_text(var_list.interval or 0.05)}</Interval>",
             f"    <MinGap>{_time_text(var_list.min_gap)}</MinGap>",
-            f"    <EventVariable>{esc(var_list.event or '')}</EventVariable>",
+            f"    <EventVariable>{esc(event or '')}</EventVariable>",
             "    <ProtocolSettings>",
             f'      <ProtocolSetting Name="Broadcast Adr." Value="{esc(var_list.address)}" />',
             f'      <ProtocolSetting Name="Port" Value="{var_list.port}" />',

@@ -319,6 +319,9 @@ class UdpVarList:
     port: int = DEFAULT_PORT
     #: Ask for the list when the reader starts (a type-6 request).
     request_at_boot: bool = False
+    #: The event variable as the file names it (CODESYS takes any BOOL of the project;
+    #: ``event`` is set only when it is a BOOL of the list).
+    event_text: str = field(default="", compare=False)
     #: Who writes the list (the runtime's ``send``); "" when the file does not say.
     sender: str = ""
     #: The ST declarations' text, as the file had it (written back into a .gvl).
@@ -359,13 +362,18 @@ class UdpVarList:
         """Telegrams per transmission."""
         return len(self.parts)
 
+    @cached_property
+    def _by_name(self) -> dict[str, UdpVar]:
+        return {v.name: v for v in self.variables}
+
     def variable(self, name: str) -> UdpVar:
         """The value ``name``; KeyError names the ones there are."""
-        for var in self.variables:
-            if var.name == name:
-                return var
-        names = ", ".join(v.name for v in self.variables)
-        raise KeyError(f"list {self.name!r} has no variable {name!r}; it has: {names}")
+        found = self._by_name.get(name)
+        if found is not None:
+            return found
+        names = ", ".join(v.name for v in self.variables[:20])
+        more = f" and {len(self.variables) - 20} more" if len(self.variables) > 20 else ""
+        raise KeyError(f"list {self.name!r} has no variable {name!r}; it has: {names}{more}")
 
     def pack_values(self, values: Mapping[str, Any]) -> bytes:
         """The list's bytes from its values (each must be there)."""

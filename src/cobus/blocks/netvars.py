@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import errno
 import logging
+import re
 import socket
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -104,13 +106,17 @@ class ListIncomplete(NetVarEvent):
 
 @dataclass(frozen=True, slots=True)
 class ListMalformed(NetVarEvent):
-    """A frame on a list's COB-ID that does not fit the definition (the definitions on the
-    controllers differ?)."""
+    """A frame on a list's COB-ID (over UDP: a telegram of the list, ``cob_id`` its
+    identifier, ``telegram`` true) that does not fit the definition (the definitions on
+    the controllers differ?)."""
 
     cob_id: int
     reason: str
+    telegram: bool = False
 
     def __str__(self) -> str:
+        if self.telegram:
+            return f"list {self.list} (identifier {self.cob_id}): {self.reason}"
         return f"list {self.list}: frame {self.cob_id:03X}h: {self.reason}"
 
 
@@ -158,7 +164,7 @@ class _Writer:
 
     def start(self) -> None:
         modes = _modes(self.list)
-        if "cyclic" in modes and self.list.interval:
+        if "cyclic" in modes:
             self.due = self.owner._time()
             self._cycle()
         elif "on_change" in modes:
@@ -236,6 +242,8 @@ class _Reader:
         self.malformed = 0
         #: Telegrams with flags cobus cannot honour (acknowledgement, checksum): dropped.
         self.flagged = 0
+        #: Telegrams of a transmission already taken, or older (UDP): dropped.
+        self.late = 0
         interval = var_list.interval
         self.window = min(SET_WINDOW, interval / 2) if interval else SET_WINDOW
 
@@ -324,7 +332,8 @@ class _Reader:
     def malformed_at(self, cob_id: int, now: float, reason: str) -> None:
         """A frame (or telegram: ``cob_id`` the list identifier) that does not fit."""
         self.malformed += 1
-        self.owner._emit(ListMalformed(self.list.name, now, cob_id, reason))
+        udp = isinstance(self.list, UdpVarList)
+        self.owner._emit(ListMalformed(self.list.name, now, cob_id, reason, udp))
 
     def _complete(self, payload: bytes, counter: int | None, now: float) -> None:
         values = self.list.unpack(payload)
@@ -351,6 +360,8 @@ class AsyncNetworkVariables:
     def __init__(
         self, network: Any, definition: NetVarDefinition | UdpDefinition, *, me: str
     ) -> None:
+        if isinstance(definition, UdpDefinition) and not isinstance(self, AsyncUdpNetworkVariables):
+            raise TypeError("lists over UDP (.gvl): use AsyncUdpNetworkVariables")
         if definition.controllers and me not in definition.controllers:
             raise ValueError(
                 f"controller {me!r} is not in the definition ({', '.join(definition.controllers)})"
@@ -525,6 +536,7 @@ class AsyncNetworkVariables:
             }
             if isinstance(reader.list, UdpVarList):
                 out[name]["flagged"] = reader.flagged
+                out[name]["late"] = reader.late
         return out
 
     def stale(self, list_name: str) -> bool:
@@ -560,6 +572,15 @@ class AsyncNetworkVariables:
                 log.exception("network variable listener %r failed", listener)
 
 
+#: A telegram this many transmissions behind the last one taken (within LATE_WINDOW
+#: seconds of it) or the one gathered is late and dropped; further behind, or later, it is
+#: a sender that started again (its counter anew).
+LATE_TRANSMISSIONS = 16
+LATE_WINDOW = 1.0
+#: Seconds between two requests of a list it answers (more in between: one transmission).
+REQUEST_GAP = 0.1
+
+
 def _loopback(host: str) -> bool:
     return host == "localhost" or host.startswith("127.") or host == "::1"
 
@@ -592,7 +613,9 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
     from other hosts) and sends each list to ``to`` (host, port), else to the address and
     port of its definition; a broadcast address needs ``broadcast=True``. Datagrams that
     are no telegram, of lists it does not know, or with the acknowledgement or checksum
-    flags are counted (:meth:`dropped`) and dropped, never a crash."""
+    flags are counted (:meth:`dropped`) and dropped, never a crash. ``first_counter``: the
+    counter of the first transmission (a one-shot sender starts elsewhere each time, so a
+    receiver does not take it for a repeat)."""
 
     _COUNTER_WRAP = 0x10000
 
@@ -605,8 +628,12 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
         port: int = DEFAULT_PORT,
         to: tuple[str, int] | None = None,
         broadcast: bool = False,
+        first_counter: int = 0,
     ) -> None:
         sent = set(send)
+        for what, number in (("port", port), ("port of to", to[1] if to else 0)):
+            if not 0 <= number <= 0xFFFF:
+                raise ValueError(f"{what} {number}: a UDP port is 0..65535")
         unknown = sent - set(definition.lists)
         if unknown:
             raise KeyError(
@@ -635,7 +662,17 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
         self._event_loop: asyncio.AbstractEventLoop | None = None
         self._by_id = {lst.list_id: lst.name for lst in mine.values()}
         #: Datagrams taken, and those dropped by why.
-        self._counts = {"datagrams": 0, "not_telegrams": 0, "foreign": 0, "requests": 0}
+        self._counts = {
+            "datagrams": 0,
+            "not_telegrams": 0,
+            "foreign": 0,
+            "of_own_lists": 0,
+            "requests": 0,
+        }
+        self._answered: dict[str, float] = {}  # (a list's last request answered, when)
+        for writer in self._writers.values():
+            writer.counter = first_counter % self._COUNTER_WRAP
+        self._opening = False
         #: The last datagram that was no telegram: who sent it and why.
         self.last_junk: tuple[Any, str] | None = None
 
@@ -649,10 +686,11 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
 
     async def open(self) -> None:
         """Open the socket and :meth:`start` the lists (on the running loop)."""
-        if self._transport is not None:
+        if self._transport is not None or self._opening:
             return
         loop = asyncio.get_running_loop()
         family = socket.AF_INET6 if ":" in self.bind else socket.AF_INET
+        self._opening = True
         sock = socket.socket(family, socket.SOCK_DGRAM)
         try:
             if self.broadcast:
@@ -663,8 +701,13 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
         except OSError as exc:
             sock.close()
             raise OSError(
-                exc.errno, f"cannot listen on {self.bind}:{self.port}: {exc.strerror or exc}"
+                f"cannot listen on {self.bind}:{self.port}: {exc.strerror or exc}"
             ) from None
+        except BaseException:
+            sock.close()
+            raise
+        finally:
+            self._opening = False
         self._socket, self._transport, self._event_loop = sock, transport, loop
         self._closed = False
         self.start()
@@ -718,22 +761,34 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
 
     def _sendto(self, telegram: Telegram, where: tuple[str, int]) -> None:
         assert self._socket is not None
+        host, port = where
+        v6 = self._socket.family == socket.AF_INET6
+        if ":" in host and not v6:
+            raise OSError(
+                f"cannot send to {host}: an IPv6 address needs an IPv6 bind (::1, or :: for "
+                "every interface)"
+            )
+        if v6 and re.fullmatch(r"\d+\.\d+\.\d+\.\d+", host):
+            host = "::ffff:" + host  # (an IPv4 peer from a dual-stack socket)
         try:
-            self._socket.sendto(telegram.to_bytes(), where)
+            self._socket.sendto(telegram.to_bytes(), (host, port))
         except PermissionError:
             raise PermissionError(
-                f"sending to {where[0]}:{where[1]} was refused: a broadcast address needs "
+                f"sending to {where[0]}:{port} was refused: a broadcast address needs "
                 "broadcast=True (cobus netvars --broadcast)"
             ) from None
+        except socket.gaierror as exc:
+            raise OSError(f"cannot send to {where[0]}: no such host ({exc.strerror})") from None
         except OSError as exc:
             hint = ""
-            if _loopback(self.bind) and not _loopback(where[0]):
+            unreachable = (errno.EINVAL, errno.ENETUNREACH, errno.EADDRNOTAVAIL)
+            if exc.errno in unreachable and _loopback(self.bind) and not _loopback(host):
                 hint = (
                     f" (it sends from {self.bind}, which reaches this host only: "
                     "bind='0.0.0.0', --bind 0.0.0.0, for other hosts)"
                 )
             raise OSError(
-                exc.errno, f"cannot send to {where[0]}:{where[1]}: {exc.strerror or exc}{hint}"
+                f"cannot send to {where[0]}:{port}: {exc.strerror or exc}{hint}"
             ) from None
 
     def _request(self, lst: AnyList) -> None:
@@ -762,14 +817,31 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
             writer = self._writers.get(name)
             if writer is not None and self._started:
                 counts["requests"] += 1
+                last = self._answered.get(name)
+                if last is not None and now - last < REQUEST_GAP:
+                    return  # (a storm of requests is one transmission, not one each)
+                self._answered[name] = now
                 self._emit(ListRequested(name, now))
                 writer.send()
             return
         reader = self._readers.get(name)
-        if reader is None or not self._started:
-            return  # (its own list, heard back from a broadcast)
+        if reader is None:
+            counts["of_own_lists"] += 1  # (its own broadcast heard back, or another sender)
+            return
+        if not self._started:
+            return
         lst = reader.list
         assert isinstance(lst, UdpVarList)
+        # a telegram of a transmission taken already, or of one older than that or than
+        # the one being gathered (a datagram twice, or late): never taken again
+        done = reader.done
+        recent = done is not None and now - done[1] <= LATE_WINDOW
+        behind = [(done[0] - telegram.counter) % 0x10000] if done is not None and recent else []
+        if reader.parts and reader.counter is not None:
+            behind.append((reader.counter - telegram.counter) % 0x10000 - 1)
+        if any(0 <= b <= LATE_TRANSMISSIONS for b in behind):
+            reader.late += 1
+            return
         if telegram.flags & 0x03:
             reader.flagged += 1
             reader.malformed_at(
