@@ -455,3 +455,45 @@ def test_what_the_review_of_the_gvl_reader_found() -> None:
     back = loads_gvl(dumps_gvl(flat), name="mine")
     assert [v.name for v in back.variables] == ["motor_current_2", "motor_current", "cmd_go"]
     assert back.event == "cmd_go"
+
+
+def test_the_example_gvl_reads_and_a_hostile_one_stays_bounded(tmp_path: Path) -> None:
+    import json
+    import textwrap
+
+    from tests.fuzz_inputs import EXAMPLES
+    from tests.util import bounded_python
+
+    line = load_gvl(EXAMPLES / "netvars/line.gvl")
+    assert (line.name, line.list_id, line.interval, line.frames) == ("line", 1, 0.05, 1)
+    assert [v.name for v in line.variables][:3] == ["speed", "running", "temps[0]"]
+    # types that multiply to billions of values, huge arrays, deep nesting: refused at
+    # once in a child with 1.5 GB of address space
+    types = tmp_path / "bomb.st"
+    types.write_text(
+        "TYPE S : STRUCT a : ARRAY[0..60000] OF BOOL; b : ARRAY[0..60000] OF BOOL; "
+        "END_STRUCT END_TYPE TYPE T : STRUCT x : ARRAY[0..9] OF S; END_STRUCT END_TYPE "
+        "TYPE U : STRUCT y : ARRAY[0..9] OF T; END_STRUCT END_TYPE"
+    )
+    gvl = tmp_path / "bomb.gvl"
+    gvl.write_text(_gvl("VAR_GLOBAL\n\tu : ARRAY[0..2000000000] OF U;\n\tv : U;\nEND_VAR"))
+    code = textwrap.dedent(
+        f"""
+        import json, time
+        from pathlib import Path
+        from cobus.blocks.gvl import GvlError, load_gvl, parse_st_types
+        t0 = time.perf_counter()
+        try:
+            load_gvl({str(gvl)!r}, types=parse_st_types(Path({str(types)!r}).read_text()))
+            out = {{"error": None}}
+        except GvlError as exc:
+            out = {{"error": str(exc)}}
+        out["seconds"] = time.perf_counter() - t0
+        print(json.dumps(out))
+        """
+    )
+    status, stdout, stderr = bounded_python(code, memory_mb=1500, seconds=60, cwd=tmp_path)
+    assert status == 0, stderr[-2000:]
+    result = json.loads(stdout)
+    assert "more than 65535 values in a list" in result["error"]
+    assert result["seconds"] < 10

@@ -304,3 +304,21 @@ def test_requests_in_a_storm_are_one_transmission_and_ports_are_checked() -> Non
 
     with pytest.raises(TypeError, match="use AsyncUdpNetworkVariables"):
         AsyncNetworkVariables(None, UdpDefinition.of([_list("a", 1, [("x", "INT")])]), me="x")
+
+
+def test_a_port_shared_with_another_program_on_this_host() -> None:
+    async def run() -> None:
+        one = _list("a", 1, [("x", "INT")])
+        first = AsyncUdpNetworkVariables(UdpDefinition.of([one]), port=0, share_port=True)
+        await first.open()
+        second = AsyncUdpNetworkVariables(
+            UdpDefinition.of([one]), port=first.address[1], share_port=True
+        )
+        try:
+            await second.open()  # (both listen: a CODESYS runtime and cobus)
+            assert second.address == first.address
+        finally:
+            second.close()
+            first.close()
+
+    asyncio.run(run())

@@ -98,6 +98,11 @@ def register(sub: Any) -> None:
     watch.add_argument("gvl", type=Path, nargs="+", help="the lists' .gvl files")
     watch.add_argument("--bind", default="127.0.0.1", help="listen here (default 127.0.0.1)")
     watch.add_argument("--port", type=_port, default=1202, help="UDP port (default 1202)")
+    watch.add_argument(
+        "--share-port",
+        action="store_true",
+        help="share the port with another program on this host (a CODESYS runtime)",
+    )
     watch.add_argument("--count", type=int, help="stop after this many lists received")
     watch.add_argument("--seconds", type=float, help="stop after this many seconds")
     watch.set_defaults(handler=_watch)
@@ -188,7 +193,9 @@ def _watch(args: argparse.Namespace) -> int:
     if args.seconds is not None and not args.seconds > 0:
         return _fail("watch", "--seconds: a time above 0", 2)
     try:
-        lists = AsyncUdpNetworkVariables(definition, bind=args.bind, port=args.port)
+        lists = AsyncUdpNetworkVariables(
+            definition, bind=args.bind, port=args.port, share_port=args.share_port
+        )
     except (KeyError, ValueError) as exc:
         return _fail("watch", _why(exc), 2)
     received = 0

@@ -615,7 +615,9 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
     are no telegram, of lists it does not know, or with the acknowledgement or checksum
     flags are counted (:meth:`dropped`) and dropped, never a crash. ``first_counter``: the
     counter of the first transmission (a one-shot sender starts elsewhere each time, so a
-    receiver does not take it for a repeat)."""
+    receiver does not take it for a repeat). ``share_port``: listen on a port another
+    program on this host listens on too (a CODESYS runtime: each gets the broadcasts;
+    a datagram sent to one address goes to one of them)."""
 
     _COUNTER_WRAP = 0x10000
 
@@ -629,6 +631,7 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
         to: tuple[str, int] | None = None,
         broadcast: bool = False,
         first_counter: int = 0,
+        share_port: bool = False,
     ) -> None:
         sent = set(send)
         for what, number in (("port", port), ("port of to", to[1] if to else 0)):
@@ -657,6 +660,7 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
         self.port = port
         self.to = to
         self.broadcast = broadcast
+        self.share_port = share_port
         self._socket: socket.socket | None = None
         self._transport: asyncio.DatagramTransport | None = None
         self._event_loop: asyncio.AbstractEventLoop | None = None
@@ -695,6 +699,8 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
         try:
             if self.broadcast:
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+            if self.share_port:  # (a CODESYS runtime on this host listens on 1202 too)
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             sock.bind((self.bind, self.port))
             sock.setblocking(False)
             transport, _ = await loop.create_datagram_endpoint(lambda: _Datagrams(self), sock=sock)
