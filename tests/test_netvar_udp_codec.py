@@ -497,3 +497,49 @@ def test_the_example_gvl_reads_and_a_hostile_one_stays_bounded(tmp_path: Path) -
     result = json.loads(stdout)
     assert "more than 65535 values in a list" in result["error"]
     assert result["seconds"] < 10
+
+
+def test_what_the_second_review_found() -> None:
+    # cobus's names as a .gvl: once whatever the case, no keyword, no leading digit
+    flat = UdpVarList(
+        "mine",
+        1,
+        layout(
+            [
+                ("Speed", iec_type("REAL")),
+                ("speed", iec_type("REAL")),
+                ("_1.a", iec_type("BOOL")),
+                ("end_var", iec_type("INT")),
+                ("int[0]", iec_type("INT")),
+                ("int[1]", iec_type("INT")),
+                ("mod", iec_type("BOOL")),
+            ]
+        ),
+    )
+    back = loads_gvl(dumps_gvl(flat), name="mine")
+    assert [v.name for v in back.variables] == [
+        "Speed",
+        "speed_2",
+        "v_1_a",
+        "v_end_var",
+        "v_int[0]",
+        "v_int[1]",
+        "v_mod",
+    ]
+    assert back.size == flat.size
+    # a string or comment that does not end hides nothing: refused, with its line
+    for text, why in (
+        (
+            "VAR_GLOBAL a : INT; END_VAR\nVAR_GLOBAL s : STRING := 'x; END_VAR",
+            "line 2: a string does not end",
+        ),
+        ("VAR_GLOBAL a : INT; (* no end\nEND_VAR", "line 1: a \\(\\* comment does not end"),
+        ("{attribute 'x'\nVAR_GLOBAL a : INT; END_VAR", "line 1: a \\{ pragma does not end"),
+    ):
+        with pytest.raises(GvlError, match=why):
+            declared_values(text)
+    # the event variable: empty, or a variable of the list that is no BOOL: refused
+    decl = "VAR_GLOBAL\n\ti : INT;\nEND_VAR"
+    for event, why in (("\n    ", "EventVariable> is empty"), ("i", "a INT; the event is a BOOL")):
+        with pytest.raises(GvlError, match=why):
+            loads_gvl(_gvl(decl, TransmissionOnEvent="True", EventVariable=event))

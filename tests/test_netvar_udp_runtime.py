@@ -322,3 +322,66 @@ def test_a_port_shared_with_another_program_on_this_host() -> None:
             first.close()
 
     asyncio.run(run())
+
+
+def test_a_sender_that_starts_again_is_heard_after_the_late_window() -> None:
+    async def run() -> None:
+        small = _list("small", 2, [("x", "DINT")], interval=10.0)
+        lists = AsyncUdpNetworkVariables(UdpDefinition.of([small]), port=0)
+        await lists.open()
+        try:
+            for counter in (5, 6, 7):
+                lists.datagram(_telegrams(small, {"x": counter}, counter)[0])
+            lists.datagram(_telegrams(small, {"x": -1}, 6)[0])  # (a repeat: dropped)
+            assert lists["small.x"] == 7 and lists.statistics()["small"]["late"] == 1
+            await asyncio.sleep(0.3)  # (past the late window: a sender that started again)
+            lists.datagram(_telegrams(small, {"x": 100}, 0)[0])
+            assert lists["small.x"] == 100
+            # a partial set left behind long ago does not make new telegrams late
+            big = _list("big", 5, BIG, interval=10.0)
+            other = AsyncUdpNetworkVariables(UdpDefinition.of([big]), port=0)
+            await other.open()
+            try:
+                values = {f"s{i}": "x" for i in range(5)} | {"last": 1}
+                other.datagram(_telegrams(big, values, 5)[0])
+                await asyncio.sleep(0.15)  # (beyond the set window of 0.1 s)
+                for data in _telegrams(big, values | {"last": 2}, 3):
+                    other.datagram(data)
+                assert other["big.last"] == 2 and other.statistics()["big"]["late"] == 0
+            finally:
+                other.close()
+        finally:
+            lists.close()
+
+    asyncio.run(run())
+
+
+def test_a_dual_stack_bind_sends_to_an_ipv4_name() -> None:
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET6, socket.SOCK_DGRAM) as probe:
+            probe.bind(("::", 0))
+    except OSError:
+        pytest.skip("no IPv6 on this host")
+    one = _list("a", 1, [("x", "INT")], interval=10.0)
+
+    async def run() -> None:
+        receiver = AsyncUdpNetworkVariables(UdpDefinition.of([one]), port=0)
+        await receiver.open()
+        to = ("localhost", receiver.address[1])  # (a name with IPv4 addresses only)
+        sender = AsyncUdpNetworkVariables(
+            UdpDefinition.of([one]), send=["a"], bind="::", port=0, to=to
+        )
+        failed: list[NetVarEvent] = []
+        sender.add_listener(failed.append)
+        sender.set("a", {"x": 5})
+        try:
+            await sender.open()
+            await _until(lambda: receiver["a.x"] == 5)
+            assert not failed
+        finally:
+            sender.close()
+            receiver.close()
+
+    asyncio.run(run())

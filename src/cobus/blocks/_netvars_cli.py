@@ -2,7 +2,7 @@
 
     cobus netvars watch plant.gvl --udp --bind 0.0.0.0        # each list received, by name
     cobus netvars watch plant.gvl io.gvl --udp --json --count 10
-    cobus netvars send plant.gvl --udp --to 192.168.1.20:1202 speed=1.5 "label=line 2"
+    cobus netvars send plant.gvl --udp --bind 0.0.0.0 --to 192.168.1.20:1202 speed=1.5
     cobus netvars gvl netvars.yml line_status.gvl             # cobus's lists for CODESYS
 
 A .gvl file is what CODESYS exports of a network variable list; user STRUCT and ENUM
@@ -36,13 +36,18 @@ _HELP = "network variables over UDP with CODESYS controllers (.gvl): watch, send
 
 def _endpoint(text: str) -> tuple[str, int]:
     host, colon, port = text.rpartition(":")
-    if not colon or not host or not port.isdigit() or not 0 < int(port) < 65_536:
+    if (
+        not colon
+        or not host
+        or not (port.isascii() and port.isdigit())
+        or not 0 < int(port) < 65_536
+    ):
         raise argparse.ArgumentTypeError(f"{text!r}: give HOST:PORT, e.g. 192.168.1.20:1202")
     return host.strip("[]"), int(port)
 
 
 def _port(text: str) -> int:
-    if not text.isdigit() or not 0 <= int(text) < 65_536:
+    if not (text.isascii() and text.isdigit()) or not 0 <= int(text) < 65_536:
         raise argparse.ArgumentTypeError(f"{text!r}: a UDP port, 0..65535")
     return int(text)
 
@@ -276,6 +281,9 @@ def _watch(args: argparse.Namespace) -> int:
             ("of other lists", dropped["foreign"]),
             ("incomplete", sum(s["incomplete"] for s in stats.values())),
             ("malformed", sum(s["malformed"] for s in stats.values())),
+            ("late or repeated telegrams", sum(s.get("late", 0) for s in stats.values())),
+            ("with flags", sum(s.get("flagged", 0) for s in stats.values())),
+            ("of lists it sends", dropped["of_own_lists"]),
         )
         if n
     ]

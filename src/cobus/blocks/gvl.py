@@ -88,10 +88,15 @@ class GvlError(CobusError, ValueError):
 # ------------------------------------------------------------------ ST text
 
 
-def _clean(text: str) -> str:
+def _clean(text: str, source: str, line: int = 1) -> str:
     """``text`` with comments and pragmas blanked out, and the insides of strings (an
     initial value, which cobus does not use: a ``;``, ``END_VAR`` or ``$'`` in one changes
-    nothing), newlines kept so lines stay where they were."""
+    nothing), newlines kept so lines stay where they were; a comment or string that does
+    not end is an error (it would hide the rest)."""
+
+    def unended(what: str, at: int) -> GvlError:
+        return GvlError(f"{source}: line {line + text.count(chr(10), 0, at)}: {what} does not end")
+
     out: list[str] = []
     i, n = 0, len(text)
     while i < n:
@@ -105,6 +110,8 @@ def _clean(text: str) -> str:
                     depth, j = depth - 1, j + 2
                 else:
                     j += 1
+            if depth:
+                raise unended("a (* comment", i)
             out.append(re.sub(r"[^\n]", " ", text[i:j]))
             i = j
         elif text.startswith("//", i):
@@ -114,13 +121,17 @@ def _clean(text: str) -> str:
             i = j
         elif c == "{":
             j = text.find("}", i)
-            j = n if j < 0 else j + 1
+            if j < 0:
+                raise unended("a { pragma", i)
+            j += 1
             out.append(re.sub(r"[^\n]", " ", text[i:j]))
             i = j
         elif c in "'\"":
             j = i + 1
             while j < n and text[j] != c:
                 j += 2 if text[j] == "$" else 1
+            if j >= n:
+                raise unended("a string", i)
             out.append(c + re.sub(r"[^\n]", "_", text[i + 1 : min(j, n)]) + text[j : j + 1])
             i = j + 1
         else:
@@ -130,22 +141,14 @@ def _clean(text: str) -> str:
 
 
 def _statements(text: str, base: int) -> list[tuple[str, int]]:
-    """``text`` split at ``;`` outside strings: (statement, its line counted from
-    ``base``)."""
+    """Cleaned ``text`` split at ``;`` (none is left in a string): (statement, its line
+    counted from ``base``)."""
     out: list[tuple[str, int]] = []
-    start, quote = 0, ""
-    for i, c in enumerate(text):
-        if quote:
-            if c == quote:
-                quote = ""
-        elif c in "'\"":
-            quote = c
-        elif c == ";":
-            out.append((text[start:i], base + text.count("\n", 0, start) + _lead(text[start:i])))
-            start = i + 1
-    rest = text[start:]
-    if rest.strip():
-        out.append((rest, base + text.count("\n", 0, start) + _lead(rest)))
+    start = 0
+    for statement in text.split(";"):
+        if statement.strip():
+            out.append((statement, base + text.count("\n", 0, start) + _lead(statement)))
+        start += len(statement) + 1
     return out
 
 
@@ -156,17 +159,9 @@ def _lead(statement: str) -> int:
 
 
 def _without_init(declared: str) -> str:
-    """A type without its initial value (``INT := 5`` -> ``INT``)."""
-    quote = ""
-    for i, c in enumerate(declared):
-        if quote:
-            if c == quote:
-                quote = ""
-        elif c in "'\"":
-            quote = c
-        elif declared.startswith(":=", i):
-            return declared[:i]
-    return declared
+    """A type without its initial value (``INT := 5`` -> ``INT``; cleaned text: no string
+    holds a ``:=``)."""
+    return declared.split(":=", 1)[0]
 
 
 @dataclass
@@ -195,7 +190,7 @@ def parse_st_types(text: str, source: str = "<types>") -> StTypes:
     """The STRUCT, ENUM and alias types of ST ``TYPE ... END_TYPE`` blocks (what CODESYS
     shows as a DUT's declaration); :class:`GvlError` says where a definition is wrong."""
     types = StTypes({}, {}, {}, source)
-    clean = _clean(text)
+    clean = _clean(text, source)
     for block in re.finditer(r"\bTYPE\b(.*?)\bEND_TYPE\b", clean, re.IGNORECASE | re.DOTALL):
         body = block.group(1)
         base = clean.count("\n", 0, block.start(1)) + 1
@@ -366,7 +361,7 @@ def declared_values(
 ) -> list[tuple[str, IecType]]:
     """The values of ``VAR_GLOBAL ... END_VAR`` declarations, flattened in wire order."""
     types = types or StTypes({}, {}, {}, source)
-    clean = _clean(declarations)
+    clean = _clean(declarations, source, line)
     blocks = list(
         re.finditer(
             r"\bVAR_GLOBAL\b((?:\s+(?:CONSTANT|RETAIN|PERSISTENT|NON_RETAIN)\b)*)(.*?)\bEND_VAR\b",
@@ -521,12 +516,20 @@ def loads_gvl(
     ]
     variables = layout(items)
     event_text, event_var = event, None
-    if on_event and event:
+    if on_event:
         # (CODESYS takes any BOOL of the project, PLC_PRG.xSend...: one of the list's own
         # sends it from cobus on its rising edge; another, only on send())
+        if not event:
+            raise GvlError(
+                f"{source}: TransmissionOnEvent is on but <EventVariable> is empty: name the "
+                "BOOL whose rising edge sends the list"
+            )
         found = {v.name.upper(): v for v in variables}.get(event.upper())
-        if found is not None and found.type.name == "BOOL":
-            event_var = found.name
+        if found is not None and found.type.name != "BOOL":
+            raise GvlError(
+                f"{source}: <EventVariable>{event}: a {found.type.name}; the event is a BOOL"
+            )
+        event_var = found.name if found is not None else None
     try:
         return UdpVarList(
             name,
@@ -568,50 +571,73 @@ def _time_text(seconds: float) -> str:
     return f"T#{round(seconds * 1e6)}us"
 
 
+#: Words ST keeps for itself: never written as a variable's name.
+_KEYWORDS = frozenset(
+    """AND ANY ARRAY AT BOOL BY BYTE CASE CONSTANT DATE DATE_AND_TIME DINT DO DT DWORD ELSE
+    ELSIF END_CASE END_FOR END_IF END_REPEAT END_STRUCT END_TYPE END_VAR END_WHILE EXIT
+    FALSE FOR FUNCTION IF INT LINT LREAL LTIME LWORD MOD NOT OF OR PERSISTENT POINTER
+    PROGRAM REAL REFERENCE REPEAT RETAIN RETURN SINT STRING STRUCT THEN TIME TIME_OF_DAY TO
+    TOD TRUE TYPE UDINT UINT ULINT UNTIL USINT VAR VAR_GLOBAL VAR_INPUT VAR_OUTPUT WHILE
+    WORD WSTRING XOR""".split()  # noqa: SIM905 (a word list, read as one)
+)
+
+
 def declarations_of(var_list: UdpVarList) -> tuple[str, dict[str, str]]:
     """``VAR_GLOBAL ... END_VAR`` for a list's values: arrays of one type as ``ARRAY``,
     struct members and anything else under a name of its own (``motor_current``; the
-    bytes are the same, a .gvl cannot carry struct types), each name once (ST does not
-    tell case: ``motor_current_2`` when taken); and each value's declared name."""
-    lines = ["VAR_GLOBAL"]
+    bytes are the same, a .gvl cannot carry struct types); and each value's declared name.
+    Each name is declared once (ST does not tell case), none is an ST keyword or starts
+    with a digit: the plain names keep theirs, the others get ``_2``... when taken."""
     variables = list(var_list.variables)
-    taken = {v.name.upper() for v in variables if _IDENT.match(v.name)}
-    renamed: dict[str, str] = {}
-
-    def free(wanted: str) -> str:
-        found, n = wanted, 2
-        while found.upper() in taken:
-            found, n = f"{wanted}_{n}", n + 1
-        taken.add(found.upper())
-        return found
-
+    # the units declared: (first value, values, the name wanted); arrays of one type as one
+    units: list[tuple[int, int, str]] = []
     i = 0
     while i < len(variables):
-        var = variables[i]
-        match = re.match(r"([A-Za-z_]\w*)\[0\]\Z", var.name)
+        match = re.match(r"([A-Za-z_]\w*)\[0\]\Z", variables[i].name)
+        n = 1
         if match is not None:
-            base, n = match.group(1), 1
+            base = match.group(1)
             while (
                 i + n < len(variables)
                 and variables[i + n].name == f"{base}[{n}]"
-                and variables[i + n].type == var.type
+                and variables[i + n].type == variables[i].type
             ):
                 n += 1
-            declared = base if base.upper() not in taken else free(base)
-            taken.add(declared.upper())
-            for k in range(n):
-                renamed[variables[i + k].name] = f"{declared}[{k}]"
-            lines.append(f"\t{declared} : ARRAY[0..{n - 1}] OF {var.type.name};")
-            i += n
+        units.append((i, n, match.group(1) if match is not None else variables[i].name))
+        i += n
+    taken: set[str] = set()
+    names: dict[int, str] = {}
+
+    def plain(name: str) -> bool:
+        return bool(_IDENT.match(name)) and name.upper() not in _KEYWORDS
+
+    for first, _, wanted in units:  # (first the plain names, as they are)
+        if plain(wanted) and wanted.upper() not in taken:
+            names[first] = wanted
+            taken.add(wanted.upper())
+    for first, _, wanted in units:
+        if first in names:
             continue
-        if _IDENT.match(var.name):
-            name = var.name
+        stem = re.sub(r"\W+", "_", wanted).strip("_") or "value"
+        if stem[0].isdigit() or stem.upper() in _KEYWORDS:
+            stem = "v_" + stem
+        found, k = stem, 2
+        while found.upper() in taken:
+            found, k = f"{stem}_{k}", k + 1
+        names[first] = found
+        taken.add(found.upper())
+    lines = ["VAR_GLOBAL"]
+    renamed: dict[str, str] = {}
+    for first, count, wanted in units:
+        var, name = variables[first], names[first]
+        comment = f"  (* {wanted} *)" if name != wanted else ""
+        if wanted != var.name:  # (an array: its first value is wanted[0])
+            for k in range(count):
+                renamed[variables[first + k].name] = f"{name}[{k}]"
+            lines.append(f"\t{name} : ARRAY[0..{count - 1}] OF {var.type.name};{comment}")
         else:
-            name = free(re.sub(r"\W+", "_", var.name).strip("_") or "value")
-        renamed[var.name] = name
-        comment = f"  (* {var.name} *)" if name != var.name else ""
-        lines.append(f"\t{name} : {var.type.name};{comment}")
-        i += 1
+            renamed[var.name] = name
+            lines.append(f"\t{name} : {var.type.name};{comment}")
     lines.append("END_VAR")
     return "\n".join(lines), renamed
 

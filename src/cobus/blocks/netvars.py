@@ -16,10 +16,10 @@ next one. The wire format: ``docs/network-variables.md``.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import errno
 import logging
-import re
 import socket
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -572,16 +572,18 @@ class AsyncNetworkVariables:
                 log.exception("network variable listener %r failed", listener)
 
 
-#: A telegram this many transmissions behind the last one taken (within LATE_WINDOW
-#: seconds of it) or the one gathered is late and dropped; further behind, or later, it is
-#: a sender that started again (its counter anew).
+#: A telegram this many transmissions behind the last one taken (within LATE_WINDOW seconds
+#: of it), or behind the one being gathered (within the list's set window), is late and
+#: dropped: a datagram twice, or reordered. Further behind, or later, it is a sender that
+#: started again (its counter anew), and taken.
 LATE_TRANSMISSIONS = 16
-LATE_WINDOW = 1.0
+LATE_WINDOW = 0.25
 #: Seconds between two requests of a list it answers (more in between: one transmission).
 REQUEST_GAP = 0.1
 
 
 def _loopback(host: str) -> bool:
+    host = host.removeprefix("::ffff:")
     return host == "localhost" or host.startswith("127.") or host == "::1"
 
 
@@ -616,8 +618,9 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
     flags are counted (:meth:`dropped`) and dropped, never a crash. ``first_counter``: the
     counter of the first transmission (a one-shot sender starts elsewhere each time, so a
     receiver does not take it for a repeat). ``share_port``: listen on a port another
-    program on this host listens on too (a CODESYS runtime: each gets the broadcasts;
-    a datagram sent to one address goes to one of them)."""
+    program on this host listens on too, a CODESYS runtime (which must allow it as well):
+    each gets the broadcasts (bind 0.0.0.0 for those of the network), but a datagram sent
+    to this host's address goes to one of them only (on Linux the one bound last)."""
 
     _COUNTER_WRAP = 0x10000
 
@@ -699,6 +702,9 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
         try:
             if self.broadcast:
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+            if family == socket.AF_INET6:  # (IPv4 peers too, where the system allows it)
+                with contextlib.suppress(OSError, AttributeError):
+                    sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 0)
             if self.share_port:  # (a CODESYS runtime on this host listens on 1202 too)
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             sock.bind((self.bind, self.port))
@@ -744,7 +750,9 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
     def dropped(self) -> dict[str, int]:
         """Datagrams received, and those dropped: ``not_telegrams`` (short, foreign
         identity, a length that does not match...), ``foreign`` (a list it does not
-        know), ``requests`` answered; per list: :meth:`statistics`."""
+        know), ``of_own_lists`` (telegrams of a list it sends); ``requests`` received
+        (those within 100 ms of one answered get no answer of their own); per list:
+        :meth:`statistics`."""
         return dict(self._counts)
 
     # ------------------------------------------------------------------ the transport
@@ -774,8 +782,15 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
                 f"cannot send to {host}: an IPv6 address needs an IPv6 bind (::1, or :: for "
                 "every interface)"
             )
-        if v6 and re.fullmatch(r"\d+\.\d+\.\d+\.\d+", host):
-            host = "::ffff:" + host  # (an IPv4 peer from a dual-stack socket)
+        if v6 and ":" not in host:  # (an IPv4 peer, or a name, from a dual-stack socket)
+            try:
+                found = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+            except socket.gaierror as exc:
+                raise OSError(f"cannot send to {host}: no such host ({exc.strerror})") from None
+            family, *_, address = found[0]
+            host = str(address[0])
+            if family == socket.AF_INET:
+                host = "::ffff:" + host
         try:
             self._socket.sendto(telegram.to_bytes(), (host, port))
         except PermissionError:
@@ -841,9 +856,10 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
         # a telegram of a transmission taken already, or of one older than that or than
         # the one being gathered (a datagram twice, or late): never taken again
         done = reader.done
-        recent = done is not None and now - done[1] <= LATE_WINDOW
-        behind = [(done[0] - telegram.counter) % 0x10000] if done is not None and recent else []
-        if reader.parts and reader.counter is not None:
+        behind = []
+        if done is not None and now - done[1] <= LATE_WINDOW:
+            behind.append((done[0] - telegram.counter) % 0x10000)
+        if reader.parts and reader.counter is not None and now - reader.began <= reader.window:
             behind.append((reader.counter - telegram.counter) % 0x10000 - 1)
         if any(0 <= b <= LATE_TRANSMISSIONS for b in behind):
             reader.late += 1
