@@ -151,6 +151,9 @@ def test_what_send_and_watch_refuse(tmp_path: Path, capsys: pytest.CaptureFixtur
     wide.write_text(CODESYS_EXPORT.replace("192.168.56.1", "255.255.255.255"))
     assert main(["netvars", "send", str(wide), "--udp", "sinus=1"]) == 1
     assert "broadcast=True (cobus netvars --broadcast)" in capsys.readouterr().err
+    # a name that is nobody's: looked up once when the socket opens, said when sent
+    assert main(["netvars", "send", str(gvl), "--to", "nosuch.invalid:1202", "sinus=1"]) == 1
+    assert "cannot send to nosuch.invalid: no such host" in capsys.readouterr().err
     # a file cobus cannot use
     bad = tmp_path / "bad.gvl"
     bad.write_text(CODESYS_EXPORT.replace("<Checksum>False", "<Checksum>True"))

@@ -677,6 +677,8 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
             "requests": 0,
         }
         self._answered: dict[str, float] = {}  # (a list's last request answered, when)
+        #: Each destination (host, port): its address, or why there is none.
+        self._resolved: dict[tuple[str, int], tuple[str, int] | Exception] = {}
         for writer in self._writers.values():
             writer.counter = first_counter % self._COUNTER_WRAP
         self._opening = False
@@ -722,7 +724,41 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
             self._opening = False
         self._socket, self._transport, self._event_loop = sock, transport, loop
         self._closed = False
+        await self._look_up(loop, family)
         self.start()
+
+    async def _look_up(self, loop: asyncio.AbstractEventLoop, family: int) -> None:
+        """Each destination's address, looked up once here (never a name lookup on the
+        loop when a list goes out); what cannot be found is said when it would be sent."""
+        wanted = {self.to} if self.to else set()
+        for lst in self.definition.lists.values():
+            if not self.to and isinstance(lst, UdpVarList):
+                wanted.add((lst.address, lst.port))
+        for host, port in wanted:
+            if ":" in host and family != socket.AF_INET6:
+                self._resolved[(host, port)] = OSError(
+                    f"cannot send to {host}: an IPv6 address needs an IPv6 bind (::1, or :: "
+                    "for every interface)"
+                )
+                continue
+            try:
+                found = await loop.getaddrinfo(
+                    host,
+                    port,
+                    family=family if family == socket.AF_INET else 0,
+                    type=socket.SOCK_DGRAM,
+                )
+            except OSError as exc:
+                why = exc.strerror or str(exc)
+                self._resolved[(host, port)] = OSError(
+                    f"cannot send to {host}: no such host ({why})"
+                )
+                continue
+            found_family, *_, address = found[0]
+            ip = str(address[0])
+            if family == socket.AF_INET6 and found_family == socket.AF_INET:
+                ip = "::ffff:" + ip  # (an IPv4 peer from a dual-stack socket)
+            self._resolved[(host, port)] = (ip, port)
 
     def start(self) -> None:
         """Start the lists (after :meth:`open`, which calls it)."""
@@ -775,22 +811,10 @@ class AsyncUdpNetworkVariables(AsyncNetworkVariables):
 
     def _sendto(self, telegram: Telegram, where: tuple[str, int]) -> None:
         assert self._socket is not None
-        host, port = where
-        v6 = self._socket.family == socket.AF_INET6
-        if ":" in host and not v6:
-            raise OSError(
-                f"cannot send to {host}: an IPv6 address needs an IPv6 bind (::1, or :: for "
-                "every interface)"
-            )
-        if v6 and ":" not in host:  # (an IPv4 peer, or a name, from a dual-stack socket)
-            try:
-                found = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
-            except socket.gaierror as exc:
-                raise OSError(f"cannot send to {host}: no such host ({exc.strerror})") from None
-            family, *_, address = found[0]
-            host = str(address[0])
-            if family == socket.AF_INET:
-                host = "::ffff:" + host
+        target = self._resolved.get(where, where)
+        if isinstance(target, Exception):
+            raise target
+        host, port = target
         try:
             self._socket.sendto(telegram.to_bytes(), (host, port))
         except PermissionError:
