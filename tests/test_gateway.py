@@ -2000,3 +2000,41 @@ def test_slowscan_is_not_fooled_by_a_late_second_slave_and_auth_waits_stay() -> 
             await rig.stop()
 
     asyncio.run(asyncio.wait_for(main(), 60))
+
+
+def test_a_server_started_twice_listens_once_and_a_failed_bind_leaves_the_core() -> None:
+    """From the notes: a GatewayServer started twice lost its first listener; a bind
+    that failed left the core watching the buses."""
+    import socket
+
+    from cobus.apps.gateway.http import GatewayHttp
+
+    async def main() -> None:
+        async with AsyncNetwork(interface="virtual", channel=f"gw-{uuid.uuid4()}") as net:
+            core = GatewayCore({1: net})
+            server = GatewayServer(core)
+            await server.start()
+            port = server.port
+            await server.start()  # (again: nothing more)
+            assert server.port == port and core._held == 1
+            client = await asyncio.open_connection("127.0.0.1", port)
+            assert await ask(client, "[1] 1 r 0x1000 0 u32") != []
+            client[1].close()
+            await server.stop()
+            assert core._held == 0
+            http = GatewayHttp(core)
+            await http.start()
+            await http.start()
+            assert core._held == 1
+            await http.stop()
+            assert core._held == 0
+            with socket.socket() as taken:
+                taken.bind(("127.0.0.1", 0))
+                taken.listen()
+                busy = taken.getsockname()[1]
+                for other in (GatewayServer(core, port=busy), GatewayHttp(core, port=busy)):
+                    with pytest.raises(OSError):
+                        await other.start()
+                    assert core._held == 0 and not core._listening
+
+    asyncio.run(asyncio.wait_for(main(), 30))

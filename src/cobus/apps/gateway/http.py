@@ -83,11 +83,24 @@ class GatewayHttp:
         return f"http://{host}:{self.port}"
 
     async def start(self) -> None:
-        """Listen on the running loop; OSError when the address cannot be bound. The core
-        watches the buses from now on."""
-        if not self._holding:
+        """Listen on the running loop; OSError when the address cannot be bound (the core
+        then released again). The core watches the buses from now on. Started already:
+        nothing more."""
+        if self._runner is not None:
+            return
+        took = not self._holding
+        if took:
             self.core.hold()
             self._holding = True
+        try:
+            await self._serve_http()
+        except BaseException:
+            if took:  # (a bind that failed leaves the core as it found it)
+                self._holding = False
+                self.core.release()
+            raise
+
+    async def _serve_http(self) -> None:
         app = web.Application(client_max_size=64 * 1024)
         app.router.add_route("GET", "/cia309-5/{api}/events", self._events)
         app.router.add_route("*", "/{tail:.*}", self._handle)

@@ -102,14 +102,26 @@ class GatewayServer:
         return f"{host}:{self.port}"
 
     async def start(self) -> None:
-        """Listen (on the running loop: the networks' own); OSError when it cannot. The
-        core watches the buses from now on (``set id`` then knows the nodes that beat)."""
-        if not self._holding:
+        """Listen (on the running loop: the networks' own); OSError when it cannot (the
+        core then released again). The core watches the buses from now on (``set id``
+        then knows the nodes that beat). Started already: nothing more."""
+        if self._server is not None:
+            return
+        took = not self._holding
+        if took:
             self.core.hold()
             self._holding = True
+        try:
+            self._server = await self._listen()
+        except BaseException:
+            if took:  # (a bind that failed leaves the core as it found it)
+                self._holding = False
+                self.core.release()
+            raise
+
+    async def _listen(self) -> asyncio.Server:
         if self.unix is None:
-            self._server = await asyncio.start_server(self._serve, self.host, self.requested_port)
-            return
+            return await asyncio.start_server(self._serve, self.host, self.requested_port)
         refused = free_unix_path(self.unix)
         if refused is not None:
             raise OSError(f"{self.unix}: {refused}")
@@ -122,7 +134,7 @@ class GatewayServer:
             raise
         finally:
             os.umask(old)
-        self._server = await asyncio.start_unix_server(self._serve, sock=sock)
+        return await asyncio.start_unix_server(self._serve, sock=sock)
 
     async def stop(self) -> None:
         """Stop listening and end every client's connection."""
